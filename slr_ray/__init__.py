@@ -1,0 +1,19 @@
+"""slr_ray: Simulated LiDAR Repositioning.
+
+From one LiDAR scan of a scene, produce the scans an ideal static scanner would
+have recorded from other positions, using only points of the original cloud.
+"""
+
+from .accumulator import ScanAccumulator
+from .errors import FormatError, InputTypeError, InputValueError, MissingDependencyError, SlrError
+from .pattern import PRESETS, ScanPattern, preset
+from .scan import Scan, simulate_scan
+from .spherical import pulse_bins, pulse_directions, spherical_coordinates
+
+__version__ = "0.1.0"
+
+__all__ = [
+    "ScanPattern", "PRESETS", "preset", "Scan", "simulate_scan", "ScanAccumulator",
+    "pulse_bins", "pulse_directions", "spherical_coordinates",
+    "SlrError", "InputValueError", "InputTypeError", "FormatError", "MissingDependencyError",
+]

@@ -1,0 +1,84 @@
+"""Checking and normalising the arrays users pass in.
+
+Every public entry point goes through these, so a wrong shape, dtype or a
+non-finite row is reported the same way everywhere: which argument, what was
+expected, what was given and, for non-finite rows, how many.
+"""
+
+from __future__ import annotations
+
+import numpy as np
+
+from .errors import InputTypeError, InputValueError
+
+__all__ = ["as_points", "as_origin", "count_nonfinite_rows"]
+
+
+def _check_real_dtype(name: str, arr: np.ndarray) -> None:
+    kind = arr.dtype.kind
+    if kind in "fiu":
+        return
+    if kind == "b":
+        raise InputTypeError(f"{name} must hold real numbers, got a boolean array")
+    raise InputTypeError(
+        f"{name} must hold real numbers (float or int), got dtype {arr.dtype}"
+    )
+
+
+def as_points(points, name: str = "points", check_finite: bool = True) -> np.ndarray:
+    """Return ``points`` as a C-contiguous ``(n, 3)`` float array.
+
+    float32 and float64 are kept as they are (kernels widen to float64 before
+    any arithmetic); integers are converted to float64. No copy is made when
+    the input is already a contiguous float array.
+
+    Raises
+    ------
+    InputTypeError
+        complex, object, boolean or string data.
+    InputValueError
+        a shape other than ``(n, 3)``, or (with ``check_finite``) rows holding
+        NaN or inf; the message gives how many.
+    """
+    try:
+        arr = np.asarray(points)
+    except (TypeError, ValueError) as exc:  # ragged lists and the like
+        raise InputValueError(f"{name} must be an (n, 3) array: {exc}") from None
+    _check_real_dtype(name, arr)
+    if arr.ndim != 2 or arr.shape[1] != 3:
+        raise InputValueError(f"{name} must have shape (n, 3), got {arr.shape}")
+    if arr.dtype.kind in "iu":
+        arr = arr.astype(np.float64)
+    elif arr.dtype not in (np.float32, np.float64):
+        arr = arr.astype(np.float64)
+    arr = np.ascontiguousarray(arr)
+    if check_finite:
+        bad = count_nonfinite_rows(arr)
+        if bad:
+            raise InputValueError(
+                f"{name} has {bad} row(s) with NaN or inf out of {len(arr)}; "
+                "remove them first (nothing is dropped silently)"
+            )
+    return arr
+
+
+def count_nonfinite_rows(points: np.ndarray) -> int:
+    """Number of rows of an ``(n, 3)`` array holding a NaN or an inf."""
+    if points.size == 0:
+        return 0
+    return int(len(points) - np.count_nonzero(np.isfinite(points).all(axis=1)))
+
+
+def as_origin(origin, name: str = "origin") -> np.ndarray:
+    """Return ``origin`` as a float64 array of shape ``(3,)``, finite."""
+    try:
+        arr = np.asarray(origin)
+    except (TypeError, ValueError) as exc:
+        raise InputValueError(f"{name} must be 3 numbers (x, y, z): {exc}") from None
+    _check_real_dtype(name, arr)
+    if arr.shape != (3,):
+        raise InputValueError(f"{name} must have shape (3,), got {arr.shape}")
+    arr = arr.astype(np.float64)
+    if not np.isfinite(arr).all():
+        raise InputValueError(f"{name} must be finite, got {arr.tolist()}")
+    return arr

@@ -1,0 +1,226 @@
+"""The scan pattern of an ideal static LiDAR scanner.
+
+A pattern is a regular grid of pulses in (zenith, azimuth). Angles are given in
+degrees in the public API and converted to radians once here.
+
+Pulse bin of a direction (DESIGN §2)::
+
+    v = floor((theta - theta_min) / d_theta)      zenith bin, 0 .. n_zenith - 1
+    h = floor(phi / d_phi)                        azimuth bin, 0 .. n_azimuth - 1
+
+``theta`` is the zenith angle in [0, pi] (0 = straight up) and ``phi`` the
+azimuth in [0, 2 pi), counter-clockwise from +x. When the field of view is not
+a whole number of resolutions the last bin is narrower than the others.
+"""
+
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass, field
+
+from .errors import InputValueError
+
+__all__ = ["ScanPattern", "PRESETS", "preset"]
+
+
+def _bin_count(extent: float, step: float) -> int:
+    """Number of bins of width ``step`` covering ``extent`` (a whole number when
+    ``extent / step`` is one up to rounding: 360 / 0.144 is 2500, not 2501)."""
+    ratio = extent / step
+    nearest = round(ratio)
+    if nearest >= 1 and abs(ratio - nearest) <= 1e-9 * max(1.0, ratio):
+        return int(nearest)
+    return int(math.ceil(ratio))
+
+
+def _check_number(name: str, value) -> float:
+    try:
+        out = float(value)
+    except (TypeError, ValueError):
+        raise InputValueError(f"{name} must be a real number, got {value!r}") from None
+    if math.isnan(out):
+        raise InputValueError(f"{name} must not be NaN")
+    return out
+
+
+@dataclass(frozen=True)
+class ScanPattern:
+    """Angular grid, field of view and range limits of an ideal scanner.
+
+    Parameters
+    ----------
+    resolution : float, optional
+        Sets both ``azimuth_resolution`` and ``zenith_resolution`` (degrees).
+    azimuth_resolution, zenith_resolution : float, optional
+        Angular size of one pulse in degrees, in (0, 180]. Either overrides
+        ``resolution`` for its axis.
+    zenith_range : (2,) float
+        Zenith field of view ``(min_deg, max_deg)``, 0 = straight up, within
+        [0, 180] and ``min < max``. Default the full sphere ``(0, 180)``.
+    min_range, max_range : float or None
+        Range limits in metres (inclusive). ``None`` means no limit. Points at
+        range 0 are never seen, whatever ``min_range`` is.
+
+    Examples
+    --------
+    >>> ScanPattern(resolution=0.144).n_pulses
+    3125000
+    >>> ScanPattern(0.036, zenith_range=(0, 135), max_range=120).shape
+    (3750, 10000)
+    """
+
+    resolution: float | None = None
+    azimuth_resolution: float | None = None
+    zenith_resolution: float | None = None
+    zenith_range: tuple[float, float] = (0.0, 180.0)
+    min_range: float | None = None
+    max_range: float | None = None
+    name: str | None = field(default=None, compare=False)
+
+    def __post_init__(self):
+        set_ = lambda k, v: object.__setattr__(self, k, v)  # noqa: E731 (frozen dataclass)
+        res = None if self.resolution is None else _check_number("resolution", self.resolution)
+        az = self.azimuth_resolution if self.azimuth_resolution is not None else res
+        ze = self.zenith_resolution if self.zenith_resolution is not None else res
+        if az is None or ze is None:
+            raise InputValueError(
+                "give resolution (degrees, both axes) or both azimuth_resolution "
+                f"and zenith_resolution; got resolution={self.resolution!r}, "
+                f"azimuth_resolution={self.azimuth_resolution!r}, "
+                f"zenith_resolution={self.zenith_resolution!r}"
+            )
+        for name, value in (("azimuth_resolution", az), ("zenith_resolution", ze)):
+            value = _check_number(name, value)
+            if not 0.0 < value <= 180.0:
+                raise InputValueError(f"{name} must be in (0, 180] degrees, got {value!r}")
+            set_(name, value)
+        try:
+            lo, hi = (float(x) for x in self.zenith_range)
+        except (TypeError, ValueError):
+            raise InputValueError(
+                f"zenith_range must be two numbers (min_deg, max_deg), got {self.zenith_range!r}"
+            ) from None
+        if not (0.0 <= lo < hi <= 180.0):
+            raise InputValueError(
+                "zenith_range must satisfy 0 <= min < max <= 180 degrees, "
+                f"got {self.zenith_range!r}"
+            )
+        set_("zenith_range", (lo, hi))
+        for name in ("min_range", "max_range"):
+            value = getattr(self, name)
+            if value is not None:
+                value = _check_number(name, value)
+                if value < 0:
+                    raise InputValueError(f"{name} must be >= 0 metres, got {value!r}")
+                set_(name, value)
+        if (
+            self.min_range is not None
+            and self.max_range is not None
+            and self.min_range > self.max_range
+        ):
+            raise InputValueError(
+                f"min_range ({self.min_range}) must not exceed max_range ({self.max_range})"
+            )
+        if self.resolution is None and self.azimuth_resolution == self.zenith_resolution:
+            set_("resolution", self.azimuth_resolution)
+        elif self.resolution is not None and self.azimuth_resolution != self.zenith_resolution:
+            set_("resolution", None)
+
+    # --- derived quantities -------------------------------------------------
+    @property
+    def n_azimuth(self) -> int:
+        """Number of azimuth bins (the last may be narrower)."""
+        return _bin_count(360.0, self.azimuth_resolution)
+
+    @property
+    def n_zenith(self) -> int:
+        """Number of zenith bins over the field of view (the last may be narrower)."""
+        lo, hi = self.zenith_range
+        return _bin_count(hi - lo, self.zenith_resolution)
+
+    @property
+    def shape(self) -> tuple[int, int]:
+        """``(n_zenith, n_azimuth)``."""
+        return self.n_zenith, self.n_azimuth
+
+    @property
+    def n_pulses(self) -> int:
+        """Number of pulses in one scan, ``n_zenith * n_azimuth``."""
+        return self.n_zenith * self.n_azimuth
+
+    @property
+    def radians(self) -> tuple[float, float, float, float]:
+        """``(d_theta, d_phi, theta_min, theta_max)`` in radians."""
+        lo, hi = self.zenith_range
+        return (
+            math.radians(self.zenith_resolution),
+            math.radians(self.azimuth_resolution),
+            math.radians(lo),
+            math.radians(hi),
+        )
+
+    @property
+    def range_limits(self) -> tuple[float, float]:
+        """``(min_range, max_range)`` with ``None`` replaced by 0 and inf."""
+        return (
+            0.0 if self.min_range is None else self.min_range,
+            math.inf if self.max_range is None else self.max_range,
+        )
+
+    def with_(self, **changes) -> "ScanPattern":
+        """A copy with some fields changed (``pattern.with_(max_range=50)``)."""
+        values = {
+            "azimuth_resolution": self.azimuth_resolution,
+            "zenith_resolution": self.zenith_resolution,
+            "zenith_range": self.zenith_range,
+            "min_range": self.min_range,
+            "max_range": self.max_range,
+            "name": None,
+        }
+        if "resolution" in changes:
+            values["azimuth_resolution"] = values["zenith_resolution"] = None
+        values.update(changes)
+        return ScanPattern(**values)
+
+    def to_dict(self) -> dict:
+        """Plain-JSON description (degrees and metres)."""
+        return {
+            "azimuth_resolution": self.azimuth_resolution,
+            "zenith_resolution": self.zenith_resolution,
+            "zenith_range": list(self.zenith_range),
+            "min_range": self.min_range,
+            "max_range": self.max_range,
+            "shape": list(self.shape),
+            **({"name": self.name} if self.name else {}),
+        }
+
+    @classmethod
+    def from_dict(cls, d: dict) -> "ScanPattern":
+        keys = ("resolution", "azimuth_resolution", "zenith_resolution", "zenith_range",
+                "min_range", "max_range", "name")
+        return cls(**{k: (tuple(v) if k == "zenith_range" else v) for k, v in d.items() if k in keys})
+
+
+#: The paper's patterns, by name.
+PRESETS: dict[str, ScanPattern] = {
+    "slr": ScanPattern(0.144, name="slr"),
+    "syns": ScanPattern(0.036, zenith_range=(0.0, 135.0), max_range=120.0, name="syns"),
+    "primary": ScanPattern(0.0144, name="primary"),
+    "primary-fine": ScanPattern(0.00576, name="primary-fine"),
+}
+
+
+def preset(name: str) -> ScanPattern:
+    """The named pattern of the paper.
+
+    ``"slr"``: 0.144 deg, full sphere (the secondary and SLR scans).
+    ``"syns"``: 0.036 deg, zenith 0-135 deg, 120 m (the SYNS scanner).
+    ``"primary"``: 0.0144 deg (validation primaries, questions 1 and 2).
+    ``"primary-fine"``: 0.00576 deg (validation primary, question 3).
+    """
+    try:
+        return PRESETS[name]
+    except KeyError:
+        raise InputValueError(
+            f"unknown pattern preset {name!r}; choose one of {sorted(PRESETS)}"
+        ) from None
