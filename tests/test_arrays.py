@@ -1,0 +1,42 @@
+import numpy as np
+import pytest
+
+from slr_ray import InputTypeError, InputValueError
+from slr_ray.arrays import as_origin, as_points
+
+
+def test_float32_kept_and_ints_widened():
+    assert as_points(np.zeros((2, 3), np.float32)).dtype == np.float32
+    assert as_points(np.zeros((2, 3), np.int16)).dtype == np.float64
+
+
+def test_no_copy_for_contiguous_float64():
+    a = np.zeros((4, 3))
+    assert as_points(a) is a
+
+
+@pytest.mark.parametrize("bad", [np.zeros((3,)), np.zeros((2, 2)), np.zeros((1, 3, 1)), [[1, 2], [3]]])
+def test_bad_shapes(bad):
+    with pytest.raises(InputValueError, match="points"):
+        as_points(bad)
+
+
+@pytest.mark.parametrize("bad", [np.zeros((2, 3), complex), np.array([[1, 2, "a"]], object),
+                                 np.zeros((2, 3), bool)])
+def test_bad_dtypes(bad):
+    with pytest.raises(InputTypeError, match="points"):
+        as_points(bad)
+
+
+def test_nonfinite_rows_are_counted():
+    a = np.zeros((5, 3))
+    a[1, 0] = np.nan
+    a[3] = np.inf
+    with pytest.raises(InputValueError, match="2 row"):
+        as_points(a)
+
+
+@pytest.mark.parametrize("bad", [[0, 0], [[0, 0, 0]], [0, 0, np.nan], "abc"])
+def test_bad_origins(bad):
+    with pytest.raises((InputValueError, InputTypeError), match="origin"):
+        as_origin(bad)
