@@ -57,18 +57,23 @@ def pulse_bins(points, origin, pattern: ScanPattern):
     ranges : (n,) float64
     visible : (n,) bool
         False for points at range 0, outside the zenith field of view or
-        outside the range limits (their ``v`` and ``h`` are meaningless).
+        outside the range limits (their ``v`` and ``h`` are -1).
+
+    Notes
+    -----
+    ``v = min(floor((zenith - theta_min) / d_theta), n_zenith - 1)`` and
+    ``h = min(floor(azimuth / d_phi), n_azimuth - 1)`` with the angles of
+    :func:`spherical_coordinates`. This uses the same compiled arithmetic as
+    the binning backend, so a point lying on a bin edge is put on the same
+    side of it here as in a scan (numpy's own ``arctan2`` may differ from the
+    C library's in the last bit).
     """
-    ranges, zenith, azimuth = spherical_coordinates(points, origin)
-    d_theta, d_phi, th0, th1 = pattern.radians
-    rmin, rmax = pattern.range_limits
-    nv, nh = pattern.shape
-    visible = (ranges > 0) & (ranges >= rmin) & (ranges <= rmax)
-    visible &= (zenith >= th0) & (zenith <= th1)
-    with np.errstate(invalid="ignore"):
-        v = np.minimum(np.floor((zenith - th0) / d_theta), nv - 1).astype(np.int64)
-        h = np.minimum(np.floor(azimuth / d_phi), nh - 1).astype(np.int64)
-    return v, h, ranges, visible
+    from .backends.binning import pulse_keys
+
+    keys, ranges = pulse_keys(as_points(points), as_origin(origin), pattern)
+    visible = keys >= 0
+    nh = pattern.n_azimuth
+    return np.where(visible, keys // nh, -1), np.where(visible, keys % nh, -1), ranges, visible
 
 
 def pulse_directions(pulses, pattern: ScanPattern) -> np.ndarray:

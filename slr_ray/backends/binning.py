@@ -35,7 +35,7 @@ import numpy as np
 from numba import njit
 
 
-__all__ = ["BinTables", "default_threads"]
+__all__ = ["BinTables", "default_threads", "pulse_keys"]
 
 _EMPTY = np.int64(-1)
 _HASH = np.uint64(0x9E3779B97F4A7C15)
@@ -79,6 +79,35 @@ def _pulse_key(x, y, z, ox, oy, oz, d_theta, d_phi, th0, th1, nv, nh, rmin, rmax
     if h >= nh:
         h = nh - 1
     return v * nh + h, r
+
+
+@njit(cache=True, nogil=True)
+def _keys_array(points, ox, oy, oz, d_theta, d_phi, th0, th1, nv, nh, rmin, rmax, keys, ranges):
+    for i in range(points.shape[0]):
+        keys[i], ranges[i] = _pulse_key(
+            np.float64(points[i, 0]), np.float64(points[i, 1]), np.float64(points[i, 2]),
+            ox, oy, oz, d_theta, d_phi, th0, th1, nv, nh, rmin, rmax)
+
+
+def pulse_keys(points, origin, pattern):
+    """Flat pulse key ``v * n_azimuth + h`` and range of every point.
+
+    The same compiled arithmetic as the reduction, so a point on a bin edge
+    falls on the same side here as in a scan. Key -1: not seen; -2: not finite.
+    """
+    keys = np.empty(len(points), dtype=np.int64)
+    ranges = np.empty(len(points), dtype=np.float64)
+    if len(points):
+        _keys_array(points, *_kernel_params(origin, pattern), keys, ranges)
+    return keys, ranges
+
+
+def _kernel_params(origin, pattern):
+    d_theta, d_phi, th0, th1 = pattern.radians
+    rmin, rmax = pattern.range_limits
+    nv, nh = pattern.shape
+    return (float(origin[0]), float(origin[1]), float(origin[2]),
+            d_theta, d_phi, th0, th1, np.int64(nv), np.int64(nh), rmin, rmax)
 
 
 @njit(cache=True, nogil=True)
@@ -323,13 +352,7 @@ class BinTables:
         self.dense = pattern.n_pulses * 16 * self.n_threads <= self.dense_bytes
         self.tables = [self._new_table() for _ in range(self.n_threads)]
         self.n_points = 0
-        d_theta, d_phi, th0, th1 = pattern.radians
-        rmin, rmax = pattern.range_limits
-        nv, nh = pattern.shape
-        self._params = (
-            float(origin[0]), float(origin[1]), float(origin[2]),
-            d_theta, d_phi, th0, th1, np.int64(nv), np.int64(nh), rmin, rmax,
-        )
+        self._params = _kernel_params(origin, pattern)
 
     def _new_table(self):
         return _DenseTable(self.pattern.n_pulses) if self.dense else _Table()
