@@ -1,0 +1,209 @@
+"""Reading and writing point clouds with every per-point attribute.
+
+A cloud is a :class:`PointCloud`: float64 ``(n, 3)`` coordinates and a dict of
+per-point arrays (intensity, colour, labels...), which :func:`subset` carries
+through the indices of a scan. Formats are chosen by extension:
+
+========  ============================================================
+``.npy``  ``(n, 3)`` or ``(n, k)`` array (columns after the third become
+          ``column_3``...), or a structured array with ``x, y, z`` fields
+``.npz``  ``points`` ``(n, 3)`` plus any other length-``n`` arrays as
+          attributes; optional ``origin`` ``(3,)``
+``.ply``  ascii or binary, via plyfile; every vertex property is kept
+========  ============================================================
+
+Writes are atomic: the file appears under its name complete, or not at all.
+"""
+
+from __future__ import annotations
+
+import os
+import tempfile
+from contextlib import contextmanager
+from dataclasses import dataclass, field
+from pathlib import Path
+
+import numpy as np
+
+from .errors import FormatError
+
+__all__ = ["PointCloud", "read_cloud", "write_cloud", "FORMATS"]
+
+FORMATS = (".npy", ".npz", ".ply")
+
+
+@dataclass
+class PointCloud:
+    """Coordinates and per-point attributes.
+
+    Attributes
+    ----------
+    points : (n, 3) float64
+    attributes : dict of str -> (n, ...) array
+    origin : (3,) float64 or None
+        Scanner position, where the file records one.
+    """
+
+    points: np.ndarray
+    attributes: dict = field(default_factory=dict)
+    origin: np.ndarray | None = None
+
+    def __len__(self) -> int:
+        return len(self.points)
+
+    def subset(self, indices) -> "PointCloud":
+        """The cloud restricted to ``indices``, every attribute following."""
+        return PointCloud(
+            self.points[indices],
+            {k: v[indices] for k, v in self.attributes.items()},
+            self.origin,
+        )
+
+
+def _format(path, fmt=None) -> str:
+    ext = (fmt if fmt else Path(path).suffix).lower()
+    if not ext.startswith("."):
+        ext = "." + ext
+    if ext not in FORMATS:
+        raise FormatError(f"unknown point-cloud format {ext!r} for {path}; supported: {', '.join(FORMATS)}")
+    return ext
+
+
+def read_cloud(path, format: str | None = None) -> PointCloud:
+    """Read a point cloud; the format comes from the extension unless given.
+
+    Raises
+    ------
+    FileNotFoundError
+        no such file.
+    FormatError
+        unknown extension, or a file that cannot be parsed (truncated, corrupt).
+    """
+    path = Path(path)
+    ext = _format(path, format)
+    if not path.is_file():
+        raise FileNotFoundError(f"no such file: {path}")
+    try:
+        cloud = _READERS[ext](path)
+    except FormatError:
+        raise
+    except Exception as exc:  # corrupt files raise anything from the parsers
+        raise FormatError(f"cannot read {path} as {ext}: {type(exc).__name__}: {exc}") from exc
+    pts = np.asarray(cloud.points)
+    if pts.ndim != 2 or pts.shape[1] != 3:
+        raise FormatError(f"{path}: expected (n, 3) coordinates, got shape {pts.shape}")
+    cloud.points = np.ascontiguousarray(pts, dtype=np.float64)
+    for k, v in cloud.attributes.items():
+        if len(v) != len(pts):
+            raise FormatError(f"{path}: attribute {k!r} has {len(v)} values for {len(pts)} points")
+    return cloud
+
+
+def _read_npy(path):
+    a = np.load(path, allow_pickle=False)
+    if a.dtype.names:
+        if not {"x", "y", "z"} <= set(a.dtype.names):
+            raise FormatError(f"{path}: structured array without x, y, z fields")
+        pts = np.column_stack([a["x"], a["y"], a["z"]])
+        return PointCloud(pts, {n: a[n] for n in a.dtype.names if n not in "xyz"})
+    if a.ndim != 2 or a.shape[1] < 3:
+        raise FormatError(f"{path}: expected an (n, 3) or wider array, got shape {a.shape}")
+    return PointCloud(a[:, :3], {f"column_{j}": a[:, j] for j in range(3, a.shape[1])})
+
+
+def _read_npz(path):
+    with np.load(path, allow_pickle=False) as z:
+        if "points" not in z.files:
+            raise FormatError(f"{path}: no 'points' array (has {z.files})")
+        pts = z["points"]
+        origin = z["origin"].astype(np.float64) if "origin" in z.files else None
+        attrs = {k: z[k] for k in z.files if k not in ("points", "origin")}
+    return PointCloud(pts, attrs, origin)
+
+
+def _read_ply(path):
+    from plyfile import PlyData
+
+    ply = PlyData.read(str(path))
+    if "vertex" not in ply:
+        raise FormatError(f"{path}: no vertex element")
+    v = ply["vertex"].data
+    names = v.dtype.names
+    if not {"x", "y", "z"} <= set(names):
+        raise FormatError(f"{path}: vertex element lacks x, y, z")
+    pts = np.column_stack([v["x"], v["y"], v["z"]]).astype(np.float64)
+    return PointCloud(pts, {n: np.asarray(v[n]) for n in names if n not in ("x", "y", "z")})
+
+
+_READERS = {".npy": _read_npy, ".npz": _read_npz, ".ply": _read_ply}
+
+
+@contextmanager
+def atomic_path(path):
+    """Yield a temporary path next to ``path``; rename it to ``path`` on success,
+    remove it on failure, so no half-written file is ever left under ``path``."""
+    path = Path(path)
+    fd, tmp = tempfile.mkstemp(prefix=f".{path.name}.", suffix=".part" + path.suffix, dir=path.parent or ".")
+    os.close(fd)
+    try:
+        yield Path(tmp)
+        os.replace(tmp, path)
+    except BaseException:
+        if os.path.exists(tmp):
+            os.unlink(tmp)
+        raise
+
+
+def write_cloud(path, cloud: PointCloud, format: str | None = None, binary: bool = True) -> Path:
+    """Write ``cloud`` (atomically). Returns the path written.
+
+    PLY stores coordinates as float64 (``double``) so that nothing is lost,
+    and attributes with their own dtypes. ``.npy`` can only hold coordinates
+    and numeric attributes of one row each (written as extra columns).
+    """
+    path = Path(path)
+    ext = _format(path, format)
+    if not path.parent.exists():
+        raise FormatError(f"cannot write {path}: directory {path.parent} does not exist")
+    with atomic_path(path) as tmp:
+        _WRITERS[ext](tmp, cloud, binary)
+    return path
+
+
+def _write_npy(path, cloud, binary):
+    cols = [cloud.points] + [np.asarray(v, dtype=np.float64).reshape(len(cloud), -1)
+                             for v in cloud.attributes.values()]
+    with open(path, "wb") as f:
+        np.save(f, np.hstack(cols) if len(cols) > 1 else cloud.points)
+
+
+def _write_npz(path, cloud, binary):
+    extra = {"origin": cloud.origin} if cloud.origin is not None else {}
+    with open(path, "wb") as f:
+        np.savez_compressed(f, points=cloud.points, **cloud.attributes, **extra)
+
+
+def _write_ply(path, cloud, binary):
+    from plyfile import PlyData, PlyElement
+
+    fields = [("x", "f8"), ("y", "f8"), ("z", "f8")]
+    for k, v in cloud.attributes.items():
+        v = np.asarray(v)
+        if v.ndim != 1:
+            raise FormatError(f"PLY attributes must be one value per point; {k!r} has shape {v.shape}")
+        dt = v.dtype
+        if dt == np.bool_:
+            dt = np.dtype(np.uint8)
+        if dt == np.int64:
+            dt = np.dtype(np.int32) if (len(v) == 0 or np.abs(v).max() < 2**31) else dt
+        if dt.kind not in "iuf" or dt.itemsize > 8 or dt == np.int64 or dt == np.uint64:
+            raise FormatError(f"PLY cannot store attribute {k!r} of dtype {v.dtype}")
+        fields.append((k, dt.str))
+    data = np.empty(len(cloud), dtype=fields)
+    data["x"], data["y"], data["z"] = cloud.points.T
+    for k, v in cloud.attributes.items():
+        data[k] = v
+    PlyData([PlyElement.describe(data, "vertex")], text=not binary).write(str(path))
+
+
+_WRITERS = {".npy": _write_npy, ".npz": _write_npz, ".ply": _write_ply}
