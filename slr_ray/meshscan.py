@@ -24,11 +24,13 @@ float64 precision wherever the scene is.
 from __future__ import annotations
 
 import time
+from concurrent.futures import ThreadPoolExecutor
 from dataclasses import dataclass
 
 import numpy as np
 
 from .arrays import as_origin
+from .backends.binning import default_threads
 from .errors import InputValueError, MissingDependencyError
 from .pattern import ScanPattern
 
@@ -107,7 +109,22 @@ class _Caster:
     def cast(self, origin_local: np.ndarray, dirs: np.ndarray):
         """(face, t) per ray; face -1 on a miss, t in float64 on the face's plane."""
         o32 = np.broadcast_to(origin_local.astype(np.float32), dirs.shape).copy()
-        face = self.scene.run(o32, dirs.astype(np.float32)).astype(np.int64)
+        d32 = dirs.astype(np.float32)
+        face = np.empty(len(dirs), np.int32)
+        # embreex releases the GIL while casting: split the rays over the cores
+        n_threads = min(default_threads(), max(1, len(dirs) // 100_000))
+        if n_threads > 1:
+            bounds = np.linspace(0, len(dirs), n_threads + 1).astype(int)
+
+            def run(i):
+                a, b = bounds[i], bounds[i + 1]
+                face[a:b] = self.scene.run(o32[a:b], d32[a:b])
+
+            with ThreadPoolExecutor(n_threads) as pool:
+                list(pool.map(run, range(n_threads)))
+        else:
+            face[:] = self.scene.run(o32, d32)
+        face = face.astype(np.int64)
         t = np.full(len(dirs), np.inf)
         hit = face >= 0
         f = face[hit]
@@ -201,12 +218,13 @@ def scan_mesh(scene_or_mesh, origin, pattern, mode: str = "center", *, supersamp
         rmin, rmax = pattern.range_limits
         hit &= (t >= rmin) & (t <= rmax)
         if hit.any():
-            key = vv[hit] * nh + hh[hit]
-            th = t[hit]
-            order = np.lexsort((th, key))  # per pulse, the nearest sub-ray first
-            key, first = key[order], np.ones(len(order), bool)
-            first[1:] = key[1:] != key[:-1]
-            sel = np.flatnonzero(hit)[order[first]]
+            sel = np.flatnonzero(hit)
+            if k > 1:
+                key = vv[sel] * nh + hh[sel]
+                order = np.lexsort((t[sel], key))  # per pulse, the nearest sub-ray first
+                key, first = key[order], np.ones(len(order), bool)
+                first[1:] = key[1:] != key[:-1]
+                sel = sel[order[first]]
             parts.append((sel, dirs[sel] * t[sel, None], face[sel], t[sel], vv[sel], hh[sel]))
         if bar is not None:
             bar.update(rows.stop - rows.start)

@@ -10,6 +10,7 @@ letter, a dense grid streamed through the binning reduction
 from __future__ import annotations
 
 import math
+import os
 import tomllib
 from dataclasses import dataclass, field
 from pathlib import Path
@@ -21,8 +22,14 @@ from .errors import InputValueError
 __all__ = ["RectangleScene", "rectangle_scene", "load_scene_spec", "scene_from_spec",
            "dense_samples", "SCENES_DIR"]
 
-#: Directory of the scene specs shipped with the project (``scenes/``).
-SCENES_DIR = Path(__file__).resolve().parent.parent / "scenes"
+#: Directory of the scene specs shipped with the project (``scenes/`` of the
+#: source tree; ``$SLR_RAY_SCENES`` or ``./scenes`` when installed elsewhere).
+SCENES_DIR = next(
+    (p for p in (Path(os.environ.get("SLR_RAY_SCENES", "")) if os.environ.get("SLR_RAY_SCENES") else None,
+                 Path(__file__).resolve().parent.parent / "scenes", Path.cwd() / "scenes")
+     if p is not None and p.is_dir()),
+    Path(__file__).resolve().parent.parent / "scenes",
+)
 
 
 @dataclass
@@ -86,6 +93,31 @@ def _polygon_area(poly: np.ndarray) -> float:
         return 0.0
     c = np.cross(poly[1:-1] - poly[0], poly[2:] - poly[0])
     return 0.5 * float(np.linalg.norm(c.sum(axis=0)))
+
+
+def _ground_mesh(ring: np.ndarray, ground_z: float, radius: float, inner: float = 0.5,
+                 ratio: float = 1.1):
+    """The ground polygon as concentric rings of quads (radii growing by ``ratio``).
+
+    A fan of 1024 triangles from the centre describes the same surface, but its
+    long thin triangles make a poor BVH: rays at grazing angles test many of
+    them (casting is ~3x slower). Rings keep the triangles' aspect near 1:10.
+    """
+    n = len(ring)
+    unit = ring[:, :2] / radius
+    n_rings = max(1, int(math.ceil(math.log(radius / inner) / math.log(ratio))))
+    radii = np.geomspace(inner, radius, n_rings + 1) if radius > inner else np.array([radius])
+    verts = [np.array([[0.0, 0.0, ground_z]])]
+    for r in radii:
+        verts.append(np.column_stack([unit * r, np.full(n, ground_z)]))
+    j = np.arange(n)
+    k = (j + 1) % n
+    faces = [np.column_stack([np.zeros(n, int), 1 + j, 1 + k])]
+    for q in range(len(radii) - 1):
+        a, b = 1 + q * n, 1 + (q + 1) * n
+        faces.append(np.column_stack([a + j, b + j, b + k]))
+        faces.append(np.column_stack([a + j, b + k, a + k]))
+    return np.vstack(verts), np.vstack(faces)
 
 
 def rectangle_scene(
@@ -153,10 +185,8 @@ def rectangle_scene(
     edge_normals = -np.column_stack([np.cos(mid), np.sin(mid), np.zeros_like(mid)])
     apothem = ground_radius * math.cos(math.pi / ground_segments)
 
-    vertices = [np.vstack([[0.0, 0.0, ground_z], ring])]
-    faces = [np.column_stack([np.zeros(ground_segments, int), 1 + np.arange(ground_segments),
-                              1 + (np.arange(ground_segments) + 1) % ground_segments])]
-    labels = [np.zeros(ground_segments, np.int64)]
+    gv, gf = _ground_mesh(ring, ground_z, ground_radius)
+    vertices, faces, labels = [gv], [gf], [np.zeros(len(gf), np.int64)]
     polygons, polygon_labels = [], []
     base = len(vertices[0])
     unit = np.array([[-0.5, -0.5, 0], [0.5, -0.5, 0], [0.5, 0.5, 0], [-0.5, 0.5, 0]])

@@ -1,0 +1,195 @@
+"""The ``slr-ray`` command.
+
+Results go to stdout as one line of JSON; logs and progress go to stderr. Any
+error exits with status 2 and one line ``slr-ray: error: ...`` on stderr, and
+leaves no output file behind.
+"""
+
+from __future__ import annotations
+
+import argparse
+import json
+import sys
+import time
+from pathlib import Path
+
+import numpy as np
+
+__all__ = ["main"]
+
+
+def _pattern_from_args(args):
+    from .pattern import ScanPattern, preset
+
+    if getattr(args, "preset", None):
+        base = preset(args.preset)
+        changes = {}
+        if args.resolution is not None:
+            changes["resolution"] = args.resolution
+        if args.zenith_range is not None:
+            changes["zenith_range"] = tuple(args.zenith_range)
+        if args.max_range is not None:
+            changes["max_range"] = args.max_range
+        if args.min_range is not None:
+            changes["min_range"] = args.min_range
+        return base.with_(**changes) if changes else base
+    if args.resolution is None:
+        raise SystemExit("slr-ray: error: give --resolution DEG or --preset NAME")
+    return ScanPattern(
+        resolution=args.resolution,
+        zenith_range=tuple(args.zenith_range) if args.zenith_range else (0.0, 180.0),
+        min_range=args.min_range,
+        max_range=args.max_range,
+    )
+
+
+def _add_pattern_args(p, origin_required=True):
+    p.add_argument("--origin", nargs=3, type=float, metavar=("X", "Y", "Z"), required=origin_required,
+                   help="scanner position, in the cloud's coordinates")
+    p.add_argument("--resolution", type=float, metavar="DEG", help="angular resolution, both axes (degrees)")
+    p.add_argument("--preset", choices=["slr", "syns", "primary", "primary-fine"],
+                   help="a pattern of the paper (other options override its fields)")
+    p.add_argument("--zenith-range", nargs=2, type=float, metavar=("A", "B"),
+                   help="zenith field of view in degrees (0 = up; default 0 180)")
+    p.add_argument("--min-range", type=float, metavar="M")
+    p.add_argument("--max-range", type=float, metavar="M")
+
+
+def _emit(obj):
+    sys.stdout.write(json.dumps(obj) + "\n")
+    sys.stdout.flush()
+
+
+def cmd_scan(args):
+    from .io import read_cloud, write_cloud
+    from .scan import simulate_scan
+
+    pattern = _pattern_from_args(args)
+    out = Path(args.output)
+    if out.exists() and not args.force:
+        raise FileExistsError(f"{out} exists (use --force to overwrite)")
+    from .io import _format
+
+    _format(out, args.format)  # refuse an unknown output format before any work
+    if args.print_config:
+        _emit({"input": str(args.input), "output": str(out), "origin": args.origin,
+               "pattern": pattern.to_dict(), "backend": args.backend})
+        return
+    t0 = time.perf_counter()
+    cloud = read_cloud(args.input, args.input_format)
+    t_read = time.perf_counter() - t0
+    scan = simulate_scan(cloud.points, args.origin, pattern, backend=args.backend)
+    sub = cloud.subset(scan.indices)
+    sub.origin = np.asarray(args.origin, float)
+    if args.keep_range:
+        sub.attributes["range"] = scan.ranges
+    t1 = time.perf_counter()
+    write_cloud(out, sub, args.format)
+    _emit({**scan.summary(), "input": str(args.input), "output": str(out),
+           "seconds_read": round(t_read, 6), "seconds_write": round(time.perf_counter() - t1, 6)})
+
+
+def cmd_demo(args):
+    from .demo import run_demo
+
+    _emit(run_demo(args.output, n_rectangles=args.rectangles, n_positions=args.positions,
+                   seed=args.seed, quick=args.quick))
+
+
+def cmd_scene(args):
+    from .io import PointCloud, write_cloud
+    from .meshscan import scan_mesh
+    from .scenes import scene_from_spec
+
+    scene = scene_from_spec(args.spec)
+    if args.scene_cmd == "info":
+        _emit({"spec": args.spec, **scene.info()})
+        return
+    if args.scene_cmd == "build":
+        out = Path(args.output)
+        if out.suffix.lower() not in (".ply", ".obj", ".stl", ".glb", ".off"):
+            raise ValueError(f"mesh output must be .ply, .obj, .stl, .glb or .off, got {out.suffix!r}")
+        from .io import atomic_path
+
+        with atomic_path(out) as tmp:
+            scene.mesh.export(tmp, file_type=out.suffix[1:].lower())
+        _emit({"spec": args.spec, "output": str(out), **scene.info()})
+        return
+    pattern = _pattern_from_args(args)
+    ms = scan_mesh(scene, args.origin, pattern, mode=args.mode, supersample=args.supersample,
+                   spacing=args.spacing, progress=not args.quiet)
+    cloud = PointCloud(ms.points, {"label": ms.labels.astype(np.int32), "range": ms.ranges,
+                                   "v": ms.pulses[:, 0].astype(np.int32),
+                                   "h": ms.pulses[:, 1].astype(np.int32)},
+                       origin=ms.origin)
+    from .io import write_cloud as _w
+
+    _w(args.output, cloud)
+    _emit({"spec": args.spec, "output": str(args.output), **ms.summary()})
+
+
+def build_parser() -> argparse.ArgumentParser:
+    from . import __version__
+
+    ap = argparse.ArgumentParser(prog="slr-ray", description=(
+        "Simulated LiDAR Repositioning: simulate the scans an ideal static scanner "
+        "would record from new positions, using only points of one cloud."))
+    ap.add_argument("--version", action="version", version=f"slr-ray {__version__}")
+    sub = ap.add_subparsers(dest="cmd", required=True)
+
+    p = sub.add_parser("scan", help="simulate one scan of a point cloud from a position")
+    p.add_argument("input", help="input cloud (.npy, .npz, .ply)")
+    _add_pattern_args(p)
+    p.add_argument("-o", "--output", required=True, help="output cloud (.npy, .npz, .ply)")
+    p.add_argument("--backend", default="binning", choices=["binning", "embree"])
+    p.add_argument("--format", help="output format, overriding the extension")
+    p.add_argument("--input-format", help="input format, overriding the extension")
+    p.add_argument("--keep-range", action="store_true", help="add a 'range' attribute")
+    p.add_argument("--force", action="store_true", help="overwrite the output")
+    p.add_argument("--print-config", action="store_true",
+                   help="print the resolved configuration as JSON and stop")
+    p.set_defaults(func=cmd_scan)
+
+    p = sub.add_parser("demo", help="the main job on a built-in scene: scene, primary scan, SLR scans, report")
+    p.add_argument("-o", "--output", default="slr_ray_demo", help="output directory (default slr_ray_demo)")
+    p.add_argument("--rectangles", type=int, default=200)
+    p.add_argument("--positions", type=int, default=4)
+    p.add_argument("--seed", type=int, default=0)
+    p.add_argument("--quick", action="store_true", help="a coarser, faster run (for tests)")
+    p.set_defaults(func=cmd_demo)
+
+    p = sub.add_parser("scene", help="synthetic rectangle scenes: info, build, scan")
+    ssub = p.add_subparsers(dest="scene_cmd", required=True)
+    q = ssub.add_parser("info", help="counts of a scene spec (name in scenes/ or path)")
+    q.add_argument("spec")
+    q = ssub.add_parser("build", help="write the scene's mesh")
+    q.add_argument("spec")
+    q.add_argument("-o", "--output", required=True)
+    q = ssub.add_parser("scan", help="ground-truth scan of a scene")
+    q.add_argument("spec")
+    _add_pattern_args(q)
+    q.add_argument("--mode", default="center", choices=["center", "nearest", "dense"])
+    q.add_argument("--supersample", type=int, default=4, help="k for --mode nearest (k x k rays a pulse)")
+    q.add_argument("--spacing", type=float, default=0.005, help="grid spacing for --mode dense (m)")
+    q.add_argument("--quiet", action="store_true", help="no progress bar")
+    q.add_argument("-o", "--output", required=True)
+    p.set_defaults(func=cmd_scene)
+    return ap
+
+
+def main(argv=None) -> int:
+    args = build_parser().parse_args(argv)
+    try:
+        args.func(args)
+    except KeyboardInterrupt:
+        print("slr-ray: interrupted", file=sys.stderr)
+        return 130
+    except (OSError, ValueError, TypeError, ImportError) as exc:
+        msg = str(exc).splitlines()[0] if str(exc) else type(exc).__name__
+        print(f"slr-ray: error: {msg}", file=sys.stderr)
+        return 2
+    return 0
+
+
+if __name__ == "__main__":  # pragma: no cover
+    sys.exit(main())

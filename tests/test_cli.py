@@ -1,0 +1,82 @@
+import json
+
+import numpy as np
+import pytest
+
+from slr_ray import ScanPattern, simulate_scan
+from slr_ray.cli import main
+from slr_ray.io import PointCloud, read_cloud, write_cloud
+
+from conftest import scene_cloud
+
+
+@pytest.fixture
+def cloud_ply(tmp_path):
+    pts = scene_cloud(5000, 0)
+    label = np.arange(len(pts), dtype=np.int32) % 7
+    path = tmp_path / "in.ply"
+    write_cloud(path, PointCloud(pts, {"label": label, "intensity": np.arange(len(pts), dtype=np.float32)}))
+    return path, pts
+
+
+@pytest.mark.parametrize("out_ext", [".ply", ".npz", ".npy"])
+def test_scan_command(tmp_path, cloud_ply, capsys, out_ext):
+    path, pts = cloud_ply
+    out = tmp_path / f"out{out_ext}"
+    rc = main(["scan", str(path), "--origin", "1", "0", "0", "--resolution", "1",
+               "--max-range", "20", "-o", str(out)])
+    assert rc == 0
+    summary = json.loads(capsys.readouterr().out.strip())
+    ref = simulate_scan(pts, [1, 0, 0], ScanPattern(1, max_range=20))
+    assert summary["points_in"] == len(pts) and summary["points_out"] == len(ref)
+    assert summary["pulses"] == 180 * 360 and summary["seconds"] >= 0
+    back = read_cloud(out)
+    np.testing.assert_array_equal(back.points, pts[ref.indices])
+    if out_ext == ".ply":  # every per-point property follows
+        np.testing.assert_array_equal(back.attributes["label"], ref.indices % 7)
+        np.testing.assert_array_equal(back.attributes["intensity"], ref.indices.astype(np.float32))
+
+
+def test_print_config(tmp_path, cloud_ply, capsys):
+    path, _ = cloud_ply
+    assert main(["scan", str(path), "--origin", "0", "0", "0", "--preset", "syns",
+                 "-o", str(tmp_path / "o.ply"), "--print-config"]) == 0
+    cfg = json.loads(capsys.readouterr().out)
+    assert cfg["pattern"]["max_range"] == 120 and not (tmp_path / "o.ply").exists()
+
+
+@pytest.mark.parametrize("make_input, args", [
+    (lambda p: None, []),                                              # missing file
+    (lambda p: p.write_bytes(b"ply\nformat binary_little_endian 1.0\nelement vertex 10\n"), []),
+    (lambda p: p.write_bytes(b"not a ply at all"), []),
+    (lambda p: None, ["--resolution", "-1"]),
+])
+def test_bad_input_exits_nonzero_with_one_line_and_no_output(tmp_path, capsys, make_input, args):
+    src = tmp_path / "in.ply"
+    make_input(src)
+    out = tmp_path / "out.ply"
+    argv = ["scan", str(src), "--origin", "0", "0", "0", "--resolution", "1", "-o", str(out)] + args
+    assert main(argv) == 2
+    err = capsys.readouterr().err.strip().splitlines()
+    assert len(err) == 1 and err[0].startswith("slr-ray: error:")
+    assert not out.exists() and [p.name for p in tmp_path.iterdir()] in ([], ["in.ply"])
+
+
+def test_scene_info_and_scan(tmp_path, capsys):
+    assert main(["scene", "info", "rect-0500"]) == 0
+    info = json.loads(capsys.readouterr().out)
+    assert info["n_rectangles"] == 500 and 330 < info["n_present"] < 420
+    out = tmp_path / "truth.ply"
+    assert main(["scene", "scan", "ground-only", "--origin", "0", "0", "0", "--resolution", "2",
+                 "--quiet", "-o", str(out)]) == 0
+    back = read_cloud(out)
+    assert len(back) > 0 and np.all(back.attributes["label"] == 0)
+    np.testing.assert_allclose(back.points[:, 2], -1.65, atol=1e-9)
+
+
+def test_demo_quick(tmp_path, capsys):
+    assert main(["demo", "--quick", "--positions", "2", "--rectangles", "50", "-o", str(tmp_path / "d")]) == 0
+    rep = json.loads(capsys.readouterr().out)
+    assert rep["positions"] == 2 and 0.3 < rep["mean_similarity"] <= 1
+    files = {p.name for p in (tmp_path / "d").iterdir()}
+    assert {"report.json", "demo.png", "primary.npz", "position_00_slr.ply", "position_01_true.ply"} <= files
