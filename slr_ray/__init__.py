@@ -8,12 +8,15 @@ from .accumulator import ScanAccumulator
 from .errors import FormatError, InputTypeError, InputValueError, MissingDependencyError, SlrError
 from .pattern import PRESETS, ScanPattern, preset
 from .scan import Scan, simulate_scan
+from .meshscan import MeshScan, scan_mesh
+from .similarity import similarity
 from .spherical import pulse_bins, pulse_directions, spherical_coordinates
 
 __version__ = "0.1.0"
 
 __all__ = [
     "ScanPattern", "PRESETS", "preset", "Scan", "simulate_scan", "ScanAccumulator",
+    "scan_mesh", "MeshScan", "similarity",
     "pulse_bins", "pulse_directions", "spherical_coordinates",
     "SlrError", "InputValueError", "InputTypeError", "FormatError", "MissingDependencyError",
 ]

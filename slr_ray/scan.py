@@ -169,5 +169,5 @@ def _binning(points, origin, pattern, n_threads=None) -> Scan:
             f"points has {bad} row(s) with NaN or inf out of {len(points)}; "
             "remove them first (nothing is dropped silently)"
         )
-    keys, ranges, idx = tables.winners()
+    keys, ranges, idx = tables.winners(points)
     return _scan_from_bins(keys, ranges, idx, origin, pattern, "binning", len(points), 0.0)

@@ -9,20 +9,29 @@ How it runs
 The paper sorts all points by ``(h, v, R)``: O(N log N). Here a per-bin
 minimum needs no sort:
 
-1. a compiled loop (numba) computes, per point, the pulse key ``v * n_h + h``
-   and the range, in float64 after subtracting the origin (non-finite rows
-   are counted first and refused);
-2. in the same loop the point goes into an open-addressing hash table of
-   ``(key, range, index)`` that keeps the smallest ``(range, index)`` per key.
-   Each thread reduces its own slice of the points into its own table; the
-   tables are merged (O(occupied bins)) when the result is asked for.
+1. a compiled loop (numba) takes the points in blocks of 512, subtracts the
+   origin in float64 and computes both angles with a branch-free polynomial
+   ``atan2`` that the compiler vectorises (error below 2e-12 rad). Where that
+   leaves a point within 1e-8 rad of a bin edge, a field-of-view limit or the
+   azimuth wrap (a few points in 10^5), its bin is taken from the C library's
+   ``atan2`` instead, so every bin is exactly the definition's
+   (``floor((atan2(hypot(dx, dy), dz) - theta_min) / d_theta)``...);
+2. each point then goes into a table that keeps, per pulse key
+   ``v * n_azimuth + h``, the smallest ``(range, index)``. Each thread reduces
+   its own slice of the points into its own table; tables merge in
+   O(occupied bins) when the result is asked for. Non-finite rows are counted
+   first and refused, so a bad chunk leaves the state untouched.
 
-Memory therefore grows with the number of *occupied* bins (24 bytes per bin,
-at most twice that while a table grows), never with the number of points or
-with the number of possible bins (0.001 deg would be 6.5e10 bins). Patterns with few
-pulses (0.144 deg: 3.1e6) use plain per-pulse arrays instead, which is faster
-when the cloud is dense. The tables outlive a call, which is what :class:`slr_ray.ScanAccumulator` uses to reduce
-a cloud chunk by chunk to exactly the one-shot answer.
+Tables are of two kinds. Patterns with few pulses (``16 * n_pulses *
+n_threads`` bytes within :attr:`BinTables.dense_bytes`, 256 MiB: 0.144 deg
+has 3.1e6 pulses) use plain per-pulse arrays. Finer patterns use an
+open-addressing hash table of 24-byte records ``(key, range, index)`` that
+grows with the number of *occupied* bins (at most twice that while growing),
+never with the number of points or of possible pulses (0.001 deg would be
+6.5e10). Neighbouring pulses hash to neighbouring slots in groups of 16, so
+scan-ordered clouds touch memory in order. The tables outlive a call, which is
+what :class:`slr_ray.ScanAccumulator` uses to reduce a cloud chunk by chunk to
+exactly the one-shot answer.
 """
 
 from __future__ import annotations
@@ -37,9 +46,24 @@ from numba import njit
 
 __all__ = ["BinTables", "default_threads", "pulse_keys"]
 
-_EMPTY = np.int64(-1)
+#: points per block: the scratch arrays (5 x 4 KiB) stay in the L1 cache
+_BLOCK = 512
 _HASH = np.uint64(0x9E3779B97F4A7C15)
+#: neighbouring keys share a group of 2**_GROUP consecutive slots
+_GROUP = 4
 _INITIAL_BITS = 12
+_RECORD = np.dtype([("key", np.int64), ("r", np.float64), ("idx", np.int64)])
+
+# Taylor coefficients of atan(t) / t in t^2; with |t| <= tan(pi/8) the first
+# omitted term is below 2e-12 rad.
+_ATAN_C = (1.0, -1.0 / 3, 1.0 / 5, -1.0 / 7, 1.0 / 9, -1.0 / 11, 1.0 / 13, -1.0 / 15,
+           1.0 / 17, -1.0 / 19, 1.0 / 21, -1.0 / 23, 1.0 / 25)
+_TAN_PI_8 = 0.41421356237309503
+#: bound used on |fast angle - libm angle| (radians), far above the true ~2e-12
+_FAST_TOL = 1e-8
+#: the polynomial may be contracted into FMAs and divide by reciprocals: it is
+#: only used where its error bound decides the bin for certain
+_APPROX_MATH = {"contract", "arcp"}
 
 
 def default_threads() -> int:
@@ -50,25 +74,51 @@ def default_threads() -> int:
         return max(1, os.cpu_count() or 1)
 
 
-@njit(cache=True, inline="always")
-def _slot(key, shift):
-    return np.int64((np.uint64(key) * _HASH) >> np.uint64(shift))
+@njit(cache=True, inline="always", fastmath=_APPROX_MATH, error_model="numpy")
+def _atan2_fast(y, x):
+    """atan2(y, x) to ~2e-12 rad, branch-free so that loops vectorise.
+
+    NaN when x = y = 0; callers check such points with the exact path.
+    """
+    ax = abs(x)
+    ay = abs(y)
+    a = min(ax, ay) / max(ax, ay)
+    big = a > _TAN_PI_8
+    t = (a - 1.0) / (a + 1.0) if big else a
+    base = math.pi / 4 if big else 0.0
+    t2 = t * t
+    p = _ATAN_C[12]
+    p = p * t2 + _ATAN_C[11]
+    p = p * t2 + _ATAN_C[10]
+    p = p * t2 + _ATAN_C[9]
+    p = p * t2 + _ATAN_C[8]
+    p = p * t2 + _ATAN_C[7]
+    p = p * t2 + _ATAN_C[6]
+    p = p * t2 + _ATAN_C[5]
+    p = p * t2 + _ATAN_C[4]
+    p = p * t2 + _ATAN_C[3]
+    p = p * t2 + _ATAN_C[2]
+    p = p * t2 + _ATAN_C[1]
+    p = p * t2 + _ATAN_C[0]
+    r = base + t * p
+    r = (math.pi / 2 - r) if ay > ax else r
+    r = (math.pi - r) if x < 0.0 else r
+    return -r if y < 0.0 else r
 
 
-@njit(cache=True, inline="always")
-def _pulse_key(x, y, z, ox, oy, oz, d_theta, d_phi, th0, th1, nv, nh, rmin, rmax):
-    """(key, range) of one point; key -1 when unseen, -2 when not finite."""
-    if not (math.isfinite(x) and math.isfinite(y) and math.isfinite(z)):
-        return np.int64(-2), math.inf
-    dx = x - ox
-    dy = y - oy
-    dz = z - oz
-    r = math.sqrt(dx * dx + dy * dy + dz * dz)
-    if r == 0.0 or r < rmin or r > rmax:
-        return np.int64(-1), r
+@njit(cache=True, nogil=True, fastmath=_APPROX_MATH, error_model="numpy")
+def _approx_angles(x, y, z, theta, phi, n):
+    for i in range(n):
+        theta[i] = _atan2_fast(math.sqrt(x[i] * x[i] + y[i] * y[i]), z[i])
+        phi[i] = _atan2_fast(y[i], x[i])
+
+
+@njit(cache=True, inline="always", error_model="numpy")
+def _bins_exact(dx, dy, dz, d_theta, d_phi, th0, th1, nv, nh):
+    """(v, h) with libm's atan2 and hypot: the definition. v = -1 outside the view."""
     theta = math.atan2(math.hypot(dx, dy), dz)
     if theta < th0 or theta > th1:
-        return np.int64(-1), r
+        return np.int64(-1), np.int64(-1)
     v = np.int64(math.floor((theta - th0) / d_theta))
     if v >= nv:
         v = nv - 1
@@ -78,15 +128,84 @@ def _pulse_key(x, y, z, ox, oy, oz, d_theta, d_phi, th0, th1, nv, nh, rmin, rmax
     h = np.int64(math.floor(phi / d_phi))
     if h >= nh:
         h = nh - 1
-    return v * nh + h, r
+    return v, h
 
 
-@njit(cache=True, nogil=True)
+@njit(cache=True, inline="always", error_model="numpy")
+def _bins(theta, phi, dx, dy, dz, d_theta, d_phi, th0, th1, nv, nh):
+    """(v, h) from approximate angles where they decide it for certain, else exact."""
+    # NaN angles (x = y = 0) fail every test below and go to the exact path
+    if not (theta >= th0 + _FAST_TOL and theta <= th1 - _FAST_TOL):
+        return _bins_exact(dx, dy, dz, d_theta, d_phi, th0, th1, nv, nh)
+    q = (theta - th0) / d_theta
+    v = math.floor(q)
+    tol = _FAST_TOL / d_theta + 1e-12 * q
+    if q - v < tol or v + 1.0 - q < tol:
+        return _bins_exact(dx, dy, dz, d_theta, d_phi, th0, th1, nv, nh)
+    if phi < 0.0:
+        phi += 2.0 * math.pi
+    if not (phi >= _FAST_TOL and phi <= 2.0 * math.pi - _FAST_TOL):
+        return _bins_exact(dx, dy, dz, d_theta, d_phi, th0, th1, nv, nh)
+    q = phi / d_phi
+    h = math.floor(q)
+    tol = _FAST_TOL / d_phi + 1e-12 * q
+    if q - h < tol or h + 1.0 - q < tol:
+        return _bins_exact(dx, dy, dz, d_theta, d_phi, th0, th1, nv, nh)
+    vi = np.int64(v)
+    hi = np.int64(h)
+    return min(vi, nv - 1), min(hi, nh - 1)
+
+
+@njit(cache=True, nogil=True, error_model="numpy")
+def _block_keys(points, s, e, ox, oy, oz, d_theta, d_phi, th0, th1, nv, nh, rmin, rmax,
+                x, y, z, theta, phi, keys, ranges):
+    """Keys and ranges of points[s:e] (at most _BLOCK) into keys[:e-s], ranges[:e-s].
+
+    Key -1: not seen (range 0, outside the view or the range limits);
+    -2: not finite. Returns the number of non-finite rows.
+    """
+    n = e - s
+    for i in range(n):
+        x[i] = np.float64(points[s + i, 0]) - ox
+        y[i] = np.float64(points[s + i, 1]) - oy
+        z[i] = np.float64(points[s + i, 2]) - oz
+    _approx_angles(x, y, z, theta, phi, n)
+    bad = 0
+    for i in range(n):
+        dx = x[i]
+        dy = y[i]
+        dz = z[i]
+        if not (math.isfinite(dx) and math.isfinite(dy) and math.isfinite(dz)):
+            keys[i] = -2
+            ranges[i] = math.inf
+            bad += 1
+            continue
+        r = math.sqrt(dx * dx + dy * dy + dz * dz)
+        ranges[i] = r
+        if r == 0.0 or r < rmin or r > rmax:
+            keys[i] = -1
+            continue
+        v, h = _bins(theta[i], phi[i], dx, dy, dz, d_theta, d_phi, th0, th1, nv, nh)
+        keys[i] = -1 if v < 0 else v * nh + h
+    return bad
+
+
+@njit(cache=True)
+def _scratch():
+    return (np.empty(_BLOCK), np.empty(_BLOCK), np.empty(_BLOCK), np.empty(_BLOCK),
+            np.empty(_BLOCK), np.empty(_BLOCK, np.int64), np.empty(_BLOCK))
+
+
+@njit(cache=True, nogil=True, error_model="numpy")
 def _keys_array(points, ox, oy, oz, d_theta, d_phi, th0, th1, nv, nh, rmin, rmax, keys, ranges):
-    for i in range(points.shape[0]):
-        keys[i], ranges[i] = _pulse_key(
-            np.float64(points[i, 0]), np.float64(points[i, 1]), np.float64(points[i, 2]),
-            ox, oy, oz, d_theta, d_phi, th0, th1, nv, nh, rmin, rmax)
+    x, y, z, th, ph, kb, rb = _scratch()
+    n = points.shape[0]
+    for s in range(0, n, _BLOCK):
+        e = min(n, s + _BLOCK)
+        _block_keys(points, s, e, ox, oy, oz, d_theta, d_phi, th0, th1, nv, nh, rmin, rmax,
+                    x, y, z, th, ph, kb, rb)
+        keys[s:e] = kb[: e - s]
+        ranges[s:e] = rb[: e - s]
 
 
 def pulse_keys(points, origin, pattern):
@@ -102,6 +221,17 @@ def pulse_keys(points, origin, pattern):
     return keys, ranges
 
 
+@njit(cache=True, nogil=True, error_model="numpy")
+def _keys_exact(points, ox, oy, oz, d_theta, d_phi, th0, th1, nv, nh, keys):
+    """Keys with libm only (no fast path): for tests of the fast path."""
+    for i in range(points.shape[0]):
+        dx = np.float64(points[i, 0]) - ox
+        dy = np.float64(points[i, 1]) - oy
+        dz = np.float64(points[i, 2]) - oz
+        v, h = _bins_exact(dx, dy, dz, d_theta, d_phi, th0, th1, nv, nh)
+        keys[i] = -1 if v < 0 else v * nh + h
+
+
 def _kernel_params(origin, pattern):
     d_theta, d_phi, th0, th1 = pattern.radians
     rmin, rmax = pattern.range_limits
@@ -110,7 +240,7 @@ def _kernel_params(origin, pattern):
             d_theta, d_phi, th0, th1, np.int64(nv), np.int64(nh), rmin, rmax)
 
 
-@njit(cache=True, nogil=True)
+@njit(cache=True, nogil=True, error_model="numpy")
 def _count_nonfinite(points, start, stop):
     bad = 0
     for i in range(start, stop):
@@ -120,104 +250,33 @@ def _count_nonfinite(points, start, stop):
     return bad
 
 
-@njit(cache=True, nogil=True)
-def _put(tkeys, tranges, tidx, shift, key, r, idx):
-    """Insert or improve one bin; returns (slot, 1 if the bin is new)."""
-    mask = tkeys.shape[0] - 1
-    s = _slot(key, shift)
-    while True:
-        k = tkeys[s]
-        if k == key:
-            if r < tranges[s] or (r == tranges[s] and idx < tidx[s]):
-                tranges[s] = r
-                tidx[s] = idx
-            return s, 0
-        if k == -1:
-            tkeys[s] = key
-            tranges[s] = r
-            tidx[s] = idx
-            return s, 1
-        s = (s + 1) & mask
+# --- dense per-pulse arrays ----------------------------------------------------
 
-
-@njit(cache=True, nogil=True, fastmath=False)
-def _reduce_slice(points, ox, oy, oz, d_theta, d_phi, th0, th1, nv, nh, rmin, rmax,
-                  tkeys, tranges, tidx, count, offset, start, stop):
-    """Bin points[start:stop] into one table, fused (trigonometry + insert).
-
-    Stops early when the table is half full; returns (count, next position).
-    """
-    cap = tkeys.shape[0]
-    limit = cap // 2
-    shift = 64 - int(math.log2(cap) + 0.5)
-    last_key = np.int64(-1)
-    last_slot = np.int64(0)
-    for i in range(start, stop):
-        key, r = _pulse_key(np.float64(points[i, 0]), np.float64(points[i, 1]),
-                            np.float64(points[i, 2]), ox, oy, oz, d_theta, d_phi,
-                            th0, th1, nv, nh, rmin, rmax)
-        if key < 0:
-            continue
-        idx = offset + i
-        if key == last_key:  # scans are ordered: neighbours often share a pulse
-            if r < tranges[last_slot]:
-                tranges[last_slot] = r
-                tidx[last_slot] = idx
-            continue
-        if count >= limit:
-            return count, i
-        last_slot, new = _put(tkeys, tranges, tidx, shift, key, r, idx)
-        last_key = key
-        count += new
-    return count, stop
-
-
-@njit(cache=True, nogil=True)
-def _merge(tkeys, tranges, tidx, nkeys, nranges, nidx):
-    """Insert every bin of one table into another (which must be large enough)."""
-    cap = nkeys.shape[0]
-    shift = 64 - int(math.log2(cap) + 0.5)
-    new = 0
-    for j in range(tkeys.shape[0]):
-        key = tkeys[j]
-        if key != -1:
-            new += _put(nkeys, nranges, nidx, shift, key, tranges[j], tidx[j])[1]
-    return new
-
-
-@njit(cache=True, nogil=True)
-def _extract(tkeys, tranges, tidx, out_keys, out_ranges, out_idx):
-    j = 0
-    for s in range(tkeys.shape[0]):
-        if tkeys[s] != -1:
-            out_keys[j] = tkeys[s]
-            out_ranges[j] = tranges[s]
-            out_idx[j] = tidx[s]
-            j += 1
-    return j
-
-
-@njit(cache=True, nogil=True, fastmath=False)
+@njit(cache=True, nogil=True, error_model="numpy")
 def _reduce_dense(points, ox, oy, oz, d_theta, d_phi, th0, th1, nv, nh, rmin, rmax,
                   branges, bidx, offset, start, stop):
     """Bin points[start:stop] into dense per-pulse arrays; returns new bins."""
+    x, y, z, th, ph, keys, ranges = _scratch()
     new = 0
-    for i in range(start, stop):
-        key, r = _pulse_key(np.float64(points[i, 0]), np.float64(points[i, 1]),
-                            np.float64(points[i, 2]), ox, oy, oz, d_theta, d_phi,
-                            th0, th1, nv, nh, rmin, rmax)
-        if key < 0:
-            continue
-        # indices only grow within a table, so a strict < keeps ties on the lowest
-        if r < branges[key]:
-            if bidx[key] < 0:
-                new += 1
-            branges[key] = r
-            bidx[key] = offset + i
+    for s in range(start, stop, _BLOCK):
+        e = min(stop, s + _BLOCK)
+        _block_keys(points, s, e, ox, oy, oz, d_theta, d_phi, th0, th1, nv, nh, rmin, rmax,
+                    x, y, z, th, ph, keys, ranges)
+        for i in range(e - s):
+            key = keys[i]
+            if key < 0:
+                continue
+            r = ranges[i]
+            # indices only grow within a table: a strict < keeps ties on the lowest
+            if r < branges[key]:
+                if bidx[key] < 0:
+                    new += 1
+                branges[key] = r
+                bidx[key] = offset + s + i
     return new
 
 
-@njit(cache=True, nogil=True)
+@njit(cache=True, nogil=True, error_model="numpy")
 def _merge_dense(branges, bidx, oranges, oidx):
     new = 0
     for k in range(bidx.shape[0]):
@@ -230,6 +289,133 @@ def _merge_dense(branges, bidx, oranges, oidx):
         if i < 0 or oranges[k] < branges[k] or (oranges[k] == branges[k] and j < i):
             branges[k] = oranges[k]
             bidx[k] = j
+    return new
+
+
+# --- hash tables of records (key, r, idx) ---------------------------------------
+
+@njit(cache=True, inline="always", error_model="numpy")
+def _slot(key, bits):
+    """Slot of a key: groups of 2**_GROUP neighbouring keys share a hashed run."""
+    g = np.int64((np.uint64(key >> _GROUP) * _HASH) >> np.uint64(64 - bits + _GROUP))
+    return (g << _GROUP) | (key & ((1 << _GROUP) - 1))
+
+
+@njit(cache=True, inline="always", error_model="numpy")
+def _put(tab, bits, key, r, idx):
+    """Insert or improve one bin; returns (slot, 1 if the bin is new)."""
+    mask = tab.shape[0] - 1
+    s = _slot(key, bits)
+    while True:
+        e = tab[s]
+        k = e.key
+        if k == key:
+            if r < e.r or (r == e.r and idx < e.idx):
+                e.r = r
+                e.idx = idx
+            return s, 0
+        if k == -1:
+            e.key = key
+            e.r = r
+            e.idx = idx
+            return s, 1
+        s = (s + 1) & mask
+
+
+@njit(cache=True, nogil=True, error_model="numpy")
+def _block_keys_range(points, ox, oy, oz, d_theta, d_phi, th0, th1, nv, nh, rmin, rmax,
+                      keys, ranges, start, stop):
+    """Keys and ranges of points[start:stop] into keys[start:stop], ranges[start:stop]."""
+    x, y, z, th, ph, kb, rb = _scratch()
+    for s in range(start, stop, _BLOCK):
+        e = min(stop, s + _BLOCK)
+        _block_keys(points, s, e, ox, oy, oz, d_theta, d_phi, th0, th1, nv, nh, rmin, rmax,
+                    x, y, z, th, ph, kb, rb)
+        keys[s:e] = kb[: e - s]
+        ranges[s:e] = rb[: e - s]
+
+
+@njit(cache=True, nogil=True, error_model="numpy")
+def _insert_part(tab, count, keys, ranges, offset, part, n_parts, start):
+    """Insert the keys of one share (``(key >> _GROUP) % n_parts == part``).
+
+    Stops when the table reaches its load limit; returns (count, next position)
+    so that the caller grows it and goes on.
+    """
+    bits = int(math.log2(tab.shape[0]) + 0.5)
+    limit = (tab.shape[0] * 7) // 10
+    last_key = np.int64(-1)
+    last = np.int64(0)
+    n = keys.shape[0]
+    for i in range(start, n):
+        key = keys[i]
+        if key < 0 or (key >> _GROUP) % n_parts != part:
+            continue
+        r = ranges[i]
+        if key == last_key:  # scans are ordered: neighbours often share a pulse
+            if r < tab[last].r:
+                tab[last].r = r
+                tab[last].idx = offset + i
+            continue
+        if count >= limit:
+            return count, i
+        last, new = _put(tab, bits, key, r, offset + i)
+        last_key = key
+        count += new
+    return count, n
+
+
+@njit(cache=True, nogil=True, error_model="numpy")
+def _extract_hash(tab, keys, ranges, idx, at):
+    j = at
+    for s in range(tab.shape[0]):
+        if tab[s].key != -1:
+            keys[j] = tab[s].key
+            ranges[j] = tab[s].r
+            idx[j] = tab[s].idx
+            j += 1
+    return j
+
+
+@njit(cache=True, nogil=True, error_model="numpy")
+def _pack_hash(tab, packed, bits, at):
+    """``(index << bits) | key`` of every occupied record into packed[at:]."""
+    j = at
+    for s in range(tab.shape[0]):
+        if tab[s].key != -1:
+            packed[j] = (tab[s].idx << bits) | tab[s].key
+            j += 1
+    return j
+
+
+@njit(cache=True, nogil=True, error_model="numpy")
+def _unpack(packed, bits, keys, idx):
+    mask = (np.int64(1) << bits) - 1
+    for j in range(packed.shape[0]):
+        keys[j] = packed[j] & mask
+        idx[j] = packed[j] >> bits
+
+
+@njit(cache=True, nogil=True, error_model="numpy")
+def _ranges_of(points, idx, ox, oy, oz, out):
+    """Ranges of points[idx], by the same arithmetic as the reduction."""
+    for j in range(idx.shape[0]):
+        i = idx[j]
+        dx = np.float64(points[i, 0]) - ox
+        dy = np.float64(points[i, 1]) - oy
+        dz = np.float64(points[i, 2]) - oz
+        out[j] = math.sqrt(dx * dx + dy * dy + dz * dz)
+
+
+@njit(cache=True, nogil=True, error_model="numpy")
+def _merge_hash(src, dst):
+    """Insert every bin of ``src`` into ``dst`` (large enough); returns new bins."""
+    bits = int(math.log2(dst.shape[0]) + 0.5)
+    new = 0
+    for j in range(src.shape[0]):
+        e = src[j]
+        if e.key != -1:
+            new += _put(dst, bits, e.key, e.r, e.idx)[1]
     return new
 
 
@@ -256,11 +442,11 @@ class _DenseTable:
         idx = self.idx[keys]
         bits = max(1, int(len(self.idx) - 1).bit_length())
         if len(keys) and int(idx.max()) < 1 << (63 - bits):
-            # one sort of (index, key) packed in an int64: faster than an argsort
+            # one sort of (index, key) packed in an int64 is faster than an argsort
             packed = np.sort((idx << bits) | keys)
             keys = packed & ((1 << bits) - 1)
             idx = packed >> bits
-        else:  # pragma: no cover - more than 2**39 points
+        else:  # pragma: no cover - more than 2**40 points
             order = np.argsort(idx)
             keys, idx = keys[order], idx[order]
         return keys, self.ranges[keys], idx
@@ -270,61 +456,50 @@ class _DenseTable:
         return self.ranges.nbytes + self.idx.nbytes
 
 
-class _Table:
-    """One thread's open-addressing hash table: bin key -> (range, index)."""
+class _HashTable:
+    """One thread's open-addressing hash table of (key, range, index) records.
 
-    __slots__ = ("keys", "ranges", "idx", "count")
+    Load factor at most 0.7 (linear probing, keys hashed in groups of 16).
+    """
+
+    __slots__ = ("tab", "count")
 
     def __init__(self, bits: int = _INITIAL_BITS):
-        cap = 1 << bits
-        self.keys = np.full(cap, _EMPTY, dtype=np.int64)
-        self.ranges = np.empty(cap, dtype=np.float64)
-        self.idx = np.empty(cap, dtype=np.int64)
+        self.tab = np.empty(1 << bits, dtype=_RECORD)
+        self.tab["key"] = -1
         self.count = 0
 
-    def grow(self, at_least: int = 0) -> None:
-        """Double the capacity (or more, to hold ``at_least`` bins half full)."""
-        cap = len(self.keys) * 2
-        while cap // 2 < at_least:
-            cap *= 2
-        keys = np.full(cap, _EMPTY, dtype=np.int64)
-        ranges = np.empty(cap, dtype=np.float64)
-        idx = np.empty(cap, dtype=np.int64)
-        _merge(self.keys, self.ranges, self.idx, keys, ranges, idx)
-        self.keys, self.ranges, self.idx = keys, ranges, idx
+    def grow(self) -> None:
+        tab = np.empty(2 * len(self.tab), dtype=_RECORD)
+        tab["key"] = -1
+        _merge_hash(self.tab, tab)
+        self.tab = tab
 
-    def reduce(self, points, params, offset, start, stop) -> None:
+    def insert(self, keys, ranges, offset, part, n_parts) -> None:
+        start = 0
         while True:
-            self.count, start = _reduce_slice(
-                points, *params, self.keys, self.ranges, self.idx, self.count,
-                offset, start, stop,
-            )
-            if start >= stop:
+            self.count, start = _insert_part(self.tab, self.count, keys, ranges, offset,
+                                             part, n_parts, start)
+            if start >= len(keys):
                 return
             self.grow()
 
-    def absorb(self, other: "_Table") -> None:
-        """Merge another table's bins into this one (lower (range, index) wins)."""
-        if other.count == 0:
-            return
-        if self.count + other.count > len(self.keys) // 2:
-            self.grow(self.count + other.count)
-        self.count += _merge(other.keys, other.ranges, other.idx,
-                             self.keys, self.ranges, self.idx)
-
-    def extract(self):
-        """Occupied bins ``(keys, ranges, indices)`` sorted by index."""
-        m = self.count
-        keys = np.empty(m, dtype=np.int64)
-        ranges = np.empty(m, dtype=np.float64)
-        idx = np.empty(m, dtype=np.int64)
-        _extract(self.keys, self.ranges, self.idx, keys, ranges, idx)
-        order = np.argsort(idx)  # indices are unique: no stability needed
-        return keys[order], ranges[order], idx[order]
-
     @property
     def nbytes(self) -> int:
-        return self.keys.nbytes + self.ranges.nbytes + self.idx.nbytes
+        return self.tab.nbytes
+
+
+def _sort_by_index(keys, ranges, idx):
+    """Reorder three parallel arrays by ``idx`` (unique)."""
+    m = len(idx)
+    bits = max(1, int(m).bit_length())
+    if m and int(idx.max()) < 1 << (63 - bits):
+        # sorting (index, position) packed in an int64 is much faster than argsort
+        packed = np.sort((idx << bits) | np.arange(m, dtype=np.int64))
+        order = packed & ((1 << bits) - 1)
+        return keys[order], ranges[order], packed >> bits
+    order = np.argsort(idx)  # pragma: no cover - beyond 2**40 points
+    return keys[order], ranges[order], idx[order]
 
 
 class BinTables:
@@ -334,10 +509,6 @@ class BinTables:
     points (indices continue across chunks); :meth:`winners` returns the
     occupied bins. Used by :func:`slr_ray.simulate_scan` and
     :class:`slr_ray.ScanAccumulator`; most users want those instead.
-
-    Patterns with few pulses (``16 * n_pulses * n_threads <= dense_bytes``,
-    e.g. 0.144 deg) use dense per-pulse arrays, which are faster for dense
-    clouds; finer patterns use hash tables that grow with occupied bins.
     """
 
     #: memory allowed for dense per-pulse arrays, all threads together
@@ -355,7 +526,10 @@ class BinTables:
         self._params = _kernel_params(origin, pattern)
 
     def _new_table(self):
-        return _DenseTable(self.pattern.n_pulses) if self.dense else _Table()
+        return _DenseTable(self.pattern.n_pulses) if self.dense else _HashTable()
+
+    #: points whose keys are computed before the threads insert them (hash tables)
+    superblock = 1 << 21
 
     def _slices(self, n):
         step = -(-n // self.n_threads)
@@ -370,6 +544,8 @@ class BinTables:
         n = len(points)
         if n == 0:
             return 0
+        if not self.dense:
+            return self._add_hash(points)
         slices = self._slices(n)
         if len(slices) == 1:
             bad = _count_nonfinite(points, 0, n)
@@ -390,7 +566,38 @@ class BinTables:
         self.n_points += n
         return 0
 
-    def _merged(self) -> _Table:
+    def _add_hash(self, points) -> int:
+        """Hash tables: threads split the *keys* (no merge needed), in two phases
+        per superblock: keys computed over point slices, then inserted by owner."""
+        n = len(points)
+        T = self.n_threads
+        pool = ThreadPoolExecutor(T) if T > 1 else None
+        run = (lambda f, args: list(pool.map(lambda a: f(*a), args))) if pool else \
+            (lambda f, args: [f(*a) for a in args])
+        try:
+            bad = sum(run(_count_nonfinite, [(points, s, e) for s, e in self._slices(n)]))
+            if bad:
+                return bad
+            size = min(n, self.superblock)
+            keys = np.empty(size, np.int64)
+            ranges = np.empty(size, np.float64)
+            for s0 in range(0, n, size):
+                e0 = min(n, s0 + size)
+                view = points[s0:e0]
+                m = e0 - s0
+                step = -(-m // T)
+                run(_block_keys_range, [(view, *self._params, keys, ranges, s, min(s + step, m))
+                                        for s in range(0, m, step)])
+                run(lambda t, part: t.insert(keys[:m], ranges[:m], self.n_points + s0, part, T),
+                    [(t, part) for part, t in enumerate(self.tables)])
+        finally:
+            if pool is not None:
+                pool.shutdown()
+        self.n_points += n
+        return 0
+
+    def _merged(self):
+        """Dense tables: fold all into the first (threads split the points)."""
         first, *rest = self.tables
         for t in rest:
             first.absorb(t)
@@ -400,13 +607,43 @@ class BinTables:
     @property
     def n_bins(self) -> int:
         """Number of occupied pulse bins so far."""
-        return self._merged().count if len(self.tables) > 1 else self.tables[0].count
+        if self.dense:
+            return self._merged().count
+        return sum(t.count for t in self.tables)
 
     @property
     def nbytes(self) -> int:
         """Bytes held by the tables."""
         return sum(t.nbytes for t in self.tables)
 
-    def winners(self):
-        """Occupied bins as ``(keys, ranges, indices)``, sorted by index."""
-        return self._merged().extract()
+    def winners(self, points=None):
+        """Occupied bins as ``(keys, ranges, indices)``, sorted by index.
+
+        ``points``: the cloud, when the caller still has it (one-shot scans):
+        then the ranges are recomputed from it, which is faster than carrying
+        them through the sort.
+        """
+        if self.dense:
+            return self._merged().extract()
+        m = self.n_bins
+        n_pulse_bits = max(1, int(self.pattern.n_pulses - 1).bit_length())
+        if points is not None and m and int(self.n_points).bit_length() + n_pulse_bits <= 63:
+            packed = np.empty(m, np.int64)
+            at = 0
+            for t in self.tables:
+                at = _pack_hash(t.tab, packed, n_pulse_bits, at)
+            packed.sort()
+            keys = np.empty(m, np.int64)
+            idx = np.empty(m, np.int64)
+            _unpack(packed, n_pulse_bits, keys, idx)
+            del packed
+            ranges = np.empty(m, np.float64)
+            _ranges_of(points, idx, *self._params[:3], ranges)
+            return keys, ranges, idx
+        keys = np.empty(m, np.int64)
+        ranges = np.empty(m, np.float64)
+        idx = np.empty(m, np.int64)
+        at = 0
+        for t in self.tables:  # threads own disjoint keys: concatenate
+            at = _extract_hash(t.tab, keys, ranges, idx, at)
+        return _sort_by_index(keys, ranges, idx)

@@ -1,0 +1,67 @@
+"""Binning backend vs the paper's sort-based method, on the same 29 M-point cloud.
+
+    python benchmarks/bench_binning.py [--repeat 3] [--baseline-repeat 1]
+
+The paper reports 18.64 s for 29 M points (one 2.3 GHz core) with a sort on
+(h, v, R). The baseline here is that method in numpy (benchmarks/sort_baseline.py),
+timed in the same run on the same machine, because this machine is noisy.
+Prints a table and saves results/bench_binning.json.
+"""
+
+from __future__ import annotations
+
+import argparse
+import sys
+from pathlib import Path
+
+import numpy as np
+
+sys.path.insert(0, str(Path(__file__).resolve().parent))
+
+from common import machine, realistic_cloud, save, timed  # noqa: E402
+from sort_baseline import sort_based_scan  # noqa: E402
+
+import slr_ray  # noqa: E402
+from slr_ray import ScanPattern, simulate_scan  # noqa: E402
+
+
+def main(argv=None):
+    ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    ap.add_argument("--repeat", type=int, default=3)
+    ap.add_argument("--baseline-repeat", type=int, default=1)
+    ap.add_argument("--resolution", type=float, default=0.029, help="primary scan resolution of the cloud")
+    args = ap.parse_args(argv)
+
+    pts = realistic_cloud(args.resolution)
+    origin = np.array([12.3, -7.1, 0.0])  # a secondary position 14 m from the primary
+    patterns = {"slr 0.144": ScanPattern(0.144), "syns 0.036": slr_ray.preset("syns")}
+    simulate_scan(pts[:1000], origin, patterns["slr 0.144"])  # compile outside the timing
+    rows = []
+    for name, pattern in patterns.items():
+        best, times, ref = timed(lambda: sort_based_scan(pts, origin, pattern), args.baseline_repeat)
+        rows.append({"pattern": name, "method": "sort baseline (numpy lexsort)", "threads": 1,
+                     "seconds": best, "all_seconds": times, "points_out": len(ref)})
+        base = best
+        for threads in (1, 2):
+            best, times, scan = timed(lambda: simulate_scan(pts, origin, pattern, n_threads=threads), args.repeat)
+            same = bool(np.array_equal(scan.indices, ref))
+            rows.append({"pattern": name, "method": "binning", "threads": threads, "seconds": best,
+                         "all_seconds": times, "points_out": len(scan), "speedup_vs_sort": base / best,
+                         "identical_to_baseline": same})
+        print(f"{name}: baseline {base:.2f} s, binning 1 thread {rows[-2]['seconds']:.3f} s, "
+              f"2 threads {rows[-1]['seconds']:.3f} s ({rows[-1]['speedup_vs_sort']:.1f}x), "
+              f"identical: {rows[-1]['identical_to_baseline']}", file=sys.stderr)
+    print(f"\n{'pattern':<12} {'method':<30} {'thr':>3} {'seconds':>8} {'speedup':>8} {'points out':>11}")
+    for r in rows:
+        sp = f"{r['speedup_vs_sort']:.1f}x" if "speedup_vs_sort" in r else "1.0x"
+        print(f"{r['pattern']:<12} {r['method']:<30} {r['threads']:>3} {r['seconds']:>8.3f} {sp:>8} {r['points_out']:>11,}")
+    save("bench_binning", {"machine": machine(),
+                           "inputs": {"points": len(pts), "cloud": f"rect-1000 primary scan at {args.resolution} deg, "
+                                      "zenith 0-135, 120 m, from (0, 0, 0)", "origin": origin.tolist(),
+                                      "patterns": {k: v.to_dict() for k, v in patterns.items()}},
+                           "paper": {"points": 29_000_000, "seconds": 18.64, "note": "1 core 2.3 GHz"},
+                           "rows": rows})
+
+
+if __name__ == "__main__":
+    main()
