@@ -7,8 +7,8 @@ Three semantics (DESIGN §2):
     is what a ray caster returns (pulse-centre semantics).
 ``"nearest"``
     The closest surface anywhere inside the pulse's pyramid (the paper's
-    nearest-in-pulse rule), approximated by ``k x k`` sub-rays per pulse and
-    keeping the nearest hit. A pulse whose centre misses but whose pyramid
+    nearest-in-pulse rule), approximated by ``k x k`` sub-rays per pulse (plus
+    the centre ray when k is even) and keeping the nearest hit. A pulse whose centre misses but whose pyramid
     clips a surface is still returned when any sub-ray hits.
 ``"dense"``
     The paper's method to the letter: the surfaces sampled on a regular grid
@@ -166,7 +166,9 @@ def scan_mesh(scene_or_mesh, origin, pattern, mode: str = "center", *, supersamp
     mode : {'center', 'nearest', 'dense'}
         Truth semantics (module docstring).
     supersample : int
-        ``k`` for ``'nearest'``: k x k sub-rays per pulse (k = 1 is ``'center'``).
+        ``k`` for ``'nearest'``: k x k sub-rays per pulse at the centres of a
+        k x k grid, plus the centre ray when k is even (k = 1 is ``'center'``).
+        Cost grows as k^2.
     spacing : float
         Grid spacing in metres for ``'dense'``.
     face_labels : (f,) int, optional
@@ -213,6 +215,10 @@ def scan_mesh(scene_or_mesh, origin, pattern, mode: str = "center", *, supersamp
     for r0 in range(0, nv, rows_per):
         rows = slice(r0, min(nv, r0 + rows_per))
         dirs, vv, hh = _pulse_grid(pattern, rows, k)
+        if k % 2 == 0:  # even k has no sub-ray through the centre: add it, so that
+            # "nearest" finds every pulse "center" finds
+            extra = _pulse_grid(pattern, rows, 1)
+            dirs, vv, hh = (np.concatenate([a, b]) for a, b in zip((dirs, vv, hh), extra))
         face, t = caster.cast(local, dirs)
         hit = (face >= 0) & (t > 0)
         rmin, rmax = pattern.range_limits

@@ -268,7 +268,8 @@ def _grid_polygon(poly: np.ndarray, spacing: float):
     U, V = U.ravel(), V.ravel()
     inside = np.ones(len(U), bool)
     m = len(uv)
-    sign = np.sign(np.cross(uv[1] - uv[0], uv[2] - uv[0]))
+    a, b = uv[1] - uv[0], uv[2] - uv[0]
+    sign = np.sign(a[0] * b[1] - a[1] * b[0])
     for i in range(m):
         a, b = uv[i], uv[(i + 1) % m]
         inside &= sign * ((b[0] - a[0]) * (V - a[1]) - (b[1] - a[1]) * (U - a[0])) >= 0

@@ -1,0 +1,122 @@
+import numpy as np
+import pytest
+import trimesh
+
+from slr_ray import InputValueError, ScanPattern, scan_mesh, simulate_scan
+from slr_ray.scenes import dense_samples, rectangle_scene
+
+
+def test_ground_only_centre_scan_is_exact():
+    sc = rectangle_scene(0)
+    pattern = ScanPattern(0.5)
+    ms = scan_mesh(sc, [0, 0, 0], pattern)
+    assert len(ms) > 0 and np.all(ms.labels == 0)
+    assert np.abs(ms.points[:, 2] + 1.65).max() < 1e-6
+    d_theta = np.radians(0.5)
+    theta = (ms.pulses[:, 0] + 0.5) * d_theta
+    np.testing.assert_allclose(ms.ranges, 1.65 / np.cos(np.pi - theta), rtol=1e-6)
+    # every downward pulse whose centre meets the disc is returned
+    th = (np.arange(pattern.n_zenith) + 0.5) * d_theta
+    meets = (th > np.pi / 2) & (1.65 * np.tan(np.pi - th) < 100 * np.cos(np.pi / 1024) - 1e-3)
+    assert len(ms) == meets.sum() * pattern.n_azimuth
+
+
+def test_far_from_the_origin_stays_exact():
+    sc = rectangle_scene(0)
+    shift = np.array([5e5, 5e6, 100.0])
+    moved = trimesh.Trimesh(sc.mesh.vertices + shift, sc.mesh.faces, process=False)
+    ms = scan_mesh(moved, shift + [1, 2, 0], ScanPattern(1.0))
+    assert np.abs(ms.points[:, 2] - (shift[2] - 1.65)).max() < 1e-6
+
+
+def _two_walls():
+    front = trimesh.creation.box([0.1, 4, 4])
+    front.apply_translation([5, 0, 0])
+    back = trimesh.creation.box([0.1, 10, 10])
+    back.apply_translation([10, 0, 0])
+    mesh = trimesh.util.concatenate([front, back])
+    labels = np.r_[np.ones(len(front.faces), int), np.full(len(back.faces), 2)]
+    return mesh, labels
+
+
+@pytest.mark.parametrize("mode", ["center", "nearest"])
+def test_wall_in_front_of_wall(mode):
+    mesh, labels = _two_walls()
+    ms = scan_mesh(mesh, [0, 0, 0], ScanPattern(0.5), mode=mode, face_labels=labels, supersample=3)
+    front = ms.labels == 1
+    assert front.any() and (~front).any()
+    # nothing of the back wall where the front wall covers it (|y|, |z| < 2 seen from x=0 at x=5)
+    back = ms.points[~front]
+    hidden = (np.abs(back[:, 1]) < 2 * 10 / 5 - 0.2) & (np.abs(back[:, 2]) < 2 * 10 / 5 - 0.2)
+    assert not hidden.any()
+    np.testing.assert_allclose(ms.points[front, 0], 4.95, atol=1e-9)
+    np.testing.assert_allclose(ms.points[~front, 0], 9.95, atol=1e-9)
+
+
+def test_nearest_never_loses_pulses_that_centre_rays_hit_and_finds_more():
+    sc = rectangle_scene(100, seed=5)
+    p = ScanPattern(1.0)
+    centre = scan_mesh(sc, [0, 0, 0], p)
+    near = scan_mesh(sc, [0, 0, 0], p, mode="nearest", supersample=4)
+    c_ids = set((centre.pulses[:, 0] * p.n_azimuth + centre.pulses[:, 1]).tolist())
+    n_ids = set((near.pulses[:, 0] * p.n_azimuth + near.pulses[:, 1]).tolist())
+    assert c_ids <= n_ids and len(n_ids) > len(c_ids)
+    # per pulse the nearest-in-pulse range is never larger than the centre ray's
+    cr = dict(zip(centre.pulses[:, 0] * p.n_azimuth + centre.pulses[:, 1], centre.ranges))
+    nr = dict(zip(near.pulses[:, 0] * p.n_azimuth + near.pulses[:, 1], near.ranges))
+    assert all(nr[k] <= cr[k] + 1e-9 for k in cr)
+
+
+def test_nearest_converges_to_the_dense_truth():
+    sc = rectangle_scene(15, seed=7, ground_radius=6.0, xy_range=(-6, 6), z_range=(-1, 2))
+    p = ScanPattern(4.0)
+    dense = scan_mesh(sc, [0.3, 0.2, 0], p, mode="dense", spacing=0.01)
+    key = lambda ms: ms.pulses[:, 0] * p.n_azimuth + ms.pulses[:, 1]  # noqa: E731
+    errs = []
+    for k in (1, 4, 16):
+        ms = scan_mesh(sc, [0.3, 0.2, 0], p, mode="nearest", supersample=k)
+        common, a, b = np.intersect1d(key(ms), key(dense), return_indices=True)
+        errs.append(np.abs(ms.ranges[a] - dense.ranges[b]).mean())
+    assert errs[2] < errs[1] < errs[0]
+    assert errs[2] < 0.01 * 3  # within a few sample spacings
+
+
+def test_dense_mode_equals_binning_the_samples():
+    sc = rectangle_scene(5, seed=1, ground_radius=4.0, xy_range=(-4, 4), z_range=(-1, 1))
+    p = ScanPattern(3.0)
+    ms = scan_mesh(sc, [0, 0, 0], p, mode="dense", spacing=0.02)
+    pts = np.vstack([c[0] for c in dense_samples(sc, 0.02)])
+    lab = np.concatenate([c[1] for c in dense_samples(sc, 0.02)])
+    ref = simulate_scan(pts, [0, 0, 0], p)
+    order = np.lexsort((ref.pulses[:, 1], ref.pulses[:, 0]))
+    np.testing.assert_array_equal(ms.points, pts[ref.indices][order])
+    np.testing.assert_array_equal(ms.labels, lab[ref.indices][order])
+
+
+def test_grazing_tiny_and_inside_do_not_misbehave():
+    # a rectangle seen edge-on, one far smaller than a pulse, and the scanner inside a box's bounds
+    edge = trimesh.Trimesh([[3, -1, 0], [3, 1, 0], [6, 1, 0], [6, -1, 0]], [[0, 1, 2], [0, 2, 3]])
+    tiny = trimesh.Trimesh(np.array([[0, 0, 0], [1e-4, 0, 0], [0, 1e-4, 0]]) + [0, 5, 0], [[0, 1, 2]])
+    box = trimesh.creation.box([2, 2, 2])
+    mesh = trimesh.util.concatenate([edge, tiny, box])
+    ms = scan_mesh(mesh, [0.1, -0.2, 0.0], ScanPattern(2.0))
+    assert len(ms) > 0 and np.isfinite(ms.points).all()
+    # every hit lies on the plane of its face
+    tri = mesh.triangles[ms.labels]
+    n = np.cross(tri[:, 1] - tri[:, 0], tri[:, 2] - tri[:, 0])
+    n /= np.linalg.norm(n, axis=1, keepdims=True)
+    np.testing.assert_allclose(np.einsum("ij,ij->i", ms.points - tri[:, 0], n), 0, atol=1e-9)
+    # inside the box every direction hits it: the full sphere of pulses
+    assert len(ms) == ScanPattern(2.0).n_pulses
+
+
+def test_bad_arguments():
+    sc = rectangle_scene(0)
+    with pytest.raises(InputValueError, match="mode"):
+        scan_mesh(sc, [0, 0, 0], 1.0, mode="exact")
+    with pytest.raises(InputValueError, match="supersample"):
+        scan_mesh(sc, [0, 0, 0], 1.0, mode="nearest", supersample=0)
+    with pytest.raises(InputValueError, match="RectangleScene"):
+        scan_mesh(sc.mesh, [0, 0, 0], 1.0, mode="dense")
+    with pytest.raises(InputValueError, match="face_labels"):
+        scan_mesh(sc.mesh, [0, 0, 0], 1.0, face_labels=[1, 2])
