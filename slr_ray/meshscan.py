@@ -34,7 +34,7 @@ from .backends.binning import default_threads
 from .errors import InputValueError, MissingDependencyError
 from .pattern import ScanPattern
 
-__all__ = ["MeshScan", "scan_mesh", "MESH_MODES"]
+__all__ = ["MeshScan", "scan_mesh", "scan_mesh_to_file", "load_meshscan", "MESH_MODES"]
 
 MESH_MODES = ("center", "nearest", "dense")
 
@@ -52,7 +52,9 @@ class MeshScan:
     ranges : (m,) float64
         Distance from the origin.
     pulses : (m, 2) int64
-        Pulse bin ``(v, h)``; one point per pulse, sorted by pulse.
+        Pulse bin ``(v, h)``; one point per pulse. Sorted by pulse for
+        ``'center'`` and ``'nearest'``; in sample order for ``'dense'``
+        (sorting 10^8 points would double the memory of a primary scan).
     origin : (3,) float64
     pattern : ScanPattern
     mode : str
@@ -75,10 +77,47 @@ class MeshScan:
         """``(m, 3) float32`` offsets from the scanner: compact storage (mm at 100 m)."""
         return (self.points - self.origin).astype(np.float32)
 
+    def save(self, path):
+        """Write compactly (npz): float32 offsets from the origin (12 bytes a
+        point: 8 um at 100 m), int32 labels (4 bytes), the flat pulse id
+        ``v * n_azimuth + h`` as uint32 (4 bytes), origin and pattern.
+        Read back with :func:`load_meshscan`. Atomic."""
+        import json
+        from pathlib import Path
+
+        from .io import atomic_path
+
+        path = Path(path)
+        with atomic_path(path) as tmp:
+            with open(tmp, "wb") as f:
+                np.savez(f, offsets=self.offsets32(), labels=self.labels.astype(np.int32),
+                         pulse_ids=(self.pulses[:, 0] * self.pattern.n_azimuth + self.pulses[:, 1]).astype(
+                             np.uint32 if self.pattern.n_pulses < 2**32 else np.int64), origin=self.origin,
+                         meta=np.array(json.dumps({"pattern": self.pattern.to_dict(), "mode": self.mode,
+                                                   "seconds": self.seconds})))
+        return path
+
     def summary(self) -> dict:
         return {"mode": self.mode, "origin": self.origin.tolist(), "pattern": self.pattern.to_dict(),
                 "points_out": len(self), "pulses": self.pattern.n_pulses,
                 "seconds": round(self.seconds, 6)}
+
+
+def load_meshscan(path) -> "MeshScan":
+    """Read a :class:`MeshScan` written by :meth:`MeshScan.save`."""
+    import json
+
+    with np.load(path, allow_pickle=False) as z:
+        meta = json.loads(str(z["meta"]))
+        origin = z["origin"].astype(np.float64)
+        offsets = z["offsets"].astype(np.float64)
+        labels = z["labels"].astype(np.int64)
+        ids = z["pulse_ids"].astype(np.int64)
+    pattern = ScanPattern.from_dict(meta["pattern"])
+    pulses = np.column_stack([ids // pattern.n_azimuth, ids % pattern.n_azimuth])
+    ranges = np.sqrt((offsets * offsets).sum(axis=1))
+    return MeshScan(offsets + origin, labels, ranges, pulses, origin, pattern, meta["mode"],
+                    meta.get("seconds", 0.0))
 
 
 def _embree():
@@ -153,6 +192,76 @@ def _pulse_grid(pattern: ScanPattern, rows: slice, k: int):
     return dirs.reshape(-1, 3), vv.ravel(), hh.ravel()
 
 
+def _check_mesh_args(scene_or_mesh, origin, pattern, mode, supersample, face_labels):
+    from .scan import _check_pattern
+
+    pattern = _check_pattern(pattern)
+    origin = as_origin(origin)
+    if mode not in MESH_MODES:
+        raise InputValueError(f"mode must be one of {MESH_MODES}, got {mode!r}")
+    mesh = getattr(scene_or_mesh, "mesh", scene_or_mesh)
+    if face_labels is None:
+        face_labels = getattr(scene_or_mesh, "face_labels", None)
+    faces = np.asarray(mesh.faces, dtype=np.int64)
+    labels = np.arange(len(faces)) if face_labels is None else np.asarray(face_labels, np.int64)
+    if len(labels) != len(faces):
+        raise InputValueError(f"face_labels has {len(labels)} values for {len(faces)} faces")
+    if mode == "nearest" and (int(supersample) != supersample or supersample < 1):
+        raise InputValueError(f"supersample must be an integer >= 1, got {supersample}")
+    if mode == "dense":
+        from .scenes import RectangleScene
+
+        if not isinstance(scene_or_mesh, RectangleScene):
+            raise InputValueError("mode='dense' needs a RectangleScene (planar polygons to sample)")
+    return mesh, faces, labels, origin, pattern
+
+
+def _hit_chunks(scene_or_mesh, origin, pattern, mode, supersample=4, spacing=0.005,
+                face_labels=None, rays_per_batch=1 << 21, progress=False):
+    """Yield the scan chunk by chunk: (offsets (k, 3) f8, labels (k,), ranges (k,), pulses (k, 2))."""
+    mesh, faces, labels, origin, pattern = _check_mesh_args(
+        scene_or_mesh, origin, pattern, mode, supersample, face_labels)
+    if mode == "dense":
+        yield from _dense_chunks(scene_or_mesh, origin, pattern, spacing)
+        return
+    k = 1 if mode == "center" else int(supersample)
+    caster = _Caster(np.asarray(mesh.vertices, np.float64), faces, origin)
+    local = np.zeros(3)
+    nv, nh = pattern.shape
+    rmin, rmax = pattern.range_limits
+    rows_per = max(1, rays_per_batch // (nh * k * k))
+    bar = None
+    if progress:
+        from tqdm import tqdm
+
+        bar = tqdm(total=nv, unit="row", desc=f"scan {mode}", leave=False)
+    try:
+        for r0 in range(0, nv, rows_per):
+            rows = slice(r0, min(nv, r0 + rows_per))
+            dirs, vv, hh = _pulse_grid(pattern, rows, k)
+            if k % 2 == 0:  # even k has no sub-ray through the centre: add it, so that
+                # "nearest" finds every pulse "center" finds
+                extra = _pulse_grid(pattern, rows, 1)
+                dirs, vv, hh = (np.concatenate([a, b]) for a, b in zip((dirs, vv, hh), extra))
+            face, t = caster.cast(local, dirs)
+            hit = (face >= 0) & (t > 0) & (t >= rmin) & (t <= rmax)
+            sel = np.flatnonzero(hit)
+            if k > 1 and len(sel):
+                key = vv[sel] * nh + hh[sel]
+                order = np.lexsort((t[sel], key))  # per pulse, the nearest sub-ray first
+                key, first = key[order], np.ones(len(order), bool)
+                first[1:] = key[1:] != key[:-1]
+                sel = sel[order[first]]
+            if bar is not None:
+                bar.update(rows.stop - rows.start)
+            if len(sel):
+                yield (dirs[sel] * t[sel, None], labels[face[sel]], t[sel],
+                       np.column_stack([vv[sel], hh[sel]]))
+    finally:
+        if bar is not None:
+            bar.close()
+
+
 def scan_mesh(scene_or_mesh, origin, pattern, mode: str = "center", *, supersample: int = 4,
               spacing: float = 0.005, face_labels=None, rays_per_batch: int = 1 << 21,
               progress: bool = False) -> MeshScan:
@@ -181,92 +290,130 @@ def scan_mesh(scene_or_mesh, origin, pattern, mode: str = "center", *, supersamp
     Returns
     -------
     MeshScan
+        In memory (about 56 bytes a point). For primary scans of 10^8 points
+        and more, :func:`scan_mesh_to_file` streams to a compact file instead.
     """
+    t0 = time.perf_counter()
+    origin = as_origin(origin)
+    parts = list(_hit_chunks(scene_or_mesh, origin, pattern, mode, supersample, spacing,
+                             face_labels, rays_per_batch, progress))
     from .scan import _check_pattern
 
     pattern = _check_pattern(pattern)
-    origin = as_origin(origin)
-    if mode not in MESH_MODES:
-        raise InputValueError(f"mode must be one of {MESH_MODES}, got {mode!r}")
-    mesh = getattr(scene_or_mesh, "mesh", scene_or_mesh)
-    if face_labels is None:
-        face_labels = getattr(scene_or_mesh, "face_labels", None)
-    faces = np.asarray(mesh.faces, dtype=np.int64)
-    labels = np.arange(len(faces)) if face_labels is None else np.asarray(face_labels, np.int64)
-    if len(labels) != len(faces):
-        raise InputValueError(f"face_labels has {len(labels)} values for {len(faces)} faces")
-    t0 = time.perf_counter()
-    if mode == "dense":
-        out = _scan_dense(scene_or_mesh, origin, pattern, spacing)
-        return MeshScan(*out, origin, pattern, mode, time.perf_counter() - t0)
-    k = 1 if mode == "center" else int(supersample)
-    if k < 1:
-        raise InputValueError(f"supersample must be >= 1, got {supersample}")
-    caster = _Caster(np.asarray(mesh.vertices, np.float64), faces, origin)
-    local = np.zeros(3)
-    nv, nh = pattern.shape
-    rows_per = max(1, rays_per_batch // (nh * k * k))
-    parts = []
-    bar = None
-    if progress:
-        from tqdm import tqdm
-
-        bar = tqdm(total=nv, unit="row", desc=f"scan {mode}", leave=False)
-    for r0 in range(0, nv, rows_per):
-        rows = slice(r0, min(nv, r0 + rows_per))
-        dirs, vv, hh = _pulse_grid(pattern, rows, k)
-        if k % 2 == 0:  # even k has no sub-ray through the centre: add it, so that
-            # "nearest" finds every pulse "center" finds
-            extra = _pulse_grid(pattern, rows, 1)
-            dirs, vv, hh = (np.concatenate([a, b]) for a, b in zip((dirs, vv, hh), extra))
-        face, t = caster.cast(local, dirs)
-        hit = (face >= 0) & (t > 0)
-        rmin, rmax = pattern.range_limits
-        hit &= (t >= rmin) & (t <= rmax)
-        if hit.any():
-            sel = np.flatnonzero(hit)
-            if k > 1:
-                key = vv[sel] * nh + hh[sel]
-                order = np.lexsort((t[sel], key))  # per pulse, the nearest sub-ray first
-                key, first = key[order], np.ones(len(order), bool)
-                first[1:] = key[1:] != key[:-1]
-                sel = sel[order[first]]
-            parts.append((sel, dirs[sel] * t[sel, None], face[sel], t[sel], vv[sel], hh[sel]))
-        if bar is not None:
-            bar.update(rows.stop - rows.start)
-    if bar is not None:
-        bar.close()
     if parts:
-        pts = np.vstack([p[1] for p in parts]) + origin
-        lab = labels[np.concatenate([p[2] for p in parts])]
-        rng = np.concatenate([p[3] for p in parts])
-        pulses = np.column_stack([np.concatenate([p[4] for p in parts]),
-                                  np.concatenate([p[5] for p in parts])])
+        pts = np.vstack([p[0] for p in parts]) + origin
+        lab = np.concatenate([p[1] for p in parts])
+        rng = np.concatenate([p[2] for p in parts])
+        pulses = np.vstack([p[3] for p in parts])
     else:
         pts, lab, rng, pulses = np.empty((0, 3)), np.empty(0, np.int64), np.empty(0), np.empty((0, 2), np.int64)
     return MeshScan(pts, lab, rng, pulses, origin, pattern, mode, time.perf_counter() - t0)
 
 
-def _scan_dense(scene, origin, pattern, spacing):
-    from .accumulator import ScanAccumulator
-    from .scenes import RectangleScene, dense_samples
+def scan_mesh_to_file(scene_or_mesh, origin, pattern, path, mode: str = "center", **options) -> dict:
+    """:func:`scan_mesh`, streamed chunk by chunk into a compact file (no full scan in memory).
 
-    if not isinstance(scene, RectangleScene):
-        raise InputValueError("mode='dense' needs a RectangleScene (planar polygons to sample)")
-    acc = ScanAccumulator(origin, pattern)
-    for pts, _ in dense_samples(scene, spacing):
-        acc.add(pts)
-    res = acc.result()
-    # second pass: pick the winners' coordinates and labels out of the same stream
-    want = res.indices
-    pts_out = np.empty((len(want), 3))
-    lab_out = np.empty(len(want), np.int64)
+    The file is what :meth:`MeshScan.save` writes (20 bytes a point) and
+    :func:`load_meshscan` reads; it appears complete or not at all. Options
+    are those of :func:`scan_mesh`. Returns a summary (points, seconds, bytes).
+    """
+    from .scan import _check_pattern
+
+    t0 = time.perf_counter()
+    origin = as_origin(origin)
+    pattern = _check_pattern(pattern)
+    with _CompactWriter(path, origin, pattern, mode) as w:
+        for chunk in _hit_chunks(scene_or_mesh, origin, pattern, mode, **options):
+            w.write(*chunk)
+        w.seconds = time.perf_counter() - t0
+    from pathlib import Path
+
+    return {"path": str(path), "mode": mode, "points_out": w.count, "seconds": round(w.seconds, 3),
+            "bytes": Path(path).stat().st_size, "pattern": pattern.to_dict(), "origin": origin.tolist()}
+
+
+class _CompactWriter:
+    """Append scan chunks to raw temporary files, then assemble the npz of
+    :meth:`MeshScan.save` (stored, not compressed) by streaming copies."""
+
+    def __init__(self, path, origin, pattern, mode):
+        import tempfile
+        from pathlib import Path
+
+        self.path = Path(path)
+        if not self.path.parent.is_dir():
+            raise InputValueError(f"cannot write {path}: no directory {self.path.parent}")
+        self.origin, self.pattern, self.mode = origin, pattern, mode
+        self.dir = tempfile.TemporaryDirectory(prefix=".slr_ray_", dir=self.path.parent)
+        d = Path(self.dir.name)
+        self.id_dtype = np.dtype(np.uint32 if pattern.n_pulses < 2**32 else np.int64)
+        self.files = {"offsets": (open(d / "offsets", "wb"), np.dtype(np.float32), (3,)),
+                      "labels": (open(d / "labels", "wb"), np.dtype(np.int32), ()),
+                      "pulse_ids": (open(d / "pulse_ids", "wb"), self.id_dtype, ())}
+        self.count = 0
+        self.seconds = 0.0
+
+    def __enter__(self):
+        return self
+
+    def write(self, offsets, labels, ranges, pulses):
+        f = self.files
+        f["offsets"][0].write(np.ascontiguousarray(offsets, np.float32).tobytes())
+        f["labels"][0].write(labels.astype(np.int32).tobytes())
+        ids = pulses[:, 0] * self.pattern.n_azimuth + pulses[:, 1]
+        f["pulse_ids"][0].write(ids.astype(self.id_dtype).tobytes())
+        self.count += len(offsets)
+
+    def __exit__(self, exc_type, exc, tb):
+        import json
+        import shutil
+        import zipfile
+
+        from .io import atomic_path
+
+        try:
+            for fh, _, _ in self.files.values():
+                fh.close()
+            if exc_type is not None:
+                return False
+            meta = {"pattern": self.pattern.to_dict(), "mode": self.mode, "seconds": self.seconds}
+            small = {"origin": self.origin, "meta": np.array(json.dumps(meta))}
+            with atomic_path(self.path) as tmp:
+                with zipfile.ZipFile(tmp, "w", zipfile.ZIP_STORED, allowZip64=True) as zf:
+                    for name, (fh, dtype, tail) in self.files.items():
+                        header = {"descr": np.lib.format.dtype_to_descr(dtype), "fortran_order": False,
+                                  "shape": (self.count, *tail)}
+                        with zf.open(name + ".npy", "w", force_zip64=True) as out:
+                            np.lib.format.write_array_header_2_0(out, header)
+                            with open(fh.name, "rb") as src:
+                                shutil.copyfileobj(src, out, 1 << 24)
+                    for name, arr in small.items():
+                        with zf.open(name + ".npy", "w") as out:
+                            np.lib.format.write_array(out, arr, allow_pickle=False)
+        finally:
+            self.dir.cleanup()
+        return False
+
+
+def _dense_chunks(scene, origin, pattern, spacing):
+    """Two passes over the dense sample stream: reduce, then yield the winners chunk by chunk."""
+    from .backends.binning import BinTables, _ranges_of
+    from .scenes import dense_samples
+
+    tables = BinTables(origin, pattern)
+    for pts, _ in dense_samples(scene, spacing, copy=False):
+        tables.add(pts)
+    keys, _, want = tables.winners(with_ranges=False)
+    del tables  # free the reduction state before the second pass
+    nh = pattern.n_azimuth
     start = 0
-    for pts, lab in dense_samples(scene, spacing):
+    for pts, lab in dense_samples(scene, spacing, copy=False):
         lo, hi = np.searchsorted(want, [start, start + len(pts)])
-        local = want[lo:hi] - start
-        pts_out[lo:hi] = pts[local]
-        lab_out[lo:hi] = lab[local]
+        if hi > lo:
+            local = want[lo:hi] - start
+            sel = pts[local]
+            ranges = np.empty(hi - lo)
+            _ranges_of(sel, np.arange(hi - lo), float(origin[0]), float(origin[1]), float(origin[2]), ranges)
+            k = keys[lo:hi]
+            yield sel - origin, lab[local], ranges, np.column_stack([k // nh, k % nh])
         start += len(pts)
-    order = np.lexsort((res.pulses[:, 1], res.pulses[:, 0]))
-    return pts_out[order], lab_out[order], res.ranges[order], res.pulses[order]

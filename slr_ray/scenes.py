@@ -16,6 +16,7 @@ from dataclasses import dataclass, field
 from pathlib import Path
 
 import numpy as np
+from numba import njit
 
 from .errors import InputValueError
 
@@ -252,60 +253,122 @@ def scene_from_spec(spec) -> RectangleScene:
         raise InputValueError(f"scene spec {spec!r}: {exc}") from None
 
 
-def _grid_polygon(poly: np.ndarray, spacing: float):
-    """Points of a regular grid (spacing ``spacing``) inside a convex planar polygon."""
+@njit(cache=True, nogil=True)
+def _fill_ground(x0, spacing, nx, ny, r2, z, j, cap, buf):
+    """Ground samples of rows j, j+1... while they fit in ``buf``; returns (n, next row)."""
+    n = 0
+    while j < ny:
+        y = x0 + j * spacing
+        w2 = r2 - y * y
+        if w2 < 0:
+            j += 1
+            continue
+        w = math.sqrt(w2)
+        lo = max(0, int(math.floor((-w - x0) / spacing)) - 1)
+        hi = min(nx - 1, int(math.ceil((w - x0) / spacing)) + 1)
+        if n + (hi - lo + 1) > cap:
+            break
+        for i in range(lo, hi + 1):
+            x = x0 + i * spacing
+            if x * x + y * y <= r2:
+                buf[n, 0] = x
+                buf[n, 1] = y
+                buf[n, 2] = z
+                n += 1
+        j += 1
+    return n, j
+
+
+@njit(cache=True, nogil=True)
+def _fill_polygon(o, e1, e2, uv, sign, u0, v0, nu, nv, spacing, a, cap, buf, labels, label, at):
+    """Grid samples of rows a, a+1... of one planar convex polygon, from buf[at];
+    returns (new end, next row)."""
+    m = uv.shape[0]
+    n = at
+    while a < nu:
+        if n + nv > cap:
+            break
+        u = u0 + a * spacing
+        for b in range(nv):
+            v = v0 + b * spacing
+            inside = True
+            for k in range(m):
+                ax = uv[k, 0]
+                ay = uv[k, 1]
+                bx = uv[(k + 1) % m, 0]
+                by = uv[(k + 1) % m, 1]
+                if sign * ((bx - ax) * (v - ay) - (by - ay) * (u - ax)) < 0:
+                    inside = False
+                    break
+            if inside:
+                for c in range(3):
+                    buf[n, c] = o[c] + u * e1[c] + v * e2[c]
+                labels[n] = label
+                n += 1
+        a += 1
+    return n, a
+
+
+def _polygon_frame(poly: np.ndarray, spacing: float):
+    """Plane frame and grid extent of a convex polygon: (o, e1, e2, uv, sign, u0, v0, nu, nv)."""
     o = poly[0]
     e1 = poly[1] - poly[0]
-    e1 /= np.linalg.norm(e1)
+    e1 = e1 / np.linalg.norm(e1)
     nrm = np.cross(poly[1] - poly[0], poly[2] - poly[0])
     nrm /= np.linalg.norm(nrm)
     e2 = np.cross(nrm, e1)
     uv = np.column_stack([(poly - o) @ e1, (poly - o) @ e2])
-    lo, hi = uv.min(axis=0), uv.max(axis=0)
-    us = np.arange(lo[0] + spacing / 2, hi[0], spacing)
-    vs = np.arange(lo[1] + spacing / 2, hi[1], spacing)
-    U, V = np.meshgrid(us, vs, indexing="ij")
-    U, V = U.ravel(), V.ravel()
-    inside = np.ones(len(U), bool)
-    m = len(uv)
     a, b = uv[1] - uv[0], uv[2] - uv[0]
-    sign = np.sign(a[0] * b[1] - a[1] * b[0])
-    for i in range(m):
-        a, b = uv[i], uv[(i + 1) % m]
-        inside &= sign * ((b[0] - a[0]) * (V - a[1]) - (b[1] - a[1]) * (U - a[0])) >= 0
-    U, V = U[inside], V[inside]
-    return o + U[:, None] * e1 + V[:, None] * e2
+    sign = float(np.sign(a[0] * b[1] - a[1] * b[0]))
+    lo, hi = uv.min(axis=0), uv.max(axis=0)
+    nu = int(np.ceil((hi[0] - lo[0] - spacing / 2) / spacing))
+    nv = int(np.ceil((hi[1] - lo[1] - spacing / 2) / spacing))
+    return o, e1, e2, uv, sign, lo[0] + spacing / 2, lo[1] + spacing / 2, max(nu, 0), max(nv, 0)
 
 
-def dense_samples(scene: RectangleScene, spacing: float = 0.005, chunk: int = 1 << 22):
+def dense_samples(scene: RectangleScene, spacing: float = 0.005, chunk: int = 1 << 22,
+                  copy: bool = True):
     """Yield ``(points, labels)`` chunks of a regular grid over every surface.
 
-    The paper's "dense cloud" (5 mm: 40,000 points per m^2), generated lazily:
-    ground rows first (a grid in x, y clipped to the disc), then each
-    rectangle on a grid in its own plane. About ``chunk`` points at a time,
-    in a fixed order, so the same scene always yields the same stream.
+    The paper's "dense cloud" (5 mm: 40,000 points per m^2; about 1.9e9
+    points for a 1000-rectangle scene), generated lazily by compiled loops:
+    ground rows first (a grid in x, y clipped to the disc inscribed in the
+    ground polygon), then each rectangle on a grid in its own plane, clipped
+    to its polygon. At most ``chunk`` points at a time (whole rows), in a
+    fixed order, so the same scene always yields the same stream.
+
+    Parameters
+    ----------
+    copy : bool
+        False yields views of one reused buffer (faster, no allocation per
+        chunk): use each chunk before asking for the next.
     """
     if spacing <= 0:
         raise InputValueError(f"spacing must be > 0, got {spacing}")
     p = scene.params
     radius = p["ground_radius"] * math.cos(math.pi / p["ground_segments"])
-    z = p["ground_z"]
-    xs = np.arange(-radius + spacing / 2, radius, spacing)
-    rows = max(1, chunk // max(1, len(xs)))
-    ys = np.arange(-radius + spacing / 2, radius, spacing)
-    for s in range(0, len(ys), rows):
-        Y, X = np.meshgrid(ys[s:s + rows], xs, indexing="ij")
-        keep = X * X + Y * Y <= radius * radius  # the inscribed disc of the polygon
-        pts = np.column_stack([X[keep], Y[keep], np.full(int(keep.sum()), z)])
-        yield pts, np.zeros(len(pts), np.int64)
-    buf, lab, size = [], [], 0
-    for poly, label in zip(scene.polygons, scene.polygon_labels):
-        pts = _grid_polygon(poly, spacing)
-        buf.append(pts)
-        lab.append(np.full(len(pts), label, np.int64))
-        size += len(pts)
-        if size >= chunk:
-            yield np.vstack(buf), np.concatenate(lab)
-            buf, lab, size = [], [], 0
-    if size:
-        yield np.vstack(buf), np.concatenate(lab)
+    x0 = -radius + spacing / 2
+    nx = max(0, int(math.ceil((2 * radius - spacing / 2) / spacing)))
+    frames = [_polygon_frame(poly, spacing) for poly in scene.polygons]
+    cap = max(int(chunk), nx + 3, max((f[8] for f in frames), default=0))
+    buf = np.empty((cap, 3))
+    labels = np.empty(cap, np.int64)
+    out = (lambda n: (buf[:n].copy(), labels[:n].copy())) if copy else (lambda n: (buf[:n], labels[:n]))
+    j = 0
+    while j < nx:
+        n, j = _fill_ground(x0, spacing, nx, nx, radius * radius, p["ground_z"], j, cap, buf)
+        if n:
+            labels[:n] = 0
+            yield out(n)
+    n = 0
+    for frame, label in zip(frames, scene.polygon_labels):
+        o, e1, e2, uv, sign, u0, v0, nu, nv = frame
+        a = 0
+        while a < nu:
+            n, a = _fill_polygon(o, e1, e2, uv, sign, u0, v0, nu, nv, spacing, a, cap, buf,
+                                 labels, int(label), n)
+            if a < nu:  # buffer full
+                yield out(n)
+                n = 0
+    if n:
+        yield out(n)

@@ -81,16 +81,17 @@ def test_nearest_converges_to_the_dense_truth():
     assert errs[2] < 0.01 * 3  # within a few sample spacings
 
 
-def test_dense_mode_equals_binning_the_samples():
+def test_dense_mode_equals_binning_the_samples(table_kind):
     sc = rectangle_scene(5, seed=1, ground_radius=4.0, xy_range=(-4, 4), z_range=(-1, 1))
     p = ScanPattern(3.0)
     ms = scan_mesh(sc, [0, 0, 0], p, mode="dense", spacing=0.02)
     pts = np.vstack([c[0] for c in dense_samples(sc, 0.02)])
     lab = np.concatenate([c[1] for c in dense_samples(sc, 0.02)])
     ref = simulate_scan(pts, [0, 0, 0], p)
-    order = np.lexsort((ref.pulses[:, 1], ref.pulses[:, 0]))
-    np.testing.assert_array_equal(ms.points, pts[ref.indices][order])
-    np.testing.assert_array_equal(ms.labels, lab[ref.indices][order])
+    np.testing.assert_array_equal(ms.points, pts[ref.indices])
+    np.testing.assert_array_equal(ms.labels, lab[ref.indices])
+    np.testing.assert_array_equal(ms.ranges, ref.ranges)
+    np.testing.assert_array_equal(ms.pulses, ref.pulses)
 
 
 def test_grazing_tiny_and_inside_do_not_misbehave():
@@ -120,3 +121,35 @@ def test_bad_arguments():
         scan_mesh(sc.mesh, [0, 0, 0], 1.0, mode="dense")
     with pytest.raises(InputValueError, match="face_labels"):
         scan_mesh(sc.mesh, [0, 0, 0], 1.0, face_labels=[1, 2])
+
+
+def test_compact_storage_round_trip(tmp_path):
+    from slr_ray.meshscan import load_meshscan
+
+    sc = rectangle_scene(30, seed=2)
+    ms = scan_mesh(sc, [3.0, -2.0, 0.5], ScanPattern(1.0))
+    path = ms.save(tmp_path / "primary.npz")
+    back = load_meshscan(path)
+    np.testing.assert_allclose(back.points, ms.points, atol=2e-5)  # float32 offsets: ~8 um at 100 m
+    np.testing.assert_array_equal(back.labels, ms.labels)
+    np.testing.assert_array_equal(back.pulses, ms.pulses)
+    np.testing.assert_allclose(back.ranges, ms.ranges, atol=2e-5)
+    assert back.pattern == ms.pattern and back.mode == "center"
+    assert path.stat().st_size < len(ms) * 20 + 4096  # 12 + 4 + 4 bytes a point
+
+
+@pytest.mark.parametrize("mode", ["center", "dense"])
+def test_streamed_file_equals_the_in_memory_scan(tmp_path, mode):
+    from slr_ray.meshscan import load_meshscan, scan_mesh_to_file
+
+    sc = rectangle_scene(10, seed=4, ground_radius=8.0, xy_range=(-8, 8), z_range=(-1, 2))
+    p = ScanPattern(2.0)
+    ms = scan_mesh(sc, [1.0, 0.5, 0.2], p, mode=mode, spacing=0.02)
+    info = scan_mesh_to_file(sc, [1.0, 0.5, 0.2], p, tmp_path / "s.npz", mode=mode, spacing=0.02,
+                             rays_per_batch=5000)
+    assert info["points_out"] == len(ms) and info["bytes"] < 20 * len(ms) + 4096
+    back = load_meshscan(tmp_path / "s.npz")
+    np.testing.assert_array_equal(back.labels, ms.labels)
+    np.testing.assert_array_equal(back.pulses, ms.pulses)
+    np.testing.assert_allclose(back.points, ms.points, atol=1e-5)
+    assert [p.name for p in tmp_path.iterdir()] == ["s.npz"]  # temporary files removed

@@ -616,18 +616,22 @@ class BinTables:
         """Bytes held by the tables."""
         return sum(t.nbytes for t in self.tables)
 
-    def winners(self, points=None):
+    def winners(self, points=None, with_ranges: bool = True):
         """Occupied bins as ``(keys, ranges, indices)``, sorted by index.
 
         ``points``: the cloud, when the caller still has it (one-shot scans):
-        then the ranges are recomputed from it, which is faster than carrying
-        them through the sort.
+        ranges are then recomputed from it, which is faster than carrying
+        them through the sort. ``with_ranges=False`` returns ``None`` for the
+        ranges and needs the least memory (the dense-scene path recomputes
+        them from the regenerated samples).
         """
         if self.dense:
-            return self._merged().extract()
+            keys, ranges, idx = self._merged().extract()
+            return keys, (ranges if with_ranges else None), idx
         m = self.n_bins
         n_pulse_bits = max(1, int(self.pattern.n_pulses - 1).bit_length())
-        if points is not None and m and int(self.n_points).bit_length() + n_pulse_bits <= 63:
+        fits = int(max(self.n_points - 1, 1)).bit_length() + n_pulse_bits <= 63
+        if m and fits and (points is not None or not with_ranges):
             packed = np.empty(m, np.int64)
             at = 0
             for t in self.tables:
@@ -637,8 +641,10 @@ class BinTables:
             idx = np.empty(m, np.int64)
             _unpack(packed, n_pulse_bits, keys, idx)
             del packed
-            ranges = np.empty(m, np.float64)
-            _ranges_of(points, idx, *self._params[:3], ranges)
+            ranges = None
+            if with_ranges:
+                ranges = np.empty(m, np.float64)
+                _ranges_of(points, idx, *self._params[:3], ranges)
             return keys, ranges, idx
         keys = np.empty(m, np.int64)
         ranges = np.empty(m, np.float64)
