@@ -128,6 +128,31 @@ def cmd_scene(args):
     _emit({"spec": args.spec, "output": str(args.output), **ms.summary()})
 
 
+def cmd_compare(args):
+    from .compare import compare_backends, plot_comparison
+    from .io import read_cloud
+
+    pattern = _pattern_from_args(args)
+    cloud = read_cloud(args.input, args.input_format)
+    opts = {"orientation": args.orientation, "segments": args.segments, "radius_scale": args.radius_scale}
+    try:
+        opts["radius"] = float(args.radius)
+    except ValueError:
+        opts["radius"] = args.radius
+    if args.primary_origin is not None:
+        opts["primary_origin"] = args.primary_origin
+        opts["primary_resolution"] = args.primary_resolution
+    res = compare_backends(cloud.points, np.array(args.origin, float).reshape(-1, 3), pattern,
+                           tolerance=args.tolerance, embree_options=opts)
+    if args.png:
+        from .io import atomic_path
+
+        with atomic_path(Path(args.png)) as tmp:
+            plot_comparison(res, tmp)
+        res["png"] = args.png
+    _emit(res)
+
+
 def build_parser() -> argparse.ArgumentParser:
     from . import __version__
 
@@ -149,6 +174,27 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("--print-config", action="store_true",
                    help="print the resolved configuration as JSON and stop")
     p.set_defaults(func=cmd_scan)
+
+    p = sub.add_parser("compare", help="run both backends on a cloud and report where they differ")
+    p.add_argument("input", help="input cloud (.npy, .npz, .ply)")
+    p.add_argument("--origin", nargs=3, type=float, action="append", required=True, metavar=("X", "Y", "Z"),
+                   help="a scanner position (repeat for several)")
+    p.add_argument("--resolution", type=float, metavar="DEG")
+    p.add_argument("--preset", choices=["slr", "syns", "primary", "primary-fine"])
+    p.add_argument("--zenith-range", nargs=2, type=float, metavar=("A", "B"))
+    p.add_argument("--min-range", type=float, metavar="M")
+    p.add_argument("--max-range", type=float, metavar="M")
+    p.add_argument("--tolerance", type=float, default=0.10, help="see-through tolerance (m, default 0.1)")
+    p.add_argument("--radius", default="spacing", help="disc radius: metres, 'spacing' or 'footprint'")
+    p.add_argument("--radius-scale", type=float, default=1.0)
+    p.add_argument("--orientation", default="normal", choices=["normal", "billboard"])
+    p.add_argument("--segments", type=int, default=5)
+    p.add_argument("--primary-origin", nargs=3, type=float, metavar=("X", "Y", "Z"),
+                   help="primary scanner (for --radius footprint)")
+    p.add_argument("--primary-resolution", type=float, metavar="DEG")
+    p.add_argument("--input-format")
+    p.add_argument("--png", help="also write a figure")
+    p.set_defaults(func=cmd_compare)
 
     p = sub.add_parser("demo", help="the main job on a built-in scene: scene, primary scan, SLR scans, report")
     p.add_argument("-o", "--output", default="slr_ray_demo", help="output directory (default slr_ray_demo)")

@@ -156,3 +156,36 @@ def test_bad_options_and_empty_input():
         DiscScene(pts, segments=2)
     empty = simulate_scan(np.empty((0, 3)), [0, 0, 0], 1.0, backend="embree", radius=0.1)
     assert len(empty) == 0 and empty.pulses.shape == (0, 2)
+
+
+def test_compare_backends_reports_see_through_and_bands(tmp_path):
+    from slr_ray.compare import compare_backends, plot_comparison
+
+    front = plane_grid(5.0, 1.0, 0.05)
+    back = plane_grid(10.0, 4.0, 0.01)
+    pts = np.vstack([front, back])
+    res = compare_backends(pts, [[0, 0, 0], [0, 0.5, 0]], ScanPattern(0.2), tolerance=0.1,
+                           embree_options={"orientation": "normal"})
+    assert len(res["positions"]) == 2
+    pos = res["positions"][0]
+    assert pos["see_through"] > 100 and 0 < pos["jaccard"] < 1
+    bands = {tuple(b["band_m"]): b for b in pos["bands"]}
+    assert bands[(5.0, 10.0)]["see_through"] == 0  # the front wall itself is never behind anything
+    assert bands[(10.0, 20.0)]["see_through"] == pos["see_through"]
+    assert sum(b["binning"] for b in pos["bands"]) == pos["binning"]
+    plot_comparison(res, tmp_path / "c.png")
+    assert (tmp_path / "c.png").stat().st_size > 1000
+
+
+def test_compare_cli(tmp_path, capsys):
+    import json
+
+    from slr_ray.cli import main
+    from slr_ray.io import PointCloud, write_cloud
+
+    pts, _ = two_walls(0.04)
+    write_cloud(tmp_path / "w.ply", PointCloud(pts))
+    assert main(["compare", str(tmp_path / "w.ply"), "--origin", "0", "0", "0", "--origin", "0", "1", "0",
+                 "--resolution", "0.5", "--png", str(tmp_path / "c.png")]) == 0
+    res = json.loads(capsys.readouterr().out)
+    assert len(res["positions"]) == 2 and (tmp_path / "c.png").exists()

@@ -322,6 +322,10 @@ class DiscScene:
         the BVH was reused), ``cast_seconds``, ``rays`` and ``ray_hits``
         (rays that hit a disc).
         """
+        return self.scan_and_rays(origin, pattern, rays_per_batch)[0]
+
+    def scan_and_rays(self, origin, pattern, rays_per_batch: int = 1 << 21):
+        """:meth:`scan` and :meth:`ray_hits` from one cast: ``(scan, (pulses, indices, distances))``."""
         from ..scan import Scan, _check_pattern
 
         pattern = _check_pattern(pattern)
@@ -331,6 +335,7 @@ class DiscScene:
         t_cast = time.perf_counter()
         pt, tt, v, h = self._hits(origin, pattern, rays_per_batch)
         cast = time.perf_counter() - t_cast
+        rays = (np.column_stack([v, h]), pt.astype(np.intp), tt)
         n_ray_hits = len(pt)
         ok = seen[pt]  # points the pattern itself would not see are not returned
         pt, tt, v, h = pt[ok], tt[ok], v[ok], h[ok]
@@ -339,12 +344,13 @@ class DiscScene:
         first = np.ones(len(pt), bool)
         first[1:] = pt[1:] != pt[:-1]
         idx = pt[first].astype(np.intp)
-        return Scan(indices=idx, ranges=ranges[idx], pulses=np.column_stack([v[first], h[first]]),
+        scan = Scan(indices=idx, ranges=ranges[idx], pulses=np.column_stack([v[first], h[first]]),
                     origin=origin, pattern=pattern, backend="embree", n_input=len(self.points),
                     seconds=time.perf_counter() - t_start,
                     info={"build_seconds": round(build, 6), "cast_seconds": round(cast, 6),
                           "rays": int(pattern.n_pulses), "ray_hits": int(n_ray_hits),
                           **self.options})
+        return scan, rays
 
 
 def scan_points(points, origin, pattern: ScanPattern, radius="spacing", orientation="billboard",

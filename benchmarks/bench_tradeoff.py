@@ -1,0 +1,191 @@
+"""Speed/accuracy trade of the two backends against ground truth (synthetic scenes).
+
+    python benchmarks/bench_tradeoff.py [--scenes ground-only,rect-1000] [--positions 6]
+                                        [--primary-resolution 0.1] [--quick]
+
+For each scene: a primary scan of the mesh from the origin (pulse centres), then
+at each secondary position the true scans of the mesh (both truth semantics:
+pulse-centre and nearest-in-pulse with 3 x 3 sub-rays) and the SLR scans of the
+primary cloud by every backend setting. Similarity = fraction of true points
+within 10 cm of the SLR scan (the paper's measure). Time per position: binning
+total; embree BVH build (per position for billboards, once per cloud for
+normal-oriented discs: amortised over the positions here) and casting.
+
+Prints a table, saves results/bench_tradeoff.json and results/tradeoff.png
+(accuracy against time: the Pareto front).
+"""
+
+from __future__ import annotations
+
+import argparse
+import sys
+import time
+from pathlib import Path
+
+import numpy as np
+
+sys.path.insert(0, str(Path(__file__).resolve().parent))
+
+from common import RESULTS, machine, save  # noqa: E402
+
+from slr_ray import ScanPattern, scan_mesh, similarity, simulate_scan  # noqa: E402
+from slr_ray.backends.embree import DiscScene  # noqa: E402
+from slr_ray.scenes import scene_from_spec  # noqa: E402
+
+DISTANCE_BANDS = [(0, 7.5), (7.5, 17.5), (17.5, 40)]
+
+
+def configs(quick: bool, primary_res: float):
+    out = [{"name": "binning", "backend": "binning"}]
+    radii = [("spacing", 1.0), ("footprint", 1.0), (0.02, 1.0)]
+    if not quick:
+        radii += [("spacing", 0.5), ("spacing", 2.0)]
+    for orientation in ("billboard", "normal"):
+        for radius, scale in radii:
+            out.append({"name": f"embree {orientation} r={radius}x{scale} s5", "backend": "embree",
+                        "orientation": orientation, "radius": radius, "radius_scale": scale, "segments": 5})
+    for segments in ((3, 7) if not quick else (3,)):
+        out.append({"name": f"embree normal r=spacingx1.0 s{segments}", "backend": "embree",
+                    "orientation": "normal", "radius": "spacing", "radius_scale": 1.0, "segments": segments})
+    for c in out:
+        if c.get("radius") == "footprint":
+            c["primary_origin"] = [0.0, 0.0, 0.0]
+            c["primary_resolution"] = primary_res
+    return out
+
+
+def main(argv=None):
+    ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    ap.add_argument("--scenes", default="ground-only,rect-1000")
+    ap.add_argument("--positions", type=int, default=6)
+    ap.add_argument("--primary-resolution", type=float, default=0.1)
+    ap.add_argument("--resolution", type=float, default=0.144)
+    ap.add_argument("--max-range", type=float, default=60.0)
+    ap.add_argument("--seed", type=int, default=0)
+    ap.add_argument("--quick", action="store_true")
+    args = ap.parse_args(argv)
+
+    secondary = ScanPattern(args.resolution, max_range=args.max_range)
+    rng = np.random.default_rng(args.seed)
+    dist = np.linspace(3, 30, args.positions)
+    ang = rng.uniform(0, 2 * np.pi, args.positions)
+    positions = np.column_stack([dist * np.cos(ang), dist * np.sin(ang), np.zeros(args.positions)])
+    rows = []
+    for scene_name in args.scenes.split(","):
+        scene = scene_from_spec(scene_name)
+        t0 = time.perf_counter()
+        primary = scan_mesh(scene, [0, 0, 0], ScanPattern(args.primary_resolution, max_range=100.0))
+        print(f"{scene_name}: primary {len(primary):,} points at {args.primary_resolution} deg "
+              f"({time.perf_counter() - t0:.1f} s)", file=sys.stderr, flush=True)
+        truths = [{"center": scan_mesh(scene, p, secondary),
+                   "nearest": scan_mesh(scene, p, secondary, mode="nearest", supersample=3)}
+                  for p in positions]
+        for cfg in configs(args.quick, args.primary_resolution):
+            shared = None
+            build_once = 0.0
+            if cfg["backend"] == "embree" and cfg["orientation"] == "normal":
+                t0 = time.perf_counter()
+                opts = {k: v for k, v in cfg.items() if k not in ("name", "backend")}
+                shared = DiscScene(primary.points, **opts)
+                build_once = time.perf_counter() - t0
+            for i, pos in enumerate(positions):
+                if cfg["backend"] == "binning":
+                    scan = simulate_scan(primary.points, pos, secondary)
+                    build, cast = 0.0, scan.seconds
+                elif shared is not None:
+                    scan = shared.scan(pos, secondary)
+                    build, cast = build_once / len(positions), scan.info["cast_seconds"]
+                else:
+                    t0 = time.perf_counter()
+                    opts = {k: v for k, v in cfg.items() if k not in ("name", "backend")}
+                    scan = simulate_scan(primary.points, pos, secondary, backend="embree", **opts)
+                    cast = scan.info["cast_seconds"]
+                    build = time.perf_counter() - t0 - cast
+                sim_pts = primary.points[scan.indices]
+                row = {"scene": scene_name, "config": cfg["name"], "position": pos.tolist(),
+                       "distance_m": float(np.hypot(pos[0], pos[1])), "points": len(scan),
+                       "build_seconds": build, "cast_seconds": cast, "seconds": build + cast}
+                for sem, truth in truths[i].items():
+                    row[f"similarity_{sem}"] = similarity(truth.points, sim_pts)
+                    row[f"truth_{sem}_points"] = len(truth)
+                rows.append(row)
+            r = [x for x in rows if x["config"] == cfg["name"] and x["scene"] == scene_name]
+            print(f"  {cfg['name']:<36} {np.mean([x['seconds'] for x in r]):7.2f} s/pos  "
+                  f"sim centre {np.mean([x['similarity_center'] for x in r]):.3f}  "
+                  f"nearest {np.mean([x['similarity_nearest'] for x in r]):.3f}", file=sys.stderr, flush=True)
+    summary = summarise(rows)
+    print_table(summary)
+    plot(summary, RESULTS / "tradeoff.png")
+    save("bench_tradeoff", {"machine": machine(), "inputs": {
+        "scenes": args.scenes, "positions": positions.tolist(), "primary_resolution": args.primary_resolution,
+        "secondary": secondary.to_dict(), "similarity_threshold_m": 0.10,
+        "truth": {"center": "one ray per pulse centre", "nearest": "3 x 3 sub-rays per pulse + centre"}},
+        "summary": summary, "rows": rows})
+
+
+def summarise(rows):
+    out = []
+    keys = sorted({(r["scene"], r["config"]) for r in rows}, key=lambda k: (k[0], k[1] != "binning", k[1]))
+    for scene, cfg in keys:
+        r = [x for x in rows if x["scene"] == scene and x["config"] == cfg]
+        s = {"scene": scene, "config": cfg, "seconds_per_position": float(np.mean([x["seconds"] for x in r])),
+             "build_seconds": float(np.mean([x["build_seconds"] for x in r])),
+             "cast_seconds": float(np.mean([x["cast_seconds"] for x in r]))}
+        for sem in ("center", "nearest"):
+            s[f"similarity_{sem}"] = float(np.mean([x[f"similarity_{sem}"] for x in r]))
+            for lo, hi in DISTANCE_BANDS:
+                b = [x[f"similarity_{sem}"] for x in r if lo <= x["distance_m"] < hi]
+                s[f"similarity_{sem}_{lo}-{hi}m"] = float(np.mean(b)) if b else None
+        out.append(s)
+    return out
+
+
+def print_table(summary):
+    head = f"{'scene':<12} {'config':<36} {'s/pos':>7} {'build':>7} {'cast':>6} {'sim ctr':>8} {'sim nrst':>8}"
+    bands = "  ".join(f"ctr {lo}-{hi}m" for lo, hi in DISTANCE_BANDS)
+    print(head + "  " + bands)
+    for s in summary:
+        b = "  ".join(f"{s[f'similarity_center_{lo}-{hi}m']:>11.3f}" if s[f"similarity_center_{lo}-{hi}m"] is not None
+                      else f"{'-':>11}" for lo, hi in DISTANCE_BANDS)
+        print(f"{s['scene']:<12} {s['config']:<36} {s['seconds_per_position']:>7.2f} {s['build_seconds']:>7.2f} "
+              f"{s['cast_seconds']:>6.2f} {s['similarity_center']:>8.3f} {s['similarity_nearest']:>8.3f}  {b}")
+
+
+def plot(summary, path):
+    import matplotlib
+
+    matplotlib.use("Agg")
+    import matplotlib.pyplot as plt
+
+    scenes = sorted({s["scene"] for s in summary})
+    fig, axes = plt.subplots(len(scenes), 2, figsize=(12, 4.5 * len(scenes)), squeeze=False)
+    for row, scene in enumerate(scenes):
+        ss = [s for s in summary if s["scene"] == scene]
+        for col, sem in enumerate(("center", "nearest")):
+            ax = axes[row, col]
+            x = np.array([s["seconds_per_position"] for s in ss])
+            y = np.array([100 * s[f"similarity_{sem}"] for s in ss])
+            for s, xi, yi in zip(ss, x, y):
+                marker = "*" if s["config"] == "binning" else ("o" if "normal" in s["config"] else "s")
+                ax.scatter(xi, yi, marker=marker, s=90 if marker == "*" else 40)
+                ax.annotate(s["config"].replace("embree ", ""), (xi, yi), fontsize=7,
+                            xytext=(4, 2), textcoords="offset points")
+            order = np.argsort(x)
+            front, best = [], -np.inf
+            for i in order:  # Pareto front: faster and not less accurate
+                if y[i] > best:
+                    front.append(i)
+                    best = y[i]
+            ax.plot(x[front], y[front], "k--", lw=1, label="Pareto front")
+            ax.set_xscale("log")
+            ax.set(xlabel="seconds per position (log)", ylabel="similarity to truth (%)",
+                   title=f"{scene}: truth = {'pulse centre' if sem == 'center' else 'nearest in pulse'}")
+            ax.legend(fontsize=8)
+    fig.tight_layout()
+    fig.savefig(path, dpi=110)
+    plt.close(fig)
+    print(f"figure {path}", file=sys.stderr)
+
+
+if __name__ == "__main__":
+    main()
