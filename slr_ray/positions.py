@@ -1,0 +1,435 @@
+"""Choosing secondary scanner positions (the paper's §2.1-2.2, DESIGN §5).
+
+The grid method: cover the xy plane with square cells, drop empty cells, drop
+cells with too few ground points around their centre, optionally drop cells
+whose azimuth coverage is below a *minimum profile*, then draw cells at random
+and a uniform position inside each. The scanner's height is the mean height of
+the ground points around it plus the scanner height.
+
+The azimuth test (decided here, the paper leaves it open): a cell's histogram
+counts the points of a **scan simulated at the cell** (binning backend, at the
+profile's resolution, from the cell centre at scanner height), not the raw
+cloud points around it. Raw counts measure the primary scanner's sampling
+density, which falls with distance from the primary position whatever the
+occlusion; a simulated scan counts what a scanner at the cell would see, which
+is what the profile was made from (reference scans) and what the test is
+meant to catch (cells around a corner, behind large objects).
+"""
+
+from __future__ import annotations
+
+import json
+import math
+import time
+from dataclasses import dataclass, field
+from pathlib import Path
+
+import numpy as np
+
+from .arrays import as_points
+from .errors import InputValueError
+from .pattern import ScanPattern
+
+__all__ = ["CandidateCells", "AzimuthProfile", "candidate_cells", "select_positions",
+           "azimuth_histogram", "minimum_profile", "default_profile", "suggest_resolution",
+           "label_ground", "DEFAULT_PROFILE_PATH"]
+
+DEFAULT_PROFILE_PATH = Path(__file__).resolve().parent / "data" / "default_profile.json"
+STAGES = ("non_empty", "ground_support", "azimuth_profile")
+
+
+# --- minimum profiles ------------------------------------------------------------
+
+def azimuth_histogram(points, origin, bins: int = 360) -> np.ndarray:
+    """Counts of ``points`` in ``bins`` equal azimuth sectors around ``origin``,
+    sorted ascending (whatever the elevation)."""
+    pts = as_points(points)
+    d = pts[:, :2].astype(np.float64) - np.asarray(origin, np.float64)[:2]
+    phi = np.arctan2(d[:, 1], d[:, 0])
+    phi = np.where(phi < 0, phi + 2 * np.pi, phi)
+    h = np.minimum((phi / (2 * np.pi) * bins).astype(np.int64), bins - 1)
+    return np.sort(np.bincount(h, minlength=bins))
+
+
+@dataclass
+class AzimuthProfile:
+    """A minimum profile: sorted per-degree counts a scan must reach everywhere.
+
+    Attributes
+    ----------
+    counts : (360,) int64
+        Ascending.
+    pattern : ScanPattern
+        The resolution (and limits) of the reference scans; cells are tested
+        with scans simulated at this pattern.
+    meta : dict
+        How it was made.
+    """
+
+    counts: np.ndarray
+    pattern: ScanPattern
+    meta: dict = field(default_factory=dict)
+
+    def passes(self, histogram) -> bool:
+        """True when a sorted histogram is >= the profile in every bin."""
+        return bool(np.all(np.asarray(histogram) >= self.counts))
+
+    def save(self, path) -> Path:
+        path = Path(path)
+        path.write_text(json.dumps({"counts": self.counts.tolist(), "pattern": self.pattern.to_dict(),
+                                    "meta": self.meta}, indent=1))
+        return path
+
+    @classmethod
+    def load(cls, path) -> "AzimuthProfile":
+        try:
+            d = json.loads(Path(path).read_text())
+            counts = np.asarray(d["counts"], dtype=np.int64)
+            pattern = ScanPattern.from_dict(d["pattern"])
+        except (OSError, ValueError, KeyError, TypeError) as exc:
+            raise InputValueError(f"cannot read azimuth profile {path}: {exc}") from None
+        if counts.ndim != 1 or np.any(np.diff(counts) < 0):
+            raise InputValueError(f"{path}: counts must be one ascending list")
+        return cls(counts, pattern, d.get("meta", {}))
+
+
+def minimum_profile(scans, pattern: ScanPattern | None = None, bins: int = 360, meta=None) -> AzimuthProfile:
+    """Element-wise minimum of the sorted azimuth histograms of reference scans.
+
+    Parameters
+    ----------
+    scans : iterable of (points, origin)
+        Each a reference scan (the points it returned) and its scanner position.
+    pattern : ScanPattern
+        The pattern the reference scans were taken with (default 0.144 deg).
+    """
+    hists = [azimuth_histogram(p, o, bins) for p, o in scans]
+    if not hists:
+        raise InputValueError("minimum_profile needs at least one scan")
+    return AzimuthProfile(np.min(hists, axis=0), pattern or ScanPattern(0.144),
+                          {"n_scans": len(hists), **(meta or {})})
+
+
+def default_profile() -> AzimuthProfile:
+    """The profile shipped with slr_ray (built from synthetic scans; see its ``meta``)."""
+    return AzimuthProfile.load(DEFAULT_PROFILE_PATH)
+
+
+# --- cells -----------------------------------------------------------------------
+
+@dataclass
+class CandidateCells:
+    """Grid cells and what each stage of the selection kept.
+
+    Attributes
+    ----------
+    cell_size : float
+    corner : (2,) float64
+        Lower-left corner of cell (0, 0).
+    ij : (k, 2) int64
+        Indices of the non-empty cells.
+    centres : (k, 2) float64
+    ground_counts : (k,) int64
+        Ground points within ``ground_count_radius`` of each centre.
+    kept : dict of str -> (k,) bool
+        Cumulative: which cells survive up to each stage.
+    stages : list of dict
+        Per stage: name, cells before, removed, kept (what a user tunes from).
+    params : dict
+    """
+
+    cell_size: float
+    corner: np.ndarray
+    ij: np.ndarray
+    centres: np.ndarray
+    ground_counts: np.ndarray
+    kept: dict
+    stages: list
+    params: dict
+    seconds: float = 0.0
+
+    @property
+    def final(self) -> np.ndarray:
+        """Indices (into ``ij``) of the cells that passed every stage."""
+        return np.flatnonzero(self.kept[STAGES[-1]])
+
+    def __len__(self) -> int:
+        return len(self.final)
+
+    def summary(self) -> dict:
+        return {"cell_size": self.cell_size, "candidates": len(self), "stages": self.stages,
+                "params": self.params, "seconds": round(self.seconds, 3)}
+
+
+def _ground_tree(points, is_ground):
+    from scipy.spatial import cKDTree
+
+    g = points[is_ground]
+    centre = g[:, :2].mean(axis=0) if len(g) else np.zeros(2)
+    return cKDTree(g[:, :2] - centre), g, centre
+
+
+def _check_ground(points, is_ground):
+    pts = as_points(points).astype(np.float64, copy=False)
+    g = np.asarray(is_ground)
+    if g.dtype != bool:
+        raise InputValueError(f"is_ground must be a boolean array, got dtype {g.dtype}")
+    if g.shape != (len(pts),):
+        raise InputValueError(f"is_ground must have shape ({len(pts)},), got {g.shape}")
+    return pts, g
+
+
+def _ground_z(tree, g, centre, xy, radius):
+    """Mean z of ground points within ``radius`` of each xy (nan where none)."""
+    out = np.full(len(xy), np.nan)
+    for i, lst in enumerate(tree.query_ball_point(xy - centre, radius, workers=-1)):
+        if lst:
+            out[i] = g[lst, 2].mean()
+    return out
+
+
+def candidate_cells(points, is_ground, *, cell_size: float = 2.0, min_ground_points: int = 50_000,
+                    ground_count_radius: float = 5.0, profile: AzimuthProfile | None = None,
+                    scanner_height: float = 1.65, ground_height_radius: float = 3.0,
+                    progress: bool = False) -> CandidateCells:
+    """Grid cells where a secondary scanner may stand (paper §2.1).
+
+    Parameters
+    ----------
+    points : (n, 3) float
+    is_ground : (n,) bool
+    cell_size : float
+        Cell side in metres (2).
+    min_ground_points : int
+        Cells with fewer ground points within ``ground_count_radius`` (5 m) of
+        their centre are dropped (50,000: the paper's, for a dense TLS cloud;
+        scale it with your cloud's density).
+    profile : AzimuthProfile, optional
+        Minimum profile of the azimuth test; None skips the test.
+    scanner_height, ground_height_radius : float
+        For the azimuth test's scans: the scanner stands ``scanner_height``
+        above the mean ground height within ``ground_height_radius`` of the centre.
+    progress : bool
+        Progress bar over the azimuth test (one simulated scan per cell).
+    """
+    t0 = time.perf_counter()
+    pts, g = _check_ground(points, is_ground)
+    if cell_size <= 0 or ground_count_radius <= 0 or ground_height_radius <= 0:
+        raise InputValueError("cell_size, ground_count_radius and ground_height_radius must be > 0")
+    if min_ground_points < 0:
+        raise InputValueError(f"min_ground_points must be >= 0, got {min_ground_points}")
+    params = dict(cell_size=cell_size, min_ground_points=min_ground_points,
+                  ground_count_radius=ground_count_radius, scanner_height=scanner_height,
+                  ground_height_radius=ground_height_radius,
+                  profile=None if profile is None else profile.meta.get("name", "custom"))
+    if len(pts) == 0:
+        z = np.empty((0, 2))
+        return CandidateCells(cell_size, np.zeros(2), z.astype(np.int64), z, np.empty(0, np.int64),
+                              {s: np.empty(0, bool) for s in STAGES},
+                              [{"stage": s, "before": 0, "removed": 0, "kept": 0} for s in STAGES],
+                              params, time.perf_counter() - t0)
+    corner = np.floor(pts[:, :2].min(axis=0) / cell_size) * cell_size
+    ij_all = np.floor((pts[:, :2] - corner) / cell_size).astype(np.int64)
+    nx, ny = ij_all.max(axis=0) + 1
+    occupied = np.flatnonzero(np.bincount(ij_all[:, 0] * ny + ij_all[:, 1], minlength=nx * ny))
+    ij = np.column_stack([occupied // ny, occupied % ny])
+    centres = corner + (ij + 0.5) * cell_size
+    stages = [{"stage": "non_empty", "before": int(nx * ny), "removed": int(nx * ny - len(ij)),
+               "kept": int(len(ij))}]
+    kept = {"non_empty": np.ones(len(ij), bool)}
+
+    tree, gpts, gcentre = _ground_tree(pts, g)
+    if len(gpts):
+        counts = np.asarray(tree.query_ball_point(centres - gcentre, ground_count_radius,
+                                                  return_length=True, workers=-1), dtype=np.int64)
+    else:
+        counts = np.zeros(len(ij), np.int64)
+    ok = counts >= min_ground_points
+    kept["ground_support"] = ok.copy()
+    stages.append({"stage": "ground_support", "before": int(len(ij)), "removed": int((~ok).sum()),
+                   "kept": int(ok.sum())})
+
+    az = ok.copy()
+    if profile is not None:
+        from .scan import simulate_scan
+
+        todo = np.flatnonzero(ok)
+        zs = _ground_z(tree, gpts, gcentre, centres[todo], ground_height_radius)
+        bar = None
+        if progress:
+            from tqdm import tqdm
+
+            bar = tqdm(total=len(todo), unit="cell", desc="azimuth test", leave=False)
+        for i, z in zip(todo, zs):
+            if not np.isfinite(z):
+                az[i] = False
+            else:
+                origin = np.array([centres[i, 0], centres[i, 1], z + scanner_height])
+                scan = simulate_scan(pts, origin, profile.pattern)
+                az[i] = profile.passes(azimuth_histogram(pts[scan.indices], origin, len(profile.counts)))
+            if bar is not None:
+                bar.update()
+        if bar is not None:
+            bar.close()
+    kept["azimuth_profile"] = az
+    stages.append({"stage": "azimuth_profile", "before": int(ok.sum()), "removed": int(ok.sum() - az.sum()),
+                   "kept": int(az.sum()), **({"skipped": True} if profile is None else {})})
+    return CandidateCells(cell_size, corner, ij, centres, counts, kept, stages, params,
+                          time.perf_counter() - t0)
+
+
+def select_positions(points, is_ground, n: int, seed=None, cell_size: float = 2.0,
+                     min_ground_points: int = 50_000, ground_count_radius: float = 5.0,
+                     ground_height_radius: float = 3.0, scanner_height: float = 1.65,
+                     profile: AzimuthProfile | None = None, *, allow_fewer: bool = False,
+                     cells: CandidateCells | None = None, return_cells: bool = False):
+    """Draw ``n`` secondary scanner positions (paper §2.1-2.2).
+
+    Cells that pass :func:`candidate_cells` are drawn at random without
+    replacement, then a position uniform inside each; its z is the mean z of
+    the ground points within ``ground_height_radius`` (3 m) of that xy plus
+    ``scanner_height`` (1.65 m). A drawn position with no ground point within
+    3 m is redrawn inside its cell (up to 20 times), then the cell is skipped.
+
+    Parameters
+    ----------
+    n : int
+    seed : int or numpy Generator
+        Same seed, same positions.
+    allow_fewer : bool
+        With fewer candidates than ``n``: False (default) raises, True returns
+        all the positions there are.
+    cells : CandidateCells, optional
+        Reuse a :func:`candidate_cells` result (its parameters win).
+    return_cells : bool
+        Also return the :class:`CandidateCells` (per-stage counts).
+
+    Returns
+    -------
+    positions : (m, 3) float64
+        ``m == n`` unless ``allow_fewer``.
+    """
+    if int(n) != n or n < 0:
+        raise InputValueError(f"n must be a non-negative integer, got {n!r}")
+    pts, g = _check_ground(points, is_ground)
+    if cells is None:
+        cells = candidate_cells(pts, g, cell_size=cell_size, min_ground_points=min_ground_points,
+                                ground_count_radius=ground_count_radius, profile=profile,
+                                scanner_height=scanner_height, ground_height_radius=ground_height_radius)
+    rng = np.random.default_rng(seed)
+    final = cells.final
+    if len(final) < n and not allow_fewer:
+        raise InputValueError(
+            f"only {len(final)} candidate cells for n={n}: " + ", ".join(
+                f"{s['stage']} removed {s['removed']}" for s in cells.stages)
+            + " (lower min_ground_points, or pass allow_fewer=True)")
+    tree, gpts, gcentre = _ground_tree(pts, g)
+    out = []
+    size = cells.cell_size
+    for i in rng.permutation(final):
+        if len(out) == n:
+            break
+        lo = cells.corner + cells.ij[i] * size
+        for _ in range(20):
+            xy = lo + rng.uniform(0, size, 2)
+            z = _ground_z(tree, gpts, gcentre, xy[None], ground_height_radius)[0]
+            if np.isfinite(z):
+                out.append([xy[0], xy[1], z + scanner_height])
+                break
+    positions = np.array(out, dtype=np.float64).reshape(-1, 3)
+    if len(positions) < n and not allow_fewer:
+        raise InputValueError(f"only {len(positions)} positions could be placed for n={n}")
+    return (positions, cells) if return_cells else positions
+
+
+# --- resolution -------------------------------------------------------------------
+
+def suggest_resolution(points, position, *, radius: float = 30.0, k: int = 8, quantile: float = 0.5,
+                       reference: float = 0.144, sample: int = 200_000, seed=0) -> float:
+    """An angular resolution (degrees) that the cloud's density supports at ``position``.
+
+    Reasoning: a simulated scan cannot be finer than the cloud it samples.
+    A point at distance ``d`` from the new position whose neighbours are ``s``
+    apart subtends ``s / d`` radians; pulses finer than that find no point in
+    between and the scan becomes as sparse as the cloud. The suggestion is the
+    ``quantile`` (median by default) of ``s / d`` over the points within
+    ``radius`` of the position (``s``: mean distance to the ``k`` nearest
+    neighbours), never finer than ``reference`` (0.144 deg, the paper's fixed
+    choice). This also works for MLS clouds, which have no single primary
+    scanner.
+    """
+    from scipy.spatial import cKDTree
+
+    pts = as_points(points).astype(np.float64, copy=False)
+    pos = np.asarray(position, np.float64)
+    d = np.linalg.norm(pts - pos, axis=1)
+    near = np.flatnonzero((d > 0.5) & (d <= radius))
+    if len(near) < k + 1:
+        raise InputValueError(f"too few points ({len(near)}) within {radius} m of the position")
+    rng = np.random.default_rng(seed)
+    probe = near if len(near) <= sample else rng.choice(near, sample, replace=False)
+    c = pts[near].mean(axis=0)
+    tree = cKDTree(pts[near] - c)
+    dist, _ = tree.query(pts[probe] - c, k=k + 1, workers=-1)
+    s = dist[:, 1:].mean(axis=1)
+    ang = np.degrees(np.quantile(s / d[probe], quantile))
+    return float(max(ang, reference))
+
+
+# --- ground labels ----------------------------------------------------------------
+
+def label_ground(points, *, cloth_resolution: float = 0.5, rigidness: int = 2,
+                 class_threshold: float = 0.5, iterations: int = 500, time_step: float = 0.65,
+                 slope_smooth: bool = False) -> np.ndarray:
+    """Ground labels by Cloth Simulation Filtering (PyPI ``cloth-simulation-filter``).
+
+    The cloth is dropped from above the inverted cloud; points within
+    ``class_threshold`` of it are ground. CSF's own output is contained: it
+    runs in a temporary directory (it would write ``cloth_nodes.txt`` into the
+    working directory) with its console output silenced.
+
+    Returns
+    -------
+    is_ground : (n,) bool
+    """
+    import contextlib
+    import os
+    import sys
+    import tempfile
+
+    try:
+        import CSF
+    except ImportError as exc:
+        from .errors import MissingDependencyError
+
+        raise MissingDependencyError(
+            "ground labelling needs cloth-simulation-filter: pip install cloth-simulation-filter") from exc
+    pts = as_points(points).astype(np.float64, copy=False)
+    if len(pts) == 0:
+        return np.zeros(0, bool)
+    csf = CSF.CSF()
+    csf.params.bSloopSmooth = bool(slope_smooth)
+    csf.params.cloth_resolution = float(cloth_resolution)
+    csf.params.rigidness = int(rigidness)
+    csf.params.class_threshold = float(class_threshold)
+    csf.params.interations = int(iterations)
+    csf.params.time_step = float(time_step)
+    centre = pts.mean(axis=0)
+    csf.setPointCloud((pts - centre).tolist() if len(pts) < 10_000 else (pts - centre))
+    ground, off = CSF.VecInt(), CSF.VecInt()
+    cwd = os.getcwd()
+    sys.stdout.flush()
+    saved = os.dup(1)
+    with tempfile.TemporaryDirectory() as tmp, open(os.devnull, "w") as null:
+        try:
+            os.chdir(tmp)
+            os.dup2(null.fileno(), 1)
+            with contextlib.redirect_stdout(null):
+                csf.do_filtering(ground, off, False)
+        finally:
+            os.dup2(saved, 1)
+            os.close(saved)
+            os.chdir(cwd)
+    out = np.zeros(len(pts), bool)
+    out[np.asarray(list(ground), dtype=np.int64)] = True
+    return out
