@@ -9,6 +9,8 @@ from .errors import FormatError, InputTypeError, InputValueError, MissingDepende
 from .pattern import PRESETS, ScanPattern, preset
 from .scan import Scan, simulate_scan
 from .meshscan import MeshScan, scan_mesh
+from .positions import (AzimuthProfile, candidate_cells, label_ground, minimum_profile, select_positions,
+                        suggest_resolution)
 from .similarity import similarity
 from .spherical import pulse_bins, pulse_directions, spherical_coordinates
 
@@ -17,6 +19,8 @@ __version__ = "0.1.0"
 __all__ = [
     "ScanPattern", "PRESETS", "preset", "Scan", "simulate_scan", "ScanAccumulator",
     "scan_mesh", "MeshScan", "similarity",
+    "candidate_cells", "select_positions", "minimum_profile", "AzimuthProfile", "suggest_resolution",
+    "label_ground",
     "pulse_bins", "pulse_directions", "spherical_coordinates",
     "SlrError", "InputValueError", "InputTypeError", "FormatError", "MissingDependencyError",
 ]

@@ -153,6 +153,64 @@ def cmd_compare(args):
     _emit(res)
 
 
+def _ground_labels(cloud, args):
+    """Ground labels from the input's attributes, or CSF when asked."""
+    attrs = cloud.attributes
+    if args.ground_attribute:
+        if args.ground_attribute not in attrs:
+            raise ValueError(f"no attribute {args.ground_attribute!r} in the input (has {sorted(attrs)})")
+        a = np.asarray(attrs[args.ground_attribute])
+        return a.astype(bool) if a.dtype == bool else a == args.ground_value
+    if "is_ground" in attrs:
+        return np.asarray(attrs["is_ground"]).astype(bool)
+    if "classification" in attrs:
+        return np.asarray(attrs["classification"]) == 2
+    if args.csf:
+        from .positions import label_ground
+
+        return label_ground(cloud.points, cloth_resolution=args.cloth_resolution)
+    raise ValueError("the input has no ground labels (is_ground, classification); "
+                     "name one with --ground-attribute or label them with --csf")
+
+
+def cmd_positions(args):
+    from .io import atomic_path, read_cloud
+    from .positions import AzimuthProfile, default_profile, plot_cells, select_positions
+
+    out = Path(args.output)
+    if not out.parent.is_dir():
+        raise FileNotFoundError(f"no directory {out.parent} for {out}")
+    cloud = read_cloud(args.input, args.input_format)
+    is_ground = _ground_labels(cloud, args)
+    profile = None if args.profile == "none" else default_profile() if args.profile == "default" \
+        else AzimuthProfile.load(args.profile)
+    positions, cells = select_positions(
+        cloud.points, is_ground, args.n, seed=args.seed, cell_size=args.cell_size,
+        min_ground_points=args.min_ground_points, ground_count_radius=args.ground_count_radius,
+        ground_height_radius=args.ground_height_radius, scanner_height=args.scanner_height,
+        profile=profile, allow_fewer=args.allow_fewer, return_cells=True)
+    res = {"input": str(args.input), "n_requested": args.n, "seed": args.seed,
+           "positions": positions.tolist(), "ground_points": int(is_ground.sum()), **cells.summary()}
+    with atomic_path(out) as tmp:
+        tmp.write_text(json.dumps(res, indent=1))
+    if args.png:
+        with atomic_path(Path(args.png)) as tmp:
+            plot_cells(cells, tmp, positions, cloud.points)
+    _emit({k: v for k, v in res.items() if k != "positions"} | {"n_positions": len(positions),
+                                                               "output": str(out)})
+
+
+def cmd_profile(args):
+    from .io import atomic_path
+    from .positions import build_synthetic_profile
+
+    prof = build_synthetic_profile(tuple(args.scenes.split(",")), args.positions_per_scene, args.seed)
+    with atomic_path(Path(args.output)) as tmp:
+        prof.save(tmp)
+    _emit({"output": args.output, "n_scans": prof.meta["n_scans"], "min": int(prof.counts[0]),
+           "max": int(prof.counts[-1])})
+
+
 def build_parser() -> argparse.ArgumentParser:
     from . import __version__
 
@@ -195,6 +253,33 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("--input-format")
     p.add_argument("--png", help="also write a figure")
     p.set_defaults(func=cmd_compare)
+
+    p = sub.add_parser("positions", help="choose secondary scanner positions (the paper's grid method)")
+    p.add_argument("input", help="input cloud (.npy, .npz, .ply)")
+    p.add_argument("--n", type=int, required=True, help="positions to draw")
+    p.add_argument("--seed", type=int, default=0)
+    p.add_argument("-o", "--output", required=True, help="positions and per-stage counts (JSON)")
+    p.add_argument("--ground-attribute", help="per-point attribute holding ground labels")
+    p.add_argument("--ground-value", type=int, default=2, help="its ground value (default 2, LAS ground)")
+    p.add_argument("--csf", action="store_true", help="label ground by Cloth Simulation Filtering if the input has no labels")
+    p.add_argument("--cloth-resolution", type=float, default=0.5)
+    p.add_argument("--cell-size", type=float, default=2.0)
+    p.add_argument("--min-ground-points", type=int, default=50_000)
+    p.add_argument("--ground-count-radius", type=float, default=5.0)
+    p.add_argument("--ground-height-radius", type=float, default=3.0)
+    p.add_argument("--scanner-height", type=float, default=1.65)
+    p.add_argument("--profile", default="none", help="azimuth minimum profile: none (default), default, or a JSON path")
+    p.add_argument("--allow-fewer", action="store_true", help="return fewer positions than --n if cells run out")
+    p.add_argument("--png", help="also write a top view of the cells kept and removed")
+    p.add_argument("--input-format")
+    p.set_defaults(func=cmd_positions)
+
+    p = sub.add_parser("profile", help="rebuild the shipped azimuth minimum profile from synthetic scans")
+    p.add_argument("--scenes", default="distance-1,distance-2,distance-3,distance-4,distance-5")
+    p.add_argument("--positions-per-scene", type=int, default=4)
+    p.add_argument("--seed", type=int, default=0)
+    p.add_argument("-o", "--output", required=True)
+    p.set_defaults(func=cmd_profile)
 
     p = sub.add_parser("demo", help="the main job on a built-in scene: scene, primary scan, SLR scans, report")
     p.add_argument("-o", "--output", default="slr_ray_demo", help="output directory (default slr_ray_demo)")

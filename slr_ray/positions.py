@@ -31,7 +31,7 @@ from .errors import InputValueError
 from .pattern import ScanPattern
 
 __all__ = ["CandidateCells", "AzimuthProfile", "candidate_cells", "select_positions",
-           "azimuth_histogram", "minimum_profile", "default_profile", "suggest_resolution",
+           "azimuth_histogram", "minimum_profile", "default_profile", "build_synthetic_profile", "suggest_resolution",
            "label_ground", "DEFAULT_PROFILE_PATH"]
 
 DEFAULT_PROFILE_PATH = Path(__file__).resolve().parent / "data" / "default_profile.json"
@@ -108,6 +108,33 @@ def minimum_profile(scans, pattern: ScanPattern | None = None, bins: int = 360, 
         raise InputValueError("minimum_profile needs at least one scan")
     return AzimuthProfile(np.min(hists, axis=0), pattern or ScanPattern(0.144),
                           {"n_scans": len(hists), **(meta or {})})
+
+
+def build_synthetic_profile(scenes=("distance-1", "distance-2", "distance-3", "distance-4", "distance-5"),
+                            positions_per_scene: int = 4, seed: int = 0,
+                            pattern: ScanPattern | None = None) -> AzimuthProfile:
+    """The minimum profile of true scans of synthetic scenes (how the shipped one was made).
+
+    For each scene, ``positions_per_scene`` scanner positions 2-15 m from the
+    scene centre at 1.65 m above the ground, each scanned exactly (pulse
+    centres) at ``pattern`` (0.144 deg): these stand in for the paper's
+    reference scans (Yang and Purves' dataset, 0.144 deg).
+    """
+    from .meshscan import scan_mesh
+    from .scenes import scene_from_spec
+
+    pattern = pattern or ScanPattern(0.144)
+    rng = np.random.default_rng(seed)
+    scans = []
+    for name in scenes:
+        scene = scene_from_spec(name)
+        for _ in range(positions_per_scene):
+            r, a = rng.uniform(2, 15), rng.uniform(0, 2 * np.pi)
+            o = np.array([r * np.cos(a), r * np.sin(a), 0.0])
+            scans.append((scan_mesh(scene, o, pattern).points, o))
+    return minimum_profile(scans, pattern, meta={
+        "name": "synthetic", "scenes": list(scenes), "positions_per_scene": positions_per_scene,
+        "seed": seed, "made_by": "slr-ray profile build (slr_ray.positions.build_synthetic_profile)"})
 
 
 def default_profile() -> AzimuthProfile:
@@ -433,3 +460,37 @@ def label_ground(points, *, cloth_resolution: float = 0.5, rigidness: int = 2,
     out = np.zeros(len(pts), bool)
     out[np.asarray(list(ground), dtype=np.int64)] = True
     return out
+
+
+def plot_cells(cells: CandidateCells, path, positions=None, points=None) -> None:
+    """Top view (PNG) of the cells each stage removed and kept (the paper's
+    supplementary figure), with the drawn positions."""
+    import matplotlib
+
+    matplotlib.use("Agg")
+    import matplotlib.pyplot as plt
+    from matplotlib.patches import Patch
+
+    fig, ax = plt.subplots(figsize=(8, 8))
+    if points is not None and len(points):
+        step = max(1, len(points) // 200_000)
+        ax.scatter(points[::step, 0], points[::step, 1], s=0.05, c="0.8", rasterized=True)
+    state = np.full(len(cells.ij), "ground_support", dtype=object)  # removed by ground support
+    state[cells.kept["ground_support"] & ~cells.kept["azimuth_profile"]] = "azimuth_profile"
+    state[cells.kept["azimuth_profile"]] = "kept"
+    face = {"ground_support": "#ff7f0e", "azimuth_profile": "#1f77b4", "kept": "#2ca02c"}
+    s = cells.cell_size
+    for st, colour in face.items():
+        m = state == st
+        if m.any():
+            ax.scatter(cells.centres[m, 0], cells.centres[m, 1], marker="s", s=12, c=colour, alpha=0.6)
+    if positions is not None and len(positions):
+        ax.scatter(positions[:, 0], positions[:, 1], marker="^", c="k", s=40, label="positions")
+    ax.legend(handles=[Patch(color=face["ground_support"], label="removed: ground support"),
+                       Patch(color=face["azimuth_profile"], label="removed: azimuth profile"),
+                       Patch(color=face["kept"], label=f"kept ({len(cells)})")], loc="upper right")
+    ax.set(aspect="equal", xlabel="x (m)", ylabel="y (m)", title=f"{s:g} m cells: " + ", ".join(
+        f"{st['stage']} -{st['removed']}" for st in cells.stages))
+    fig.tight_layout()
+    fig.savefig(path, dpi=110)
+    plt.close(fig)

@@ -80,3 +80,25 @@ def test_demo_quick(tmp_path, capsys):
     assert rep["positions"] == 2 and 0.3 < rep["mean_similarity"] <= 1
     files = {p.name for p in (tmp_path / "d").iterdir()}
     assert {"report.json", "demo.png", "primary.npz", "position_00_slr.ply", "position_01_true.ply"} <= files
+
+
+def test_positions_command(tmp_path, capsys):
+    rng = np.random.default_rng(0)
+    g = np.column_stack([rng.uniform(-10, 10, (60_000, 2)), np.zeros(60_000)])
+    o = np.column_stack([rng.uniform(-10, 10, (5000, 2)), rng.uniform(1, 3, 5000)])
+    pts = np.vstack([g, o])
+    cls = np.r_[np.full(60_000, 2, np.uint8), np.full(5000, 1, np.uint8)]
+    write_cloud(tmp_path / "c.ply", PointCloud(pts, {"classification": cls}))
+    out = tmp_path / "pos.json"
+    assert main(["positions", str(tmp_path / "c.ply"), "--n", "4", "--seed", "1", "--min-ground-points",
+                 "2000", "-o", str(out), "--png", str(tmp_path / "cells.png")]) == 0
+    summary = json.loads(capsys.readouterr().out)
+    res = json.loads(out.read_text())
+    assert len(res["positions"]) == 4 and summary["n_positions"] == 4
+    assert [s["stage"] for s in res["stages"]] == ["non_empty", "ground_support", "azimuth_profile"]
+    assert (tmp_path / "cells.png").stat().st_size > 1000
+    # no labels and no --csf: one clear error, no output
+    write_cloud(tmp_path / "nolab.ply", PointCloud(pts))
+    out2 = tmp_path / "pos2.json"
+    assert main(["positions", str(tmp_path / "nolab.ply"), "--n", "2", "-o", str(out2)]) == 2
+    assert "ground labels" in capsys.readouterr().err and not out2.exists()
