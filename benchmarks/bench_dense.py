@@ -14,14 +14,13 @@ from __future__ import annotations
 import argparse
 import json
 import resource
-import subprocess
 import sys
 import time
 from pathlib import Path
 
 sys.path.insert(0, str(Path(__file__).resolve().parent))
 
-from common import machine, save  # noqa: E402
+from common import machine, run_isolated, save  # noqa: E402
 
 JOBS = {
     # name: (mode, origin, resolution)
@@ -35,8 +34,6 @@ JOBS = {
 
 
 def run_job(name, scene_name, spacing):
-    import numpy as np
-
     import tempfile
 
     from slr_ray import ScanPattern
@@ -71,14 +68,11 @@ def main(argv=None):
     rows = []
     for name in args.jobs.split(","):
         print(f"running {name} ...", file=sys.stderr, flush=True)
-        res = subprocess.run([sys.executable, __file__, "--job", name, "--scene", args.scene,
-                              "--spacing", str(args.spacing)], capture_output=True, text=True)
-        if res.returncode:
-            print(res.stderr, file=sys.stderr)
-            rows.append({"job": name, "error": f"exit {res.returncode}: " + " ".join(res.stderr.strip().splitlines()[-1:])})
+        r = run_isolated(__file__, ["--job", name, "--scene", args.scene, "--spacing", str(args.spacing)],
+                         "job", name)
+        rows.append(r)
+        if "error" in r:
             continue
-        rows.append(json.loads(res.stdout.strip().splitlines()[-1]))
-        r = rows[-1]
         print(f"  {r['points_out']:,} points, {r['seconds']:.1f} s, peak {r['peak_rss_gib']:.2f} GiB",
               file=sys.stderr, flush=True)
     print(f"\n{'job':<20} {'points out':>12} {'seconds':>8} {'peak GiB':>9} {'compact MB':>11} {'samples':>14}")

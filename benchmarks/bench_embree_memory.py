@@ -13,14 +13,13 @@ from __future__ import annotations
 import argparse
 import json
 import resource
-import subprocess
 import sys
 import time
 from pathlib import Path
 
 sys.path.insert(0, str(Path(__file__).resolve().parent))
 
-from common import machine, realistic_cloud, save  # noqa: E402
+from common import machine, realistic_cloud, run_isolated, save  # noqa: E402
 
 SETTINGS = {
     "normal s5": {"orientation": "normal", "segments": 5},
@@ -60,12 +59,7 @@ def main(argv=None):
     rows = []
     for name in SETTINGS:
         print(f"running {name} ...", file=sys.stderr, flush=True)
-        res = subprocess.run([sys.executable, __file__, "--setting", name, "--points", str(args.points)],
-                             capture_output=True, text=True)
-        if res.returncode:
-            rows.append({"setting": name, "error": f"exit {res.returncode}: {res.stderr.strip()[-300:]}"})
-            continue
-        rows.append(json.loads(res.stdout.strip().splitlines()[-1]))
+        rows.append(run_isolated(__file__, ["--setting", name, "--points", str(args.points)], "setting", name))
     print(f"{'setting':<14} {'points':>10} {'prep+build s':>12} {'scan s':>7} {'B/pt to embree':>14} {'peak GiB':>9}")
     for r in rows:
         if "error" in r:

@@ -64,6 +64,19 @@ def realistic_cloud(resolution: float = 0.029, n_rectangles: int = 1000, seed: i
     return ms.points
 
 
+def run_isolated(script, args, key: str, name: str) -> dict:
+    """Run ``script`` with ``args`` in a fresh Python process (so that its peak
+    memory is its own); its last stdout line is a JSON object. Failures come
+    back as ``{key: name, "error": ...}`` rather than stopping the benchmark."""
+    import subprocess
+
+    res = subprocess.run([sys.executable, str(script), *args], capture_output=True, text=True)
+    if res.returncode:
+        tail = " ".join(res.stderr.strip().splitlines()[-1:])
+        return {key: name, "error": f"exit {res.returncode}: {tail}"}
+    return json.loads(res.stdout.strip().splitlines()[-1])
+
+
 def timed(fn, repeat: int = 3):
     """(best seconds, all seconds, last result)."""
     times, out = [], None

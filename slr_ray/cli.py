@@ -116,15 +116,16 @@ def cmd_scene(args):
         _emit({"spec": args.spec, "output": str(out), **scene.info()})
         return
     pattern = _pattern_from_args(args)
+    from .io import _format
+
+    _format(args.output)  # refuse an unknown output format before the scan
     ms = scan_mesh(scene, args.origin, pattern, mode=args.mode, supersample=args.supersample,
                    spacing=args.spacing, progress=not args.quiet)
     cloud = PointCloud(ms.points, {"label": ms.labels.astype(np.int32), "range": ms.ranges,
                                    "v": ms.pulses[:, 0].astype(np.int32),
                                    "h": ms.pulses[:, 1].astype(np.int32)},
                        origin=ms.origin)
-    from .io import write_cloud as _w
-
-    _w(args.output, cloud)
+    write_cloud(args.output, cloud)
     _emit({"spec": args.spec, "output": str(args.output), **ms.summary()})
 
 

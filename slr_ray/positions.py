@@ -19,7 +19,6 @@ meant to catch (cells around a corner, behind large objects).
 from __future__ import annotations
 
 import json
-import math
 import time
 from dataclasses import dataclass, field
 from pathlib import Path

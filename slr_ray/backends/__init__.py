@@ -42,7 +42,7 @@ def available_backends() -> list[str]:
     """Backends whose dependencies import on this machine."""
     out = [Backend.BINNING.value]
     try:
-        import embreex  # noqa: F401
+        import embreex  # noqa: F401  (only whether it imports)
 
         out.append(Backend.EMBREE.value)
     except ImportError:
