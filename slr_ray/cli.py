@@ -212,6 +212,27 @@ def cmd_profile(args):
            "max": int(prof.counts[-1])})
 
 
+def cmd_validate(args):
+    from .validate import load_config, plot_validation, run_validation
+
+    config = load_config(args.config)
+    if args.positions is not None:
+        config.positions = args.positions
+    if args.print_config:
+        from dataclasses import asdict
+
+        _emit(asdict(config))
+        return
+    out = Path(args.output or f"slr_ray_validate_{config.name}")
+    res = run_validation(config, out, progress=not args.quiet)
+    from .io import atomic_path
+
+    with atomic_path(out / "figure3.png") as tmp:
+        plot_validation(out / "results.csv", tmp)
+    res["figure"] = str(out / "figure3.png")
+    _emit(res)
+
+
 def build_parser() -> argparse.ArgumentParser:
     from . import __version__
 
@@ -281,6 +302,14 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("--seed", type=int, default=0)
     p.add_argument("-o", "--output", required=True)
     p.set_defaults(func=cmd_profile)
+
+    p = sub.add_parser("validate", help="reproduce the paper's validation (Experiment 1) from a config")
+    p.add_argument("config", help="a config name in scenes/ (quick, distance, occlusion, resolution) or a TOML path")
+    p.add_argument("-o", "--output", help="output directory (default slr_ray_validate_NAME); reruns resume")
+    p.add_argument("--positions", type=int, help="override the number of positions per scene")
+    p.add_argument("--quiet", action="store_true", help="no progress bar")
+    p.add_argument("--print-config", action="store_true", help="print the resolved config and stop")
+    p.set_defaults(func=cmd_validate)
 
     p = sub.add_parser("demo", help="the main job on a built-in scene: scene, primary scan, SLR scans, report")
     p.add_argument("-o", "--output", default="slr_ray_demo", help="output directory (default slr_ray_demo)")
