@@ -25,6 +25,7 @@ SETTINGS = {
     "normal s5": {"orientation": "normal", "segments": 5},
     "billboard s5": {"orientation": "billboard", "segments": 5},
     "normal s3": {"orientation": "normal", "segments": 3},
+    "normal s5 open3d": {"orientation": "normal", "segments": 5, "engine": "open3d"},
 }
 
 
@@ -60,12 +61,12 @@ def main(argv=None):
     for name in SETTINGS:
         print(f"running {name} ...", file=sys.stderr, flush=True)
         rows.append(run_isolated(__file__, ["--setting", name, "--points", str(args.points)], "setting", name))
-    print(f"{'setting':<14} {'points':>10} {'prep+build s':>12} {'scan s':>7} {'B/pt to embree':>14} {'peak GiB':>9}")
+    print(f"{'setting':<18} {'points':>10} {'prep+build s':>12} {'scan s':>7} {'B/pt to embree':>14} {'peak GiB':>9}")
     for r in rows:
         if "error" in r:
-            print(f"{r['setting']:<14} failed: {r['error']}")
+            print(f"{r['setting']:<18} failed: {r['error']}")
             continue
-        print(f"{r['setting']:<14} {r['points']:>10,} {r['prepare_and_build_seconds']:>12.1f} "
+        print(f"{r['setting']:<18} {r['points']:>10,} {r['prepare_and_build_seconds']:>12.1f} "
               f"{r['scan_seconds']:>7.1f} {r['embree_input_bytes_per_point']:>14.0f} {r['peak_rss_gib']:>9.2f}")
     save("bench_embree_memory", {"machine": machine(), "inputs": {"points": args.points, "settings": SETTINGS,
                                                                   "pattern": "0.144 deg", "origin": [12.3, -7.1, 0.0]},

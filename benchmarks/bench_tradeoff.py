@@ -37,17 +37,26 @@ DISTANCE_BANDS = [(0, 7.5), (7.5, 17.5), (17.5, 40)]
 
 
 def configs(quick: bool, primary_res: float):
+    """Backend settings: binning, then embree discs by orientation, radius,
+    polygon segments and engine (Open3D's front end builds faster; embreex is
+    the default engine, so it is measured for the two orientations too)."""
     out = [{"name": "binning", "backend": "binning"}]
-    radii = [("spacing", 1.0), ("footprint", 1.0), (0.02, 1.0)]
+
+    def embree(orientation, radius, scale=1.0, segments=5, engine="open3d"):
+        out.append({"name": f"embree {orientation} r={radius}x{scale} s{segments} {engine}", "backend": "embree",
+                    "orientation": orientation, "radius": radius, "radius_scale": scale,
+                    "segments": segments, "engine": engine})
+
+    for radius in ("spacing", "footprint", 0.02):
+        embree("billboard", radius)
+        embree("normal", radius)
+    embree("billboard", "spacing", engine="embreex")
+    embree("normal", "spacing", engine="embreex")
     if not quick:
-        radii += [("spacing", 0.5), ("spacing", 2.0)]
-    for orientation in ("billboard", "normal"):
-        for radius, scale in radii:
-            out.append({"name": f"embree {orientation} r={radius}x{scale} s5", "backend": "embree",
-                        "orientation": orientation, "radius": radius, "radius_scale": scale, "segments": 5})
-    for segments in ((3, 7) if not quick else (3,)):
-        out.append({"name": f"embree normal r=spacingx1.0 s{segments}", "backend": "embree",
-                    "orientation": "normal", "radius": "spacing", "radius_scale": 1.0, "segments": segments})
+        for scale in (0.5, 2.0):
+            embree("normal", "spacing", scale)
+        for segments in (3, 7):
+            embree("normal", "spacing", segments=segments)
     for c in out:
         if c.get("radius") == "footprint":
             c["primary_origin"] = [0.0, 0.0, 0.0]
