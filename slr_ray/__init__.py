@@ -8,6 +8,7 @@ from .accumulator import ScanAccumulator
 from .errors import FormatError, InputTypeError, InputValueError, MissingDependencyError, SlrError
 from .pattern import PRESETS, ScanPattern, preset
 from .scan import Scan, simulate_scan
+from .distances import DistanceHistogram, distance_histogram, height_sweep, pulse_sized_bins
 from .meshscan import MeshScan, scan_mesh
 from .positions import (AzimuthProfile, candidate_cells, label_ground, minimum_profile, select_positions,
                         suggest_resolution)
@@ -20,7 +21,7 @@ __all__ = [
     "ScanPattern", "PRESETS", "preset", "Scan", "simulate_scan", "ScanAccumulator",
     "scan_mesh", "MeshScan", "similarity",
     "candidate_cells", "select_positions", "minimum_profile", "AzimuthProfile", "suggest_resolution",
-    "label_ground",
+    "label_ground", "pulse_sized_bins", "distance_histogram", "DistanceHistogram", "height_sweep",
     "pulse_bins", "pulse_directions", "spherical_coordinates",
     "SlrError", "InputValueError", "InputTypeError", "FormatError", "MissingDependencyError",
 ]
