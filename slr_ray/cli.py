@@ -45,7 +45,8 @@ def _pattern_from_args(args):
 
 def _add_pattern_args(p, origin_required=True):
     p.add_argument("--origin", nargs=3, type=float, metavar=("X", "Y", "Z"), required=origin_required,
-                   help="scanner position, in the cloud's coordinates")
+                   help="scanner position, in the cloud's coordinates" + (
+                       "" if origin_required else " (default: the input's recorded origin)"))
     p.add_argument("--resolution", type=float, metavar="DEG", help="angular resolution, both axes (degrees)")
     p.add_argument("--preset", choices=["slr", "syns", "primary", "primary-fine"],
                    help="a pattern of the paper (other options override its fields)")
@@ -78,9 +79,12 @@ def cmd_scan(args):
     t0 = time.perf_counter()
     cloud = read_cloud(args.input, args.input_format)
     t_read = time.perf_counter() - t0
-    scan = simulate_scan(cloud.points, args.origin, pattern, backend=args.backend)
+    origin = args.origin if args.origin is not None else cloud.origin
+    if origin is None:
+        raise ValueError(f"{args.input} records no scanner origin: give --origin X Y Z")
+    scan = simulate_scan(cloud.points, origin, pattern, backend=args.backend)
     sub = cloud.subset(scan.indices)
-    sub.origin = np.asarray(args.origin, float)
+    sub.origin = np.asarray(origin, float)
     if args.keep_range:
         sub.attributes["range"] = scan.ranges
     t1 = time.perf_counter()
@@ -294,9 +298,9 @@ def build_parser() -> argparse.ArgumentParser:
     sub = ap.add_subparsers(dest="cmd", required=True)
 
     p = sub.add_parser("scan", help="simulate one scan of a point cloud from a position")
-    p.add_argument("input", help="input cloud (.npy, .npz, .ply)")
-    _add_pattern_args(p)
-    p.add_argument("-o", "--output", required=True, help="output cloud (.npy, .npz, .ply)")
+    p.add_argument("input", help="input cloud (.npy, .npz, .ply, .las, .laz, .bin (KITTI), .xyz, .txt)")
+    _add_pattern_args(p, origin_required=False)
+    p.add_argument("-o", "--output", required=True, help="output cloud (same formats)")
     p.add_argument("--backend", default="binning", choices=["binning", "embree"])
     p.add_argument("--format", help="output format, overriding the extension")
     p.add_argument("--input-format", help="input format, overriding the extension")

@@ -10,6 +10,12 @@ through the indices of a scan. Formats are chosen by extension:
 ``.npz``  ``points`` ``(n, 3)`` plus any other length-``n`` arrays as
           attributes; optional ``origin`` ``(3,)``
 ``.ply``  ascii or binary, via plyfile; every vertex property is kept
+``.las``  LAS/LAZ via laspy (lazrs): every dimension is kept (classification
+``.laz``  2 is ground); coordinates to the file's scale (1 mm by default)
+``.bin``  KITTI Velodyne frames: float32 x, y, z, intensity; the sensor is at
+          the origin of each frame
+``.xyz``  plain text, whitespace-separated: x y z, then intensity, r, g, b
+``.txt``  (Semantic3D) or further columns as ``column_3``...
 ========  ============================================================
 
 Writes are atomic: the file appears under its name complete, or not at all.
@@ -29,7 +35,7 @@ from .errors import FormatError
 
 __all__ = ["PointCloud", "read_cloud", "write_cloud", "FORMATS"]
 
-FORMATS = (".npy", ".npz", ".ply")
+FORMATS = (".npy", ".npz", ".ply", ".las", ".laz", ".bin", ".xyz", ".txt")
 
 
 @dataclass
@@ -47,6 +53,7 @@ class PointCloud:
     points: np.ndarray
     attributes: dict = field(default_factory=dict)
     origin: np.ndarray | None = None
+    meta: dict = field(default_factory=dict)
 
     def __len__(self) -> int:
         return len(self.points)
@@ -57,6 +64,7 @@ class PointCloud:
             self.points[indices],
             {k: v[indices] for k, v in self.attributes.items()},
             self.origin,
+            dict(self.meta),
         )
 
 
@@ -135,7 +143,41 @@ def _read_ply(path):
     return PointCloud(pts, {n: np.asarray(v[n]) for n in names if n not in ("x", "y", "z")})
 
 
-_READERS = {".npy": _read_npy, ".npz": _read_npz, ".ply": _read_ply}
+def _read_las(path):
+    import laspy
+
+    las = laspy.read(str(path))
+    pts = np.column_stack([np.asarray(las.x), np.asarray(las.y), np.asarray(las.z)])
+    attrs = {name: np.asarray(las[name]) for name in las.point_format.dimension_names
+             if name not in ("X", "Y", "Z")}
+    meta = {"las_point_format": int(las.header.point_format.id),
+            "las_scales": las.header.scales.tolist(), "las_offsets": las.header.offsets.tolist()}
+    return PointCloud(pts, attrs, None, meta)
+
+
+def _read_kitti(path):
+    raw = np.fromfile(path, dtype=np.float32)
+    if raw.size % 4:
+        raise FormatError(f"{path}: {raw.size} float32 values, not a multiple of 4 (x, y, z, intensity)")
+    a = raw.reshape(-1, 4)
+    return PointCloud(a[:, :3].astype(np.float64), {"intensity": a[:, 3].copy()}, np.zeros(3))
+
+
+_SEMANTIC3D = ("intensity", "red", "green", "blue")
+
+
+def _read_xyz(path):
+    a = np.loadtxt(path, dtype=np.float64, ndmin=2)
+    if a.shape[1] < 3:
+        raise FormatError(f"{path}: {a.shape[1]} columns, need at least x y z")
+    extra = a.shape[1] - 3
+    names = list(_SEMANTIC3D) if extra == 4 else ["intensity"] if extra == 1 else \
+        [f"column_{j}" for j in range(3, a.shape[1])]
+    return PointCloud(a[:, :3], {n: a[:, 3 + j] for j, n in enumerate(names)})
+
+
+_READERS = {".npy": _read_npy, ".npz": _read_npz, ".ply": _read_ply, ".las": _read_las, ".laz": _read_las,
+            ".bin": _read_kitti, ".xyz": _read_xyz, ".txt": _read_xyz}
 
 
 @contextmanager
@@ -206,4 +248,43 @@ def _write_ply(path, cloud, binary):
     PlyData([PlyElement.describe(data, "vertex")], text=not binary).write(str(path))
 
 
-_WRITERS = {".npy": _write_npy, ".npz": _write_npz, ".ply": _write_ply}
+def _write_las(path, cloud, binary):
+    import laspy
+
+    fmt = int(cloud.meta.get("las_point_format", 6 if "gps_time" in cloud.attributes else 0))
+    header = laspy.LasHeader(point_format=fmt, version="1.4")
+    n = len(cloud)
+    if "las_scales" in cloud.meta:
+        header.scales = np.array(cloud.meta["las_scales"])
+        header.offsets = np.array(cloud.meta["las_offsets"])
+    else:
+        header.scales = np.array([0.001, 0.001, 0.001])
+        header.offsets = np.floor(cloud.points.min(axis=0)) if n else np.zeros(3)
+    standard = set(header.point_format.dimension_names)
+    extra = [k for k in cloud.attributes if k not in standard]
+    for k in extra:
+        v = np.asarray(cloud.attributes[k])
+        if v.ndim != 1 or v.dtype.kind not in "iufb":
+            raise FormatError(f"LAS cannot store attribute {k!r} of dtype {v.dtype} and shape {v.shape}")
+        header.add_extra_dim(laspy.ExtraBytesParams(name=k, type=(np.uint8 if v.dtype == bool else v.dtype)))
+    las = laspy.LasData(header)
+    las.x, las.y, las.z = cloud.points[:, 0], cloud.points[:, 1], cloud.points[:, 2]
+    for k, v in cloud.attributes.items():
+        las[k] = np.asarray(v).astype(np.uint8) if np.asarray(v).dtype == bool else v
+    las.write(str(path), do_compress=Path(path).suffix.lower() == ".laz")
+
+
+def _write_kitti(path, cloud, binary):
+    a = np.empty((len(cloud), 4), np.float32)
+    a[:, :3] = cloud.points
+    a[:, 3] = cloud.attributes.get("intensity", 0.0)
+    a.tofile(path)
+
+
+def _write_xyz(path, cloud, binary):
+    cols = [cloud.points] + [np.asarray(v, np.float64).reshape(len(cloud), -1) for v in cloud.attributes.values()]
+    np.savetxt(path, np.hstack(cols), fmt="%.6f")
+
+
+_WRITERS = {".npy": _write_npy, ".npz": _write_npz, ".ply": _write_ply, ".las": _write_las, ".laz": _write_las,
+            ".bin": _write_kitti, ".xyz": _write_xyz, ".txt": _write_xyz}

@@ -74,3 +74,63 @@ def test_failed_write_leaves_nothing(tmp_path):
     with pytest.raises(FormatError):
         write_cloud(tmp_path / "out.ply", c)
     assert list(tmp_path.iterdir()) == []
+
+
+from pathlib import Path  # noqa: E402
+
+DATA = Path(__file__).resolve().parents[2] / "shared" / "data"
+
+
+@pytest.mark.parametrize("ext", [".las", ".laz"])
+def test_las_round_trip(tmp_path, ext):
+    rng = np.random.default_rng(1)
+    pts = rng.uniform(-50, 50, (1000, 3)) + [4e5, 5e6, 0]
+    attrs = {"intensity": rng.integers(0, 65535, 1000).astype(np.uint16),
+             "classification": rng.integers(0, 10, 1000).astype(np.uint8),
+             "label": rng.integers(0, 9, 1000).astype(np.int32)}  # not a LAS dimension: extra bytes
+    write_cloud(tmp_path / f"c{ext}", PointCloud(pts, attrs))
+    back = read_cloud(tmp_path / f"c{ext}")
+    np.testing.assert_allclose(back.points, pts, atol=0.0005 + 1e-9)  # the file's 1 mm scale
+    for k, v in attrs.items():
+        np.testing.assert_array_equal(back.attributes[k], v)
+    # and again: the header (format, scales, offsets) carries through
+    write_cloud(tmp_path / f"d{ext}", back)
+    again = read_cloud(tmp_path / f"d{ext}")
+    np.testing.assert_array_equal(again.points, back.points)
+
+
+@pytest.mark.parametrize("ext", [".bin", ".xyz", ".txt"])
+def test_kitti_and_text_round_trip(tmp_path, ext):
+    rng = np.random.default_rng(2)
+    pts = rng.normal(size=(300, 3)) * 20
+    attrs = {"intensity": rng.random(300).astype(np.float32)}
+    write_cloud(tmp_path / f"c{ext}", PointCloud(pts, attrs))
+    back = read_cloud(tmp_path / f"c{ext}")
+    tol = 1e-5 if ext == ".bin" else 1e-6  # float32 / 6 decimals
+    np.testing.assert_allclose(back.points, pts, atol=tol * 50)
+    np.testing.assert_allclose(back.attributes["intensity"], attrs["intensity"], atol=1e-6)
+    if ext == ".bin":
+        np.testing.assert_array_equal(back.origin, [0, 0, 0])
+
+
+def test_semantic3d_columns(tmp_path):
+    (tmp_path / "s.txt").write_text("1 2 3 -1200 10 20 30\n4 5 6 300 40 50 60\n")
+    c = read_cloud(tmp_path / "s.txt")
+    assert set(c.attributes) == {"intensity", "red", "green", "blue"}
+    assert c.attributes["blue"].tolist() == [30, 60]
+
+
+def test_truncated_kitti(tmp_path):
+    (tmp_path / "k.bin").write_bytes(b"\x00" * 10)
+    with pytest.raises(FormatError):
+        read_cloud(tmp_path / "k.bin")
+
+
+@pytest.mark.skipif(not DATA.is_dir(), reason="../shared/data not present")
+def test_real_files_read():
+    forest = read_cloud(DATA / "forest_tls_riegl.laz")
+    assert len(forest) == 1_046_843 and "return_number" in forest.attributes
+    autzen = read_cloud(DATA / "autzen_als_classified.las")
+    assert (autzen.attributes["classification"] == 2).sum() == 26_107
+    kitti = read_cloud(DATA / "kitti_hdl64_000000.bin")
+    assert 100_000 < len(kitti) < 150_000 and kitti.origin.tolist() == [0, 0, 0]
