@@ -217,26 +217,33 @@ def rectangle_scene(
                           np.array(polygon_labels, np.int64), n, len(polygons), params)
 
 
+def load_toml_spec(spec, table: str, what: str, prefix: str = "") -> tuple[dict, Path]:
+    """A TOML file by path, or by name in ``scenes/`` (``<prefix><name>.toml``),
+    that must hold ``[table]``. Returns (the whole document, its path)."""
+    path = Path(spec)
+    if not path.suffix:
+        path = SCENES_DIR / f"{prefix}{spec}.toml"
+    if not path.is_file():
+        known = sorted(p.stem[len(prefix):] for p in SCENES_DIR.glob(f"{prefix}*.toml")) \
+            if SCENES_DIR.is_dir() else []
+        raise InputValueError(f"no {what} {spec!r} (looked for {path}); shipped: {known}")
+    with open(path, "rb") as f:
+        try:
+            data = tomllib.load(f)
+        except tomllib.TOMLDecodeError as exc:
+            raise InputValueError(f"{path}: not valid TOML: {exc}") from None
+    if table not in data:
+        raise InputValueError(f"{path}: no [{table}] table")
+    return data, path
+
+
 def load_scene_spec(spec) -> dict:
     """Read a scene spec: a path to a TOML file, or the name of one in ``scenes/``.
 
     A spec has a ``[scene]`` table with the keyword arguments of
     :func:`rectangle_scene` (``n_rectangles``, ``seed``...).
     """
-    path = Path(spec)
-    if not path.suffix:
-        path = SCENES_DIR / f"{spec}.toml"
-    if not path.is_file():
-        known = sorted(p.stem for p in SCENES_DIR.glob("*.toml")) if SCENES_DIR.is_dir() else []
-        raise InputValueError(f"no scene spec {spec!r} (looked for {path}); shipped: {known}")
-    with open(path, "rb") as f:
-        try:
-            data = tomllib.load(f)
-        except tomllib.TOMLDecodeError as exc:
-            raise InputValueError(f"{path}: not valid TOML: {exc}") from None
-    if "scene" not in data:
-        raise InputValueError(f"{path}: no [scene] table")
-    return data
+    return load_toml_spec(spec, "scene", "scene spec")[0]
 
 
 def scene_from_spec(spec) -> RectangleScene:

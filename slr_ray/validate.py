@@ -18,7 +18,6 @@ import csv
 import math
 import sys
 import time
-import tomllib
 from dataclasses import asdict, dataclass, field
 from pathlib import Path
 
@@ -72,23 +71,11 @@ class ValidationConfig:
 
 def load_config(spec) -> ValidationConfig:
     """A config by path or by name (``scenes/validate-<name>.toml``)."""
-    from .scenes import SCENES_DIR
+    from .scenes import load_toml_spec
 
-    path = Path(spec)
-    if not path.suffix:
-        path = SCENES_DIR / f"validate-{spec}.toml"
-    if not path.is_file():
-        raise InputValueError(f"no validation config {spec!r} (looked for {path})")
-    with open(path, "rb") as f:
-        try:
-            data = tomllib.load(f)
-        except tomllib.TOMLDecodeError as exc:
-            raise InputValueError(f"{path}: not valid TOML: {exc}") from None
-    table = data.get("validate")
-    if table is None:
-        raise InputValueError(f"{path}: no [validate] table")
+    data, path = load_toml_spec(spec, "validate", "validation config", prefix="validate-")
     try:
-        return ValidationConfig(**table).check()
+        return ValidationConfig(**data["validate"]).check()
     except TypeError as exc:
         raise InputValueError(f"{path}: {exc}") from None
 
