@@ -166,14 +166,20 @@ def _ground_labels(cloud, args):
             raise ValueError(f"no attribute {args.ground_attribute!r} in the input (has {sorted(attrs)})")
         a = np.asarray(attrs[args.ground_attribute])
         return a.astype(bool) if a.dtype == bool else a == args.ground_value
+    found = None
     if "is_ground" in attrs:
-        return np.asarray(attrs["is_ground"]).astype(bool)
-    if "classification" in attrs:
-        return np.asarray(attrs["classification"]) == 2
+        found = np.asarray(attrs["is_ground"]).astype(bool)
+    elif "classification" in attrs:
+        found = np.asarray(attrs["classification"]) == 2
+    if found is not None and found.any():
+        return found
     if args.csf:
         from .positions import label_ground
 
         return label_ground(cloud.points, cloth_resolution=args.cloth_resolution)
+    if found is not None:
+        raise ValueError("the input's ground labels (is_ground / classification 2) mark no point as ground; "
+                         "label them with --csf")
     raise ValueError("the input has no ground labels (is_ground, classification); "
                      "name one with --ground-attribute or label them with --csf")
 

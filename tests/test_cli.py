@@ -102,3 +102,10 @@ def test_positions_command(tmp_path, capsys):
     out2 = tmp_path / "pos2.json"
     assert main(["positions", str(tmp_path / "nolab.ply"), "--n", "2", "-o", str(out2)]) == 2
     assert "ground labels" in capsys.readouterr().err and not out2.exists()
+
+
+def test_ground_labels_without_ground_points_need_csf(tmp_path, capsys):
+    pts = np.random.default_rng(0).normal(size=(1000, 3))
+    write_cloud(tmp_path / "c.ply", PointCloud(pts, {"classification": np.zeros(1000, np.uint8)}))
+    assert main(["positions", str(tmp_path / "c.ply"), "--n", "1", "-o", str(tmp_path / "p.json")]) == 2
+    assert "mark no point as ground" in capsys.readouterr().err
