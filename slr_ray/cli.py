@@ -294,6 +294,22 @@ def cmd_distances(args):
            "files": sorted(files) + ["distances.png"]})
 
 
+def cmd_augment(args):
+    from .augment import augment
+    from .io import read_cloud
+
+    ground = None
+    if args.csf or args.ground_attribute:
+        ground = _ground_labels(read_cloud(args.input), args)
+    res = augment(args.input, args.output, args.n, backend=args.backend, resolution=args.resolution,
+                  heights=tuple(args.heights), fmt=args.format, seed=args.seed,
+                  min_ground_points=args.min_ground_points, ground=ground, workers=args.workers,
+                  scheduler=args.scheduler, progress=not args.quiet)
+    _emit({k: res[k] for k in ("input", "n_requested", "new_scans", "seconds", "software")}
+          | {"scans": len(res["scans"]), "positions": len(res["positions"]),
+             "points_out": sum(s["points"] for s in res["scans"]), "output_dir": str(args.output)})
+
+
 def build_parser() -> argparse.ArgumentParser:
     from . import __version__
 
@@ -389,6 +405,25 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("--quiet", action="store_true")
     p.add_argument("-o", "--output", required=True, help="output directory (CSV tables, distances.png)")
     p.set_defaults(func=cmd_distances)
+
+    p = sub.add_parser("augment", help="many simulated scans of one real scan (resumable, parallel)")
+    p.add_argument("input", help="input cloud (.las, .laz, .ply, .npz, .bin, .xyz, ...)")
+    p.add_argument("--n", type=int, required=True, help="positions")
+    p.add_argument("-o", "--output", required=True, help="output directory (a rerun resumes)")
+    p.add_argument("--backend", default="binning", choices=["binning", "embree"])
+    p.add_argument("--resolution", type=float, default=0.144)
+    p.add_argument("--heights", nargs="+", type=float, default=[1.65], help="scanner heights above ground")
+    p.add_argument("--format", help="output extension (default: the input's)")
+    p.add_argument("--seed", type=int, default=0)
+    p.add_argument("--min-ground-points", type=int, default=50_000)
+    p.add_argument("--ground-attribute")
+    p.add_argument("--ground-value", type=int, default=2)
+    p.add_argument("--csf", action="store_true", help="label ground by CSF (the input has no labels)")
+    p.add_argument("--cloth-resolution", type=float, default=0.5)
+    p.add_argument("--workers", type=int, help="local worker processes (default: all cores)")
+    p.add_argument("--scheduler", help="address of a dask.distributed scheduler to run on")
+    p.add_argument("--quiet", action="store_true")
+    p.set_defaults(func=cmd_augment)
 
     p = sub.add_parser("demo", help="the main job on a built-in scene: scene, primary scan, SLR scans, report")
     p.add_argument("-o", "--output", default="slr_ray_demo", help="output directory (default slr_ray_demo)")

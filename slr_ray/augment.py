@@ -1,0 +1,180 @@
+"""Many simulated scans from one real scan: ``slr-ray augment``.
+
+Ground labels (the input's, or CSF), candidate positions by the grid method,
+and one SLR scan per position and scanner height, each written in the input's
+format (every attribute carried through the indices) under a temporary name
+and renamed, so an interrupted run never leaves a half-written scan. A
+manifest (``manifest.json``, rewritten atomically after every scan) records
+each position, the pattern, counts, timings and the software version; a rerun
+skips the scans it lists whose files exist, so it resumes to the same result.
+
+Scans run in parallel: local worker processes by default (the cloud is sent
+to each worker once, when it starts), or the workers of a Dask cluster
+(``scheduler=ADDRESS`` of a running ``dask.distributed`` scheduler; the cloud
+is scattered to the workers once).
+"""
+
+from __future__ import annotations
+
+import json
+import multiprocessing
+import os
+import time
+from concurrent.futures import ProcessPoolExecutor
+from pathlib import Path
+
+import numpy as np
+
+from .errors import InputValueError
+
+__all__ = ["augment"]
+
+_WORKER = {}
+
+
+def _init_worker(points, attributes, origin, meta):
+    from .io import PointCloud
+
+    _WORKER["cloud"] = PointCloud(points, attributes, origin, meta)
+
+
+def _scan_one(job, cloud=None):
+    """One SLR scan written to ``job['path']``; returns its manifest entry."""
+    from .io import atomic_path, write_cloud
+    from .pattern import ScanPattern
+    from .scan import simulate_scan
+
+    cloud = cloud if cloud is not None else _WORKER["cloud"]
+    t0 = time.perf_counter()
+    pattern = ScanPattern.from_dict(job["pattern"])
+    scan = simulate_scan(cloud.points, job["origin"], pattern, backend=job["backend"], **job["options"])
+    sub = cloud.subset(scan.indices)
+    sub.origin = np.asarray(job["origin"], float)
+    path = Path(job["path"])
+    with atomic_path(path) as tmp:
+        write_cloud(tmp, sub, format=path.suffix)
+    return {"file": path.name, "position": job["position"], "height": job["height"],
+            "origin": list(job["origin"]), "points": len(scan), "seconds": round(time.perf_counter() - t0, 4)}
+
+
+def _scan_on_dask(job, cloud):
+    return _scan_one(job, cloud)
+
+
+def augment(input_path, outdir, n: int, *, backend: str = "binning", resolution: float = 0.144,
+            heights=(1.65,), fmt: str | None = None, seed: int = 0, min_ground_points: int = 50_000,
+            ground=None, origin=None, workers: int | None = None, scheduler: str | None = None,
+            progress: bool = True, backend_options: dict | None = None, allow_fewer: bool = True) -> dict:
+    """Write ``n`` positions x ``heights`` SLR scans of ``input_path`` into ``outdir``.
+
+    Parameters
+    ----------
+    ground : (n,) bool, optional
+        Ground labels; default from the input (``is_ground``, LAS class 2),
+        which must have some (use :func:`slr_ray.label_ground` otherwise).
+    heights : sequence of float
+        Scanner heights above the local ground.
+    fmt : str, optional
+        Output extension (default the input's).
+    workers : int, optional
+        Local worker processes (default all cores; 1 runs in this process).
+    scheduler : str, optional
+        Address of a ``dask.distributed`` scheduler to run the scans on.
+
+    Returns
+    -------
+    dict
+        The manifest.
+    """
+    from . import __version__
+    from .io import _format, atomic_path, read_cloud
+    from .pattern import ScanPattern
+    from .positions import select_positions
+
+    input_path = Path(input_path)
+    out = Path(outdir)
+    ext = _format(input_path, fmt)
+    cloud = read_cloud(input_path)  # check everything before creating anything
+    if ground is None:
+        a = cloud.attributes
+        ground = np.asarray(a["is_ground"]).astype(bool) if "is_ground" in a else \
+            (np.asarray(a["classification"]) == 2) if "classification" in a else None
+        if ground is None or not ground.any():
+            raise InputValueError(f"{input_path} has no ground labels; pass ground= (e.g. slr_ray.label_ground)")
+    positions, cells = select_positions(cloud.points, ground, n, seed=seed, min_ground_points=min_ground_points,
+                                        allow_fewer=allow_fewer, return_cells=True)
+    pattern = ScanPattern(resolution)
+    out.mkdir(parents=True, exist_ok=True)
+    if not os.access(out, os.W_OK):
+        raise PermissionError(f"cannot write to {out}")
+    manifest_path = out / "manifest.json"
+    done = {}
+    if manifest_path.exists():
+        try:
+            old = json.loads(manifest_path.read_text())
+            done = {s["file"]: s for s in old.get("scans", []) if (out / s["file"]).exists()}
+        except (ValueError, KeyError):
+            done = {}
+    jobs = []
+    for i, p in enumerate(positions):
+        ground_z = p[2] - 1.65
+        for h in heights:
+            name = f"scan_{i:04d}_h{h:g}{ext}"
+            if name in done:
+                continue
+            jobs.append({"path": str(out / name), "position": i, "height": float(h),
+                         "origin": [float(p[0]), float(p[1]), float(ground_z + h)],
+                         "pattern": pattern.to_dict(), "backend": backend, "options": backend_options or {}})
+    manifest = {"software": f"slr_ray {__version__}", "input": str(input_path), "n_requested": n,
+                "seed": seed, "pattern": pattern.to_dict(), "backend": backend, "heights": list(heights),
+                "positions": positions.tolist(), "stages": cells.stages, "scans": list(done.values())}
+
+    def record(entry):
+        manifest["scans"].append(entry)
+        manifest["scans"].sort(key=lambda s: s["file"])
+        with atomic_path(manifest_path) as tmp:
+            tmp.write_text(json.dumps(manifest, indent=1))
+
+    record_start = time.perf_counter()
+    bar = None
+    if progress:
+        from tqdm import tqdm
+
+        bar = tqdm(total=len(jobs), unit="scan", desc="augment")
+    try:
+        if scheduler:
+            from dask.distributed import Client, as_completed
+
+            with Client(scheduler) as client:
+                shared = client.scatter(cloud, broadcast=True)  # once, not once per task
+                futures = [client.submit(_scan_on_dask, j, shared, pure=False) for j in jobs]
+                for fut in as_completed(futures):
+                    record(fut.result())
+                    if bar is not None:
+                        bar.update()
+        elif (workers or os.cpu_count() or 1) > 1 and len(jobs) > 1:
+            n_workers = min(len(jobs), workers or os.cpu_count() or 1)
+            # spawn, not fork: a forked child inherits the parent's thread pools
+            # (numba's, the binning backend's) in whatever state they were and can hang
+            with ProcessPoolExecutor(n_workers, mp_context=multiprocessing.get_context("spawn"),
+                                     initializer=_init_worker,
+                                     initargs=(cloud.points, cloud.attributes, cloud.origin, cloud.meta)) as pool:
+                for entry in pool.map(_scan_one, jobs):
+                    record(entry)
+                    if bar is not None:
+                        bar.update()
+        else:
+            for j in jobs:
+                record(_scan_one(j, cloud))
+                if bar is not None:
+                    bar.update()
+    finally:
+        if bar is not None:
+            bar.close()
+    if not jobs:
+        record_start = time.perf_counter()
+        with atomic_path(manifest_path) as tmp:
+            tmp.write_text(json.dumps(manifest, indent=1))
+    manifest["seconds"] = round(time.perf_counter() - record_start, 3)
+    manifest["new_scans"] = len(jobs)
+    return manifest

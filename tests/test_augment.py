@@ -1,0 +1,104 @@
+import json
+import signal
+import subprocess
+import sys
+import time
+
+import numpy as np
+import pytest
+
+from slr_ray import InputValueError
+from slr_ray.augment import augment
+from slr_ray.io import PointCloud, read_cloud, write_cloud
+
+
+@pytest.fixture(scope="module")
+def laz(tmp_path_factory):
+    rng = np.random.default_rng(0)
+    g = np.column_stack([rng.uniform(-20, 20, (150_000, 2)), rng.normal(0, 0.02, 150_000)])
+    o = np.column_stack([rng.uniform(-20, 20, (30_000, 2)), rng.uniform(0.5, 5, 30_000)])
+    pts = np.vstack([g, o]) + [5e5, 4e6, 100]
+    cls = np.r_[np.full(150_000, 2, np.uint8), np.ones(30_000, np.uint8)]
+    path = tmp_path_factory.mktemp("in") / "scan.laz"
+    write_cloud(path, PointCloud(pts, {"classification": cls, "intensity": np.arange(180_000, dtype=np.uint16)}))
+    return path
+
+
+def _files(d):
+    return {p.name: read_cloud(p) for p in sorted(d.iterdir()) if p.suffix == ".laz"}
+
+
+def test_serial_local_processes_and_dask_give_the_same_scans(laz, tmp_path):
+    a = augment(laz, tmp_path / "serial", 3, heights=(1.0, 2.0), min_ground_points=1000, workers=1, progress=False)
+    augment(laz, tmp_path / "procs", 3, heights=(1.0, 2.0), min_ground_points=1000, workers=2, progress=False)
+    assert len(a["scans"]) == 6 and a["software"].startswith("slr_ray")
+    fa, fb = _files(tmp_path / "serial"), _files(tmp_path / "procs")
+    assert sorted(fa) == sorted(fb) and len(fa) == 6
+    for name in fa:
+        np.testing.assert_array_equal(fa[name].points, fb[name].points)
+        np.testing.assert_array_equal(fa[name].attributes["intensity"], fb[name].attributes["intensity"])
+    distributed = pytest.importorskip("dask.distributed")
+    with distributed.LocalCluster(n_workers=2, threads_per_worker=1, processes=True,
+                                  dashboard_address=None) as cluster:
+        augment(laz, tmp_path / "dask", 3, heights=(1.0, 2.0), min_ground_points=1000,
+                scheduler=cluster.scheduler_address, progress=False)
+    fc = _files(tmp_path / "dask")
+    for name in fa:
+        np.testing.assert_array_equal(fa[name].points, fc[name].points)
+
+
+def test_manifest_and_attributes(laz, tmp_path):
+    m = augment(laz, tmp_path / "o", 2, min_ground_points=1000, workers=1, progress=False)
+    disk = json.loads((tmp_path / "o" / "manifest.json").read_text())
+    assert disk["scans"] == m["scans"] and len(disk["positions"]) == 2
+    src = read_cloud(laz)
+    for s in m["scans"]:
+        c = read_cloud(tmp_path / "o" / s["file"])
+        assert len(c) == s["points"] > 100
+        # every point comes from the input, with its attributes
+        from scipy.spatial import cKDTree
+
+        d, idx = cKDTree(src.points - src.points.mean(0)).query(c.points - src.points.mean(0))
+        assert d.max() < 1e-6
+        np.testing.assert_array_equal(c.attributes["intensity"], src.attributes["intensity"][idx])
+        np.testing.assert_array_equal(c.attributes["classification"], src.attributes["classification"][idx])
+    again = augment(laz, tmp_path / "o", 2, min_ground_points=1000, workers=1, progress=False)
+    assert again["new_scans"] == 0
+
+
+def test_interrupted_run_resumes_to_the_same_result(laz, tmp_path):
+    cmd = [sys.executable, "-m", "slr_ray.cli", "augment", str(laz), "--n", "12", "--min-ground-points",
+           "1000", "--workers", "1", "--quiet", "-o"]
+    full = tmp_path / "full"
+    subprocess.run(cmd + [str(full)], check=True, capture_output=True)
+    part = tmp_path / "part"
+    proc = subprocess.Popen(cmd + [str(part)], stdout=subprocess.PIPE, stderr=subprocess.PIPE)
+    deadline = time.time() + 120
+    while time.time() < deadline and not any(p.suffix == ".laz" for p in part.glob("*.laz")):
+        time.sleep(0.05)
+    proc.send_signal(signal.SIGINT)
+    proc.wait(60)
+    # no half-written scan under a final name
+    for p in part.glob("*.laz"):
+        read_cloud(p)
+    subprocess.run(cmd + [str(part)], check=True, capture_output=True)
+    fa, fb = _files(full), _files(part)
+    assert sorted(fa) == sorted(fb) and len(fa) == 12
+    for name in fa:
+        np.testing.assert_array_equal(fa[name].points, fb[name].points)
+    assert not [p for p in part.iterdir() if p.name.startswith(".")]
+
+
+def test_bad_inputs(laz, tmp_path, capsys):
+    from slr_ray.cli import main
+
+    nolabel = tmp_path / "n.ply"
+    write_cloud(nolabel, PointCloud(np.random.default_rng(0).normal(size=(100, 3))))
+    with pytest.raises(InputValueError, match="ground labels"):
+        augment(nolabel, tmp_path / "x", 2, progress=False)
+    assert not (tmp_path / "x").exists()
+    assert main(["augment", str(tmp_path / "missing.laz"), "--n", "2", "-o", str(tmp_path / "y")]) == 2
+    assert main(["augment", str(laz), "--n", "2", "--format", "doc", "-o", str(tmp_path / "z")]) == 2
+    err = capsys.readouterr().err.strip().splitlines()
+    assert all(line.startswith("slr-ray: error:") for line in err)
+    assert not (tmp_path / "y").exists()
