@@ -81,7 +81,9 @@ def cmd_scan(args):
     t_read = time.perf_counter() - t0
     origin = args.origin if args.origin is not None else cloud.origin
     if origin is None:
-        raise ValueError(f"{args.input} records no scanner origin: give --origin X Y Z")
+        hint = (" (its scan has no pose; by the E57 standard that means the scanner frame is the file's:"
+                " --origin 0 0 0)") if cloud.meta.get("e57_pose") is False else ""
+        raise ValueError(f"{args.input} records no scanner origin: give --origin X Y Z{hint}")
     scan = simulate_scan(cloud.points, origin, pattern, backend=args.backend)
     sub = cloud.subset(scan.indices)
     sub.origin = np.asarray(origin, float)

@@ -16,6 +16,9 @@ through the indices of a scan. Formats are chosen by extension:
           the origin of each frame
 ``.xyz``  plain text, whitespace-separated: x y z, then intensity, r, g, b
 ``.txt``  (Semantic3D) or further columns as ``column_3``...
+``.e57``  via pye57: points in the global frame (each scan's pose applied),
+          the pose's translation as the scanner origin; a file with several
+          scans: :func:`read_e57_scans` (one cloud each)
 ========  ============================================================
 
 Writes are atomic: the file appears under its name complete, or not at all.
@@ -33,9 +36,9 @@ import numpy as np
 
 from .errors import FormatError
 
-__all__ = ["PointCloud", "read_cloud", "write_cloud", "FORMATS"]
+__all__ = ["PointCloud", "read_cloud", "write_cloud", "read_e57_scans", "FORMATS"]
 
-FORMATS = (".npy", ".npz", ".ply", ".las", ".laz", ".bin", ".xyz", ".txt")
+FORMATS = (".npy", ".npz", ".ply", ".las", ".laz", ".bin", ".xyz", ".txt", ".e57")
 
 
 @dataclass
@@ -176,8 +179,62 @@ def _read_xyz(path):
     return PointCloud(a[:, :3], {n: a[:, 3 + j] for j, n in enumerate(names)})
 
 
+def _pye57():
+    try:
+        import pye57
+    except ImportError as exc:
+        from .errors import MissingDependencyError
+
+        raise MissingDependencyError("E57 needs pye57: pip install pye57") from exc
+    return pye57
+
+
+def read_e57_scans(path) -> list:
+    """Every scan of an E57 file as a :class:`PointCloud` (global frame; origin =
+    the scan's pose translation). A scan without a pose gets origin None: the
+    E57 standard reads an absent pose as identity (scanner at the file's
+    origin), but a missing pose is as often a lost one, so the caller decides
+    (``--origin 0 0 0``). Points flagged
+    invalid (``cartesianInvalidState`` != 0) hold no coordinates and are left
+    out; their number is in ``meta['e57_invalid']``."""
+    pye57 = _pye57()
+    try:
+        e57 = pye57.E57(str(path))
+        out = []
+        for i in range(e57.scan_count):
+            raw = e57.read_scan_raw(i)
+            header = e57.get_header(i)
+            has_pose = bool(header.has_pose())
+            if has_pose:
+                rot = np.asarray(header.rotation_matrix, np.float64)
+                origin = np.asarray(header.translation, np.float64)
+            else:
+                rot, origin = np.eye(3), None
+            local = np.column_stack([raw["cartesianX"], raw["cartesianY"], raw["cartesianZ"]]).astype(np.float64)
+            valid = np.ones(len(local), bool)
+            if "cartesianInvalidState" in raw:
+                valid = np.asarray(raw["cartesianInvalidState"]) == 0
+            pts = local[valid] @ rot.T + (origin if origin is not None else 0.0)
+            attrs = {k: np.asarray(v)[valid] for k, v in raw.items()
+                     if k not in ("cartesianX", "cartesianY", "cartesianZ", "cartesianInvalidState")}
+            out.append(PointCloud(pts, attrs, origin,
+                                  {"e57_scan": i, "e57_invalid": int((~valid).sum()), "e57_pose": has_pose}))
+        return out
+    except FormatError:
+        raise
+    except Exception as exc:
+        raise FormatError(f"cannot read {path} as .e57: {type(exc).__name__}: {exc}") from exc
+
+
+def _read_e57(path):
+    scans = read_e57_scans(path)
+    if len(scans) != 1:
+        raise FormatError(f"{path} holds {len(scans)} scans: read them with slr_ray.io.read_e57_scans")
+    return scans[0]
+
+
 _READERS = {".npy": _read_npy, ".npz": _read_npz, ".ply": _read_ply, ".las": _read_las, ".laz": _read_las,
-            ".bin": _read_kitti, ".xyz": _read_xyz, ".txt": _read_xyz}
+            ".bin": _read_kitti, ".xyz": _read_xyz, ".txt": _read_xyz, ".e57": _read_e57}
 
 
 @contextmanager
@@ -286,5 +343,19 @@ def _write_xyz(path, cloud, binary):
     np.savetxt(path, np.hstack(cols), fmt="%.6f")
 
 
+def _write_e57(path, cloud, binary):
+    pye57 = _pye57()
+    origin = cloud.origin if cloud.origin is not None else np.zeros(3)
+    local = cloud.points - origin
+    data = {"cartesianX": local[:, 0], "cartesianY": local[:, 1], "cartesianZ": local[:, 2]}
+    for k, v in cloud.attributes.items():
+        data[k] = np.asarray(v)
+    e57 = pye57.E57(str(path), mode="w")
+    try:
+        e57.write_scan_raw(data, rotation=np.array([1.0, 0, 0, 0]), translation=np.asarray(origin, float))
+    finally:
+        e57.close()
+
+
 _WRITERS = {".npy": _write_npy, ".npz": _write_npz, ".ply": _write_ply, ".las": _write_las, ".laz": _write_las,
-            ".bin": _write_kitti, ".xyz": _write_xyz, ".txt": _write_xyz}
+            ".bin": _write_kitti, ".xyz": _write_xyz, ".txt": _write_xyz, ".e57": _write_e57}

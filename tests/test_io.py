@@ -134,3 +134,31 @@ def test_real_files_read():
     assert (autzen.attributes["classification"] == 2).sum() == 26_107
     kitti = read_cloud(DATA / "kitti_hdl64_000000.bin")
     assert 100_000 < len(kitti) < 150_000 and kitti.origin.tolist() == [0, 0, 0]
+
+
+def test_e57_round_trip_with_pose(tmp_path):
+    pytest.importorskip("pye57")
+    c = _cloud(400)
+    c.attributes = {"intensity": np.linspace(0, 1, 400)}
+    write_cloud(tmp_path / "c.e57", c)
+    back = read_cloud(tmp_path / "c.e57")
+    np.testing.assert_allclose(back.points, c.points, atol=1e-6)
+    np.testing.assert_array_equal(back.origin, c.origin)
+    np.testing.assert_allclose(back.attributes["intensity"], c.attributes["intensity"])
+    assert back.meta["e57_pose"] is True
+
+
+@pytest.mark.skipif(not (DATA / "pump_tls.e57").exists(), reason="../shared/data not present")
+def test_e57_without_pose_needs_an_origin(tmp_path, capsys):
+    pytest.importorskip("pye57")
+    from slr_ray.cli import main
+
+    c = read_cloud(DATA / "pump_tls.e57")
+    assert len(c) == 155_201 and c.origin is None and c.meta["e57_pose"] is False
+    assert {"intensity", "colorRed", "rowIndex"} <= set(c.attributes)
+    out = tmp_path / "o.ply"
+    assert main(["scan", str(DATA / "pump_tls.e57"), "--resolution", "1", "-o", str(out)]) == 2
+    assert "--origin 0 0 0" in capsys.readouterr().err and not out.exists()
+    assert main(["scan", str(DATA / "pump_tls.e57"), "--origin", "0", "0", "0", "--resolution", "0.5",
+                 "-o", str(out)]) == 0
+    assert set(read_cloud(out).attributes) >= {"intensity", "colorRed"}
