@@ -16,6 +16,8 @@ through the indices of a scan. Formats are chosen by extension:
           the origin of each frame
 ``.xyz``  plain text, whitespace-separated: x y z, then intensity, r, g, b
 ``.txt``  (Semantic3D) or further columns as ``column_3``...
+``.pcd``  Point Cloud Library files, ascii or binary (not binary_compressed):
+          every field kept; VIEWPOINT's translation as the origin
 ``.e57``  via pye57: points in the global frame (each scan's pose applied),
           the pose's translation as the scanner origin; a file with several
           scans: :func:`read_e57_scans` (one cloud each)
@@ -26,6 +28,7 @@ Writes are atomic: the file appears under its name complete, or not at all.
 
 from __future__ import annotations
 
+import io
 import os
 import tempfile
 from contextlib import contextmanager
@@ -38,7 +41,7 @@ from .errors import FormatError
 
 __all__ = ["PointCloud", "read_cloud", "write_cloud", "read_e57_scans", "FORMATS"]
 
-FORMATS = (".npy", ".npz", ".ply", ".las", ".laz", ".bin", ".xyz", ".txt", ".e57")
+FORMATS = (".npy", ".npz", ".ply", ".las", ".laz", ".bin", ".xyz", ".txt", ".e57", ".pcd")
 
 
 @dataclass
@@ -179,6 +182,87 @@ def _read_xyz(path):
     return PointCloud(a[:, :3], {n: a[:, 3 + j] for j, n in enumerate(names)})
 
 
+_PCD_TYPES = {("F", 4): "f4", ("F", 8): "f8", ("I", 1): "i1", ("I", 2): "i2", ("I", 4): "i4", ("I", 8): "i8",
+              ("U", 1): "u1", ("U", 2): "u2", ("U", 4): "u4", ("U", 8): "u8"}
+
+
+def _read_pcd(path):
+    with open(path, "rb") as f:
+        header = {}
+        while True:
+            line = f.readline()
+            if not line:
+                raise FormatError(f"{path}: PCD header ends before DATA")
+            words = line.decode("ascii", "replace").strip().split()
+            if not words or words[0].startswith("#"):
+                continue
+            header[words[0].upper()] = words[1:]
+            if words[0].upper() == "DATA":
+                break
+        body = f.read()
+    try:
+        fields = header["FIELDS"]
+        sizes = [int(x) for x in header["SIZE"]]
+        types = header["TYPE"]
+        counts = [int(x) for x in header.get("COUNT", ["1"] * len(fields))]
+        n = int(header["POINTS"][0])
+        dtype = np.dtype([(name if c == 1 else name, _PCD_TYPES[(t, sz)], () if c == 1 else (c,))
+                          for name, sz, t, c in zip(fields, sizes, types, counts)])
+    except (KeyError, ValueError, IndexError) as exc:
+        raise FormatError(f"{path}: bad PCD header ({exc})") from None
+    kind = header["DATA"][0].lower()
+    if kind == "ascii":
+        flat = np.loadtxt(io.BytesIO(body), ndmin=2)
+        if len(flat) != n:
+            raise FormatError(f"{path}: {len(flat)} rows for POINTS {n}")
+        data = np.empty(n, dtype)
+        col = 0
+        for name, c in zip(fields, counts):
+            data[name] = flat[:, col] if c == 1 else flat[:, col:col + c]
+            col += c
+    elif kind == "binary":
+        if len(body) < n * dtype.itemsize:
+            raise FormatError(f"{path}: truncated ({len(body)} bytes for {n} points)")
+        data = np.frombuffer(body[: n * dtype.itemsize], dtype)
+    else:
+        raise FormatError(f"{path}: PCD DATA {kind} is not supported (ascii and binary are)")
+    if not {"x", "y", "z"} <= set(fields):
+        raise FormatError(f"{path}: no x, y, z fields")
+    pts = np.column_stack([data["x"], data["y"], data["z"]]).astype(np.float64)
+    attrs = {name: np.array(data[name]) for name in fields if name not in ("x", "y", "z") and name != "_"}
+    vp = header.get("VIEWPOINT")
+    origin = np.array([float(v) for v in vp[:3]]) if vp and len(vp) >= 3 else None
+    return PointCloud(pts, attrs, origin)
+
+
+def _write_pcd(path, cloud, binary):
+    names, arrays = ["x", "y", "z"], [cloud.points[:, 0], cloud.points[:, 1], cloud.points[:, 2]]
+    for k, v in cloud.attributes.items():
+        v = np.asarray(v)
+        if v.ndim != 1 or v.dtype.kind not in "iufb":
+            raise FormatError(f"PCD cannot store attribute {k!r} of dtype {v.dtype} and shape {v.shape}")
+        names.append(k)
+        arrays.append(v.astype(np.uint8) if v.dtype == bool else v)
+    dtype = np.dtype([(nm, a.dtype) for nm, a in zip(names, arrays)])
+    data = np.empty(len(cloud), dtype)
+    for nm, a in zip(names, arrays):
+        data[nm] = a
+    kind = {"f": "F", "i": "I", "u": "U"}
+    o = cloud.origin if cloud.origin is not None else np.zeros(3)
+    header = "\n".join([
+        "# .PCD v0.7 - Point Cloud Data file format (slr_ray)", "VERSION 0.7",
+        "FIELDS " + " ".join(names), "SIZE " + " ".join(str(a.dtype.itemsize) for a in arrays),
+        "TYPE " + " ".join(kind[a.dtype.kind] for a in arrays), "COUNT " + " ".join("1" for _ in arrays),
+        f"WIDTH {len(cloud)}", "HEIGHT 1", "VIEWPOINT " + " ".join(repr(float(x)) for x in o) + " 1 0 0 0",
+        f"POINTS {len(cloud)}", "DATA " + ("binary" if binary else "ascii")]) + "\n"
+    with open(path, "wb") as f:
+        f.write(header.encode("ascii"))
+        if binary:
+            f.write(data.astype(data.dtype.newbyteorder("<")).tobytes())
+        else:
+            np.savetxt(f, np.column_stack([a.astype(np.float64) for a in arrays]), fmt="%.10g")
+
+
 def _pye57():
     try:
         import pye57
@@ -234,7 +318,7 @@ def _read_e57(path):
 
 
 _READERS = {".npy": _read_npy, ".npz": _read_npz, ".ply": _read_ply, ".las": _read_las, ".laz": _read_las,
-            ".bin": _read_kitti, ".xyz": _read_xyz, ".txt": _read_xyz, ".e57": _read_e57}
+            ".bin": _read_kitti, ".xyz": _read_xyz, ".txt": _read_xyz, ".e57": _read_e57, ".pcd": _read_pcd}
 
 
 @contextmanager
@@ -358,4 +442,5 @@ def _write_e57(path, cloud, binary):
 
 
 _WRITERS = {".npy": _write_npy, ".npz": _write_npz, ".ply": _write_ply, ".las": _write_las, ".laz": _write_las,
-            ".bin": _write_kitti, ".xyz": _write_xyz, ".txt": _write_xyz, ".e57": _write_e57}
+            ".bin": _write_kitti, ".xyz": _write_xyz, ".txt": _write_xyz, ".e57": _write_e57,
+            ".pcd": _write_pcd}

@@ -162,3 +162,31 @@ def test_e57_without_pose_needs_an_origin(tmp_path, capsys):
     assert main(["scan", str(DATA / "pump_tls.e57"), "--origin", "0", "0", "0", "--resolution", "0.5",
                  "-o", str(out)]) == 0
     assert set(read_cloud(out).attributes) >= {"intensity", "colorRed"}
+
+
+@pytest.mark.parametrize("binary", [True, False])
+def test_pcd_round_trip(tmp_path, binary):
+    c = _cloud(300)
+    write_cloud(tmp_path / "c.pcd", c, binary=binary)
+    back = read_cloud(tmp_path / "c.pcd")
+    if binary:
+        np.testing.assert_array_equal(back.points, c.points)
+        for k, v in c.attributes.items():
+            np.testing.assert_array_equal(back.attributes[k], v)
+            assert back.attributes[k].dtype == v.dtype
+    else:
+        np.testing.assert_allclose(back.points, c.points, rtol=1e-9)
+        np.testing.assert_allclose(back.attributes["gps_time"], c.attributes["gps_time"], rtol=1e-9)
+    np.testing.assert_array_equal(back.origin, c.origin)
+
+
+def test_pcd_read_by_open3d(tmp_path):
+    o3d = pytest.importorskip("open3d")
+    c = PointCloud(np.random.default_rng(0).normal(size=(50, 3)) + [5e5, 4e6, 0],
+                   {"intensity": np.arange(50, dtype=np.float32)})
+    write_cloud(tmp_path / "c.pcd", c)
+    # coordinates are float64 (F 8) so UTM survives; Open3D's tensor reader takes them
+    # (its legacy reader reads F 8 positions as zeros)
+    pc = o3d.t.io.read_point_cloud(str(tmp_path / "c.pcd"))
+    np.testing.assert_array_equal(pc.point.positions.numpy(), c.points)
+    np.testing.assert_array_equal(pc.point.intensity.numpy().ravel(), c.attributes["intensity"])
