@@ -102,3 +102,18 @@ def test_bad_inputs(laz, tmp_path, capsys):
     err = capsys.readouterr().err.strip().splitlines()
     assert all(line.startswith("slr-ray: error:") for line in err)
     assert not (tmp_path / "y").exists()
+
+
+def test_unwritable_output_and_unlabelled_las(laz, tmp_path, capsys):
+    from slr_ray.cli import main
+
+    blocker = tmp_path / "file"
+    blocker.write_text("not a directory")
+    assert main(["augment", str(laz), "--n", "1", "--min-ground-points", "1000", "-o",
+                 str(blocker / "out")]) == 2
+    nolab = tmp_path / "nolab.las"
+    write_cloud(nolab, PointCloud(read_cloud(laz).points[:5000]))
+    assert main(["augment", str(nolab), "--n", "1", "-o", str(tmp_path / "o2")]) == 2
+    err = capsys.readouterr().err.strip().splitlines()
+    assert len(err) == 2 and all(e.startswith("slr-ray: error:") for e in err)
+    assert "ground labels" in err[1] and not (tmp_path / "o2").exists()
