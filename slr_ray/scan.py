@@ -124,9 +124,15 @@ def simulate_scan(points, origin, pattern, backend: str = "binning", **options) 
         resolution in degrees.
     backend : {'binning', 'embree'}
         ``'binning'`` (default) keeps, per pulse bin, the point with the
-        smallest range (ties to the lowest index): the paper's rule, exact.
+        smallest range (ties to the lowest index): the paper's rule, exact,
+        and the fastest. ``'embree'`` splats the points as discs and returns
+        the point whose disc the ray through each pulse centre meets first
+        (see :mod:`slr_ray.backends.embree`); a point hit by several rays
+        appears once.
     **options
         Backend options. binning: ``n_threads`` (default: all cores).
+        embree: those of :class:`slr_ray.backends.embree.DiscScene`
+        (``radius``, ``orientation``, ``segments``, ``engine``...).
 
     Returns
     -------

@@ -40,11 +40,9 @@ def get_backend(name):
 
 def available_backends() -> list[str]:
     """Backends whose dependencies import on this machine."""
-    out = [Backend.BINNING.value]
-    try:
-        import embreex  # noqa: F401  (only whether it imports)
+    import importlib.util
 
+    out = [Backend.BINNING.value]
+    if importlib.util.find_spec("embreex") is not None:
         out.append(Backend.EMBREE.value)
-    except ImportError:
-        pass
     return out
