@@ -196,18 +196,6 @@ def _scratch():
             np.empty(_BLOCK), np.empty(_BLOCK, np.int64), np.empty(_BLOCK))
 
 
-@njit(cache=True, nogil=True, error_model="numpy")
-def _keys_array(points, ox, oy, oz, d_theta, d_phi, th0, th1, nv, nh, rmin, rmax, keys, ranges):
-    x, y, z, th, ph, kb, rb = _scratch()
-    n = points.shape[0]
-    for s in range(0, n, _BLOCK):
-        e = min(n, s + _BLOCK)
-        _block_keys(points, s, e, ox, oy, oz, d_theta, d_phi, th0, th1, nv, nh, rmin, rmax,
-                    x, y, z, th, ph, kb, rb)
-        keys[s:e] = kb[: e - s]
-        ranges[s:e] = rb[: e - s]
-
-
 def pulse_keys(points, origin, pattern):
     """Flat pulse key ``v * n_azimuth + h`` and range of every point.
 
@@ -217,7 +205,7 @@ def pulse_keys(points, origin, pattern):
     keys = np.empty(len(points), dtype=np.int64)
     ranges = np.empty(len(points), dtype=np.float64)
     if len(points):
-        _keys_array(points, *_kernel_params(origin, pattern), keys, ranges)
+        _block_keys_range(points, *_kernel_params(origin, pattern), keys, ranges, 0, len(points))
     return keys, ranges
 
 
