@@ -35,9 +35,22 @@ COLUMNS = ["scene", "n_rectangles", "scene_seed", "primary_resolution", "positio
 class ValidationConfig:
     """What :func:`run_validation` runs (a ``[validate]`` table in TOML).
 
-    ``scenes`` are scene specs (names in ``scenes/`` or paths);
-    ``primary_resolutions`` one or more (the paper: 0.0144 and 0.00576);
-    ``primary_semantics`` 'dense' (the paper's 5 mm grid) or 'center'.
+    ``scenes``: scene specs (names in ``scenes/`` or paths), each either a
+    string or a table ``{scene = "rect-1000", primary_resolutions = [0.0144,
+    0.00576]}`` overriding ``primary_resolutions`` for that scene.
+    ``primary_resolutions``: one or more (the paper: 0.0144 and 0.00576). The
+    secondary positions are drawn on the *first* primary of a scene and the
+    true scans are shared by all its primaries, as in the paper (question 3
+    reuses question 2's positions and true scans).
+    ``positions_resolution``: the primary the positions are drawn on
+    (default: a scene's first; scanned for that alone if it is not among the
+    scene's primaries).
+    ``primary_semantics``: 'dense' (the paper's 5 mm grid) or 'center'.
+    ``nearest_every`` / ``embree_every``: the nearest-in-pulse truth and the
+    embree backend (both ~10x dearer than the rest) only at positions
+    0, k, 2k, ... (1 = every position). ``embree_primary_resolutions``: the
+    primaries embree is run on (default: all; a 0.00576 deg dense primary of
+    2e8 points does not fit a disc BVH in 24 GB).
     """
 
     name: str = "validation"
@@ -51,6 +64,10 @@ class ValidationConfig:
     backends: list = field(default_factory=lambda: ["binning"])
     truths: list = field(default_factory=lambda: ["center"])
     nearest_supersample: int = 3
+    nearest_every: int = 1
+    embree_every: int = 1
+    embree_primary_resolutions: list | None = None
+    positions_resolution: float | None = None
     min_ground_points: int = 50_000
     threshold: float = 0.10
     embree_options: dict = field(default_factory=dict)
@@ -66,7 +83,36 @@ class ValidationConfig:
                 raise InputValueError(f"unknown truth semantics {t!r} in config")
         if self.positions < 1 or self.threshold <= 0:
             raise InputValueError("positions must be >= 1 and threshold > 0")
+        if self.nearest_every < 1 or self.embree_every < 1:
+            raise InputValueError("nearest_every and embree_every must be >= 1")
+        for entry in self.scenes:
+            spec, res = self.scene_entry(entry)
+            if not res or any(not (float(r) > 0) for r in res):
+                raise InputValueError(f"scene {spec!r}: primary_resolutions must be positive numbers")
         return self
+
+    def scene_entry(self, entry) -> tuple[str, list]:
+        """``(spec, primary resolutions)`` of one ``scenes`` entry."""
+        if isinstance(entry, str):
+            spec, res = entry, self.primary_resolutions
+        elif isinstance(entry, dict) and isinstance(entry.get("scene"), str) \
+                and set(entry) <= {"scene", "primary_resolutions"}:
+            spec, res = entry["scene"], entry.get("primary_resolutions", self.primary_resolutions)
+        else:
+            raise InputValueError(f"a scenes entry is a name or {{scene = NAME, primary_resolutions = [...]}}, "
+                                  f"got {entry!r}")
+        try:
+            return spec, [float(r) for r in res]
+        except (TypeError, ValueError):
+            raise InputValueError(f"scene {spec!r}: primary_resolutions must be numbers, got {res!r}") from None
+
+    def wanted(self, resolution, position: int):
+        """The (backend, truth) rows wanted at one primary and position."""
+        emb_res = self.embree_primary_resolutions
+        return [(b, t) for b in self.backends for t in self.truths
+                if (t != "nearest" or position % self.nearest_every == 0)
+                and (b != "embree" or (position % self.embree_every == 0
+                                       and (emb_res is None or float(resolution) in map(float, emb_res))))]
 
 
 def load_config(spec) -> ValidationConfig:
@@ -88,8 +134,69 @@ def _done_rows(path: Path) -> dict:
     return {(r["scene"], r["primary_resolution"], r["position"], r["backend"], r["truth"]): r for r in rows}
 
 
+def _peak_rss_gib() -> float:
+    import resource
+
+    return resource.getrusage(resource.RUSAGE_SELF).ru_maxrss / 2**20
+
+
+class _Stages:
+    """``stages.csv``: wall time, size and peak memory of each stage of a run."""
+
+    columns = ["scene", "primary_resolution", "stage", "seconds", "count", "peak_rss_gib"]
+
+    def __init__(self, path: Path):
+        self.path = path
+        new = not path.exists()
+        self.f = open(path, "a", newline="")
+        self.w = csv.DictWriter(self.f, self.columns)
+        if new:
+            self.w.writeheader()
+
+    def add(self, scene, res, stage, seconds, count):
+        self.w.writerow({"scene": scene, "primary_resolution": res, "stage": stage,
+                         "seconds": round(seconds, 2), "count": count,
+                         "peak_rss_gib": round(_peak_rss_gib(), 2)})
+        self.f.flush()
+
+    def close(self):
+        self.f.close()
+
+
+def _positions_file(out: Path, spec: str) -> Path:
+    return out / "positions" / (Path(spec).stem + ".csv")
+
+
+def _positions_tag(config: ValidationConfig, n: int) -> str:
+    return f"# positions={n} seed={config.seed} min_ground_points={config.min_ground_points}"
+
+
+def _load_positions(path: Path, config: ValidationConfig):
+    """Positions saved by an earlier run of the same draw, or None (draw again).
+
+    Draws are prefix-consistent (the first N of a draw of M > N are a draw of
+    N), so a file drawn for at least ``config.positions`` serves."""
+    if not path.exists():
+        return None
+    head = path.read_text().split("\n", 1)[0]
+    try:
+        n = int(head.split()[1].split("=")[1])
+    except (IndexError, ValueError):
+        return None
+    if head != _positions_tag(config, n) or n < config.positions:
+        return None
+    return np.loadtxt(path, delimiter=",", ndmin=2)[: config.positions]
+
+
 def run_validation(config: ValidationConfig, outdir, progress: bool = True) -> dict:
-    """Run (or resume) a validation; returns a summary. Writes ``outdir/results.csv``."""
+    """Run (or resume) a validation; returns a summary.
+
+    Writes ``outdir/results.csv`` (a row per pair, appended as made),
+    ``outdir/positions/<scene>.csv`` (the drawn positions, so a resumed run
+    need not rescan the primary they were drawn on) and ``outdir/stages.csv``
+    (seconds and peak memory of every primary scan, position draw and
+    position loop).
+    """
     from .meshscan import scan_mesh
     from .pattern import ScanPattern
     from .positions import select_positions
@@ -106,73 +213,115 @@ def run_validation(config: ValidationConfig, outdir, progress: bool = True) -> d
     secondary = ScanPattern(config.secondary_resolution)
     t_all = time.perf_counter()
     n_new = 0
+    entries = [config.scene_entry(e) for e in config.scenes]
     bar = None
-    total = len(config.scenes) * len(config.primary_resolutions) * config.positions
     if progress:
         from tqdm import tqdm
 
+        total = sum(len(res) for _, res in entries) * config.positions
         bar = tqdm(total=total, unit="position", desc=config.name, file=sys.stderr)
-    with open(csv_path, "a", newline="") as f:
+    stages = _Stages(out / "stages.csv")
+
+    def key(spec, res, i, b, t):
+        return (spec, str(res), str(i), b, t)
+
+    try:
+        f = open(csv_path, "a", newline="")
         w = csv.DictWriter(f, COLUMNS)
         if new_file:
             w.writeheader()
-        for spec in config.scenes:
+        for spec, resolutions in entries:
+            todo_all = {float(res): [i for i in range(config.positions)
+                              if any(key(spec, res, i, b, t) not in done for b, t in config.wanted(res, i))]
+                        for res in resolutions}
+            if not any(todo_all.values()):
+                if bar is not None:
+                    bar.update(config.positions * len(resolutions))
+                continue
             scene = scene_from_spec(spec)
-            for res in config.primary_resolutions:
-                wanted = [(str(i), b, t) for i in range(config.positions)
-                          for b in config.backends for t in config.truths]
-                key = lambda i, b, t: (spec, str(res), i, b, t)  # noqa: E731
-                if all(key(*k) in done for k in wanted):
-                    if bar is not None:
+            pos_path = _positions_file(out, spec)
+            positions = _load_positions(pos_path, config)
+            truth_cache: dict = {}
+            pos_res = float(config.positions_resolution or resolutions[0])
+            passes = [pos_res] + [r for r in resolutions if float(r) != pos_res]
+            for r_index, res in enumerate(passes):
+                wanted_here = float(res) in map(float, resolutions)
+                todo = todo_all.get(float(res), [])
+                if not todo and (positions is not None or r_index > 0):
+                    if bar is not None and wanted_here:
                         bar.update(config.positions)
                     continue
+                t0 = time.perf_counter()
                 primary = scan_mesh(scene, [0, 0, 0], ScanPattern(res), mode=config.primary_semantics,
                                     spacing=config.dense_spacing)
-                positions = select_positions(primary.points, primary.labels == 0, config.positions,
-                                             seed=config.seed, min_ground_points=config.min_ground_points,
-                                             allow_fewer=True)
+                stages.add(spec, res, "primary scan", time.perf_counter() - t0, len(primary))
+                if positions is None:
+                    t0 = time.perf_counter()
+                    positions = select_positions(primary.points, primary.labels == 0, config.positions,
+                                                 seed=config.seed, min_ground_points=config.min_ground_points,
+                                                 allow_fewer=True)
+                    pos_path.parent.mkdir(exist_ok=True)
+                    from .io import atomic_path
+
+                    with atomic_path(pos_path) as tmp:
+                        np.savetxt(tmp, positions, delimiter=",", fmt="%.17g",
+                                   header=_positions_tag(config, config.positions)[2:])
+                    stages.add(spec, res, "positions", time.perf_counter() - t0, len(positions))
+                if not wanted_here:
+                    del primary
+                    continue
+                t_loop = time.perf_counter()
                 discs = None
                 for i, pos in enumerate(positions):
-                    todo = [(b, t) for b in config.backends for t in config.truths
-                            if key(str(i), b, t) not in done]
-                    if todo:
-                        truths = {t: scan_mesh(scene, pos, secondary, mode=t,
-                                               supersample=config.nearest_supersample)
-                                  for t in {t for _, t in todo}}
-                        for b in sorted({b for b, _ in todo}):
+                    rows = [(b, t) for b, t in config.wanted(res, i) if key(spec, res, i, b, t) not in done]
+                    if rows:
+                        for t in {t for _, t in rows} - set(truth_cache.get(i, {})):
+                            truth_cache.setdefault(i, {})[t] = scan_mesh(
+                                scene, pos, secondary, mode=t, supersample=config.nearest_supersample).points
+                        for b in sorted({b for b, _ in rows}):
                             t0 = time.perf_counter()
                             if b == "embree":
                                 if discs is None:
                                     from .backends.embree import DiscScene
 
+                                    t1 = time.perf_counter()
                                     discs = DiscScene(primary.points, **({"orientation": "normal"}
                                                                         | config.embree_options))
+                                    stages.add(spec, res, "embree discs", time.perf_counter() - t1,
+                                               len(primary))
+                                    t0 = time.perf_counter()
                                 scan = discs.scan(pos, secondary)
                             else:
                                 scan = simulate_scan(primary.points, pos, secondary)
                             sec = time.perf_counter() - t0
                             slr = primary.points[scan.indices]
-                            for t in [t for bb, t in todo if bb == b]:
-                                row = {"scene": spec, "n_rectangles": scene.n_rectangles,
-                                       "scene_seed": scene.params["seed"], "primary_resolution": res,
-                                       "position": i, "x": pos[0], "y": pos[1], "z": pos[2],
-                                       "distance_m": float(math.hypot(pos[0], pos[1])), "backend": b,
-                                       "truth": t, "similarity": similarity(truths[t].points, slr,
-                                                                            config.threshold),
-                                       "true_points": len(truths[t]), "slr_points": len(scan),
-                                       "seconds": sec}
-                                w.writerow(row)
+                            for t in [t for bb, t in rows if bb == b]:
+                                truth = truth_cache[i][t]
+                                w.writerow({"scene": spec, "n_rectangles": scene.n_rectangles,
+                                            "scene_seed": scene.params["seed"], "primary_resolution": res,
+                                            "position": i, "x": pos[0], "y": pos[1], "z": pos[2],
+                                            "distance_m": float(math.hypot(pos[0], pos[1])), "backend": b,
+                                            "truth": t, "similarity": similarity(truth, slr, config.threshold),
+                                            "true_points": len(truth), "slr_points": len(scan),
+                                            "seconds": sec})
                                 n_new += 1
                         f.flush()
                     if bar is not None:
                         bar.update(1)
+                stages.add(spec, res, "pairs", time.perf_counter() - t_loop, len(positions))
                 if bar is not None and len(positions) < config.positions:
                     bar.update(config.positions - len(positions))
-    if bar is not None:
-        bar.close()
+                del primary, discs
+    finally:
+        if bar is not None:
+            bar.close()
+        stages.close()
+        if "f" in locals():
+            f.close()
     rows = list(_done_rows(csv_path).values())
     return {"config": asdict(config), "csv": str(csv_path), "rows": len(rows), "new_rows": n_new,
-            "seconds": round(time.perf_counter() - t_all, 2), **_headline(rows)}
+            "seconds": round(time.perf_counter() - t_all, 2), "peak_rss_gib": round(_peak_rss_gib(), 2),
+            **_headline(rows)}
 
 
 def _headline(rows) -> dict:

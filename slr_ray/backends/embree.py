@@ -79,14 +79,18 @@ def _knn(points, k):
 
 
 def disc_radii(points, radius="spacing", *, k: int = 6, radius_scale: float = 1.0,
-               primary_origin=None, primary_resolution=None) -> np.ndarray:
-    """Disc radius of every point, ``(n,) float64`` (see the module docstring)."""
+               primary_origin=None, primary_resolution=None, knn=None) -> np.ndarray:
+    """Disc radius of every point, ``(n,) float64`` (see the module docstring).
+
+    ``knn``: the ``(distances, indices)`` of at least ``k`` nearest neighbours
+    (excluding the point itself) if already computed.
+    """
     n = len(points)
     if isinstance(radius, str):
         if radius == "spacing":
             if n < 2:
                 return np.full(n, 0.01 * radius_scale)
-            d, _ = _knn(points, k)
+            d = (knn if knn is not None else _knn(points, k))[0][:, :k]
             r = d.mean(axis=1)
         elif radius == "footprint":
             if primary_origin is None or primary_resolution is None:
@@ -103,11 +107,12 @@ def disc_radii(points, radius="spacing", *, k: int = 6, radius_scale: float = 1.
     return r
 
 
-def estimate_normals(points, k: int = 10) -> np.ndarray:
-    """Unit normals ``(n, 3)`` by PCA of the ``k`` nearest neighbours (smallest eigenvector)."""
+def estimate_normals(points, k: int = 10, knn=None) -> np.ndarray:
+    """Unit normals ``(n, 3)`` by PCA of the ``k`` nearest neighbours (smallest
+    eigenvector); ``knn`` as in :func:`disc_radii`."""
     if len(points) < 3:
         return np.tile([0.0, 0.0, 1.0], (len(points), 1))
-    _, idx = _knn(points, k)
+    idx = (knn if knn is not None else _knn(points, k))[1][:, :k]
     out = np.empty((len(points), 3))
     step = 1 << 20
     for s in range(0, len(points), step):
@@ -214,8 +219,12 @@ class DiscScene:
         self.robust = bool(robust)
         self.n_threads = int(n_threads or default_threads())
         t0 = time.perf_counter()
+        knn = None
+        if isinstance(radius, str) and radius == "spacing" and orientation == "normal" and normals is None \
+                and len(self.points) >= 3:
+            knn = _knn(self.points, max(k, 6))  # one neighbour query serves radii and normals
         self.radii = disc_radii(self.points, radius, k=k, radius_scale=radius_scale,
-                                primary_origin=primary_origin, primary_resolution=primary_resolution)
+                                primary_origin=primary_origin, primary_resolution=primary_resolution, knn=knn)
         self.prepare_seconds = time.perf_counter() - t0
         self.options = {"radius": radius if isinstance(radius, str) else "fixed",
                         "orientation": orientation, "segments": self.segments, "engine": engine,
@@ -226,7 +235,8 @@ class DiscScene:
         if orientation == "normal":
             t0 = time.perf_counter()
             if normals is None:
-                normals = estimate_normals(self.points, max(k, 6))
+                normals = estimate_normals(self.points, max(k, 6), knn=knn)
+                del knn
             else:
                 normals = as_points(normals, "normals").astype(np.float64)
                 if len(normals) != len(self.points):
