@@ -225,7 +225,8 @@ def cmd_profile(args):
 
 
 def cmd_validate(args):
-    from .validate import load_config, plot_validation, run_validation
+    from .validate import (PAPER_Q1_SCENES, PAPER_Q2_SCENES, load_config, paper_report, paper_report_markdown,
+                           plot_paper_figure, plot_validation, run_validation)
 
     config = load_config(args.config)
     if args.positions is not None:
@@ -241,7 +242,20 @@ def cmd_validate(args):
 
     with atomic_path(out / "figure3.png") as tmp:
         plot_validation(out / "results.csv", tmp)
-    res["figure"] = str(out / "figure3.png")
+    res["figures"] = [str(out / "figure3.png")]
+    report = paper_report(out / "results.csv")
+    with atomic_path(out / "report.json") as tmp:
+        tmp.write_text(json.dumps(report, indent=1))
+    with atomic_path(out / "report.md") as tmp:
+        tmp.write_text(paper_report_markdown(report))
+    res["report"] = str(out / "report.md")
+    paper_scenes = set(PAPER_Q1_SCENES) | set(PAPER_Q2_SCENES)
+    if any(config.scene_entry(e)[0] in paper_scenes for e in config.scenes):
+        for b in config.backends:
+            png = out / f"paper_figure_{b}.png"
+            with atomic_path(png) as tmp:
+                plot_paper_figure(out / "results.csv", tmp, backend=b, truth="center")
+            res["figures"].append(str(png))
     _emit(res)
 
 
@@ -383,7 +397,8 @@ def build_parser() -> argparse.ArgumentParser:
     p.set_defaults(func=cmd_profile)
 
     p = sub.add_parser("validate", help="reproduce the paper's validation (Experiment 1) from a config")
-    p.add_argument("config", help="a config name in scenes/ (quick, distance, occlusion, resolution) or a TOML path")
+    p.add_argument("config", help="a config name in scenes/ (quick, paper, distance, occlusion, resolution) "
+                                  "or a TOML path")
     p.add_argument("-o", "--output", help="output directory (default slr_ray_validate_NAME); reruns resume")
     p.add_argument("--positions", type=int, help="override the number of positions per scene")
     p.add_argument("--quiet", action="store_true", help="no progress bar")

@@ -25,7 +25,8 @@ import numpy as np
 
 from .errors import InputValueError
 
-__all__ = ["ValidationConfig", "load_config", "run_validation", "plot_validation"]
+__all__ = ["ValidationConfig", "load_config", "run_validation", "plot_validation", "series_stats",
+           "paper_report", "paper_report_markdown", "plot_paper_figure"]
 
 COLUMNS = ["scene", "n_rectangles", "scene_seed", "primary_resolution", "position", "x", "y", "z",
            "distance_m", "backend", "truth", "similarity", "true_points", "slr_points", "seconds"]
@@ -387,6 +388,186 @@ def plot_validation(csv_path, png_path) -> None:
     for a, title in zip(ax, titles):
         a.set(xlabel="distance from primary scanner (m)", ylabel="similarity (%)", ylim=(0, 101), title=title)
         a.legend(fontsize=7)
+    fig.tight_layout()
+    fig.savefig(png_path, dpi=110)
+    plt.close(fig)
+
+
+# ---------------------------------------------------------------------------
+# The paper's questions, side by side
+
+PAPER_Q1_SCENES = ("distance-1", "distance-2", "distance-3", "distance-4", "distance-5")
+PAPER_Q2_SCENES = ("ground-only", "rect-0500", "rect-1000", "rect-2000")
+DISTANCE_BANDS = ((0.0, 10.0), (10.0, 17.5), (17.5, 25.0), (25.0, 35.0), (35.0, math.inf))
+
+
+def _series(rows, scenes=None, resolution=None, backend="binning", truth="center", positions=None):
+    out = [r for r in rows if r["backend"] == backend and r["truth"] == truth
+           and (scenes is None or r["scene"] in scenes)
+           and (resolution is None or float(r["primary_resolution"]) == float(resolution))
+           and (positions is None or (r["scene"], r["position"]) in positions)]
+    d = np.array([float(r["distance_m"]) for r in out])
+    s = np.array([float(r["similarity"]) for r in out])
+    return d, s
+
+
+def series_stats(distance, similarity) -> dict:
+    """The paper's figures for one series of pairs: the mean (and min) similarity
+    below 17.5 m, the share of those above 90 %, the share of all pairs above
+    80 %, the mean per distance band and the least-squares slope per 10 m."""
+    d, s = np.asarray(distance, float), np.asarray(similarity, float)
+    near = s[d < 17.5]
+    bands = {}
+    for lo, hi in DISTANCE_BANDS:
+        m = (d >= lo) & (d < hi)
+        if m.any():
+            bands[f"{lo:g}-{hi:g}"] = {"pairs": int(m.sum()), "mean": float(s[m].mean())}
+    slope = float(np.polyfit(d, s, 1)[0] * 10) if len(d) > 2 and np.ptp(d) > 0 else None
+    return {"pairs": int(len(s)), "mean": float(s.mean()) if len(s) else None,
+            "below_17.5m": {"pairs": int(len(near)), "mean": float(near.mean()) if len(near) else None,
+                            "min": float(near.min()) if len(near) else None,
+                            "share_above_0.9": float((near > 0.9).mean()) if len(near) else None},
+            "share_above_0.8": float((s > 0.8).mean()) if len(s) else None,
+            "bands": bands, "slope_per_10m": slope}
+
+
+def paper_report(csv_path) -> dict:
+    """The figures behind the README's "Reproducing the paper", from a
+    ``results.csv`` of ``validate-paper`` (or of the single-question configs).
+
+    ``q1[res]``: the five 1000-rectangle scenes (``all`` and ``by_scene``);
+    ``occlusion[res]``: the 0/500/1000/2000-rectangle scenes (questions 2 and
+    3: 0.0144 and 0.00576 deg); ``semantics[res]``: the positions where
+    every backend and truth was run, each series on the same pairs, pooled
+    over scenes. ``res`` is a primary resolution as text ('0.0144'). Every
+    entry is :func:`series_stats` of binning vs pulse-centre truth unless
+    named otherwise.
+    """
+    rows = list(_done_rows(Path(csv_path)).values())
+    if not rows:
+        raise InputValueError(f"{csv_path}: no rows")
+    out: dict = {"rows": len(rows), "q1": {}, "occlusion": {}, "semantics": {}}
+    resolutions = sorted({float(r["primary_resolution"]) for r in rows}, reverse=True)
+    for res in resolutions:
+        by = {sc: series_stats(*_series(rows, [sc], res)) for sc in PAPER_Q1_SCENES}
+        by = {k: v for k, v in by.items() if v["pairs"]}
+        if by:
+            out["q1"][f"{res:g}"] = {"all": series_stats(*_series(rows, PAPER_Q1_SCENES, res)), "by_scene": by}
+        occ = {sc: series_stats(*_series(rows, [sc], res)) for sc in PAPER_Q2_SCENES}
+        occ = {k: v for k, v in occ.items() if v["pairs"]}
+        if occ:
+            out["occlusion"][f"{res:g}"] = occ
+    series = sorted({(r["backend"], r["truth"]) for r in rows})
+    out["semantics"] = {}
+    for res in resolutions:
+        have: dict = {}
+        for r in rows:
+            if float(r["primary_resolution"]) == res:
+                have.setdefault((r["scene"], r["position"]), set()).add((r["backend"], r["truth"]))
+        full = {k for k, v in have.items() if v == set(series)}
+        if full and len(series) > 1:
+            out["semantics"][f"{res:g}"] = {f"{b}/{t}": series_stats(*_series(rows, None, res, b, t, full))
+                                           for b, t in series}
+    return out
+
+
+def _pct(x):
+    return "–" if x is None else f"{100 * x:.1f} %"
+
+
+def paper_report_markdown(report: dict) -> str:
+    """:func:`paper_report` as Markdown tables."""
+    lines = []
+    bands = [f"{lo:g}–{hi:g} m" if math.isfinite(hi) else f"≥ {lo:g} m" for lo, hi in DISTANCE_BANDS]
+    keys = [f"{lo:g}-{hi:g}" for lo, hi in DISTANCE_BANDS]
+    head = ("| series | pairs | mean < 17.5 m (min) | pairs < 17.5 m > 90 % | pairs > 80 % | "
+            + " | ".join(bands) + " | slope /10 m |")
+    sep = "|" + "---|" * (6 + len(bands))
+
+    def row(name, st):
+        b = st["below_17.5m"]
+        cells = [_pct(st["bands"][k]["mean"]) if k in st["bands"] else "–" for k in keys]
+        slope = "–" if st["slope_per_10m"] is None else f"{100 * st['slope_per_10m']:+.1f}"
+        near = f"{_pct(b['mean'])} ({_pct(b['min'])})" if b["pairs"] else "–"
+        return (f"| {name} | {st['pairs']} | {near} | {_pct(b['share_above_0.9'])} of {b['pairs']} | "
+                f"{_pct(st['share_above_0.8'])} | " + " | ".join(cells) + f" | {slope} |")
+
+    def table(title, items):
+        if items:
+            lines.extend([f"**{title}**", "", head, sep] + [row(n, st) for n, st in items] + [""])
+
+    for res, q in report["q1"].items():
+        table(f"Question 1 (distance): 1000-rectangle scenes, {res}° primaries, binning vs pulse-centre truth",
+              list(q["by_scene"].items()) + [(f"all {len(q['by_scene'])}", q["all"])])
+    for res, q in report["occlusion"].items():
+        table(f"Questions 2 and 3 (occlusion, resolution): {res}° primaries, binning vs pulse-centre truth",
+              list(q.items()))
+    for res, ser in report["semantics"].items():
+        table(f"Backends and truth semantics on the same pairs ({res}° primaries, all scenes)", list(ser.items()))
+    return "\n".join(lines)
+
+
+def plot_paper_figure(csv_path, png_path, backend: str = "binning", truth: str = "center") -> None:
+    """The paper's Figure 3 from a ``validate-paper`` run, for one backend and
+    truth semantics: (a) question 1, similarity against scanner distance over
+    the five 1000-rectangle scenes; (b) question 2, one line per number of
+    rectangles; (c) question 3, the same with the 0.00576 deg primaries (solid)
+    over the 0.0144 deg ones (dashed); (d) every backend and truth semantics
+    on the positions where all were run. Lines are means in 5 m bins."""
+    import matplotlib
+
+    matplotlib.use("Agg")
+    import matplotlib.pyplot as plt
+
+    rows = list(_done_rows(Path(csv_path)).values())
+    if not rows:
+        raise InputValueError(f"{csv_path}: no rows to plot")
+    edges = np.arange(0, 50, 5.0)
+
+    def binned(d, s):
+        mids, means = [], []
+        for lo, hi in zip(edges[:-1], edges[1:]):
+            m = (d >= lo) & (d < hi)
+            if m.any():
+                mids.append((lo + hi) / 2)
+                means.append(100 * s[m].mean())
+        return mids, means
+
+    fig, ax = plt.subplots(1, 4, figsize=(20, 4.6))
+    d, s = _series(rows, PAPER_Q1_SCENES, 0.0144, backend, truth)
+    ax[0].scatter(d, 100 * s, s=7, alpha=0.5, c="C0", label=f"{len(d)} pairs")
+    ax[0].plot(*binned(d, s), "k-", label="mean in 5 m bins")
+    for k, sc in enumerate(PAPER_Q2_SCENES):
+        n_rect = next((r["n_rectangles"] for r in rows if r["scene"] == sc), sc)
+        for a, res, ls in ((ax[1], 0.0144, "o-"), (ax[2], 0.0144, ":"), (ax[2], 0.00576, "o-")):
+            d, s = _series(rows, [sc], res, backend, truth)
+            if len(d):
+                lab = f"{n_rect} rectangles" + (f", {res:g}°" if a is ax[2] else "")
+                a.plot(*binned(d, s), ls, ms=3, c=f"C{k}", label=lab)
+    rep = paper_report(csv_path)["semantics"].get("0.0144", {})
+    full = None
+    if rep:
+        have: dict = {}
+        for r in rows:
+            if float(r["primary_resolution"]) == 0.0144:
+                have.setdefault((r["scene"], r["position"]), set()).add((r["backend"], r["truth"]))
+        want = {tuple(k.split("/")) for k in rep}
+        full = {k for k, v in have.items() if v == want}
+        for k, name in enumerate(sorted(rep)):
+            b, t = name.split("/")
+            d, s = _series(rows, None, 0.0144, b, t, full)
+            ax[3].plot(*binned(d, s), "o-", ms=3, c=f"C{k}", label=f"{b} vs {t} truth ({len(d)} pairs)")
+    for a in ax[:3]:
+        a.axvline(17.5, ls=":", c="gray")
+        a.axhline(90, ls=":", c="gray")
+    titles = ["(a) distance: five 1000-rectangle scenes", "(b) occlusion (0.0144° primaries)",
+              "(c) primary resolution", "(d) backends and truths, same pairs (0.0144°)"]
+    for a, title in zip(ax, titles):
+        a.set(xlabel="distance from primary scanner (m)", ylabel="similarity (%)", title=title,
+              ylim=(60, 101) if a is not ax[0] else (0, 101), xlim=(0, edges[-1]))
+        if a.get_legend_handles_labels()[0]:
+            a.legend(fontsize=7, loc="lower left")
+    fig.suptitle(f"SLR validation: {backend} SLR scans vs {truth} truth" if backend else "")
     fig.tight_layout()
     fig.savefig(png_path, dpi=110)
     plt.close(fig)

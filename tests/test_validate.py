@@ -1,5 +1,6 @@
 import csv
 import json
+from pathlib import Path
 
 import numpy as np
 import pytest
@@ -60,8 +61,12 @@ def test_figure(quick, tmp_path):
 
 
 def test_configs_and_cli(tmp_path, capsys):
-    for name in ("quick", "distance", "occlusion", "resolution"):
+    for name in ("quick", "paper", "distance", "occlusion", "resolution"):
         assert load_config(name).positions >= 1
+    paper = load_config("paper")
+    entries = [paper.scene_entry(e) for e in paper.scenes]
+    assert len(entries) == 9 and sum(len(r) for _, r in entries) == 13  # 9 x 0.0144 + 4 x 0.00576
+    assert load_config("resolution").positions_resolution == 0.0144
     assert main(["validate", "distance", "--print-config"]) == 0
     cfg = json.loads(capsys.readouterr().out)
     assert cfg["scenes"][0] == "distance-1" and cfg["primary_resolutions"] == [0.0144]
@@ -70,6 +75,14 @@ def test_configs_and_cli(tmp_path, capsys):
     with pytest.raises(InputValueError, match="magic"):
         load_config(bad)
     assert main(["validate", str(tmp_path / "missing.toml")]) == 2
+    quick = (tmp_path / "q.toml")
+    text = (Path(__file__).parents[1] / "scenes" / "validate-quick.toml").read_text()
+    quick.write_text(text.replace('backends = ["binning", "embree"]', 'backends = ["binning"]'))
+    assert main(["validate", str(quick), "--positions", "1", "--quiet", "-o", str(tmp_path / "out")]) == 0
+    res = json.loads(capsys.readouterr().out)
+    assert res["rows"] == 2 and len(res["figures"]) == 2  # figure3 and the paper figure (rect-0500 is a paper scene)
+    assert "Questions 2 and 3" in (tmp_path / "out" / "report.md").read_text()
+    assert json.loads((tmp_path / "out" / "report.json").read_text())["occlusion"]["0.1"]["rect-0500"]["pairs"] == 1
 
 
 @pytest.fixture(scope="module")
@@ -161,3 +174,69 @@ def test_wanted_rows_and_bad_entries():
     cfg.scenes, cfg.nearest_every = ["rect-0500"], 0
     with pytest.raises(InputValueError, match="nearest_every"):
         cfg.check()
+
+
+def test_series_stats_against_hand_counts():
+    from slr_ray.validate import series_stats
+
+    d = np.array([1.0, 5.0, 12.0, 17.4, 17.5, 30.0, 40.0])
+    s = np.array([0.95, 0.85, 0.91, 0.99, 0.5, 0.81, 0.79])
+    st = series_stats(d, s)
+    assert st["pairs"] == 7 and st["below_17.5m"]["pairs"] == 4  # 17.5 itself is not below
+    assert st["below_17.5m"]["mean"] == pytest.approx((0.95 + 0.85 + 0.91 + 0.99) / 4)
+    assert st["below_17.5m"]["min"] == 0.85 and st["below_17.5m"]["share_above_0.9"] == 0.75
+    assert st["share_above_0.8"] == pytest.approx(5 / 7)
+    assert st["bands"]["0-10"] == {"pairs": 2, "mean": pytest.approx(0.9)}
+    assert st["bands"]["17.5-25"]["pairs"] == 1 and st["bands"]["35-inf"]["pairs"] == 1
+    assert sum(b["pairs"] for b in st["bands"].values()) == 7
+    assert st["slope_per_10m"] == pytest.approx(np.polyfit(d, s, 1)[0] * 10)
+    empty = series_stats([], [])
+    assert empty["pairs"] == 0 and empty["mean"] is None and empty["slope_per_10m"] is None
+
+
+def _fake_rows(path):
+    """A results.csv laid out like validate-paper: similarity = 1 - distance/100
+    (binning/center), +0.03 for nearest truth, -0.01 for embree."""
+    from slr_ray.validate import COLUMNS
+
+    rows = []
+    for scene, n_rect, res_list in ([(f"distance-{k}", 1000, [0.0144]) for k in range(1, 6)]
+                                    + [("ground-only", 0, [0.0144, 0.00576]), ("rect-2000", 2000, [0.0144, 0.00576])]):
+        for res in res_list:
+            for i in range(20):
+                dist = 1.0 + 2 * i
+                for b, t in (("binning", "center"), ("binning", "nearest"), ("embree", "center"),
+                             ("embree", "nearest")):
+                    if (t == "nearest" or b == "embree") and (i % 5 or res != 0.0144):
+                        continue
+                    sim = 1 - dist / 100 + (0.03 if t == "nearest" else 0) - (0.01 if b == "embree" else 0)
+                    rows.append({"scene": scene, "n_rectangles": n_rect, "scene_seed": 0, "primary_resolution": res,
+                                 "position": i, "x": dist, "y": 0, "z": 0, "distance_m": dist, "backend": b,
+                                 "truth": t, "similarity": sim, "true_points": 10, "slr_points": 10, "seconds": 0})
+    with open(path, "w", newline="") as f:
+        w = csv.DictWriter(f, COLUMNS)
+        w.writeheader()
+        w.writerows(rows)
+
+
+def test_paper_report_groups_the_questions(tmp_path):
+    from slr_ray.validate import paper_report, paper_report_markdown, plot_paper_figure
+
+    _fake_rows(tmp_path / "r.csv")
+    rep = paper_report(tmp_path / "r.csv")
+    q1 = rep["q1"]["0.0144"]
+    assert q1["all"]["pairs"] == 100 and set(q1["by_scene"]) == {f"distance-{k}" for k in range(1, 6)}
+    assert set(rep["q1"]) == {"0.0144"} and set(rep["occlusion"]) == {"0.0144", "0.00576"}
+    assert set(rep["occlusion"]["0.00576"]) == {"ground-only", "rect-2000"}
+    assert rep["occlusion"]["0.00576"]["rect-2000"]["pairs"] == 20
+    assert q1["all"]["slope_per_10m"] == pytest.approx(-0.1)
+    sem = rep["semantics"]["0.0144"]
+    assert set(sem) == {"binning/center", "binning/nearest", "embree/center", "embree/nearest"}
+    assert all(v["pairs"] == 7 * 4 for v in sem.values())  # the same pairs in every series
+    assert sem["binning/nearest"]["mean"] - sem["binning/center"]["mean"] == pytest.approx(0.03)
+    assert sem["embree/center"]["mean"] - sem["binning/center"]["mean"] == pytest.approx(-0.01)
+    assert "0.00576" not in rep["semantics"]  # a single series there: nothing to compare
+    md = paper_report_markdown(rep)
+    assert md.count("| distance-") == 5 and "0.00576° primaries" in md and "embree/nearest" in md
+    plot_paper_figure(tmp_path / "r.csv", tmp_path / "f.png", backend="embree")
+    assert (tmp_path / "f.png").stat().st_size > 5000
