@@ -26,7 +26,7 @@ import numpy as np
 from .errors import InputValueError
 
 __all__ = ["ValidationConfig", "load_config", "run_validation", "plot_validation", "series_stats",
-           "paper_report", "paper_report_markdown", "plot_paper_figure"]
+           "paper_report", "paper_report_markdown", "plot_paper_figure", "miss_breakdown"]
 
 COLUMNS = ["scene", "n_rectangles", "scene_seed", "primary_resolution", "position", "x", "y", "z",
            "distance_m", "backend", "truth", "similarity", "true_points", "slr_points", "seconds"]
@@ -571,3 +571,53 @@ def plot_paper_figure(csv_path, png_path, backend: str = "binning", truth: str =
     fig.tight_layout()
     fig.savefig(png_path, dpi=110)
     plt.close(fig)
+
+
+def miss_breakdown(scene, true_scan, slr_points, primary_origin=(0.0, 0.0, 0.0), threshold: float = 0.10,
+                   range_edges=(0.0, 5.0, 10.0, 20.0, 40.0, math.inf)) -> dict:
+    """Why true points have no SLR point within ``threshold``.
+
+    A true point of ``true_scan`` (a :class:`~slr_ray.meshscan.MeshScan` of
+    ``scene`` from a secondary position) that the SLR scan misses is either
+    **hidden** from the primary scanner (the segment from ``primary_origin``
+    to the point crosses the scene first: no primary resolution can recover
+    it) or **visible** to it (the primary saw that surface, but too coarsely,
+    or the SLR scan picked another of its points: resolution and binning).
+    Counts are split by label (ground, objects) and by range from the
+    secondary position; ``hidden + visible == missed``.
+    """
+    from scipy.spatial import cKDTree
+
+    from .meshscan import _Caster
+
+    true_pts = np.asarray(true_scan.points, np.float64)
+    slr = np.asarray(slr_points, np.float64)
+    if len(slr):
+        d, _ = cKDTree(slr).query(true_pts, k=1, distance_upper_bound=threshold, workers=-1)
+        missed = ~(d < threshold)
+    else:
+        missed = np.ones(len(true_pts), bool)
+    o = np.asarray(primary_origin, np.float64)
+    idx = np.flatnonzero(missed)
+    hidden = np.zeros(len(true_pts), bool)
+    if len(idx):
+        caster = _Caster(np.asarray(scene.mesh.vertices, np.float64), np.asarray(scene.mesh.faces), o)
+        v = true_pts[idx] - o
+        dist = np.linalg.norm(v, axis=1)
+        ok = dist > 0
+        dirs = np.zeros_like(v)
+        dirs[ok] = v[ok] / dist[ok, None]
+        _, t = caster.cast(np.zeros(3), dirs)
+        hidden[idx] = ok & (t < dist - np.maximum(1e-3, 1e-6 * dist))
+    ground = np.asarray(true_scan.labels) == 0
+    rng = np.linalg.norm(true_pts - np.asarray(true_scan.origin, np.float64), axis=1)
+
+    def counts(mask):
+        return {"true": int(mask.sum()), "missed": int((missed & mask).sum()),
+                "hidden": int((hidden & mask).sum()), "visible": int((missed & ~hidden & mask).sum())}
+
+    out = {"threshold": threshold, "all": counts(np.ones(len(true_pts), bool)), "ground": counts(ground),
+           "objects": counts(~ground), "by_range": {}}
+    for lo, hi in zip(range_edges[:-1], range_edges[1:]):
+        out["by_range"][f"{lo:g}-{hi:g}"] = counts((rng >= lo) & (rng < hi))
+    return out

@@ -240,3 +240,48 @@ def test_paper_report_groups_the_questions(tmp_path):
     assert md.count("| distance-") == 5 and "0.00576° primaries" in md and "embree/nearest" in md
     plot_paper_figure(tmp_path / "r.csv", tmp_path / "f.png", backend="embree")
     assert (tmp_path / "f.png").stat().st_size > 5000
+
+
+def test_miss_breakdown_matches_the_shadow_of_a_wall():
+    """Ground and one wall at x = 5; primary at the origin, secondary behind the
+    wall. Missed points are hidden exactly when the segment from the origin
+    crosses the wall (worked out by hand), and hidden + visible == missed."""
+    import trimesh
+
+    from slr_ray.meshscan import scan_mesh
+    from slr_ray.scan import simulate_scan
+    from slr_ray.validate import miss_breakdown
+
+    v = np.array([[-20, -20, -1], [20, -20, -1], [20, 20, -1], [-20, 20, -1],
+                  [5, -2, -1], [5, 2, -1], [5, 2, 3], [5, -2, 3]], float)
+    f = np.array([[0, 1, 2], [0, 2, 3], [4, 5, 6], [4, 6, 7]])
+
+    class Scene:
+        mesh = trimesh.Trimesh(v, f, process=False)
+
+    labels = np.array([0, 0, 1, 1])
+    primary = scan_mesh(Scene.mesh, [0, 0, 0], 0.05, mode="center", face_labels=labels)
+    secondary = scan_mesh(Scene.mesh, [10, 0.5, 0], 0.5, mode="center", face_labels=labels)
+    slr = primary.points[simulate_scan(primary.points, [10, 0.5, 0], 0.5).indices]
+    out = miss_breakdown(Scene, secondary, slr)
+    for part in [out["all"], out["ground"], out["objects"], *out["by_range"].values()]:
+        assert part["hidden"] + part["visible"] == part["missed"] <= part["true"]
+    assert out["all"]["true"] == len(secondary) and out["ground"]["true"] + out["objects"]["true"] == len(secondary)
+    assert sum(p["true"] for p in out["by_range"].values()) == len(secondary)
+    # with no SLR point every true point is missed; the hidden ones are the wall's shadow
+    empty = miss_breakdown(Scene, secondary, np.empty((0, 3)))
+    p = secondary.points
+    with np.errstate(divide="ignore", invalid="ignore"):
+        s = 5.0 / p[:, 0]
+        y, z = s * p[:, 1], s * p[:, 2]
+    behind = (p[:, 0] > 5 + 1e-6) & (secondary.labels == 0)
+    shadow = behind & (np.abs(y) < 2) & (z > -1) & (z < 3)
+    clear = ~behind | (np.abs(y) > 2.01)
+    assert empty["all"]["missed"] == len(p) and empty["objects"]["hidden"] == 0  # a wall is seen from both sides
+    assert empty["all"]["hidden"] >= shadow[clear | shadow].sum() > 100
+    assert empty["all"]["hidden"] <= shadow.sum() + (~clear & ~shadow).sum()
+    # the SLR scan misses the shadow (hidden) and little else
+    assert out["all"]["hidden"] > 0.9 * empty["all"]["hidden"]
+    assert out["all"]["visible"] < 0.1 * out["all"]["true"]
+    # SLR = the true scan itself: nothing missed
+    assert miss_breakdown(Scene, secondary, secondary.points)["all"]["missed"] == 0
