@@ -2,11 +2,12 @@
 
     python benchmarks/validate_breakdown.py RUN_DIR [--scenes distance-2,rect-2000]
         [--resolutions 0.0144,0.00576] [--every 10] [--positions 3,17] [--semantics dense]
+        [--truth center]
 
 RUN_DIR is the output directory of ``slr-ray validate paper`` (or of any
 validate config): its ``positions/<scene>.csv`` gives the positions. For each
 scene, primary resolution and position (every ``--every``-th, or those listed
-in ``--positions``): the pulse-centre true scan, the binning SLR scan of the
+in ``--positions``): the true scan (pulse-centre, or nearest-in-pulse), the binning SLR scan of the
 dense primary, the similarity (checked against RUN_DIR/results.csv) and
 :func:`slr_ray.validate.miss_breakdown`: of the true points with no SLR point
 within 10 cm, how many are hidden from the primary scanner (occlusion: no
@@ -43,6 +44,7 @@ def main(argv=None):
     ap.add_argument("--scenes", default="distance-2,ground-only,rect-0500,rect-1000,rect-2000")
     ap.add_argument("--resolutions", default="0.0144")
     ap.add_argument("--semantics", default="dense", help="primary semantics: dense (the paper's) or center")
+    ap.add_argument("--truth", default="center", help="truth semantics: center or nearest (k = 3)")
     ap.add_argument("--every", type=int, default=10)
     ap.add_argument("--positions", help="comma-separated position numbers (default: every --every-th)")
     ap.add_argument("--name", default="validate_breakdown")
@@ -51,7 +53,7 @@ def main(argv=None):
     if (args.run / "results.csv").exists():
         with open(args.run / "results.csv", newline="") as f:
             for r in csv.DictReader(f):
-                if r["backend"] == "binning" and r["truth"] == "center":
+                if r["backend"] == "binning" and r["truth"] == args.truth:
                     done[(r["scene"], float(r["primary_resolution"]), int(r["position"]))] = float(r["similarity"])
     secondary = ScanPattern(0.144)
     rows = []
@@ -70,15 +72,15 @@ def main(argv=None):
             for i in which:
                 pos = positions[i]
                 if i not in truths:
-                    truths[i] = scan_mesh(scene, pos, secondary, mode="center")
+                    truths[i] = scan_mesh(scene, pos, secondary, mode=args.truth, supersample=3)
                 truth = truths[i]
                 slr = primary.points[simulate_scan(primary.points, pos, secondary).indices]
                 sim = similarity(truth.points, slr)
                 b = miss_breakdown(scene, truth, slr)
                 ref = done.get((spec, res, i))
                 row = {"scene": spec, "n_rectangles": scene.n_rectangles, "primary_resolution": res,
-                       "position": i, "distance_m": float(math.hypot(pos[0], pos[1])), "similarity": sim,
-                       "similarity_in_run": ref, "breakdown": b}
+                       "truth": args.truth, "position": i, "distance_m": float(math.hypot(pos[0], pos[1])),
+                       "similarity": sim, "similarity_in_run": ref, "breakdown": b}
                 rows.append(row)
                 a = b["all"]
                 print(f"{spec:12s} {res:<8g} {i:3d} {row['distance_m']:6.1f} m  sim {100 * sim:5.1f} %  "

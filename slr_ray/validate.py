@@ -38,7 +38,8 @@ class ValidationConfig:
 
     ``scenes``: scene specs (names in ``scenes/`` or paths), each either a
     string or a table ``{scene = "rect-1000", primary_resolutions = [0.0144,
-    0.00576]}`` overriding ``primary_resolutions`` for that scene.
+    0.00576], backends = ["binning"]}`` overriding ``primary_resolutions``
+    and/or ``backends`` for that scene.
     ``primary_resolutions``: one or more (the paper: 0.0144 and 0.00576). The
     secondary positions are drawn on the *first* primary of a scene and the
     true scans are shared by all its primaries, as in the paper (question 3
@@ -88,6 +89,9 @@ class ValidationConfig:
             raise InputValueError("nearest_every and embree_every must be >= 1")
         for entry in self.scenes:
             spec, res = self.scene_entry(entry)
+            for b in self.scene_backends(entry):
+                if b not in ("binning", "embree"):
+                    raise InputValueError(f"unknown backend {b!r} for scene {spec!r}")
             if not res or any(not (float(r) > 0) for r in res):
                 raise InputValueError(f"scene {spec!r}: primary_resolutions must be positive numbers")
         return self
@@ -97,20 +101,24 @@ class ValidationConfig:
         if isinstance(entry, str):
             spec, res = entry, self.primary_resolutions
         elif isinstance(entry, dict) and isinstance(entry.get("scene"), str) \
-                and set(entry) <= {"scene", "primary_resolutions"}:
+                and set(entry) <= {"scene", "primary_resolutions", "backends"}:
             spec, res = entry["scene"], entry.get("primary_resolutions", self.primary_resolutions)
         else:
-            raise InputValueError(f"a scenes entry is a name or {{scene = NAME, primary_resolutions = [...]}}, "
-                                  f"got {entry!r}")
+            raise InputValueError("a scenes entry is a name or {scene = NAME, primary_resolutions = [...], "
+                                  f"backends = [...]}}, got {entry!r}")
         try:
             return spec, [float(r) for r in res]
         except (TypeError, ValueError):
             raise InputValueError(f"scene {spec!r}: primary_resolutions must be numbers, got {res!r}") from None
 
-    def wanted(self, resolution, position: int):
+    def scene_backends(self, entry) -> list:
+        """The backends run on one ``scenes`` entry."""
+        return list(entry.get("backends", self.backends)) if isinstance(entry, dict) else list(self.backends)
+
+    def wanted(self, resolution, position: int, backends=None):
         """The (backend, truth) rows wanted at one primary and position."""
         emb_res = self.embree_primary_resolutions
-        return [(b, t) for b in self.backends for t in self.truths
+        return [(b, t) for b in (self.backends if backends is None else backends) for t in self.truths
                 if (t != "nearest" or position % self.nearest_every == 0)
                 and (b != "embree" or (position % self.embree_every == 0
                                        and (emb_res is None or float(resolution) in map(float, emb_res))))]
@@ -214,12 +222,12 @@ def run_validation(config: ValidationConfig, outdir, progress: bool = True) -> d
     secondary = ScanPattern(config.secondary_resolution)
     t_all = time.perf_counter()
     n_new = 0
-    entries = [config.scene_entry(e) for e in config.scenes]
+    entries = [(*config.scene_entry(e), config.scene_backends(e)) for e in config.scenes]
     bar = None
     if progress:
         from tqdm import tqdm
 
-        total = sum(len(res) for _, res in entries) * config.positions
+        total = sum(len(res) for _, res, _ in entries) * config.positions
         bar = tqdm(total=total, unit="position", desc=config.name, file=sys.stderr)
     stages = _Stages(out / "stages.csv")
 
@@ -231,9 +239,10 @@ def run_validation(config: ValidationConfig, outdir, progress: bool = True) -> d
         w = csv.DictWriter(f, COLUMNS)
         if new_file:
             w.writeheader()
-        for spec, resolutions in entries:
+        for spec, resolutions, backends in entries:
             todo_all = {float(res): [i for i in range(config.positions)
-                              if any(key(spec, res, i, b, t) not in done for b, t in config.wanted(res, i))]
+                              if any(key(spec, res, i, b, t) not in done
+                                     for b, t in config.wanted(res, i, backends))]
                         for res in resolutions}
             if not any(todo_all.values()):
                 if bar is not None:
@@ -274,7 +283,8 @@ def run_validation(config: ValidationConfig, outdir, progress: bool = True) -> d
                 t_loop = time.perf_counter()
                 discs = None
                 for i, pos in enumerate(positions):
-                    rows = [(b, t) for b, t in config.wanted(res, i) if key(spec, res, i, b, t) not in done]
+                    rows = [(b, t) for b, t in config.wanted(res, i, backends)
+                            if key(spec, res, i, b, t) not in done]
                     if rows:
                         for t in {t for _, t in rows} - set(truth_cache.get(i, {})):
                             truth_cache.setdefault(i, {})[t] = scan_mesh(

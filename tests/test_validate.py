@@ -165,9 +165,13 @@ def test_wanted_rows_and_bad_entries():
     assert cfg.wanted(0.0144, 2) == [("binning", "center"), ("embree", "center")]
     assert cfg.wanted(0.0144, 3) == [("binning", "center"), ("binning", "nearest")]
     assert cfg.wanted(0.00576, 0) == [("binning", "center"), ("binning", "nearest")]
+    assert cfg.wanted(0.0144, 0, ["binning"]) == [("binning", "center"), ("binning", "nearest")]
+    assert cfg.scene_backends({"scene": "x", "backends": ["binning"]}) == ["binning"]
+    assert cfg.scene_backends("x") == ["binning", "embree"]
     for bad, msg in (([{"scene": "rect-0500", "resolution": [1]}], "scenes entry"), ([3], "scenes entry"),
                      ([{"scene": "rect-0500", "primary_resolutions": [-1]}], "positive"),
-                     ([{"scene": "rect-0500", "primary_resolutions": ["x"]}], "numbers")):
+                     ([{"scene": "rect-0500", "primary_resolutions": ["x"]}], "numbers"),
+                     ([{"scene": "rect-0500", "backends": ["magic"]}], "magic")):
         cfg.scenes = bad
         with pytest.raises(InputValueError, match=msg):
             cfg.check()
