@@ -353,6 +353,17 @@ def _headline(rows) -> dict:
     return {"headline": out}
 
 
+def _binned_means(d, s, edges):
+    """Bin centres and mean of ``s`` in each non-empty bin of ``d``."""
+    mids, means = [], []
+    for lo, hi in zip(edges[:-1], edges[1:]):
+        m = (d >= lo) & (d < hi)
+        if m.any():
+            mids.append((lo + hi) / 2)
+            means.append(float(s[m].mean()))
+    return mids, means
+
+
 def plot_validation(csv_path, png_path) -> None:
     """Figures like the paper's Figure 3: (a) similarity against scanner
     distance, (b) by number of rectangles, (c) by primary resolution; one
@@ -374,24 +385,13 @@ def plot_validation(csv_path, png_path) -> None:
         s = 100 * np.array([float(r["similarity"]) for r in rr])
         label = f"{b} vs {t} truth"
         ax[0].scatter(d, s, s=6, alpha=0.4)
-        mids, means = [], []
-        for lo, hi in zip(edges[:-1], edges[1:]):
-            m = (d >= lo) & (d < hi)
-            if m.any():
-                mids.append((lo + hi) / 2)
-                means.append(s[m].mean())
-        ax[0].plot(mids, means, "-", label=label)
+        ax[0].plot(*_binned_means(d, s, edges), "-", label=label)
         for k, key in ((1, "n_rectangles"), (2, "primary_resolution")):
             groups = sorted({float(r[key]) for r in rr})
             for g in groups:
                 m = np.array([float(r[key]) == g for r in rr])
-                mids, means = [], []
-                for lo, hi in zip(edges[:-1], edges[1:]):
-                    mm = m & (d >= lo) & (d < hi)
-                    if mm.any():
-                        mids.append((lo + hi) / 2)
-                        means.append(s[mm].mean())
-                ax[k].plot(mids, means, "o-", ms=3, label=f"{label}, {key.replace('_', ' ')} {g:g}")
+                ax[k].plot(*_binned_means(d[m], s[m], edges), "o-", ms=3,
+                           label=f"{label}, {key.replace('_', ' ')} {g:g}")
     ax[0].axvline(17.5, ls=":", c="gray")
     ax[0].axhline(90, ls=":", c="gray")
     titles = ["(a) similarity vs scanner distance", "(b) by number of rectangles", "(c) by primary resolution"]
@@ -535,13 +535,7 @@ def plot_paper_figure(csv_path, png_path, backend: str = "binning", truth: str =
     edges = np.arange(0, 50, 5.0)
 
     def binned(d, s):
-        mids, means = [], []
-        for lo, hi in zip(edges[:-1], edges[1:]):
-            m = (d >= lo) & (d < hi)
-            if m.any():
-                mids.append((lo + hi) / 2)
-                means.append(100 * s[m].mean())
-        return mids, means
+        return _binned_means(d, 100 * s, edges)
 
     fig, ax = plt.subplots(1, 4, figsize=(20, 4.6))
     d, s = _series(rows, PAPER_Q1_SCENES, 0.0144, backend, truth)
