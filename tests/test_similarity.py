@@ -28,3 +28,22 @@ def test_known_values_and_empty_inputs():
     assert np.all(np.isinf(nearest_distances(a, np.empty((0, 3)))))
     with pytest.raises(ValueError):
         similarity(a, b, 0)
+
+
+def test_bounded_search_equals_unbounded():
+    """similarity bounds the neighbour search at the threshold: the same count as
+    an unbounded search, including points at exactly the threshold."""
+    rng = np.random.default_rng(1)
+    a = rng.uniform(-3, 3, size=(4000, 3))
+    b = a[::3] + rng.normal(scale=0.1, size=(1334, 3))
+    full = nearest_distances(a, b)
+    for t in (0.02, 0.1, 0.3, 10.0):
+        bounded = nearest_distances(a, b, upper_bound=t)
+        near = full < t
+        np.testing.assert_array_equal(bounded[near], full[near])
+        assert np.all(np.isinf(bounded[full > t]))
+        assert similarity(a, b, t) == np.count_nonzero(near) / len(a)
+    # a point exactly at the threshold is not within it, bounded or not
+    x = np.array([[0.0, 0.0, 0.0]])
+    assert similarity(x, np.array([[0.5, 0.0, 0.0]]), 0.5) == 0.0
+    assert similarity(x, np.array([[0.5, 0.0, 0.0]]), np.nextafter(0.5, 1)) == 1.0
