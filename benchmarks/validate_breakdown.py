@@ -48,6 +48,8 @@ def main(argv=None):
     ap.add_argument("--truth", default="center", help="truth semantics: center or nearest (k = 3)")
     ap.add_argument("--every", type=int, default=10)
     ap.add_argument("--positions", help="comma-separated position numbers (default: every --every-th)")
+    ap.add_argument("--range-edges", default="0,5,10,20,40,inf",
+                    help="edges of the range bands (m from the secondary position) of the breakdown")
     ap.add_argument("--name", default="validate_breakdown")
     args = ap.parse_args(argv)
     done = {}
@@ -77,7 +79,8 @@ def main(argv=None):
                 truth = truths[i]
                 slr = primary.points[simulate_scan(primary.points, pos, secondary).indices]
                 sim = similarity(truth.points, slr)
-                b = miss_breakdown(scene, truth, slr)
+                b = miss_breakdown(scene, truth, slr,
+                                   range_edges=tuple(float(x) for x in args.range_edges.split(",")))
                 ref = done.get((spec, res, i))
                 row = {"scene": spec, "n_rectangles": scene.n_rectangles, "primary_resolution": res,
                        "truth": args.truth, "position": i, "distance_m": float(math.hypot(pos[0], pos[1])),
