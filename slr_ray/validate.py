@@ -16,6 +16,7 @@ from __future__ import annotations
 
 import csv
 import math
+import shutil
 import sys
 import time
 from dataclasses import asdict, dataclass, field
@@ -206,6 +207,7 @@ def run_validation(config: ValidationConfig, outdir, progress: bool = True) -> d
     (seconds and peak memory of every primary scan, position draw and
     position loop).
     """
+    from .io import atomic_path
     from .meshscan import scan_mesh
     from .pattern import ScanPattern
     from .positions import select_positions
@@ -251,9 +253,23 @@ def run_validation(config: ValidationConfig, outdir, progress: bool = True) -> d
             scene = scene_from_spec(spec)
             pos_path = _positions_file(out, spec)
             positions = _load_positions(pos_path, config)
-            truth_cache: dict = {}
             pos_res = float(config.positions_resolution or resolutions[0])
             passes = [pos_res] + [r for r in resolutions if float(r) != pos_res]
+            # True scans are shared by the primaries of a scene. 100 of them are ~5 GB, too much to hold
+            # next to a 0.00576 deg primary: with more than one primary they wait on disk (and serve a resume).
+            spill = out / ".truths" / Path(spec).stem if len(resolutions) > 1 else None
+
+            def true_points(i, pos, t):
+                path = spill / f"{i}-{t}.npy" if spill is not None else None
+                if path is not None and path.exists():
+                    return np.load(path)
+                pts = scan_mesh(scene, pos, secondary, mode=t, supersample=config.nearest_supersample).points
+                if path is not None:
+                    path.parent.mkdir(parents=True, exist_ok=True)
+                    with atomic_path(path) as tmp:
+                        np.save(tmp, pts)
+                return pts
+
             for r_index, res in enumerate(passes):
                 wanted_here = float(res) in map(float, resolutions)
                 todo = todo_all.get(float(res), [])
@@ -271,8 +287,8 @@ def run_validation(config: ValidationConfig, outdir, progress: bool = True) -> d
                                                  seed=config.seed, min_ground_points=config.min_ground_points,
                                                  allow_fewer=True)
                     pos_path.parent.mkdir(exist_ok=True)
-                    from .io import atomic_path
-
+                    if spill is not None and spill.exists():
+                        shutil.rmtree(spill)  # true scans of other positions
                     with atomic_path(pos_path) as tmp:
                         np.savetxt(tmp, positions, delimiter=",", fmt="%.17g",
                                    header=_positions_tag(config, config.positions)[2:])
@@ -286,9 +302,7 @@ def run_validation(config: ValidationConfig, outdir, progress: bool = True) -> d
                     rows = [(b, t) for b, t in config.wanted(res, i, backends)
                             if key(spec, res, i, b, t) not in done]
                     if rows:
-                        for t in {t for _, t in rows} - set(truth_cache.get(i, {})):
-                            truth_cache.setdefault(i, {})[t] = scan_mesh(
-                                scene, pos, secondary, mode=t, supersample=config.nearest_supersample).points
+                        truths = {t: true_points(i, pos, t) for t in sorted({t for _, t in rows})}
                         for b in sorted({b for b, _ in rows}):
                             t0 = time.perf_counter()
                             if b == "embree":
@@ -307,7 +321,7 @@ def run_validation(config: ValidationConfig, outdir, progress: bool = True) -> d
                             sec = time.perf_counter() - t0
                             slr = primary.points[scan.indices]
                             for t in [t for bb, t in rows if bb == b]:
-                                truth = truth_cache[i][t]
+                                truth = truths[t]
                                 w.writerow({"scene": spec, "n_rectangles": scene.n_rectangles,
                                             "scene_seed": scene.params["seed"], "primary_resolution": res,
                                             "position": i, "x": pos[0], "y": pos[1], "z": pos[2],
@@ -323,6 +337,8 @@ def run_validation(config: ValidationConfig, outdir, progress: bool = True) -> d
                 if bar is not None and len(positions) < config.positions:
                     bar.update(config.positions - len(positions))
                 del primary, discs
+            if spill is not None and spill.exists():
+                shutil.rmtree(spill)
     finally:
         if bar is not None:
             bar.close()

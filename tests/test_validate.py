@@ -114,6 +114,7 @@ def test_primaries_of_a_scene_share_positions_and_true_scans(two_primaries):
         assert a["slr_points"] != b["slr_points"]  # from different primaries
     pos = np.loadtxt(out / "positions" / "rect-0500.csv", delimiter=",", ndmin=2)
     assert pos.shape == (3, 3) and float(by[("1", "center")][0.1]["x"]) == pytest.approx(pos[1, 0])
+    assert not (out / ".truths" / "rect-0500").exists()  # shared true scans wait on disk until the scene is done
     stages = _rows(out / "stages.csv")
     assert [s["stage"] for s in stages] == ["primary scan", "positions", "pairs", "primary scan", "pairs"]
     assert all(float(s["peak_rss_gib"]) > 0 for s in stages)
