@@ -26,8 +26,8 @@ sys.path.insert(0, str(Path(__file__).resolve().parent))
 from common import machine, save  # noqa: E402
 
 from slr_ray import ScanPattern, scan_mesh  # noqa: E402
-from slr_ray.meshscan import _Caster  # noqa: E402
 from slr_ray.scenes import scene_from_spec  # noqa: E402
+from slr_ray.validate import hidden_from  # noqa: E402
 
 
 def main(argv=None):
@@ -38,7 +38,6 @@ def main(argv=None):
     ap.add_argument("--sample", type=int, default=2_000_000)
     args = ap.parse_args(argv)
     scene = scene_from_spec(args.scene)
-    caster = _Caster(np.asarray(scene.mesh.vertices, np.float64), np.asarray(scene.mesh.faces), np.zeros(3))
     edges = (0, 10, 20, 30, 50, 100, np.inf)
     out = []
     for res in map(float, args.resolutions.split(",")):
@@ -49,8 +48,7 @@ def main(argv=None):
         p = primary.points[pick]
         del primary
         d = np.linalg.norm(p, axis=1)
-        _, t = caster.cast(np.zeros(3), p / d[:, None])
-        hidden = t < d - np.maximum(1e-3, 1e-6 * d)
+        hidden = hidden_from(scene, p)
         row = {"resolution": res, "points": n, "sampled": len(p), "hidden_share": float(hidden.mean()),
                "by_range": {}, "seconds": round(time.perf_counter() - t0, 1)}
         for lo, hi in zip(edges[:-1], edges[1:]):

@@ -27,7 +27,8 @@ import numpy as np
 from .errors import InputValueError
 
 __all__ = ["ValidationConfig", "load_config", "run_validation", "plot_validation", "series_stats",
-           "paper_report", "paper_report_markdown", "plot_paper_figure", "miss_breakdown"]
+           "paper_report", "paper_report_markdown", "plot_paper_figure", "miss_breakdown",
+           "hidden_from"]
 
 COLUMNS = ["scene", "n_rectangles", "scene_seed", "primary_resolution", "position", "x", "y", "z",
            "distance_m", "backend", "truth", "similarity", "true_points", "slr_points", "seconds"]
@@ -486,15 +487,20 @@ def paper_report(csv_path) -> dict:
     series = sorted({(r["backend"], r["truth"]) for r in rows})
     out["semantics"] = {}
     for res in resolutions:
-        have: dict = {}
-        for r in rows:
-            if float(r["primary_resolution"]) == res:
-                have.setdefault((r["scene"], r["position"]), set()).add((r["backend"], r["truth"]))
-        full = {k for k, v in have.items() if v == set(series)}
+        full = _full_pairs(rows, res, series)
         if full and len(series) > 1:
             out["semantics"][f"{res:g}"] = {f"{b}/{t}": series_stats(*_series(rows, None, res, b, t, full))
                                            for b, t in series}
     return out
+
+
+def _full_pairs(rows, resolution, series) -> set:
+    """The (scene, position) pairs at one primary that have a row for every series."""
+    have: dict = {}
+    for r in rows:
+        if float(r["primary_resolution"]) == float(resolution):
+            have.setdefault((r["scene"], r["position"]), set()).add((r["backend"], r["truth"]))
+    return {k for k, v in have.items() if v == set(series)}
 
 
 def _pct(x):
@@ -565,14 +571,8 @@ def plot_paper_figure(csv_path, png_path, backend: str = "binning", truth: str =
                 lab = f"{n_rect} rectangles" + (f", {res:g}°" if a is ax[2] else "")
                 a.plot(*binned(d, s), ls, ms=3, c=f"C{k}", label=lab)
     rep = paper_report(csv_path)["semantics"].get("0.0144", {})
-    full = None
     if rep:
-        have: dict = {}
-        for r in rows:
-            if float(r["primary_resolution"]) == 0.0144:
-                have.setdefault((r["scene"], r["position"]), set()).add((r["backend"], r["truth"]))
-        want = {tuple(k.split("/")) for k in rep}
-        full = {k for k, v in have.items() if v == want}
+        full = _full_pairs(rows, 0.0144, {tuple(k.split("/")) for k in rep})
         for k, name in enumerate(sorted(rep)):
             b, t = name.split("/")
             d, s = _series(rows, None, 0.0144, b, t, full)
@@ -593,6 +593,25 @@ def plot_paper_figure(csv_path, png_path, backend: str = "binning", truth: str =
     plt.close(fig)
 
 
+def hidden_from(scene, points, origin=(0.0, 0.0, 0.0)) -> np.ndarray:
+    """Which ``points`` (on the surfaces of ``scene``) a scanner at ``origin``
+    cannot see: the segment to the point meets another surface first (ray cast
+    on the scene's mesh, 1 mm tolerance)."""
+    from .meshscan import _Caster
+
+    o = np.asarray(origin, np.float64)
+    v = np.asarray(points, np.float64) - o
+    dist = np.linalg.norm(v, axis=1)
+    if not len(v):
+        return np.zeros(0, bool)
+    ok = dist > 0
+    dirs = np.zeros_like(v)
+    dirs[ok] = v[ok] / dist[ok, None]
+    caster = _Caster(np.asarray(scene.mesh.vertices, np.float64), np.asarray(scene.mesh.faces), o)
+    _, t = caster.cast(np.zeros(3), dirs)
+    return ok & (t < dist - np.maximum(1e-3, 1e-6 * dist))
+
+
 def miss_breakdown(scene, true_scan, slr_points, primary_origin=(0.0, 0.0, 0.0), threshold: float = 0.10,
                    range_edges=(0.0, 5.0, 10.0, 20.0, 40.0, math.inf)) -> dict:
     """Why true points have no SLR point within ``threshold``.
@@ -606,29 +625,14 @@ def miss_breakdown(scene, true_scan, slr_points, primary_origin=(0.0, 0.0, 0.0),
     Counts are split by label (ground, objects) and by range from the
     secondary position; ``hidden + visible == missed``.
     """
-    from scipy.spatial import cKDTree
-
-    from .meshscan import _Caster
+    from .similarity import nearest_distances
 
     true_pts = np.asarray(true_scan.points, np.float64)
-    slr = np.asarray(slr_points, np.float64)
-    if len(slr):
-        d, _ = cKDTree(slr).query(true_pts, k=1, distance_upper_bound=threshold, workers=-1)
-        missed = ~(d < threshold)
-    else:
-        missed = np.ones(len(true_pts), bool)
-    o = np.asarray(primary_origin, np.float64)
+    missed = ~(nearest_distances(true_pts, slr_points, upper_bound=threshold) < threshold)
     idx = np.flatnonzero(missed)
     hidden = np.zeros(len(true_pts), bool)
     if len(idx):
-        caster = _Caster(np.asarray(scene.mesh.vertices, np.float64), np.asarray(scene.mesh.faces), o)
-        v = true_pts[idx] - o
-        dist = np.linalg.norm(v, axis=1)
-        ok = dist > 0
-        dirs = np.zeros_like(v)
-        dirs[ok] = v[ok] / dist[ok, None]
-        _, t = caster.cast(np.zeros(3), dirs)
-        hidden[idx] = ok & (t < dist - np.maximum(1e-3, 1e-6 * dist))
+        hidden[idx] = hidden_from(scene, true_pts[idx], primary_origin)
     ground = np.asarray(true_scan.labels) == 0
     rng = np.linalg.norm(true_pts - np.asarray(true_scan.origin, np.float64), axis=1)
 
