@@ -6,11 +6,11 @@
 For each scene: a primary scan of the mesh from the origin (pulse centres), then
 at each secondary position the true scans of the mesh (both truth semantics:
 pulse-centre and nearest-in-pulse with 3 x 3 sub-rays) and the SLR scans of the
-primary cloud by every backend setting. Similarity = fraction of true points
-within 10 cm of the SLR scan (the paper's measure). Time per position: binning
-total; embree "build" = preparing the cloud (radii, normals, and for normal-oriented
-discs the one BVH), amortised over the positions, plus the per-position work
-(billboards: a BVH per position), and "cast" = casting the rays.
+primary cloud by every backend setting. Coverage (the paper's similarity) =
+fraction of true points within 10 cm of the SLR scan; precision = fraction of
+SLR points within 10 cm of a true point (see-through points lower it, not
+coverage). Time per position: "build" = preparing the cloud once (neighbours,
+radii, normals, the one BVH) amortised over the positions, "cast" = the scan.
 
 Prints a table, saves results/bench_tradeoff.json and results/tradeoff.png
 (accuracy against time: the Pareto front).
@@ -29,8 +29,7 @@ sys.path.insert(0, str(Path(__file__).resolve().parent))
 
 from common import RESULTS, machine, save  # noqa: E402
 
-from slr_ray import ScanPattern, scan_mesh, similarity, simulate_scan  # noqa: E402
-from slr_ray.backends.embree import DiscScene  # noqa: E402
+from slr_ray import ScanPattern, prepare, scan_mesh, similarity  # noqa: E402
 from slr_ray.scenes import scene_from_spec  # noqa: E402
 
 DISTANCE_BANDS = [(0, 7.5), (7.5, 17.5), (17.5, 40)]
@@ -38,27 +37,29 @@ DISTANCE_BANDS = [(0, 7.5), (7.5, 17.5), (17.5, 40)]
 
 def configs(quick: bool, primary_res: float):
     """Backend settings: binning, then embree discs by orientation, radius,
-    polygon segments and engine (Open3D's front end builds faster; embreex is
-    the default engine, so it is measured for the two orientations too)."""
+    tie window and engine (exact discs; polygon fans in Embree and in Open3D)."""
     out = [{"name": "binning", "backend": "binning"}]
 
-    def embree(orientation, radius, scale=1.0, segments=5, engine="open3d"):
-        out.append({"name": f"embree {orientation} r={radius}x{scale} s{segments} {engine}", "backend": "embree",
-                    "orientation": orientation, "radius": radius, "radius_scale": scale,
-                    "segments": segments, "engine": engine})
+    def embree(orientation="normal", radius="spacing", scale=1.0, ties=1.0, engine="embree", segments=3, k=6):
+        name = f"embree {orientation} r={radius}x{scale} ties={ties} {engine}" + (
+            f" s{segments}" if engine != "embree" else "") + (f" k={k}" if k != 6 else "")
+        out.append({"name": name, "backend": "embree", "orientation": orientation, "radius": radius,
+                     "radius_scale": scale, "ties": ties, "engine": engine, "segments": segments, "k": k})
 
     for radius in ("spacing", "footprint", 0.02):
-        embree("billboard", radius)
         embree("normal", radius)
-    embree("billboard", "spacing", engine="embreex")
-    embree("normal", "spacing", engine="embreex")
+        embree("billboard", radius)
+    embree("primary", "spacing")
+    embree("normal", ties=0.0)
+    embree("normal", engine="fan")
     if not quick:
+        embree("normal", k=12)
+        embree("normal", ties=3.0)
         for scale in (0.5, 2.0):
             embree("normal", "spacing", scale)
-        for segments in (3, 7):
-            embree("normal", "spacing", segments=segments)
+        embree("normal", engine="open3d", segments=5)
     for c in out:
-        if c.get("radius") == "footprint":
+        if c.get("radius") == "footprint" or c.get("orientation") == "primary":
             c["primary_origin"] = [0.0, 0.0, 0.0]
             c["primary_resolution"] = primary_res
     return out
@@ -91,35 +92,29 @@ def main(argv=None):
                    "nearest": scan_mesh(scene, p, secondary, mode="nearest", supersample=3)}
                   for p in positions]
         for cfg in configs(args.quick, args.primary_resolution):
-            shared = None
-            build_once = 0.0
-            if cfg["backend"] == "embree":
-                # one prepared scene per cloud: radii (and normals) once; billboards
-                # still build a BVH per position, normal-oriented discs reuse one
-                t0 = time.perf_counter()
-                opts = {k: v for k, v in cfg.items() if k not in ("name", "backend")}
-                shared = DiscScene(primary.points, **opts)
-                build_once = time.perf_counter() - t0
+            # one prepared scanner per cloud and setting, every position a query
+            t0 = time.perf_counter()
+            opts = {k: v for k, v in cfg.items() if k not in ("name", "backend")}
+            scanner = prepare(primary.points, cfg["backend"], **opts)
+            build_once = time.perf_counter() - t0
             for i, pos in enumerate(positions):
-                if cfg["backend"] == "binning":
-                    scan = simulate_scan(primary.points, pos, secondary)
-                    build, cast = 0.0, scan.seconds
-                else:
-                    scan = shared.scan(pos, secondary)
-                    cast = scan.info["cast_seconds"]
-                    build = build_once / len(positions) + (scan.seconds - cast)
+                scan = scanner.scan(pos, secondary)
+                cast = scan.seconds
+                build = build_once / len(positions)
                 sim_pts = primary.points[scan.indices]
                 row = {"scene": scene_name, "config": cfg["name"], "position": pos.tolist(),
                        "distance_m": float(np.hypot(pos[0], pos[1])), "points": len(scan),
                        "build_seconds": build, "cast_seconds": cast, "seconds": build + cast}
                 for sem, truth in truths[i].items():
                     row[f"similarity_{sem}"] = similarity(truth.points, sim_pts)
+                    row[f"precision_{sem}"] = similarity(sim_pts, truth.points)
                     row[f"truth_{sem}_points"] = len(truth)
                 rows.append(row)
             r = [x for x in rows if x["config"] == cfg["name"] and x["scene"] == scene_name]
             print(f"  {cfg['name']:<36} {np.mean([x['seconds'] for x in r]):7.2f} s/pos  "
                   f"sim centre {np.mean([x['similarity_center'] for x in r]):.3f}  "
-                  f"nearest {np.mean([x['similarity_nearest'] for x in r]):.3f}", file=sys.stderr, flush=True)
+                  f"nearest {np.mean([x['similarity_nearest'] for x in r]):.3f}  "
+                  f"precision centre {np.mean([x['precision_center'] for x in r]):.3f}", file=sys.stderr, flush=True)
     summary = summarise(rows)
     print_table(summary)
     plot(summary, RESULTS / "tradeoff.png")
@@ -140,6 +135,7 @@ def summarise(rows):
              "cast_seconds": float(np.mean([x["cast_seconds"] for x in r]))}
         for sem in ("center", "nearest"):
             s[f"similarity_{sem}"] = float(np.mean([x[f"similarity_{sem}"] for x in r]))
+            s[f"precision_{sem}"] = float(np.mean([x[f"precision_{sem}"] for x in r]))
             for lo, hi in DISTANCE_BANDS:
                 b = [x[f"similarity_{sem}"] for x in r if lo <= x["distance_m"] < hi]
                 s[f"similarity_{sem}_{lo}-{hi}m"] = float(np.mean(b)) if b else None
@@ -148,14 +144,16 @@ def summarise(rows):
 
 
 def print_table(summary):
-    head = f"{'scene':<12} {'config':<36} {'s/pos':>7} {'build':>7} {'cast':>6} {'sim ctr':>8} {'sim nrst':>8}"
+    head = (f"{'scene':<12} {'config':<46} {'s/pos':>7} {'build':>7} {'cast':>6} {'cov ctr':>8} {'cov nrst':>8} "
+            f"{'prec ctr':>8} {'prec nrst':>9}")
     bands = "  ".join(f"ctr {lo}-{hi}m" for lo, hi in DISTANCE_BANDS)
     print(head + "  " + bands)
     for s in summary:
         b = "  ".join(f"{s[f'similarity_center_{lo}-{hi}m']:>11.3f}" if s[f"similarity_center_{lo}-{hi}m"] is not None
                       else f"{'-':>11}" for lo, hi in DISTANCE_BANDS)
-        print(f"{s['scene']:<12} {s['config']:<36} {s['seconds_per_position']:>7.2f} {s['build_seconds']:>7.2f} "
-              f"{s['cast_seconds']:>6.2f} {s['similarity_center']:>8.3f} {s['similarity_nearest']:>8.3f}  {b}")
+        print(f"{s['scene']:<12} {s['config']:<46} {s['seconds_per_position']:>7.2f} {s['build_seconds']:>7.2f} "
+              f"{s['cast_seconds']:>6.2f} {s['similarity_center']:>8.3f} {s['similarity_nearest']:>8.3f} "
+              f"{s['precision_center']:>8.3f} {s['precision_nearest']:>9.3f}  {b}")
 
 
 def plot(summary, path):
@@ -165,17 +163,18 @@ def plot(summary, path):
     import matplotlib.pyplot as plt
 
     scenes = sorted({s["scene"] for s in summary})
-    fig, axes = plt.subplots(len(scenes), 2, figsize=(12, 4.5 * len(scenes)), squeeze=False)
+    panels = [("similarity", "center"), ("similarity", "nearest"), ("precision", "center")]
+    fig, axes = plt.subplots(len(scenes), len(panels), figsize=(18, 4.8 * len(scenes)), squeeze=False)
     for row, scene in enumerate(scenes):
         ss = [s for s in summary if s["scene"] == scene]
-        for col, sem in enumerate(("center", "nearest")):
+        for col, (metric, sem) in enumerate(panels):
             ax = axes[row, col]
             x = np.array([s["seconds_per_position"] for s in ss])
-            y = np.array([100 * s[f"similarity_{sem}"] for s in ss])
+            y = np.array([100 * s[f"{metric}_{sem}"] for s in ss])
             for s, xi, yi in zip(ss, x, y):
                 marker = "*" if s["config"] == "binning" else ("o" if "normal" in s["config"] else "s")
                 ax.scatter(xi, yi, marker=marker, s=90 if marker == "*" else 40)
-                ax.annotate(s["config"].replace("embree ", ""), (xi, yi), fontsize=7,
+                ax.annotate(s["config"].replace("embree ", ""), (xi, yi), fontsize=6,
                             xytext=(4, 2), textcoords="offset points")
             order = np.argsort(x)
             front, best = [], -np.inf
@@ -185,8 +184,10 @@ def plot(summary, path):
                     best = y[i]
             ax.plot(x[front], y[front], "k--", lw=1, label="Pareto front")
             ax.set_xscale("log")
-            ax.set(xlabel="seconds per position (log)", ylabel="similarity to truth (%)",
-                   title=f"{scene}: truth = {'pulse centre' if sem == 'center' else 'nearest in pulse'}")
+            ax.set(xlabel="seconds per position (log)",
+                   ylabel=("coverage of the truth" if metric == "similarity" else "precision") + " (%)",
+                   title=f"{scene}: {'coverage' if metric == 'similarity' else 'precision'}, truth = "
+                         f"{'pulse centre' if sem == 'center' else 'nearest in pulse'}")
             ax.legend(fontsize=8)
     fig.tight_layout()
     fig.savefig(path, dpi=110)

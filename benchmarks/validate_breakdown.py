@@ -36,7 +36,7 @@ from slr_ray import ScanPattern, scan_mesh, simulate_scan  # noqa: E402
 from slr_ray.positions import azimuth_histogram  # noqa: E402
 from slr_ray.scenes import scene_from_spec  # noqa: E402
 from slr_ray.similarity import similarity  # noqa: E402
-from slr_ray.validate import _peak_rss_gib, miss_breakdown  # noqa: E402
+from slr_ray.validate import peak_rss_gib, miss_breakdown  # noqa: E402
 
 
 def main(argv=None):
@@ -99,7 +99,7 @@ def main(argv=None):
     mismatched = [(r["scene"], r["position"]) for r in rows
                   if r["similarity_in_run"] is not None and abs(r["similarity"] - r["similarity_in_run"]) > 1e-12]
     payload = {"inputs": vars(args) | {"run": str(args.run)}, "machine": machine(),
-               "seconds": round(time.perf_counter() - t_all, 1), "peak_rss_gib": round(_peak_rss_gib(), 2),
+               "seconds": round(time.perf_counter() - t_all, 1), "peak_rss_gib": round(peak_rss_gib(), 2),
                "similarity_differs_from_run": mismatched, "rows": rows}
     save(args.name, payload)
     plot(rows, RESULTS / f"{args.name}.png")

@@ -6,19 +6,21 @@ have recorded from other positions, using only points of the original cloud.
 
 from .accumulator import ScanAccumulator
 from .errors import FormatError, InputTypeError, InputValueError, MissingDependencyError, SlrError
-from .pattern import PRESETS, ScanPattern, preset
-from .scan import Scan, simulate_scan
+from .pattern import PRESETS, ScanPattern, as_pattern, preset, pulse_directions, pulse_rays
+from .scan import Scan
+from .backends import Backend, Scanner, available_backends, prepare, simulate_scan
 from .distances import DistanceHistogram, distance_histogram, height_sweep, pulse_sized_bins
 from .meshscan import MeshScan, scan_mesh
 from .positions import (AzimuthProfile, candidate_cells, label_ground, minimum_profile, select_positions,
                         suggest_resolution)
 from .similarity import similarity
-from .spherical import pulse_bins, pulse_directions, spherical_coordinates
+from .spherical import pulse_bins, spherical_coordinates
 
 __version__ = "0.1.0"
 
 __all__ = [
-    "ScanPattern", "PRESETS", "preset", "Scan", "simulate_scan", "ScanAccumulator",
+    "ScanPattern", "PRESETS", "preset", "as_pattern", "Scan", "simulate_scan", "prepare", "Scanner",
+    "Backend", "available_backends", "ScanAccumulator", "pulse_rays",
     "scan_mesh", "MeshScan", "similarity",
     "candidate_cells", "select_positions", "minimum_profile", "AzimuthProfile", "suggest_resolution",
     "label_ground", "pulse_sized_bins", "distance_histogram", "DistanceHistogram", "height_sweep",

@@ -7,7 +7,9 @@ import time
 
 from .arrays import as_origin, as_points
 from .errors import InputValueError
-from .scan import Scan, _check_pattern, _scan_from_bins
+from .backends.binning import BinTables
+from .pattern import as_pattern
+from .scan import Scan
 
 __all__ = ["ScanAccumulator"]
 
@@ -41,10 +43,8 @@ class ScanAccumulator:
     """
 
     def __init__(self, origin, pattern, n_threads: int | None = None):
-        from .backends.binning import BinTables
-
         self.origin = as_origin(origin)
-        self.pattern = _check_pattern(pattern)
+        self.pattern = as_pattern(pattern)
         self._tables = BinTables(self.origin, self.pattern, n_threads=n_threads)
         self._seconds = 0.0
 
@@ -82,6 +82,4 @@ class ScanAccumulator:
         t0 = time.perf_counter()
         keys, ranges, idx = self._tables.winners()
         seconds = self._seconds + time.perf_counter() - t0
-        return _scan_from_bins(
-            keys, ranges, idx, self.origin, self.pattern, "binning", self.n_points, seconds
-        )
+        return Scan.from_keys(keys, ranges, idx, self.origin, self.pattern, "binning", self.n_points, seconds)

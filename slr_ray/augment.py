@@ -25,7 +25,9 @@ from pathlib import Path
 
 import numpy as np
 
+from .backends import options_for, prepare
 from .errors import InputValueError
+from .pattern import ScanPattern
 
 __all__ = ["augment"]
 
@@ -38,16 +40,25 @@ def _init_worker(points, attributes, origin, meta):
     _WORKER["cloud"] = PointCloud(points, attributes, origin, meta)
 
 
+def _scanner(cloud, backend, options):
+    """The cloud prepared for ``backend``, once per process (a worker keeps it
+    for all its scans: the embree backend's neighbours and BVH are built once)."""
+    key = (id(cloud), backend, json.dumps(options, sort_keys=True))
+    cache = _WORKER.setdefault("scanners", {})
+    if key not in cache:
+        cache.clear()  # one cloud at a time
+        cache[key] = prepare(cloud.points, backend, options)
+    return cache[key]
+
+
 def _scan_one(job, cloud=None):
     """One SLR scan written to ``job['path']``; returns its manifest entry."""
     from .io import atomic_path, write_cloud
-    from .pattern import ScanPattern
-    from .scan import simulate_scan
 
     cloud = cloud if cloud is not None else _WORKER["cloud"]
     t0 = time.perf_counter()
     pattern = ScanPattern.from_dict(job["pattern"])
-    scan = simulate_scan(cloud.points, job["origin"], pattern, backend=job["backend"], **job["options"])
+    scan = _scanner(cloud, job["backend"], job["options"]).scan(job["origin"], pattern)
     sub = cloud.subset(scan.indices)
     sub.origin = np.asarray(job["origin"], float)
     path = Path(job["path"])
@@ -87,13 +98,13 @@ def augment(input_path, outdir, n: int, *, backend: str = "binning", resolution:
         The manifest.
     """
     from . import __version__
-    from .io import _format, atomic_path, read_cloud
-    from .pattern import ScanPattern
+    from .io import atomic_path, check_format, read_cloud
     from .positions import select_positions
 
+    options_for(backend, backend_options)  # bad options fail before any work
     input_path = Path(input_path)
     out = Path(outdir)
-    ext = _format(input_path, fmt)
+    ext = check_format(input_path, fmt)
     cloud = read_cloud(input_path)  # check everything before creating anything
     if ground is None:
         a = cloud.attributes

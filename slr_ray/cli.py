@@ -62,16 +62,14 @@ def _emit(obj):
 
 
 def cmd_scan(args):
-    from .io import read_cloud, write_cloud
-    from .scan import simulate_scan
+    from .backends import simulate_scan
+    from .io import check_format, read_cloud, write_cloud
 
     pattern = _pattern_from_args(args)
     out = Path(args.output)
     if out.exists() and not args.force:
         raise FileExistsError(f"{out} exists (use --force to overwrite)")
-    from .io import _format
-
-    _format(out, args.format)  # refuse an unknown output format before any work
+    check_format(out, args.format)  # refuse an unknown output format before any work
     if args.print_config:
         _emit({"input": str(args.input), "output": str(out), "origin": args.origin,
                "pattern": pattern.to_dict(), "backend": args.backend})
@@ -122,9 +120,9 @@ def cmd_scene(args):
         _emit({"spec": args.spec, "output": str(out), **scene.info()})
         return
     pattern = _pattern_from_args(args)
-    from .io import _format
+    from .io import check_format
 
-    _format(args.output)  # refuse an unknown output format before the scan
+    check_format(args.output)  # refuse an unknown output format before the scan
     ms = scan_mesh(scene, args.origin, pattern, mode=args.mode, supersample=args.supersample,
                    spacing=args.spacing, progress=not args.quiet)
     cloud = PointCloud(ms.points, {"label": ms.labels.astype(np.int32), "range": ms.ranges,
@@ -291,10 +289,11 @@ def cmd_distances(args):
             for h in sweep:
                 sweep[h] += sw[h]
         # SLR clouds at the scanner height, on the common bins
-        from .scan import simulate_scan
+        from .backends import prepare
 
+        scanner = prepare(cloud.points)
         for p in positions:
-            scan = simulate_scan(cloud.points, p, pattern)
+            scan = scanner.scan(p, pattern)
             slr.add(cloud.points[scan.indices], p, is_ground[scan.indices])
         per_input.append({"input": str(path), "positions": len(positions),
                           "ground_fraction": float(is_ground.mean())})

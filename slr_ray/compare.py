@@ -16,7 +16,8 @@ import numpy as np
 
 from .arrays import as_origin, as_points
 from .errors import InputValueError
-from .scan import _check_pattern, simulate_scan
+from .backends import Scanner, prepare
+from .pattern import as_pattern
 
 __all__ = ["compare_backends", "DEFAULT_BANDS"]
 
@@ -41,7 +42,8 @@ def _band_stats(b_idx, e_idx, b_rng, e_rng, see, bands):
 
 
 def compare_backends(points, origins, pattern, *, tolerance: float = 0.10, bands=DEFAULT_BANDS,
-                     embree_options: dict | None = None, scene=None) -> dict:
+                     embree_options: dict | None = None, scene: Scanner | None = None,
+                     binning: Scanner | None = None) -> dict:
     """Run both backends from each origin and compare them.
 
     Parameters
@@ -57,9 +59,11 @@ def compare_backends(points, origins, pattern, *, tolerance: float = 0.10, bands
         Range band edges (metres) for the per-band figures; ranges are from
         each position.
     embree_options : dict
-        Options of :class:`slr_ray.backends.embree.DiscScene` (default: its own).
-    scene : DiscScene, optional
-        A prepared scene of these points (``orientation='normal'``), reused.
+        Options of the embree backend (:class:`slr_ray.backends.EmbreeOptions`).
+    scene : Scanner, optional
+        These points already prepared with ``backend='embree'``, reused.
+    binning : Scanner, optional
+        These points already prepared with ``backend='binning'``, reused.
 
     Returns
     -------
@@ -69,10 +73,8 @@ def compare_backends(points, origins, pattern, *, tolerance: float = 0.10, bands
         only one backend returns, see-through points), timings, and the
         options used. Plain JSON.
     """
-    from .backends.embree import DiscScene
-
     pts = as_points(points).astype(np.float64, copy=False)
-    pattern = _check_pattern(pattern)
+    pattern = as_pattern(pattern)
     origins = np.atleast_2d(np.asarray(origins, dtype=np.float64))
     if origins.ndim != 2 or origins.shape[1] != 3:
         raise InputValueError(f"origins must be (k, 3), got {origins.shape}")
@@ -81,14 +83,15 @@ def compare_backends(points, origins, pattern, *, tolerance: float = 0.10, bands
     bands = tuple(float(b) for b in bands)
     if len(bands) < 2 or any(hi <= lo for lo, hi in zip(bands[:-1], bands[1:])):
         raise InputValueError(f"bands must be at least two increasing edges, got {bands}")
-    opts = dict(embree_options or {})
     if scene is None:
-        scene = DiscScene(pts, **opts)
+        scene = prepare(pts, "embree", embree_options)
+    if binning is None:
+        binning = prepare(pts, "binning")
     out = []
     nh = pattern.n_azimuth
     for origin in origins:
         origin = as_origin(origin)
-        b = simulate_scan(pts, origin, pattern)
+        b = binning.scan(origin, pattern)
         e, (ray_pulses, _, ray_t) = scene.scan_and_rays(origin, pattern)
         # per pulse, the distance to the first disc along its centre ray
         first_t = dict(zip((ray_pulses[:, 0] * nh + ray_pulses[:, 1]).tolist(), ray_t.tolist()))
@@ -98,12 +101,12 @@ def compare_backends(points, origins, pattern, *, tolerance: float = 0.10, bands
             "origin": origin.tolist(), "binning": len(b), "embree": len(e),
             "jaccard": len(np.intersect1d(b.indices, e.indices)) / max(1, len(np.union1d(b.indices, e.indices))),
             "see_through": int(see.sum()), "see_through_fraction": float(see.mean()) if len(see) else 0.0,
-            "binning_seconds": b.seconds, "embree_build_seconds": e.info["build_seconds"],
+            "binning_seconds": b.seconds, "embree_seconds": e.seconds,
             "embree_cast_seconds": e.info["cast_seconds"],
             "bands": _band_stats(b.indices, e.indices, b.ranges, e.ranges, see, bands),
         })
     return {"pattern": pattern.to_dict(), "tolerance": tolerance, "n_points": len(pts),
-            "embree_options": scene.options, "embree_prepare_seconds": scene.prepare_seconds,
+            "embree_options": scene.options.to_dict(), "embree_prepare_seconds": scene.prepare_seconds,
             "positions": out}
 
 

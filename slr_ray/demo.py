@@ -30,7 +30,7 @@ def run_demo(outdir="slr_ray_demo", n_rectangles: int = 200, n_positions: int = 
     from .io import PointCloud, write_cloud
     from .meshscan import scan_mesh
     from .pattern import ScanPattern, preset
-    from .scan import simulate_scan
+    from .backends import prepare
     from .scenes import rectangle_scene
     from .similarity import similarity
 
@@ -54,8 +54,9 @@ def run_demo(outdir="slr_ray_demo", n_rectangles: int = 200, n_positions: int = 
     positions = np.column_stack([radius * np.cos(angle), radius * np.sin(angle), np.zeros(n_positions)])
 
     rows = []
+    scanner = prepare(primary.points)
     for i, pos in enumerate(positions):
-        slr = simulate_scan(primary.points, pos, secondary)
+        slr = scanner.scan(pos, secondary)
         truth = scan_mesh(scene, pos, secondary)
         sim = similarity(truth.points, primary.points[slr.indices])
         name = f"position_{i:02d}"

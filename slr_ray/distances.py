@@ -205,12 +205,13 @@ def height_sweep(points, is_ground, positions, heights=(0.5, 1.0, 1.65, 2.5, 4.0
     height, with a first bin from 0), so that a pure ground plane stays flat
     in counts at every height.
     """
-    from .pattern import ScanPattern
-    from .scan import _check_pattern, simulate_scan
+    from .backends import prepare
+    from .pattern import ScanPattern, as_pattern
 
     pts = as_points(points).astype(np.float64, copy=False)
     g = np.asarray(is_ground, bool)
-    pattern = _check_pattern(pattern or ScanPattern(0.144))
+    pattern = as_pattern(pattern or ScanPattern(0.144))
+    scanner = prepare(pts)
     pos = np.atleast_2d(np.asarray(positions, np.float64))
     if any(h <= 0 for h in heights):
         raise InputValueError(f"heights must be > 0, got {heights}")
@@ -230,7 +231,7 @@ def height_sweep(points, is_ground, positions, heights=(0.5, 1.0, 1.65, 2.5, 4.0
         ground_z = p[2] - scanner_height
         for h in heights:
             o = np.array([p[0], p[1], ground_z + h])
-            scan = simulate_scan(pts, o, pattern)
+            scan = scanner.scan(o, pattern)
             out[float(h)].add(pts[scan.indices], o, g[scan.indices])
             if bar is not None:
                 bar.update()

@@ -39,7 +39,7 @@ import numpy as np
 
 from .errors import FormatError
 
-__all__ = ["PointCloud", "read_cloud", "write_cloud", "read_e57_scans", "FORMATS"]
+__all__ = ["PointCloud", "read_cloud", "write_cloud", "read_e57_scans", "check_format", "FORMATS"]
 
 FORMATS = (".npy", ".npz", ".ply", ".las", ".laz", ".bin", ".xyz", ".txt", ".e57", ".pcd")
 
@@ -74,7 +74,14 @@ class PointCloud:
         )
 
 
-def _format(path, fmt=None) -> str:
+def check_format(path, fmt=None) -> str:
+    """The point-cloud format of ``path`` (its extension, or ``fmt``), e.g. ``'.las'``.
+
+    Raises
+    ------
+    FormatError
+        for a format slr_ray cannot read and write.
+    """
     ext = (fmt if fmt else Path(path).suffix).lower()
     if not ext.startswith("."):
         ext = "." + ext
@@ -94,7 +101,7 @@ def read_cloud(path, format: str | None = None) -> PointCloud:
         unknown extension, or a file that cannot be parsed (truncated, corrupt).
     """
     path = Path(path)
-    ext = _format(path, format)
+    ext = check_format(path, format)
     if not path.is_file():
         raise FileNotFoundError(f"no such file: {path}")
     try:
@@ -345,7 +352,7 @@ def write_cloud(path, cloud: PointCloud, format: str | None = None, binary: bool
     and numeric attributes of one row each (written as extra columns).
     """
     path = Path(path)
-    ext = _format(path, format)
+    ext = check_format(path, format)
     if not path.parent.exists():
         raise FormatError(f"cannot write {path}: directory {path.parent} does not exist")
     with atomic_path(path) as tmp:

@@ -1,6 +1,6 @@
 """Ground-truth scans of meshes: what an ideal scanner records of real surfaces.
 
-Three semantics (DESIGN §2):
+Three semantics (README, "Two definitions of a pulse's return"):
 
 ``"center"``
     One ray per pulse, through the pulse centre: the first surface hit. This
@@ -23,16 +23,23 @@ float64 precision wherever the scene is.
 
 from __future__ import annotations
 
+import json
+import shutil
+import tempfile
 import time
-from concurrent.futures import ThreadPoolExecutor
+import zipfile
 from dataclasses import dataclass
+from pathlib import Path
 
 import numpy as np
 
 from .arrays import as_origin
-from .backends.binning import default_threads
-from .errors import InputValueError, MissingDependencyError
-from .pattern import ScanPattern
+from .backends.binning import BinTables, ranges_of
+from .errors import InputValueError
+from .io import atomic_path
+from .pattern import ScanPattern, as_pattern, pulse_rays
+from .raycast import RayScene
+from .scenes import RectangleScene, dense_samples
 
 __all__ = ["MeshScan", "scan_mesh", "scan_mesh_to_file", "load_meshscan", "MESH_MODES"]
 
@@ -82,11 +89,6 @@ class MeshScan:
         point: 8 um at 100 m), int32 labels (4 bytes), the flat pulse id
         ``v * n_azimuth + h`` as uint32 (4 bytes), origin and pattern.
         Read back with :func:`load_meshscan`. Atomic."""
-        import json
-        from pathlib import Path
-
-        from .io import atomic_path
-
         path = Path(path)
         with atomic_path(path) as tmp:
             with open(tmp, "wb") as f:
@@ -105,8 +107,6 @@ class MeshScan:
 
 def load_meshscan(path) -> "MeshScan":
     """Read a :class:`MeshScan` written by :meth:`MeshScan.save`."""
-    import json
-
     with np.load(path, allow_pickle=False) as z:
         meta = json.loads(str(z["meta"]))
         origin = z["origin"].astype(np.float64)
@@ -120,82 +120,8 @@ def load_meshscan(path) -> "MeshScan":
                     meta.get("seconds", 0.0))
 
 
-def _embree():
-    try:
-        from embreex import rtcore_scene
-        from embreex.mesh_construction import TriangleMesh
-    except ImportError as exc:  # pragma: no cover - embreex is a dependency
-        raise MissingDependencyError(
-            "ray casting needs embreex: pip install embreex") from exc
-    return rtcore_scene, TriangleMesh
-
-
-class _Caster:
-    """An Embree scene of a mesh, recentred on one point, with float64 refinement."""
-
-    def __init__(self, vertices: np.ndarray, faces: np.ndarray, centre: np.ndarray):
-        rtcore_scene, TriangleMesh = _embree()
-        self.centre = centre
-        self.v = vertices - centre
-        self.faces = faces
-        self.scene = rtcore_scene.EmbreeScene()
-        TriangleMesh(self.scene, self.v.astype(np.float32), faces.astype(np.int32))
-        a, b, c = (self.v[faces[:, j]] for j in range(3))
-        n = np.cross(b - a, c - a)
-        self.normals = n
-        self.plane_d = np.einsum("ij,ij->i", n, a)
-
-    def cast(self, origin_local: np.ndarray, dirs: np.ndarray):
-        """(face, t) per ray; face -1 on a miss, t in float64 on the face's plane."""
-        o32 = np.broadcast_to(origin_local.astype(np.float32), dirs.shape).copy()
-        d32 = dirs.astype(np.float32)
-        face = np.empty(len(dirs), np.int32)
-        # embreex releases the GIL while casting: split the rays over the cores
-        n_threads = min(default_threads(), max(1, len(dirs) // 100_000))
-        if n_threads > 1:
-            bounds = np.linspace(0, len(dirs), n_threads + 1).astype(int)
-
-            def run(i):
-                a, b = bounds[i], bounds[i + 1]
-                face[a:b] = self.scene.run(o32[a:b], d32[a:b])
-
-            with ThreadPoolExecutor(n_threads) as pool:
-                list(pool.map(run, range(n_threads)))
-        else:
-            face[:] = self.scene.run(o32, d32)
-        face = face.astype(np.int64)
-        t = np.full(len(dirs), np.inf)
-        hit = face >= 0
-        f = face[hit]
-        nd = np.einsum("ij,ij->i", self.normals[f], dirs[hit])
-        t[hit] = (self.plane_d[f] - self.normals[f] @ origin_local) / nd
-        return face, t
-
-
-def _pulse_grid(pattern: ScanPattern, rows: slice, k: int):
-    """Directions of k x k sub-rays for every pulse of zenith rows ``rows``."""
-    d_theta, d_phi, th0, th1 = pattern.radians
-    nh = pattern.n_azimuth
-    v = np.arange(rows.start, rows.stop)
-    sub = (np.arange(k) + 0.5) / k
-    theta = th0 + (v[:, None] + sub[None, :]).ravel() * d_theta  # (rows * k)
-    theta = np.minimum(theta, th1)
-    phi = ((np.arange(nh)[:, None] + sub[None, :]).ravel() * d_phi)  # (nh * k)
-    phi = np.minimum(phi, 2 * np.pi)
-    st, ct = np.sin(theta), np.cos(theta)
-    dirs = np.empty((len(theta), len(phi), 3))
-    dirs[..., 0] = st[:, None] * np.cos(phi)[None, :]
-    dirs[..., 1] = st[:, None] * np.sin(phi)[None, :]
-    dirs[..., 2] = ct[:, None]
-    vv = np.repeat(v, k)[:, None] * np.ones(len(phi), np.int64)[None, :]
-    hh = np.repeat(np.arange(nh), k)[None, :] * np.ones(len(theta), np.int64)[:, None]
-    return dirs.reshape(-1, 3), vv.ravel(), hh.ravel()
-
-
 def _check_mesh_args(scene_or_mesh, origin, pattern, mode, supersample, face_labels):
-    from .scan import _check_pattern
-
-    pattern = _check_pattern(pattern)
+    pattern = as_pattern(pattern)
     origin = as_origin(origin)
     if mode not in MESH_MODES:
         raise InputValueError(f"mode must be one of {MESH_MODES}, got {mode!r}")
@@ -209,8 +135,6 @@ def _check_mesh_args(scene_or_mesh, origin, pattern, mode, supersample, face_lab
     if mode == "nearest" and (int(supersample) != supersample or supersample < 1):
         raise InputValueError(f"supersample must be an integer >= 1, got {supersample}")
     if mode == "dense":
-        from .scenes import RectangleScene
-
         if not isinstance(scene_or_mesh, RectangleScene):
             raise InputValueError("mode='dense' needs a RectangleScene (planar polygons to sample)")
     return mesh, faces, labels, origin, pattern
@@ -225,8 +149,7 @@ def _hit_chunks(scene_or_mesh, origin, pattern, mode, supersample=4, spacing=0.0
         yield from _dense_chunks(scene_or_mesh, origin, pattern, spacing)
         return
     k = 1 if mode == "center" else int(supersample)
-    caster = _Caster(np.asarray(mesh.vertices, np.float64), faces, origin)
-    local = np.zeros(3)
+    caster = RayScene.triangles(np.asarray(mesh.vertices, np.float64), faces, centre=origin)
     nv, nh = pattern.shape
     rmin, rmax = pattern.range_limits
     rows_per = max(1, rays_per_batch // (nh * k * k))
@@ -238,12 +161,13 @@ def _hit_chunks(scene_or_mesh, origin, pattern, mode, supersample=4, spacing=0.0
     try:
         for r0 in range(0, nv, rows_per):
             rows = slice(r0, min(nv, r0 + rows_per))
-            dirs, vv, hh = _pulse_grid(pattern, rows, k)
+            dirs, vv, hh = pulse_rays(pattern, rows, k)
             if k % 2 == 0:  # even k has no sub-ray through the centre: add it, so that
                 # "nearest" finds every pulse "center" finds
-                extra = _pulse_grid(pattern, rows, 1)
+                extra = pulse_rays(pattern, rows, 1)
                 dirs, vv, hh = (np.concatenate([a, b]) for a, b in zip((dirs, vv, hh), extra))
-            face, t = caster.cast(local, dirs)
+            hits = caster.intersect(origin, dirs, exact=True)
+            face, t = hits.primitives, hits.distances
             hit = (face >= 0) & (t > 0) & (t >= rmin) & (t <= rmax)
             sel = np.flatnonzero(hit)
             if k > 1 and len(sel):
@@ -297,9 +221,7 @@ def scan_mesh(scene_or_mesh, origin, pattern, mode: str = "center", *, supersamp
     origin = as_origin(origin)
     parts = list(_hit_chunks(scene_or_mesh, origin, pattern, mode, supersample, spacing,
                              face_labels, rays_per_batch, progress))
-    from .scan import _check_pattern
-
-    pattern = _check_pattern(pattern)
+    pattern = as_pattern(pattern)
     if parts:
         # fill preallocated arrays, freeing each chunk once copied: the peak stays
         # near one copy of the scan (a 0.00576 deg dense primary is ~2.3e8 points)
@@ -328,17 +250,13 @@ def scan_mesh_to_file(scene_or_mesh, origin, pattern, path, mode: str = "center"
     :func:`load_meshscan` reads; it appears complete or not at all. Options
     are those of :func:`scan_mesh`. Returns a summary (points, seconds, bytes).
     """
-    from .scan import _check_pattern
-
     t0 = time.perf_counter()
     origin = as_origin(origin)
-    pattern = _check_pattern(pattern)
+    pattern = as_pattern(pattern)
     with _CompactWriter(path, origin, pattern, mode) as w:
         for chunk in _hit_chunks(scene_or_mesh, origin, pattern, mode, **options):
             w.write(*chunk)
         w.seconds = time.perf_counter() - t0
-    from pathlib import Path
-
     return {"path": str(path), "mode": mode, "points_out": w.count, "seconds": round(w.seconds, 3),
             "bytes": Path(path).stat().st_size, "pattern": pattern.to_dict(), "origin": origin.tolist()}
 
@@ -348,9 +266,6 @@ class _CompactWriter:
     :meth:`MeshScan.save` (stored, not compressed) by streaming copies."""
 
     def __init__(self, path, origin, pattern, mode):
-        import tempfile
-        from pathlib import Path
-
         self.path = Path(path)
         if not self.path.parent.is_dir():
             raise InputValueError(f"cannot write {path}: no directory {self.path.parent}")
@@ -376,12 +291,6 @@ class _CompactWriter:
         self.count += len(offsets)
 
     def __exit__(self, exc_type, exc, tb):
-        import json
-        import shutil
-        import zipfile
-
-        from .io import atomic_path
-
         try:
             for fh, _, _ in self.files.values():
                 fh.close()
@@ -408,9 +317,6 @@ class _CompactWriter:
 
 def _dense_chunks(scene, origin, pattern, spacing):
     """Two passes over the dense sample stream: reduce, then yield the winners chunk by chunk."""
-    from .backends.binning import BinTables, _ranges_of
-    from .scenes import dense_samples
-
     tables = BinTables(origin, pattern)
     for pts, _ in dense_samples(scene, spacing, copy=False):
         tables.add(pts)
@@ -423,8 +329,7 @@ def _dense_chunks(scene, origin, pattern, spacing):
         if hi > lo:
             local = want[lo:hi] - start
             sel = pts[local]
-            ranges = np.empty(hi - lo)
-            _ranges_of(sel, np.arange(hi - lo), float(origin[0]), float(origin[1]), float(origin[2]), ranges)
+            ranges = ranges_of(sel, np.arange(hi - lo), origin)
             k = keys[lo:hi]
             yield sel - origin, lab[local], ranges, np.column_stack([k // nh, k % nh])
         start += len(pts)

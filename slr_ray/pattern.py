@@ -3,7 +3,7 @@
 A pattern is a regular grid of pulses in (zenith, azimuth). Angles are given in
 degrees in the public API and converted to radians once here.
 
-Pulse bin of a direction (DESIGN §2)::
+Pulse bin of a direction (README, "The ideal scanner")::
 
     v = floor((theta - theta_min) / d_theta)      zenith bin, 0 .. n_zenith - 1
     h = floor(phi / d_phi)                        azimuth bin, 0 .. n_azimuth - 1
@@ -18,9 +18,11 @@ from __future__ import annotations
 import math
 from dataclasses import dataclass, field
 
-from .errors import InputValueError
+import numpy as np
 
-__all__ = ["ScanPattern", "PRESETS", "preset"]
+from .errors import InputTypeError, InputValueError
+
+__all__ = ["ScanPattern", "PRESETS", "preset", "as_pattern", "pulse_rays", "pulse_directions"]
 
 
 def _bin_count(extent: float, step: float) -> int:
@@ -167,6 +169,19 @@ class ScanPattern:
             math.inf if self.max_range is None else self.max_range,
         )
 
+    def ravel(self, pulses) -> np.ndarray:
+        """Flat pulse ids ``v * n_azimuth + h`` (int64) of ``(m, 2)`` pulses ``(v, h)``."""
+        pulses = np.asarray(pulses, dtype=np.int64).reshape(-1, 2)
+        return pulses[:, 0] * self.n_azimuth + pulses[:, 1]
+
+    def unravel(self, ids) -> np.ndarray:
+        """``(m, 2) int64`` pulses ``(v, h)`` of flat pulse ids (the inverse of :meth:`ravel`)."""
+        ids = np.asarray(ids, dtype=np.int64).ravel()
+        out = np.empty((len(ids), 2), dtype=np.int64)
+        np.floor_divide(ids, self.n_azimuth, out=out[:, 0])
+        np.remainder(ids, self.n_azimuth, out=out[:, 1])
+        return out
+
     def with_(self, **changes) -> "ScanPattern":
         """A copy with some fields changed (``pattern.with_(max_range=50)``)."""
         values = {
@@ -224,3 +239,96 @@ def preset(name: str) -> ScanPattern:
         raise InputValueError(
             f"unknown pattern preset {name!r}; choose one of {sorted(PRESETS)}"
         ) from None
+
+
+def as_pattern(pattern) -> ScanPattern:
+    """A :class:`ScanPattern` from a pattern, a preset name or a resolution in degrees.
+
+    Raises
+    ------
+    InputTypeError
+        for anything else.
+    InputValueError
+        for an unknown preset or an impossible resolution.
+    """
+    if isinstance(pattern, ScanPattern):
+        return pattern
+    if isinstance(pattern, str):
+        return preset(pattern)
+    if isinstance(pattern, (int, float, np.integer, np.floating)) and not isinstance(pattern, (bool, np.bool_)):
+        return ScanPattern(resolution=float(pattern))
+    raise InputTypeError(
+        "pattern must be a ScanPattern, a preset name or a resolution in degrees, "
+        f"got {type(pattern).__name__}"
+    )
+
+
+def _sub_angles(start, step, stop, bins, k):
+    """Angles of k sub-rays in each bin of ``bins``: ``(len(bins) * k,)``.
+
+    One rule for every caller: a bin spans ``[start + b * step, min(start + (b + 1)
+    * step, stop)]`` (the last bin may be narrower), and sub-ray ``j`` sits at
+    ``(j + 1/2) / k`` of the bin's own width: k = 1 is the bin's centre.
+    """
+    lo = start + bins * step
+    width = np.minimum(step, stop - lo)
+    frac = (np.arange(k) + 0.5) / k
+    return (lo[:, None] + frac[None, :] * width[:, None]).ravel()
+
+
+def pulse_directions(pulses, pattern: ScanPattern) -> np.ndarray:
+    """Unit vectors through the centres of pulses ``(v, h)``.
+
+    Parameters
+    ----------
+    pulses : (m, 2) int
+        Zenith and azimuth bins.
+    pattern : ScanPattern
+
+    Returns
+    -------
+    directions : (m, 3) float64
+        Through the middle of each bin; a narrower last bin (a field of view
+        that is not a whole number of resolutions) has its own middle.
+    """
+    pulses = np.asarray(pulses, dtype=np.int64).reshape(-1, 2)
+    d_theta, d_phi, th0, th1 = pattern.radians
+    theta = _sub_angles(th0, d_theta, th1, pulses[:, 0], 1)
+    phi = _sub_angles(0.0, d_phi, 2 * math.pi, pulses[:, 1], 1)
+    s = np.sin(theta)
+    return np.column_stack([s * np.cos(phi), s * np.sin(phi), np.cos(theta)])
+
+
+def pulse_rays(pattern: ScanPattern, rows: slice | None = None, k: int = 1):
+    """Rays of the pulses of zenith rows ``rows``, ``k x k`` sub-rays per pulse.
+
+    Parameters
+    ----------
+    pattern : ScanPattern
+    rows : slice, optional
+        Zenith rows (default all); bounds memory when cast in batches.
+    k : int
+        Sub-rays per axis, at ``(j + 1/2) / k`` of the pulse's width
+        (:func:`pulse_directions`' rule); ``k = 1`` is the pulse centre.
+
+    Returns
+    -------
+    directions : (m, 3) float64
+        Unit vectors, row-major over (zenith sub-row, azimuth sub-column).
+    v, h : (m,) int64
+        The pulse of each ray.
+    """
+    rows = slice(0, pattern.n_zenith) if rows is None else rows
+    d_theta, d_phi, th0, th1 = pattern.radians
+    nh = pattern.n_azimuth
+    v = np.arange(rows.start, rows.stop, dtype=np.int64)
+    theta = _sub_angles(th0, d_theta, th1, v, k)
+    phi = _sub_angles(0.0, d_phi, 2 * math.pi, np.arange(nh, dtype=np.int64), k)
+    st, ct = np.sin(theta), np.cos(theta)
+    dirs = np.empty((len(theta), len(phi), 3))
+    dirs[..., 0] = st[:, None] * np.cos(phi)[None, :]
+    dirs[..., 1] = st[:, None] * np.sin(phi)[None, :]
+    dirs[..., 2] = ct[:, None]
+    vv = np.broadcast_to(np.repeat(v, k)[:, None], (len(theta), len(phi)))
+    hh = np.broadcast_to(np.repeat(np.arange(nh, dtype=np.int64), k)[None, :], (len(theta), len(phi)))
+    return dirs.reshape(-1, 3), vv.ravel(), hh.ravel()

@@ -1,4 +1,4 @@
-"""Choosing secondary scanner positions (the paper's §2.1-2.2, DESIGN §5).
+"""Choosing secondary scanner positions (the paper's sections 2.1-2.2).
 
 The grid method: cover the xy plane with square cells, drop empty cells, drop
 cells with too few ground points around their centre, optionally drop cells
@@ -277,8 +277,9 @@ def candidate_cells(points, is_ground, *, cell_size: float = 2.0, min_ground_poi
 
     az = ok.copy()
     if profile is not None:
-        from .scan import simulate_scan
+        from .backends import prepare
 
+        scanner = prepare(pts)
         todo = np.flatnonzero(ok)
         zs = _ground_z(tree, gpts, gcentre, centres[todo], ground_height_radius)
         bar = None
@@ -291,7 +292,7 @@ def candidate_cells(points, is_ground, *, cell_size: float = 2.0, min_ground_poi
                 az[i] = False
             else:
                 origin = np.array([centres[i, 0], centres[i, 1], z + scanner_height])
-                scan = simulate_scan(pts, origin, profile.pattern)
+                scan = scanner.scan(origin, profile.pattern)
                 az[i] = profile.passes(azimuth_histogram(pts[scan.indices], origin, len(profile.counts)))
             if bar is not None:
                 bar.update()

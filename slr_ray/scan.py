@@ -1,17 +1,18 @@
-"""The result of a simulated scan, and the one function that makes one."""
+"""The result of a simulated scan (:class:`Scan`), whichever backend made it.
+
+Scans are made by a backend's scanner (:func:`slr_ray.prepare`) or
+:func:`slr_ray.simulate_scan`; this module owns only the result type.
+"""
 
 from __future__ import annotations
 
-import time
-from dataclasses import dataclass, field, replace
+from dataclasses import dataclass, field
 
 import numpy as np
 
-from .arrays import as_origin, as_points
-from .errors import InputTypeError, InputValueError
 from .pattern import ScanPattern
 
-__all__ = ["Scan", "simulate_scan"]
+__all__ = ["Scan"]
 
 
 @dataclass(frozen=True, eq=False)
@@ -53,10 +54,19 @@ class Scan:
     def __len__(self) -> int:
         return len(self.indices)
 
+    @classmethod
+    def from_keys(cls, keys, ranges, indices, origin, pattern: ScanPattern, backend: str, n_input: int,
+                  seconds: float = 0.0, info: dict | None = None) -> "Scan":
+        """A scan from flat pulse ids ``keys`` (``v * n_azimuth + h``), as the
+        binning reduction produces them; ``indices`` ascending."""
+        return cls(indices=np.asarray(indices).astype(np.intp, copy=False), ranges=ranges,
+                   pulses=pattern.unravel(keys), origin=origin, pattern=pattern, backend=backend,
+                   n_input=int(n_input), seconds=seconds, info=info or {})
+
     @property
     def pulse_ids(self) -> np.ndarray:
         """``(m,) int64`` flat pulse id ``v * n_azimuth + h``."""
-        return self.pulses[:, 0] * self.pattern.n_azimuth + self.pulses[:, 1]
+        return self.pattern.ravel(self.pulses)
 
     def select(self, array):
         """``array[self.indices]``: the scanned points, or any per-point attribute."""
@@ -74,106 +84,3 @@ class Scan:
             "seconds": round(float(self.seconds), 6),
             **self.info,
         }
-
-
-def _scan_from_bins(keys, ranges, idx, origin, pattern, backend, n_input, seconds, info=None):
-    nh = pattern.n_azimuth
-    pulses = np.empty((len(keys), 2), dtype=np.int64)
-    np.floor_divide(keys, nh, out=pulses[:, 0])
-    np.remainder(keys, nh, out=pulses[:, 1])
-    return Scan(
-        indices=idx.astype(np.intp, copy=False),
-        ranges=ranges,
-        pulses=pulses,
-        origin=origin,
-        pattern=pattern,
-        backend=backend,
-        n_input=n_input,
-        seconds=seconds,
-        info=info or {},
-    )
-
-
-def _check_pattern(pattern) -> ScanPattern:
-    if isinstance(pattern, ScanPattern):
-        return pattern
-    if isinstance(pattern, str):
-        from .pattern import preset
-
-        return preset(pattern)
-    if isinstance(pattern, (int, float)) and not isinstance(pattern, bool):
-        return ScanPattern(resolution=pattern)
-    raise InputTypeError(
-        "pattern must be a ScanPattern, a preset name or a resolution in degrees, "
-        f"got {type(pattern).__name__}"
-    )
-
-
-def simulate_scan(points, origin, pattern, backend: str = "binning", **options) -> Scan:
-    """Simulate the scan an ideal static scanner at ``origin`` would record.
-
-    Parameters
-    ----------
-    points : (n, 3) float
-        The cloud, float64 or float32 (widened to float64 before the origin is
-        subtracted, so float32 input gives exactly what its float64 copy gives).
-    origin : (3,) float
-        Scanner position, in the same coordinates as ``points``.
-    pattern : ScanPattern, str or float
-        The scan pattern, a preset name (``"slr"``, ``"syns"``...) or a
-        resolution in degrees.
-    backend : {'binning', 'embree'}
-        ``'binning'`` (default) keeps, per pulse bin, the point with the
-        smallest range (ties to the lowest index): the paper's rule, exact,
-        and the fastest. ``'embree'`` splats the points as discs and returns
-        the point whose disc the ray through each pulse centre meets first
-        (see :mod:`slr_ray.backends.embree`); a point hit by several rays
-        appears once.
-    **options
-        Backend options. binning: ``n_threads`` (default: all cores).
-        embree: those of :class:`slr_ray.backends.embree.DiscScene`
-        (``radius``, ``orientation``, ``segments``, ``engine``...).
-
-    Returns
-    -------
-    Scan
-        Indices into ``points`` (ascending), ranges and pulse bins.
-
-    Raises
-    ------
-    InputValueError
-        bad shape, non-finite rows (with their count), bad origin or options.
-    InputTypeError
-        complex, object or boolean data.
-
-    Examples
-    --------
-    >>> import numpy as np, slr_ray
-    >>> pts = np.array([[1.0, 0, 0], [2.0, 0, 0], [0, 1.0, 0]])
-    >>> scan = slr_ray.simulate_scan(pts, [0, 0, 0], 0.144)
-    >>> scan.indices.tolist()     # the point at 2 m hides behind the one at 1 m
-    [0, 2]
-    """
-    from .backends import get_backend
-
-    pattern = _check_pattern(pattern)
-    impl = get_backend(backend)
-    pts = as_points(points, check_finite=False)  # backends count non-finite rows
-    o = as_origin(origin)
-    t0 = time.perf_counter()
-    scan = impl(pts, o, pattern, **options)
-    return replace(scan, seconds=time.perf_counter() - t0)
-
-
-def _binning(points, origin, pattern, n_threads=None) -> Scan:
-    from .backends.binning import BinTables
-
-    tables = BinTables(origin, pattern, n_threads=n_threads)
-    bad = tables.add(points)
-    if bad:
-        raise InputValueError(
-            f"points has {bad} row(s) with NaN or inf out of {len(points)}; "
-            "remove them first (nothing is dropped silently)"
-        )
-    keys, ranges, idx = tables.winners(points)
-    return _scan_from_bins(keys, ranges, idx, origin, pattern, "binning", len(points), 0.0)

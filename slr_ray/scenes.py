@@ -23,14 +23,11 @@ from .errors import InputValueError
 __all__ = ["RectangleScene", "rectangle_scene", "load_scene_spec", "scene_from_spec",
            "dense_samples", "SCENES_DIR"]
 
-#: Directory of the scene specs shipped with the project (``scenes/`` of the
-#: source tree; ``$SLR_RAY_SCENES`` or ``./scenes`` when installed elsewhere).
-SCENES_DIR = next(
-    (p for p in (Path(os.environ.get("SLR_RAY_SCENES", "")) if os.environ.get("SLR_RAY_SCENES") else None,
-                 Path(__file__).resolve().parent.parent / "scenes", Path.cwd() / "scenes")
-     if p is not None and p.is_dir()),
-    Path(__file__).resolve().parent.parent / "scenes",
-)
+#: Directory of the scene specs and validation configs: those shipped in the
+#: package (``slr_ray/data/scenes``, also ``scenes/`` of the source tree), or
+#: ``$SLR_RAY_SCENES`` when set. Any spec can also be given by path.
+SCENES_DIR = (Path(os.environ["SLR_RAY_SCENES"]) if os.environ.get("SLR_RAY_SCENES")
+              else Path(__file__).resolve().parent / "data" / "scenes")
 
 
 @dataclass

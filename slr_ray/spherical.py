@@ -1,6 +1,6 @@
 """Spherical coordinates and pulse bins of points seen from a scanner (numpy).
 
-These are the readable definitions of DESIGN §2; the binning backend computes
+These are the readable definitions of the ideal scanner (README, "The ideal scanner"); the binning backend computes
 the same quantities fused in a compiled loop. Everything is done in float64
 after subtracting the scanner origin, so a cloud in UTM coordinates (10^6 m)
 bins exactly like the same cloud near 0.
@@ -11,7 +11,8 @@ from __future__ import annotations
 import numpy as np
 
 from .arrays import as_origin, as_points
-from .pattern import ScanPattern
+from .backends.binning import pulse_keys
+from .pattern import ScanPattern, pulse_directions
 
 __all__ = ["spherical_coordinates", "pulse_bins", "pulse_directions"]
 
@@ -68,30 +69,7 @@ def pulse_bins(points, origin, pattern: ScanPattern):
     side of it here as in a scan (numpy's own ``arctan2`` may differ from the
     C library's in the last bit).
     """
-    from .backends.binning import pulse_keys
-
     keys, ranges = pulse_keys(as_points(points), as_origin(origin), pattern)
     visible = keys >= 0
     nh = pattern.n_azimuth
     return np.where(visible, keys // nh, -1), np.where(visible, keys % nh, -1), ranges, visible
-
-
-def pulse_directions(pulses, pattern: ScanPattern) -> np.ndarray:
-    """Unit vectors through the centres of pulses ``(v, h)``.
-
-    Parameters
-    ----------
-    pulses : (m, 2) int
-        Zenith and azimuth bins.
-
-    Returns
-    -------
-    directions : (m, 3) float64
-        Direction of ``(theta_min + (v + 1/2) d_theta, (h + 1/2) d_phi)``.
-    """
-    pulses = np.asarray(pulses)
-    d_theta, d_phi, th0, _ = pattern.radians
-    theta = th0 + (pulses[:, 0] + 0.5) * d_theta
-    phi = (pulses[:, 1] + 0.5) * d_phi
-    s = np.sin(theta)
-    return np.column_stack([s * np.cos(phi), s * np.sin(phi), np.cos(theta)])

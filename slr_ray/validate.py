@@ -145,7 +145,7 @@ def _done_rows(path: Path) -> dict:
     return {(r["scene"], r["primary_resolution"], r["position"], r["backend"], r["truth"]): r for r in rows}
 
 
-def _peak_rss_gib() -> float:
+def peak_rss_gib() -> float:
     import resource
 
     return resource.getrusage(resource.RUSAGE_SELF).ru_maxrss / 2**20
@@ -167,7 +167,7 @@ class _Stages:
     def add(self, scene, res, stage, seconds, count):
         self.w.writerow({"scene": scene, "primary_resolution": res, "stage": stage,
                          "seconds": round(seconds, 2), "count": count,
-                         "peak_rss_gib": round(_peak_rss_gib(), 2)})
+                         "peak_rss_gib": round(peak_rss_gib(), 2)})
         self.f.flush()
 
     def close(self):
@@ -212,7 +212,7 @@ def run_validation(config: ValidationConfig, outdir, progress: bool = True) -> d
     from .meshscan import scan_mesh
     from .pattern import ScanPattern
     from .positions import select_positions
-    from .scan import simulate_scan
+    from .backends import prepare
     from .scenes import scene_from_spec
     from .similarity import similarity
 
@@ -299,6 +299,7 @@ def run_validation(config: ValidationConfig, outdir, progress: bool = True) -> d
                     continue
                 t_loop = time.perf_counter()
                 discs = None
+                binning = prepare(primary.points)
                 for i, pos in enumerate(positions):
                     rows = [(b, t) for b, t in config.wanted(res, i, backends)
                             if key(spec, res, i, b, t) not in done]
@@ -308,17 +309,14 @@ def run_validation(config: ValidationConfig, outdir, progress: bool = True) -> d
                             t0 = time.perf_counter()
                             if b == "embree":
                                 if discs is None:
-                                    from .backends.embree import DiscScene
-
                                     t1 = time.perf_counter()
-                                    discs = DiscScene(primary.points, **({"orientation": "normal"}
-                                                                        | config.embree_options))
+                                    discs = prepare(primary.points, "embree", config.embree_options)
                                     stages.add(spec, res, "embree discs", time.perf_counter() - t1,
                                                len(primary))
                                     t0 = time.perf_counter()
                                 scan = discs.scan(pos, secondary)
                             else:
-                                scan = simulate_scan(primary.points, pos, secondary)
+                                scan = binning.scan(pos, secondary)
                             sec = time.perf_counter() - t0
                             slr = primary.points[scan.indices]
                             for t in [t for bb, t in rows if bb == b]:
@@ -337,7 +335,7 @@ def run_validation(config: ValidationConfig, outdir, progress: bool = True) -> d
                 stages.add(spec, res, "pairs", time.perf_counter() - t_loop, len(positions))
                 if bar is not None and len(positions) < config.positions:
                     bar.update(config.positions - len(positions))
-                del primary, discs
+                del primary, discs, binning
             if spill is not None and spill.exists():
                 shutil.rmtree(spill)
     finally:
@@ -348,7 +346,7 @@ def run_validation(config: ValidationConfig, outdir, progress: bool = True) -> d
             f.close()
     rows = list(_done_rows(csv_path).values())
     return {"config": asdict(config), "csv": str(csv_path), "rows": len(rows), "new_rows": n_new,
-            "seconds": round(time.perf_counter() - t_all, 2), "peak_rss_gib": round(_peak_rss_gib(), 2),
+            "seconds": round(time.perf_counter() - t_all, 2), "peak_rss_gib": round(peak_rss_gib(), 2),
             **_headline(rows)}
 
 
@@ -597,7 +595,7 @@ def hidden_from(scene, points, origin=(0.0, 0.0, 0.0)) -> np.ndarray:
     """Which ``points`` (on the surfaces of ``scene``) a scanner at ``origin``
     cannot see: the segment to the point meets another surface first (ray cast
     on the scene's mesh, 1 mm tolerance)."""
-    from .meshscan import _Caster
+    from .raycast import RayScene
 
     o = np.asarray(origin, np.float64)
     v = np.asarray(points, np.float64) - o
@@ -607,8 +605,8 @@ def hidden_from(scene, points, origin=(0.0, 0.0, 0.0)) -> np.ndarray:
     ok = dist > 0
     dirs = np.zeros_like(v)
     dirs[ok] = v[ok] / dist[ok, None]
-    caster = _Caster(np.asarray(scene.mesh.vertices, np.float64), np.asarray(scene.mesh.faces), o)
-    _, t = caster.cast(np.zeros(3), dirs)
+    caster = RayScene.triangles(np.asarray(scene.mesh.vertices, np.float64), np.asarray(scene.mesh.faces), o)
+    t = caster.intersect(o, dirs, exact=True).distances
     return ok & (t < dist - np.maximum(1e-3, 1e-6 * dist))
 
 

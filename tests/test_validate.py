@@ -254,7 +254,7 @@ def test_miss_breakdown_matches_the_shadow_of_a_wall():
     import trimesh
 
     from slr_ray.meshscan import scan_mesh
-    from slr_ray.scan import simulate_scan
+    from slr_ray import simulate_scan
     from slr_ray.validate import miss_breakdown
 
     v = np.array([[-20, -20, -1], [20, -20, -1], [20, 20, -1], [-20, 20, -1],

@@ -1,127 +1,273 @@
-"""The embree backend: points splatted as small discs, one ray per pulse.
+"""The embree backend: points splatted as discs, one ray per pulse.
 
-Each point becomes a disc (a polygon of ``segments`` vertices that contains
-the disc, as ``segments - 2`` triangles); all discs go into one Embree BVH (embreex), and one ray is
-cast through the centre of every pulse. The point whose disc is hit first is
-returned. Where the binning backend answers "the closest point in the pulse's
-pyramid", this answers "the first surface along the pulse's centre ray", with
-the surface reconstructed from the points: it exposes binning artefacts (a
-point far behind a surface, returned only because no point of the surface
-fell in that pulse).
+Every point becomes a disc; all discs go into one Embree BVH, built once when
+the cloud is prepared (:class:`DiscScanner`), and each :meth:`~DiscScanner.scan`
+casts one ray through the centre of every pulse. The point whose disc is hit
+is returned. Where the binning backend answers "the closest point in the
+pulse's pyramid", this answers "the first surface along the pulse's centre
+ray", with the surface reconstructed from the points: it exposes binning
+artefacts (a point far behind a surface, returned only because no point of the
+surface fell in that pulse).
 
-Choices, all options of :class:`DiscScene`, with the defaults picked from
-``benchmarks/bench_tradeoff.py`` (README, "Speed and accuracy"):
+Options (:class:`EmbreeOptions`; defaults measured by
+``benchmarks/bench_tradeoff.py``, README "Speed and accuracy"):
 
 radius
     a fixed value in metres, an ``(n,)`` array, ``"spacing"`` (``radius_scale``
     times the mean distance to the ``k`` nearest neighbours: adapts to any
     cloud) or ``"footprint"`` (``radius_scale`` times the primary pulse
     footprint ``R_primary * tan(primary_resolution)``: needs
-    ``primary_origin`` and ``primary_resolution``).
-    Default ``"spacing"``: as accurate as any other setting measured, and
-    it needs nothing but the cloud; fixed 2 cm discs were the least
-    accurate, half-size discs leak, double-size discs hide.
+    ``primary_origin`` and ``primary_resolution``). Computed radii never fall
+    below ``min_radius`` (default a tenth of the cloud's median spacing), so
+    duplicate points get a disc too; a cloud with no spacing at all (one
+    point, identical points) gets ``fallback_radius``.
 orientation
-    ``"billboard"``: discs face the scanning position (a BVH per position);
-    ``"normal"`` (default): discs lie along normals estimated from the ``k``
-    nearest neighbours (one BVH, reused for every position). Same accuracy
-    against pulse-centre truth, 3-4 times less time per position.
-segments
-    rim vertices of each disc's polygon (``segments - 2`` triangles).
-    Default 3 (one triangle): as accurate as 5 or 7 and the fastest to
-    build and cast.
+    ``"normal"`` (default): discs lie across normals estimated from the ``k``
+    nearest neighbours (PCA; a collinear or degenerate neighbourhood takes the
+    direction to the primary scanner, or +z, made orthogonal to its line);
+    ``"billboard"``: every disc faces the ray that meets it (Embree's
+    ``DISC_POINT``); ``"primary"``: discs face the primary scanner
+    (``primary_origin``). All three use one BVH for every position.
+engine
+    ``"embree"`` (default): Embree's own disc primitives, exact discs;
+    ``"fan"``: each disc as a polygon of ``segments`` vertices circumscribing
+    it (``segments - 2`` triangles) in the same Embree module; ``"open3d"``:
+    the same polygons in Open3D's ``RaycastingScene`` (another Embree front
+    end; no tie rule). The polygon engines are kept to cross-check the exact
+    discs (tests measure how far they agree).
+ties
+    Tie window in disc radii (default 1): among discs hit within ``ties``
+    times the first disc's radius beyond the first hit, the one whose centre
+    lies nearest the ray wins, then the lowest index
+    (:mod:`slr_ray.raycast`). Results no longer depend on float32 rounding,
+    and on a sampled surface each ray returns the point of its own pulse
+    rather than a larger neighbouring disc. 0 keeps Embree's first hit.
 
-Embree works in float32: coordinates are recentred in float64 (on the scanner
-for billboards, on the cloud's centre for shared BVHs) before conversion, and
-ranges are recomputed in float64 from the input points. Points closer to the
-scanner than the reach of their own polygon are not splatted (it could contain
-the ray origin and hide everything), and points the pattern cannot see (range
-limits, field of view) are not returned.
+Embree works in float32: coordinates are recentred in float64 on the cloud's
+centre before conversion; the tie rule and returned ranges are computed in
+float64 from the input points. A scanner standing among the points needs no
+rebuild: discs whose reach holds the scanner are skipped by the ray query.
+Points the pattern cannot see themselves (range limits, field of view) are
+not returned.
 """
 
 from __future__ import annotations
 
 import math
 import time
-from concurrent.futures import ThreadPoolExecutor
+from dataclasses import dataclass
 
 import numpy as np
+from scipy.spatial import cKDTree
 
 from ..arrays import as_origin, as_points
 from ..errors import InputValueError, MissingDependencyError
-from ..pattern import ScanPattern
-from .binning import default_threads, pulse_keys
+from ..pattern import as_pattern, pulse_rays
+from ..raycast import RayScene
+from ..scan import Scan
+from ..threads import default_threads
+from .base import BackendOptions, Scanner
+from .binning import pulse_keys, ranges_of
 
-__all__ = ["DiscScene", "scan_points", "disc_radii", "estimate_normals"]
+__all__ = ["EmbreeOptions", "DiscScanner", "disc_radii", "estimate_normals", "neighbourhoods",
+           "RADIUS_MODES", "ORIENTATIONS", "ENGINES"]
 
 RADIUS_MODES = ("spacing", "footprint")
-ENGINES = ("embreex", "open3d")
-ORIENTATIONS = ("billboard", "normal")
+ORIENTATIONS = ("normal", "billboard", "primary")
+ENGINES = ("embree", "fan", "open3d")
 
 
-def _embree():
-    try:
-        from embreex import rtcore_scene
-        from embreex.mesh_construction import TriangleMesh
-    except ImportError as exc:  # pragma: no cover - embreex is a dependency
-        raise MissingDependencyError("the embree backend needs embreex: pip install embreex") from exc
-    return rtcore_scene, TriangleMesh
+@dataclass(frozen=True)
+class EmbreeOptions(BackendOptions):
+    """Options of the embree backend (module docstring).
 
-
-def _knn(points, k):
-    from scipy.spatial import cKDTree
-
-    c = points.mean(axis=0)
-    tree = cKDTree(points - c)
-    k = min(k + 1, len(points))
-    d, i = tree.query(points - c, k=k, workers=-1)
-    return d[:, 1:], i[:, 1:]
-
-
-def disc_radii(points, radius="spacing", *, k: int = 6, radius_scale: float = 1.0,
-               primary_origin=None, primary_resolution=None, knn=None) -> np.ndarray:
-    """Disc radius of every point, ``(n,) float64`` (see the module docstring).
-
-    ``knn``: the ``(distances, indices)`` of at least ``k`` nearest neighbours
-    (excluding the point itself) if already computed.
+    Attributes
+    ----------
+    radius : float, (n,) float or {'spacing', 'footprint'}
+    radius_scale : float
+        Multiplies every radius.
+    k : int
+        Neighbours for ``'spacing'`` radii and for normals.
+    orientation : {'normal', 'billboard', 'primary'}
+    engine : {'embree', 'fan', 'open3d'}
+    segments : int
+        Rim vertices of a disc's polygon (fan engines only; >= 3).
+    ties : float
+        Tie window in disc radii; 0 turns the tie rule off.
+    primary_origin : (3,) float, optional
+        The primary scanner (``radius='footprint'``, ``orientation='primary'``,
+        and the fallback direction of degenerate normals).
+    primary_resolution : float, optional
+        Degrees (``radius='footprint'``).
+    normals : (n, 3) float, optional
+        Normals to use instead of estimating them (``orientation='normal'``).
+    min_radius : float, optional
+        Floor of computed radii (default: 0.1 x the median spacing).
+    fallback_radius : float
+        Radius when the cloud has no spacing (one point, identical points).
+    chunk : int
+        Points per neighbour query (bounds memory: about 100 bytes a point).
+    n_threads : int, optional
+        Threads casting rays (default: all cores).
     """
-    n = len(points)
+
+    radius: object = "spacing"
+    radius_scale: float = 1.0
+    k: int = 6
+    orientation: str = "normal"
+    engine: str = "embree"
+    segments: int = 3
+    ties: float = 1.0
+    primary_origin: object = None
+    primary_resolution: float | None = None
+    normals: object = None
+    min_radius: float | None = None
+    fallback_radius: float = 0.01
+    chunk: int = 1 << 20
+    n_threads: int | None = None
+
+    def __post_init__(self):
+        if isinstance(self.radius, str) and self.radius not in RADIUS_MODES:
+            raise InputValueError(f"radius must be a number, an array or one of {RADIUS_MODES}, "
+                                  f"got {self.radius!r}")
+        if self.orientation not in ORIENTATIONS:
+            raise InputValueError(f"orientation must be one of {ORIENTATIONS}, got {self.orientation!r}")
+        if self.engine not in ENGINES:
+            raise InputValueError(f"engine must be one of {ENGINES}, got {self.engine!r}")
+        if int(self.segments) != self.segments or self.segments < 3:
+            raise InputValueError(f"segments must be an integer >= 3, got {self.segments!r}")
+        if int(self.k) != self.k or self.k < 1:
+            raise InputValueError(f"k must be an integer >= 1, got {self.k!r}")
+        for name in ("radius_scale", "fallback_radius"):
+            v = getattr(self, name)
+            if not (isinstance(v, (int, float)) and math.isfinite(v) and v > 0):
+                raise InputValueError(f"{name} must be a finite number > 0, got {v!r}")
+        if not (isinstance(self.ties, (int, float)) and math.isfinite(self.ties) and self.ties >= 0):
+            raise InputValueError(f"ties must be a finite number >= 0, got {self.ties!r}")
+        if self.min_radius is not None and not (math.isfinite(self.min_radius) and self.min_radius > 0):
+            raise InputValueError(f"min_radius must be a finite number > 0, got {self.min_radius!r}")
+        if self.orientation == "billboard" and self.engine != "embree":
+            raise InputValueError("orientation='billboard' needs engine='embree' (ray-facing discs)")
+        if self.orientation == "primary" and self.primary_origin is None:
+            raise InputValueError("orientation='primary' needs primary_origin")
+        if isinstance(self.radius, str) and self.radius == "footprint" and (
+                self.primary_origin is None or self.primary_resolution is None):
+            raise InputValueError("radius='footprint' needs primary_origin and primary_resolution")
+        if int(self.chunk) != self.chunk or self.chunk < 1:
+            raise InputValueError(f"chunk must be an integer >= 1, got {self.chunk!r}")
+
+    @property
+    def reach(self) -> float:
+        """How far a disc's stand-in reaches, in radii (polygons circumscribe the disc)."""
+        return 1.0 if self.engine == "embree" else 1.0 / math.cos(math.pi / self.segments)
+
+
+def neighbourhoods(points, k: int, chunk: int = 1 << 20):
+    """The ``k`` nearest neighbours of every point, chunk by chunk.
+
+    Yields ``(start, distances (c, k), indices (c, k))`` for consecutive
+    chunks of ``chunk`` points (the point itself excluded; duplicates of it
+    count as neighbours at distance 0). One kd-tree, queried on all cores;
+    memory is the tree plus one chunk's arrays, never ``(n, k)`` for all.
+    """
+    pts = np.asarray(points)
+    n = len(pts)
+    k = min(k, n - 1)
+    if k < 1:
+        return
+    c = 0.5 * (pts.min(axis=0) + pts.max(axis=0))
+    tree = cKDTree(pts - c, balanced_tree=False, compact_nodes=False)
+    for s in range(0, n, chunk):
+        q = pts[s:s + chunk] - c
+        d, i = tree.query(q, k=k + 1, workers=-1)
+        # the point itself is one of the zero-distance answers; drop one column of
+        # it (its own index where present, else the last)
+        own = i == np.arange(s, s + len(q))[:, None]
+        drop = np.where(own.any(axis=1), own.argmax(axis=1), k)
+        keep = np.ones_like(own)
+        keep[np.arange(len(q)), drop] = False
+        yield s, d[keep].reshape(len(q), k), i[keep].reshape(len(q), k)
+
+
+def _fallback_directions(points, primary_origin):
+    """Direction used where a normal is undefined: to the primary scanner, or +z."""
+    if primary_origin is None:
+        return np.broadcast_to([0.0, 0.0, 1.0], points.shape)
+    h = as_origin(primary_origin, "primary_origin") - points
+    norm = np.linalg.norm(h, axis=1, keepdims=True)
+    return np.where(norm > 0, h / np.where(norm > 0, norm, 1), [[0.0, 0.0, 1.0]])
+
+
+def disc_radii(points, radius="spacing", *, k: int = 6, radius_scale: float = 1.0, primary_origin=None,
+               primary_resolution=None, min_radius=None, fallback_radius: float = 0.01,
+               spacing=None) -> np.ndarray:
+    """Disc radius of every point, ``(n,) float64`` (module docstring).
+
+    ``spacing``: the ``(n,)`` mean distance to the ``k`` nearest neighbours
+    when already computed. Computed radii ('spacing', 'footprint') are floored
+    at ``min_radius`` (default 0.1 x the median positive spacing or radius) and
+    never fail on duplicate points; given radii must be finite and > 0.
+    """
+    pts = np.asarray(points)
+    n = len(pts)
     if isinstance(radius, str):
         if radius == "spacing":
-            if n < 2:
-                return np.full(n, 0.01 * radius_scale)
-            d = (knn if knn is not None else _knn(points, k))[0][:, :k]
-            r = d.mean(axis=1)
+            if spacing is None:
+                spacing = np.zeros(n)
+                for s, d, _ in neighbourhoods(pts, k):
+                    spacing[s:s + len(d)] = d.mean(axis=1)
+            r = np.asarray(spacing, np.float64) * radius_scale
         elif radius == "footprint":
             if primary_origin is None or primary_resolution is None:
                 raise InputValueError("radius='footprint' needs primary_origin and primary_resolution")
-            rp = np.linalg.norm(points - as_origin(primary_origin, "primary_origin"), axis=1)
-            r = rp * np.tan(np.radians(float(primary_resolution)))
+            rp = np.linalg.norm(pts - as_origin(primary_origin, "primary_origin"), axis=1)
+            r = rp * math.tan(math.radians(float(primary_resolution))) * radius_scale
         else:
             raise InputValueError(f"radius must be a number, an array or one of {RADIUS_MODES}, got {radius!r}")
-    else:
-        r = np.broadcast_to(np.asarray(radius, dtype=np.float64), (n,)).copy()
-    r = r * radius_scale
-    if not np.all(np.isfinite(r)) or np.any(r <= 0):
+        positive = r[r > 0]
+        floor = min_radius if min_radius is not None else (
+            0.1 * float(np.median(positive)) if len(positive) else fallback_radius)
+        return np.maximum(r, floor)
+    r = np.broadcast_to(np.asarray(radius, dtype=np.float64), (n,)) * radius_scale
+    if n and not (np.all(np.isfinite(r)) and r.min() > 0):
         raise InputValueError(f"disc radii must be finite and > 0 ({np.count_nonzero(~(r > 0))} are not)")
-    return r
+    return r.copy()
 
 
-def estimate_normals(points, k: int = 10, knn=None) -> np.ndarray:
-    """Unit normals ``(n, 3)`` by PCA of the ``k`` nearest neighbours (smallest
-    eigenvector); ``knn`` as in :func:`disc_radii`."""
-    if len(points) < 3:
-        return np.tile([0.0, 0.0, 1.0], (len(points), 1))
-    idx = (knn if knn is not None else _knn(points, k))[1][:, :k]
-    out = np.empty((len(points), 3))
-    step = 1 << 20
-    for s in range(0, len(points), step):
-        nb = points[idx[s:s + step]]
-        nb = nb - nb.mean(axis=1, keepdims=True)
-        cov = np.einsum("nki,nkj->nij", nb, nb)
-        _, vec = np.linalg.eigh(cov)
-        out[s:s + step] = vec[:, :, 0]
+def estimate_normals(points, k: int = 10, primary_origin=None, chunk: int = 1 << 20) -> np.ndarray:
+    """Unit normals ``(n, 3)`` by PCA of each point and its ``k`` nearest
+    neighbours (smallest eigenvector); collinear or empty neighbourhoods take
+    the direction to ``primary_origin`` (or +z) made orthogonal to the line."""
+    pts = np.asarray(points, np.float64)
+    out = np.array(_fallback_directions(pts, primary_origin))
+    for s, _, idx in neighbourhoods(pts, k, chunk):
+        out[s:s + len(idx)] = _chunk_normals(pts, s, idx, primary_origin)
     return out
+
+
+def _chunk_normals(pts, s, idx, primary_origin):
+    """PCA normals of points ``s .. s + len(idx)`` with their neighbours ``idx``."""
+    own = pts[s:s + len(idx)]
+    nb = np.concatenate([own[:, None, :], pts[idx]], axis=1)
+    nb = nb - nb.mean(axis=1, keepdims=True)
+    cov = np.einsum("nki,nkj->nij", nb, nb)
+    w, vec = np.linalg.eigh(cov)
+    normals = vec[:, :, 0].copy()
+    fallback = np.array(_fallback_directions(own, primary_origin))
+    scale = w[:, 2]
+    # identical points leave a covariance of rounding noise only: no direction
+    tiny = (1e-9 * (1.0 + np.abs(own).max(axis=1))) ** 2 * nb.shape[1]
+    empty = ~(scale > tiny)
+    line = ~empty & (w[:, 1] <= 1e-9 * scale)
+    if line.any():  # collinear: orthogonal to the line, towards the fallback direction
+        axis = vec[line, :, 2]
+        h = fallback[line] - np.einsum("ij,ij->i", fallback[line], axis)[:, None] * axis
+        hn = np.linalg.norm(h, axis=1, keepdims=True)
+        alt = np.cross(axis, np.where(np.abs(axis[:, [0]]) < 0.9, [[1.0, 0, 0]], [[0, 1.0, 0]]))
+        alt /= np.linalg.norm(alt, axis=1, keepdims=True)
+        normals[line] = np.where(hn > 1e-12, h / np.where(hn > 1e-12, hn, 1), alt)
+    normals[empty] = fallback[empty]
+    return normals
 
 
 def _frames(normals):
@@ -134,225 +280,131 @@ def _frames(normals):
 
 
 def _fan(centres, normals, radii, segments):
-    """Splats as polygons: vertices (n * segments, 3) float32, faces (n * (segments - 2), 3).
+    """Discs as polygons: vertices (n * segments, 3) float64, faces (n * (segments - 2), 3).
 
-    Each disc is a regular polygon of ``segments`` rim vertices that contains
-    the disc, triangulated as a fan from its first rim vertex. There is no
-    vertex at the disc centre: a ray through a point exactly (the common case
-    when a scan is scanned again from its own origin) would hit six triangles
-    at their shared vertex, which Embree's fast intersection test can miss.
-    With an odd ``segments`` no edge passes through the centre either.
+    Each disc is a regular polygon of ``segments`` rim vertices that
+    circumscribes it, triangulated as a fan from its first rim vertex. There
+    is no vertex at the disc centre: a ray through a point exactly (the common
+    case when a scan is scanned again from its own origin) would meet several
+    triangles at their shared vertex, which Embree's fast test can miss. With
+    an odd ``segments`` no edge passes through the centre either.
     """
     n = len(centres)
     u, w = _frames(normals)
     ang = 2 * np.pi * (np.arange(segments) + 0.25) / segments
-    rim = radii / np.cos(np.pi / segments)  # the polygon circumscribes the disc
-    verts = np.empty((n, segments, 3), dtype=np.float32)
+    rim = radii / np.cos(np.pi / segments)
+    verts = np.empty((n, segments, 3))
     for j, a in enumerate(ang):
         verts[:, j] = centres + rim[:, None] * (np.cos(a) * u + np.sin(a) * w)
     base = (np.arange(n, dtype=np.int64) * segments)[:, None]
     j = np.arange(1, segments - 1)
-    faces = np.empty((n, segments - 2, 3), dtype=np.int32)
+    faces = np.empty((n, segments - 2, 3), dtype=np.int64)
     faces[:, :, 0] = base
     faces[:, :, 1] = base + j
     faces[:, :, 2] = base + j + 1
     return verts.reshape(-1, 3), faces.reshape(-1, 3)
 
 
-class DiscScene:
-    """Points as discs in an Embree BVH, ready to scan from many positions.
+class DiscScanner(Scanner):
+    """A cloud as discs in one Embree BVH, ready to scan from many positions.
 
-    Parameters
-    ----------
-    points : (n, 3) float
-    radius : float, (n,) float, {'spacing', 'footprint'}
-    orientation : {'normal', 'billboard'}
-        ``'normal'`` builds one BVH now and reuses it for every :meth:`scan`;
-        ``'billboard'`` builds a BVH per scan, facing that scan's origin.
-    segments : int
-        Rim vertices of the polygon standing for a disc (>= 3; it is made of
-        ``segments - 2`` triangles). Odd values keep every triangle edge off
-        the disc centre.
-    normals : (n, 3) float, optional
-        Normals to use with ``'normal'`` instead of estimating them.
-    k : int
-        Neighbours for ``'spacing'`` radii and for normals.
-    radius_scale : float
-        Multiplies every radius.
-    primary_origin, primary_resolution
-        For ``radius='footprint'``: the primary scanner and its resolution (deg).
-    engine : {'embreex', 'open3d'}
-        The Embree front end: embreex (default; copies triangles into Embree
-        slowly, about 0.8 s per million) or Open3D's ``RaycastingScene``
-        (copies fast, casts on all cores; needs open3d and libusb).
-    robust : bool
-        Embree's robust mode (watertight edges; slower; embreex only). With the default
-        False, fans still do not leak: rays through the shared edges of a
-        fan hit one of its triangles.
-    n_threads : int, optional
-        Threads casting rays (default: all cores).
+    Made by ``slr_ray.prepare(points, backend="embree", **options)``; options
+    are those of :class:`EmbreeOptions`. Neighbours, radii, normals and the
+    BVH are computed here, once; :meth:`scan` only casts rays.
 
     Attributes
     ----------
     radii : (n,) float64
+    normals : (n, 3) float64 or None
+        None for ray-facing discs (``orientation='billboard'``).
     build_seconds : float
-        Time to build the last BVH.
+        Time to build the BVH.
+    neighbour_seconds : float
+        Time for neighbours, radii and normals.
     nbytes : int
-        Bytes of the vertex and index arrays handed to Embree (the BVH itself
-        takes about as much again).
+        Bytes of the arrays shared with the ray engine (the BVH comes on top).
     """
 
-    def __init__(self, points, radius="spacing", orientation="normal", segments: int = 3, *,
-                 normals=None, k: int = 6, radius_scale: float = 1.0, primary_origin=None,
-                 primary_resolution=None, robust: bool = False, n_threads: int | None = None,
-                 engine: str = "embreex"):
-        self.points = as_points(points).astype(np.float64, copy=False)
-        if orientation not in ORIENTATIONS:
-            raise InputValueError(f"orientation must be one of {ORIENTATIONS}, got {orientation!r}")
-        if int(segments) != segments or segments < 3:
-            raise InputValueError(f"segments must be an integer >= 3, got {segments!r}")
-        if engine not in ENGINES:
-            raise InputValueError(f"engine must be one of {ENGINES}, got {engine!r}")
-        self.engine = engine
-        self.orientation = orientation
-        self.segments = int(segments)
-        self.robust = bool(robust)
-        self.n_threads = int(n_threads or default_threads())
+    backend = "embree"
+
+    def __init__(self, points, options: EmbreeOptions | None = None):
         t0 = time.perf_counter()
-        knn = None
-        if isinstance(radius, str) and radius == "spacing" and orientation == "normal" and normals is None \
-                and len(self.points) >= 3:
-            knn = _knn(self.points, max(k, 6))  # one neighbour query serves radii and normals
-        self.radii = disc_radii(self.points, radius, k=k, radius_scale=radius_scale,
-                                primary_origin=primary_origin, primary_resolution=primary_resolution, knn=knn)
-        self.prepare_seconds = time.perf_counter() - t0
-        self.options = {"radius": radius if isinstance(radius, str) else "fixed",
-                        "orientation": orientation, "segments": self.segments, "engine": engine,
-                        "radius_scale": radius_scale, "k": k}
+        options = options or EmbreeOptions()
+        pts = as_points(points).astype(np.float64, copy=False)
+        super().__init__(pts, options)
+        o = options
+        n = len(pts)
+        need_spacing = isinstance(o.radius, str) and o.radius == "spacing"
+        need_normals = o.orientation == "normal" and o.normals is None
+        spacing = np.zeros(n) if need_spacing else None
+        normals = None
+        if o.orientation == "normal":
+            normals = (np.array(_fallback_directions(pts, o.primary_origin)) if need_normals
+                       else np.asarray(as_points(o.normals, "normals"), np.float64))
+            if len(normals) != n:
+                raise InputValueError(f"normals has {len(normals)} rows for {n} points")
+        elif o.orientation == "primary":
+            normals = np.array(_fallback_directions(pts, o.primary_origin))
+        if need_spacing or need_normals:
+            # one neighbour query per chunk serves radii and normals
+            for s, d, idx in neighbourhoods(pts, o.k, o.chunk):
+                if need_spacing:
+                    spacing[s:s + len(d)] = d.mean(axis=1)
+                if need_normals:
+                    normals[s:s + len(idx)] = _chunk_normals(pts, s, idx, o.primary_origin)
+        self.radii = disc_radii(pts, o.radius, k=o.k, radius_scale=o.radius_scale,
+                                primary_origin=o.primary_origin, primary_resolution=o.primary_resolution,
+                                min_radius=o.min_radius, fallback_radius=o.fallback_radius, spacing=spacing)
+        del spacing
+        self.normals = normals
+        self.neighbour_seconds = time.perf_counter() - t0
+        t1 = time.perf_counter()
+        self._centre = 0.5 * (pts.min(axis=0) + pts.max(axis=0)) if n else np.zeros(3)
         self._scene = None
-        self.build_seconds = 0.0
-        self.nbytes = 0
-        if orientation == "normal":
-            t0 = time.perf_counter()
-            if normals is None:
-                normals = estimate_normals(self.points, max(k, 6), knn=knn)
-                del knn
+        if o.engine == "embree":
+            self._scene = RayScene.discs(pts, self.radii, normals, centre=self._centre)
+            self._per_point = 1
+        else:
+            self._per_point = o.segments - 2
+            verts, faces = _fan(pts, normals, self.radii, o.segments)
+            if o.engine == "fan":
+                self._scene = RayScene.triangles(verts, faces, centre=self._centre,
+                                                 owners=(pts, self.radii, self._per_point, o.reach, normals))
             else:
-                normals = as_points(normals, "normals").astype(np.float64)
-                if len(normals) != len(self.points):
-                    raise InputValueError(f"normals has {len(normals)} rows for {len(self.points)} points")
-            self.normals = normals
-            self.prepare_seconds += time.perf_counter() - t0
-            self._centre = 0.5 * (self.points.min(axis=0) + self.points.max(axis=0)) if len(self.points) else np.zeros(3)
-            self._ids = np.arange(len(self.points))
-            self._build(self.points, self.normals, self.radii, self._centre, self._ids)
+                self._scene = _Open3DFans(verts - self._centre, faces)
+            del verts, faces
+        self.nbytes = self._scene.nbytes
+        self.build_seconds = time.perf_counter() - t1
+        self.prepare_seconds = time.perf_counter() - t0
 
-    def _build(self, pts, normals, radii, centre, ids):
-        if self.engine == "open3d":
-            return self._build_open3d(pts, normals, radii, centre, ids)
-        rtcore_scene, TriangleMesh = _embree()
-        t0 = time.perf_counter()
-        scene = rtcore_scene.EmbreeScene(robust=self.robust) if self.robust else rtcore_scene.EmbreeScene()
-        if len(pts):
-            verts, faces = _fan(pts - centre, normals, radii, self.segments)
-            TriangleMesh(scene, verts, faces)
-            self.nbytes = verts.nbytes + faces.nbytes
-        self._scene, self._scene_ids, self._scene_centre = scene, ids, centre
-        self.build_seconds = time.perf_counter() - t0
-
-    def _build_open3d(self, pts, normals, radii, centre, ids):
-        try:
-            import open3d as o3d
-        except ImportError as exc:
-            raise MissingDependencyError(
-                "engine='open3d' needs open3d (pip install open3d; apt-get install libusb-1.0-0)") from exc
-        t0 = time.perf_counter()
-        scene = o3d.t.geometry.RaycastingScene()
-        if len(pts):
-            verts, faces = _fan(pts - centre, normals, radii, self.segments)
-            scene.add_triangles(o3d.core.Tensor(verts), o3d.core.Tensor(faces.astype(np.uint32)))
-            self.nbytes = verts.nbytes + faces.nbytes
-        self._scene, self._scene_ids, self._scene_centre = scene, ids, centre
-        self.build_seconds = time.perf_counter() - t0
-
-    def _cast_open3d(self, origin_local, dirs, tfar):
-        import open3d as o3d
-
-        rays = np.empty((len(dirs), 6), np.float32)
-        rays[:, :3] = origin_local
-        rays[:, 3:] = dirs
-        ans = self._scene.cast_rays(o3d.core.Tensor(rays), nthreads=self.n_threads)
-        prim = ans["primitive_ids"].numpy().astype(np.int64)
-        t = ans["t_hit"].numpy()
-        prim[(prim == o3d.t.geometry.RaycastingScene.INVALID_ID) | ~(t <= tfar)] = -1
-        return prim, t
-
-    def _cast(self, origin_local, dirs, tfar):
-        if self.engine == "open3d":
-            return self._cast_open3d(origin_local, dirs, tfar)
-        o32 = np.broadcast_to(origin_local.astype(np.float32), dirs.shape).copy()
-        d32 = dirs.astype(np.float32)
-        prim = np.empty(len(dirs), np.int32)
-        dists = np.full(len(dirs), tfar, np.float32)
-        n_threads = min(self.n_threads, max(1, len(dirs) // 50_000))
-        bounds = np.linspace(0, len(dirs), n_threads + 1).astype(int)
-
-        def run(i):
-            a, b = bounds[i], bounds[i + 1]
-            out = self._scene.run(o32[a:b], d32[a:b], dists=dists[a:b].copy(), output=True)
-            prim[a:b] = out["primID"]
-            dists[a:b] = out["tfar"]
-
-        if n_threads > 1:
-            with ThreadPoolExecutor(n_threads) as pool:
-                list(pool.map(run, range(n_threads)))
-        else:
-            run(0)
-        return prim, dists
-
-    def _prepare(self, origin, pattern):
-        """Pulse keys and ranges of every point from ``origin``; (re)build the BVH if needed."""
-        keys, ranges = pulse_keys(self.points, origin, pattern)
-        seen = keys >= 0
-        build = 0.0
-        # the polygon standing for a disc reaches out to radius / cos(pi / segments)
-        reach = self.radii / math.cos(math.pi / self.segments)
-        if self.orientation == "billboard":
-            # splat only what the pattern can see, and nothing whose polygon holds the origin
-            ids = np.flatnonzero(seen & (ranges > reach))
-            pts = self.points[ids]
-            self._build(pts, origin - pts, self.radii[ids], origin, ids)
-            build = self.build_seconds
-        else:
-            ids_close = np.flatnonzero(ranges <= reach)
-            if len(ids_close):
-                # discs holding the origin would hide everything: rebuild without them
-                keep = np.setdiff1d(self._ids, ids_close)
-                self._build(self.points[keep], self.normals[keep], self.radii[keep], self._centre, keep)
-                build = self.build_seconds
-            elif self._scene_ids is not self._ids:
-                self._build(self.points, self.normals, self.radii, self._centre, self._ids)
-                build = self.build_seconds
-        return seen, ranges, build
+    def _cast(self, origin, dirs, tfar):
+        o = self.options
+        if o.engine == "open3d":
+            return self._scene.cast(origin - self._centre, dirs, tfar, self._per_point, self._open3d_start)
+        hits = self._scene.intersect(origin, dirs, tfar=tfar, ties=o.ties, skip_containing=True,
+                                     n_threads=o.n_threads)
+        return hits.owners, hits.distances
 
     def _hits(self, origin, pattern, rays_per_batch=1 << 21):
         """Every ray that hits a disc: (point index, t, v, h) arrays."""
-        from ..meshscan import _pulse_grid
-
-        local = origin - self._scene_centre
         rmin, rmax = pattern.range_limits
-        reach = self.radii.max(initial=0.0) / math.cos(math.pi / self.segments)
-        tfar = float(np.float32(min(rmax + 2 * reach, 3e37)))
+        reach = self.radii.max(initial=0.0) * self.options.reach
+        tfar = min(rmax + 2 * reach, 3e37)
+        if self.options.engine == "open3d":
+            # Open3D has no filter: rays start beyond the discs that hold the scanner
+            d = np.linalg.norm(self.points - origin, axis=1)
+            inside = d <= self.radii * self.options.reach
+            self._open3d_start = float((d + self.radii * self.options.reach)[inside].max(initial=0.0))
         nv, nh = pattern.shape
         rows_per = max(1, rays_per_batch // nh)
         parts = []
         for r0 in range(0, nv, rows_per):
-            dirs, vv, hh = _pulse_grid(pattern, slice(r0, min(nv, r0 + rows_per)), 1)
-            prim, t = self._cast(local, dirs, tfar)
-            hit = prim >= 0
-            parts.append((self._scene_ids[prim[hit] // (self.segments - 2)], t[hit], vv[hit], hh[hit]))
+            dirs, vv, hh = pulse_rays(pattern, slice(r0, min(nv, r0 + rows_per)))
+            pt, t = self._cast(origin, dirs, tfar)
+            hit = pt >= 0
+            parts.append((pt[hit], t[hit], vv[hit], hh[hit]))
         if not parts:
-            return np.empty(0, np.int64), np.empty(0, np.float32), np.empty(0, np.int64), np.empty(0, np.int64)
+            return np.empty(0, np.int64), np.empty(0), np.empty(0, np.int64), np.empty(0, np.int64)
         return tuple(np.concatenate([p[j] for p in parts]) for j in range(4))
 
     def ray_hits(self, origin, pattern):
@@ -363,65 +415,76 @@ class DiscScene:
         pulses : (k, 2) int64
             ``(v, h)`` of each ray that hit.
         indices : (k,) intp
-            The point whose disc it hit first (a point may appear for several pulses).
-        distances : (k,) float32
+            The point whose disc it hit (a point may appear for several pulses).
+        distances : (k,) float64
             Distance along the ray to the disc.
         """
-        from ..scan import _check_pattern
-
-        pattern = _check_pattern(pattern)
-        origin = as_origin(origin)
-        self._prepare(origin, pattern)
-        pt, t, v, h = self._hits(origin, pattern)
+        pt, t, v, h = self._hits(as_origin(origin), as_pattern(pattern))
         return np.column_stack([v, h]), pt.astype(np.intp), t
 
-    def scan(self, origin, pattern, rays_per_batch: int = 1 << 21):
-        """Scan the discs from ``origin`` with ``pattern``; returns a :class:`~slr_ray.Scan`.
+    def scan(self, origin, pattern, rays_per_batch: int = 1 << 21) -> Scan:
+        """Scan the discs from ``origin`` with ``pattern``.
 
         A point hit by several rays appears once, with the pulse of its
-        nearest ray. ``info`` of the result holds ``build_seconds`` (0 when
-        the BVH was reused), ``cast_seconds``, ``rays`` and ``ray_hits``
-        (rays that hit a disc).
+        nearest ray. ``info`` of the result holds ``cast_seconds``, ``rays``
+        and ``ray_hits`` (rays that hit a disc) and the options.
         """
         return self.scan_and_rays(origin, pattern, rays_per_batch)[0]
 
     def scan_and_rays(self, origin, pattern, rays_per_batch: int = 1 << 21):
         """:meth:`scan` and :meth:`ray_hits` from one cast: ``(scan, (pulses, indices, distances))``."""
-        from ..scan import Scan, _check_pattern
-
-        pattern = _check_pattern(pattern)
+        pattern = as_pattern(pattern)
         origin = as_origin(origin)
         t_start = time.perf_counter()
-        seen, ranges, build = self._prepare(origin, pattern)
-        t_cast = time.perf_counter()
         pt, tt, v, h = self._hits(origin, pattern, rays_per_batch)
-        cast = time.perf_counter() - t_cast
+        cast = time.perf_counter() - t_start
         rays = (np.column_stack([v, h]), pt.astype(np.intp), tt)
         n_ray_hits = len(pt)
-        ok = seen[pt]  # points the pattern itself would not see are not returned
+        # points the pattern itself would not see (range limits, field of view) are not returned
+        uniq, inverse = np.unique(pt, return_inverse=True)
+        keys, _ = pulse_keys(self.points[uniq], origin, pattern)
+        ok = (keys >= 0)[inverse]
         pt, tt, v, h = pt[ok], tt[ok], v[ok], h[ok]
         order = np.lexsort((tt, pt))  # per point, its nearest ray first
         pt, v, h = pt[order], v[order], h[order]
         first = np.ones(len(pt), bool)
         first[1:] = pt[1:] != pt[:-1]
         idx = pt[first].astype(np.intp)
-        scan = Scan(indices=idx, ranges=ranges[idx], pulses=np.column_stack([v[first], h[first]]),
-                    origin=origin, pattern=pattern, backend="embree", n_input=len(self.points),
+        scan = Scan(indices=idx, ranges=ranges_of(self.points, idx, origin),
+                    pulses=np.column_stack([v[first], h[first]]).astype(np.int64),
+                    origin=origin, pattern=pattern, backend=self.backend, n_input=len(self.points),
                     seconds=time.perf_counter() - t_start,
-                    info={"build_seconds": round(build, 6), "cast_seconds": round(cast, 6),
-                          "rays": int(pattern.n_pulses), "ray_hits": int(n_ray_hits),
-                          **self.options})
+                    info={"cast_seconds": round(cast, 6), "rays": int(pattern.n_pulses),
+                          "ray_hits": int(n_ray_hits), **self.options.to_dict()})
         return scan, rays
 
 
-def scan_points(points, origin, pattern: ScanPattern, radius="spacing", orientation="normal",
-                segments: int = 3, **options):
-    """The embree backend behind :func:`slr_ray.simulate_scan` (one position).
+class _Open3DFans:
+    """Polygon fans in Open3D's RaycastingScene (the ``engine='open3d'`` cross-check)."""
 
-    Builds a :class:`DiscScene` and scans it once; use :class:`DiscScene`
-    directly to scan one cloud from many positions.
-    """
-    scene = DiscScene(points, radius=radius, orientation=orientation, segments=segments, **options)
-    scan = scene.scan(origin, pattern)
-    scan.info["prepare_seconds"] = round(scene.prepare_seconds, 6)
-    return scan
+    def __init__(self, verts_local, faces):
+        try:
+            import open3d as o3d
+        except ImportError as exc:
+            raise MissingDependencyError(
+                "engine='open3d' needs open3d (pip install 'slr_ray[open3d]'; apt-get install libusb-1.0-0)"
+            ) from exc
+        self._o3d = o3d
+        self.scene = o3d.t.geometry.RaycastingScene()
+        v32 = verts_local.astype(np.float32)
+        f32 = faces.astype(np.uint32)
+        if len(f32):
+            self.scene.add_triangles(o3d.core.Tensor(v32), o3d.core.Tensor(f32))
+        self.nbytes = v32.nbytes + f32.nbytes
+
+    def cast(self, origin_local, dirs, tfar, per_point, start):
+        o3d = self._o3d
+        rays = np.empty((len(dirs), 6), np.float32)
+        rays[:, :3] = origin_local + start * dirs
+        rays[:, 3:] = dirs
+        ans = self.scene.cast_rays(o3d.core.Tensor(rays), nthreads=default_threads())
+        prim = ans["primitive_ids"].numpy().astype(np.int64)
+        t = ans["t_hit"].numpy().astype(np.float64) + start
+        miss = (prim == o3d.t.geometry.RaycastingScene.INVALID_ID) | ~(t <= tfar)
+        owner = np.where(miss, -1, prim // per_point)
+        return owner, np.where(miss, np.inf, t)

@@ -1,0 +1,96 @@
+"""The scanner protocol every backend implements, and typed backend options.
+
+A backend turns a point cloud into a :class:`Scanner` once (``prepare``: the
+expensive part, e.g. neighbours, normals and a BVH) and the scanner answers
+:meth:`Scanner.scan` for any number of positions. Options are frozen
+dataclasses: the same names and checks serve the library, TOML configs and the
+command line, and an unknown option is an error that lists the known ones.
+"""
+
+from __future__ import annotations
+
+import dataclasses
+from abc import ABC, abstractmethod
+
+import numpy as np
+
+from ..errors import InputValueError
+from ..scan import Scan
+
+__all__ = ["Scanner", "BackendOptions"]
+
+
+@dataclasses.dataclass(frozen=True)
+class BackendOptions:
+    """Base of every backend's options (frozen; unknown keys rejected)."""
+
+    @classmethod
+    def from_dict(cls, options: dict | None = None, **more) -> "BackendOptions":
+        """Options from a mapping (a config file's table, CLI flags) and keywords.
+
+        Raises
+        ------
+        InputValueError
+            naming unknown keys and listing the known ones.
+        """
+        merged = {**(options or {}), **more}
+        known = {f.name for f in dataclasses.fields(cls)}
+        unknown = sorted(set(merged) - known)
+        if unknown:
+            raise InputValueError(
+                f"unknown option(s) {unknown} for {cls.__name__}; known: {sorted(known)}")
+        return cls(**merged)
+
+    def to_dict(self) -> dict:
+        """Plain-JSON description (arrays summarised by shape)."""
+        out = {}
+        for f in dataclasses.fields(self):
+            v = getattr(self, f.name)
+            if isinstance(v, np.ndarray):
+                v = f"array{list(v.shape)}"
+            elif isinstance(v, tuple):
+                v = list(v)
+            out[f.name] = v
+        return out
+
+
+class Scanner(ABC):
+    """A cloud prepared for scanning from many positions.
+
+    Attributes
+    ----------
+    points : (n, 3) float
+        The cloud (held by reference, not copied).
+    backend : str
+    options : BackendOptions
+    prepare_seconds : float
+        Time spent preparing (neighbours, BVH...).
+    """
+
+    backend: str = ""
+
+    def __init__(self, points: np.ndarray, options: BackendOptions, prepare_seconds: float = 0.0):
+        self.points = points
+        self.options = options
+        self.prepare_seconds = prepare_seconds
+
+    def __len__(self) -> int:
+        return len(self.points)
+
+    @abstractmethod
+    def scan(self, origin, pattern) -> Scan:
+        """The scan an ideal scanner at ``origin`` with ``pattern`` records.
+
+        Parameters
+        ----------
+        origin : (3,) float
+        pattern : ScanPattern, str or float
+
+        Returns
+        -------
+        Scan
+            Indices into :attr:`points` (ascending), ranges and pulses.
+        """
+
+    def __repr__(self) -> str:
+        return f"<{type(self).__name__} {self.backend} n={len(self)} {self.options}>"

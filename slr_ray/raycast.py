@@ -1,0 +1,592 @@
+"""Ray casting with Embree: the one module of slr_ray that talks to Embree.
+
+Everything that casts rays (ground-truth scans of meshes, the embree backend's
+discs, the occlusion diagnostics of the validation) goes through
+:class:`RayScene`. It owns
+
+* the lookup of the Embree 4 shared library (:func:`embree_library`): the
+  ``libembree4`` that the ``embreex`` wheel ships, or one named by the
+  environment variable ``SLR_RAY_EMBREE``; a clear
+  :class:`~slr_ray.errors.MissingDependencyError` when there is none;
+* the float32 boundary: geometry is recentred on a float64 ``centre`` before it
+  becomes float32, and rays start from the scanner recentred the same way;
+* the cast loop: compiled (numba, ``nogil``), calling ``rtcIntersect1`` through
+  its C function pointer, one ``RTCRayHit`` per thread, rays split over threads
+  in interleaved blocks;
+* two refinements that make results independent of float32 noise: for
+  triangles, the hit distance recomputed in float64 on the hit triangle's plane
+  (``exact=True``); for discs, the deterministic tie rule (``ties``, below).
+
+Geometry kinds
+--------------
+``RayScene.triangles(vertices, faces)``
+    A triangle mesh (``RTC_GEOMETRY_TYPE_TRIANGLE``).
+``RayScene.discs(centres, radii, normals)``
+    Embree's own disc primitives: with normals, ``ORIENTED_DISC_POINT`` (a
+    disc in the plane normal to each normal); without, ``DISC_POINT`` (each
+    disc faces the ray that meets it: billboards without a BVH per position).
+    The exact disc, not a polygon: no tessellation, 28 bytes a point handed to
+    Embree (float4 centre and radius, float3 normal).
+
+Ties (discs)
+------------
+Overlapping discs of one surface are hit at nearly the same distance, and which
+comes first is decided by float32 rounding: the same cloud moved by 10^6 m
+could return a neighbouring point. With ``ties = w > 0`` a second, short query
+collects every disc hit within ``w`` times the depth the first disc spans along
+the ray (its radius over the cosine of the incidence, at most 20 radii) beyond
+the first hit (an Embree filter callback that rejects and records each candidate)
+and returns the one whose centre lies nearest the ray, computed in float64 from
+the input coordinates, then the lowest index. On a sampled surface that is the
+point in the ray's own pulse, whichever larger neighbouring disc happens to be
+met first.
+
+Discs holding the scanner
+-------------------------
+A disc whose centre lies within its own reach of the ray origin would be hit
+by half of all rays at a tiny distance and hide the scene. ``skip_containing``
+rejects hits on such discs (the same filter callback), so a scanner standing
+among the points needs no rebuilt BVH.
+
+Struct layouts and enum values are those of the Embree 4 headers
+(``rtcore_ray.h``, ``rtcore_common.h``, ``rtcore_scene.h``,
+``rtcore_geometry.h``, ``rtcore_buffer.h``); tests check hits against
+brute-force ray-disc and ray-triangle intersection.
+"""
+
+from __future__ import annotations
+
+import ctypes
+import ctypes.util
+import glob
+import math
+import os
+import threading
+import time
+from concurrent.futures import ThreadPoolExecutor
+from dataclasses import dataclass
+
+import numpy as np
+from llvmlite import ir
+from numba import carray, cfunc, njit, types
+from numba.core import cgutils
+from numba.extending import intrinsic
+
+from .arrays import as_origin
+from .errors import InputValueError, MissingDependencyError
+from .threads import default_threads
+
+__all__ = ["RayScene", "RayHits", "embree_library", "embree_available"]
+
+# --- Embree 4 constants (rtcore_geometry.h, rtcore_buffer.h, rtcore_common.h, rtcore_scene.h)
+GEOMETRY_TRIANGLE = 0
+GEOMETRY_DISC_POINT = 51
+GEOMETRY_ORIENTED_DISC_POINT = 52
+BUFFER_INDEX = 0
+BUFFER_VERTEX = 1
+BUFFER_NORMAL = 3
+FORMAT_UINT3 = 0x5003
+FORMAT_FLOAT3 = 0x9003
+FORMAT_FLOAT4 = 0x9004
+SCENE_FLAG_FILTER_FUNCTION_IN_ARGUMENTS = 1 << 3
+RAY_QUERY_FLAG_INVOKE_ARGUMENT_FILTER = 1 << 1
+FEATURE_FLAGS_ALL = 0xFFFFFFFF
+INVALID_ID = 0xFFFFFFFF
+#: RTCRayHit: RTCRay (48 bytes) + RTCHit (48 bytes with instID[1], instPrimID[1]),
+#: each 16-byte aligned; in float32 slots: ray 0-11, hit 12-23
+_RAYHIT_FLOATS = 24
+_TFAR, _MASK, _PRIM, _GEOM, _INST = 8, 9, 17, 18, 19
+
+#: rays handed to a thread at a time (threads take blocks in turn)
+_BLOCK = 4096
+
+_lock = threading.Lock()
+_lib = None
+
+
+class _Embree:
+    """The Embree 4 C functions slr_ray uses, through ctypes (handles as integers)."""
+
+    def __init__(self, path: str):
+        lib = ctypes.CDLL(path)
+        P, U, I = ctypes.c_size_t, ctypes.c_uint, ctypes.c_int
+
+        def fn(name, res, *args):
+            f = getattr(lib, name)
+            f.restype, f.argtypes = res, list(args)
+            return f
+
+        self.path = path
+        self.new_device = fn("rtcNewDevice", P, ctypes.c_char_p)
+        self.release_device = fn("rtcReleaseDevice", None, P)
+        self.device_error = fn("rtcGetDeviceError", I, P)
+        self.new_scene = fn("rtcNewScene", P, P)
+        self.release_scene = fn("rtcReleaseScene", None, P)
+        self.set_scene_flags = fn("rtcSetSceneFlags", None, P, I)
+        self.commit_scene = fn("rtcCommitScene", None, P)
+        self.new_geometry = fn("rtcNewGeometry", P, P, I)
+        self.set_shared_buffer = fn("rtcSetSharedGeometryBuffer", None, P, I, U, I, P, P, P, P)
+        self.commit_geometry = fn("rtcCommitGeometry", None, P)
+        self.attach_geometry = fn("rtcAttachGeometry", U, P, P)
+        self.release_geometry = fn("rtcReleaseGeometry", None, P)
+        self.intersect1 = ctypes.cast(lib.rtcIntersect1, ctypes.c_void_p).value
+        self.device = self.new_device(None)
+        if not self.device:
+            raise MissingDependencyError(f"Embree at {path} could not create a device")
+
+    def check(self, what: str):
+        code = self.device_error(self.device)
+        if code:
+            raise RuntimeError(f"Embree error {code} in {what}")
+
+
+def _candidates():
+    env = os.environ.get("SLR_RAY_EMBREE")
+    if env:
+        yield env
+    try:
+        import embreex
+    except ImportError:
+        embreex = None
+    if embreex is not None:
+        libs = os.path.join(os.path.dirname(os.path.dirname(embreex.__file__)), "embreex.libs")
+        yield from sorted(glob.glob(os.path.join(libs, "libembree4*.so*")))
+        yield from sorted(glob.glob(os.path.join(os.path.dirname(embreex.__file__), "libembree4*")))
+    found = ctypes.util.find_library("embree4")
+    if found:
+        yield found
+
+
+def embree_library() -> _Embree:
+    """The Embree 4 library, loaded once per process.
+
+    Looked up in order: ``$SLR_RAY_EMBREE``; the ``libembree4`` shipped in the
+    ``embreex`` wheel; the system's ``embree4``.
+
+    Raises
+    ------
+    MissingDependencyError
+        when none loads (with the install command).
+    """
+    global _lib
+    with _lock:
+        if _lib is None:
+            tried = []
+            for path in _candidates():
+                try:
+                    _lib = _Embree(path)
+                    break
+                except (OSError, AttributeError) as exc:
+                    tried.append(f"{path}: {exc}")
+            else:
+                raise MissingDependencyError(
+                    "ray casting needs the Embree 4 library: pip install embreex "
+                    "(its wheel ships libembree4), or set SLR_RAY_EMBREE to a libembree4.so"
+                    + (f"; tried {'; '.join(tried)}" if tried else ""))
+        return _lib
+
+
+def embree_available() -> bool:
+    """Whether :func:`embree_library` finds a library (never raises)."""
+    try:
+        embree_library()
+    except MissingDependencyError:
+        return False
+    return True
+
+
+# --- compiled part --------------------------------------------------------------------------
+
+@intrinsic
+def _as_pointer(typingctx, address):
+    """An integer address as a ``void*`` (for numba.carray)."""
+    sig = types.voidptr(address)
+
+    def codegen(context, builder, signature, args):
+        return builder.inttoptr(args[0], cgutils.voidptr_t)
+
+    return sig, codegen
+
+
+@intrinsic
+def _call3(typingctx, fptr, a, b, c):
+    """Call the C function at address ``fptr`` with three pointer-sized arguments."""
+    if not all(isinstance(x, types.Integer) for x in (fptr, a, b, c)):
+        return None
+    sig = types.void(fptr, a, b, c)
+
+    def codegen(context, builder, signature, args):
+        i64 = ir.IntType(64)
+        fnty = ir.FunctionType(ir.VoidType(), [i64, i64, i64])
+        f = builder.inttoptr(args[0], fnty.as_pointer())
+        builder.call(f, [builder.zext(x, i64) if x.type.width < 64 else x for x in args[1:]])
+        return context.get_dummy_value()
+
+    return sig, codegen
+
+
+# query context: RTCRayQueryContext (slots 0-3, 32 bytes reserved) then ours
+_C_MODE, _C_CENTRES, _C_RADII, _C_DIV, _C_BEST = 4, 5, 6, 7, 8
+_C_SCORE, _C_ORG, _C_DIR, _C_REACH, _C_BEST_T = 9, 10, 13, 16, 17
+_CTX_WORDS = 20
+#: the tie window stops growing beyond 20 radii (incidence above ~87 deg)
+_MIN_COS = 0.05
+_MODE_SKIP, _MODE_TIES = 1, 2
+
+
+@cfunc(types.void(types.voidptr), cache=True, nopython=True)
+def _filter(fargs):
+    """RTCFilterFunctionN: skip discs holding the ray origin; in tie mode, record
+    the candidate whose centre is nearest the ray (then lowest id) and reject all."""
+    a = carray(fargs, 6, dtype=np.int64)
+    valid = carray(_as_pointer(a[0]), 1, dtype=np.int32)
+    ctx = carray(_as_pointer(a[2]), _CTX_WORDS, dtype=np.int64)
+    ctxf = carray(_as_pointer(a[2]), _CTX_WORDS, dtype=np.float64)
+    ray = carray(_as_pointer(a[3]), 12, dtype=np.float32)
+    hit = carray(_as_pointer(a[4]), 8, dtype=np.uint32)
+    owner = np.int64(hit[5]) // ctx[_C_DIV]
+    cen = carray(_as_pointer(ctx[_C_CENTRES] + owner * 24), 3, dtype=np.float64)
+    rad = carray(_as_pointer(ctx[_C_RADII] + owner * 8), 1, dtype=np.float64)
+    cx = cen[0] - ctxf[_C_ORG]
+    cy = cen[1] - ctxf[_C_ORG + 1]
+    cz = cen[2] - ctxf[_C_ORG + 2]
+    mode = ctx[_C_MODE]
+    if mode & _MODE_SKIP:
+        reach = rad[0] * ctxf[_C_REACH]
+        if cx * cx + cy * cy + cz * cz <= reach * reach:
+            valid[0] = 0
+            return
+    if mode & _MODE_TIES:
+        dx, dy, dz = ctxf[_C_DIR], ctxf[_C_DIR + 1], ctxf[_C_DIR + 2]
+        t = cx * dx + cy * dy + cz * dz
+        ex, ey, ez = cx - t * dx, cy - t * dy, cz - t * dz
+        s = ex * ex + ey * ey + ez * ez
+        if s < ctxf[_C_SCORE] or (s == ctxf[_C_SCORE] and owner < ctx[_C_BEST]):
+            ctxf[_C_SCORE] = s
+            ctx[_C_BEST] = owner
+            ctxf[_C_BEST_T] = ray[_TFAR]
+        valid[0] = 0
+
+
+@njit(cache=True, nogil=True)
+def _aligned(n_floats):
+    buf = np.zeros(n_floats + 4, np.float32)
+    off = ((16 - (buf.ctypes.data % 16)) % 16) // 4
+    return buf[off:off + n_floats]
+
+
+@njit(cache=True, nogil=True)
+def _cast_blocks(isect, scene, filt, org32, org64, dirs, tnear, tfar, first_block, step,
+                 mode_first, ties, centres, radii, normals, div, reach, prim_out, owner_out, t_out):
+    """Cast rays ``dirs`` from ``org32`` (scene frame), blocks first_block, +step, ..."""
+    rh = _aligned(_RAYHIT_FLOATS)
+    ru = rh.view(np.uint32)
+    ctx = np.zeros(_CTX_WORDS, np.int64)
+    ctxf = ctx.view(np.float64)
+    for j in range(4):
+        ctx[j] = -1  # instance ids: RTC_INVALID_GEOMETRY_ID
+    ctx[_C_CENTRES] = centres.ctypes.data
+    ctx[_C_RADII] = radii.ctypes.data
+    ctx[_C_DIV] = div
+    ctxf[_C_ORG] = org64[0]
+    ctxf[_C_ORG + 1] = org64[1]
+    ctxf[_C_ORG + 2] = org64[2]
+    ctxf[_C_REACH] = reach
+    args = np.zeros(8, np.int64)  # RTCIntersectArguments (32 bytes used)
+    args[0] = RAY_QUERY_FLAG_INVOKE_ARGUMENT_FILTER | (FEATURE_FLAGS_ALL << 32)
+    args[1] = ctx.ctypes.data
+    args[2] = filt
+    rh_ptr = np.int64(rh.ctypes.data)
+    args_ptr = np.int64(args.ctypes.data)
+    first_args = args_ptr if mode_first else np.int64(0)
+    m = dirs.shape[0]
+    n_blocks = (m + _BLOCK - 1) // _BLOCK
+    for blk in range(first_block, n_blocks, step):
+        for i in range(blk * _BLOCK, min(m, (blk + 1) * _BLOCK)):
+            dx, dy, dz = dirs[i, 0], dirs[i, 1], dirs[i, 2]
+            rh[0], rh[1], rh[2], rh[3] = org32[0], org32[1], org32[2], tnear
+            rh[4], rh[5], rh[6], rh[7] = dx, dy, dz, 0.0
+            rh[_TFAR] = tfar
+            ru[_MASK] = INVALID_ID
+            ru[10] = 0
+            ru[11] = 0
+            ru[_PRIM] = INVALID_ID
+            ru[_GEOM] = INVALID_ID
+            ru[_INST] = INVALID_ID
+            ru[_INST + 1] = INVALID_ID
+            ctx[_C_MODE] = mode_first
+            _call3(isect, scene, rh_ptr, first_args)
+            if ru[_GEOM] == INVALID_ID:
+                prim_out[i] = -1
+                owner_out[i] = -1
+                t_out[i] = np.inf
+                continue
+            t0 = rh[_TFAR]
+            prim = np.int64(ru[_PRIM])
+            owner = prim // div
+            t_hit = t0
+            if ties > 0.0:
+                # the depth along the ray that a disc-sized step over the first disc's
+                # surface spans: r / |cos(incidence)| (r for discs facing the ray)
+                window = ties * radii[owner]
+                if normals.shape[0] > 0:
+                    cos = abs(normals[owner, 0] * dx + normals[owner, 1] * dy + normals[owner, 2] * dz)
+                    window /= max(cos, _MIN_COS)
+                rh[3] = max(tnear, t0 - window)
+                rh[_TFAR] = t0 + window
+                ru[_PRIM] = INVALID_ID
+                ru[_GEOM] = INVALID_ID
+                ctx[_C_MODE] = mode_first | _MODE_TIES
+                ctx[_C_BEST] = -1
+                ctxf[_C_SCORE] = np.inf
+                ctxf[_C_DIR], ctxf[_C_DIR + 1], ctxf[_C_DIR + 2] = dx, dy, dz
+                _call3(isect, scene, rh_ptr, args_ptr)
+                if ctx[_C_BEST] >= 0 and ctx[_C_BEST] != owner:
+                    owner = ctx[_C_BEST]
+                    prim = -1  # the owner, not one primitive of it, is the answer
+                    t_hit = ctxf[_C_BEST_T]
+            prim_out[i] = prim
+            owner_out[i] = owner
+            t_out[i] = t_hit
+
+
+@dataclass(frozen=True)
+class RayHits:
+    """What :meth:`RayScene.intersect` returns, one entry per ray.
+
+    Attributes
+    ----------
+    primitives : (m,) int64
+        Primitive hit (triangle or disc index), -1 on a miss (and -1 where the
+        tie rule moved the answer to another disc's owner).
+    owners : (m,) int64
+        The primitive's owner: for discs the disc (point) index; for triangles
+        the triangle index divided by ``prims_per_owner``. -1 on a miss.
+    distances : (m,) float64
+        Distance along the (unit) ray, ``inf`` on a miss.
+    """
+
+    primitives: np.ndarray
+    owners: np.ndarray
+    distances: np.ndarray
+
+    @property
+    def hit(self) -> np.ndarray:
+        return self.owners >= 0
+
+
+class RayScene:
+    """One Embree scene of triangles or discs, built once and queried many times.
+
+    Use the constructors :meth:`triangles` and :meth:`discs`. Geometry is kept
+    in float32 around ``centre`` (float64); the arrays handed to Embree are
+    held by the scene (Embree shares them, it does not copy).
+
+    Attributes
+    ----------
+    kind : {'triangles', 'discs', 'oriented discs'}
+    centre : (3,) float64
+    n_primitives : int
+    build_seconds : float
+    nbytes : int
+        Bytes of the buffers shared with Embree (the BVH comes on top).
+    """
+
+    def __init__(self, kind, geometry_type, buffers, n_primitives, centre, owner_centres, owner_radii,
+                 prims_per_owner=1, reach=1.0, owner_normals=None):
+        self.kind = kind
+        self.centre = centre
+        self.n_primitives = int(n_primitives)
+        self._buffers = buffers
+        # float64 data of the owners (the points) for the filter: contiguous, kept alive here
+        self._owner_centres = np.ascontiguousarray(owner_centres, np.float64)
+        self._owner_radii = np.ascontiguousarray(owner_radii, np.float64)
+        if owner_normals is None:
+            self._owner_normals = np.zeros((0, 3))
+        else:
+            nrm = np.asarray(owner_normals, np.float64)
+            length = np.linalg.norm(nrm, axis=1, keepdims=True)
+            self._owner_normals = np.ascontiguousarray(nrm / np.where(length > 0, length, 1))
+        self.prims_per_owner = int(prims_per_owner)
+        self.reach = float(reach)
+        self.nbytes = int(sum(b[4].nbytes for b in buffers))
+        self._has_owners = len(self._owner_radii) > 1 or self.prims_per_owner > 1 or kind != "triangles"
+        lib = embree_library()
+        t0 = time.perf_counter()
+        self._scene = lib.new_scene(lib.device)
+        lib.set_scene_flags(self._scene, SCENE_FLAG_FILTER_FUNCTION_IN_ARGUMENTS)
+        if self.n_primitives:
+            geom = lib.new_geometry(lib.device, geometry_type)
+            for btype, slot, fmt, stride, arr, count in buffers:
+                lib.set_shared_buffer(geom, btype, slot, fmt, arr.ctypes.data, 0, stride, count)
+            lib.commit_geometry(geom)
+            lib.attach_geometry(self._scene, geom)
+            lib.release_geometry(geom)
+        lib.commit_scene(self._scene)
+        lib.check("building the scene")
+        self.build_seconds = time.perf_counter() - t0
+
+    # --- constructors -------------------------------------------------------------------
+    @classmethod
+    def triangles(cls, vertices, faces, centre=None, *, owners=None) -> "RayScene":
+        """A triangle mesh.
+
+        Parameters
+        ----------
+        vertices : (v, 3) float
+        faces : (f, 3) int
+        centre : (3,) float, optional
+            Recentring point (default: the middle of the bounding box).
+        owners : tuple, optional
+            ``(centres (n, 3), radii (n,), prims_per_owner, reach, normals (n, 3))``
+            when the triangles stand for discs (polygon fans of
+            ``prims_per_owner`` triangles each): enables ``ties`` and
+            ``skip_containing`` with the owners' float64 centres.
+        """
+        v = np.asarray(vertices, np.float64)
+        f = np.asarray(faces)
+        if v.ndim != 2 or v.shape[1] != 3 or f.ndim != 2 or f.shape[1] != 3:
+            raise InputValueError(f"vertices must be (v, 3) and faces (f, 3), got {v.shape} and {f.shape}")
+        if len(f) and (f.min() < 0 or f.max() >= len(v)):
+            raise InputValueError("faces index vertices that do not exist")
+        centre = _centre_of(v) if centre is None else as_origin(centre, "centre")
+        vbuf = np.zeros((len(v) + 1, 3), np.float32)  # one spare row: Embree reads 16 bytes per vertex
+        vbuf[:len(v)] = v - centre
+        fbuf = np.ascontiguousarray(f, np.uint32)
+        scene = cls.__new__(cls)
+        scene._vertices64, scene._faces = v, f
+        if owners is None:
+            owners = (np.zeros((1, 3)), np.ones(1), 1, 1.0, None)
+        oc, orad, per, reach, onrm = owners
+        cls.__init__(scene, "triangles", GEOMETRY_TRIANGLE,
+                     [(BUFFER_VERTEX, 0, FORMAT_FLOAT3, 12, vbuf, len(v)),
+                      (BUFFER_INDEX, 0, FORMAT_UINT3, 12, fbuf, len(f))],
+                     len(f), centre, oc, orad, per, reach, onrm)
+        return scene
+
+    @classmethod
+    def discs(cls, centres, radii, normals=None, centre=None) -> "RayScene":
+        """Discs of Embree's point primitives.
+
+        Parameters
+        ----------
+        centres : (n, 3) float64
+            Disc centres (kept by reference for the float64 tie rule).
+        radii : (n,) float
+            Radii in metres, > 0.
+        normals : (n, 3) float, optional
+            Disc normals (any length > 0): ``ORIENTED_DISC_POINT``. Without,
+            ``DISC_POINT``: every disc faces the ray that meets it.
+        centre : (3,) float, optional
+        """
+        c = np.asarray(centres, np.float64)
+        r = np.asarray(radii, np.float64)
+        if c.ndim != 2 or c.shape[1] != 3 or r.shape != (len(c),):
+            raise InputValueError(f"centres must be (n, 3) and radii (n,), got {c.shape} and {r.shape}")
+        if len(r) and not (np.all(np.isfinite(r)) and r.min() > 0):
+            raise InputValueError(f"disc radii must be finite and > 0 ({np.count_nonzero(~(r > 0))} are not)")
+        centre = _centre_of(c) if centre is None else as_origin(centre, "centre")
+        vbuf = np.empty((len(c), 4), np.float32)
+        np.subtract(c, centre, out=vbuf[:, :3], casting="unsafe")
+        vbuf[:, 3] = r
+        buffers = [(BUFFER_VERTEX, 0, FORMAT_FLOAT4, 16, vbuf, len(c))]
+        if normals is not None:
+            nrm = np.asarray(normals)
+            if nrm.shape != c.shape:
+                raise InputValueError(f"normals has shape {nrm.shape}, centres {c.shape}")
+            nbuf = np.zeros((len(c) + 2, 3), np.float32)  # spare rows: 16-byte reads
+            nbuf[:len(c)] = nrm
+            buffers.append((BUFFER_NORMAL, 0, FORMAT_FLOAT3, 12, nbuf, len(c)))
+            gtype, kind = GEOMETRY_ORIENTED_DISC_POINT, "oriented discs"
+        else:
+            gtype, kind = GEOMETRY_DISC_POINT, "discs"
+        scene = cls.__new__(cls)
+        cls.__init__(scene, kind, gtype, buffers, len(c), centre, c, r, 1, 1.0, normals)
+        return scene
+
+    # --- queries ------------------------------------------------------------------------
+    def intersect(self, origin, directions, *, tnear: float = 0.0, tfar: float = math.inf,
+                  ties: float = 0.0, skip_containing: bool = False, exact: bool = False,
+                  n_threads: int | None = None) -> RayHits:
+        """First hit of every ray from ``origin``.
+
+        Parameters
+        ----------
+        origin : (3,) float
+            Ray origin, in the coordinates of the geometry (float64).
+        directions : (m, 3) float
+            Unit directions.
+        tnear, tfar : float
+            The ray segment (metres).
+        ties : float
+            Tie window in units of the first hit's disc radius, divided by
+            the cosine of the ray's incidence on that disc (at most 20 radii;
+            module docstring); 0 keeps Embree's first hit. Needs discs or owners.
+        skip_containing : bool
+            Ignore discs whose reach holds ``origin`` (module docstring).
+        exact : bool
+            Triangles only: distances recomputed in float64 on the hit
+            triangle's plane.
+        n_threads : int, optional
+            Default: all cores.
+
+        Returns
+        -------
+        RayHits
+        """
+        o = as_origin(origin)
+        d = np.ascontiguousarray(directions, np.float64)
+        if d.ndim != 2 or d.shape[1] != 3:
+            raise InputValueError(f"directions must be (m, 3), got {d.shape}")
+        if (ties > 0 or skip_containing) and not self._has_owners:
+            raise InputValueError("ties and skip_containing need discs (or triangles with owners)")
+        if not (ties >= 0 and math.isfinite(ties)):
+            raise InputValueError(f"ties must be a finite number >= 0, got {ties!r}")
+        m = len(d)
+        prim = np.empty(m, np.int64)
+        owner = np.empty(m, np.int64)
+        t = np.empty(m, np.float64)
+        if m == 0:
+            return RayHits(prim, owner, t)
+        lib = embree_library()
+        local = o - self.centre
+        org32 = local.astype(np.float32)
+        tf = float(np.float32(min(tfar, 3.0e38)))
+        mode = _MODE_SKIP if skip_containing else 0
+        n_threads = max(1, min(int(n_threads or default_threads()), -(-m // _BLOCK)))
+        run = lambda k: _cast_blocks(lib.intersect1, self._scene, _filter.address, org32, o, d,  # noqa: E731
+                                     np.float32(tnear), np.float32(tf), k, n_threads, mode, float(ties),
+                                     self._owner_centres, self._owner_radii, self._owner_normals,
+                                     self.prims_per_owner,
+                                     self.reach, prim, owner, t)
+        if n_threads == 1:
+            run(0)
+        else:
+            with ThreadPoolExecutor(n_threads) as pool:
+                list(pool.map(run, range(n_threads)))
+        if exact:
+            if self.kind != "triangles":
+                raise InputValueError("exact=True is for triangle scenes")
+            hit = prim >= 0
+            f = prim[hit]
+            v = self._vertices64
+            a = v[self._faces[f, 0]]
+            nrm = np.cross(v[self._faces[f, 1]] - a, v[self._faces[f, 2]] - a)
+            nd = np.einsum("ij,ij->i", nrm, d[hit])
+            t[hit] = np.einsum("ij,ij->i", nrm, a - o) / nd
+        return RayHits(prim, owner, t)
+
+    def __del__(self):
+        scene = getattr(self, "_scene", None)
+        if scene and _lib is not None:
+            try:
+                _lib.release_scene(scene)
+            except Exception:  # pragma: no cover - interpreter shutdown
+                pass
+            self._scene = None
+
+
+def _centre_of(points: np.ndarray) -> np.ndarray:
+    if len(points) == 0:
+        return np.zeros(3)
+    return 0.5 * (points.min(axis=0) + points.max(axis=0))

@@ -1,0 +1,150 @@
+"""The ray-casting module against brute-force ray-disc and ray-triangle intersection."""
+
+import numpy as np
+import pytest
+from hypothesis import given, settings
+from hypothesis import strategies as st
+
+from slr_ray import InputValueError, ScanPattern, pulse_directions, pulse_rays
+from slr_ray.raycast import RayScene, embree_available
+
+
+def _unit(rng, n):
+    d = rng.normal(size=(n, 3))
+    return d / np.linalg.norm(d, axis=1, keepdims=True)
+
+
+def brute_discs(o, dirs, c, r, normals):
+    """First disc hit by each ray (index, t); -1 / inf on a miss."""
+    idx = np.full(len(dirs), -1)
+    tt = np.full(len(dirs), np.inf)
+    for i, d in enumerate(dirs):
+        if normals is None:  # discs facing the ray
+            t = (c - o) @ d
+        else:
+            den = normals @ d
+            with np.errstate(divide="ignore", invalid="ignore"):
+                t = np.einsum("ij,ij->i", c - o, normals) / den
+        x = o + t[:, None] * d
+        ok = (np.linalg.norm(x - c, axis=1) <= r) & (t > 0)
+        j = np.flatnonzero(ok)
+        if len(j):
+            k = j[np.argmin(t[j])]
+            idx[i], tt[i] = k, t[k]
+    return idx, tt
+
+
+def test_library_is_found():
+    assert embree_available()
+
+
+@pytest.mark.parametrize("oriented", [True, False])
+@settings(max_examples=8, deadline=None)
+@given(seed=st.integers(0, 10_000))
+def test_discs_match_brute_force(oriented, seed):
+    rng = np.random.default_rng(seed)
+    n = 200
+    c = rng.uniform(-5, 5, (n, 3))
+    r = rng.uniform(0.05, 0.8, n)
+    nrm = _unit(rng, n) if oriented else None
+    o = rng.uniform(-1, 1, 3)
+    # a ray origin inside a disc's reach is skip_containing's case (tested below)
+    keep = np.linalg.norm(c - o, axis=1) > r
+    c, r, nrm = c[keep], r[keep], (nrm[keep] if oriented else None)
+    dirs = _unit(rng, 1500)
+    hits = RayScene.discs(c, r, nrm).intersect(o, dirs)
+    idx, t = brute_discs(o, dirs, c, r, nrm)
+    # float32 inside Embree: a ray grazing a disc's rim may go either way
+    rim = hits.owners != idx
+    assert rim.mean() <= 0.005
+    same = ~rim & (idx >= 0)
+    np.testing.assert_allclose(hits.distances[same], t[same], atol=2e-5)
+    assert np.all(np.isinf(hits.distances[idx[~rim] < 0]))
+
+
+def test_triangles_exact_distances_far_from_the_origin():
+    import trimesh
+
+    m = trimesh.creation.icosphere(3, radius=2.0)
+    shift = np.array([5e6, -5e6, 250.0])
+    rng = np.random.default_rng(0)
+    dirs = _unit(rng, 4000)
+    o = shift + [0.1, -0.2, 0.05]
+    hits = RayScene.triangles(m.vertices + shift, m.faces).intersect(o, dirs, exact=True)
+    assert hits.hit.all()
+    x = o + hits.distances[:, None] * dirs - shift
+    # every hit lies on the plane of the face it hit, to float64 precision
+    f = hits.primitives
+    a = m.vertices[m.faces[f, 0]]
+    dist_to_plane = np.einsum("ij,ij->i", x - a, m.face_normals[f])
+    assert np.abs(dist_to_plane).max() < 1e-6
+    # brute force (Moller-Trumbore, float64, near the origin)
+    ol = o - shift
+    a, b, c = (m.vertices[m.faces[:, j]] for j in range(3))
+    e1, e2 = b - a, c - a
+    p = np.cross(dirs[:, None, :], e2[None])
+    det = np.einsum("fk,rfk->rf", e1, p)
+    tv = ol - a
+    u = np.einsum("fk,rfk->rf", tv, p) / det
+    q = np.cross(tv, e1)
+    v = np.einsum("rk,fk->rf", dirs, q) / det
+    t = np.einsum("fk,fk->f", e2, q)[None] / det
+    ok = (u >= 0) & (v >= 0) & (u + v <= 1) & (t > 0)
+    t_ref = np.where(ok, t, np.inf).min(axis=1)
+    np.testing.assert_allclose(hits.distances, t_ref, atol=1e-6)
+
+
+def test_tie_rule_returns_the_centre_nearest_the_ray_then_the_lowest_index():
+    # coplanar overlapping discs on z = 0: all candidates meet a ray at the same t
+    g = np.stack(np.meshgrid(np.arange(30) * 0.1, np.arange(30) * 0.1), -1).reshape(-1, 2)
+    c = np.column_stack([g, np.zeros(len(g))])
+    c = np.vstack([c, c[:50]])  # duplicates: the lower index must win
+    r = np.full(len(c), 0.15)
+    nrm = np.tile([0, 0, 1.0], (len(c), 1))
+    rng = np.random.default_rng(3)
+    o = np.array([1.45, 1.45, 2.0])
+    dirs = _unit(rng, 3000)
+    dirs[:, 2] = -np.abs(dirs[:, 2]) - 0.5
+    dirs /= np.linalg.norm(dirs, axis=1, keepdims=True)
+    hits = RayScene.discs(c, r, nrm).intersect(o, dirs, ties=1.0)
+    for i in np.flatnonzero(hits.hit)[:500]:
+        d = dirs[i]
+        t = (0 - o[2]) / d[2]
+        x = o + t * d
+        cand = np.flatnonzero(np.linalg.norm(c - x, axis=1) <= r)
+        perp = np.linalg.norm(np.cross(c[cand] - o, d), axis=1)
+        best = cand[np.lexsort((cand, np.round(perp, 12)))[0]]
+        assert hits.owners[i] == best
+
+
+def test_discs_holding_the_origin_are_skipped():
+    c = np.array([[0.0, 0, 0], [5.0, 0, 0]])
+    hits = RayScene.discs(c, np.array([0.5, 0.5]), np.array([[1.0, 0, 0], [1.0, 0, 0]])).intersect(
+        [0.1, 0, 0], np.array([[1.0, 0, 0], [-1.0, 0, 0]]), skip_containing=True)
+    assert hits.owners.tolist() == [1, -1]
+    np.testing.assert_allclose(hits.distances[0], 4.9)
+
+
+def test_bad_input():
+    with pytest.raises(InputValueError, match="radii"):
+        RayScene.discs(np.zeros((2, 3)), np.array([0.1, 0.0]))
+    with pytest.raises(InputValueError, match="faces"):
+        RayScene.triangles(np.zeros((3, 3)), np.array([[0, 1, 3]]))
+    s = RayScene.triangles(np.eye(3), np.array([[0, 1, 2]]))
+    with pytest.raises(InputValueError, match="ties"):
+        s.intersect([0, 0, 0], np.array([[1.0, 0, 0]]), ties=1.0)
+    empty = RayScene.discs(np.zeros((0, 3)), np.zeros(0)).intersect([0, 0, 0], np.array([[1.0, 0, 0]]))
+    assert empty.owners.tolist() == [-1]
+
+
+def test_pulse_rays_one_rule_for_the_narrower_last_bin():
+    p = ScanPattern(0.7, zenith_range=(10, 100))  # 90 / 0.7 is not whole: the last row is narrower
+    d, v, h = pulse_rays(p, k=1)
+    theta = np.degrees(np.arctan2(np.hypot(d[:, 0], d[:, 1]), d[:, 2]))
+    last = v == p.n_zenith - 1
+    lo = 10 + (p.n_zenith - 1) * 0.7
+    np.testing.assert_allclose(theta[last], (lo + 100) / 2)  # the middle of the clipped bin
+    np.testing.assert_allclose(d, pulse_directions(np.column_stack([v, h]), p))
+    d2, v2, _ = pulse_rays(p, k=3)
+    th2 = np.degrees(np.arctan2(np.hypot(d2[:, 0], d2[:, 1]), d2[:, 2]))
+    assert th2[v2 == p.n_zenith - 1].max() < 100 and th2.min() > 10
