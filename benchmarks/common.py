@@ -55,7 +55,7 @@ def realistic_cloud(resolution: float = 0.029, n_rectangles: int = 1000, seed: i
 
     cache = RESULTS / f"cloud_{n_rectangles}_{seed}_{resolution}.npy"
     if cache.exists():
-        return np.load(cache)
+        return np.load(cache, mmap_mode="r")  # slice what you need: the whole is 0.65 GiB
     scene = rectangle_scene(n_rectangles, seed=seed)
     ms = scan_mesh(scene, [0, 0, 0], ScanPattern(resolution, zenith_range=(0, 135), max_range=120),
                    progress=True)

@@ -58,6 +58,7 @@ import time
 from dataclasses import dataclass
 
 import numpy as np
+from numba import njit
 from scipy.spatial import cKDTree
 
 from ..arrays import as_origin, as_points
@@ -180,13 +181,9 @@ def neighbourhoods(points, k: int, chunk: int = 1 << 20):
     for s in range(0, n, chunk):
         q = pts[s:s + chunk] - c
         d, i = tree.query(q, k=k + 1, workers=-1)
-        # the point itself is one of the zero-distance answers; drop one column of
-        # it (its own index where present, else the last)
-        own = i == np.arange(s, s + len(q))[:, None]
-        drop = np.where(own.any(axis=1), own.argmax(axis=1), k)
-        keep = np.ones_like(own)
-        keep[np.arange(len(q)), drop] = False
-        yield s, d[keep].reshape(len(q), k), i[keep].reshape(len(q), k)
+        # the first answer is at distance 0: the point itself or a duplicate of it
+        # (same coordinates, so radii and normals do not depend on which)
+        yield s, d[:, 1:], i[:, 1:]
 
 
 def _fallback_directions(points, primary_origin):
@@ -247,27 +244,105 @@ def estimate_normals(points, k: int = 10, primary_origin=None, chunk: int = 1 <<
 
 def _chunk_normals(pts, s, idx, primary_origin):
     """PCA normals of points ``s .. s + len(idx)`` with their neighbours ``idx``."""
-    own = pts[s:s + len(idx)]
-    nb = np.concatenate([own[:, None, :], pts[idx]], axis=1)
-    nb = nb - nb.mean(axis=1, keepdims=True)
-    cov = np.einsum("nki,nkj->nij", nb, nb)
-    w, vec = np.linalg.eigh(cov)
-    normals = vec[:, :, 0].copy()
-    fallback = np.array(_fallback_directions(own, primary_origin))
-    scale = w[:, 2]
-    # identical points leave a covariance of rounding noise only: no direction
-    tiny = (1e-9 * (1.0 + np.abs(own).max(axis=1))) ** 2 * nb.shape[1]
-    empty = ~(scale > tiny)
-    line = ~empty & (w[:, 1] <= 1e-9 * scale)
-    if line.any():  # collinear: orthogonal to the line, towards the fallback direction
-        axis = vec[line, :, 2]
-        h = fallback[line] - np.einsum("ij,ij->i", fallback[line], axis)[:, None] * axis
-        hn = np.linalg.norm(h, axis=1, keepdims=True)
-        alt = np.cross(axis, np.where(np.abs(axis[:, [0]]) < 0.9, [[1.0, 0, 0]], [[0, 1.0, 0]]))
-        alt /= np.linalg.norm(alt, axis=1, keepdims=True)
-        normals[line] = np.where(hn > 1e-12, h / np.where(hn > 1e-12, hn, 1), alt)
-    normals[empty] = fallback[empty]
-    return normals
+    out = np.empty((len(idx), 3))
+    has = primary_origin is not None
+    po = as_origin(primary_origin, "primary_origin") if has else np.zeros(3)
+    _pca_normals(pts, s, np.ascontiguousarray(idx, np.int64), has, po, out)
+    return out
+
+
+@njit(cache=True, inline="always")
+def _smallest_eigvec(a00, a01, a02, a11, a12, a22, lam):
+    """Unit eigenvector of the symmetric 3x3 matrix for eigenvalue ``lam``: the
+    largest cross product of two rows of (A - lam I)."""
+    r0 = (a00 - lam, a01, a02)
+    r1 = (a01, a11 - lam, a12)
+    r2 = (a02, a12, a22 - lam)
+    best = -1.0
+    vx = vy = vz = 0.0
+    for ra, rb in ((r0, r1), (r0, r2), (r1, r2)):
+        cx = ra[1] * rb[2] - ra[2] * rb[1]
+        cy = ra[2] * rb[0] - ra[0] * rb[2]
+        cz = ra[0] * rb[1] - ra[1] * rb[0]
+        m = cx * cx + cy * cy + cz * cz
+        if m > best:
+            best, vx, vy, vz = m, cx, cy, cz
+    n = math.sqrt(best)
+    if n == 0.0:
+        return 0.0, 0.0, 0.0, False
+    return vx / n, vy / n, vz / n, True
+
+
+@njit(cache=True, nogil=True)
+def _pca_normals(pts, s, idx, has_primary, po, out):
+    """Normals by PCA of each point and its neighbours, eigenvalues in closed form
+    (trigonometric solution of the symmetric 3x3 characteristic polynomial)."""
+    c, k = idx.shape
+    for i in range(c):
+        p = s + i
+        # fallback direction: to the primary scanner, or +z
+        fx, fy, fz = 0.0, 0.0, 1.0
+        if has_primary:
+            hx, hy, hz = po[0] - pts[p, 0], po[1] - pts[p, 1], po[2] - pts[p, 2]
+            hn = math.sqrt(hx * hx + hy * hy + hz * hz)
+            if hn > 0:
+                fx, fy, fz = hx / hn, hy / hn, hz / hn
+        mx, my, mz = pts[p, 0], pts[p, 1], pts[p, 2]
+        for j in range(k):
+            q = idx[i, j]
+            mx += pts[q, 0]
+            my += pts[q, 1]
+            mz += pts[q, 2]
+        mx /= k + 1
+        my /= k + 1
+        mz /= k + 1
+        a00 = a01 = a02 = a11 = a12 = a22 = 0.0
+        for j in range(-1, k):
+            q = p if j < 0 else idx[i, j]
+            dx, dy, dz = pts[q, 0] - mx, pts[q, 1] - my, pts[q, 2] - mz
+            a00 += dx * dx
+            a01 += dx * dy
+            a02 += dx * dz
+            a11 += dy * dy
+            a12 += dy * dz
+            a22 += dz * dz
+        scale = 1e-9 * (1.0 + max(abs(pts[p, 0]), abs(pts[p, 1]), abs(pts[p, 2])))
+        tiny = scale * scale * (k + 1)
+        q3 = (a00 + a11 + a22) / 3.0
+        b00, b11, b22 = a00 - q3, a11 - q3, a22 - q3
+        p2 = (b00 * b00 + b11 * b11 + b22 * b22 + 2.0 * (a01 * a01 + a02 * a02 + a12 * a12)) / 6.0
+        if a00 + a11 + a22 <= tiny:  # identical points: no direction
+            out[i, 0], out[i, 1], out[i, 2] = fx, fy, fz
+            continue
+        if p2 <= 0.0:  # isotropic: any direction is a normal
+            out[i, 0], out[i, 1], out[i, 2] = fx, fy, fz
+            continue
+        pp = math.sqrt(p2)
+        det = (b00 * (b11 * b22 - a12 * a12) - a01 * (a01 * b22 - a12 * a02)
+               + a02 * (a01 * a12 - b11 * a02)) / (pp * pp * pp)
+        r = min(1.0, max(-1.0, det / 2.0))
+        phi = math.acos(r) / 3.0
+        lam2 = q3 + 2.0 * pp * math.cos(phi)  # largest
+        lam0 = q3 + 2.0 * pp * math.cos(phi + 2.0 * math.pi / 3.0)  # smallest
+        lam1 = 3.0 * q3 - lam0 - lam2
+        if lam1 <= 1e-9 * lam2:
+            # collinear: orthogonal to the line, towards the fallback direction
+            ax, ay, az, ok = _smallest_eigvec(a00, a01, a02, a11, a12, a22, lam2)
+            t = fx * ax + fy * ay + fz * az
+            hx, hy, hz = fx - t * ax, fy - t * ay, fz - t * az
+            hn = math.sqrt(hx * hx + hy * hy + hz * hz)
+            if hn <= 1e-12:  # the fallback lies along the line: any orthogonal direction
+                if abs(ax) < 0.9:
+                    hx, hy, hz = 0.0, az, -ay
+                else:
+                    hx, hy, hz = -az, 0.0, ax
+                hn = math.sqrt(hx * hx + hy * hy + hz * hz)
+            out[i, 0], out[i, 1], out[i, 2] = hx / hn, hy / hn, hz / hn
+            continue
+        vx, vy, vz, ok = _smallest_eigvec(a00, a01, a02, a11, a12, a22, lam0)
+        if not ok:
+            vx, vy, vz = fx, fy, fz
+        out[i, 0], out[i, 1], out[i, 2] = vx, vy, vz
 
 
 def _frames(normals):
