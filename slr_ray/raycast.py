@@ -393,7 +393,7 @@ class RayScene:
     """
 
     def __init__(self, kind, geometry_type, buffers, n_primitives, centre, owner_centres, owner_radii,
-                 prims_per_owner=1, reach=1.0, owner_normals=None):
+                 prims_per_owner=1, reach=1.0, owner_normals=None, has_owners=True):
         self.kind = kind
         self.centre = centre
         self.n_primitives = int(n_primitives)
@@ -410,7 +410,7 @@ class RayScene:
         self.prims_per_owner = int(prims_per_owner)
         self.reach = float(reach)
         self.nbytes = int(sum(b[4].nbytes for b in buffers))
-        self._has_owners = len(self._owner_radii) > 1 or self.prims_per_owner > 1 or kind != "triangles"
+        self._has_owners = bool(has_owners)
         lib = embree_library()
         t0 = time.perf_counter()
         self._scene = lib.new_scene(lib.device)
@@ -455,13 +455,14 @@ class RayScene:
         fbuf = np.ascontiguousarray(f, np.uint32)
         scene = cls.__new__(cls)
         scene._vertices64, scene._faces = v, f
+        has_owners = owners is not None
         if owners is None:
             owners = (np.zeros((1, 3)), np.ones(1), 1, 1.0, None)
         oc, orad, per, reach, onrm = owners
         cls.__init__(scene, "triangles", GEOMETRY_TRIANGLE,
                      [(BUFFER_VERTEX, 0, FORMAT_FLOAT3, 12, vbuf, len(v)),
                       (BUFFER_INDEX, 0, FORMAT_UINT3, 12, fbuf, len(f))],
-                     len(f), centre, oc, orad, per, reach, onrm)
+                     len(f), centre, oc, orad, per, reach, onrm, has_owners)
         return scene
 
     @classmethod

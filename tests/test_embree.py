@@ -185,6 +185,8 @@ def test_one_point_and_identical_points_have_a_defined_answer(n):
     assert scan.indices.tolist() == [0]  # one disc is seen, and the lowest index wins the tie
     bill = discs(pts, orientation="billboard", fallback_radius=0.1).scan([0, 0, 0], ScanPattern(1.0))
     assert bill.indices.tolist() == [0]
+    fan = discs(pts, engine="fan", segments=3, primary_origin=[0, 0, 0], fallback_radius=0.1)
+    assert fan.scan([0, 0, 0], ScanPattern(1.0)).indices.tolist() == [0]
 
 
 def test_collinear_neighbourhoods_get_a_defined_normal():
