@@ -236,7 +236,9 @@ def estimate_normals(points, k: int = 10, primary_origin=None, chunk: int = 1 <<
     neighbours (smallest eigenvector); collinear or empty neighbourhoods take
     the direction to ``primary_origin`` (or +z) made orthogonal to the line."""
     pts = np.asarray(points, np.float64)
-    out = np.array(_fallback_directions(pts, primary_origin))
+    if len(pts) < 2:  # no neighbours: the fallback direction
+        return np.array(_fallback_directions(pts, primary_origin))
+    out = np.empty((len(pts), 3))
     for s, _, idx in neighbourhoods(pts, k, chunk):
         out[s:s + len(idx)] = _chunk_normals(pts, s, idx, primary_origin)
     return out
@@ -252,8 +254,8 @@ def _chunk_normals(pts, s, idx, primary_origin):
 
 
 @njit(cache=True, inline="always")
-def _smallest_eigvec(a00, a01, a02, a11, a12, a22, lam):
-    """Unit eigenvector of the symmetric 3x3 matrix for eigenvalue ``lam``: the
+def _eigvec(a00, a01, a02, a11, a12, a22, lam):
+    """Unit eigenvector of the symmetric 3x3 matrix for its eigenvalue ``lam``: the
     largest cross product of two rows of (A - lam I)."""
     r0 = (a00 - lam, a01, a02)
     r1 = (a01, a11 - lam, a12)
@@ -327,7 +329,7 @@ def _pca_normals(pts, s, idx, has_primary, po, out):
         lam1 = 3.0 * q3 - lam0 - lam2
         if lam1 <= 1e-9 * lam2:
             # collinear: orthogonal to the line, towards the fallback direction
-            ax, ay, az, ok = _smallest_eigvec(a00, a01, a02, a11, a12, a22, lam2)
+            ax, ay, az, ok = _eigvec(a00, a01, a02, a11, a12, a22, lam2)
             t = fx * ax + fy * ay + fz * az
             hx, hy, hz = fx - t * ax, fy - t * ay, fz - t * az
             hn = math.sqrt(hx * hx + hy * hy + hz * hz)
@@ -339,7 +341,7 @@ def _pca_normals(pts, s, idx, has_primary, po, out):
                 hn = math.sqrt(hx * hx + hy * hy + hz * hz)
             out[i, 0], out[i, 1], out[i, 2] = hx / hn, hy / hn, hz / hn
             continue
-        vx, vy, vz, ok = _smallest_eigvec(a00, a01, a02, a11, a12, a22, lam0)
+        vx, vy, vz, ok = _eigvec(a00, a01, a02, a11, a12, a22, lam0)
         if not ok:
             vx, vy, vz = fx, fy, fz
         out[i, 0], out[i, 1], out[i, 2] = vx, vy, vz
@@ -414,8 +416,10 @@ class DiscScanner(Scanner):
         spacing = np.zeros(n) if need_spacing else None
         normals = None
         if o.orientation == "normal":
-            normals = (np.array(_fallback_directions(pts, o.primary_origin)) if need_normals
-                       else np.asarray(as_points(o.normals, "normals"), np.float64))
+            # estimated normals are filled chunk by chunk below; fewer than two
+            # points have no neighbours and keep the fallback direction
+            normals = ((np.empty((n, 3)) if n >= 2 else np.array(_fallback_directions(pts, o.primary_origin)))
+                       if need_normals else np.asarray(as_points(o.normals, "normals"), np.float64))
             if len(normals) != n:
                 raise InputValueError(f"normals has {len(normals)} rows for {n} points")
         elif o.orientation == "primary":
