@@ -50,6 +50,8 @@ def configs(quick: bool, primary_res: float):
         embree("normal", radius)
         embree("billboard", radius)
     embree("primary", "spacing")
+    embree("primary", "footprint")        # no neighbour search at all: discs of the primary's own pulses
+    embree("primary", "footprint", 0.75)  # just over the half-diagonal of a pulse cell (0.707)
     embree("normal", ties=0.0)
     embree("normal", engine="fan")
     if not quick:

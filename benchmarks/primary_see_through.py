@@ -27,7 +27,7 @@ from common import machine, save  # noqa: E402
 
 from slr_ray import ScanPattern, scan_mesh  # noqa: E402
 from slr_ray.scenes import scene_from_spec  # noqa: E402
-from slr_ray.validate import hidden_from  # noqa: E402
+from slr_ray.validation import hidden_from  # noqa: E402
 
 
 def main(argv=None):

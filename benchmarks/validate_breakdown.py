@@ -9,7 +9,7 @@ validate config): its ``positions/<scene>.csv`` gives the positions. For each
 scene, primary resolution and position (every ``--every``-th, or those listed
 in ``--positions``): the true scan (pulse-centre, or nearest-in-pulse), the binning SLR scan of the
 dense primary, the similarity (checked against RUN_DIR/results.csv) and
-:func:`slr_ray.validate.miss_breakdown`: of the true points with no SLR point
+:func:`slr_ray.validation.miss_breakdown`: of the true points with no SLR point
 within 10 cm, how many are hidden from the primary scanner (occlusion: no
 primary resolution recovers them) and how many it saw (resolution and
 binning). Prints a table, saves results/validate_breakdown.json and
@@ -36,7 +36,7 @@ from slr_ray import ScanPattern, scan_mesh, simulate_scan  # noqa: E402
 from slr_ray.positions import azimuth_histogram  # noqa: E402
 from slr_ray.scenes import scene_from_spec  # noqa: E402
 from slr_ray.similarity import similarity  # noqa: E402
-from slr_ray.validate import peak_rss_gib, miss_breakdown  # noqa: E402
+from slr_ray.validation import peak_rss_gib, miss_breakdown  # noqa: E402
 
 
 def main(argv=None):

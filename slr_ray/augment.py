@@ -26,7 +26,8 @@ from pathlib import Path
 import numpy as np
 
 from .backends import options_for, prepare
-from .errors import InputValueError
+from .errors import MissingDependencyError
+from .paper import MIN_GROUND_POINTS, SCANNER_HEIGHT, SECONDARY_RESOLUTION
 from .pattern import ScanPattern
 
 __all__ = ["augment"]
@@ -72,8 +73,9 @@ def _scan_on_dask(job, cloud):
     return _scan_one(job, cloud)
 
 
-def augment(input_path, outdir, n: int, *, backend: str = "binning", resolution: float = 0.144,
-            heights=(1.65,), fmt: str | None = None, seed: int = 0, min_ground_points: int = 50_000,
+def augment(input_path, outdir, n: int, *, backend: str = "binning", resolution: float = SECONDARY_RESOLUTION,
+            heights=(SCANNER_HEIGHT,), fmt: str | None = None, seed: int = 0,
+            min_ground_points: int = MIN_GROUND_POINTS,
             ground=None, origin=None, workers: int | None = None, scheduler: str | None = None,
             progress: bool = True, backend_options: dict | None = None, allow_fewer: bool = True) -> dict:
     """Write ``n`` positions x ``heights`` SLR scans of ``input_path`` into ``outdir``.
@@ -81,8 +83,9 @@ def augment(input_path, outdir, n: int, *, backend: str = "binning", resolution:
     Parameters
     ----------
     ground : (n,) bool, optional
-        Ground labels; default from the input (``is_ground``, LAS class 2),
-        which must have some (use :func:`slr_ray.label_ground` otherwise).
+        Ground labels; default from the input (:func:`~slr_ray.positions.ground_labels`:
+        ``is_ground``, LAS class 2), which must have some (use
+        :func:`slr_ray.label_ground` otherwise).
     heights : sequence of float
         Scanner heights above the local ground.
     fmt : str, optional
@@ -99,19 +102,20 @@ def augment(input_path, outdir, n: int, *, backend: str = "binning", resolution:
     """
     from . import __version__
     from .io import atomic_path, check_format, read_cloud
-    from .positions import select_positions
+    from .positions import ground_labels, select_positions
 
     options_for(backend, backend_options)  # bad options fail before any work
+    if scheduler:
+        try:
+            import dask.distributed  # noqa: F401
+        except ImportError:
+            raise MissingDependencyError('augment on a scheduler needs dask: pip install "slr_ray[dask]"') from None
     input_path = Path(input_path)
     out = Path(outdir)
     ext = check_format(input_path, fmt)
     cloud = read_cloud(input_path)  # check everything before creating anything
     if ground is None:
-        a = cloud.attributes
-        ground = np.asarray(a["is_ground"]).astype(bool) if "is_ground" in a else \
-            (np.asarray(a["classification"]) == 2) if "classification" in a else None
-        if ground is None or not ground.any():
-            raise InputValueError(f"{input_path} has no ground labels; pass ground= (e.g. slr_ray.label_ground)")
+        ground = ground_labels(cloud)
     positions, cells = select_positions(cloud.points, ground, n, seed=seed, min_ground_points=min_ground_points,
                                         allow_fewer=allow_fewer, return_cells=True)
     pattern = ScanPattern(resolution)
@@ -128,7 +132,7 @@ def augment(input_path, outdir, n: int, *, backend: str = "binning", resolution:
             done = {}
     jobs = []
     for i, p in enumerate(positions):
-        ground_z = p[2] - 1.65
+        ground_z = p[2] - SCANNER_HEIGHT  # select_positions puts them SCANNER_HEIGHT above ground
         for h in heights:
             name = f"scan_{i:04d}_h{h:g}{ext}"
             if name in done:

@@ -108,27 +108,3 @@ def compare_backends(points, origins, pattern, *, tolerance: float = 0.10, bands
     return {"pattern": pattern.to_dict(), "tolerance": tolerance, "n_points": len(pts),
             "embree_options": scene.options.to_dict(), "embree_prepare_seconds": scene.prepare_seconds,
             "positions": out}
-
-
-def plot_comparison(result: dict, path) -> None:
-    """PNG: per range band, Jaccard index and see-through fraction, one line per position."""
-    import matplotlib
-
-    matplotlib.use("Agg")
-    import matplotlib.pyplot as plt
-
-    fig, ax = plt.subplots(1, 2, figsize=(11, 4.2))
-    for i, pos in enumerate(result["positions"]):
-        mids = [b["band_m"][0] for b in pos["bands"]]
-        jac = [b["jaccard"] if b["jaccard"] is not None else np.nan for b in pos["bands"]]
-        see = [b["see_through"] / b["binning"] if b["binning"] else np.nan for b in pos["bands"]]
-        label = f"position {i}"
-        ax[0].plot(mids, jac, "o-", label=label)
-        ax[1].plot(mids, 100 * np.array(see), "o-", label=label)
-    ax[0].set(xlabel="range band start (m)", ylabel="Jaccard index (binning vs embree)", ylim=(0, 1.02))
-    ax[1].set(xlabel="range band start (m)", ylabel=f"see-through binning returns (%, > {result['tolerance']} m)")
-    ax[0].legend(fontsize=8)
-    fig.suptitle(f"binning vs embree, {result['n_points']:,} points, {result['pattern']['azimuth_resolution']} deg")
-    fig.tight_layout()
-    fig.savefig(path, dpi=110)
-    plt.close(fig)

@@ -2,10 +2,13 @@
 
 1. a synthetic rectangle scene (the paper's Experiment 1, fewer rectangles);
 2. its primary scan from the origin (exact ray casting, pulse centres);
-3. secondary positions around it, and at each: the SLR scan (the primary cloud
-   subsampled by the binning backend) and the true scan of the scene;
-4. the similarity of each pair (fraction of true points within 10 cm of the
-   SLR scan), files, a figure and a one-screen report.
+3. secondary positions drawn on the primary by the paper's grid method, and at
+   each: the true scan of the scene and the SLR scans of the primary cloud by
+   both backends (binning, the paper's rule; embree, discs hit by one ray per
+   pulse);
+4. coverage (the paper's similarity: true points with an SLR point within
+   10 cm) and precision (SLR points with a true point within 10 cm) of each
+   pair, files, a figure and a one-screen report.
 """
 
 from __future__ import annotations
@@ -17,6 +20,9 @@ from pathlib import Path
 
 import numpy as np
 
+from . import paper
+from .io import atomic_path
+
 __all__ = ["run_demo"]
 
 
@@ -25,88 +31,103 @@ def _log(msg):
 
 
 def run_demo(outdir="slr_ray_demo", n_rectangles: int = 200, n_positions: int = 4, seed: int = 0,
-             quick: bool = False, primary_resolution: float | None = None) -> dict:
-    """Run the demo and return its report (also written to ``outdir/report.json``)."""
+             quick: bool = False, primary_resolution: float | None = None,
+             backends=("binning", "embree")) -> dict:
+    """Run the demo and return its summary (the full report is written to ``outdir/report.json``).
+
+    Parameters
+    ----------
+    outdir : path
+        Created if missing; the demo writes only its own files there.
+    n_rectangles, seed : int
+        The scene (:func:`~slr_ray.scenes.rectangle_scene`).
+    n_positions : int
+        Secondary positions drawn by the grid method (fewer when the scene has
+        fewer valid cells).
+    quick : bool
+        A coarse primary (0.12 deg) and secondary (0.36 deg): seconds, for tests.
+    primary_resolution : float, optional
+        Degrees (default 0.036, the SYNS scans'; 0.12 with ``quick``).
+    backends : sequence of {'binning', 'embree'}
+        Backends run at every position (embree is left out, with a note,
+        when its library is missing).
+    """
+    from .backends import available_backends, prepare
     from .io import PointCloud, write_cloud
     from .meshscan import scan_mesh
     from .pattern import ScanPattern, preset
-    from .backends import prepare
+    from .plotting import demo_figure, save_figure
+    from .positions import select_positions
     from .scenes import rectangle_scene
-    from .similarity import similarity
+    from .similarity import agreement
 
     out = Path(outdir)
     out.mkdir(parents=True, exist_ok=True)
     t_all = time.perf_counter()
-    primary_res = primary_resolution or (0.12 if quick else 0.036)
+    primary_res = float(primary_resolution or (0.12 if quick else paper.SYNS_RESOLUTION))
     secondary = ScanPattern(0.36) if quick else preset("slr")
     scene = rectangle_scene(n_rectangles, seed=seed)
     _log(f"scene: {scene.n_present} of {n_rectangles} rectangles present, {len(scene.mesh.faces)} faces")
 
     origin = np.zeros(3)
-    primary_pattern = ScanPattern(primary_res, max_range=120.0)
-    primary = scan_mesh(scene, origin, primary_pattern, progress=not quick)
+    primary = scan_mesh(scene, origin, ScanPattern(primary_res, max_range=120.0), progress=not quick)
     _log(f"primary scan at {primary_res} deg: {len(primary):,} points in {primary.seconds:.1f} s")
-    write_cloud(out / "primary.npz", PointCloud(primary.points, {"label": primary.labels}, origin))
+    # the primary (27 M points, 0.7 GB) is not written: `slr-ray scene scan` makes it on its own
 
-    rng = np.random.default_rng(seed)
-    radius = rng.uniform(3.0, 30.0, n_positions)
-    angle = rng.uniform(0, 2 * np.pi, n_positions)
-    positions = np.column_stack([radius * np.cos(angle), radius * np.sin(angle), np.zeros(n_positions)])
+    # the paper's ground-support threshold is for 0.036 deg scans: scaled by the pulse density
+    min_ground = max(100, round(paper.MIN_GROUND_POINTS * (paper.SYNS_RESOLUTION / primary_res) ** 2))
+    positions = select_positions(primary.points, primary.labels == 0, n_positions, seed=seed,
+                                 min_ground_points=min_ground, allow_fewer=True)
+    _log(f"{len(positions)} positions by the grid method (>= {min_ground:,} ground points within 5 m)")
+
+    missing = [b for b in backends if b not in available_backends()]
+    if missing:
+        _log(f"left out (library missing): {missing}")
+    scanners = {}
+    for b in [b for b in backends if b not in missing]:
+        # embree on a primary of known origin and resolution: discs of the pulse footprint facing the
+        # primary scanner need no neighbour search (the dearest part of preparing discs)
+        options = {"radius": "footprint", "orientation": "primary", "primary_origin": origin,
+                   "primary_resolution": primary_res} if b == "embree" else None
+        scanners[b] = prepare(primary.points, b, options)
+        _log(f"{b}: prepared in {scanners[b].prepare_seconds:.1f} s")
 
     rows = []
-    scanner = prepare(primary.points)
     for i, pos in enumerate(positions):
-        slr = scanner.scan(pos, secondary)
         truth = scan_mesh(scene, pos, secondary)
-        sim = similarity(truth.points, primary.points[slr.indices])
         name = f"position_{i:02d}"
-        write_cloud(out / f"{name}_slr.ply", PointCloud(
-            primary.points[slr.indices], {"label": primary.labels[slr.indices].astype(np.int32)}))
         write_cloud(out / f"{name}_true.ply", PointCloud(truth.points, {"label": truth.labels.astype(np.int32)}))
-        rows.append({"position": pos.round(3).tolist(), "distance_m": round(float(np.hypot(*pos[:2])), 3),
-                     "slr_points": len(slr), "true_points": len(truth), "similarity": round(sim, 4),
-                     "slr_seconds": round(slr.seconds, 3), "true_seconds": round(truth.seconds, 3)})
+        for b, scanner in scanners.items():
+            slr = scanner.scan(pos, secondary)
+            a = agreement(truth.points, primary.points[slr.indices])
+            write_cloud(out / f"{name}_slr_{b}.ply", PointCloud(
+                primary.points[slr.indices], {"label": primary.labels[slr.indices].astype(np.int32)}))
+            rows.append({"position": pos.round(3).tolist(), "distance_m": round(float(np.hypot(*pos[:2])), 3),
+                         "backend": b, "slr_points": len(slr), "true_points": len(truth),
+                         "similarity": round(a.coverage, 4), "precision": round(a.precision, 4),
+                         "slr_seconds": round(slr.seconds, 3), "true_seconds": round(truth.seconds, 3)})
 
-    _plot(out / "demo.png", primary, positions, rows, scene)
+    save_figure(demo_figure(primary, positions, rows, scene.n_present), out / "demo.png")
     report = {
         "scene": scene.info(), "primary": {**primary.summary(), "resolution_deg": primary_res},
-        "secondary_pattern": secondary.to_dict(), "positions": rows,
+        "secondary_pattern": secondary.to_dict(), "min_ground_points": min_ground,
+        "prepare_seconds": {b: round(s.prepare_seconds, 3) for b, s in scanners.items()}, "pairs": rows,
         "files": sorted(p.name for p in out.iterdir()), "output_dir": str(out),
         "seconds": round(time.perf_counter() - t_all, 2),
     }
-    (out / "report.json").write_text(json.dumps(report, indent=2))
+    with atomic_path(out / "report.json") as tmp:
+        tmp.write_text(json.dumps(report, indent=2))
     _log("")
-    _log(f"{'position':>10} {'dist m':>7} {'SLR pts':>9} {'true pts':>9} {'similarity':>10}")
-    for i, r in enumerate(rows):
-        _log(f"{i:>10} {r['distance_m']:>7.1f} {r['slr_points']:>9,} {r['true_points']:>9,} {r['similarity']:>10.1%}")
+    _log(f"{'position':>8} {'dist m':>7} {'backend':>8} {'SLR pts':>9} {'true pts':>9} {'coverage':>9} "
+         f"{'precision':>9}")
+    for r in rows:
+        _log(f"{str(r['position'][:2]):>8} {r['distance_m']:>7.1f} {r['backend']:>8} {r['slr_points']:>9,} "
+             f"{r['true_points']:>9,} {r['similarity']:>9.1%} {r['precision']:>9.1%}")
     _log(f"\nfiles in {out}/ ; figure {out / 'demo.png'} ; {report['seconds']} s in all")
-    return {"output_dir": str(out), "positions": len(rows),
-            "mean_similarity": round(float(np.mean([r["similarity"] for r in rows])), 4) if rows else None,
-            "seconds": report["seconds"]}
-
-
-def _plot(path, primary, positions, rows, scene):
-    import matplotlib
-
-    matplotlib.use("Agg")
-    import matplotlib.pyplot as plt
-
-    fig, ax = plt.subplots(1, 2, figsize=(12, 5.5))
-    pts = primary.points
-    step = max(1, len(pts) // 200_000)
-    sub = pts[::step]
-    ax[0].scatter(sub[:, 0], sub[:, 1], s=0.1, c=primary.labels[::step] > 0, cmap="coolwarm", rasterized=True)
-    ax[0].scatter(positions[:, 0], positions[:, 1], marker="^", c="k", s=60, label="SLR positions")
-    ax[0].scatter([0], [0], marker="*", c="gold", s=150, edgecolor="k", label="primary scanner")
-    ax[0].set(xlim=(-60, 60), ylim=(-60, 60), aspect="equal", xlabel="x (m)", ylabel="y (m)",
-              title=f"primary scan, top view ({scene.n_present} rectangles)")
-    ax[0].legend(loc="upper right")
-    d = [r["distance_m"] for r in rows]
-    s = [100 * r["similarity"] for r in rows]
-    ax[1].plot(d, s, "o")
-    ax[1].axhline(90, ls=":", c="gray")
-    ax[1].set(xlabel="distance from primary scanner (m)", ylabel="similarity (% true points < 10 cm)",
-              ylim=(0, 101), title="SLR scan vs true scan")
-    fig.tight_layout()
-    fig.savefig(path, dpi=110)
-    plt.close(fig)
+    summary = {}
+    for b in scanners:
+        rr = [r for r in rows if r["backend"] == b]
+        summary[b] = {"mean_similarity": round(float(np.mean([r["similarity"] for r in rr])), 4) if rr else None,
+                      "mean_precision": round(float(np.mean([r["precision"] for r in rr])), 4) if rr else None}
+    return {"output_dir": str(out), "positions": len(positions), "backends": summary,
+            "mean_similarity": summary.get("binning", {}).get("mean_similarity"), "seconds": report["seconds"]}

@@ -22,13 +22,15 @@ import numpy as np
 
 from .arrays import as_origin, as_points
 from .errors import InputValueError
+from .paper import MIN_GROUND_POINTS, SCANNER_HEIGHT, SECONDARY_RESOLUTION, SWEEP_HEIGHTS
 
-__all__ = ["pulse_sized_bins", "DistanceHistogram", "distance_histogram", "height_sweep", "plot_distances"]
+__all__ = ["pulse_sized_bins", "DistanceHistogram", "distance_histogram", "height_sweep", "DistanceStudy",
+           "distance_study"]
 
 KINDS = ("all", "ground", "non_ground")
 
 
-def pulse_sized_bins(height: float = 1.65, zenith_resolution: float = 0.144, max_range: float = 120.0,
+def pulse_sized_bins(height: float = SCANNER_HEIGHT, zenith_resolution: float = SECONDARY_RESOLUTION, max_range: float = 120.0,
                      horizontal: bool = False, from_zero: bool = False) -> np.ndarray:
     """Distance-bin edges of pulse-sized bins (metres, increasing).
 
@@ -193,8 +195,8 @@ def distance_histogram(points, origin, is_ground=None, bins=None, horizontal: bo
     return DistanceHistogram(bins, horizontal=horizontal).add(points, origin, is_ground)
 
 
-def height_sweep(points, is_ground, positions, heights=(0.5, 1.0, 1.65, 2.5, 4.0), pattern=None,
-                 scanner_height: float = 1.65, bins=None, horizontal: bool = False, progress: bool = False):
+def height_sweep(points, is_ground, positions, heights=SWEEP_HEIGHTS, pattern=None,
+                 scanner_height: float = SCANNER_HEIGHT, bins=None, horizontal: bool = False, progress: bool = False):
     """SLR scans from the same positions at several heights, pooled per height.
 
     ``positions`` (n, 3) are scanner positions ``scanner_height`` above the
@@ -210,7 +212,7 @@ def height_sweep(points, is_ground, positions, heights=(0.5, 1.0, 1.65, 2.5, 4.0
 
     pts = as_points(points).astype(np.float64, copy=False)
     g = np.asarray(is_ground, bool)
-    pattern = as_pattern(pattern or ScanPattern(0.144))
+    pattern = as_pattern(pattern or ScanPattern(SECONDARY_RESOLUTION))
     scanner = prepare(pts)
     pos = np.atleast_2d(np.asarray(positions, np.float64))
     if any(h <= 0 for h in heights):
@@ -240,37 +242,103 @@ def height_sweep(points, is_ground, positions, heights=(0.5, 1.0, 1.65, 2.5, 4.0
     return out
 
 
-def plot_distances(original: DistanceHistogram | None, slr: DistanceHistogram | None, sweep: dict | None,
-                   path, max_distance: float = 40.0) -> None:
-    """The paper's Figure 4 panels: (a) original clouds, (b) SLR clouds, (c) ground
-    by scanner height, (d) non-ground by scanner height."""
-    import matplotlib
+@dataclass
+class DistanceStudy:
+    """The paper's Experiment 2 over some input scans (:func:`distance_study`).
 
-    matplotlib.use("Agg")
-    import matplotlib.pyplot as plt
+    Attributes
+    ----------
+    original : DistanceHistogram
+        The input scans from their own origins.
+    slr : DistanceHistogram
+        SLR scans at the scanner height, on the same bins.
+    sweep : dict
+        Scanner height -> DistanceHistogram of SLR scans at that height.
+    inputs : list of dict
+        Per input: path, positions drawn, ground fraction.
+    """
 
-    fig, ax = plt.subplots(2, 2, figsize=(11, 8))
-    for a, h, title in ((ax[0, 0], original, "(a) original clouds"), (ax[0, 1], slr, "(b) SLR clouds")):
-        if h is None:
-            a.set_visible(False)
-            continue
-        for kind in KINDS:
-            a.stairs(h.density(kind), h.edges, label=f"{kind.replace('_', '-')} (peak {h.peak(kind):.1f} m)")
-        a.set(title=f"{title}, {h.n_scans} scans", xlim=(0.3, max_distance), xscale="log")
-    if sweep:
-        cmap = plt.get_cmap("viridis")
-        for i, (height, h) in enumerate(sorted(sweep.items())):
-            c = cmap(i / max(1, len(sweep) - 1))
-            for a, kind in ((ax[1, 0], "ground"), (ax[1, 1], "non_ground")):
-                a.stairs(h.density(kind), h.edges, color=c, label=f"{height:g} m (peak {h.peak(kind):.1f} m)")
-        ax[1, 0].set(title="(c) ground, by scanner height", xlim=(0.3, max_distance), xscale="log")
-        ax[1, 1].set(title="(d) non-ground, by scanner height", xlim=(0.3, max_distance), xscale="log")
-    else:
-        ax[1, 0].set_visible(False)
-        ax[1, 1].set_visible(False)
-    for a in ax.ravel():
-        a.set(xlabel="distance (m, log)", ylabel="probability density (1/m)", yscale="log")
-        a.legend(fontsize=8)
-    fig.tight_layout()
-    fig.savefig(path, dpi=110)
-    plt.close(fig)
+    original: DistanceHistogram
+    slr: DistanceHistogram
+    sweep: dict
+    inputs: list
+
+    def tables(self) -> dict:
+        """File name -> histogram, as :meth:`write` names them."""
+        return {"original.csv": self.original, "slr.csv": self.slr} | {
+            f"height_{h:g}m.csv": v for h, v in self.sweep.items()}
+
+    def write(self, outdir) -> list:
+        """CSV tables and ``distances.png`` (the paper's Figure 4) into ``outdir``; returns the file names."""
+        from .io import atomic_path
+        from .plotting import distances_figure, save_figure
+
+        out = Path(outdir)
+        out.mkdir(parents=True, exist_ok=True)
+        for name, hist in self.tables().items():
+            with atomic_path(out / name) as tmp:
+                hist.to_csv(tmp)
+        save_figure(distances_figure(self.original, self.slr, self.sweep), out / "distances.png")
+        return sorted(self.tables()) + ["distances.png"]
+
+    def summary(self) -> dict:
+        return {"inputs": self.inputs, "original": self.original.summary(), "slr": self.slr.summary(),
+                "heights": {f"{h:g}": {"peak_ground_m": v.peak("ground"), "peak_non_ground_m": v.peak("non_ground")}
+                            for h, v in self.sweep.items()}}
+
+
+def distance_study(inputs, *, origin=None, heights=SWEEP_HEIGHTS, positions: int = 20, seed: int = 0,
+                   resolution: float = SECONDARY_RESOLUTION, max_range: float = 120.0,
+                   scanner_height: float = SCANNER_HEIGHT, min_ground_points: int = MIN_GROUND_POINTS,
+                   ground: dict | None = None, progress: bool = False) -> DistanceStudy:
+    """The paper's Experiment 2: distance distributions of real scans and of their SLR scans.
+
+    For each input scan: its own distances from its origin; ``positions``
+    secondary positions by the grid method; SLR scans from them at
+    ``scanner_height`` and at every height of ``heights``. Everything is
+    pooled over inputs into histograms with pulse-sized bins.
+
+    Parameters
+    ----------
+    inputs : sequence of path or PointCloud
+        One scan each.
+    origin : (3,) float, optional
+        The scanner origin of inputs that record none. An explicit origin is
+        used for every input, over any the files record (a file's recorded
+        origin may be a format default, e.g. PCD's ``VIEWPOINT 0 0 0``).
+    ground : dict, optional
+        Keywords of :func:`~slr_ray.positions.ground_labels` (``attribute``,
+        ``value``, ``csf``, ``cloth_resolution``).
+    """
+    from .backends import prepare
+    from .io import PointCloud, read_cloud
+    from .pattern import ScanPattern
+    from .positions import ground_labels, select_positions
+
+    bins = pulse_sized_bins(scanner_height, resolution, max_range, from_zero=True)
+    original, slr, sweep, per_input = DistanceHistogram(bins), DistanceHistogram(bins), {}, []
+    pattern = ScanPattern(resolution, max_range=max_range)
+    for item in inputs:
+        cloud = item if isinstance(item, PointCloud) else read_cloud(item)
+        name = "<PointCloud>" if isinstance(item, PointCloud) else str(item)
+        is_ground = ground_labels(cloud, **(ground or {}))
+        o = origin if origin is not None else cloud.origin
+        if o is None:
+            raise InputValueError(f"{name} records no scanner origin: give one (--origin X Y Z)")
+        original += distance_histogram(cloud.points, o, is_ground, bins)
+        pos = select_positions(cloud.points, is_ground, positions, seed=seed, min_ground_points=min_ground_points,
+                               allow_fewer=True, scanner_height=scanner_height)
+        sw = height_sweep(cloud.points, is_ground, pos, heights, pattern, scanner_height=scanner_height,
+                          progress=progress)
+        for h, hist in sw.items():
+            if h in sweep:
+                sweep[h] += hist
+            else:
+                sweep[h] = hist
+        scanner = prepare(cloud.points)
+        for p in pos:
+            scan = scanner.scan(p, pattern)
+            slr.add(cloud.points[scan.indices], p, is_ground[scan.indices])
+        per_input.append({"input": name, "positions": len(pos), "ground_fraction": float(is_ground.mean())})
+    return DistanceStudy(original, slr, sweep, per_input)
+

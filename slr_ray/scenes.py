@@ -19,9 +19,13 @@ import numpy as np
 from numba import njit
 
 from .errors import InputValueError
+from .paper import SCANNER_HEIGHT
 
 __all__ = ["RectangleScene", "rectangle_scene", "load_scene_spec", "scene_from_spec",
-           "dense_samples", "SCENES_DIR"]
+           "dense_samples", "SCENES_DIR", "MESH_FORMATS"]
+
+#: Mesh files a scene can be written to (trimesh's exporters).
+MESH_FORMATS = ("ply", "obj", "stl", "glb", "off")
 
 #: Directory of the scene specs and validation configs: those shipped in the
 #: package (``slr_ray/data/scenes``, also ``scenes/`` of the source tree), or
@@ -123,7 +127,7 @@ def rectangle_scene(
     seed: int | None = 0,
     *,
     ground_radius: float = 100.0,
-    ground_z: float = -1.65,
+    ground_z: float = -SCANNER_HEIGHT,
     side_range: tuple[float, float] = (0.1, 10.1),
     xy_range: tuple[float, float] = (-100.0, 100.0),
     z_range: tuple[float, float] = (-5.0, 10.0),

@@ -1,12 +1,25 @@
-"""How close a simulated scan is to the true one (the paper's measure)."""
+"""How close a simulated scan is to the true one, in both directions.
+
+:func:`similarity` is the paper's measure: **coverage**, the share of true
+points with a simulated point within 10 cm. It cannot see simulated points
+that have no true point near them (see-through points: surfaces behind
+another that a real scanner would not record); an SLR scan that kept every
+primary point would score 100 %. :func:`agreement` adds **precision** (the
+share of simulated points within the threshold of a true point) and their
+harmonic mean, the F-score, as point-cloud benchmarks report them (Tanks and
+Temples: precision, recall and F-score at a distance threshold).
+"""
 
 from __future__ import annotations
+
+from dataclasses import asdict, dataclass
 
 import numpy as np
 
 from .arrays import as_points
+from .paper import SIMILARITY_THRESHOLD
 
-__all__ = ["similarity", "nearest_distances"]
+__all__ = ["similarity", "agreement", "Agreement", "nearest_distances"]
 
 
 def nearest_distances(query, reference, workers: int = -1, upper_bound: float = np.inf) -> np.ndarray:
@@ -31,7 +44,7 @@ def nearest_distances(query, reference, workers: int = -1, upper_bound: float = 
     return d
 
 
-def similarity(true_points, simulated_points, threshold: float = 0.10, workers: int = -1) -> float:
+def similarity(true_points, simulated_points, threshold: float = SIMILARITY_THRESHOLD, workers: int = -1) -> float:
     """Fraction of true points whose nearest simulated point is closer than ``threshold``.
 
     The paper's similarity of a secondary (true) scan and its SLR scan, with
@@ -44,3 +57,77 @@ def similarity(true_points, simulated_points, threshold: float = 0.10, workers: 
     if len(d) == 0:
         return float("nan")
     return float(np.count_nonzero(d < threshold) / len(d))
+
+
+@dataclass(frozen=True)
+class Agreement:
+    """Coverage, precision and F-score of a simulated scan against a true one.
+
+    Attributes
+    ----------
+    coverage : float
+        Share of true points with a simulated point closer than ``threshold``
+        (the paper's similarity; ``nan`` with no true point).
+    precision : float
+        Share of simulated points with a true point closer than ``threshold``
+        (``nan`` with no simulated point).
+    fscore : float
+        ``2 P C / (P + C)``; 0 when both are 0, ``nan`` when either is ``nan``.
+    threshold : float
+        Metres.
+    true_points, simulated_points : int
+    """
+
+    coverage: float
+    precision: float
+    fscore: float
+    threshold: float
+    true_points: int
+    simulated_points: int
+
+    def to_dict(self) -> dict:
+        return asdict(self)
+
+
+def _share_within(query, reference, threshold, workers) -> float:
+    d = nearest_distances(query, reference, workers, upper_bound=threshold)
+    return float(np.count_nonzero(d < threshold) / len(d)) if len(d) else float("nan")
+
+
+def agreement(true_points, simulated_points, threshold: float = SIMILARITY_THRESHOLD,
+              workers: int = -1) -> Agreement:
+    """Coverage and precision of ``simulated_points`` against ``true_points``.
+
+    Parameters
+    ----------
+    true_points, simulated_points : (n, 3), (m, 3) float
+    threshold : float
+        Metres (the paper: 0.10). A pair exactly ``threshold`` apart does not
+        match (strictly closer, as :func:`similarity`).
+    workers : int
+        Threads of the kd-tree queries (-1: all).
+
+    Returns
+    -------
+    Agreement
+
+    Examples
+    --------
+    >>> import numpy as np
+    >>> true = np.array([[0.0, 0, 0], [1.0, 0, 0]])
+    >>> slr = np.array([[0.0, 0, 0.05], [5.0, 0, 0]])  # one match, one see-through point
+    >>> a = agreement(true, slr)
+    >>> a.coverage, a.precision, a.fscore
+    (0.5, 0.5, 0.5)
+    """
+    if not threshold > 0:
+        raise ValueError(f"threshold must be > 0, got {threshold}")
+    t = as_points(true_points, "true_points")
+    s = as_points(simulated_points, "simulated_points")
+    cov = _share_within(t, s, threshold, workers)
+    prec = _share_within(s, t, threshold, workers)
+    if np.isnan(cov) or np.isnan(prec):
+        f = float("nan")
+    else:
+        f = 0.0 if cov + prec == 0 else 2 * cov * prec / (cov + prec)
+    return Agreement(cov, prec, f, float(threshold), len(t), len(s))

@@ -78,8 +78,12 @@ def test_demo_quick(tmp_path, capsys):
     assert main(["demo", "--quick", "--positions", "2", "--rectangles", "50", "-o", str(tmp_path / "d")]) == 0
     rep = json.loads(capsys.readouterr().out)
     assert rep["positions"] == 2 and 0.3 < rep["mean_similarity"] <= 1
+    for b in ("binning", "embree"):  # both backends, coverage and precision
+        assert 0.3 < rep["backends"][b]["mean_similarity"] <= 1
+        assert 0.5 < rep["backends"][b]["mean_precision"] <= 1
     files = {p.name for p in (tmp_path / "d").iterdir()}
-    assert {"report.json", "demo.png", "primary.npz", "position_00_slr.ply", "position_01_true.ply"} <= files
+    assert {"report.json", "demo.png", "position_00_slr_binning.ply",
+            "position_00_slr_embree.ply", "position_01_true.ply"} <= files
 
 
 def test_positions_command(tmp_path, capsys):
@@ -109,3 +113,31 @@ def test_ground_labels_without_ground_points_need_csf(tmp_path, capsys):
     write_cloud(tmp_path / "c.ply", PointCloud(pts, {"classification": np.zeros(1000, np.uint8)}))
     assert main(["positions", str(tmp_path / "c.ply"), "--n", "1", "-o", str(tmp_path / "p.json")]) == 2
     assert "mark no point as ground" in capsys.readouterr().err
+
+
+def test_backend_options_on_the_command_line(tmp_path, capsys):
+    """Embree options come from EmbreeOptions' fields; they are refused with another backend."""
+    src = tmp_path / "in.npy"
+    np.save(src, np.random.default_rng(0).normal(size=(500, 3)))
+    base = ["scan", str(src), "--origin", "0", "0", "0", "--resolution", "2", "-o", str(tmp_path / "o.npy")]
+    assert main(base + ["--backend", "embree", "--orientation", "billboard", "--radius", "0.05",
+                        "--print-config"]) == 0
+    cfg = json.loads(capsys.readouterr().out)
+    assert cfg["options"]["orientation"] == "billboard" and cfg["options"]["radius"] == 0.05
+    assert main(base + ["--orientation", "billboard"]) == 2  # binning has no orientation
+    err = capsys.readouterr().err.strip().splitlines()
+    assert len(err) == 1 and "--orientation" in err[0]
+    assert main(base + ["--backend", "embree", "--orientation", "sideways"]) == 2
+    err = capsys.readouterr().err.strip().splitlines()
+    assert len(err) == 1 and err[0].startswith("slr-ray: error:") and "sideways" in err[0]
+    assert main(base + ["--backend", "embree", "--radius", "0.05", "--orientation", "billboard"]) == 0
+    assert json.loads(capsys.readouterr().out)["points_out"] > 0
+
+
+def test_usage_errors_are_one_line_with_status_2(capsys):
+    for argv in (["scan"], ["nonsense"], ["positions", "x.ply", "--n", "0", "-o", "p.json"],
+                 ["compare", "x.ply", "--origin", "0", "0", "nan"]):
+        assert main(argv) == 2
+        err = capsys.readouterr().err.strip().splitlines()
+        assert len(err) == 1 and err[0].startswith("slr-ray: error:"), argv
+    assert main(["--version"]) == 0

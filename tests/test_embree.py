@@ -239,7 +239,8 @@ def test_bad_options_and_empty_input():
 
 
 def test_compare_backends_reports_see_through_and_bands(tmp_path):
-    from slr_ray.compare import compare_backends, plot_comparison
+    from slr_ray.compare import compare_backends
+    from slr_ray.plotting import comparison_figure, save_figure
 
     front = plane_grid(5.0, 1.0, 0.05)
     back = plane_grid(10.0, 4.0, 0.01)
@@ -253,7 +254,7 @@ def test_compare_backends_reports_see_through_and_bands(tmp_path):
     assert bands[(5.0, 10.0)]["see_through"] == 0  # the front wall itself is never behind anything
     assert bands[(10.0, 20.0)]["see_through"] == pos["see_through"]
     assert sum(b["binning"] for b in pos["bands"]) == pos["binning"]
-    plot_comparison(res, tmp_path / "c.png")
+    save_figure(comparison_figure(res), tmp_path / "c.png")
     assert (tmp_path / "c.png").stat().st_size > 1000
 
 

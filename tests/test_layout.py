@@ -93,3 +93,30 @@ def test_no_import_cycles_between_modules():
 def test_docstrings_do_not_cite_files_users_do_not_have():
     bad = [str(p.relative_to(PKG)) for _, p in _modules() if "DESIGN" in p.read_text()]
     assert not bad, bad
+
+
+def test_figures_leave_matplotlib_state_alone():
+    """Only slr_ray.plotting draws, and it never switches the backend or uses pyplot."""
+    bad = []
+    for mod, path in _modules():
+        text = path.read_text()
+        if "matplotlib.use(" in text or "import matplotlib.pyplot" in text or "import pyplot" in text:
+            bad.append(f"{mod}: matplotlib.use or pyplot")
+        if mod != "slr_ray.plotting" and "import matplotlib" in text:
+            bad.append(f"{mod}: imports matplotlib (figures belong in slr_ray.plotting)")
+    assert not bad, "\n".join(bad)
+
+
+def test_paper_numbers_are_named_once():
+    """The paper's constants appear as numbers in code only in slr_ray.paper
+    (and the pattern presets, which are the paper's patterns by name)."""
+    paper_numbers = {1.65, 50_000, 17.5, 0.144, 0.0144, 0.00576, 0.036}
+    bad = []
+    for mod, path in _modules():
+        if mod in ("slr_ray.paper", "slr_ray.pattern"):
+            continue
+        for node in ast.walk(ast.parse(path.read_text())):
+            if isinstance(node, ast.Constant) and type(node.value) in (int, float) \
+                    and node.value in paper_numbers:
+                bad.append(f"{mod}:{node.lineno}: {node.value}")
+    assert not bad, "\n".join(bad)

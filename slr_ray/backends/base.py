@@ -41,6 +41,30 @@ class BackendOptions:
                 f"unknown option(s) {unknown} for {cls.__name__}; known: {sorted(known)}")
         return cls(**merged)
 
+    @classmethod
+    def describe(cls) -> dict:
+        """``{field: (type, description)}`` from the class docstring's Attributes
+        section (numpydoc): the one description the command line's help shows."""
+        import inspect
+
+        doc = inspect.getdoc(cls) or ""
+        lines = doc.split("Attributes\n----------\n", 1)[-1].splitlines() if "Attributes" in doc else []
+        out, name = {}, None
+        for line in lines:
+            if line and not line.startswith(" ") and " : " in line:
+                name, typ = line.split(" : ", 1)
+                out[name.strip()] = [typ.strip(), ""]
+            elif line.startswith(" ") and name is not None:
+                out[name][1] = (out[name][1] + " " + line.strip()).strip()
+            elif not line.strip() and name is not None and out[name][1]:
+                name = None
+        return {k: tuple(v) for k, v in out.items()}
+
+    @classmethod
+    def choices(cls) -> dict:
+        """``{field: allowed values}`` of the fields that take one of a few names."""
+        return {}
+
     def to_dict(self) -> dict:
         """Plain-JSON description (arrays summarised by shape)."""
         out = {}

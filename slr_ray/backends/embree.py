@@ -85,12 +85,17 @@ class EmbreeOptions(BackendOptions):
     Attributes
     ----------
     radius : float, (n,) float or {'spacing', 'footprint'}
+        Disc radius in metres, or 'spacing' (mean distance to the k nearest
+        neighbours) or 'footprint' (the primary pulse's width at the point).
     radius_scale : float
         Multiplies every radius.
     k : int
         Neighbours for ``'spacing'`` radii and for normals.
     orientation : {'normal', 'billboard', 'primary'}
+        Discs along the surface normal, facing each ray, or facing the
+        primary scanner.
     engine : {'embree', 'fan', 'open3d'}
+        Embree's exact discs, or polygon fans in Embree or Open3D (cross-checks).
     segments : int
         Rim vertices of a disc's polygon (fan engines only; >= 3).
     ties : float
@@ -126,6 +131,10 @@ class EmbreeOptions(BackendOptions):
     fallback_radius: float = 0.01
     chunk: int = 1 << 20
     n_threads: int | None = None
+
+    @classmethod
+    def choices(cls) -> dict:
+        return {"orientation": ORIENTATIONS, "engine": ENGINES}
 
     def __post_init__(self):
         if isinstance(self.radius, str) and self.radius not in RADIUS_MODES:
@@ -190,9 +199,15 @@ def _fallback_directions(points, primary_origin):
     """Direction used where a normal is undefined: to the primary scanner, or +z."""
     if primary_origin is None:
         return np.broadcast_to([0.0, 0.0, 1.0], points.shape)
-    h = as_origin(primary_origin, "primary_origin") - points
-    norm = np.linalg.norm(h, axis=1, keepdims=True)
-    return np.where(norm > 0, h / np.where(norm > 0, norm, 1), [[0.0, 0.0, 1.0]])
+    h = as_origin(primary_origin, "primary_origin") - np.asarray(points, np.float64)
+    norm = np.sqrt(np.einsum("ij,ij->i", h, h))
+    good = norm > 0
+    if good.all():
+        h /= norm[:, None]
+    else:
+        h[good] /= norm[good, None]
+        h[~good] = (0.0, 0.0, 1.0)
+    return h
 
 
 def disc_radii(points, radius="spacing", *, k: int = 6, radius_scale: float = 1.0, primary_origin=None,

@@ -7,7 +7,8 @@ import pytest
 
 from slr_ray import InputValueError
 from slr_ray.cli import main
-from slr_ray.validate import load_config, plot_validation, run_validation
+from slr_ray.plotting import paper_figure, save_figure, validation_figure
+from slr_ray.validation import load_config, run_validation
 
 
 @pytest.fixture(scope="module")
@@ -56,7 +57,7 @@ def test_resume_adds_only_missing_rows_and_same_seed_same_numbers(quick, tmp_pat
 
 def test_figure(quick, tmp_path):
     _, out, _ = quick
-    plot_validation(out / "results.csv", tmp_path / "f.png")
+    save_figure(validation_figure(out / "results.csv"), tmp_path / "f.png")
     assert (tmp_path / "f.png").stat().st_size > 5000
 
 
@@ -182,7 +183,7 @@ def test_wanted_rows_and_bad_entries():
 
 
 def test_series_stats_against_hand_counts():
-    from slr_ray.validate import series_stats
+    from slr_ray.validation import series_stats
 
     d = np.array([1.0, 5.0, 12.0, 17.4, 17.5, 30.0, 40.0])
     s = np.array([0.95, 0.85, 0.91, 0.99, 0.5, 0.81, 0.79])
@@ -191,10 +192,18 @@ def test_series_stats_against_hand_counts():
     assert st["below_17.5m"]["mean"] == pytest.approx((0.95 + 0.85 + 0.91 + 0.99) / 4)
     assert st["below_17.5m"]["min"] == 0.85 and st["below_17.5m"]["share_above_0.9"] == 0.75
     assert st["share_above_0.8"] == pytest.approx(5 / 7)
-    assert st["bands"]["0-10"] == {"pairs": 2, "mean": pytest.approx(0.9)}
+    assert st["bands"]["0-10"] == {"pairs": 2, "mean": pytest.approx(0.9), "precision": None}
     assert st["bands"]["17.5-25"]["pairs"] == 1 and st["bands"]["35-inf"]["pairs"] == 1
     assert sum(b["pairs"] for b in st["bands"].values()) == 7
     assert st["slope_per_10m"] == pytest.approx(np.polyfit(d, s, 1)[0] * 10)
+    # precision: means over the rows that have it (old rows read back as nan)
+    p = np.array([0.5, np.nan, 0.7, 0.9, 1.0, 0.6, 0.8])
+    sp = series_stats(d, s, p)
+    assert sp["precision"] == pytest.approx(np.nanmean(p))
+    assert sp["below_17.5m"]["precision"] == pytest.approx((0.5 + 0.7 + 0.9) / 3)
+    assert sp["bands"]["0-10"]["precision"] == 0.5
+    assert {k: v for k, v in sp.items() if k not in ("precision", "bands", "below_17.5m")} == \
+        {k: v for k, v in st.items() if k not in ("precision", "bands", "below_17.5m")}  # coverage untouched
     empty = series_stats([], [])
     assert empty["pairs"] == 0 and empty["mean"] is None and empty["slope_per_10m"] is None
 
@@ -202,7 +211,7 @@ def test_series_stats_against_hand_counts():
 def _fake_rows(path):
     """A results.csv laid out like validate-paper: similarity = 1 - distance/100
     (binning/center), +0.03 for nearest truth, -0.01 for embree."""
-    from slr_ray.validate import COLUMNS
+    from slr_ray.validation import COLUMNS
 
     rows = []
     for scene, n_rect, res_list in ([(f"distance-{k}", 1000, [0.0144]) for k in range(1, 6)]
@@ -225,7 +234,7 @@ def _fake_rows(path):
 
 
 def test_paper_report_groups_the_questions(tmp_path):
-    from slr_ray.validate import paper_report, paper_report_markdown, plot_paper_figure
+    from slr_ray.validation import paper_report, paper_report_markdown
 
     _fake_rows(tmp_path / "r.csv")
     rep = paper_report(tmp_path / "r.csv")
@@ -243,7 +252,7 @@ def test_paper_report_groups_the_questions(tmp_path):
     assert "0.00576" not in rep["semantics"]  # a single series there: nothing to compare
     md = paper_report_markdown(rep)
     assert md.count("| distance-") == 5 and "0.00576° primaries" in md and "embree/nearest" in md
-    plot_paper_figure(tmp_path / "r.csv", tmp_path / "f.png", backend="embree")
+    save_figure(paper_figure(tmp_path / "r.csv", backend="embree"), tmp_path / "f.png")
     assert (tmp_path / "f.png").stat().st_size > 5000
 
 
@@ -255,7 +264,7 @@ def test_miss_breakdown_matches_the_shadow_of_a_wall():
 
     from slr_ray.meshscan import scan_mesh
     from slr_ray import simulate_scan
-    from slr_ray.validate import miss_breakdown
+    from slr_ray.validation import miss_breakdown
 
     v = np.array([[-20, -20, -1], [20, -20, -1], [20, 20, -1], [-20, 20, -1],
                   [5, -2, -1], [5, 2, -1], [5, 2, 3], [5, -2, 3]], float)
@@ -290,3 +299,34 @@ def test_miss_breakdown_matches_the_shadow_of_a_wall():
     assert out["all"]["visible"] < 0.1 * out["all"]["true"]
     # SLR = the true scan itself: nothing missed
     assert miss_breakdown(Scene, secondary, secondary.points)["all"]["missed"] == 0
+
+
+def test_results_written_before_precision_resume_with_their_own_header(tmp_path):
+    """A results.csv of an older version (no precision columns) is appended
+    to with its own header, never a mixed one; read back, its rows have empty
+    precision; a file with columns this version does not know is refused."""
+    from slr_ray.validation.results import COLUMNS, ResultsWriter, read_rows
+
+    old_cols = [c for c in COLUMNS if c not in ("precision", "fscore")]
+    path = tmp_path / "results.csv"
+    row = {c: "1" for c in COLUMNS} | {"scene": "s", "backend": "binning", "truth": "center", "position": "0"}
+    path.write_text(",".join(old_cols) + "\n" + ",".join(row[c] for c in old_cols) + "\n")
+    with ResultsWriter(path) as w:
+        w.add(row | {"position": "1"})
+    lines = path.read_text().splitlines()
+    assert lines[0] == ",".join(old_cols) and all(len(x.split(",")) == len(old_cols) for x in lines)
+    rows = read_rows(path)
+    assert len(rows) == 2 and all(r["precision"] == "" for r in rows.values())
+    path.write_text("scene,mystery\n")
+    with pytest.raises(ValueError, match="mystery"):
+        ResultsWriter(path)
+
+
+def test_unknown_config_keys_are_named(tmp_path):
+    bad = tmp_path / "v.toml"
+    bad.write_text("[validate]\nscenes = ['rect-1000']\npositons = 3\n")
+    with pytest.raises(ValueError, match="positons"):
+        load_config(bad)
+    bad.write_text("[validate]\nembree_options = {radius_scal = 2}\n")
+    with pytest.raises(ValueError, match="radius_scal"):
+        load_config(bad)

@@ -1,0 +1,170 @@
+"""The ``slr-ray`` command.
+
+Results go to stdout as one line of JSON; logs and progress go to stderr. Any
+error exits with status 2 and one line ``slr-ray: error: ...`` on stderr, and
+leaves no output file behind.
+
+``arguments``
+    argument groups shared by subcommands (pattern, backend and its options,
+    ground labels, positions), their choices taken from the library.
+``commands``
+    one function per subcommand: flags in, library call, JSON out.
+"""
+
+from __future__ import annotations
+
+import argparse
+import sys
+
+from .. import paper
+from ..meshscan import MESH_MODES
+from . import arguments as A
+from .commands import COMMANDS
+
+__all__ = ["main", "build_parser"]
+
+_FORMATS = ".npy, .npz, .ply, .pcd, .las, .laz, .e57, .bin (KITTI), .xyz, .txt"
+
+
+class _Parser(argparse.ArgumentParser):
+    """argparse with the command's error contract: one line on stderr, status 2 (``--help`` has the usage)."""
+
+    def error(self, message):
+        self.exit(2, f"slr-ray: error: {self.prog.removeprefix('slr-ray ')}: {message} (see --help)\n")
+
+
+def build_parser() -> argparse.ArgumentParser:
+    from .. import __version__
+
+    ap = _Parser(prog="slr-ray", description=(
+        "Simulated LiDAR Repositioning: simulate the scans an ideal static scanner "
+        "would record from new positions, using only points of one cloud."))
+    ap.add_argument("--version", action="version", version=f"slr-ray {__version__}")
+    sub = ap.add_subparsers(dest="cmd", required=True)
+
+    def command(name, help_text):
+        p = sub.add_parser(name, help=help_text, description=help_text)
+        p.set_defaults(func=COMMANDS[name])
+        return p
+
+    p = command("scan", "simulate one scan of a point cloud from a position")
+    p.add_argument("input", help=f"input cloud ({_FORMATS})")
+    p.add_argument("-o", "--output", required=True, help="output cloud (same formats)")
+    A.add_pattern(p, origin="optional")
+    A.add_backend(p)
+    p.add_argument("--format", help="output format, overriding the extension")
+    A.add_input_format(p)
+    p.add_argument("--keep-range", action="store_true", help="add a 'range' attribute")
+    p.add_argument("--force", action="store_true", help="overwrite the output")
+    p.add_argument("--print-config", action="store_true", help="print the resolved configuration as JSON and stop")
+
+    p = command("compare", "run both backends on a cloud and report where they differ")
+    p.add_argument("input", help=f"input cloud ({_FORMATS})")
+    A.add_pattern(p, origin="many")
+    p.add_argument("--tolerance", type=A.positive_float, default=paper.SIMILARITY_THRESHOLD,
+                   help=f"see-through tolerance (m, default {paper.SIMILARITY_THRESHOLD})")
+    A.add_backend(p, default="embree")
+    A.add_input_format(p)
+    p.add_argument("--png", help="also write a figure")
+
+    p = command("positions", "choose secondary scanner positions (the paper's grid method)")
+    p.add_argument("input", help=f"input cloud ({_FORMATS})")
+    p.add_argument("--n", type=A.positive_int, required=True, help="positions to draw")
+    p.add_argument("-o", "--output", required=True, help="positions and per-stage counts (JSON)")
+    A.add_positions(p)
+    A.add_ground(p)
+    p.add_argument("--cell-size", type=A.positive_float, default=paper.CELL_SIZE)
+    p.add_argument("--ground-count-radius", type=A.positive_float, default=paper.GROUND_COUNT_RADIUS)
+    p.add_argument("--ground-height-radius", type=A.positive_float, default=paper.GROUND_HEIGHT_RADIUS)
+    p.add_argument("--profile", default="none",
+                   help="azimuth minimum profile: none (default), default, or a JSON path")
+    p.add_argument("--allow-fewer", action="store_true", help="return fewer positions than --n if cells run out")
+    p.add_argument("--png", help="also write a top view of the cells kept and removed")
+    A.add_input_format(p)
+
+    p = command("profile", "rebuild the shipped azimuth minimum profile from synthetic scans")
+    p.add_argument("--scenes", default=",".join(paper.Q1_SCENES))
+    p.add_argument("--positions-per-scene", type=A.positive_int, default=4)
+    p.add_argument("--seed", type=int, default=0)
+    p.add_argument("-o", "--output", required=True)
+
+    p = command("validate", "reproduce the paper's validation (Experiment 1) from a config")
+    p.add_argument("config", help="a shipped config name (quick, paper, distance, occlusion, resolution) "
+                                  "or a TOML path")
+    p.add_argument("-o", "--output", help="output directory (default slr_ray_validate_NAME); reruns resume")
+    p.add_argument("--positions", type=A.positive_int, help="override the number of positions per scene")
+    p.add_argument("--quiet", action="store_true", help="no progress bar")
+    p.add_argument("--print-config", action="store_true", help="print the resolved config and stop")
+
+    p = command("distances", "distance distributions with pulse-sized bins (the paper's Experiment 2)")
+    p.add_argument("input", nargs="+", help="input clouds (each one scan; origin from the file or --origin)")
+    p.add_argument("-o", "--output", required=True, help="output directory (CSV tables, distances.png)")
+    p.add_argument("--origin", nargs=3, type=A.finite_float, metavar=("X", "Y", "Z"),
+                   help="scanner origin of every input (over any the files record)")
+    p.add_argument("--heights", nargs="+", type=A.positive_float, default=list(paper.SWEEP_HEIGHTS))
+    p.add_argument("--positions", type=A.positive_int, default=20, help="SLR positions per input")
+    p.add_argument("--resolution", type=A.positive_float, default=paper.SECONDARY_RESOLUTION)
+    p.add_argument("--max-range", type=A.positive_float, default=120.0)
+    A.add_positions(p)
+    A.add_ground(p)
+    p.add_argument("--quiet", action="store_true")
+
+    p = command("augment", "many simulated scans of one real scan (resumable, parallel)")
+    p.add_argument("input", help=f"input cloud ({_FORMATS})")
+    p.add_argument("--n", type=A.positive_int, required=True, help="positions")
+    p.add_argument("-o", "--output", required=True, help="output directory (a rerun resumes)")
+    p.add_argument("--resolution", type=A.positive_float, default=paper.SECONDARY_RESOLUTION)
+    p.add_argument("--heights", nargs="+", type=A.positive_float, default=[paper.SCANNER_HEIGHT],
+                   help="scanner heights above ground")
+    p.add_argument("--format", help="output extension (default: the input's)")
+    A.add_backend(p)
+    A.add_positions(p)
+    A.add_ground(p)
+    p.add_argument("--workers", type=A.positive_int, help="local worker processes (default: all cores)")
+    p.add_argument("--scheduler", help="address of a dask.distributed scheduler to run on")
+    p.add_argument("--quiet", action="store_true")
+
+    p = command("demo", "the main job on a built-in scene: scene, primary scan, SLR scans by both backends, report")
+    p.add_argument("-o", "--output", default="slr_ray_demo", help="output directory (default slr_ray_demo)")
+    p.add_argument("--rectangles", type=int, default=200)
+    p.add_argument("--positions", type=A.positive_int, default=4)
+    p.add_argument("--seed", type=int, default=0)
+    p.add_argument("--backends", nargs="+", default=["binning", "embree"], choices=["binning", "embree"])
+    p.add_argument("--quick", action="store_true", help="a coarser, faster run (for tests)")
+
+    p = command("scene", "synthetic rectangle scenes: info, build, scan")
+    ssub = p.add_subparsers(dest="scene_cmd", required=True)
+    q = ssub.add_parser("info", help="counts of a scene spec (shipped name or path)")
+    q.add_argument("spec")
+    q = ssub.add_parser("build", help="write the scene's mesh")
+    q.add_argument("spec")
+    q.add_argument("-o", "--output", required=True)
+    q = ssub.add_parser("scan", help="ground-truth scan of a scene")
+    q.add_argument("spec")
+    A.add_pattern(q, origin="required")
+    q.add_argument("--mode", default="center", choices=list(MESH_MODES))
+    q.add_argument("--supersample", type=A.positive_int, default=4, help="k for --mode nearest (k x k rays a pulse)")
+    q.add_argument("--spacing", type=A.positive_float, default=paper.DENSE_SPACING,
+                   help=f"grid spacing for --mode dense (m, default {paper.DENSE_SPACING})")
+    q.add_argument("--quiet", action="store_true", help="no progress bar")
+    q.add_argument("-o", "--output", required=True)
+    return ap
+
+
+def main(argv=None) -> int:
+    try:
+        args = build_parser().parse_args(argv)
+    except SystemExit as exc:  # argparse: 0 for --help/--version, 2 for a usage error
+        return int(exc.code or 0)
+    try:
+        args.func(args)
+    except KeyboardInterrupt:
+        print("slr-ray: interrupted", file=sys.stderr)
+        return 130
+    except (OSError, ValueError, TypeError, ImportError) as exc:
+        msg = str(exc).splitlines()[0] if str(exc) else type(exc).__name__
+        print(f"slr-ray: error: {msg}", file=sys.stderr)
+        return 2
+    return 0
+
+

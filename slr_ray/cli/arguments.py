@@ -1,0 +1,186 @@
+"""Argument groups shared by the ``slr-ray`` subcommands.
+
+Each group is declared once and its choices come from the library (backend
+enum, pattern presets, mesh-scan modes, backend option fields), so a new
+backend, preset or option shows up on the command line without a second list.
+"""
+
+from __future__ import annotations
+
+import argparse
+import math
+
+from .. import paper
+from ..backends import Backend, BinningOptions, EmbreeOptions
+from ..errors import InputValueError
+from ..pattern import PRESETS, ScanPattern, preset
+
+__all__ = ["add_pattern", "pattern_from", "add_backend", "backend_from", "add_ground", "ground_from",
+           "add_input_format", "finite_float", "positive_float", "positive_int"]
+
+
+def finite_float(text: str) -> float:
+    """An argparse type: a finite number."""
+    try:
+        v = float(text)
+    except ValueError:
+        raise argparse.ArgumentTypeError(f"not a number: {text!r}") from None
+    if not math.isfinite(v):
+        raise argparse.ArgumentTypeError(f"must be finite, got {text!r}")
+    return v
+
+
+def positive_float(text: str) -> float:
+    """An argparse type: a finite number > 0."""
+    v = finite_float(text)
+    if not v > 0:
+        raise argparse.ArgumentTypeError(f"must be > 0, got {text!r}")
+    return v
+
+
+def positive_int(text: str) -> int:
+    """An argparse type: an integer >= 1."""
+    try:
+        v = int(text)
+    except ValueError:
+        raise argparse.ArgumentTypeError(f"not an integer: {text!r}") from None
+    if v < 1:
+        raise argparse.ArgumentTypeError(f"must be >= 1, got {text!r}")
+    return v
+
+
+def add_input_format(p) -> None:
+    p.add_argument("--input-format", help="input format, overriding the extension")
+
+
+# --- scan pattern -------------------------------------------------------------------------------------------
+
+def add_pattern(p, origin: str = "optional", resolution_default: float | None = None) -> None:
+    """Scanner origin(s) and scan pattern.
+
+    ``origin``: 'required', 'optional' (default: the input's recorded origin),
+    'many' (repeatable, at least one) or 'none'.
+    """
+    g = p.add_argument_group("scanner and pattern")
+    if origin == "many":
+        g.add_argument("--origin", nargs=3, type=finite_float, action="append", required=True,
+                       metavar=("X", "Y", "Z"), help="a scanner position (repeat for several)")
+    elif origin != "none":
+        g.add_argument("--origin", nargs=3, type=finite_float, metavar=("X", "Y", "Z"),
+                       required=origin == "required",
+                       help="scanner position, in the cloud's coordinates" + (
+                           " (default: the input's recorded origin)" if origin == "optional" else ""))
+    g.add_argument("--resolution", type=positive_float, metavar="DEG", default=resolution_default,
+                   help="angular resolution, both axes (degrees)"
+                   + (f"; default {resolution_default:g}" if resolution_default else ""))
+    g.add_argument("--preset", choices=sorted(PRESETS), help="a pattern of the paper (other options override it)")
+    g.add_argument("--zenith-range", nargs=2, type=finite_float, metavar=("A", "B"),
+                   help="zenith field of view in degrees (0 = up; default 0 180)")
+    g.add_argument("--min-range", type=finite_float, metavar="M")
+    g.add_argument("--max-range", type=finite_float, metavar="M")
+
+
+def pattern_from(args) -> ScanPattern:
+    """The :class:`ScanPattern` of the pattern group's flags."""
+    if args.preset:
+        base = preset(args.preset)
+        changes = {k: v for k, v in (("resolution", args.resolution),
+                                     ("zenith_range", tuple(args.zenith_range) if args.zenith_range else None),
+                                     ("max_range", args.max_range), ("min_range", args.min_range)) if v is not None}
+        return base.with_(**changes) if changes else base
+    if args.resolution is None:
+        raise InputValueError("give --resolution DEG or --preset NAME")
+    return ScanPattern(resolution=args.resolution,
+                       zenith_range=tuple(args.zenith_range) if args.zenith_range else (0.0, 180.0),
+                       min_range=args.min_range, max_range=args.max_range)
+
+
+# --- backend and its options ---------------------------------------------------------------------------------
+
+#: Option fields not settable from the command line (arrays).
+_NOT_ON_CLI = {"normals"}
+
+
+def _option_type(name: str, typ: str):
+    """argparse type and nargs of one option field, from its numpydoc type."""
+    if name == "radius":
+        def radius(text):
+            try:
+                return positive_float(text)
+            except argparse.ArgumentTypeError:
+                return text  # a mode name, checked by the options class
+        return radius, None
+    if typ.startswith("(3,)"):
+        return finite_float, 3
+    if typ.startswith("int"):
+        return int, None
+    if typ.startswith("float"):
+        return finite_float, None
+    return str, None
+
+
+_OPTION_CLASSES = {Backend.BINNING.value: BinningOptions, Backend.EMBREE.value: EmbreeOptions}
+
+
+def add_backend(p, default: str = Backend.BINNING.value) -> None:
+    """``--backend`` and every backend's option flags, generated from the option
+    classes' fields (a field shared by several backends is one flag)."""
+    p.add_argument("--backend", default=default, choices=list(_OPTION_CLASSES),
+                   help=f"subsampling backend (default {default})")
+    g = p.add_argument_group("backend options", "each applies to the backends named in brackets")
+    seen: dict = {}
+    for backend, cls in _OPTION_CLASSES.items():
+        for name, (typ, text) in cls.describe().items():
+            if name not in _NOT_ON_CLI:
+                seen.setdefault(name, (cls, typ, text, []))[3].append(backend)
+    for name, (cls, typ, text, backends) in seen.items():
+        kind, nargs = _option_type(name, typ)
+        choices = cls.choices().get(name)
+        g.add_argument("--" + name.replace("_", "-"), dest=f"opt_{name}", type=kind, nargs=nargs, choices=choices,
+                       default=None, metavar=None if choices else name.split("_")[-1].upper(),
+                       help=f"[{', '.join(backends)}] {(text or typ).replace('``', '')}")
+
+
+def backend_from(args, backend: str | None = None) -> dict:
+    """The options given for ``backend`` (default ``args.backend``); flags of another backend are an error."""
+    backend = backend or args.backend
+    fields = set(_OPTION_CLASSES[backend].describe())
+    given, foreign = {}, []
+    for key, value in vars(args).items():
+        if key.startswith("opt_") and value is not None:
+            name = key[4:]
+            if name in fields:
+                given[name] = tuple(value) if isinstance(value, list) else value
+            else:
+                foreign.append("--" + name.replace("_", "-"))
+    if foreign:
+        raise InputValueError(f"{', '.join(foreign)} do(es) not apply to --backend {backend}")
+    return given
+
+
+# --- ground labels -------------------------------------------------------------------------------------------
+
+def add_ground(p) -> None:
+    """Where ground labels come from (:func:`slr_ray.positions.ground_labels`)."""
+    g = p.add_argument_group("ground labels", "default: the input's is_ground or LAS classification 2")
+    g.add_argument("--ground-attribute", help="per-point attribute holding ground labels")
+    g.add_argument("--ground-value", type=int, default=2, help="its ground value (default 2, LAS ground)")
+    g.add_argument("--csf", action="store_true",
+                   help="label ground by Cloth Simulation Filtering when the input has no labels")
+    g.add_argument("--cloth-resolution", type=positive_float, default=0.5, help="CSF cloth cell (m, default 0.5)")
+
+
+def ground_from(args) -> dict:
+    """Keywords of :func:`slr_ray.positions.ground_labels` from the ground group."""
+    return {"attribute": args.ground_attribute, "value": args.ground_value, "csf": args.csf,
+            "cloth_resolution": args.cloth_resolution}
+
+
+def add_positions(p) -> None:
+    """The grid method's settings (:func:`slr_ray.positions.select_positions`)."""
+    g = p.add_argument_group("positions (the paper's grid method)")
+    g.add_argument("--seed", type=int, default=0, help="random seed of the draw (default 0)")
+    g.add_argument("--min-ground-points", type=positive_int, default=paper.MIN_GROUND_POINTS,
+                   help=f"ground points a position needs within 5 m (default {paper.MIN_GROUND_POINTS:,})")
+    g.add_argument("--scanner-height", type=positive_float, default=paper.SCANNER_HEIGHT,
+                   help=f"scanner height above the ground (m, default {paper.SCANNER_HEIGHT})")

@@ -1,0 +1,216 @@
+"""What each ``slr-ray`` subcommand does: read its flags, call the library, print one line of JSON.
+
+The work itself lives in the library (:mod:`slr_ray.backends`,
+:mod:`slr_ray.validation`, :mod:`slr_ray.distances`, ...): a command only
+turns flags into arguments and results into files and a JSON line.
+"""
+
+from __future__ import annotations
+
+import json
+import sys
+import time
+from dataclasses import asdict
+from pathlib import Path
+
+import numpy as np
+
+from ..errors import InputValueError
+from .arguments import backend_from, ground_from, pattern_from
+
+__all__ = ["emit", "COMMANDS"]
+
+
+def emit(obj) -> None:
+    """The command's result: one line of JSON on stdout."""
+    sys.stdout.write(json.dumps(obj) + "\n")
+    sys.stdout.flush()
+
+
+def _refuse_existing(path, force: bool = False) -> Path:
+    path = Path(path)
+    if path.exists() and not force:
+        raise FileExistsError(f"{path} exists (use --force to overwrite)")
+    return path
+
+
+def scan(args):
+    from ..backends import options_for, simulate_scan
+    from ..io import check_format, read_cloud, write_cloud
+
+    pattern = pattern_from(args)
+    out = _refuse_existing(args.output, args.force)
+    check_format(out, args.format)  # refuse an unknown output format before any work
+    options = options_for(args.backend, backend_from(args))
+    if args.print_config:
+        emit({"input": str(args.input), "output": str(out), "origin": args.origin,
+              "pattern": pattern.to_dict(), "backend": args.backend, "options": options.to_dict()})
+        return
+    t0 = time.perf_counter()
+    cloud = read_cloud(args.input, args.input_format)
+    t_read = time.perf_counter() - t0
+    origin = args.origin if args.origin is not None else cloud.origin
+    if origin is None:
+        hint = (" (its scan has no pose; by the E57 standard that means the scanner frame is the file's:"
+                " --origin 0 0 0)") if cloud.meta.get("e57_pose") is False else ""
+        raise InputValueError(f"{args.input} records no scanner origin: give --origin X Y Z{hint}")
+    result = simulate_scan(cloud.points, origin, pattern, args.backend, **backend_from(args))
+    sub = cloud.subset(result.indices)
+    sub.origin = np.asarray(origin, float)
+    if args.keep_range:
+        sub.attributes["range"] = result.ranges
+    t1 = time.perf_counter()
+    write_cloud(out, sub, args.format)
+    emit({**result.summary(), "input": str(args.input), "output": str(out),
+          "seconds_read": round(t_read, 6), "seconds_write": round(time.perf_counter() - t1, 6)})
+
+
+def demo(args):
+    from ..demo import run_demo
+
+    emit(run_demo(args.output, n_rectangles=args.rectangles, n_positions=args.positions, seed=args.seed,
+                  quick=args.quick, backends=args.backends))
+
+
+def scene(args):
+    from ..io import PointCloud, atomic_path, check_format, write_cloud
+    from ..meshscan import scan_mesh
+    from ..scenes import MESH_FORMATS, scene_from_spec
+
+    sc = scene_from_spec(args.spec)
+    if args.scene_cmd == "info":
+        emit({"spec": args.spec, **sc.info()})
+        return
+    if args.scene_cmd == "build":
+        out = Path(args.output)
+        if out.suffix.lower()[1:] not in MESH_FORMATS:
+            raise InputValueError(f"mesh output must be one of {['.' + f for f in MESH_FORMATS]}, "
+                                  f"got {out.suffix!r}")
+        with atomic_path(out) as tmp:
+            sc.mesh.export(tmp, file_type=out.suffix[1:].lower())
+        emit({"spec": args.spec, "output": str(out), **sc.info()})
+        return
+    pattern = pattern_from(args)
+    check_format(args.output)  # refuse an unknown output format before the scan
+    ms = scan_mesh(sc, args.origin, pattern, mode=args.mode, supersample=args.supersample,
+                   spacing=args.spacing, progress=not args.quiet)
+    cloud = PointCloud(ms.points, {"label": ms.labels.astype(np.int32), "range": ms.ranges,
+                                   "v": ms.pulses[:, 0].astype(np.int32), "h": ms.pulses[:, 1].astype(np.int32)},
+                       origin=ms.origin)
+    write_cloud(args.output, cloud)
+    emit({"spec": args.spec, "output": str(args.output), **ms.summary()})
+
+
+def compare(args):
+    from ..compare import compare_backends
+    from ..io import read_cloud
+    from ..plotting import comparison_figure, save_figure
+
+    pattern = pattern_from(args)
+    cloud = read_cloud(args.input, args.input_format)
+    res = compare_backends(cloud.points, np.array(args.origin, float).reshape(-1, 3), pattern,
+                           tolerance=args.tolerance, embree_options=backend_from(args, "embree"))
+    if args.png:
+        save_figure(comparison_figure(res), args.png)
+        res["png"] = args.png
+    emit(res)
+
+
+def positions(args):
+    from ..io import atomic_path, read_cloud
+    from ..plotting import cells_figure, save_figure
+    from ..positions import AzimuthProfile, default_profile, ground_labels, select_positions
+
+    out = Path(args.output)
+    if not out.parent.is_dir():
+        raise FileNotFoundError(f"no directory {out.parent} for {out}")
+    cloud = read_cloud(args.input, args.input_format)
+    is_ground = ground_labels(cloud, **ground_from(args))
+    profile = None if args.profile == "none" else default_profile() if args.profile == "default" \
+        else AzimuthProfile.load(args.profile)
+    pos, cells = select_positions(
+        cloud.points, is_ground, args.n, seed=args.seed, cell_size=args.cell_size,
+        min_ground_points=args.min_ground_points, ground_count_radius=args.ground_count_radius,
+        ground_height_radius=args.ground_height_radius, scanner_height=args.scanner_height,
+        profile=profile, allow_fewer=args.allow_fewer, return_cells=True)
+    res = {"input": str(args.input), "n_requested": args.n, "seed": args.seed,
+           "positions": pos.tolist(), "ground_points": int(is_ground.sum()), **cells.summary()}
+    with atomic_path(out) as tmp:
+        tmp.write_text(json.dumps(res, indent=1))
+    if args.png:
+        save_figure(cells_figure(cells, pos, cloud.points), args.png)
+    emit({k: v for k, v in res.items() if k != "positions"} | {"n_positions": len(pos), "output": str(out)})
+
+
+def profile(args):
+    from ..io import atomic_path
+    from ..positions import build_synthetic_profile
+
+    prof = build_synthetic_profile(tuple(args.scenes.split(",")), args.positions_per_scene, args.seed)
+    with atomic_path(Path(args.output)) as tmp:
+        prof.save(tmp)
+    emit({"output": args.output, "n_scans": prof.meta["n_scans"], "min": int(prof.counts[0]),
+          "max": int(prof.counts[-1])})
+
+
+def validate(args):
+    from ..io import atomic_path
+    from ..paper import Q1_SCENES, Q2_SCENES
+    from ..plotting import paper_figure, save_figure, validation_figure
+    from ..validation import load_config, load_rows, paper_report, paper_report_markdown, run_validation
+
+    config = load_config(args.config)
+    if args.positions is not None:
+        config.positions = args.positions
+    if args.print_config:
+        emit(asdict(config))
+        return
+    out = Path(args.output or f"slr_ray_validate_{config.name}")
+    res = run_validation(config, out, progress=not args.quiet)
+    rows = load_rows(out / "results.csv")
+    save_figure(validation_figure(rows), out / "figure3.png")
+    res["figures"] = [str(out / "figure3.png")]
+    report = paper_report(out / "results.csv")
+    with atomic_path(out / "report.json") as tmp:
+        tmp.write_text(json.dumps(report, indent=1))
+    with atomic_path(out / "report.md") as tmp:
+        tmp.write_text(paper_report_markdown(report))
+    res["report"] = str(out / "report.md")
+    paper_scenes = set(Q1_SCENES) | set(Q2_SCENES)
+    if any(config.scene_entry(e)[0] in paper_scenes for e in config.scenes):
+        for b in config.backends:
+            png = out / f"paper_figure_{b}.png"
+            save_figure(paper_figure(rows, backend=b, truth="center"), png)
+            res["figures"].append(str(png))
+    emit(res)
+
+
+def distances(args):
+    from ..distances import distance_study
+
+    study = distance_study(args.input, origin=args.origin, heights=args.heights, positions=args.positions,
+                           seed=args.seed, resolution=args.resolution, max_range=args.max_range,
+                           scanner_height=args.scanner_height, min_ground_points=args.min_ground_points,
+                           ground=ground_from(args), progress=not args.quiet)
+    files = study.write(args.output)
+    emit({"output_dir": str(args.output), **study.summary(), "files": files})
+
+
+def augment(args):
+    from ..augment import augment as run
+    from ..io import read_cloud
+    from ..positions import ground_labels
+
+    ground = None
+    if args.csf or args.ground_attribute:
+        ground = ground_labels(read_cloud(args.input), **ground_from(args))
+    res = run(args.input, args.output, args.n, backend=args.backend, resolution=args.resolution,
+              heights=tuple(args.heights), fmt=args.format, seed=args.seed,
+              min_ground_points=args.min_ground_points, ground=ground, workers=args.workers,
+              scheduler=args.scheduler, progress=not args.quiet, backend_options=backend_from(args))
+    emit({k: res[k] for k in ("input", "n_requested", "new_scans", "seconds", "software")}
+         | {"scans": len(res["scans"]), "positions": len(res["positions"]),
+            "points_out": sum(s["points"] for s in res["scans"]), "output_dir": str(args.output)})
+
+
+COMMANDS = {f.__name__: f for f in (scan, demo, scene, compare, positions, profile, validate, distances, augment)}

@@ -1,0 +1,285 @@
+"""Every figure slr_ray draws, as :class:`matplotlib.figure.Figure` objects.
+
+No function here touches pyplot's global state or calls ``matplotlib.use``:
+each builds a ``Figure`` directly, so a notebook user's backend is left as it
+is, figures can be drawn from threads, and nothing stays open. Show one in a
+notebook by leaving it as a cell's value, or write it with
+:func:`save_figure` (atomically, PNG by default). matplotlib is imported on
+first use: the rest of slr_ray runs without it.
+
+>>> from slr_ray.plotting import comparison_figure, save_figure  # doctest: +SKIP
+>>> save_figure(comparison_figure(result), "compare.png")         # doctest: +SKIP
+"""
+
+from __future__ import annotations
+
+import numpy as np
+
+from .errors import MissingDependencyError
+from .paper import NEAR_DISTANCE, PRIMARY_RESOLUTION, PRIMARY_RESOLUTION_FINE, Q1_SCENES, Q2_SCENES
+
+__all__ = ["save_figure", "validation_figure", "paper_figure", "comparison_figure", "demo_figure",
+           "distances_figure", "cells_figure"]
+
+DPI = 110
+
+
+def _figure(**kw):
+    try:
+        from matplotlib.figure import Figure
+    except ImportError:  # pragma: no cover - matplotlib is a dependency
+        raise MissingDependencyError("figures need matplotlib: pip install matplotlib") from None
+    return Figure(**kw)
+
+
+def save_figure(fig, path, dpi: int = DPI) -> None:
+    """Write ``fig`` to ``path`` atomically (format from the extension, default PNG)."""
+    from pathlib import Path
+
+    from .io import atomic_path
+
+    path = Path(path)
+    with atomic_path(path) as tmp:
+        fig.savefig(tmp, dpi=dpi, format=path.suffix[1:].lower() or "png")
+
+
+def _binned_means(d, s, edges):
+    """Bin centres and mean of ``s`` in each bin of ``d`` that has a finite value."""
+    mids, means = [], []
+    for lo, hi in zip(edges[:-1], edges[1:]):
+        m = (d >= lo) & (d < hi) & np.isfinite(s)
+        if m.any():
+            mids.append((lo + hi) / 2)
+            means.append(float(s[m].mean()))
+    return mids, means
+
+
+def _rows_of(rows_or_csv):
+    if isinstance(rows_or_csv, list):
+        if not rows_or_csv:
+            from .errors import InputValueError
+
+            raise InputValueError("no rows to plot")
+        return rows_or_csv
+    from .validation import load_rows
+
+    return load_rows(rows_or_csv)
+
+
+def validation_figure(rows):
+    """Figures like the paper's Figure 3 for any validation run.
+
+    Top: (a) similarity (coverage) against scanner distance, (b) by number of
+    rectangles, (c) by primary resolution; one series per backend and truth
+    semantics. Bottom: the same for precision (the share of SLR points within
+    the threshold of a true point), where the rows record it.
+
+    Parameters
+    ----------
+    rows : list of dict or path
+        Rows of a ``results.csv`` (:func:`slr_ray.validation.load_rows`) or its path.
+    """
+    rows = _rows_of(rows)
+    have_precision = any(r.get("precision") not in (None, "") for r in rows)
+    fig = _figure(figsize=(16, 9.2 if have_precision else 4.6))
+    ax = fig.subplots(2 if have_precision else 1, 3, squeeze=False)
+    edges = np.arange(0, 105, 5.0)
+    metrics = [("similarity", "similarity (coverage, %)")] + ([("precision", "precision (%)")] if have_precision
+                                                               else [])
+    for row_i, (metric, ylabel) in enumerate(metrics):
+        axes = ax[row_i]
+        for b, t in sorted({(r["backend"], r["truth"]) for r in rows}):
+            rr = [r for r in rows if r["backend"] == b and r["truth"] == t]
+            d = np.array([float(r["distance_m"]) for r in rr])
+            s = 100 * np.array([float(r[metric]) if r.get(metric) not in (None, "") else np.nan for r in rr])
+            label = f"{b} vs {t} truth"
+            axes[0].scatter(d, s, s=6, alpha=0.4)
+            axes[0].plot(*_binned_means(d, s, edges), "-", label=label)
+            for k, key in ((1, "n_rectangles"), (2, "primary_resolution")):
+                for g in sorted({float(r[key]) for r in rr}):
+                    m = np.array([float(r[key]) == g for r in rr])
+                    axes[k].plot(*_binned_means(d[m], s[m], edges), "o-", ms=3,
+                                 label=f"{label}, {key.replace('_', ' ')} {g:g}")
+        axes[0].axvline(NEAR_DISTANCE, ls=":", c="gray")
+        axes[0].axhline(90, ls=":", c="gray")
+        titles = [f"(a) {metric} vs scanner distance", "(b) by number of rectangles", "(c) by primary resolution"]
+        for a, title in zip(axes, titles):
+            a.set(xlabel="distance from primary scanner (m)", ylabel=ylabel, ylim=(0, 101), title=title)
+            if a.get_legend_handles_labels()[0]:
+                a.legend(fontsize=7)
+    fig.tight_layout()
+    return fig
+
+
+def paper_figure(rows, backend: str = "binning", truth: str = "center"):
+    """The paper's Figure 3 from a ``validate-paper`` run, for one backend and truth.
+
+    (a) question 1, similarity against scanner distance over the five
+    1000-rectangle scenes; (b) question 2, one line per number of rectangles;
+    (c) question 3, the same with the 0.00576 deg primaries (solid) over the
+    0.0144 deg ones (dotted); (d) every backend and truth semantics on the
+    positions where all were run; (e) precision against distance for the
+    series of (a) and (b), where the rows record it. Lines are means in 5 m bins.
+    """
+    from .validation import full_pairs, series
+
+    rows = _rows_of(rows)
+    have_precision = any(r.get("precision") not in (None, "") for r in rows)
+    n = 5 if have_precision else 4
+    fig = _figure(figsize=(5 * n, 4.6))
+    ax = fig.subplots(1, n)
+    edges = np.arange(0, 50, 5.0)
+
+    def binned(d, s):
+        return _binned_means(d, 100 * s, edges)
+
+    d, s, p = series(rows, Q1_SCENES, PRIMARY_RESOLUTION, backend, truth)
+    ax[0].scatter(d, 100 * s, s=7, alpha=0.5, c="C0", label=f"{len(d)} pairs")
+    ax[0].plot(*binned(d, s), "k-", label="mean in 5 m bins")
+    if have_precision:
+        ax[4].plot(*binned(d, p), "k-", label="question 1 (1000 rectangles)")
+    for k, sc in enumerate(Q2_SCENES):
+        n_rect = next((r["n_rectangles"] for r in rows if r["scene"] == sc), sc)
+        for a, res, ls in ((ax[1], PRIMARY_RESOLUTION, "o-"), (ax[2], PRIMARY_RESOLUTION, ":"), (ax[2], PRIMARY_RESOLUTION_FINE, "o-")):
+            d, s, p = series(rows, [sc], res, backend, truth)
+            if len(d):
+                lab = f"{n_rect} rectangles" + (f", {res:g}°" if a is ax[2] else "")
+                a.plot(*binned(d, s), ls, ms=3, c=f"C{k}", label=lab)
+                if have_precision and a is not ax[1]:
+                    ax[4].plot(*binned(d, p), ls, ms=3, c=f"C{k}", label=f"{n_rect} rectangles, {res:g}°")
+    names = sorted({(r["backend"], r["truth"]) for r in rows})
+    if len(names) > 1:
+        full = full_pairs(rows, PRIMARY_RESOLUTION, names)
+        for k, (b, t) in enumerate(names):
+            d, s, _ = series(rows, None, PRIMARY_RESOLUTION, b, t, full)
+            if len(d):
+                ax[3].plot(*binned(d, s), "o-", ms=3, c=f"C{k}", label=f"{b} vs {t} truth ({len(d)} pairs)")
+    for a in ax[:3]:
+        a.axvline(NEAR_DISTANCE, ls=":", c="gray")
+        a.axhline(90, ls=":", c="gray")
+    titles = ["(a) distance: five 1000-rectangle scenes", f"(b) occlusion ({PRIMARY_RESOLUTION:g}° primaries)",
+              "(c) primary resolution", f"(d) backends and truths, same pairs ({PRIMARY_RESOLUTION:g}°)",
+              "(e) precision: SLR points near a true point"]
+    for a, title in zip(ax, titles):
+        a.set(xlabel="distance from primary scanner (m)", title=title,
+              ylabel="precision (%)" if title.startswith("(e)") else "similarity (%)",
+              ylim=(60, 101) if a is not ax[0] else (0, 101), xlim=(0, edges[-1]))
+        if a.get_legend_handles_labels()[0]:
+            a.legend(fontsize=7, loc="lower left")
+    fig.suptitle(f"SLR validation: {backend} SLR scans vs {truth} truth")
+    fig.tight_layout()
+    return fig
+
+
+def comparison_figure(result: dict):
+    """Per range band, Jaccard index and see-through fraction of binning vs
+    embree, one line per position (``result`` of :func:`slr_ray.compare.compare_backends`)."""
+    fig = _figure(figsize=(11, 4.2))
+    ax = fig.subplots(1, 2)
+    for i, pos in enumerate(result["positions"]):
+        mids = [b["band_m"][0] for b in pos["bands"]]
+        jac = [b["jaccard"] if b["jaccard"] is not None else np.nan for b in pos["bands"]]
+        see = [b["see_through"] / b["binning"] if b["binning"] else np.nan for b in pos["bands"]]
+        ax[0].plot(mids, jac, "o-", label=f"position {i}")
+        ax[1].plot(mids, 100 * np.array(see), "o-", label=f"position {i}")
+    ax[0].set(xlabel="range band start (m)", ylabel="Jaccard index (binning vs embree)", ylim=(0, 1.02))
+    ax[1].set(xlabel="range band start (m)", ylabel=f"see-through binning returns (%, > {result['tolerance']} m)")
+    ax[0].legend(fontsize=8)
+    fig.suptitle(f"binning vs embree, {result['n_points']:,} points, {result['pattern']['azimuth_resolution']} deg")
+    fig.tight_layout()
+    return fig
+
+
+def demo_figure(primary, positions, rows, n_rectangles: int):
+    """The demo's figure: the primary scan from above with the SLR positions,
+    and coverage and precision of each SLR scan against its true scan, per backend."""
+    fig = _figure(figsize=(12, 5.5))
+    ax = fig.subplots(1, 2)
+    pts = primary.points
+    step = max(1, len(pts) // 200_000)
+    ax[0].scatter(pts[::step, 0], pts[::step, 1], s=0.1, c=primary.labels[::step] > 0, cmap="coolwarm",
+                  rasterized=True)
+    ax[0].scatter(positions[:, 0], positions[:, 1], marker="^", c="k", s=60, label="SLR positions")
+    ax[0].scatter([0], [0], marker="*", c="gold", s=150, edgecolor="k", label="primary scanner")
+    ax[0].set(xlim=(-60, 60), ylim=(-60, 60), aspect="equal", xlabel="x (m)", ylabel="y (m)",
+              title=f"primary scan, top view ({n_rectangles} rectangles)")
+    ax[0].legend(loc="upper right")
+    backends = sorted({r.get("backend", "binning") for r in rows})
+    for k, b in enumerate(backends):
+        rr = [r for r in rows if r.get("backend", "binning") == b]
+        d = [r["distance_m"] for r in rr]
+        ax[1].plot(d, [100 * r["similarity"] for r in rr], "o", c=f"C{k}", label=f"{b}: coverage")
+        if all("precision" in r for r in rr):
+            ax[1].plot(d, [100 * r["precision"] for r in rr], "x", c=f"C{k}", label=f"{b}: precision")
+    ax[1].axhline(90, ls=":", c="gray")
+    ax[1].set(xlabel="distance from primary scanner (m)", ylabel="% within 10 cm", ylim=(0, 101),
+              title="SLR scan vs true scan")
+    ax[1].legend(loc="lower left", fontsize=8)
+    fig.tight_layout()
+    return fig
+
+
+def distances_figure(original, slr, sweep, max_distance: float = 40.0):
+    """The paper's Figure 4 panels: (a) original clouds, (b) SLR clouds, (c)
+    ground by scanner height, (d) non-ground by scanner height
+    (:class:`~slr_ray.distances.DistanceHistogram` each; ``None`` hides a panel)."""
+    import matplotlib
+
+    from .distances import KINDS
+
+    fig = _figure(figsize=(11, 8))
+    ax = fig.subplots(2, 2)
+    for a, h, title in ((ax[0, 0], original, "(a) original clouds"), (ax[0, 1], slr, "(b) SLR clouds")):
+        if h is None:
+            a.set_visible(False)
+            continue
+        for kind in KINDS:
+            a.stairs(h.density(kind), h.edges, label=f"{kind.replace('_', '-')} (peak {h.peak(kind):.1f} m)")
+        a.set(title=f"{title}, {h.n_scans} scans", xlim=(0.3, max_distance), xscale="log")
+    if sweep:
+        cmap = matplotlib.colormaps["viridis"]
+        for i, (height, h) in enumerate(sorted(sweep.items())):
+            c = cmap(i / max(1, len(sweep) - 1))
+            for a, kind in ((ax[1, 0], "ground"), (ax[1, 1], "non_ground")):
+                a.stairs(h.density(kind), h.edges, color=c, label=f"{height:g} m (peak {h.peak(kind):.1f} m)")
+        ax[1, 0].set(title="(c) ground, by scanner height", xlim=(0.3, max_distance), xscale="log")
+        ax[1, 1].set(title="(d) non-ground, by scanner height", xlim=(0.3, max_distance), xscale="log")
+    else:
+        ax[1, 0].set_visible(False)
+        ax[1, 1].set_visible(False)
+    for a in ax.ravel():
+        a.set(xlabel="distance (m, log)", ylabel="probability density (1/m)", yscale="log")
+        if a.get_visible() and a.get_legend_handles_labels()[0]:
+            a.legend(fontsize=8)
+    fig.tight_layout()
+    return fig
+
+
+def cells_figure(cells, positions=None, points=None):
+    """Top view of the candidate cells each stage of the grid method removed and
+    kept (the paper's supplementary figure), with the drawn positions
+    (:class:`~slr_ray.positions.CandidateCells`)."""
+    from matplotlib.patches import Patch
+
+    fig = _figure(figsize=(8, 8))
+    ax = fig.subplots()
+    if points is not None and len(points):
+        step = max(1, len(points) // 200_000)
+        ax.scatter(points[::step, 0], points[::step, 1], s=0.05, c="0.8", rasterized=True)
+    state = np.full(len(cells.ij), "ground_support", dtype=object)  # removed by ground support
+    state[cells.kept["ground_support"] & ~cells.kept["azimuth_profile"]] = "azimuth_profile"
+    state[cells.kept["azimuth_profile"]] = "kept"
+    face = {"ground_support": "#ff7f0e", "azimuth_profile": "#1f77b4", "kept": "#2ca02c"}
+    for st, colour in face.items():
+        m = state == st
+        if m.any():
+            ax.scatter(cells.centres[m, 0], cells.centres[m, 1], marker="s", s=12, c=colour, alpha=0.6)
+    if positions is not None and len(positions):
+        ax.scatter(positions[:, 0], positions[:, 1], marker="^", c="k", s=40, label="positions")
+    ax.legend(handles=[Patch(color=face["ground_support"], label="removed: ground support"),
+                       Patch(color=face["azimuth_profile"], label="removed: azimuth profile"),
+                       Patch(color=face["kept"], label=f"kept ({len(cells)})")], loc="upper right")
+    ax.set(aspect="equal", xlabel="x (m)", ylabel="y (m)", title=f"{cells.cell_size:g} m cells: " + ", ".join(
+        f"{st['stage']} -{st['removed']}" for st in cells.stages))
+    fig.tight_layout()
+    return fig

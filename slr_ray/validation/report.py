@@ -1,0 +1,177 @@
+"""The paper's figures from a run's rows: headline numbers, per-question series, Markdown.
+
+Every statistic here is computed from ``results.csv`` rows (see
+:mod:`slr_ray.validation.results`), so a report can be remade from a
+finished or partial run at any time. Coverage is the paper's similarity;
+precision (the share of SLR points near a true point) is reported next to it
+where the rows have it.
+"""
+
+from __future__ import annotations
+
+import math
+from pathlib import Path
+
+import numpy as np
+
+from ..errors import InputValueError
+from ..paper import DISTANCE_BANDS, NEAR_DISTANCE, Q1_SCENES, Q2_SCENES
+from .results import read_rows
+
+__all__ = ["headline", "series", "series_stats", "full_pairs", "paper_report", "paper_report_markdown",
+           "load_rows"]
+
+
+def load_rows(csv_path) -> list:
+    """The rows of a ``results.csv`` (an error when there are none)."""
+    rows = list(read_rows(Path(csv_path)).values())
+    if not rows:
+        raise InputValueError(f"{csv_path}: no rows")
+    return rows
+
+
+def _float(v) -> float:
+    return float(v) if v not in (None, "") else math.nan
+
+
+def headline(rows) -> dict:
+    """The paper's two headline figures, per backend and truth semantics."""
+    out = {}
+    for b in sorted({r["backend"] for r in rows}):
+        for t in sorted({r["truth"] for r in rows}):
+            rr = [r for r in rows if r["backend"] == b and r["truth"] == t]
+            sim = np.array([float(r["similarity"]) for r in rr])
+            dist = np.array([float(r["distance_m"]) for r in rr])
+            prec = np.array([_float(r.get("precision")) for r in rr])
+            near = dist < NEAR_DISTANCE
+            out[f"{b}/{t}"] = {
+                "pairs": len(rr),
+                f"mean_similarity_below_{NEAR_DISTANCE:g}m": float(sim[near].mean()) if near.any() else None,
+                f"min_similarity_below_{NEAR_DISTANCE:g}m": float(sim[near].min()) if near.any() else None,
+                "fraction_pairs_above_0.8": float((sim > 0.8).mean()) if len(sim) else None,
+                f"mean_precision_below_{NEAR_DISTANCE:g}m": _nanmean(prec[near]),
+            }
+    return out
+
+
+def _nanmean(x):
+    x = np.asarray(x, float)
+    x = x[np.isfinite(x)]
+    return float(x.mean()) if len(x) else None
+
+
+def series(rows, scenes=None, resolution=None, backend="binning", truth="center", positions=None):
+    """``(distance_m, similarity, precision)`` arrays of the rows selected (precision nan where absent)."""
+    out = [r for r in rows if r["backend"] == backend and r["truth"] == truth
+           and (scenes is None or r["scene"] in scenes)
+           and (resolution is None or float(r["primary_resolution"]) == float(resolution))
+           and (positions is None or (r["scene"], r["position"]) in positions)]
+    return (np.array([float(r["distance_m"]) for r in out]), np.array([float(r["similarity"]) for r in out]),
+            np.array([_float(r.get("precision")) for r in out]))
+
+
+def series_stats(distance, similarity, precision=None) -> dict:
+    """The paper's figures for one series of pairs.
+
+    The mean (and min) similarity below 17.5 m, the share of those above 90 %,
+    the share of all pairs above 80 %, the mean per distance band and the
+    least-squares slope per 10 m; with ``precision``, its mean overall, below
+    17.5 m and per band (``None`` where no row has it).
+    """
+    d, s = np.asarray(distance, float), np.asarray(similarity, float)
+    p = np.full(len(d), np.nan) if precision is None else np.asarray(precision, float)
+    near = d < NEAR_DISTANCE
+    bands = {}
+    for lo, hi in DISTANCE_BANDS:
+        m = (d >= lo) & (d < hi)
+        if m.any():
+            bands[f"{lo:g}-{hi:g}"] = {"pairs": int(m.sum()), "mean": float(s[m].mean()),
+                                       "precision": _nanmean(p[m])}
+    slope = float(np.polyfit(d, s, 1)[0] * 10) if len(d) > 2 and np.ptp(d) > 0 else None
+    sn = s[near]
+    return {"pairs": int(len(s)), "mean": float(s.mean()) if len(s) else None, "precision": _nanmean(p),
+            "below_17.5m": {"pairs": int(len(sn)), "mean": float(sn.mean()) if len(sn) else None,
+                            "min": float(sn.min()) if len(sn) else None,
+                            "share_above_0.9": float((sn > 0.9).mean()) if len(sn) else None,
+                            "precision": _nanmean(p[near])},
+            "share_above_0.8": float((s > 0.8).mean()) if len(s) else None,
+            "bands": bands, "slope_per_10m": slope}
+
+
+def full_pairs(rows, resolution, series_names) -> set:
+    """The (scene, position) pairs at one primary that have a row for every (backend, truth) series."""
+    have: dict = {}
+    for r in rows:
+        if float(r["primary_resolution"]) == float(resolution):
+            have.setdefault((r["scene"], r["position"]), set()).add((r["backend"], r["truth"]))
+    return {k for k, v in have.items() if v == set(series_names)}
+
+
+def paper_report(csv_path) -> dict:
+    """The figures behind the README's "Reproducing the paper", from a
+    ``results.csv`` of ``validate-paper`` (or of the single-question configs).
+
+    ``q1[res]``: the five 1000-rectangle scenes (``all`` and ``by_scene``);
+    ``occlusion[res]``: the 0/500/1000/2000-rectangle scenes (questions 2 and
+    3: 0.0144 and 0.00576 deg); ``semantics[res]``: the positions where
+    every backend and truth was run, each series on the same pairs, pooled
+    over scenes. ``res`` is a primary resolution as text ('0.0144'). Every
+    entry is :func:`series_stats` of binning vs pulse-centre truth unless
+    named otherwise.
+    """
+    rows = load_rows(csv_path)
+    out: dict = {"rows": len(rows), "q1": {}, "occlusion": {}, "semantics": {}}
+    resolutions = sorted({float(r["primary_resolution"]) for r in rows}, reverse=True)
+    for res in resolutions:
+        by = {sc: series_stats(*series(rows, [sc], res)) for sc in Q1_SCENES}
+        by = {k: v for k, v in by.items() if v["pairs"]}
+        if by:
+            out["q1"][f"{res:g}"] = {"all": series_stats(*series(rows, Q1_SCENES, res)), "by_scene": by}
+        occ = {sc: series_stats(*series(rows, [sc], res)) for sc in Q2_SCENES}
+        occ = {k: v for k, v in occ.items() if v["pairs"]}
+        if occ:
+            out["occlusion"][f"{res:g}"] = occ
+    names = sorted({(r["backend"], r["truth"]) for r in rows})
+    for res in resolutions:
+        full = full_pairs(rows, res, names)
+        if full and len(names) > 1:
+            out["semantics"][f"{res:g}"] = {f"{b}/{t}": series_stats(*series(rows, None, res, b, t, full))
+                                           for b, t in names}
+    return out
+
+
+def _pct(x):
+    return "–" if x is None else f"{100 * x:.1f} %"
+
+
+def paper_report_markdown(report: dict) -> str:
+    """:func:`paper_report` as Markdown tables (coverage per band; precision where recorded)."""
+    lines = []
+    bands = [f"{lo:g}–{hi:g} m" if math.isfinite(hi) else f"≥ {lo:g} m" for lo, hi in DISTANCE_BANDS]
+    keys = [f"{lo:g}-{hi:g}" for lo, hi in DISTANCE_BANDS]
+    head = (f"| series | pairs | mean < {NEAR_DISTANCE:g} m (min) | pairs < {NEAR_DISTANCE:g} m > 90 % | "
+            "pairs > 80 % | " + " | ".join(bands) + " | slope /10 m | precision (< 17.5 m) |")
+    sep = "|" + "---|" * (7 + len(bands))
+
+    def row(name, st):
+        b = st["below_17.5m"]
+        cells = [_pct(st["bands"][k]["mean"]) if k in st["bands"] else "–" for k in keys]
+        slope = "–" if st["slope_per_10m"] is None else f"{100 * st['slope_per_10m']:+.1f}"
+        near = f"{_pct(b['mean'])} ({_pct(b['min'])})" if b["pairs"] else "–"
+        prec = "–" if st.get("precision") is None else f"{_pct(st['precision'])} ({_pct(b.get('precision'))})"
+        return (f"| {name} | {st['pairs']} | {near} | {_pct(b['share_above_0.9'])} of {b['pairs']} | "
+                f"{_pct(st['share_above_0.8'])} | " + " | ".join(cells) + f" | {slope} | {prec} |")
+
+    def table(title, items):
+        if items:
+            lines.extend([f"**{title}**", "", head, sep] + [row(n, st) for n, st in items] + [""])
+
+    for res, q in report["q1"].items():
+        table(f"Question 1 (distance): 1000-rectangle scenes, {res}° primaries, binning vs pulse-centre truth",
+              list(q["by_scene"].items()) + [(f"all {len(q['by_scene'])}", q["all"])])
+    for res, q in report["occlusion"].items():
+        table(f"Questions 2 and 3 (occlusion, resolution): {res}° primaries, binning vs pulse-centre truth",
+              list(q.items()))
+    for res, ser in report["semantics"].items():
+        table(f"Backends and truth semantics on the same pairs ({res}° primaries, all scenes)", list(ser.items()))
+    return "\n".join(lines)

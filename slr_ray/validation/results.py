@@ -1,0 +1,100 @@
+"""The files a validation run writes as it goes: ``results.csv`` rows and ``stages.csv``.
+
+Rows are appended and flushed as they are made, so an interrupted run
+resumes where it stopped. A row is keyed by (scene, primary resolution,
+position, backend, truth); rows written before precision was recorded read
+back with ``precision`` and ``fscore`` empty.
+"""
+
+from __future__ import annotations
+
+import csv
+import resource
+from pathlib import Path
+
+__all__ = ["COLUMNS", "read_rows", "row_key", "ResultsWriter", "StageLog", "peak_rss_gib"]
+
+COLUMNS = ["scene", "n_rectangles", "scene_seed", "primary_resolution", "position", "x", "y", "z",
+           "distance_m", "backend", "truth", "similarity", "precision", "fscore", "true_points", "slr_points",
+           "seconds"]
+
+
+def row_key(scene, resolution, position, backend, truth) -> tuple:
+    """The key of a row (strings, as read back from the CSV)."""
+    return (str(scene), str(resolution), str(position), str(backend), str(truth))
+
+
+def read_rows(path) -> dict:
+    """Rows of a ``results.csv`` by :func:`row_key` (empty when there is no file)."""
+    path = Path(path)
+    if not path.exists():
+        return {}
+    with open(path, newline="") as f:
+        rows = list(csv.DictReader(f))
+    for r in rows:
+        for k in ("precision", "fscore"):
+            r.setdefault(k, "")
+    return {row_key(r["scene"], r["primary_resolution"], r["position"], r["backend"], r["truth"]): r
+            for r in rows}
+
+
+def peak_rss_gib() -> float:
+    """Peak resident memory of this process so far (GiB)."""
+    return resource.getrusage(resource.RUSAGE_SELF).ru_maxrss / 2**20
+
+
+class _AppendCSV:
+    """A CSV opened for appending, with its header written when new; a context manager."""
+
+    columns: list = []
+
+    def __init__(self, path):
+        self.path = Path(path)
+        new = not self.path.exists() or self.path.stat().st_size == 0
+        if not new:
+            with open(self.path, newline="") as f:
+                head = next(csv.reader(f), [])
+            missing = [c for c in head if c not in self.columns]
+            if missing:
+                raise ValueError(f"{self.path} has columns {missing} this version does not write; "
+                                 "resume it with the version that made it or write elsewhere")
+            self.header = head
+        else:
+            self.header = list(self.columns)
+        self.f = open(self.path, "a", newline="")
+        self.w = csv.DictWriter(self.f, self.header, extrasaction="ignore")
+        if new:
+            self.w.writeheader()
+
+    def __enter__(self):
+        return self
+
+    def __exit__(self, *exc):
+        self.close()
+
+    def close(self):
+        self.f.close()
+
+
+class ResultsWriter(_AppendCSV):
+    """``results.csv``: one row per (position, backend, truth), flushed as written.
+
+    A file from before a column was added keeps its own header (the new
+    column is left out of it), so an old run resumes without a mixed file."""
+
+    columns = COLUMNS
+
+    def add(self, row: dict) -> None:
+        self.w.writerow(row)
+        self.f.flush()
+
+
+class StageLog(_AppendCSV):
+    """``stages.csv``: wall time, size and peak memory of each stage of a run."""
+
+    columns = ["scene", "primary_resolution", "stage", "seconds", "count", "peak_rss_gib"]
+
+    def add(self, scene, resolution, stage, seconds, count) -> None:
+        self.w.writerow({"scene": scene, "primary_resolution": resolution, "stage": stage,
+                         "seconds": round(seconds, 2), "count": count, "peak_rss_gib": round(peak_rss_gib(), 2)})
+        self.f.flush()

@@ -1,0 +1,151 @@
+"""Running (or resuming) a validation: primaries, positions, pairs.
+
+For each scene of a config: the scene's primary scan from the origin, the
+secondary positions drawn on it (the paper's grid method), and at each
+position the true scan (one per truth semantics) and the SLR scan of the
+primary (one per backend), compared by :func:`~slr_ray.similarity.agreement`
+(coverage, the paper's similarity, with precision and F-score). The same
+config and seed give the same rows.
+"""
+
+from __future__ import annotations
+
+import math
+import sys
+import time
+from dataclasses import asdict
+from pathlib import Path
+
+import numpy as np
+
+from ..backends import prepare
+from ..io import atomic_path
+from ..meshscan import scan_mesh
+from ..pattern import ScanPattern
+from ..positions import select_positions
+from ..scenes import scene_from_spec
+from ..similarity import agreement
+from .config import ValidationConfig
+from .planning import ScenePlan, load_positions, plan, positions_file, positions_tag
+from .report import headline
+from .results import ResultsWriter, StageLog, peak_rss_gib, read_rows, row_key
+from .truths import TruthCache
+
+__all__ = ["run_validation"]
+
+
+def run_validation(config: ValidationConfig, outdir, progress: bool = True) -> dict:
+    """Run (or resume) a validation; returns a summary.
+
+    Writes ``outdir/results.csv`` (a row per pair, appended as made; see
+    :mod:`slr_ray.validation.results`), ``outdir/positions/<scene>.csv`` (the
+    drawn positions) and ``outdir/stages.csv`` (seconds and peak memory of
+    every primary scan, position draw, disc preparation and position loop).
+    """
+    config.check()
+    out = Path(outdir)
+    out.mkdir(parents=True, exist_ok=True)
+    csv_path = out / "results.csv"
+    done = read_rows(csv_path)
+    plans = plan(config, done)
+    t_all = time.perf_counter()
+    bar = None
+    if progress:
+        from tqdm import tqdm
+
+        bar = tqdm(total=sum(len(p.resolutions) for p in plans) * config.positions, unit="position",
+                   desc=config.name, file=sys.stderr)
+    n_new = 0
+    try:
+        with ResultsWriter(csv_path) as results, StageLog(out / "stages.csv") as stages:
+            for p in plans:
+                if p.done:
+                    _advance(bar, config.positions * len(p.resolutions))
+                    continue
+                n_new += _run_scene(config, p, out, done, results, stages, bar)
+    finally:
+        if bar is not None:
+            bar.close()
+    rows = list(read_rows(csv_path).values())
+    return {"config": asdict(config), "csv": str(csv_path), "rows": len(rows), "new_rows": n_new,
+            "seconds": round(time.perf_counter() - t_all, 2), "peak_rss_gib": round(peak_rss_gib(), 2),
+            "headline": headline(rows)}
+
+
+def _advance(bar, n):
+    if bar is not None and n:
+        bar.update(n)
+
+
+def _run_scene(config, p: ScenePlan, out: Path, done, results, stages, bar) -> int:
+    scene = scene_from_spec(p.spec)
+    secondary = ScanPattern(config.secondary_resolution)
+    pos_path = positions_file(out, p.spec)
+    positions = load_positions(pos_path, config)
+    truths = TruthCache(scene, secondary, config.nearest_supersample,
+                        out / ".truths" / Path(p.spec).stem if len(p.resolutions) > 1 else None)
+    n_new = 0
+    for r_index, res in enumerate(p.passes()):
+        wanted_here = res in p.resolutions
+        if not p.todo.get(res) and (positions is not None or r_index > 0):
+            _advance(bar, config.positions if wanted_here else 0)
+            continue
+        t0 = time.perf_counter()
+        primary = scan_mesh(scene, [0, 0, 0], ScanPattern(res), mode=config.primary_semantics,
+                            spacing=config.dense_spacing)
+        stages.add(p.spec, res, "primary scan", time.perf_counter() - t0, len(primary))
+        if positions is None:
+            t0 = time.perf_counter()
+            positions = select_positions(primary.points, primary.labels == 0, config.positions,
+                                         seed=config.seed, min_ground_points=config.min_ground_points,
+                                         allow_fewer=True)
+            truths.clear()  # true scans of other positions
+            pos_path.parent.mkdir(exist_ok=True)
+            with atomic_path(pos_path) as tmp:
+                np.savetxt(tmp, positions, delimiter=",", fmt="%.17g",
+                           header=positions_tag(config, config.positions)[2:])
+            stages.add(p.spec, res, "positions", time.perf_counter() - t0, len(positions))
+        if wanted_here:
+            t0 = time.perf_counter()
+            n_new += _pairs(config, p, scene, res, primary, positions, truths, done, results, stages, bar)
+            stages.add(p.spec, res, "pairs", time.perf_counter() - t0, len(positions))
+            _advance(bar, config.positions - len(positions))
+        del primary
+    truths.clear()
+    return n_new
+
+
+def _pairs(config, p: ScenePlan, scene, res, primary, positions, truths, done, results, stages, bar) -> int:
+    """The rows of one primary: every wanted (backend, truth) at every position."""
+    secondary = ScanPattern(config.secondary_resolution)
+    scanners = {}
+
+    def scanner(backend):
+        if backend not in scanners:
+            t0 = time.perf_counter()
+            options = config.embree_options if backend == "embree" else None
+            scanners[backend] = prepare(primary.points, backend, options)
+            if backend == "embree":
+                stages.add(p.spec, res, "embree discs", time.perf_counter() - t0, len(primary))
+        return scanners[backend]
+
+    n_new = 0
+    for i, pos in enumerate(positions):
+        rows = [(b, t) for b, t in config.wanted(res, i, p.backends) if row_key(p.spec, res, i, b, t) not in done]
+        true = {t: truths(i, pos, t) for t in sorted({t for _, t in rows})}
+        for b in sorted({b for b, _ in rows}):
+            s = scanner(b)
+            t0 = time.perf_counter()
+            scan = s.scan(pos, secondary)
+            seconds = time.perf_counter() - t0
+            slr = primary.points[scan.indices]
+            for t in [t for bb, t in rows if bb == b]:
+                a = agreement(true[t], slr, config.threshold)
+                results.add({"scene": p.spec, "n_rectangles": scene.n_rectangles, "scene_seed": scene.params["seed"],
+                             "primary_resolution": res, "position": i, "x": pos[0], "y": pos[1], "z": pos[2],
+                             "distance_m": float(math.hypot(pos[0], pos[1])), "backend": b, "truth": t,
+                             "similarity": a.coverage, "precision": a.precision, "fscore": a.fscore,
+                             "true_points": len(true[t]), "slr_points": len(scan), "seconds": seconds})
+                n_new += 1
+        _advance(bar, 1)
+    return n_new
