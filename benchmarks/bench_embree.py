@@ -28,6 +28,10 @@ SETTINGS = {
     "sort baseline": None,
     "discs normal (default)": {},
     "discs billboard": {"orientation": "billboard"},
+    # the cloud is a primary scan from (0, 0, 0) at 0.029 deg: discs of each point's own pulse, facing the
+    # primary scanner, need no neighbour search at all
+    "discs footprint, facing the primary": {"radius": "footprint", "orientation": "primary",
+                                            "primary_origin": [0.0, 0.0, 0.0], "primary_resolution": 0.029},
     "discs normal, no ties": {"ties": 0},
     "fan s3": {"engine": "fan", "segments": 3},
     "fan s5 open3d": {"engine": "open3d", "segments": 5},

@@ -20,7 +20,6 @@ import json
 import multiprocessing
 import os
 import time
-from concurrent.futures import ProcessPoolExecutor
 from pathlib import Path
 
 import numpy as np
@@ -35,9 +34,16 @@ __all__ = ["augment"]
 _WORKER = {}
 
 
+def _worker_sigterm(signum, frame):
+    raise SystemExit(143)  # unwinds the scan in progress: its temporary file is removed
+
+
 def _init_worker(points, attributes, origin, meta):
+    import signal
+
     from .io import PointCloud
 
+    signal.signal(signal.SIGTERM, _worker_sigterm)  # the pool terminates its workers with SIGTERM
     _WORKER["cloud"] = PointCloud(points, attributes, origin, meta)
 
 
@@ -54,7 +60,7 @@ def _scanner(cloud, backend, options):
 
 def _scan_one(job, cloud=None):
     """One SLR scan written to ``job['path']``; returns its manifest entry."""
-    from .io import atomic_path, write_cloud
+    from .io import write_cloud
 
     cloud = cloud if cloud is not None else _WORKER["cloud"]
     t0 = time.perf_counter()
@@ -63,8 +69,7 @@ def _scan_one(job, cloud=None):
     sub = cloud.subset(scan.indices)
     sub.origin = np.asarray(job["origin"], float)
     path = Path(job["path"])
-    with atomic_path(path) as tmp:
-        write_cloud(tmp, sub, format=path.suffix)
+    write_cloud(path, sub)  # atomic: a temporary file renamed into place
     return {"file": path.name, "position": job["position"], "height": job["height"],
             "origin": list(job["origin"]), "points": len(scan), "seconds": round(time.perf_counter() - t0, 4)}
 
@@ -170,11 +175,14 @@ def augment(input_path, outdir, n: int, *, backend: str = "binning", resolution:
         elif (workers or os.cpu_count() or 1) > 1 and len(jobs) > 1:
             n_workers = min(len(jobs), workers or os.cpu_count() or 1)
             # spawn, not fork: a forked child inherits the parent's thread pools
-            # (numba's, the binning backend's) in whatever state they were and can hang
-            with ProcessPoolExecutor(n_workers, mp_context=multiprocessing.get_context("spawn"),
-                                     initializer=_init_worker,
-                                     initargs=(cloud.points, cloud.attributes, cloud.origin, cloud.meta)) as pool:
-                for entry in pool.map(_scan_one, jobs):
+            # (numba's, the binning backend's) in whatever state they were and can hang.
+            # multiprocessing.Pool, not ProcessPoolExecutor: on an interrupt (SIGINT, or
+            # SIGTERM turned into one by the CLI) its exit terminates the workers at once
+            # instead of running every queued scan first.
+            ctx = multiprocessing.get_context("spawn")
+            with ctx.Pool(n_workers, initializer=_init_worker,
+                          initargs=(cloud.points, cloud.attributes, cloud.origin, cloud.meta)) as pool:
+                for entry in pool.imap(_scan_one, jobs):
                     record(entry)
                     if bar is not None:
                         bar.update()

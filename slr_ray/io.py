@@ -328,12 +328,32 @@ _READERS = {".npy": _read_npy, ".npz": _read_npz, ".ply": _read_ply, ".las": _re
             ".bin": _read_kitti, ".xyz": _read_xyz, ".txt": _read_xyz, ".e57": _read_e57, ".pcd": _read_pcd}
 
 
+def _umask() -> int:
+    """The process's umask, read without changing it where Linux allows."""
+    try:
+        with open("/proc/self/status") as f:
+            for line in f:
+                if line.startswith("Umask:"):
+                    return int(line.split()[1], 8)
+    except OSError:
+        pass
+    mask = os.umask(0o022)  # elsewhere: the classic read-and-restore
+    os.umask(mask)
+    return mask
+
+
 @contextmanager
 def atomic_path(path):
     """Yield a temporary path next to ``path``; rename it to ``path`` on success,
-    remove it on failure, so no half-written file is ever left under ``path``."""
+    remove it on failure, so no half-written file is ever left under ``path``.
+
+    The file gets the mode a plain ``open(path, "w")`` would give it (0666
+    less the umask), not the 0600 of a temporary file: colleagues on shared
+    storage can read what slr_ray writes when their umask lets them.
+    """
     path = Path(path)
     fd, tmp = tempfile.mkstemp(prefix=f".{path.name}.", suffix=".part" + path.suffix, dir=path.parent or ".")
+    os.fchmod(fd, 0o666 & ~_umask())
     os.close(fd)
     try:
         yield Path(tmp)

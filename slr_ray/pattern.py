@@ -25,10 +25,17 @@ from .errors import InputTypeError, InputValueError
 __all__ = ["ScanPattern", "PRESETS", "preset", "as_pattern", "pulse_rays", "pulse_directions"]
 
 
+#: Most pulses a pattern may have: pulse keys are int64 with negative values
+#: reserved, and ``v * n_azimuth + h`` must not overflow (2**62 leaves margin).
+MAX_PULSES = 2**62
+
+
 def _bin_count(extent: float, step: float) -> int:
     """Number of bins of width ``step`` covering ``extent`` (a whole number when
     ``extent / step`` is one up to rounding: 360 / 0.144 is 2500, not 2501)."""
     ratio = extent / step
+    if not math.isfinite(ratio) or ratio > MAX_PULSES:
+        return MAX_PULSES + 1  # refused by ScanPattern
     nearest = round(ratio)
     if nearest >= 1 and abs(ratio - nearest) <= 1e-9 * max(1.0, ratio):
         return int(nearest)
@@ -123,6 +130,13 @@ class ScanPattern:
             raise InputValueError(
                 f"min_range ({self.min_range}) must not exceed max_range ({self.max_range})"
             )
+        if self.n_pulses > MAX_PULSES:
+            lo, hi = self.zenith_range
+            finest = math.sqrt((hi - lo) * 360.0 / MAX_PULSES) * 1.001
+            raise InputValueError(
+                f"a pattern of azimuth_resolution={self.azimuth_resolution!r}, zenith_resolution="
+                f"{self.zenith_resolution!r} over zenith {lo:g}-{hi:g} deg has more pulses than the 63-bit "
+                f"pulse keys hold (2**62); the finest resolution for this field of view is {finest:.3g} deg")
         if self.resolution is None and self.azimuth_resolution == self.zenith_resolution:
             set_("resolution", self.azimuth_resolution)
         elif self.resolution is not None and self.azimuth_resolution != self.zenith_resolution:

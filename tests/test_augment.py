@@ -117,3 +117,27 @@ def test_unwritable_output_and_unlabelled_las(laz, tmp_path, capsys):
     err = capsys.readouterr().err.strip().splitlines()
     assert len(err) == 2 and all(e.startswith("slr-ray: error:") for e in err)
     assert "ground labels" in err[1] and not (tmp_path / "o2").exists()
+
+
+def test_sigterm_stops_workers_and_leaves_no_temporaries(laz, tmp_path):
+    """SIGTERM during a parallel augment: the command exits 143 promptly, its
+    worker processes are gone, no hidden temporary file is left, and a rerun
+    completes the set."""
+    out = tmp_path / "part"
+    cmd = [sys.executable, "-m", "slr_ray.cli", "augment", str(laz), "--n", "40", "--min-ground-points",
+           "1000", "--workers", "2", "--quiet", "-o", str(out)]
+    proc = subprocess.Popen(cmd, stdout=subprocess.PIPE, stderr=subprocess.PIPE)
+    deadline = time.time() + 120
+    while time.time() < deadline and not list(out.glob("*.laz")):
+        time.sleep(0.05)
+    children = subprocess.run(["pgrep", "-P", str(proc.pid)], capture_output=True, text=True).stdout.split()
+    proc.send_signal(signal.SIGTERM)
+    assert proc.wait(60) == 143
+    time.sleep(0.5)
+    alive = [c for c in children if subprocess.run(["ps", "-p", c, "-o", "stat="], capture_output=True,
+                                                    text=True).stdout.strip() not in ("", "Z")]
+    assert not alive, f"workers still running: {alive}"
+    assert not [p for p in out.iterdir() if p.name.startswith(".")]
+    assert len(list(out.glob("*.laz"))) < 40
+    subprocess.run(cmd, check=True, capture_output=True)
+    assert len(list(out.glob("*.laz"))) == 40

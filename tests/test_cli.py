@@ -141,3 +141,30 @@ def test_usage_errors_are_one_line_with_status_2(capsys):
         err = capsys.readouterr().err.strip().splitlines()
         assert len(err) == 1 and err[0].startswith("slr-ray: error:"), argv
     assert main(["--version"]) == 0
+
+
+def test_no_command_writes_over_an_input_or_an_existing_file(tmp_path, capsys):
+    from slr_ray.io import PointCloud, write_cloud
+
+    rng = np.random.default_rng(0)
+    pts = np.column_stack([rng.uniform(-20, 20, (4000, 2)), rng.normal(0, 0.01, 4000)])
+    src = tmp_path / "v.ply"
+    write_cloud(src, PointCloud(pts, {"classification": np.full(4000, 2, np.uint8)}))
+    before = src.read_bytes()
+    pos = ["positions", str(src), "--n", "1", "--min-ground-points", "10"]
+    for argv in (pos + ["-o", str(src)], pos + ["-o", str(src), "--force"],
+                 ["scan", str(src), "--origin", "0", "0", "1", "--resolution", "1", "-o", str(src), "--force"],
+                 pos + ["-o", str(tmp_path / "p.json"), "--png", str(src), "--force"]):
+        assert main(argv) == 2, argv
+        assert "input" in capsys.readouterr().err
+    assert src.read_bytes() == before
+    (tmp_path / "taken.png").write_bytes(b"mine")
+    (tmp_path / "taken.ply").write_bytes(b"mine")
+    for argv in (pos + ["-o", str(tmp_path / "p2.json"), "--png", str(tmp_path / "taken.png")],
+                 ["scene", "build", "ground-only", "-o", str(tmp_path / "taken.ply")],
+                 ["profile", "-o", str(tmp_path / "taken.png")]):
+        assert main(argv) == 2, argv
+        assert "exists" in capsys.readouterr().err
+    assert (tmp_path / "taken.png").read_bytes() == b"mine" and (tmp_path / "taken.ply").read_bytes() == b"mine"
+    assert not (tmp_path / "p2.json").exists()
+    assert main(["scene", "build", "ground-only", "-o", str(tmp_path / "taken.ply"), "--force"]) == 0

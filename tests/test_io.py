@@ -190,3 +190,23 @@ def test_pcd_read_by_open3d(tmp_path):
     pc = o3d.t.io.read_point_cloud(str(tmp_path / "c.pcd"))
     np.testing.assert_array_equal(pc.point.positions.numpy(), c.points)
     np.testing.assert_array_equal(pc.point.intensity.numpy().ravel(), c.attributes["intensity"])
+
+
+def test_written_files_respect_the_umask(tmp_path):
+    import os
+
+    from slr_ray.io import PointCloud, atomic_path, write_cloud
+
+    old = os.umask(0o022)
+    try:
+        write_cloud(tmp_path / "a.ply", PointCloud(np.zeros((3, 3))))
+        with atomic_path(tmp_path / "b.json") as tmp:
+            tmp.write_text("{}")
+        os.umask(0o077)
+        write_cloud(tmp_path / "c.npz", PointCloud(np.zeros((3, 3))))
+    finally:
+        os.umask(old)
+    assert (tmp_path / "a.ply").stat().st_mode & 0o777 == 0o644
+    assert (tmp_path / "b.json").stat().st_mode & 0o777 == 0o644
+    assert (tmp_path / "c.npz").stat().st_mode & 0o777 == 0o600
+    assert sorted(p.name for p in tmp_path.iterdir()) == ["a.ply", "b.json", "c.npz"]  # no temporaries left

@@ -14,7 +14,9 @@ leaves no output file behind.
 from __future__ import annotations
 
 import argparse
+import signal
 import sys
+import threading
 
 from .. import paper
 from ..meshscan import MESH_MODES
@@ -66,6 +68,7 @@ def build_parser() -> argparse.ArgumentParser:
     A.add_backend(p, default="embree")
     A.add_input_format(p)
     p.add_argument("--png", help="also write a figure")
+    p.add_argument("--force", action="store_true", help="overwrite an existing --png")
 
     p = command("positions", "choose secondary scanner positions (the paper's grid method)")
     p.add_argument("input", help=f"input cloud ({_FORMATS})")
@@ -80,6 +83,7 @@ def build_parser() -> argparse.ArgumentParser:
                    help="azimuth minimum profile: none (default), default, or a JSON path")
     p.add_argument("--allow-fewer", action="store_true", help="return fewer positions than --n if cells run out")
     p.add_argument("--png", help="also write a top view of the cells kept and removed")
+    p.add_argument("--force", action="store_true", help="overwrite existing outputs (never an input)")
     A.add_input_format(p)
 
     p = command("profile", "rebuild the shipped azimuth minimum profile from synthetic scans")
@@ -87,6 +91,7 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("--positions-per-scene", type=A.positive_int, default=4)
     p.add_argument("--seed", type=int, default=0)
     p.add_argument("-o", "--output", required=True)
+    p.add_argument("--force", action="store_true", help="overwrite an existing output")
 
     p = command("validate", "reproduce the paper's validation (Experiment 1) from a config")
     p.add_argument("config", help="a shipped config name (quick, paper, distance, occlusion, resolution) "
@@ -139,6 +144,7 @@ def build_parser() -> argparse.ArgumentParser:
     q = ssub.add_parser("build", help="write the scene's mesh")
     q.add_argument("spec")
     q.add_argument("-o", "--output", required=True)
+    q.add_argument("--force", action="store_true", help="overwrite an existing output")
     q = ssub.add_parser("scan", help="ground-truth scan of a scene")
     q.add_argument("spec")
     A.add_pattern(q, origin="required")
@@ -148,7 +154,17 @@ def build_parser() -> argparse.ArgumentParser:
                    help=f"grid spacing for --mode dense (m, default {paper.DENSE_SPACING})")
     q.add_argument("--quiet", action="store_true", help="no progress bar")
     q.add_argument("-o", "--output", required=True)
+    q.add_argument("--force", action="store_true", help="overwrite an existing output")
     return ap
+
+
+class _Terminated(KeyboardInterrupt):
+    """SIGTERM, raised like Ctrl-C so that every ``finally`` runs (temporary files
+    removed, worker pools terminated) before the command exits with 143."""
+
+
+def _on_sigterm(signum, frame):
+    raise _Terminated()
 
 
 def main(argv=None) -> int:
@@ -156,8 +172,14 @@ def main(argv=None) -> int:
         args = build_parser().parse_args(argv)
     except SystemExit as exc:  # argparse: 0 for --help/--version, 2 for a usage error
         return int(exc.code or 0)
+    previous = None
+    if threading.current_thread() is threading.main_thread():
+        previous = signal.signal(signal.SIGTERM, _on_sigterm)
     try:
         args.func(args)
+    except _Terminated:
+        print("slr-ray: terminated", file=sys.stderr)
+        return 143
     except KeyboardInterrupt:
         print("slr-ray: interrupted", file=sys.stderr)
         return 130
@@ -165,6 +187,9 @@ def main(argv=None) -> int:
         msg = str(exc).splitlines()[0] if str(exc) else type(exc).__name__
         print(f"slr-ray: error: {msg}", file=sys.stderr)
         return 2
+    finally:
+        if previous is not None:
+            signal.signal(signal.SIGTERM, previous)
     return 0
 
 

@@ -27,8 +27,17 @@ def emit(obj) -> None:
     sys.stdout.flush()
 
 
-def _refuse_existing(path, force: bool = False) -> Path:
+def _output(path, force: bool = False, inputs=()) -> Path | None:
+    """An output path, checked before any work: never one of the ``inputs``
+    (not even with ``--force``), and not an existing file unless ``force``."""
+    if path is None:
+        return None
     path = Path(path)
+    for i in inputs:
+        if path.exists() and Path(i).exists() and path.resolve() == Path(i).resolve():
+            raise FileExistsError(f"{path} is an input of this command: refusing to write over it")
+    if path.is_dir():
+        raise IsADirectoryError(f"{path} is a directory")
     if path.exists() and not force:
         raise FileExistsError(f"{path} exists (use --force to overwrite)")
     return path
@@ -39,7 +48,7 @@ def scan(args):
     from ..io import check_format, read_cloud, write_cloud
 
     pattern = pattern_from(args)
-    out = _refuse_existing(args.output, args.force)
+    out = _output(args.output, args.force, [args.input])
     check_format(out, args.format)  # refuse an unknown output format before any work
     options = options_for(args.backend, backend_from(args))
     if args.print_config:
@@ -82,7 +91,7 @@ def scene(args):
         emit({"spec": args.spec, **sc.info()})
         return
     if args.scene_cmd == "build":
-        out = Path(args.output)
+        out = _output(args.output, args.force)
         if out.suffix.lower()[1:] not in MESH_FORMATS:
             raise InputValueError(f"mesh output must be one of {['.' + f for f in MESH_FORMATS]}, "
                                   f"got {out.suffix!r}")
@@ -91,6 +100,7 @@ def scene(args):
         emit({"spec": args.spec, "output": str(out), **sc.info()})
         return
     pattern = pattern_from(args)
+    _output(args.output, args.force)
     check_format(args.output)  # refuse an unknown output format before the scan
     ms = scan_mesh(sc, args.origin, pattern, mode=args.mode, supersample=args.supersample,
                    spacing=args.spacing, progress=not args.quiet)
@@ -107,6 +117,7 @@ def compare(args):
     from ..plotting import comparison_figure, save_figure
 
     pattern = pattern_from(args)
+    _output(args.png, args.force, [args.input])
     cloud = read_cloud(args.input, args.input_format)
     res = compare_backends(cloud.points, np.array(args.origin, float).reshape(-1, 3), pattern,
                            tolerance=args.tolerance, embree_options=backend_from(args, "embree"))
@@ -121,7 +132,8 @@ def positions(args):
     from ..plotting import cells_figure, save_figure
     from ..positions import AzimuthProfile, default_profile, ground_labels, select_positions
 
-    out = Path(args.output)
+    out = _output(args.output, args.force, [args.input])
+    _output(args.png, args.force, [args.input, args.output])
     if not out.parent.is_dir():
         raise FileNotFoundError(f"no directory {out.parent} for {out}")
     cloud = read_cloud(args.input, args.input_format)
@@ -146,6 +158,7 @@ def profile(args):
     from ..io import atomic_path
     from ..positions import build_synthetic_profile
 
+    _output(args.output, args.force)
     prof = build_synthetic_profile(tuple(args.scenes.split(",")), args.positions_per_scene, args.seed)
     with atomic_path(Path(args.output)) as tmp:
         prof.save(tmp)
