@@ -32,6 +32,9 @@ SETTINGS = {
     # primary scanner, need no neighbour search at all
     "discs footprint, facing the primary": {"radius": "footprint", "orientation": "primary",
                                             "primary_origin": [0.0, 0.0, 0.0], "primary_resolution": 0.029},
+    # normals from the primary's own pulse grid (no kd-tree), footprint radii
+    "discs footprint, pulse-grid normals": {"radius": "footprint", "neighbours": "pulse-grid",
+                                            "primary_origin": [0.0, 0.0, 0.0], "primary_resolution": 0.029},
     "discs normal, no ties": {"ties": 0},
     "fan s3": {"engine": "fan", "segments": 3},
     "fan s5 open3d": {"engine": "open3d", "segments": 5},

@@ -14,8 +14,9 @@ peak RSS above the mapped cloud, bytes a point handed to Embree, and the
 scan's time and size. Saves results/bench_embree_primary.json.
 
 Settings: ``footprint`` = discs of each point's primary pulse footprint facing
-the primary scanner (no neighbour search); ``spacing`` = the general default
-(kNN radii, PCA normals).
+the primary scanner (no neighbour search); ``grid`` = footprint radii with
+normals from the primary's own pulse grid (no kd-tree); ``spacing`` = the
+general default (kNN radii, PCA normals).
 """
 
 from __future__ import annotations
@@ -37,6 +38,8 @@ ORIGIN = [12.3, -7.1, 0.0]
 def settings(res):
     return {"footprint": {"radius": "footprint", "orientation": "primary", "primary_origin": [0.0, 0.0, 0.0],
                           "primary_resolution": res},
+            "grid": {"radius": "footprint", "neighbours": "pulse-grid", "primary_origin": [0.0, 0.0, 0.0],
+                     "primary_resolution": res},
             "spacing": {}}
 
 
@@ -98,7 +101,7 @@ def main(argv=None):
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     ap.add_argument("--scene", default="rect-1000")
     ap.add_argument("--resolutions", nargs="+", type=float, default=[0.0144, 0.00576])
-    ap.add_argument("--settings", nargs="+", default=["footprint"], choices=["footprint", "spacing"])
+    ap.add_argument("--settings", nargs="+", default=["footprint"], choices=["footprint", "grid", "spacing"])
     ap.add_argument("--no-baseline", action="store_true")
     ap.add_argument("--job", nargs=3, help=argparse.SUPPRESS)
     args = ap.parse_args(argv)

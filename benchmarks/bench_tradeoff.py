@@ -40,11 +40,14 @@ def configs(quick: bool, primary_res: float):
     tie window and engine (exact discs; polygon fans in Embree and in Open3D)."""
     out = [{"name": "binning", "backend": "binning"}]
 
-    def embree(orientation="normal", radius="spacing", scale=1.0, ties=1.0, engine="embree", segments=3, k=6):
+    def embree(orientation="normal", radius="spacing", scale=1.0, ties=1.0, engine="embree", segments=3, k=6,
+               neighbours="knn"):
         name = f"embree {orientation} r={radius}x{scale} ties={ties} {engine}" + (
-            f" s{segments}" if engine != "embree" else "") + (f" k={k}" if k != 6 else "")
+            f" s{segments}" if engine != "embree" else "") + (f" k={k}" if k != 6 else "") + (
+            " grid" if neighbours != "knn" else "")
         out.append({"name": name, "backend": "embree", "orientation": orientation, "radius": radius,
-                     "radius_scale": scale, "ties": ties, "engine": engine, "segments": segments, "k": k})
+                     "radius_scale": scale, "ties": ties, "engine": engine, "segments": segments, "k": k,
+                     "neighbours": neighbours})
 
     for radius in ("spacing", "footprint", 0.02):
         embree("normal", radius)
@@ -52,6 +55,10 @@ def configs(quick: bool, primary_res: float):
     embree("primary", "spacing")
     embree("primary", "footprint")        # no neighbour search at all: discs of the primary's own pulses
     embree("primary", "footprint", 0.75)  # just over the half-diagonal of a pulse cell (0.707)
+    # normals from the primary's own pulse grid (no kd-tree)
+    embree("normal", "footprint", neighbours="pulse-grid")
+    embree("normal", "footprint", 0.75, neighbours="pulse-grid")
+    embree("normal", "spacing", neighbours="pulse-grid")
     embree("normal", ties=0.0)
     embree("normal", engine="fan")
     if not quick:
@@ -61,7 +68,7 @@ def configs(quick: bool, primary_res: float):
             embree("normal", "spacing", scale)
         embree("normal", engine="open3d", segments=5)
     for c in out:
-        if c.get("radius") == "footprint" or c.get("orientation") == "primary":
+        if c.get("radius") == "footprint" or c.get("orientation") == "primary" or c.get("neighbours") == "pulse-grid":
             c["primary_origin"] = [0.0, 0.0, 0.0]
             c["primary_resolution"] = primary_res
     return out
@@ -76,6 +83,7 @@ def main(argv=None):
     ap.add_argument("--max-range", type=float, default=60.0)
     ap.add_argument("--seed", type=int, default=0)
     ap.add_argument("--quick", action="store_true")
+    ap.add_argument("--only", nargs="+", help="run only the settings whose name contains one of these")
     args = ap.parse_args(argv)
 
     secondary = ScanPattern(args.resolution, max_range=args.max_range)
@@ -93,7 +101,8 @@ def main(argv=None):
         truths = [{"center": scan_mesh(scene, p, secondary),
                    "nearest": scan_mesh(scene, p, secondary, mode="nearest", supersample=3)}
                   for p in positions]
-        for cfg in configs(args.quick, args.primary_resolution):
+        for cfg in [c for c in configs(args.quick, args.primary_resolution)
+                    if not args.only or any(o in c["name"] for o in args.only)]:
             # one prepared scanner per cloud and setting, every position a query
             t0 = time.perf_counter()
             opts = {k: v for k, v in cfg.items() if k not in ("name", "backend")}

@@ -292,3 +292,89 @@ def test_polygon_engines_agree_with_the_exact_discs(engine):
     assert poly.scan([0, 0, 0], p).info["engine"] == engine
     with pytest.raises(InputValueError, match="engine"):
         discs(pts, engine="optix")
+
+
+# --- neighbours from the primary's own pulse grid ---------------------------------------------------------
+
+def _grid_brute(pts, origin, res, gate):
+    """Pulse-grid neighbours by a Python loop over the exact bins."""
+    from slr_ray.backends.binning import pulse_keys
+
+    pattern = ScanPattern(res)
+    keys, ranges = pulse_keys(pts, np.asarray(origin, float), pattern)
+    nh, nv = pattern.n_azimuth, pattern.n_zenith
+    by_key = {}
+    for i, k in enumerate(keys):
+        by_key.setdefault(int(k), []).append(i)
+    out = []
+    for i, k in enumerate(keys):
+        v, h = divmod(int(k), nh)
+        nb = set()
+        for dv in (-1, 0, 1):
+            for dh in (-1, 0, 1):
+                if (dv, dh) == (0, 0) or not 0 <= v + dv < nv:
+                    continue
+                cand = [q for q in by_key.get((v + dv) * nh + (h + dh) % nh, [])
+                        if abs(ranges[q] - ranges[i]) <= gate * ranges[i]]
+                if cand:
+                    nb.add(min(cand, key=lambda q: (ranges[q], q)))
+        out.append(nb)
+    return out
+
+
+@pytest.mark.parametrize("seed", [0, 1, 2])
+def test_pulse_grid_neighbours_against_brute_force(seed):
+    """Random points on a sphere shell and a box, including the azimuth wrap
+    (points either side of azimuth 0) and both poles."""
+    from slr_ray.backends.embree import grid_neighbourhoods
+
+    rng = np.random.default_rng(seed)
+    d = rng.normal(size=(3000, 3))
+    d /= np.linalg.norm(d, axis=1, keepdims=True)
+    pts = d * rng.uniform(5, 6, (3000, 1))
+    pts[:200, 1] = rng.normal(scale=1e-3, size=200)  # on the wrap (y ~ 0, x > 0 or < 0)
+    origin = np.array([1e5, -2e5, 30.0])
+    pts += origin
+    want = _grid_brute(pts, origin, 6.0, 0.1)
+    got = []
+    for s, dist, idx, counts in grid_neighbourhoods(pts, origin, 6.0, 0.1, chunk=700):
+        for c in range(len(idx)):
+            got.append(set(idx[c, :counts[c]].tolist()))
+            assert np.all(idx[c, counts[c]:] == s + c) and np.all(dist[c, counts[c]:] == 0)
+    assert got == want
+
+
+def test_pulse_grid_normals_on_a_scanned_room_and_its_edges():
+    """A primary scan of two parallel walls, the front one narrower: pulse-grid
+    normals match the walls' (the range gate keeps the back wall's points out
+    of the front wall's neighbourhoods at its edges), and the discs built on
+    them hide the back wall from a scanner behind the primary."""
+    from slr_ray import scan_mesh
+    import trimesh
+
+    front = trimesh.creation.box(extents=[0.01, 2.0, 2.0])
+    front.apply_translation([5.0, 0, 0])
+    back = trimesh.creation.box(extents=[0.01, 8.0, 8.0])
+    back.apply_translation([9.0, 0, 0])
+    mesh = trimesh.util.concatenate([front, back])
+    res = 0.25
+    primary = scan_mesh(mesh, [0, 0, 0], ScanPattern(res))
+    pts = primary.points
+    sc = prepare(pts, "embree", neighbours="pulse-grid", radius="footprint", primary_origin=[0, 0, 0],
+                 primary_resolution=res)
+    facing = np.abs(sc.normals[:, 0])
+    assert np.quantile(facing, 0.02) > 0.99, np.quantile(facing, [0.01, 0.02, 0.05])
+    knn = prepare(pts, "embree", primary_origin=[0, 0, 0])
+    assert np.median(np.abs(knn.normals[:, 0])) > 0.99
+    scan = sc.scan([-1.0, 0.0, 0.0], ScanPattern(0.5))
+    hit = pts[scan.indices]
+    behind = (hit[:, 0] > 8) & (np.abs(hit[:, 1]) < 0.5 * 0.8) & (np.abs(hit[:, 2]) < 0.5 * 0.8)
+    assert not behind.any(), "the back wall seen through the front wall"
+
+
+def test_pulse_grid_needs_the_primary():
+    pts = np.random.default_rng(0).normal(size=(100, 3))
+    with pytest.raises(InputValueError, match="pulse-grid"):
+        prepare(pts, "embree", neighbours="pulse-grid")
+    with pytest.raises(InputValueError, match="neighbours"):
+        prepare(pts, "embree", neighbours="voronoi")

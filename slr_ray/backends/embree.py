@@ -58,7 +58,7 @@ import time
 from dataclasses import dataclass
 
 import numpy as np
-from numba import njit
+from numba import njit, prange
 from scipy.spatial import cKDTree
 
 from ..arrays import as_origin, as_points
@@ -71,11 +71,12 @@ from .base import BackendOptions, Scanner
 from .binning import pulse_keys, ranges_of
 
 __all__ = ["EmbreeOptions", "DiscScanner", "disc_radii", "estimate_normals", "neighbourhoods",
-           "RADIUS_MODES", "ORIENTATIONS", "ENGINES"]
+           "grid_neighbourhoods", "RADIUS_MODES", "ORIENTATIONS", "ENGINES", "NEIGHBOURS"]
 
 RADIUS_MODES = ("spacing", "footprint")
 ORIENTATIONS = ("normal", "billboard", "primary")
 ENGINES = ("embree", "fan", "open3d")
+NEIGHBOURS = ("knn", "pulse-grid")
 
 
 @dataclass(frozen=True)
@@ -115,6 +116,14 @@ class EmbreeOptions(BackendOptions):
         Points per neighbour query (bounds memory: about 100 bytes a point).
     n_threads : int, optional
         Threads casting rays (default: all cores).
+    neighbours : {'knn', 'pulse-grid'}
+        Where 'spacing' radii and normals take neighbours from: the k nearest
+        (kd-tree), or the 8 adjacent pulses of the primary's own pulse grid
+        (needs primary_origin and primary_resolution; no kd-tree).
+    grid_gate : float
+        With 'pulse-grid': an adjacent pulse's point is a neighbour only when
+        its primary range is within this fraction of the point's (a jump in
+        range is an edge, not the same surface).
     """
 
     radius: object = "spacing"
@@ -131,10 +140,12 @@ class EmbreeOptions(BackendOptions):
     fallback_radius: float = 0.01
     chunk: int = 1 << 20
     n_threads: int | None = None
+    neighbours: str = "knn"
+    grid_gate: float = 0.1
 
     @classmethod
     def choices(cls) -> dict:
-        return {"orientation": ORIENTATIONS, "engine": ENGINES}
+        return {"orientation": ORIENTATIONS, "engine": ENGINES, "neighbours": NEIGHBOURS}
 
     def __post_init__(self):
         if isinstance(self.radius, str) and self.radius not in RADIUS_MODES:
@@ -158,6 +169,12 @@ class EmbreeOptions(BackendOptions):
             raise InputValueError(f"min_radius must be a finite number > 0, got {self.min_radius!r}")
         if self.orientation == "billboard" and self.engine != "embree":
             raise InputValueError("orientation='billboard' needs engine='embree' (ray-facing discs)")
+        if self.neighbours not in NEIGHBOURS:
+            raise InputValueError(f"neighbours must be one of {NEIGHBOURS}, got {self.neighbours!r}")
+        if self.neighbours == "pulse-grid" and (self.primary_origin is None or self.primary_resolution is None):
+            raise InputValueError("neighbours='pulse-grid' needs primary_origin and primary_resolution")
+        if not (isinstance(self.grid_gate, (int, float)) and self.grid_gate > 0):
+            raise InputValueError(f"grid_gate must be a number > 0, got {self.grid_gate!r}")
         if self.orientation == "primary" and self.primary_origin is None:
             raise InputValueError("orientation='primary' needs primary_origin")
         if isinstance(self.radius, str) and self.radius == "footprint" and (
@@ -193,6 +210,78 @@ def neighbourhoods(points, k: int, chunk: int = 1 << 20):
         # the first answer is at distance 0: the point itself or a duplicate of it
         # (same coordinates, so radii and normals do not depend on which)
         yield s, d[:, 1:], i[:, 1:]
+
+
+def grid_neighbourhoods(points, primary_origin, primary_resolution, gate: float = 0.1, chunk: int = 1 << 20):
+    """Neighbours of every point of a primary scan from its own pulse grid.
+
+    The points are binned into the pulses of a ``primary_resolution`` pattern
+    at ``primary_origin`` (the binning backend's exact bins); a point's
+    neighbours are the points of the 8 adjacent pulses (azimuth wrapping)
+    whose primary range is within ``gate`` times its own, at most one per
+    pulse (the nearest to the scanner). No kd-tree: one sort of the pulse keys.
+
+    Yields ``(start, distances (c, 8), indices (c, 8), counts (c,))`` chunk by
+    chunk, like :func:`neighbourhoods`; missing neighbours are the point
+    itself at distance 0 (``counts`` says how many are real).
+    """
+    from ..pattern import ScanPattern
+
+    pts = np.asarray(points)
+    n = len(pts)
+    if n == 0:
+        return
+    pattern = ScanPattern(float(primary_resolution))
+    keys, ranges = pulse_keys(pts, as_origin(primary_origin, "primary_origin"), pattern)
+    order = np.argsort(keys, kind="stable")
+    sorted_keys = keys[order]
+    for s in range(0, n, chunk):
+        e = min(n, s + chunk)
+        idx = np.empty((e - s, 8), np.int64)
+        dist = np.empty((e - s, 8))
+        counts = np.empty(e - s, np.int64)
+        _grid_neighbours(pts, keys, ranges, sorted_keys, order, pattern.n_zenith, pattern.n_azimuth,
+                         float(gate), s, idx, dist, counts)
+        yield s, dist, idx, counts
+
+
+@njit(cache=True, parallel=True)
+def _grid_neighbours(pts, keys, ranges, sorted_keys, order, nv, nh, gate, s, idx, dist, counts):
+    for c in prange(idx.shape[0]):
+        i = s + c
+        k = keys[i]
+        m = 0
+        if k >= 0:
+            v = k // nh
+            h = k - v * nh
+            for dv in (-1, 0, 1):
+                vv = v + dv
+                if vv < 0 or vv >= nv:
+                    continue
+                for dh in (-1, 0, 1):
+                    if dv == 0 and dh == 0:
+                        continue
+                    hh = (h + dh + nh) % nh
+                    kk = vv * nh + hh
+                    j = np.searchsorted(sorted_keys, kk)
+                    best = -1
+                    while j < len(sorted_keys) and sorted_keys[j] == kk:
+                        q = order[j]
+                        near = abs(ranges[q] - ranges[i]) <= gate * ranges[i]
+                        if near and (best < 0 or ranges[q] < ranges[best]):
+                            best = q
+                        j += 1
+                    if best >= 0:
+                        idx[c, m] = best
+                        dx = pts[best, 0] - pts[i, 0]
+                        dy = pts[best, 1] - pts[i, 1]
+                        dz = pts[best, 2] - pts[i, 2]
+                        dist[c, m] = math.sqrt(dx * dx + dy * dy + dz * dz)
+                        m += 1
+        counts[c] = m
+        for t in range(m, 8):
+            idx[c, t] = i
+            dist[c, t] = 0.0
 
 
 def _fallback_directions(points, primary_origin):
@@ -439,7 +528,14 @@ class DiscScanner(Scanner):
                 raise InputValueError(f"normals has {len(normals)} rows for {n} points")
         elif o.orientation == "primary":
             normals = np.array(_fallback_directions(pts, o.primary_origin))
-        if need_spacing or need_normals:
+        if (need_spacing or need_normals) and o.neighbours == "pulse-grid":
+            for s, d, idx, counts in grid_neighbourhoods(pts, o.primary_origin, o.primary_resolution,
+                                                         o.grid_gate, o.chunk):
+                if need_spacing:  # mean over the real neighbours (0: the floor applies)
+                    spacing[s:s + len(d)] = d.sum(axis=1) / np.maximum(counts, 1)
+                if need_normals:
+                    normals[s:s + len(idx)] = _chunk_normals(pts, s, idx, o.primary_origin)
+        elif need_spacing or need_normals:
             # one neighbour query per chunk serves radii and normals
             for s, d, idx in neighbourhoods(pts, o.k, o.chunk):
                 if need_spacing:
