@@ -25,13 +25,40 @@ from pathlib import Path
 import numpy as np
 
 from .backends import options_for, prepare
-from .errors import MissingDependencyError
+from .errors import InputValueError, MissingDependencyError
 from .paper import MIN_GROUND_POINTS, SCANNER_HEIGHT, SECONDARY_RESOLUTION
 from .pattern import ScanPattern
 
 __all__ = ["augment"]
 
 _WORKER = {}
+
+
+def _resumable(manifest_path: Path, settings: dict, positions, out: Path) -> dict:
+    """The scans of an earlier run into ``out`` that this run may keep.
+
+    A run resumes only one with the same settings (input, seed, pattern,
+    backend and options, ground threshold, format) whose positions agree with
+    this run's as far as both go (a run for more positions extends one for
+    fewer). Anything else is refused with the differences named: a rerun with
+    other settings never mixes its scans with the old ones.
+    """
+    try:
+        old = json.loads(manifest_path.read_text())
+    except ValueError:
+        raise InputValueError(f"{manifest_path} is not a manifest slr_ray can read: write elsewhere") from None
+    before = old.get("settings")
+    if before is None:
+        raise InputValueError(f"{manifest_path} was written by an older slr_ray without its settings: "
+                              "write elsewhere (or remove the directory)")
+    diff = [f"{k}: {before.get(k)!r} -> {v!r}" for k, v in settings.items() if before.get(k) != v]
+    k = min(len(positions), len(old.get("positions", [])))
+    if not np.array_equal(np.asarray(old.get("positions", []))[:k].reshape(-1, 3), positions[:k]):
+        diff.append("positions differ")
+    if diff:
+        raise InputValueError(f"{out} holds a run with other settings ({'; '.join(diff)}): "
+                              "write elsewhere, or remove it to start again")
+    return {s["file"]: s for s in old.get("scans", []) if (out / s["file"]).exists()}
 
 
 def _worker_sigterm(signum, frame):
@@ -116,25 +143,31 @@ def augment(input_path, outdir, n: int, *, backend: str = "binning", resolution:
         except ImportError:
             raise MissingDependencyError('augment on a scheduler needs dask: pip install "slr_ray[dask]"') from None
     input_path = Path(input_path)
-    out = Path(outdir)
+    out = Path(outdir).resolve()  # absolute before any path is sent to a worker or a cluster
+    heights = tuple(float(h) for h in heights)
+    repeated = sorted({h for h in heights if heights.count(h) > 1})
+    if repeated:
+        raise InputValueError(f"heights repeat {repeated}: each height is one scan per position")
     ext = check_format(input_path, fmt)
     cloud = read_cloud(input_path)  # check everything before creating anything
+    ground_given = ground is not None
     if ground is None:
         ground = ground_labels(cloud)
     positions, cells = select_positions(cloud.points, ground, n, seed=seed, min_ground_points=min_ground_points,
                                         allow_fewer=allow_fewer, return_cells=True)
     pattern = ScanPattern(resolution)
-    out.mkdir(parents=True, exist_ok=True)
-    if not os.access(out, os.W_OK):
-        raise PermissionError(f"cannot write to {out}")
+    settings = {"input": str(input_path.resolve()), "input_bytes": input_path.stat().st_size, "seed": seed,
+                "pattern": pattern.to_dict(), "backend": backend,
+                "backend_options": options_for(backend, backend_options).to_dict(),
+                "min_ground_points": min_ground_points, "format": ext, "heights": list(heights),
+                "ground": "given" if ground_given else "from the input"}
     manifest_path = out / "manifest.json"
     done = {}
     if manifest_path.exists():
-        try:
-            old = json.loads(manifest_path.read_text())
-            done = {s["file"]: s for s in old.get("scans", []) if (out / s["file"]).exists()}
-        except (ValueError, KeyError):
-            done = {}
+        done = _resumable(manifest_path, settings, positions, out)
+    out.mkdir(parents=True, exist_ok=True)
+    if not os.access(out, os.W_OK):
+        raise PermissionError(f"cannot write to {out}")
     jobs = []
     for i, p in enumerate(positions):
         ground_z = p[2] - SCANNER_HEIGHT  # select_positions puts them SCANNER_HEIGHT above ground
@@ -145,8 +178,9 @@ def augment(input_path, outdir, n: int, *, backend: str = "binning", resolution:
             jobs.append({"path": str(out / name), "position": i, "height": float(h),
                          "origin": [float(p[0]), float(p[1]), float(ground_z + h)],
                          "pattern": pattern.to_dict(), "backend": backend, "options": backend_options or {}})
-    manifest = {"software": f"slr_ray {__version__}", "input": str(input_path), "n_requested": n,
-                "seed": seed, "pattern": pattern.to_dict(), "backend": backend, "heights": list(heights),
+    manifest = {"software": f"slr_ray {__version__}", "settings": settings, "input": str(input_path),
+                "n_requested": n, "seed": seed, "pattern": pattern.to_dict(), "backend": backend,
+                "heights": list(heights),
                 "positions": positions.tolist(), "stages": cells.stages, "scans": list(done.values())}
 
     def record(entry):

@@ -31,6 +31,7 @@ from __future__ import annotations
 import io
 import os
 import tempfile
+import warnings
 from contextlib import contextmanager
 from dataclasses import dataclass, field
 from pathlib import Path
@@ -180,7 +181,11 @@ _SEMANTIC3D = ("intensity", "red", "green", "blue")
 
 
 def _read_xyz(path):
-    a = np.loadtxt(path, dtype=np.float64, ndmin=2)
+    with warnings.catch_warnings():
+        warnings.simplefilter("ignore", UserWarning)  # numpy's "input contained no data"
+        a = np.loadtxt(path, dtype=np.float64, ndmin=2)
+    if a.size == 0:
+        return PointCloud(np.empty((0, 3)))
     if a.shape[1] < 3:
         raise FormatError(f"{path}: {a.shape[1]} columns, need at least x y z")
     extra = a.shape[1] - 3
@@ -219,7 +224,11 @@ def _read_pcd(path):
         raise FormatError(f"{path}: bad PCD header ({exc})") from None
     kind = header["DATA"][0].lower()
     if kind == "ascii":
-        flat = np.loadtxt(io.BytesIO(body), ndmin=2)
+        with warnings.catch_warnings():
+            warnings.simplefilter("ignore", UserWarning)  # numpy's "input contained no data"
+            flat = np.loadtxt(io.BytesIO(body), ndmin=2)
+        if flat.size == 0:
+            flat = np.empty((0, sum(counts)))
         if len(flat) != n:
             raise FormatError(f"{path}: {len(flat)} rows for POINTS {n}")
         data = np.empty(n, dtype)
@@ -376,13 +385,28 @@ def write_cloud(path, cloud: PointCloud, format: str | None = None, binary: bool
     if not path.parent.exists():
         raise FormatError(f"cannot write {path}: directory {path.parent} does not exist")
     with atomic_path(path) as tmp:
-        _WRITERS[ext](tmp, cloud, binary)
+        try:
+            _WRITERS[ext](tmp, cloud, binary)
+        except (ValueError, TypeError, OSError) as exc:
+            if str(tmp) not in str(exc):
+                raise
+            # the user named `path`, not our temporary file: say it in their terms
+            raise FormatError(str(exc).replace(str(tmp), str(path))) from exc
     return path
 
 
+def _columns(cloud):
+    """Coordinates and every attribute as float64 columns ``(n, 3 + k)`` (empty clouds too)."""
+    n = len(cloud)
+    cols = [np.asarray(cloud.points, np.float64)]
+    for v in cloud.attributes.values():
+        v = np.asarray(v, np.float64)
+        cols.append(v.reshape(n, int(np.prod(v.shape[1:], dtype=np.int64))))
+    return cols
+
+
 def _write_npy(path, cloud, binary):
-    cols = [cloud.points] + [np.asarray(v, dtype=np.float64).reshape(len(cloud), -1)
-                             for v in cloud.attributes.values()]
+    cols = _columns(cloud)
     with open(path, "wb") as f:
         np.save(f, np.hstack(cols) if len(cols) > 1 else cloud.points)
 
@@ -443,6 +467,10 @@ def _write_las(path, cloud, binary):
 
 
 def _write_kitti(path, cloud, binary):
+    dropped = sorted(k for k in cloud.attributes if k != "intensity")
+    if dropped:
+        warnings.warn(f"{path}: KITTI .bin holds x, y, z and intensity only; not written: {dropped}",
+                      stacklevel=3)
     a = np.empty((len(cloud), 4), np.float32)
     a[:, :3] = cloud.points
     a[:, 3] = cloud.attributes.get("intensity", 0.0)
@@ -450,12 +478,13 @@ def _write_kitti(path, cloud, binary):
 
 
 def _write_xyz(path, cloud, binary):
-    cols = [cloud.points] + [np.asarray(v, np.float64).reshape(len(cloud), -1) for v in cloud.attributes.values()]
-    np.savetxt(path, np.hstack(cols), fmt="%.6f")
+    np.savetxt(path, np.hstack(_columns(cloud)), fmt="%.6f")
 
 
 def _write_e57(path, cloud, binary):
     pye57 = _pye57()
+    if len(cloud) == 0:
+        raise FormatError(f"{path}: libE57 cannot write a scan of zero points; choose another format")
     origin = cloud.origin if cloud.origin is not None else np.zeros(3)
     local = cloud.points - origin
     data = {"cartesianX": local[:, 0], "cartesianY": local[:, 1], "cartesianZ": local[:, 2]}

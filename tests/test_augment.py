@@ -141,3 +141,26 @@ def test_sigterm_stops_workers_and_leaves_no_temporaries(laz, tmp_path):
     assert len(list(out.glob("*.laz"))) < 40
     subprocess.run(cmd, check=True, capture_output=True)
     assert len(list(out.glob("*.laz"))) == 40
+
+
+def test_a_rerun_with_other_settings_never_mixes_with_the_old_scans(laz, tmp_path):
+    out = tmp_path / "aug"
+    kw = dict(min_ground_points=1000, workers=1, progress=False)
+    first = augment(laz, out, 3, **kw)
+    files = sorted(p.name for p in out.iterdir())
+    for change, match in (({"seed": 1}, "seed"), ({"resolution": 0.5}, "pattern"),
+                          ({"heights": (2.0,)}, "heights"), ({"backend": "embree"}, "backend")):
+        with pytest.raises(InputValueError, match=match):
+            augment(laz, out, 3, **(kw | change))
+        assert sorted(p.name for p in out.iterdir()) == files
+    more = augment(laz, out, 5, **kw)  # more positions of the same draw extend the run
+    assert more["positions"][:3] == first["positions"] and len(more["scans"]) == 5
+    with pytest.raises(InputValueError, match="repeat"):
+        augment(laz, tmp_path / "h", 2, heights=(1.65, 1.65), **kw)
+    assert not (tmp_path / "h").exists()
+
+
+def test_relative_output_paths_are_made_absolute_before_work_is_sent(laz, tmp_path, monkeypatch):
+    monkeypatch.chdir(tmp_path)
+    res = augment(laz, "rel", 2, min_ground_points=1000, workers=1, progress=False)
+    assert (tmp_path / "rel" / res["scans"][0]["file"]).exists()

@@ -210,3 +210,32 @@ def test_written_files_respect_the_umask(tmp_path):
     assert (tmp_path / "b.json").stat().st_mode & 0o777 == 0o644
     assert (tmp_path / "c.npz").stat().st_mode & 0o777 == 0o600
     assert sorted(p.name for p in tmp_path.iterdir()) == ["a.ply", "b.json", "c.npz"]  # no temporaries left
+
+
+@pytest.mark.parametrize("ext", ["npy", "npz", "ply", "pcd", "las", "laz", "xyz", "txt", "bin"])
+def test_empty_clouds_round_trip(tmp_path, ext):
+    from slr_ray.io import PointCloud, read_cloud, write_cloud
+
+    path = tmp_path / f"e.{ext}"
+    write_cloud(path, PointCloud(np.zeros((0, 3)), {"intensity": np.zeros(0, np.float32)}), binary=False)
+    back = read_cloud(path)
+    assert back.points.shape == (0, 3)
+
+
+def test_errors_name_the_users_file_not_a_temporary_one(tmp_path):
+    from slr_ray.errors import FormatError
+    from slr_ray.io import PointCloud, write_cloud
+
+    pytest.importorskip("pye57")
+    with pytest.raises(FormatError) as info:
+        write_cloud(tmp_path / "e.e57", PointCloud(np.zeros((0, 3))))
+    assert str(tmp_path / "e.e57") in str(info.value) and ".part" not in str(info.value)
+    assert list(tmp_path.iterdir()) == []
+
+
+def test_kitti_bin_says_which_attributes_it_cannot_hold(tmp_path):
+    from slr_ray.io import PointCloud, write_cloud
+
+    with pytest.warns(UserWarning, match=r"not written: \['label'\]"):
+        write_cloud(tmp_path / "a.bin", PointCloud(np.zeros((2, 3)), {"intensity": np.ones(2),
+                                                                      "label": np.ones(2, np.int32)}))
