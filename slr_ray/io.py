@@ -103,6 +103,8 @@ def read_cloud(path, format: str | None = None) -> PointCloud:
     """
     path = Path(path)
     ext = check_format(path, format)
+    if path.is_dir():
+        raise IsADirectoryError(f"{path} is a directory, not a point cloud file")
     if not path.is_file():
         raise FileNotFoundError(f"no such file: {path}")
     try:
@@ -114,6 +116,8 @@ def read_cloud(path, format: str | None = None) -> PointCloud:
     pts = np.asarray(cloud.points)
     if pts.ndim != 2 or pts.shape[1] != 3:
         raise FormatError(f"{path}: expected (n, 3) coordinates, got shape {pts.shape}")
+    if pts.dtype.kind not in "fiu":
+        raise FormatError(f"{path}: coordinates must be real numbers, got dtype {pts.dtype}")
     cloud.points = np.ascontiguousarray(pts, dtype=np.float64)
     for k, v in cloud.attributes.items():
         if len(v) != len(pts):

@@ -168,3 +168,38 @@ def test_no_command_writes_over_an_input_or_an_existing_file(tmp_path, capsys):
     assert (tmp_path / "taken.png").read_bytes() == b"mine" and (tmp_path / "taken.ply").read_bytes() == b"mine"
     assert not (tmp_path / "p2.json").exists()
     assert main(["scene", "build", "ground-only", "-o", str(tmp_path / "taken.ply"), "--force"]) == 0
+
+
+def test_hostile_inputs_get_one_line_errors(tmp_path, capsys):
+    rng = np.random.default_rng(0)
+    np.save(tmp_path / "complex.npy", rng.normal(size=(10, 3)) + 1j)
+    np.save(tmp_path / "bool.npy", rng.normal(size=(10, 3)) > 0)
+    (tmp_path / "adir.ply").mkdir()
+    for src, word in (("complex.npy", "real"), ("bool.npy", "real"), ("adir.ply", "directory")):
+        argv = ["scan", str(tmp_path / src), "--origin", "0", "0", "0", "--resolution", "1",
+                "-o", str(tmp_path / "o.npy")]
+        assert main(argv) == 2
+        err = capsys.readouterr().err.strip().splitlines()
+        assert len(err) == 1 and word in err[0], err
+    assert not (tmp_path / "o.npy").exists()
+    for bad in ("0", "-1", "nan", "inf"):
+        assert main(["positions", "x.ply", "--n", "1", "-o", "p.json", "--cloth-resolution", bad]) == 2
+        assert main(["positions", "x.ply", "--n", "1", "-o", "p.json", "--scanner-height", bad]) == 2
+        capsys.readouterr()
+
+
+def test_a_tiny_cell_size_does_not_ask_for_terabytes():
+    from slr_ray.positions import candidate_cells
+
+    rng = np.random.default_rng(0)
+    pts = np.column_stack([rng.uniform(0, 700, (20_000, 2)), rng.normal(0, 0.01, 20_000)])
+    cells = candidate_cells(pts, np.ones(20_000, bool), cell_size=0.001, min_ground_points=1)
+    assert len(cells.ij) == 20_000  # one occupied cell per point; 4.9e11 cells never allocated
+
+
+def test_results_are_strict_json():
+    from slr_ray.cli.commands import _plain
+
+    out = json.dumps(_plain({"a": float("nan"), "b": [1.0, float("inf")], "c": {"d": -float("inf")}}),
+                     allow_nan=False)
+    assert json.loads(out) == {"a": None, "b": [1.0, None], "c": {"d": None}}

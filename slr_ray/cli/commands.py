@@ -8,6 +8,7 @@ turns flags into arguments and results into files and a JSON line.
 from __future__ import annotations
 
 import json
+import math
 import sys
 import time
 from dataclasses import asdict
@@ -21,9 +22,20 @@ from .arguments import backend_from, ground_from, pattern_from
 __all__ = ["emit", "COMMANDS"]
 
 
+def _plain(obj):
+    """``obj`` with non-finite floats as None (JSON has no NaN or Infinity)."""
+    if isinstance(obj, float):
+        return obj if math.isfinite(obj) else None
+    if isinstance(obj, dict):
+        return {k: _plain(v) for k, v in obj.items()}
+    if isinstance(obj, (list, tuple)):
+        return [_plain(v) for v in obj]
+    return obj
+
+
 def emit(obj) -> None:
-    """The command's result: one line of JSON on stdout."""
-    sys.stdout.write(json.dumps(obj) + "\n")
+    """The command's result: one line of strict JSON on stdout (nan and inf as null)."""
+    sys.stdout.write(json.dumps(_plain(obj), allow_nan=False) + "\n")
     sys.stdout.flush()
 
 
