@@ -32,7 +32,7 @@ def _log(msg):
 
 def run_demo(outdir="slr_ray_demo", n_rectangles: int = 200, n_positions: int = 4, seed: int = 0,
              quick: bool = False, primary_resolution: float | None = None,
-             backends=("binning", "embree")) -> dict:
+             backends=None) -> dict:
     """Run the demo and return its summary (the full report is written to ``outdir/report.json``).
 
     Parameters
@@ -48,11 +48,11 @@ def run_demo(outdir="slr_ray_demo", n_rectangles: int = 200, n_positions: int = 
         A coarse primary (0.12 deg) and secondary (0.36 deg): seconds, for tests.
     primary_resolution : float, optional
         Degrees (default 0.036, the SYNS scans'; 0.12 with ``quick``).
-    backends : sequence of {'binning', 'embree'}
-        Backends run at every position (embree is left out, with a note,
-        when its library is missing).
+    backends : sequence of {'binning', 'embree'}, optional
+        Backends run at every position (default: every :class:`~slr_ray.backends.Backend`;
+        one whose library is missing is left out, with a note).
     """
-    from .backends import available_backends, prepare
+    from .backends import Backend, available_backends, prepare
     from .io import PointCloud, write_cloud
     from .meshscan import scan_mesh
     from .pattern import ScanPattern, preset
@@ -80,6 +80,7 @@ def run_demo(outdir="slr_ray_demo", n_rectangles: int = 200, n_positions: int = 
                                  min_ground_points=min_ground, allow_fewer=True)
     _log(f"{len(positions)} positions by the grid method (>= {min_ground:,} ground points within 5 m)")
 
+    backends = [b.value for b in Backend] if backends is None else list(backends)
     missing = [b for b in backends if b not in available_backends()]
     if missing:
         _log(f"left out (library missing): {missing}")

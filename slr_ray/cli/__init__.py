@@ -19,6 +19,7 @@ import sys
 import threading
 
 from .. import paper
+from ..backends import Backend
 from ..meshscan import MESH_MODES
 from . import arguments as A
 from .commands import COMMANDS
@@ -134,7 +135,8 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("--rectangles", type=int, default=200)
     p.add_argument("--positions", type=A.positive_int, default=4)
     p.add_argument("--seed", type=int, default=0)
-    p.add_argument("--backends", nargs="+", default=["binning", "embree"], choices=["binning", "embree"])
+    backends = [b.value for b in Backend]
+    p.add_argument("--backends", nargs="+", default=backends, choices=backends, help="backends run at each position")
     p.add_argument("--quick", action="store_true", help="a coarser, faster run (for tests)")
 
     p = command("scene", "synthetic rectangle scenes: info, build, scan")
