@@ -66,13 +66,33 @@ class PointCloud:
         return len(self.points)
 
     def subset(self, indices) -> "PointCloud":
-        """The cloud restricted to ``indices``, every attribute following."""
+        """The cloud restricted to ``indices``, every attribute (and a LAS file's raw records) following."""
         return PointCloud(
             self.points[indices],
             {k: v[indices] for k, v in self.attributes.items()},
             self.origin,
-            dict(self.meta),
+            {k: (v.subset(indices) if isinstance(v, LasRecords) else v) for k, v in self.meta.items()},
         )
+
+
+@dataclass
+class LasRecords:
+    """What a LAS/LAZ file holds beyond coordinates and attributes, kept so that
+    writing a subset of it to LAS/LAZ loses nothing: the header (version, point
+    format, scales and offsets, global encoding: GPS time type, WKT flag; every
+    VLR, CRS included), the EVLRs, and the raw point records (coordinates as
+    stored integers, every standard field and extra byte with its own type).
+
+    ``read_cloud`` puts one in ``PointCloud.meta["las"]``;
+    :meth:`PointCloud.subset` subsets its records with the points.
+    """
+
+    header: object
+    evlrs: list
+    array: np.ndarray
+
+    def subset(self, indices) -> "LasRecords":
+        return LasRecords(self.header, self.evlrs, self.array[indices])
 
 
 def check_format(path, fmt=None) -> str:
@@ -169,7 +189,8 @@ def _read_las(path):
     attrs = {name: np.asarray(las[name]) for name in las.point_format.dimension_names
              if name not in ("X", "Y", "Z")}
     meta = {"las_point_format": int(las.header.point_format.id),
-            "las_scales": las.header.scales.tolist(), "las_offsets": las.header.offsets.tolist()}
+            "las_scales": las.header.scales.tolist(), "las_offsets": las.header.offsets.tolist(),
+            "las": LasRecords(las.header, list(las.evlrs or []), las.points.array)}
     return PointCloud(pts, attrs, None, meta)
 
 
@@ -390,7 +411,11 @@ def write_cloud(path, cloud: PointCloud, format: str | None = None, binary: bool
         raise FormatError(f"cannot write {path}: directory {path.parent} does not exist")
     with atomic_path(path) as tmp:
         try:
-            _WRITERS[ext](tmp, cloud, binary)
+            with warnings.catch_warnings(record=True) as said:
+                warnings.simplefilter("always")
+                _WRITERS[ext](tmp, cloud, binary)
+            for w in said:  # what the writer says, about the user's file rather than our temporary one
+                warnings.warn(str(w.message).replace(str(tmp), str(path)), w.category, stacklevel=2)
         except (ValueError, TypeError, OSError) as exc:
             if str(tmp) not in str(exc):
                 raise
@@ -444,30 +469,115 @@ def _write_ply(path, cloud, binary):
     PlyData([PlyElement.describe(data, "vertex")], text=not binary).write(str(path))
 
 
+#: VLR/EVLR user ids that describe the file's own layout and would be wrong for a subset
+_LAYOUT_RECORDS = {"copc"}
+
+
 def _write_las(path, cloud, binary):
+    """LAS/LAZ. From a LAS source (``meta["las"]``): the source's header, VLRs,
+    EVLRs and raw records for the points kept, so version, point format, CRS,
+    GPS time type and extra-byte types are those of the input; attributes
+    added since (or edited) are written through the checks below. From other
+    sources: LAS 1.4, and a value a standard field cannot hold exactly is
+    never wrapped: floats in [0, 1] for an unsigned field are scaled to its
+    full range, anything else goes to an extra dimension ``<name>_value``;
+    either is said in a warning."""
+    import copy
+
     import laspy
 
-    fmt = int(cloud.meta.get("las_point_format", 6 if "gps_time" in cloud.attributes else 0))
-    header = laspy.LasHeader(point_format=fmt, version="1.4")
-    n = len(cloud)
-    if "las_scales" in cloud.meta:
-        header.scales = np.array(cloud.meta["las_scales"])
-        header.offsets = np.array(cloud.meta["las_offsets"])
+    src = cloud.meta.get("las")
+    if isinstance(src, LasRecords) and len(src.array) == len(cloud):
+        header = copy.deepcopy(src.header)
+        layout = [v for v in header.vlrs if str(v.user_id).strip().lower() in _LAYOUT_RECORDS]
+        evlrs = [e for e in src.evlrs if str(e.user_id).strip().lower() not in _LAYOUT_RECORDS]
+        if layout or len(evlrs) != len(src.evlrs):
+            for v in layout:
+                header.vlrs.remove(v)
+            warnings.warn(f"{path}: COPC records dropped (they index the whole input, not this subset); "
+                          "the file is a plain LAS/LAZ", stacklevel=4)
+        las = laspy.LasData(header)
+        las.points = laspy.ScaleAwarePointRecord(src.array.copy(), header.point_format, header.scales,
+                                                 header.offsets)
+        if evlrs:
+            from laspy.vlrs.vlrlist import VLRList
+
+            las.evlrs = VLRList(evlrs)
+        given = np.column_stack([np.asarray(las.x), np.asarray(las.y), np.asarray(las.z)]) if len(cloud) else \
+            np.empty((0, 3))
+        if not np.array_equal(given, cloud.points):
+            las.x, las.y, las.z = cloud.points[:, 0], cloud.points[:, 1], cloud.points[:, 2]
+        have = set(las.point_format.dimension_names)
+        for k, v in cloud.attributes.items():
+            if k in have:
+                if not np.array_equal(np.asarray(las[k]), np.asarray(v)):
+                    _set_las_field(las, k, v, path)
+            else:
+                _add_las_extra(las, k, v, path)
     else:
-        header.scales = np.array([0.001, 0.001, 0.001])
-        header.offsets = np.floor(cloud.points.min(axis=0)) if n else np.zeros(3)
-    standard = set(header.point_format.dimension_names)
-    extra = [k for k in cloud.attributes if k not in standard]
-    for k in extra:
-        v = np.asarray(cloud.attributes[k])
-        if v.ndim != 1 or v.dtype.kind not in "iufb":
-            raise FormatError(f"LAS cannot store attribute {k!r} of dtype {v.dtype} and shape {v.shape}")
-        header.add_extra_dim(laspy.ExtraBytesParams(name=k, type=(np.uint8 if v.dtype == bool else v.dtype)))
-    las = laspy.LasData(header)
-    las.x, las.y, las.z = cloud.points[:, 0], cloud.points[:, 1], cloud.points[:, 2]
-    for k, v in cloud.attributes.items():
-        las[k] = np.asarray(v).astype(np.uint8) if np.asarray(v).dtype == bool else v
+        fmt = int(cloud.meta.get("las_point_format", 6 if "gps_time" in cloud.attributes else 0))
+        header = laspy.LasHeader(point_format=fmt, version="1.4")
+        n = len(cloud)
+        if "las_scales" in cloud.meta:
+            header.scales = np.array(cloud.meta["las_scales"])
+            header.offsets = np.array(cloud.meta["las_offsets"])
+        else:
+            header.scales = np.array([0.001, 0.001, 0.001])
+            header.offsets = np.floor(cloud.points.min(axis=0)) if n else np.zeros(3)
+        las = laspy.LasData(header)
+        las.x, las.y, las.z = cloud.points[:, 0], cloud.points[:, 1], cloud.points[:, 2]
+        standard = set(header.point_format.dimension_names)
+        for k, v in cloud.attributes.items():
+            if k in standard:
+                _set_las_field(las, k, v, path)
+            else:
+                _add_las_extra(las, k, v, path)
     las.write(str(path), do_compress=Path(path).suffix.lower() == ".laz")
+
+
+def _add_las_extra(las, name, values, path):
+    """An attribute as an extra dimension with its own type (arrays of up to 3 values a point)."""
+    import laspy
+
+    v = np.asarray(values)
+    if v.dtype == bool:
+        v = v.astype(np.uint8)
+    if v.dtype.kind not in "iuf" or v.ndim > 2 or (v.ndim == 2 and not 1 <= v.shape[1] <= 3):
+        raise FormatError(f"LAS cannot store attribute {name!r} of dtype {v.dtype} and shape {v.shape}")
+    dtype = v.dtype if v.ndim == 1 else np.dtype((v.dtype, (v.shape[1],)))
+    las.add_extra_dim(laspy.ExtraBytesParams(name=name, type=dtype))
+    las[name] = v
+
+
+def _set_las_field(las, name, values, path):
+    """A standard LAS field from ``values``, exactly, or scaled / moved aside with a warning: never wrapped."""
+    v = np.asarray(values)
+    field_dtype = np.asarray(las[name]).dtype
+    if v.dtype == bool:
+        v = v.astype(np.uint8)
+    if field_dtype.kind == "f" or v.size == 0:
+        las[name] = v
+        return
+    if field_dtype == np.bool_:
+        if np.isin(v, (0, 1)).all():
+            las[name] = v.astype(bool)
+            return
+    else:
+        info = np.iinfo(field_dtype)
+        finite = np.isfinite(v).all() if v.dtype.kind == "f" else True
+        if finite and (v.dtype.kind != "f" or np.array_equal(v, np.round(v))) and v.min() >= info.min \
+                and v.max() <= info.max:
+            las[name] = v.astype(field_dtype)
+            return
+        if v.dtype.kind == "f" and finite and info.min == 0 and v.min() >= 0 and v.max() <= 1:
+            las[name] = np.round(v * info.max).astype(field_dtype)
+            warnings.warn(f"{path}: {name!r} holds values in [0, 1]; written scaled by {info.max} "
+                          f"to fill the LAS field's {field_dtype} range", stacklevel=5)
+            return
+    alt = f"{name}_value"
+    warnings.warn(f"{path}: {name!r} values do not fit the LAS field ({field_dtype}); kept as extra "
+                  f"dimension {alt!r}, the field left at 0", stacklevel=5)
+    _add_las_extra(las, alt, v, path)
 
 
 def _write_kitti(path, cloud, binary):

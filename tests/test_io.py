@@ -239,3 +239,98 @@ def test_kitti_bin_says_which_attributes_it_cannot_hold(tmp_path):
     with pytest.warns(UserWarning, match=r"not written: \['label'\]"):
         write_cloud(tmp_path / "a.bin", PointCloud(np.zeros((2, 3)), {"intensity": np.ones(2),
                                                                       "label": np.ones(2, np.int32)}))
+
+
+# --- LAS/LAZ fidelity --------------------------------------------------------------------------------------
+
+SHARED = __import__("pathlib").Path(__file__).resolve().parents[2] / "shared" / "data"
+
+
+def _las14(path, n=500):
+    """A LAS 1.4 point format 6 file: WKT flag, adjusted standard GPS time, a WKT VLR,
+    a scaled int16 extra dimension, an array-typed extra dimension and an EVLR."""
+    import laspy
+
+    rng = np.random.default_rng(0)
+    header = laspy.LasHeader(point_format=6, version="1.4")
+    header.global_encoding.wkt = True
+    header.global_encoding.gps_time_type = laspy.header.GpsTimeType.STANDARD
+    header.scales = [0.01, 0.01, 0.01]
+    header.offsets = [5e5, 4e6, 0]
+    header.add_extra_dim(laspy.ExtraBytesParams("temperature", "i2", scales=np.array([0.1]),
+                                                offsets=np.array([20.0])))
+    header.add_extra_dim(laspy.ExtraBytesParams("Colors", "3u2"))
+    header.vlrs.append(laspy.vlrs.known.WktCoordinateSystemVlr('PROJCS["test"]'))
+    las = laspy.LasData(header)
+    las.x = 5e5 + rng.uniform(0, 50, n)
+    las.y = 4e6 + rng.uniform(0, 50, n)
+    las.z = rng.uniform(0, 5, n)
+    las.gps_time = rng.uniform(1e9, 1e9 + 10, n)
+    las.intensity = rng.integers(0, 65535, n)
+    las.classification = rng.integers(0, 10, n)
+    las.temperature = rng.integers(-300, 300, n) * 0.1 + 20.0
+    las.Colors = rng.integers(0, 65535, (n, 3))
+    from laspy.vlrs.vlrlist import VLRList
+
+    las.evlrs = VLRList([laspy.VLR("slr_ray_test", 7, "an evlr", b"payload")])
+    las.write(str(path))
+    return las
+
+
+def test_las_subsets_keep_header_crs_fields_and_extra_types(tmp_path):
+    import laspy
+
+    from slr_ray.io import read_cloud, write_cloud
+
+    src = _las14(tmp_path / "in.las")
+    cloud = read_cloud(tmp_path / "in.las")
+    idx = np.arange(0, len(cloud), 7)
+    for ext in ("las", "laz"):
+        write_cloud(tmp_path / f"out.{ext}", cloud.subset(idx))
+        out = laspy.read(str(tmp_path / f"out.{ext}"))
+        h, g = out.header, src.header
+        assert (str(h.version), h.point_format.id) == ("1.4", 6)
+        assert h.global_encoding.wkt and h.global_encoding.gps_time_type == g.global_encoding.gps_time_type
+        assert [v.record_id for v in h.vlrs] == [v.record_id for v in g.vlrs]
+        assert [e.user_id for e in out.evlrs] == ["slr_ray_test"] and out.evlrs[0].record_data == b"payload"
+        assert out["temperature"].array.dtype == np.int16  # scaled int16 stays int16, not float64
+        np.testing.assert_array_equal(out.points.array, src.points.array[idx])
+        np.testing.assert_array_equal(np.asarray(out.Colors), np.asarray(src.Colors)[idx])
+
+
+@pytest.mark.parametrize("name", ["autzen_als_classified.las", "forest_tls_riegl.laz"])
+def test_shared_las_files_keep_every_record(tmp_path, name):
+    import laspy
+
+    from slr_ray.io import read_cloud, write_cloud
+
+    if not (SHARED / name).exists():
+        pytest.skip("shared data not here")
+    src = laspy.read(str(SHARED / name))
+    cloud = read_cloud(SHARED / name)
+    idx = np.arange(0, len(cloud), 5)
+    write_cloud(tmp_path / ("o" + (SHARED / name).suffix), cloud.subset(idx))
+    out = laspy.read(str(tmp_path / ("o" + (SHARED / name).suffix)))
+    assert str(out.header.version) == str(src.header.version)
+    assert out.header.point_format.id == src.header.point_format.id
+    assert [(v.user_id, v.record_id, bytes(v.record_data_bytes()) if hasattr(v, "record_data_bytes") else None)
+            for v in out.header.vlrs] == [(v.user_id, v.record_id, bytes(v.record_data_bytes())
+                                           if hasattr(v, "record_data_bytes") else None) for v in src.header.vlrs]
+    np.testing.assert_array_equal(out.points.array, src.points.array[idx])
+
+
+def test_las_fields_are_never_wrapped(tmp_path):
+    import laspy
+
+    from slr_ray.io import PointCloud, write_cloud
+
+    pts = np.zeros((4, 3))
+    with pytest.warns(UserWarning, match="scaled by 65535"):
+        write_cloud(tmp_path / "f.las", PointCloud(pts, {"intensity": np.array([0.0, 0.25, 0.5, 0.99])}))
+    assert laspy.read(str(tmp_path / "f.las")).intensity.tolist() == [0, 16384, 32768, 64880]
+    with pytest.warns(UserWarning, match="intensity_value"):
+        write_cloud(tmp_path / "w.las", PointCloud(pts, {"intensity": np.array([70000, -5, 3, 4])}))
+    w = laspy.read(str(tmp_path / "w.las"))
+    assert w.intensity.tolist() == [0, 0, 0, 0] and w["intensity_value"].tolist() == [70000, -5, 3, 4]
+    write_cloud(tmp_path / "ok.las", PointCloud(pts, {"intensity": np.array([1, 2, 3, 65535])}))
+    assert laspy.read(str(tmp_path / "ok.las")).intensity.tolist() == [1, 2, 3, 65535]
