@@ -61,17 +61,19 @@ def _resumable(manifest_path: Path, settings: dict, positions, out: Path) -> dic
     return {s["file"]: s for s in old.get("scans", []) if (out / s["file"]).exists()}
 
 
-def _worker_sigterm(signum, frame):
-    raise SystemExit(143)  # unwinds the scan in progress: its temporary file is removed
-
-
 def _init_worker(points, attributes, origin, meta):
-    import signal
-
     from .io import PointCloud
 
-    signal.signal(signal.SIGTERM, _worker_sigterm)  # the pool terminates its workers with SIGTERM
     _WORKER["cloud"] = PointCloud(points, attributes, origin, meta)
+
+
+def _remove_temporaries(jobs) -> None:
+    """Temporary files of ``jobs`` left by workers killed mid-write (the pool
+    terminates its workers with SIGTERM, which no worker code outlives)."""
+    for job in jobs:
+        path = Path(job["path"])
+        for tmp in path.parent.glob(f".{path.name}.*.part*"):
+            tmp.unlink(missing_ok=True)
 
 
 def _scanner(cloud, backend, options):
@@ -214,12 +216,16 @@ def augment(input_path, outdir, n: int, *, backend: str = "binning", resolution:
             # SIGTERM turned into one by the CLI) its exit terminates the workers at once
             # instead of running every queued scan first.
             ctx = multiprocessing.get_context("spawn")
-            with ctx.Pool(n_workers, initializer=_init_worker,
-                          initargs=(cloud.points, cloud.attributes, cloud.origin, cloud.meta)) as pool:
-                for entry in pool.imap(_scan_one, jobs):
-                    record(entry)
-                    if bar is not None:
-                        bar.update()
+            try:
+                with ctx.Pool(n_workers, initializer=_init_worker,
+                              initargs=(cloud.points, cloud.attributes, cloud.origin, cloud.meta)) as pool:
+                    for entry in pool.imap(_scan_one, jobs):
+                        record(entry)
+                        if bar is not None:
+                            bar.update()
+            except BaseException:
+                _remove_temporaries(jobs)
+                raise
         else:
             for j in jobs:
                 record(_scan_one(j, cloud))

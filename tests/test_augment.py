@@ -124,23 +124,32 @@ def test_sigterm_stops_workers_and_leaves_no_temporaries(laz, tmp_path):
     worker processes are gone, no hidden temporary file is left, and a rerun
     completes the set."""
     out = tmp_path / "part"
-    cmd = [sys.executable, "-m", "slr_ray.cli", "augment", str(laz), "--n", "40", "--min-ground-points",
+    n = 120
+    cmd = [sys.executable, "-m", "slr_ray.cli", "augment", str(laz), "--n", str(n), "--min-ground-points",
            "1000", "--workers", "2", "--quiet", "-o", str(out)]
     proc = subprocess.Popen(cmd, stdout=subprocess.PIPE, stderr=subprocess.PIPE)
     deadline = time.time() + 120
     while time.time() < deadline and not list(out.glob("*.laz")):
-        time.sleep(0.05)
+        time.sleep(0.01)
     children = subprocess.run(["pgrep", "-P", str(proc.pid)], capture_output=True, text=True).stdout.split()
     proc.send_signal(signal.SIGTERM)
-    assert proc.wait(60) == 143
-    time.sleep(0.5)
-    alive = [c for c in children if subprocess.run(["ps", "-p", c, "-o", "stat="], capture_output=True,
-                                                    text=True).stdout.strip() not in ("", "Z")]
-    assert not alive, f"workers still running: {alive}"
+    rc = proc.wait(60)
+    if rc == 0:
+        pytest.skip("the run finished before the signal arrived (a loaded machine)")
+    assert rc == 143, proc.stderr.read().decode()
+
+    def running(pid):
+        return subprocess.run(["ps", "-p", pid, "-o", "stat="], capture_output=True,
+                              text=True).stdout.strip() not in ("", "Z")
+
+    deadline = time.time() + 20
+    while time.time() < deadline and any(running(c) for c in children):
+        time.sleep(0.1)
+    assert not [c for c in children if running(c)], "workers still running"
     assert not [p for p in out.iterdir() if p.name.startswith(".")]
-    assert len(list(out.glob("*.laz"))) < 40
+    assert len(list(out.glob("*.laz"))) < n
     subprocess.run(cmd, check=True, capture_output=True)
-    assert len(list(out.glob("*.laz"))) == 40
+    assert len(list(out.glob("*.laz"))) == n
 
 
 def test_a_rerun_with_other_settings_never_mixes_with_the_old_scans(laz, tmp_path):
