@@ -58,6 +58,9 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("--format", help="output format, overriding the extension")
     A.add_input_format(p)
     p.add_argument("--keep-range", action="store_true", help="add a 'range' attribute")
+    p.add_argument("--chunk-size", type=A.positive_int, default=2_000_000,
+                   help="points read at a time from LAS/LAZ (binning reads them in two passes; default 2,000,000)")
+    p.add_argument("--quiet", action="store_true", help="no progress bars")
     p.add_argument("--force", action="store_true", help="overwrite the output")
     p.add_argument("--print-config", action="store_true", help="print the resolved configuration as JSON and stop")
 

@@ -1,0 +1,101 @@
+"""`slr-ray scan` on a LAZ file larger than memory would comfortably hold: time and peak memory.
+
+    python benchmarks/bench_streaming.py [--points 100000000] [--chunk-size 2000000]
+
+Generates (once, cached under results/, not committed) a LAZ of N points: a
+200 m x 200 m ground with 4000 box-shaped objects, point format 6 with GPS
+time, intensity and classification, written in chunks. Then runs
+``slr-ray scan BIG.laz --origin ... --resolution 0.144 -o out.laz`` in a child
+process (the binning backend reads LAS/LAZ in two passes of chunks) and reports
+its wall time and peak RSS (getrusage of the child), the points kept, and the
+size the whole cloud would take as float64 coordinates alone. Saves
+results/bench_streaming.json.
+"""
+
+from __future__ import annotations
+
+import argparse
+import json
+import os
+import subprocess
+import sys
+import time
+from pathlib import Path
+
+import numpy as np
+
+sys.path.insert(0, str(Path(__file__).resolve().parent))
+
+from common import RESULTS, machine, save  # noqa: E402
+
+
+def make(path: Path, n: int, chunk: int = 5_000_000, seed: int = 0):
+    import laspy
+
+    rng = np.random.default_rng(seed)
+    boxes = np.column_stack([rng.uniform(-95, 95, (4000, 2)), rng.uniform(0.5, 3, (4000, 2)),
+                             rng.uniform(1, 6, 4000)])
+    header = laspy.LasHeader(point_format=6, version="1.4")
+    header.scales = [0.001, 0.001, 0.001]
+    header.offsets = [500000.0, 4000000.0, 0.0]
+    tmp = path.with_suffix(".tmp.laz")
+    t0 = time.perf_counter()
+    with laspy.open(str(tmp), mode="w", header=header, do_compress=True) as w:
+        done = 0
+        while done < n:
+            k = min(chunk, n - done)
+            on_box = rng.random(k) < 0.3
+            xy = rng.uniform(-100, 100, (k, 2))
+            z = rng.normal(0, 0.02, k)
+            b = boxes[rng.integers(0, len(boxes), k)]
+            xy[on_box] = b[on_box, :2] + rng.uniform(-0.5, 0.5, (on_box.sum(), 2)) * b[on_box, 2:4]
+            z[on_box] = rng.uniform(0, 1, on_box.sum()) * b[on_box, 4]
+            rec = laspy.ScaleAwarePointRecord.zeros(k, header=header)
+            rec.x = xy[:, 0] + 500000.0
+            rec.y = xy[:, 1] + 4000000.0
+            rec.z = z
+            rec.gps_time = rng.uniform(0, 1e5, k)
+            rec.intensity = rng.integers(0, 65535, k)
+            rec.classification = np.where(on_box, 1, 2).astype(np.uint8)
+            w.write_points(rec)
+            done += k
+            print(f"  wrote {done:,} of {n:,}", file=sys.stderr, flush=True)
+    tmp.rename(path)
+    return time.perf_counter() - t0
+
+
+def main(argv=None):
+    ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    ap.add_argument("--points", type=int, default=100_000_000)
+    ap.add_argument("--chunk-size", type=int, default=2_000_000)
+    args = ap.parse_args(argv)
+    RESULTS.mkdir(parents=True, exist_ok=True)
+    big = RESULTS / f"big_{args.points}.laz"
+    gen = None
+    if not big.exists():
+        print(f"generating {big} ...", file=sys.stderr)
+        gen = make(big, args.points)
+    out = RESULTS / "big_scan.laz.tmp-out.laz"
+    if out.exists():
+        out.unlink()
+    cmd = [sys.executable, "-m", "slr_ray.cli", "scan", str(big), "--origin", "500001.3", "4000002.7", "1.65",
+           "--resolution", "0.144", "--chunk-size", str(args.chunk_size), "--quiet", "-o", str(out)]
+    t0 = time.perf_counter()
+    proc = subprocess.Popen(cmd, stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True)
+    _, status, usage = os.wait4(proc.pid, 0)
+    wall = time.perf_counter() - t0
+    stdout, stderr = proc.stdout.read(), proc.stderr.read()
+    if os.waitstatus_to_exitcode(status):
+        sys.exit(f"scan failed: {stderr.strip().splitlines()[-1:]}")
+    res = json.loads(stdout.strip().splitlines()[-1])
+    out.unlink()
+    row = {"points": args.points, "file_bytes": big.stat().st_size, "chunk_size": args.chunk_size,
+           "generate_seconds": gen, "scan_wall_seconds": round(wall, 2),
+           "peak_rss_gib": round(usage.ru_maxrss / 2**20, 3), "points_out": res["points_out"],
+           "float64_coordinates_gib": round(args.points * 24 / 2**30, 2), "command": " ".join(cmd[1:])}
+    print(json.dumps(row, indent=1))
+    save("bench_streaming", {"machine": machine(), "inputs": vars(args), "result": row})
+
+
+if __name__ == "__main__":
+    main()
