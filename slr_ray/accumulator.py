@@ -8,7 +8,7 @@ import time
 from .arrays import as_origin, as_points
 from .errors import InputValueError
 from .backends.binning import BinTables
-from .pattern import as_pattern
+from .pattern import ScanPattern, as_pattern
 from .scan import Scan
 
 __all__ = ["ScanAccumulator"]
@@ -45,6 +45,9 @@ class ScanAccumulator:
     def __init__(self, origin, pattern, n_threads: int | None = None):
         self.origin = as_origin(origin)
         self.pattern = as_pattern(pattern)
+        if not isinstance(self.pattern, ScanPattern):
+            raise InputValueError("ScanAccumulator reduces uniform patterns; scan a beam table "
+                                  "(slr_ray.sensors) with slr_ray.prepare(points).scan(origin, pattern)")
         self._tables = BinTables(self.origin, self.pattern, n_threads=n_threads)
         self._seconds = 0.0
 

@@ -27,7 +27,7 @@ import numpy as np
 from .backends import options_for, prepare
 from .errors import InputValueError, MissingDependencyError
 from .paper import MIN_GROUND_POINTS, SCANNER_HEIGHT, SECONDARY_RESOLUTION
-from .pattern import ScanPattern
+from .pattern import ScanPattern, as_pattern
 
 __all__ = ["augment"]
 
@@ -93,7 +93,7 @@ def _scan_one(job, cloud=None):
 
     cloud = cloud if cloud is not None else _WORKER["cloud"]
     t0 = time.perf_counter()
-    pattern = ScanPattern.from_dict(job["pattern"])
+    pattern = as_pattern(job["sensor"]) if job.get("sensor") else ScanPattern.from_dict(job["pattern"])
     scan = _scanner(cloud, job["backend"], job["options"]).scan(job["origin"], pattern)
     sub = cloud.subset(scan.indices)
     sub.origin = np.asarray(job["origin"], float)
@@ -111,7 +111,8 @@ def augment(input_path, outdir, n: int, *, backend: str = "binning", resolution:
             heights=(SCANNER_HEIGHT,), fmt: str | None = None, seed: int = 0,
             min_ground_points: int = MIN_GROUND_POINTS,
             ground=None, origin=None, workers: int | None = None, scheduler: str | None = None,
-            progress: bool = True, backend_options: dict | None = None, allow_fewer: bool = True) -> dict:
+            progress: bool = True, backend_options: dict | None = None, allow_fewer: bool = True,
+            sensor: str | None = None) -> dict:
     """Write ``n`` positions x ``heights`` SLR scans of ``input_path`` into ``outdir``.
 
     Parameters
@@ -122,6 +123,9 @@ def augment(input_path, outdir, n: int, *, backend: str = "binning", resolution:
         :func:`slr_ray.label_ground` otherwise).
     heights : sequence of float
         Scanner heights above the local ground.
+    sensor : str, optional
+        A shipped sensor's beam table (:data:`slr_ray.sensors.SENSORS`) instead
+        of a uniform ``resolution``.
     fmt : str, optional
         Output extension (default the input's).
     workers : int, optional
@@ -157,7 +161,7 @@ def augment(input_path, outdir, n: int, *, backend: str = "binning", resolution:
         ground = ground_labels(cloud)
     positions, cells = select_positions(cloud.points, ground, n, seed=seed, min_ground_points=min_ground_points,
                                         allow_fewer=allow_fewer, return_cells=True)
-    pattern = ScanPattern(resolution)
+    pattern = as_pattern(sensor) if sensor else ScanPattern(resolution)
     settings = {"input": str(input_path.resolve()), "input_bytes": input_path.stat().st_size, "seed": seed,
                 "pattern": pattern.to_dict(), "backend": backend,
                 "backend_options": options_for(backend, backend_options).to_dict(),
@@ -179,7 +183,8 @@ def augment(input_path, outdir, n: int, *, backend: str = "binning", resolution:
                 continue
             jobs.append({"path": str(out / name), "position": i, "height": float(h),
                          "origin": [float(p[0]), float(p[1]), float(ground_z + h)],
-                         "pattern": pattern.to_dict(), "backend": backend, "options": backend_options or {}})
+                         "pattern": pattern.to_dict(), "sensor": sensor, "backend": backend,
+                         "options": backend_options or {}})
     manifest = {"software": f"slr_ray {__version__}", "settings": settings, "input": str(input_path),
                 "n_requested": n, "seed": seed, "pattern": pattern.to_dict(), "backend": backend,
                 "heights": list(heights),

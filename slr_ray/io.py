@@ -40,7 +40,8 @@ import numpy as np
 
 from .errors import FormatError
 
-__all__ = ["PointCloud", "read_cloud", "write_cloud", "read_e57_scans", "check_format", "FORMATS"]
+__all__ = ["PointCloud", "LasRecords", "read_cloud", "write_cloud", "read_e57_scans", "check_format",
+           "label_path", "FORMATS"]
 
 FORMATS = (".npy", ".npz", ".ply", ".las", ".laz", ".bin", ".xyz", ".txt", ".e57", ".pcd")
 
@@ -194,12 +195,30 @@ def _read_las(path):
     return PointCloud(pts, attrs, None, meta)
 
 
+def label_path(bin_path) -> Path | None:
+    """The SemanticKITTI ``.label`` file of a KITTI ``.bin``, if there is one: next
+    to it (``000000.label``), or in the sequence's ``labels/`` beside ``velodyne/``."""
+    p = Path(bin_path)
+    for cand in (p.with_suffix(".label"), p.parent.parent / "labels" / (p.stem + ".label")):
+        if cand.is_file():
+            return cand
+    return None
+
+
 def _read_kitti(path):
     raw = np.fromfile(path, dtype=np.float32)
     if raw.size % 4:
         raise FormatError(f"{path}: {raw.size} float32 values, not a multiple of 4 (x, y, z, intensity)")
     a = raw.reshape(-1, 4)
-    return PointCloud(a[:, :3].astype(np.float64), {"intensity": a[:, 3].copy()}, np.zeros(3))
+    attrs = {"intensity": a[:, 3].copy()}
+    lab = label_path(path)
+    if lab is not None:  # SemanticKITTI: uint32, semantic class in the low 16 bits, instance in the high 16
+        words = np.fromfile(lab, dtype="<u4")
+        if len(words) != len(a):
+            raise FormatError(f"{lab}: {len(words)} labels for {len(a)} points of {path}")
+        attrs["semantic"] = (words & 0xFFFF).astype(np.uint16)
+        attrs["instance"] = (words >> 16).astype(np.uint16)
+    return PointCloud(a[:, :3].astype(np.float64), attrs, np.zeros(3), {"labels": str(lab) if lab else None})
 
 
 _SEMANTIC3D = ("intensity", "red", "green", "blue")
@@ -421,7 +440,21 @@ def write_cloud(path, cloud: PointCloud, format: str | None = None, binary: bool
                 raise
             # the user named `path`, not our temporary file: say it in their terms
             raise FormatError(str(exc).replace(str(tmp), str(path))) from exc
+    if ext == ".bin" and "semantic" in cloud.attributes:
+        _write_labels(path.with_suffix(".label"), cloud)
     return path
+
+
+def _write_labels(path, cloud):
+    """SemanticKITTI labels next to a KITTI ``.bin``: uint32, semantic | instance << 16."""
+    sem = np.asarray(cloud.attributes["semantic"])
+    inst = np.asarray(cloud.attributes.get("instance", np.zeros(len(sem), np.uint32)))
+    for name, v in (("semantic", sem), ("instance", inst)):
+        if v.dtype.kind not in "iu" or (len(v) and (v.min() < 0 or v.max() > 0xFFFF)):
+            raise FormatError(f"{path}: SemanticKITTI {name} labels must be integers in [0, 65535]")
+    words = (sem.astype(np.uint32) & 0xFFFF) | (inst.astype(np.uint32) << 16)
+    with atomic_path(path) as tmp:
+        words.astype("<u4").tofile(tmp)
 
 
 def _columns(cloud):
@@ -581,7 +614,7 @@ def _set_las_field(las, name, values, path):
 
 
 def _write_kitti(path, cloud, binary):
-    dropped = sorted(k for k in cloud.attributes if k != "intensity")
+    dropped = sorted(k for k in cloud.attributes if k not in ("intensity", "semantic", "instance"))
     if dropped:
         warnings.warn(f"{path}: KITTI .bin holds x, y, z and intensity only; not written: {dropped}",
                       stacklevel=3)

@@ -256,7 +256,11 @@ def preset(name: str) -> ScanPattern:
 
 
 def as_pattern(pattern) -> ScanPattern:
-    """A :class:`ScanPattern` from a pattern, a preset name or a resolution in degrees.
+    """A pattern from a pattern, a preset or sensor name, or a resolution in degrees.
+
+    A :class:`ScanPattern` or :class:`~slr_ray.sensors.BeamPattern` is returned
+    as it is; a string names a preset (:data:`PRESETS`) or a shipped sensor
+    (:data:`slr_ray.sensors.SENSORS`).
 
     Raises
     ------
@@ -267,8 +271,16 @@ def as_pattern(pattern) -> ScanPattern:
     """
     if isinstance(pattern, ScanPattern):
         return pattern
+    if type(pattern).__name__ == "BeamPattern":  # slr_ray.sensors (imported lazily: it needs numba)
+        return pattern
     if isinstance(pattern, str):
-        return preset(pattern)
+        if pattern in PRESETS:
+            return preset(pattern)
+        from .sensors import SENSORS, sensor
+
+        if pattern in SENSORS:
+            return sensor(pattern)
+        raise InputValueError(f"unknown pattern {pattern!r}: presets {sorted(PRESETS)}, sensors {list(SENSORS)}")
     if isinstance(pattern, (int, float, np.integer, np.floating)) and not isinstance(pattern, (bool, np.bool_)):
         return ScanPattern(resolution=float(pattern))
     raise InputTypeError(
@@ -332,6 +344,8 @@ def pulse_rays(pattern: ScanPattern, rows: slice | None = None, k: int = 1):
     v, h : (m,) int64
         The pulse of each ray.
     """
+    if not isinstance(pattern, ScanPattern):  # a beam table: one ray per (beam, column)
+        return pattern.rays(slice(None) if rows is None else rows, k)
     rows = slice(0, pattern.n_zenith) if rows is None else rows
     d_theta, d_phi, th0, th1 = pattern.radians
     nh = pattern.n_azimuth

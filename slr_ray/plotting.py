@@ -19,7 +19,7 @@ from .errors import MissingDependencyError
 from .paper import NEAR_DISTANCE, PRIMARY_RESOLUTION, PRIMARY_RESOLUTION_FINE, Q1_SCENES, Q2_SCENES
 
 __all__ = ["save_figure", "validation_figure", "paper_figure", "comparison_figure", "demo_figure",
-           "distances_figure", "cells_figure"]
+           "distances_figure", "cells_figure", "range_image_figure"]
 
 DPI = 110
 
@@ -281,5 +281,22 @@ def cells_figure(cells, positions=None, points=None):
                        Patch(color=face["kept"], label=f"kept ({len(cells)})")], loc="upper right")
     ax.set(aspect="equal", xlabel="x (m)", ylabel="y (m)", title=f"{cells.cell_size:g} m cells: " + ", ".join(
         f"{st['stage']} -{st['removed']}" for st in cells.stages))
+    fig.tight_layout()
+    return fig
+
+
+def range_image_figure(image: dict, title: str = "", max_range: float | None = None):
+    """A range image (:meth:`slr_ray.scan.Scan.range_image`): range by row
+    (beam, highest first) and column (azimuth); white where no return."""
+    rng = np.asarray(image["range"], float)
+    rows, cols = rng.shape
+    fig = _figure(figsize=(min(18, 2 + cols / 120), 1.5 + min(10, max(2.0, rows / 12))))
+    ax = fig.subplots()
+    vmax = max_range or (np.nanpercentile(rng, 99) if np.isfinite(rng).any() else 1.0)
+    im = ax.imshow(rng, aspect="auto", interpolation="nearest", cmap="turbo", vmin=0, vmax=vmax)
+    fig.colorbar(im, ax=ax, label="range (m)")
+    filled = np.isfinite(rng).mean() if rng.size else 0.0
+    ax.set(xlabel="column (azimuth)", ylabel="row (beam, by elevation)",
+           title=f"{title} {rows} x {cols}, {100 * filled:.1f} % of pulses returned".strip())
     fig.tight_layout()
     return fig

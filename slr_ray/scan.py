@@ -32,7 +32,7 @@ class Scan:
         pulse appears at most once.
     origin : (3,) float64
         Scanner position.
-    pattern : ScanPattern
+    pattern : ScanPattern or BeamPattern
     backend : str
         Backend that produced the scan.
     n_input : int
@@ -67,6 +67,57 @@ class Scan:
     def pulse_ids(self) -> np.ndarray:
         """``(m,) int64`` flat pulse id ``v * n_azimuth + h``."""
         return self.pattern.ravel(self.pulses)
+
+    @property
+    def rings(self) -> np.ndarray:
+        """``(m,) int64``: the beam (ring) of each point: its beam id in the sensor's
+        table for a :class:`~slr_ray.sensors.BeamPattern`, the zenith row otherwise."""
+        rows = self.pulses[:, 0]
+        order = getattr(self.pattern, "beam_of_row", None)
+        return rows.copy() if order is None else order[rows]
+
+    @property
+    def columns(self) -> np.ndarray:
+        """``(m,) int64``: the azimuth column of each point."""
+        return self.pulses[:, 1].copy()
+
+    def range_image(self, attributes: dict | None = None, max_pixels: int = 2**28) -> dict:
+        """The scan as images of the pattern's shape (rows by elevation, highest first; columns by azimuth).
+
+        Parameters
+        ----------
+        attributes : dict of str -> (n,) array, optional
+            Per-point arrays of the *scanned cloud* (indexed like its points),
+            drawn into images too.
+        max_pixels : int
+            Refuse patterns with more pulses (a 0.001 deg pattern has 6.5e10).
+
+        Returns
+        -------
+        dict
+            ``range`` (rows, cols) float32, NaN where no point; ``index``
+            (rows, cols) int64 into the scanned cloud, -1 where empty;
+            ``ring`` (rows,) int64, the beam id of each row; one image per
+            attribute (NaN, or -1 for integers, where empty).
+        """
+        nv, nh = self.pattern.shape
+        if nv * nh > max_pixels:
+            raise ValueError(f"a range image of {nv} x {nh} pulses is larger than max_pixels={max_pixels}")
+        r, c = self.pulses[:, 0], self.pulses[:, 1]
+        out = {"range": np.full((nv, nh), np.nan, np.float32), "index": np.full((nv, nh), -1, np.int64)}
+        out["range"][r, c] = self.ranges
+        out["index"][r, c] = self.indices
+        order = getattr(self.pattern, "beam_of_row", None)
+        out["ring"] = np.arange(nv, dtype=np.int64) if order is None else np.asarray(order, np.int64)
+        for name, values in (attributes or {}).items():
+            v = np.asarray(values)[self.indices]
+            if name in out:
+                raise ValueError(f"attribute name {name!r} is taken by the range image")
+            img = np.full((nv, nh) + v.shape[1:], np.nan if v.dtype.kind == "f" else -1,
+                          dtype=v.dtype if v.dtype.kind in "fi" else np.int64)
+            img[r, c] = v
+            out[name] = img
+        return out
 
     def select(self, array):
         """``array[self.indices]``: the scanned points, or any per-point attribute."""

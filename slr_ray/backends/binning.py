@@ -46,7 +46,7 @@ from numba import njit
 
 from ..arrays import as_origin
 from ..errors import InputValueError
-from ..pattern import as_pattern
+from ..pattern import ScanPattern, as_pattern
 from ..scan import Scan
 from ..threads import default_threads
 from .base import BackendOptions, Scanner
@@ -202,6 +202,8 @@ def pulse_keys(points, origin, pattern):
     The same compiled arithmetic as the reduction, so a point on a bin edge
     falls on the same side here as in a scan. Key -1: not seen; -2: not finite.
     """
+    if not isinstance(pattern, ScanPattern):  # a beam table (slr_ray.sensors)
+        return pattern.keys(points, origin)
     keys = np.empty(len(points), dtype=np.int64)
     ranges = np.empty(len(points), dtype=np.float64)
     if len(points):
@@ -695,6 +697,10 @@ class BinningScanner(Scanner):
         t0 = time.perf_counter()
         origin = as_origin(origin)
         pattern = as_pattern(pattern)
+        if not isinstance(pattern, ScanPattern):  # a beam table: per-(beam, column) dense reduction
+            keys, ranges, idx = pattern.reduce(self.points, origin, self.options.n_threads)
+            return Scan.from_keys(keys, ranges, idx, origin, pattern, self.backend, len(self.points),
+                                  time.perf_counter() - t0)
         tables = BinTables(origin, pattern, n_threads=self.options.n_threads)
         tables.add(self.points)
         keys, ranges, idx = tables.winners(self.points)

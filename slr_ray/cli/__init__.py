@@ -21,6 +21,7 @@ import threading
 from .. import paper
 from ..backends import Backend
 from ..meshscan import MESH_MODES
+from ..sensors import SENSORS
 from . import arguments as A
 from .commands import COMMANDS
 
@@ -58,6 +59,9 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("--format", help="output format, overriding the extension")
     A.add_input_format(p)
     p.add_argument("--keep-range", action="store_true", help="add a 'range' attribute")
+    p.add_argument("--range-image", metavar="NPZ",
+                   help="also write the scan as a range image (.npz: range, index, ring, every attribute)")
+    p.add_argument("--png", help="also draw the range image (PNG)")
     p.add_argument("--chunk-size", type=A.positive_int, default=2_000_000,
                    help="points read at a time from LAS/LAZ (binning reads them in two passes; default 2,000,000)")
     p.add_argument("--quiet", action="store_true", help="no progress bars")
@@ -126,6 +130,7 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("--heights", nargs="+", type=A.positive_float, default=[paper.SCANNER_HEIGHT],
                    help="scanner heights above ground")
     p.add_argument("--format", help="output extension (default: the input's)")
+    p.add_argument("--sensor", choices=list(SENSORS), help="a spinning sensor's beam table instead of --resolution")
     A.add_backend(p)
     A.add_positions(p)
     A.add_ground(p)

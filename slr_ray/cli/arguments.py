@@ -14,6 +14,7 @@ from .. import paper
 from ..backends import Backend, BinningOptions, EmbreeOptions
 from ..errors import InputValueError
 from ..pattern import PRESETS, ScanPattern, preset
+from ..sensors import SENSORS, read_ouster_metadata, read_velodyne_calibration, sensor
 
 __all__ = ["add_pattern", "pattern_from", "add_backend", "backend_from", "add_ground", "ground_from",
            "add_input_format", "finite_float", "positive_float", "positive_int"]
@@ -74,14 +75,36 @@ def add_pattern(p, origin: str = "optional", resolution_default: float | None = 
                    help="angular resolution, both axes (degrees)"
                    + (f"; default {resolution_default:g}" if resolution_default else ""))
     g.add_argument("--preset", choices=sorted(PRESETS), help="a pattern of the paper (other options override it)")
+    g.add_argument("--sensor", choices=list(SENSORS),
+                   help="a spinning sensor's beam table instead of a uniform pattern (range options override it)")
+    g.add_argument("--sensor-file", metavar="PATH",
+                   help="your sensor's calibration: Ouster metadata .json or Velodyne calibration .yaml")
+    g.add_argument("--columns", type=positive_int, metavar="N",
+                   help="columns per revolution of --sensor / --sensor-file (its azimuth resolution)")
     g.add_argument("--zenith-range", nargs=2, type=finite_float, metavar=("A", "B"),
                    help="zenith field of view in degrees (0 = up; default 0 180)")
     g.add_argument("--min-range", type=finite_float, metavar="M")
     g.add_argument("--max-range", type=finite_float, metavar="M")
 
 
-def pattern_from(args) -> ScanPattern:
-    """The :class:`ScanPattern` of the pattern group's flags."""
+def pattern_from(args):
+    """The pattern of the pattern group's flags: a :class:`ScanPattern` or a
+    :class:`~slr_ray.sensors.BeamPattern` (``--sensor``, ``--sensor-file``)."""
+    if getattr(args, "sensor", None) or getattr(args, "sensor_file", None):
+        if args.sensor and args.sensor_file:
+            raise InputValueError("give --sensor or --sensor-file, not both")
+        if args.resolution is not None or args.preset or args.zenith_range:
+            raise InputValueError("--sensor/--sensor-file set the angles: drop --resolution, --preset and "
+                                  "--zenith-range")
+        changes = {k: v for k, v in (("columns", args.columns), ("min_range", args.min_range),
+                                     ("max_range", args.max_range)) if v is not None}
+        if args.sensor:
+            return sensor(args.sensor, **changes)
+        path = args.sensor_file
+        reader = read_ouster_metadata if str(path).lower().endswith(".json") else read_velodyne_calibration
+        return reader(path, **changes)
+    if getattr(args, "columns", None) is not None:
+        raise InputValueError("--columns goes with --sensor or --sensor-file")
     if args.preset:
         base = preset(args.preset)
         changes = {k: v for k, v in (("resolution", args.resolution),

@@ -61,6 +61,8 @@ def scan(args):
 
     pattern = pattern_from(args)
     out = _output(args.output, args.force, [args.input])
+    for extra in (args.range_image, args.png):
+        _output(extra, args.force, [args.input, args.output])
     check_format(out, args.format)  # refuse an unknown output format before any work
     options = options_for(args.backend, backend_from(args))
     if args.print_config:
@@ -87,9 +89,31 @@ def scan(args):
         sub.attributes["range"] = result.ranges
     t1 = time.perf_counter()
     write_cloud(out, sub, args.format)
+    if args.range_image or args.png:
+        _range_image(args, sub, result)
     emit({**result.summary(), "input": str(args.input), "output": str(out), "streamed": streamed,
           ("seconds_read_and_scan" if streamed else "seconds_read"): round(t_read, 6),
           "seconds_write": round(time.perf_counter() - t1, 6)})
+
+
+def _range_image(args, sub, result):
+    """The scan's range image (npz and/or PNG): ``sub`` is the scanned subset, in index order."""
+    from dataclasses import replace as _replace
+
+    from ..io import atomic_path
+    from ..plotting import range_image_figure, save_figure
+
+    local = _replace(result, indices=np.arange(len(result)))  # images of the subset's own rows
+    attrs = {k: v for k, v in sub.attributes.items() if np.asarray(v).ndim == 1 and np.asarray(v).dtype.kind in "biuf"}
+    image = local.range_image(attrs)
+    image["index"] = np.where(image["index"] >= 0, result.indices[np.maximum(image["index"], 0)], -1)
+    if args.range_image:
+        with atomic_path(Path(args.range_image)) as tmp:
+            with open(tmp, "wb") as f:
+                np.savez_compressed(f, **image)
+    if args.png:
+        save_figure(range_image_figure(image, title=f"{result.pattern.to_dict().get('name') or 'scan'} "
+                                                    f"from {np.round(result.origin, 2).tolist()}"), args.png)
 
 
 def _scan_cloud(args, cloud, pattern):
@@ -250,7 +274,7 @@ def augment(args):
     if args.csf or args.ground_attribute:
         ground = ground_labels(read_cloud(args.input), **ground_from(args))
     res = run(args.input, args.output, args.n, backend=args.backend, resolution=args.resolution,
-              heights=tuple(args.heights), fmt=args.format, seed=args.seed,
+              heights=tuple(args.heights), fmt=args.format, seed=args.seed, sensor=args.sensor,
               min_ground_points=args.min_ground_points, ground=ground, workers=args.workers,
               scheduler=args.scheduler, progress=not args.quiet, backend_options=backend_from(args))
     emit({k: res[k] for k in ("input", "n_requested", "new_scans", "seconds", "software")}

@@ -1,0 +1,350 @@
+"""Beam tables of spinning multi-beam sensors: :class:`BeamPattern` and the shipped sensors.
+
+A spinning LiDAR (Velodyne, Ouster, ...) fires a fixed set of beams, each at
+its own elevation (unevenly spaced) and its own azimuth offset, once per
+column of a revolution. :class:`BeamPattern` describes that pattern and is
+accepted wherever a :class:`~slr_ray.pattern.ScanPattern` is: by both
+backends and by :func:`~slr_ray.meshscan.scan_mesh` (pulse centres).
+
+Binning (exact, documented definition)
+--------------------------------------
+Angles are the float64 ``zenith = atan2(hypot(x, y), z)`` and ``azimuth =
+atan2(y, x)`` (counter-clockwise from +x, in [0, 360)) of a point less the
+scanner origin. Beams are ordered by elevation, highest first (that order is
+the *row* of the range image). A point belongs to the beam whose **elevation
+band** holds its zenith: band edges lie halfway between neighbouring beams;
+the outermost bands reach half a gap beyond the outermost beams (the gap to
+their one neighbour). Its **column** is ``floor(((azimuth - offset) mod 360) /
+(360 / columns))`` with that beam's azimuth offset. Points outside every band,
+or outside ``[min_range, max_range]``, are not seen. The binning backend keeps
+the nearest point per (beam, column), ties to the lowest index; the embree
+backend and ``scan_mesh`` cast one ray per (beam, column) in the beam's true
+direction: zenith ``90 - elevation``, azimuth ``offset + (column + 0.5) *
+360 / columns`` (the centre of its bin, so a sensor's own frame re-scanned
+from its origin returns every point).
+
+Azimuth offsets are applied as the calibration gives them; slr_ray's azimuth
+is counter-clockwise from +x, so column 0 and the sense of the columns may
+differ from a vendor's by a fixed rotation or mirror (the same for every
+beam: the pattern of bins is the sensor's). Per-beam origin offsets
+(Velodyne's vertical and horizontal offsets, Ouster's beam-origin distance)
+are kept in :attr:`BeamPattern.meta` for reference; beams are cast from the
+one scanner origin (the offsets are a few centimetres).
+
+Shipped sensors (:func:`sensor`, :data:`SENSORS`): Velodyne VLP-16, VLP-32C,
+HDL-32E, HDL-64E S2 and S3 (one unit's calibration each), VLS-128 (from the
+BSD-licensed ros-drivers/velodyne calibration files) and Ouster OS1-64 and
+OS1-128 (from ouster-sdk's BSD-licensed test metadata); each file records its
+source. Your own calibration: :func:`read_ouster_metadata`,
+:func:`read_velodyne_calibration`.
+"""
+
+from __future__ import annotations
+
+import json
+import math
+from dataclasses import dataclass, field
+from pathlib import Path
+
+import numpy as np
+from numba import njit, prange
+
+from .errors import InputValueError
+from .threads import default_threads
+
+__all__ = ["BeamPattern", "sensor", "SENSORS", "SENSORS_DIR", "read_ouster_metadata",
+           "read_velodyne_calibration"]
+
+#: Directory of the shipped beam tables (package data).
+SENSORS_DIR = Path(__file__).resolve().parent / "data" / "sensors"
+
+
+def _names() -> tuple:
+    return tuple(sorted(p.stem for p in SENSORS_DIR.glob("*.json")))
+
+
+#: Names of the shipped sensors.
+SENSORS = _names()
+
+
+@dataclass(frozen=True, eq=False)
+class BeamPattern:
+    """The beam table of a spinning multi-beam sensor (module docstring).
+
+    Parameters
+    ----------
+    elevation_deg : sequence of float
+        Elevation of each beam above the horizontal, degrees, in the table's
+        order (the beam id is the position in it). Any order; distinct values.
+    columns : int
+        Columns (firings) per revolution: the azimuth resolution is ``360 / columns``.
+    azimuth_offset_deg : sequence of float, optional
+        Each beam's azimuth offset, degrees (default 0).
+    min_range, max_range : float, optional
+        Metres.
+    name : str, optional
+    meta : dict
+        Anything else of the table (source, offsets); not used by the scan.
+    """
+
+    elevation_deg: tuple
+    columns: int
+    azimuth_offset_deg: tuple | None = None
+    min_range: float | None = None
+    max_range: float | None = None
+    name: str | None = None
+    meta: dict = field(default_factory=dict, repr=False)
+
+    def __post_init__(self):
+        set_ = lambda k, v: object.__setattr__(self, k, v)  # noqa: E731 (frozen dataclass)
+        el = np.asarray(self.elevation_deg, dtype=np.float64).ravel()
+        if len(el) < 1 or not np.all(np.isfinite(el)) or np.any(np.abs(el) >= 90):
+            raise InputValueError("elevation_deg must be one or more finite angles in (-90, 90) degrees")
+        if len(np.unique(el)) != len(el):
+            raise InputValueError("elevation_deg has repeated values: beams must have distinct elevations")
+        off = np.zeros(len(el)) if self.azimuth_offset_deg is None else \
+            np.asarray(self.azimuth_offset_deg, dtype=np.float64).ravel()
+        if off.shape != el.shape or not np.all(np.isfinite(off)):
+            raise InputValueError(f"azimuth_offset_deg must be {len(el)} finite angles, got {off.shape}")
+        if int(self.columns) != self.columns or not 1 <= self.columns <= 2**24:
+            raise InputValueError(f"columns must be an integer in [1, 2**24], got {self.columns!r}")
+        for k in ("min_range", "max_range"):
+            v = getattr(self, k)
+            if v is not None and not (math.isfinite(float(v)) and float(v) >= 0):
+                raise InputValueError(f"{k} must be a finite number >= 0, got {v!r}")
+        if self.min_range is not None and self.max_range is not None and self.min_range > self.max_range:
+            raise InputValueError(f"min_range ({self.min_range}) must not exceed max_range ({self.max_range})")
+        set_("elevation_deg", tuple(el.tolist()))
+        set_("azimuth_offset_deg", tuple(off.tolist()))
+        set_("columns", int(self.columns))
+
+    # --- the rows: beams by elevation, highest first -------------------------------------------------------
+    @property
+    def n_beams(self) -> int:
+        return len(self.elevation_deg)
+
+    @property
+    def beam_of_row(self) -> np.ndarray:
+        """``(n_beams,) int64``: the beam id (table position) of each range-image row."""
+        return np.argsort(-np.asarray(self.elevation_deg), kind="stable").astype(np.int64)
+
+    @property
+    def row_zenith(self) -> np.ndarray:
+        """Zenith of each row's beam, radians, ascending."""
+        return np.radians(90.0 - np.asarray(self.elevation_deg)[self.beam_of_row])
+
+    @property
+    def band_edges(self) -> np.ndarray:
+        """``(n_beams + 1,)`` zenith edges of the rows' bands, radians, ascending."""
+        z = self.row_zenith
+        if len(z) == 1:  # one beam: a band of 1 degree around it (no neighbour to take a gap from)
+            return np.array([z[0] - math.radians(0.5), z[0] + math.radians(0.5)])
+        mid = 0.5 * (z[1:] + z[:-1])
+        return np.concatenate([[z[0] - 0.5 * (z[1] - z[0])], mid, [z[-1] + 0.5 * (z[-1] - z[-2])]])
+
+    @property
+    def row_offsets(self) -> np.ndarray:
+        """Azimuth offset of each row's beam, radians."""
+        return np.radians(np.asarray(self.azimuth_offset_deg)[self.beam_of_row])
+
+    # --- the pattern protocol (what ScanPattern offers the backends) -----------------------------------------
+    @property
+    def shape(self) -> tuple[int, int]:
+        """``(n_beams, columns)``: rows by elevation, columns by azimuth."""
+        return self.n_beams, self.columns
+
+    @property
+    def n_pulses(self) -> int:
+        return self.n_beams * self.columns
+
+    @property
+    def n_zenith(self) -> int:
+        """Rows (beams), the name :class:`~slr_ray.pattern.ScanPattern` gives them."""
+        return self.n_beams
+
+    @property
+    def n_azimuth(self) -> int:
+        """Columns, the name :class:`~slr_ray.pattern.ScanPattern` gives them."""
+        return self.columns
+
+    @property
+    def azimuth_resolution(self) -> float:
+        return 360.0 / self.columns
+
+    @property
+    def range_limits(self) -> tuple[float, float]:
+        return (0.0 if self.min_range is None else float(self.min_range),
+                math.inf if self.max_range is None else float(self.max_range))
+
+    def ravel(self, pulses) -> np.ndarray:
+        p = np.asarray(pulses, dtype=np.int64).reshape(-1, 2)
+        return p[:, 0] * self.columns + p[:, 1]
+
+    def unravel(self, ids) -> np.ndarray:
+        ids = np.asarray(ids, dtype=np.int64).ravel()
+        return np.column_stack([ids // self.columns, ids % self.columns])
+
+    def to_dict(self) -> dict:
+        return {"name": self.name, "beams": self.n_beams, "columns": self.columns,
+                "azimuth_resolution": self.azimuth_resolution,
+                "elevation_range_deg": [min(self.elevation_deg), max(self.elevation_deg)],
+                "min_range": self.min_range, "max_range": self.max_range,
+                "source": self.meta.get("source")}
+
+    def with_(self, **changes) -> "BeamPattern":
+        from dataclasses import replace
+
+        return replace(self, **changes)
+
+    def keys(self, points, origin):
+        """Flat pulse ids ``row * columns + column`` (``-1``: not seen) and ranges of ``points``."""
+        pts = np.ascontiguousarray(points, dtype=np.float64)
+        o = np.asarray(origin, dtype=np.float64)
+        keys = np.empty(len(pts), np.int64)
+        ranges = np.empty(len(pts))
+        rmin, rmax = self.range_limits
+        _beam_keys(pts, o[0], o[1], o[2], self.band_edges, self.row_offsets, self.columns, rmin, rmax, keys, ranges)
+        return keys, ranges
+
+    def rays(self, rows=slice(None), k: int = 1):
+        """Unit directions of the pulses of ``rows`` (row-major), with their ``(row, column)``.
+
+        Only pulse centres (``k = 1``): a beam is a direction, not a solid angle."""
+        if k != 1:
+            raise InputValueError("beam patterns cast one ray per pulse (mode 'center'); "
+                                  "sub-rays (mode 'nearest') are defined for uniform patterns only")
+        r = np.arange(self.n_beams, dtype=np.int64)[rows]
+        c = np.arange(self.columns, dtype=np.int64)
+        v = np.repeat(r, self.columns)
+        h = np.tile(c, len(r))
+        zen = self.row_zenith[v]
+        az = self.row_offsets[v] + (h + 0.5) * (2 * math.pi / self.columns)
+        s = np.sin(zen)
+        dirs = np.column_stack([s * np.cos(az), s * np.sin(az), np.cos(zen)])
+        return dirs, v, h
+
+    def reduce(self, points, origin, n_threads: int | None = None):
+        """The binning reduction: nearest point per (beam, column), ties to the lowest index.
+
+        Returns ``(keys, ranges, indices)`` of the occupied pulses, indices ascending."""
+        pts = np.ascontiguousarray(points, dtype=np.float64)
+        o = np.asarray(origin, dtype=np.float64)
+        t = max(1, min(n_threads or default_threads(), max(1, len(pts) // 100_000)))
+        best_r = np.full((t, self.n_pulses), np.inf)
+        best_i = np.full((t, self.n_pulses), -1, np.int64)
+        rmin, rmax = self.range_limits
+        _beam_reduce(pts, o[0], o[1], o[2], self.band_edges, self.row_offsets, self.columns, rmin, rmax,
+                     best_r, best_i)
+        r, i = best_r[0], best_i[0]
+        for j in range(1, t):
+            better = (best_r[j] < r) | ((best_r[j] == r) & (best_i[j] >= 0) & ((i < 0) | (best_i[j] < i)))
+            r = np.where(better, best_r[j], r)
+            i = np.where(better, best_i[j], i)
+        keys = np.flatnonzero(i >= 0)
+        idx, ranges = i[keys], r[keys]
+        order = np.argsort(idx, kind="stable")
+        return keys[order], ranges[order], idx[order]
+
+    @classmethod
+    def from_table(cls, table: dict, **changes) -> "BeamPattern":
+        """From a beam-table dict (the shipped JSON layout: ``elevation_deg``,
+        ``azimuth_offset_deg``, ``columns``, ``max_range_m_nominal``, ...)."""
+        meta = {k: v for k, v in table.items() if k not in ("elevation_deg", "azimuth_offset_deg", "columns")}
+        kw = {"elevation_deg": table["elevation_deg"], "azimuth_offset_deg": table.get("azimuth_offset_deg"),
+              "columns": table.get("columns", 1024), "max_range": table.get("max_range_m_nominal"),
+              "name": table.get("name"), "meta": meta}
+        return cls(**(kw | changes))
+
+
+@njit(cache=True, inline="always", error_model="numpy")
+def _beam_key(dx, dy, dz, edges, offsets, columns, rmin, rmax):
+    r = math.sqrt(dx * dx + dy * dy + dz * dz)
+    if not (r > 0.0) or r < rmin or r > rmax:
+        return -1, r
+    zen = math.atan2(math.sqrt(dx * dx + dy * dy), dz)
+    nrow = len(edges) - 1
+    if zen < edges[0] or zen >= edges[nrow]:
+        return -1, r
+    row = np.searchsorted(edges, zen, side="right") - 1
+    two_pi = 2.0 * math.pi
+    a = math.atan2(dy, dx) - offsets[row]
+    a = a - two_pi * math.floor(a / two_pi)
+    col = int(math.floor(a / (two_pi / columns)))
+    if col >= columns:  # a = 2 pi - tiny rounds to the last column's end
+        col = columns - 1
+    return row * columns + col, r
+
+
+@njit(cache=True, parallel=True, error_model="numpy")
+def _beam_keys(pts, ox, oy, oz, edges, offsets, columns, rmin, rmax, keys, ranges):
+    for i in prange(len(pts)):
+        keys[i], ranges[i] = _beam_key(pts[i, 0] - ox, pts[i, 1] - oy, pts[i, 2] - oz, edges, offsets, columns,
+                                       rmin, rmax)
+
+
+@njit(cache=True, parallel=True, error_model="numpy")
+def _beam_reduce(pts, ox, oy, oz, edges, offsets, columns, rmin, rmax, best_r, best_i):
+    t_count = best_r.shape[0]
+    n = len(pts)
+    for t in prange(t_count):
+        lo = n * t // t_count
+        hi = n * (t + 1) // t_count
+        for i in range(lo, hi):
+            k, r = _beam_key(pts[i, 0] - ox, pts[i, 1] - oy, pts[i, 2] - oz, edges, offsets, columns, rmin, rmax)
+            if k >= 0 and r < best_r[t, k]:  # ascending i within a thread: a tie keeps the lower index
+                best_r[t, k] = r
+                best_i[t, k] = i
+
+
+def sensor(name: str, **changes) -> BeamPattern:
+    """A shipped sensor's :class:`BeamPattern` by name (:data:`SENSORS`).
+
+    Keywords override fields (``columns=1024``, ``max_range=80``).
+
+    >>> slr_ray.sensor("velodyne_vlp16").shape  # doctest: +SKIP
+    (16, 1800)
+    """
+    path = SENSORS_DIR / f"{name}.json"
+    if not path.is_file():
+        raise InputValueError(f"unknown sensor {name!r}; shipped: {list(SENSORS)}")
+    return BeamPattern.from_table(json.loads(path.read_text()), **changes)
+
+
+def read_ouster_metadata(path, **changes) -> BeamPattern:
+    """A :class:`BeamPattern` from an Ouster sensor metadata JSON (ouster-sdk's
+    ``beam_intrinsics``: ``beam_altitude_angles``, ``beam_azimuth_angles``; the
+    columns from ``data_format.columns_per_frame`` or ``lidar_mode``)."""
+    d = json.loads(Path(path).read_text())
+    bi = d.get("beam_intrinsics", d)
+    try:
+        alt = bi["beam_altitude_angles"]
+        az = bi["beam_azimuth_angles"]
+    except KeyError:
+        raise InputValueError(f"{path}: no beam_altitude_angles / beam_azimuth_angles (not Ouster metadata?)") \
+            from None
+    cols = (d.get("data_format") or {}).get("columns_per_frame") or d.get("columns_per_frame")
+    if cols is None:
+        mode = (d.get("config_params") or {}).get("lidar_mode") or d.get("lidar_mode") or "1024x10"
+        cols = int(str(mode).split("x")[0])
+    name = (d.get("sensor_info") or {}).get("prod_line") or Path(path).stem
+    # offsets as the metadata gives them (the shipped ouster tables are these files' numbers)
+    return BeamPattern(alt, int(cols), az, name=name,
+                       meta={"source": str(path), "format": "ouster metadata"}).with_(**changes)
+
+
+def read_velodyne_calibration(path, columns: int = 1800, **changes) -> BeamPattern:
+    """A :class:`BeamPattern` from a Velodyne calibration YAML (the ros-drivers/velodyne
+    ``lasers:`` list: ``vert_correction`` and ``rot_correction`` in radians)."""
+    import yaml
+
+    d = yaml.safe_load(Path(path).read_text())
+    lasers = sorted(d.get("lasers") or [], key=lambda x: x["laser_id"])
+    if not lasers:
+        raise InputValueError(f"{path}: no 'lasers' list (not a Velodyne calibration?)")
+    el = [math.degrees(x["vert_correction"]) for x in lasers]
+    # offsets as the file gives them, in degrees (the shipped velodyne tables are these files' numbers)
+    az = [math.degrees(x.get("rot_correction", 0.0)) for x in lasers]
+    return BeamPattern(el, columns, az, name=Path(path).stem,
+                       meta={"source": str(path), "format": "velodyne calibration",
+                             "vertical_offset_m": [x.get("vert_offset_correction", 0.0) for x in lasers]}
+                       ).with_(**changes)

@@ -1,0 +1,199 @@
+"""Beam tables: binning against a brute-force reference, scans of meshes with each
+shipped sensor, idempotence, range images, readers of calibration files."""
+
+import json
+import math
+
+import numpy as np
+import pytest
+import trimesh
+from hypothesis import given, settings, strategies as st
+
+import slr_ray
+from slr_ray import prepare, scan_mesh
+from slr_ray.errors import InputValueError
+from slr_ray.sensors import SENSORS, BeamPattern, read_ouster_metadata, read_velodyne_calibration, sensor
+
+
+def brute_keys(points, origin, p: BeamPattern):
+    """The documented definition, one point at a time in plain Python."""
+    el = np.asarray(p.elevation_deg)
+    rows = sorted(range(p.n_beams), key=lambda b: -el[b])
+    zen = [math.radians(90 - el[b]) for b in rows]
+    n = len(zen)
+    edges = ([zen[0] - (zen[1] - zen[0]) / 2] + [(zen[i] + zen[i + 1]) / 2 for i in range(n - 1)]
+             + [zen[-1] + (zen[-1] - zen[-2]) / 2]) if n > 1 else [zen[0] - math.radians(0.5),
+                                                                     zen[0] + math.radians(0.5)]
+    rmin, rmax = p.range_limits
+    out = []
+    for x, y, z in np.asarray(points, float) - origin:
+        r = math.sqrt(x * x + y * y + z * z)
+        t = math.atan2(math.sqrt(x * x + y * y), z)
+        if not (r > 0) or r < rmin or r > rmax or t < edges[0] or t >= edges[-1]:
+            out.append(-1)
+            continue
+        row = max(i for i in range(n) if edges[i] <= t)
+        a = math.atan2(y, x) - math.radians(p.azimuth_offset_deg[rows[row]])
+        a -= 2 * math.pi * math.floor(a / (2 * math.pi))
+        col = min(p.columns - 1, int(math.floor(a / (2 * math.pi / p.columns))))
+        out.append(row * p.columns + col)
+    return np.array(out)
+
+
+def test_every_shipped_sensor_loads_with_its_source():
+    assert len(SENSORS) == 8
+    for name in SENSORS:
+        p = sensor(name)
+        assert p.n_beams in (16, 32, 64, 128) and p.columns >= 1000 and p.meta["source"]
+        assert np.all(np.diff(p.band_edges) > 0)
+        el = np.asarray(p.elevation_deg)[p.beam_of_row]
+        assert np.all(np.diff(el) < 0)  # rows: highest beam first
+        assert slr_ray.as_pattern(name).shape == p.shape
+
+
+@pytest.mark.parametrize("name", ["velodyne_hdl64e_s2", "ouster_os1_64", "velodyne_vlp16"])
+@settings(max_examples=10, deadline=None)
+@given(seed=st.integers(0, 2**31 - 1))
+def test_binning_matches_the_definition(name, seed):
+    p = sensor(name, max_range=60.0, min_range=0.5)
+    rng = np.random.default_rng(seed)
+    origin = np.array([4.5e5, 5.2e6, 80.0])  # UTM-like: subtracted in float64 first
+    d = rng.normal(size=(3000, 3))
+    d /= np.linalg.norm(d, axis=1, keepdims=True)
+    # aim a third of the points at band edges and the azimuth wrap
+    k = 1000
+    edges = p.band_edges[rng.integers(0, len(p.band_edges), k)] + rng.normal(scale=1e-9, size=k)
+    az = rng.choice([0.0, 2 * math.pi, math.pi], k) + rng.normal(scale=1e-9, size=k)
+    d[:k] = np.column_stack([np.sin(edges) * np.cos(az), np.sin(edges) * np.sin(az), np.cos(edges)])
+    pts = origin + d * rng.uniform(0.1, 80, (3000, 1))
+    keys, _ = p.keys(pts, origin)
+    np.testing.assert_array_equal(keys, brute_keys(pts, origin, p))
+    scan = prepare(pts).scan(origin, p)
+    # nearest per key, ties to the lowest index
+    want = {}
+    r = np.linalg.norm(pts - origin, axis=1)
+    for i in np.flatnonzero(keys >= 0):
+        if keys[i] not in want or r[i] < r[want[keys[i]]]:
+            want[keys[i]] = i
+    assert scan.indices.tolist() == sorted(want.values())
+    assert np.all(scan.rings == p.beam_of_row[scan.pulses[:, 0]])
+
+
+def _room():
+    box = trimesh.creation.box(extents=[16, 12, 6])
+    box.invert()  # inside faces
+    cyl = trimesh.creation.cylinder(radius=0.8, height=6.0)
+    cyl.apply_translation([3.0, 2.0, 0.0])
+    return trimesh.util.concatenate([box, cyl])
+
+
+@pytest.mark.parametrize("name", SENSORS)
+def test_a_sensors_own_frame_comes_back_whole(name):
+    """A room with a pillar scanned with the sensor (one ray per beam and column):
+    every point lies in its ring's elevation band and its column; binning the
+    frame from the same origin returns all of it (idempotence), embree too."""
+    p = sensor(name)
+    origin = np.array([-1.0, 0.5, 0.3])
+    frame = scan_mesh(_room(), origin, p)
+    assert len(frame) > 0.9 * p.n_pulses  # a closed room: (almost) every ray hits
+    keys, _ = p.keys(frame.points, origin)
+    np.testing.assert_array_equal(keys, p.ravel(frame.pulses))
+    scan = prepare(frame.points).scan(origin, p)
+    assert len(scan) == len(frame)
+    np.testing.assert_array_equal(scan.pulses, frame.pulses[scan.indices])
+
+
+def test_embree_casts_the_beams_true_directions():
+    p = sensor("velodyne_vlp16")
+    origin = np.zeros(3)
+    frame = scan_mesh(_room(), origin, p)
+    emb = prepare(frame.points, "embree").scan(origin, p)
+    assert len(emb) >= 0.95 * len(frame)
+    np.testing.assert_array_equal(emb.pulses, frame.pulses[emb.indices])
+
+
+def test_range_image_round_trips_to_the_scan():
+    p = sensor("ouster_os1_64")
+    frame = scan_mesh(_room(), [0, 0, 0], p)
+    scan = prepare(frame.points).scan([0, 0, 0], p)
+    img = scan.range_image({"label": frame.labels})
+    assert img["range"].shape == p.shape and img["index"].shape == p.shape
+    filled = img["index"] >= 0
+    assert filled.sum() == len(scan)
+    assert sorted(img["index"][filled].tolist()) == scan.indices.tolist()
+    r, c = scan.pulses.T
+    np.testing.assert_array_equal(img["index"][r, c], scan.indices)
+    np.testing.assert_allclose(img["range"][r, c], scan.ranges.astype(np.float32))
+    np.testing.assert_array_equal(img["label"][r, c], frame.labels[scan.indices])
+    np.testing.assert_array_equal(img["ring"], p.beam_of_row)
+
+
+def test_offsets_and_outer_beams_at_their_extremes():
+    p = BeamPattern([10.0, -30.0, 0.0], columns=4, azimuth_offset_deg=[179.9, -180.0, 90.0])
+    # rows by elevation: 10 (beam 0), 0 (beam 2), -30 (beam 1); the outer bands reach half a gap
+    assert p.beam_of_row.tolist() == [0, 2, 1]
+    np.testing.assert_allclose(np.degrees(p.band_edges), [75, 85, 105, 135])
+    pts = np.array([[math.cos(math.radians(e)) * math.cos(math.radians(a)),
+                     math.cos(math.radians(e)) * math.sin(math.radians(a)), math.sin(math.radians(e))]
+                    for e, a in ((14.9, 180.0), (15.1, 0.0), (-44.9, 0.0), (-45.1, 0.0), (0.0, 89.9))])
+    keys, _ = p.keys(pts, np.zeros(3))
+    np.testing.assert_array_equal(keys, brute_keys(pts, np.zeros(3), p))
+    assert keys[1] == -1 and keys[3] == -1 and keys[0] >= 0 and keys[2] >= 0
+    one = BeamPattern([0.0], columns=1)
+    assert one.keys(np.array([[1.0, 0, 0], [-1.0, 0.0, 0.0]]), np.zeros(3))[0].tolist() == [0, 0]
+    with pytest.raises(InputValueError):
+        BeamPattern([1.0, 1.0], columns=10)
+    with pytest.raises(InputValueError):
+        BeamPattern([1.0, 2.0], columns=0)
+    with pytest.raises(InputValueError):
+        slr_ray.ScanAccumulator([0, 0, 0], p)
+
+
+def test_readers_of_user_calibrations(tmp_path):
+    vel = {"lasers": [{"laser_id": 1, "vert_correction": math.radians(-15.0), "rot_correction": 0.01},
+                      {"laser_id": 0, "vert_correction": math.radians(1.0), "rot_correction": -0.02}]}
+    import yaml
+
+    (tmp_path / "v.yaml").write_text(yaml.safe_dump(vel))
+    p = read_velodyne_calibration(tmp_path / "v.yaml", columns=900)
+    assert p.elevation_deg == pytest.approx((1.0, -15.0)) and p.columns == 900
+    assert p.azimuth_offset_deg == pytest.approx((math.degrees(-0.02), math.degrees(0.01)))
+    ous = {"beam_intrinsics": {"beam_altitude_angles": [2.0, -1.0], "beam_azimuth_angles": [3.1, -3.1]},
+           "data_format": {"columns_per_frame": 512}}
+    (tmp_path / "o.json").write_text(json.dumps(ous))
+    q = read_ouster_metadata(tmp_path / "o.json")
+    assert q.elevation_deg == (2.0, -1.0) and q.azimuth_offset_deg == (3.1, -3.1) and q.columns == 512
+    with pytest.raises(InputValueError):
+        read_velodyne_calibration(tmp_path / "o.json")  # JSON is YAML, but has no lasers
+    with pytest.raises(InputValueError):
+        read_ouster_metadata(_write(tmp_path / "bad.json", "{}"))
+
+
+def _write(path, text):
+    path.write_text(text)
+    return path
+
+
+def test_cli_sensor_scan_with_range_image_and_labels(tmp_path, capsys):
+    from slr_ray.cli import main
+    from slr_ray.io import PointCloud, read_cloud, write_cloud
+
+    frame = scan_mesh(_room(), [0, 0, 0], sensor("velodyne_hdl64e_s2"))
+    src = tmp_path / "velodyne" / "000000.bin"
+    src.parent.mkdir()
+    write_cloud(src, PointCloud(frame.points, {"intensity": np.ones(len(frame), np.float32),
+                                               "semantic": frame.labels.astype(np.uint16),
+                                               "instance": np.zeros(len(frame), np.uint16)}))
+    assert (tmp_path / "velodyne" / "000000.label").exists()
+    out = tmp_path / "vlp16.bin"
+    assert main(["scan", str(src), "--sensor", "velodyne_vlp16", "--origin", "0.5", "0", "0", "-o", str(out),
+                 "--range-image", str(tmp_path / "ri.npz"), "--png", str(tmp_path / "ri.png")]) == 0
+    res = json.loads(capsys.readouterr().out)
+    back = read_cloud(out)
+    assert len(back) == res["points_out"] > 0
+    assert set(np.unique(back.attributes["semantic"])) <= set(np.unique(frame.labels))
+    ri = np.load(tmp_path / "ri.npz")
+    assert ri["range"].shape == (16, 1800) and (ri["index"] >= 0).sum() == len(back)
+    assert "semantic" in ri.files
+    assert main(["scan", str(src), "--sensor", "velodyne_vlp16", "--resolution", "1", "--origin", "0", "0", "0",
+                 "-o", str(tmp_path / "x.bin")]) == 2
