@@ -68,7 +68,7 @@ from dataclasses import dataclass
 
 import numpy as np
 from llvmlite import ir
-from numba import carray, cfunc, njit, types
+from numba import carray, cfunc, njit, prange, types
 from numba.core import cgutils
 from numba.extending import intrinsic
 
@@ -404,9 +404,9 @@ class RayScene:
         if owner_normals is None:
             self._owner_normals = np.zeros((0, 3))
         else:
-            nrm = np.asarray(owner_normals, np.float64)
-            length = np.linalg.norm(nrm, axis=1, keepdims=True)
-            self._owner_normals = np.ascontiguousarray(nrm / np.where(length > 0, length, 1))
+            nrm = np.ascontiguousarray(owner_normals, np.float64)
+            self._owner_normals = np.empty_like(nrm)
+            _unit_rows(nrm, self._owner_normals)
         self.prims_per_owner = int(prims_per_owner)
         self.reach = float(reach)
         self.nbytes = int(sum(b[4].nbytes for b in buffers))
@@ -591,3 +591,15 @@ def _centre_of(points: np.ndarray) -> np.ndarray:
     if len(points) == 0:
         return np.zeros(3)
     return 0.5 * (points.min(axis=0) + points.max(axis=0))
+
+
+@njit(cache=True, parallel=True)
+def _unit_rows(a, out):
+    """Rows of ``a`` scaled to unit length (zero rows stay zero): one pass, no temporaries."""
+    for i in prange(a.shape[0]):
+        n = math.sqrt(a[i, 0] * a[i, 0] + a[i, 1] * a[i, 1] + a[i, 2] * a[i, 2])
+        s = 1.0 / n if n > 0 else 0.0
+        out[i, 0] = a[i, 0] * s
+        out[i, 1] = a[i, 1] * s
+        out[i, 2] = a[i, 2] * s
+

@@ -288,15 +288,28 @@ def _fallback_directions(points, primary_origin):
     """Direction used where a normal is undefined: to the primary scanner, or +z."""
     if primary_origin is None:
         return np.broadcast_to([0.0, 0.0, 1.0], points.shape)
-    h = as_origin(primary_origin, "primary_origin") - np.asarray(points, np.float64)
-    norm = np.sqrt(np.einsum("ij,ij->i", h, h))
-    good = norm > 0
-    if good.all():
-        h /= norm[:, None]
-    else:
-        h[good] /= norm[good, None]
-        h[~good] = (0.0, 0.0, 1.0)
-    return h
+    out = np.empty((len(points), 3))
+    _towards(np.ascontiguousarray(points, np.float64), as_origin(primary_origin, "primary_origin"), out)
+    return out
+
+
+@njit(cache=True, parallel=True)
+def _distances(points, o, out):
+    for i in prange(points.shape[0]):
+        hx, hy, hz = o[0] - points[i, 0], o[1] - points[i, 1], o[2] - points[i, 2]
+        out[i] = math.sqrt(hx * hx + hy * hy + hz * hz)
+
+
+@njit(cache=True, parallel=True)
+def _towards(points, o, out):
+    """Unit vectors from each point to ``o`` (+z for a point at ``o``)."""
+    for i in prange(points.shape[0]):
+        hx, hy, hz = o[0] - points[i, 0], o[1] - points[i, 1], o[2] - points[i, 2]
+        n = math.sqrt(hx * hx + hy * hy + hz * hz)
+        if n > 0:
+            out[i, 0], out[i, 1], out[i, 2] = hx / n, hy / n, hz / n
+        else:
+            out[i, 0], out[i, 1], out[i, 2] = 0.0, 0.0, 1.0
 
 
 def disc_radii(points, radius="spacing", *, k: int = 6, radius_scale: float = 1.0, primary_origin=None,
@@ -321,8 +334,9 @@ def disc_radii(points, radius="spacing", *, k: int = 6, radius_scale: float = 1.
         elif radius == "footprint":
             if primary_origin is None or primary_resolution is None:
                 raise InputValueError("radius='footprint' needs primary_origin and primary_resolution")
-            rp = np.linalg.norm(pts - as_origin(primary_origin, "primary_origin"), axis=1)
-            r = rp * math.tan(math.radians(float(primary_resolution))) * radius_scale
+            r = np.empty(n)
+            _distances(np.ascontiguousarray(pts, np.float64), as_origin(primary_origin, "primary_origin"), r)
+            r *= math.tan(math.radians(float(primary_resolution))) * radius_scale
         else:
             raise InputValueError(f"radius must be a number, an array or one of {RADIUS_MODES}, got {radius!r}")
         positive = r[r > 0]

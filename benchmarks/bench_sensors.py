@@ -1,0 +1,96 @@
+"""Sensor beam tables: time per frame against input size, the HDL-64E frame against a
+0.144 deg uniform scan of the same cloud, and the KITTI frame re-scanned as other sensors.
+
+    python benchmarks/bench_sensors.py [--repeat 3]
+
+1. The 29 M-point benchmark cloud (bench_binning's), binning backend, from a
+   position 14 m away: an HDL-64E S2 frame (64 x 2083 = 133 k pulses) and a
+   0.144 deg uniform scan (3.1 M pulses), best of ``--repeat``, same run
+   (the issue's target: HDL-64E <= 1.2 x the uniform scan).
+2. Time per HDL-64E frame against the number of input points (the first N of
+   the cloud, N = 1e5 ... 2.9e7).
+3. The KITTI HDL-64E frame of ../shared/data re-scanned as a VLP-16 and a
+   VLP-32C from its own origin and from 1 m to the side (binning and embree):
+   points out, time; range images saved as docs/figures/kitti_<sensor>_<where>.png.
+
+Saves results/bench_sensors.json.
+"""
+
+from __future__ import annotations
+
+import argparse
+import sys
+import time
+from pathlib import Path
+
+import numpy as np
+
+sys.path.insert(0, str(Path(__file__).resolve().parent))
+
+from common import machine, realistic_cloud, save  # noqa: E402
+
+from slr_ray import ScanPattern, prepare  # noqa: E402
+from slr_ray.sensors import sensor  # noqa: E402
+
+ORIGIN = [12.3, -7.1, 0.0]
+KITTI = Path(__file__).resolve().parents[2] / "shared" / "data" / "kitti_hdl64_000000.bin"
+FIGURES = Path(__file__).resolve().parents[1] / "docs" / "figures"
+
+
+def best(fn, repeat):
+    out = []
+    for _ in range(repeat):
+        t0 = time.perf_counter()
+        res = fn()
+        out.append(time.perf_counter() - t0)
+    return min(out), res
+
+
+def main(argv=None):
+    ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    ap.add_argument("--repeat", type=int, default=3)
+    args = ap.parse_args(argv)
+    hdl = sensor("velodyne_hdl64e_s2")
+    cloud = np.ascontiguousarray(realistic_cloud())
+    scanner = prepare(cloud)
+    scanner.scan(ORIGIN, hdl)  # compile
+    scanner.scan(ORIGIN, 0.144)
+    t_hdl, s_hdl = best(lambda: scanner.scan(ORIGIN, hdl), args.repeat)
+    t_uni, s_uni = best(lambda: scanner.scan(ORIGIN, ScanPattern(0.144)), args.repeat)
+    frame = {"points": len(cloud), "hdl64e_seconds": t_hdl, "hdl64e_points_out": len(s_hdl),
+             "uniform_0.144_seconds": t_uni, "uniform_points_out": len(s_uni), "ratio": t_hdl / t_uni}
+    print(f"29 M cloud: HDL-64E frame {t_hdl:.3f} s ({len(s_hdl):,} points), 0.144 deg {t_uni:.3f} s "
+          f"({len(s_uni):,}): ratio {t_hdl / t_uni:.2f}", flush=True)
+    sizes = []
+    for n in (100_000, 1_000_000, 10_000_000, len(cloud)):
+        sc = prepare(cloud[:n])
+        t, s = best(lambda: sc.scan(ORIGIN, hdl), args.repeat)
+        sizes.append({"points": n, "seconds": t, "points_out": len(s)})
+        print(f"  {n:>12,} points: {t:.4f} s per HDL-64E frame, {len(s):,} out", flush=True)
+    kitti = []
+    if KITTI.exists():
+        from slr_ray.io import read_cloud
+        from slr_ray.plotting import range_image_figure, save_figure
+
+        k = read_cloud(KITTI)
+        FIGURES.mkdir(parents=True, exist_ok=True)
+        for name in ("velodyne_vlp16", "velodyne_vlp32c"):
+            for where, origin in (("own origin", [0.0, 0.0, 0.0]), ("1 m to the side", [0.0, 1.0, 0.0])):
+                for backend in ("binning", "embree"):
+                    sc = prepare(k.points, backend)
+                    sc.scan(origin, sensor(name))
+                    t, s = best(lambda: sc.scan(origin, sensor(name)), args.repeat)
+                    kitti.append({"sensor": name, "where": where, "backend": backend, "seconds": t,
+                                  "points_in": len(k), "points_out": len(s)})
+                    print(f"  KITTI -> {name} from {where}, {backend}: {len(s):,} points, {t:.3f} s", flush=True)
+                    if backend == "binning":
+                        tag = "own" if where == "own origin" else "side"
+                        img = s.range_image({"intensity": k.attributes["intensity"]})
+                        save_figure(range_image_figure(img, title=f"KITTI frame as {name}, {where}", max_range=50),
+                                    FIGURES / f"kitti_{name}_{tag}.png")
+    save("bench_sensors", {"machine": machine(), "inputs": vars(args), "frame_vs_uniform": frame,
+                           "sizes": sizes, "kitti": kitti})
+
+
+if __name__ == "__main__":
+    main()
