@@ -14,6 +14,7 @@ from .meshscan import MeshScan, scan_mesh
 from .positions import (AzimuthProfile, candidate_cells, label_ground, minimum_profile, select_positions,
                         suggest_resolution)
 from .similarity import Agreement, agreement, similarity
+from .sensors import SENSORS, BeamPattern, sensor
 from .spherical import pulse_bins, spherical_coordinates
 
 __version__ = "0.1.0"
@@ -21,7 +22,7 @@ __version__ = "0.1.0"
 __all__ = [
     "ScanPattern", "PRESETS", "preset", "as_pattern", "Scan", "simulate_scan", "prepare", "Scanner",
     "Backend", "available_backends", "ScanAccumulator", "pulse_rays",
-    "scan_mesh", "MeshScan", "similarity", "agreement", "Agreement",
+    "scan_mesh", "MeshScan", "similarity", "agreement", "Agreement", "BeamPattern", "sensor", "SENSORS",
     "candidate_cells", "select_positions", "minimum_profile", "AzimuthProfile", "suggest_resolution",
     "label_ground", "pulse_sized_bins", "distance_histogram", "DistanceHistogram", "height_sweep",
     "pulse_bins", "pulse_directions", "spherical_coordinates",

@@ -334,3 +334,28 @@ def test_las_fields_are_never_wrapped(tmp_path):
     assert w.intensity.tolist() == [0, 0, 0, 0] and w["intensity_value"].tolist() == [70000, -5, 3, 4]
     write_cloud(tmp_path / "ok.las", PointCloud(pts, {"intensity": np.array([1, 2, 3, 65535])}))
     assert laspy.read(str(tmp_path / "ok.las")).intensity.tolist() == [1, 2, 3, 65535]
+
+
+def test_semantickitti_labels_round_trip(tmp_path):
+    from slr_ray.io import PointCloud, read_cloud, write_cloud
+
+    rng = np.random.default_rng(0)
+    seq = tmp_path / "sequences" / "00"
+    (seq / "velodyne").mkdir(parents=True)
+    (seq / "labels").mkdir()
+    pts = rng.normal(size=(500, 3)).astype(np.float32)
+    np.column_stack([pts, rng.uniform(size=500).astype(np.float32)]).tofile(seq / "velodyne" / "000007.bin")
+    words = rng.integers(0, 260, 500).astype(np.uint32) | (rng.integers(0, 30, 500).astype(np.uint32) << 16)
+    words.tofile(seq / "labels" / "000007.label")  # the SemanticKITTI layout
+    c = read_cloud(seq / "velodyne" / "000007.bin")
+    np.testing.assert_array_equal(c.attributes["semantic"], words & 0xFFFF)
+    np.testing.assert_array_equal(c.attributes["instance"], words >> 16)
+    idx = np.arange(0, 500, 3)
+    write_cloud(tmp_path / "out.bin", c.subset(idx))
+    np.testing.assert_array_equal(np.fromfile(tmp_path / "out.label", "<u4"), words[idx])
+    back = read_cloud(tmp_path / "out.bin")
+    np.testing.assert_array_equal(back.attributes["semantic"], (words & 0xFFFF)[idx])
+    (tmp_path / "short.bin").write_bytes((seq / "velodyne" / "000007.bin").read_bytes())
+    words[:10].tofile(tmp_path / "short.label")
+    with pytest.raises(ValueError, match="labels for"):
+        read_cloud(tmp_path / "short.bin")

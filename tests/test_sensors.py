@@ -79,6 +79,17 @@ def test_binning_matches_the_definition(name, seed):
     assert np.all(scan.rings == p.beam_of_row[scan.pulses[:, 0]])
 
 
+def _plane():
+    return trimesh.Trimesh([[-60, -60, -1.7], [60, -60, -1.7], [60, 60, -1.7], [-60, 60, -1.7]],
+                           [[0, 1, 2], [0, 2, 3]])
+
+
+def _cylinder():
+    c = trimesh.creation.cylinder(radius=6.0, height=40.0, sections=128)
+    c.invert()  # seen from inside
+    return c
+
+
 def _room():
     box = trimesh.creation.box(extents=[16, 12, 6])
     box.invert()  # inside faces
@@ -88,14 +99,19 @@ def _room():
 
 
 @pytest.mark.parametrize("name", SENSORS)
-def test_a_sensors_own_frame_comes_back_whole(name):
-    """A room with a pillar scanned with the sensor (one ray per beam and column):
-    every point lies in its ring's elevation band and its column; binning the
-    frame from the same origin returns all of it (idempotence), embree too."""
+@pytest.mark.parametrize("shape", ["plane", "cylinder", "room"])
+def test_a_sensors_own_frame_comes_back_whole(name, shape):
+    """A plane, a cylinder and a room with a pillar scanned with the sensor (one
+    ray per beam and column): every point lies in its ring's elevation band and
+    its column; binning the frame from the same origin returns all of it."""
     p = sensor(name)
     origin = np.array([-1.0, 0.5, 0.3])
-    frame = scan_mesh(_room(), origin, p)
-    assert len(frame) > 0.9 * p.n_pulses  # a closed room: (almost) every ray hits
+    mesh = {"plane": _plane, "cylinder": _cylinder, "room": _room}[shape]()
+    frame = scan_mesh(mesh, origin, p)
+    if shape != "plane":
+        assert len(frame) > 0.9 * p.n_pulses  # closed: (almost) every ray hits
+    else:
+        assert len(frame) > 0
     keys, _ = p.keys(frame.points, origin)
     np.testing.assert_array_equal(keys, p.ravel(frame.pulses))
     scan = prepare(frame.points).scan(origin, p)
@@ -197,3 +213,11 @@ def test_cli_sensor_scan_with_range_image_and_labels(tmp_path, capsys):
     assert "semantic" in ri.files
     assert main(["scan", str(src), "--sensor", "velodyne_vlp16", "--resolution", "1", "--origin", "0", "0", "0",
                  "-o", str(tmp_path / "x.bin")]) == 2
+
+
+def test_compare_backends_with_a_sensor():
+    from slr_ray.compare import compare_backends
+
+    frame = scan_mesh(_room(), [0, 0, 0], sensor("velodyne_vlp16"))
+    res = compare_backends(frame.points, [[0.5, 0.2, 0.0]], sensor("velodyne_vlp16"))
+    assert res["positions"][0]["binning"] > 0 and res["positions"][0]["embree"] > 0
