@@ -361,6 +361,9 @@ def read_e57_scans(path) -> list:
             pts = local[valid] @ rot.T + (origin if origin is not None else 0.0)
             attrs = {k: np.asarray(v)[valid] for k, v in raw.items()
                      if k not in ("cartesianX", "cartesianY", "cartesianZ", "cartesianInvalidState")}
+            if not valid.all():
+                warnings.warn(f"{path}: scan {i} has {int((~valid).sum())} invalid points (no coordinates, "
+                              "cartesianInvalidState != 0): left out", stacklevel=3)
             out.append(PointCloud(pts, attrs, origin,
                                   {"e57_scan": i, "e57_invalid": int((~valid).sum()), "e57_pose": has_pose}))
         return out

@@ -19,6 +19,7 @@ meant to catch (cells around a corner, behind large objects).
 from __future__ import annotations
 
 import json
+import math
 import time
 from dataclasses import dataclass, field
 from pathlib import Path
@@ -314,11 +315,11 @@ def candidate_cells(points, is_ground, *, cell_size: float = CELL_SIZE, min_grou
                           time.perf_counter() - t0, ground_index=(tree, gpts, gcentre))
 
 
-def select_positions(points, is_ground, n: int, seed=None, cell_size: float = 2.0,
+def select_positions(points, is_ground, n: int, seed=None, cell_size: float = CELL_SIZE,
                      min_ground_points: int = MIN_GROUND_POINTS, ground_count_radius: float = GROUND_COUNT_RADIUS,
                      ground_height_radius: float = GROUND_HEIGHT_RADIUS, scanner_height: float = SCANNER_HEIGHT,
                      profile: AzimuthProfile | None = None, *, allow_fewer: bool = False,
-                     cells: CandidateCells | None = None, return_cells: bool = False):
+                     cells: CandidateCells | None = None, return_cells: bool = False, progress: bool = False):
     """Draw ``n`` secondary scanner positions (paper §2.1-2.2).
 
     Cells that pass :func:`candidate_cells` are drawn at random without
@@ -339,6 +340,8 @@ def select_positions(points, is_ground, n: int, seed=None, cell_size: float = 2.
         Reuse a :func:`candidate_cells` result (its parameters win).
     return_cells : bool
         Also return the :class:`CandidateCells` (per-stage counts).
+    progress : bool
+        A progress bar over the azimuth test (one simulated scan per cell).
 
     Returns
     -------
@@ -351,7 +354,8 @@ def select_positions(points, is_ground, n: int, seed=None, cell_size: float = 2.
     if cells is None:
         cells = candidate_cells(pts, g, cell_size=cell_size, min_ground_points=min_ground_points,
                                 ground_count_radius=ground_count_radius, profile=profile,
-                                scanner_height=scanner_height, ground_height_radius=ground_height_radius)
+                                scanner_height=scanner_height, ground_height_radius=ground_height_radius,
+                                progress=progress)
     rng = np.random.default_rng(seed)
     final = cells.final
     if len(final) < n and not allow_fewer:
@@ -440,6 +444,12 @@ def label_ground(points, *, cloth_resolution: float = 0.5, rigidness: int = 2,
 
         raise MissingDependencyError(
             'ground labelling needs cloth-simulation-filter: pip install "slr_ray[csf]"') from exc
+    for name, value, lo in (("cloth_resolution", cloth_resolution, 0.0), ("class_threshold", class_threshold, 0.0),
+                            ("time_step", time_step, 0.0)):
+        if not (isinstance(value, (int, float)) and math.isfinite(value) and value > lo):
+            raise InputValueError(f"{name} must be a finite number > 0, got {value!r}")  # CSF segfaults on 0
+    if int(iterations) != iterations or iterations < 1 or int(rigidness) not in (1, 2, 3):
+        raise InputValueError(f"iterations must be >= 1 and rigidness 1, 2 or 3; got {iterations!r}, {rigidness!r}")
     pts = as_points(points).astype(np.float64, copy=False)
     if len(pts) == 0:
         return np.zeros(0, bool)

@@ -137,3 +137,15 @@ def test_bad_inputs():
         select_positions(pts, np.zeros(10, bool), -1)
     empty = candidate_cells(np.empty((0, 3)), np.empty(0, bool))
     assert len(empty) == 0
+
+
+def test_csf_parameters_are_checked_before_csf_runs():
+    """CSF itself segfaults on cloth_resolution=0 and silently returns nothing for negative values."""
+    from slr_ray.errors import InputValueError
+    from slr_ray.positions import label_ground
+
+    pts = np.random.default_rng(0).normal(size=(50, 3))
+    for bad in ({"cloth_resolution": 0}, {"cloth_resolution": -1.0}, {"cloth_resolution": float("nan")},
+                {"class_threshold": 0}, {"iterations": 0}, {"rigidness": 7}):
+        with pytest.raises(InputValueError):
+            label_ground(pts, **bad)

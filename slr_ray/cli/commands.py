@@ -200,7 +200,7 @@ def positions(args):
         cloud.points, is_ground, args.n, seed=args.seed, cell_size=args.cell_size,
         min_ground_points=args.min_ground_points, ground_count_radius=args.ground_count_radius,
         ground_height_radius=args.ground_height_radius, scanner_height=args.scanner_height,
-        profile=profile, allow_fewer=args.allow_fewer, return_cells=True)
+        profile=profile, allow_fewer=args.allow_fewer, return_cells=True, progress=profile is not None)
     res = {"input": str(args.input), "n_requested": args.n, "seed": args.seed,
            "positions": pos.tolist(), "ground_points": int(is_ground.sum()), **cells.summary()}
     with atomic_path(out) as tmp:
