@@ -532,13 +532,14 @@ def _write_las(path, cloud, binary):
                 header.vlrs.remove(v)
             warnings.warn(f"{path}: COPC records dropped (they index the whole input, not this subset); "
                           "the file is a plain LAS/LAZ", stacklevel=4)
+        from laspy.vlrs.vlrlist import VLRList
+
+        if getattr(header, "evlrs", None) is not None:  # laspy keeps EVLRs read with the header too
+            header.evlrs = VLRList(evlrs)
         las = laspy.LasData(header)
         las.points = laspy.ScaleAwarePointRecord(src.array.copy(), header.point_format, header.scales,
                                                  header.offsets)
-        if evlrs:
-            from laspy.vlrs.vlrlist import VLRList
-
-            las.evlrs = VLRList(evlrs)
+        las.evlrs = VLRList(evlrs)
         given = np.column_stack([np.asarray(las.x), np.asarray(las.y), np.asarray(las.z)]) if len(cloud) else \
             np.empty((0, 3))
         if not np.array_equal(given, cloud.points):
