@@ -8,11 +8,13 @@ backends and by :func:`~slr_ray.meshscan.scan_mesh` (pulse centres).
 
 Binning (exact, documented definition)
 --------------------------------------
-Angles are the float64 ``zenith = atan2(hypot(x, y), z)`` and ``azimuth =
-atan2(y, x)`` (counter-clockwise from +x, in [0, 360)) of a point less the
-scanner origin. Beams are ordered by elevation, highest first (that order is
-the *row* of the range image). A point belongs to the beam whose **elevation
-band** holds its zenith: band edges lie halfway between neighbouring beams;
+Of a point less the scanner origin, in float64: ``r = sqrt(x² + y² + z²)``,
+``c = z / r`` (the cosine of its zenith) and ``azimuth = atan2(y, x)``
+(counter-clockwise from +x, in [0, 2π)). Beams are ordered by elevation,
+highest first (that order is the *row* of the range image). A point belongs
+to the beam whose **elevation band** holds it: its zenith lies in ``[e_i,
+e_{i+1})``, tested as ``cos(e_{i+1}) < c <= cos(e_i)`` with the edges'
+cosines computed once in float64; band edges lie halfway between neighbouring beams;
 the outermost bands reach half a gap beyond the outermost beams (the gap to
 their one neighbour). Its **column** is ``floor(((azimuth - offset) mod 360) /
 (360 / columns))`` with that beam's azimuth offset. Points outside every band,
@@ -203,8 +205,13 @@ class BeamPattern:
         keys = np.empty(len(pts), np.int64)
         ranges = np.empty(len(pts))
         rmin, rmax = self.range_limits
-        _beam_keys(pts, o[0], o[1], o[2], self.band_edges, self.row_offsets, self.columns, rmin, rmax, keys, ranges)
+        _beam_keys(pts, o[0], o[1], o[2], self._cos_edges, self.row_offsets, self.columns, rmin, rmax, keys, ranges)
         return keys, ranges
+
+    @property
+    def _cos_edges(self) -> np.ndarray:
+        """Cosines of the band edges, negated so that they ascend (for a binary search)."""
+        return -np.cos(self.band_edges)
 
     def rays(self, rows=slice(None), k: int = 1):
         """Unit directions of the pulses of ``rows`` (row-major), with their ``(row, column)``.
@@ -233,7 +240,7 @@ class BeamPattern:
         best_r = np.full((t, self.n_pulses), np.inf)
         best_i = np.full((t, self.n_pulses), -1, np.int64)
         rmin, rmax = self.range_limits
-        _beam_reduce(pts, o[0], o[1], o[2], self.band_edges, self.row_offsets, self.columns, rmin, rmax,
+        _beam_reduce(pts, o[0], o[1], o[2], self._cos_edges, self.row_offsets, self.columns, rmin, rmax,
                      best_r, best_i)
         r, i = best_r[0], best_i[0]
         for j in range(1, t):
@@ -257,15 +264,16 @@ class BeamPattern:
 
 
 @njit(cache=True, inline="always", error_model="numpy")
-def _beam_key(dx, dy, dz, edges, offsets, columns, rmin, rmax):
+def _beam_key(dx, dy, dz, neg_cos_edges, offsets, columns, rmin, rmax):
     r = math.sqrt(dx * dx + dy * dy + dz * dz)
     if not (r > 0.0) or r < rmin or r > rmax:
         return -1, r
-    zen = math.atan2(math.sqrt(dx * dx + dy * dy), dz)
-    nrow = len(edges) - 1
-    if zen < edges[0] or zen >= edges[nrow]:
+    # zenith in [e_i, e_{i+1})  <=>  -cos(e_i) <= -z/r < -cos(e_{i+1}): ascending, no arctangent
+    q = -dz / r
+    nrow = len(neg_cos_edges) - 1
+    if q < neg_cos_edges[0] or q >= neg_cos_edges[nrow]:
         return -1, r
-    row = np.searchsorted(edges, zen, side="right") - 1
+    row = np.searchsorted(neg_cos_edges, q, side="right") - 1
     two_pi = 2.0 * math.pi
     a = math.atan2(dy, dx) - offsets[row]
     a = a - two_pi * math.floor(a / two_pi)

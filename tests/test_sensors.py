@@ -25,14 +25,19 @@ def brute_keys(points, origin, p: BeamPattern):
              + [zen[-1] + (zen[-1] - zen[-2]) / 2]) if n > 1 else [zen[0] - math.radians(0.5),
                                                                      zen[0] + math.radians(0.5)]
     rmin, rmax = p.range_limits
+    cos_e = [math.cos(e) for e in edges]
     out = []
     for x, y, z in np.asarray(points, float) - origin:
         r = math.sqrt(x * x + y * y + z * z)
-        t = math.atan2(math.sqrt(x * x + y * y), z)
-        if not (r > 0) or r < rmin or r > rmax or t < edges[0] or t >= edges[-1]:
+        if not (r > 0) or r < rmin or r > rmax:
             out.append(-1)
             continue
-        row = max(i for i in range(n) if edges[i] <= t)
+        c = z / r  # zenith in [e_i, e_i+1)  <=>  cos(e_i+1) < c <= cos(e_i)
+        hit = [i for i in range(n) if cos_e[i + 1] < c <= cos_e[i]]
+        if not hit:
+            out.append(-1)
+            continue
+        row = hit[0]
         a = math.atan2(y, x) - math.radians(p.azimuth_offset_deg[rows[row]])
         a -= 2 * math.pi * math.floor(a / (2 * math.pi))
         col = min(p.columns - 1, int(math.floor(a / (2 * math.pi / p.columns))))
