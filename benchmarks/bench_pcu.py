@@ -62,9 +62,10 @@ def run(engine, n):
         t0 = time.perf_counter()
         isect = pcu.RaySurfelIntersector(p, normals.astype(np.float32), r=radii.astype(np.float32))
         build = time.perf_counter() - t0
-        o = (ORIGIN - centre).astype(np.float32)
+        # one origin per ray: point-cloud-utils 0.31 misses every ray given a single (3,) origin
+        o = np.repeat((ORIGIN - centre).astype(np.float32)[None], len(dirs), axis=0)
         t0 = time.perf_counter()
-        t, pid = isect.intersect_rays(o, dirs.astype(np.float32))
+        pid, t = isect.intersect_rays(o, dirs.astype(np.float32))  # (ids, distances), whatever its docstring says
         cast = time.perf_counter() - t0
         pid = np.asarray(pid)
     else:
