@@ -58,7 +58,11 @@ def test_discs_match_brute_force(oriented, seed):
     rim = hits.owners != idx
     assert rim.mean() <= 0.005
     same = ~rim & (idx >= 0)
-    np.testing.assert_allclose(hits.distances[same], t[same], atol=2e-5)
+    # Embree holds normals in float32: a disc met at a grazing angle has its t known
+    # to about t * 1e-7 / |cos| (float32 rounding of the normal)
+    cos = np.abs(np.einsum("ij,ij->i", nrm[np.maximum(idx, 0)], dirs)) if oriented else np.ones(len(dirs))
+    tol = 2e-5 + 2e-7 * np.abs(t) / np.maximum(cos, 1e-3)
+    assert np.all(np.abs(hits.distances[same] - t[same]) <= tol[same])
     assert np.all(np.isinf(hits.distances[~rim & (idx < 0)]))
 
 
