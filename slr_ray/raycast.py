@@ -405,8 +405,9 @@ class RayScene:
         if owner_normals is None:
             self._owner_normals = np.zeros((0, 3))
         else:
-            nrm = np.ascontiguousarray(owner_normals, np.float64)
-            if _all_unit(nrm):  # already unit (the backend's are): shared, not copied (24 B a point)
+            nrm = np.asarray(owner_normals)
+            nrm = np.ascontiguousarray(nrm, np.float32 if nrm.dtype == np.float32 else np.float64)
+            if _all_unit(nrm):  # already unit (the backend's are): shared, not copied
                 self._owner_normals = nrm
             else:
                 self._owner_normals = np.empty_like(nrm)
@@ -511,7 +512,9 @@ class RayScene:
         else:
             gtype, kind = GEOMETRY_DISC_POINT, "discs"
         scene = cls.__new__(cls)
-        cls.__init__(scene, kind, gtype, buffers, len(c), centre, c, r, 1, 1.0, normals, compact=compact)
+        # the tie rule reads the float32 normals Embree has (12 B a point), not a float64 copy (24 B)
+        owner_normals = buffers[1][4][:len(c)] if normals is not None else None
+        cls.__init__(scene, kind, gtype, buffers, len(c), centre, c, r, 1, 1.0, owner_normals, compact=compact)
         return scene
 
     # --- queries ------------------------------------------------------------------------
@@ -613,11 +616,15 @@ def _unit_rows(a, out):
         out[i, 2] = a[i, 2] * s
 
 
+def _all_unit(a) -> bool:
+    return _all_unit_within(a, 1e-12 if a.dtype == np.float64 else 1e-6)
+
+
 @njit(cache=True)
-def _all_unit(a):
+def _all_unit_within(a, tol):
     for i in range(a.shape[0]):
-        n2 = a[i, 0] * a[i, 0] + a[i, 1] * a[i, 1] + a[i, 2] * a[i, 2]
-        if abs(n2 - 1.0) > 1e-12:
+        n2 = float(a[i, 0]) ** 2 + float(a[i, 1]) ** 2 + float(a[i, 2]) ** 2
+        if abs(n2 - 1.0) > tol:
             return False
     return True
 

@@ -511,7 +511,9 @@ class DiscScanner(Scanner):
     ----------
     radii : (n,) float64
     normals : (n, 3) float64 or None
-        None for ray-facing discs (``orientation='billboard'``).
+        None for ray-facing discs (``orientation='billboard'``) and for discs
+        facing the primary scanner (``orientation='primary'``: the direction
+        to ``primary_origin``, not kept to save 24 bytes a point).
     build_seconds : float
         Time to build the BVH.
     neighbour_seconds : float
@@ -577,6 +579,10 @@ class DiscScanner(Scanner):
             else:
                 self._scene = _Open3DFans(verts - self._centre, faces)
             del verts, faces
+        if o.orientation == "primary" and o.engine == "embree":
+            # the directions to the primary are implied by the points: Embree and the tie rule hold
+            # their own float32 copy, so the float64 one (24 B a point) is not kept
+            self.normals = None
         self.nbytes = self._scene.nbytes
         self.build_seconds = time.perf_counter() - t1
         self.prepare_seconds = time.perf_counter() - t0
