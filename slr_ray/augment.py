@@ -34,6 +34,12 @@ __all__ = ["augment"]
 _WORKER = {}
 
 
+#: Scans finished since the manifest was last written, one JSON line each (removed when a run completes).
+JOURNAL = "manifest.scans.jsonl"
+#: Seconds between rewrites of manifest.json during a run.
+MANIFEST_EVERY = 10.0
+
+
 def _resumable(manifest_path: Path, settings: dict, positions, out: Path) -> dict:
     """The scans of an earlier run into ``out`` that this run may keep.
 
@@ -58,7 +64,16 @@ def _resumable(manifest_path: Path, settings: dict, positions, out: Path) -> dic
     if diff:
         raise InputValueError(f"{out} holds a run with other settings ({'; '.join(diff)}): "
                               "write elsewhere, or remove it to start again")
-    return {s["file"]: s for s in old.get("scans", []) if (out / s["file"]).exists()}
+    scans = {s["file"]: s for s in old.get("scans", [])}
+    journal = out / JOURNAL
+    if journal.exists():  # scans recorded since the manifest was last written (an interrupted run)
+        for line in journal.read_text().splitlines():
+            try:
+                entry = json.loads(line)
+            except ValueError:
+                continue  # a line cut short by the interruption
+            scans[entry["file"]] = entry
+    return {k: v for k, v in scans.items() if (out / k).exists()}
 
 
 def _init_worker(points, attributes, origin, meta):
@@ -190,12 +205,25 @@ def augment(input_path, outdir, n: int, *, backend: str = "binning", resolution:
                 "heights": list(heights),
                 "positions": positions.tolist(), "stages": cells.stages, "scans": list(done.values())}
 
-    def record(entry):
-        manifest["scans"].append(entry)
+    journal = out / JOURNAL
+    last_write = [0.0]
+
+    def write_manifest():
         manifest["scans"].sort(key=lambda s: s["file"])
         with atomic_path(manifest_path) as tmp:
             tmp.write_text(json.dumps(manifest, indent=1))
+        last_write[0] = time.perf_counter()
 
+    def record(entry):
+        # one line appended per scan; the manifest itself is rewritten at most every
+        # MANIFEST_EVERY seconds (rewriting it after each of thousands of scans is quadratic)
+        manifest["scans"].append(entry)
+        with open(journal, "a") as f:
+            f.write(json.dumps(entry) + "\n")
+        if time.perf_counter() - last_write[0] > MANIFEST_EVERY:
+            write_manifest()
+
+    write_manifest()
     record_start = time.perf_counter()
     bar = None
     if progress:
@@ -239,10 +267,8 @@ def augment(input_path, outdir, n: int, *, backend: str = "binning", resolution:
     finally:
         if bar is not None:
             bar.close()
-    if not jobs:
-        record_start = time.perf_counter()
-        with atomic_path(manifest_path) as tmp:
-            tmp.write_text(json.dumps(manifest, indent=1))
+        write_manifest()  # complete or interrupted: the manifest lists every scan written
+    journal.unlink(missing_ok=True)
     manifest["seconds"] = round(time.perf_counter() - record_start, 3)
     manifest["new_scans"] = len(jobs)
     return manifest

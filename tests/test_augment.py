@@ -173,3 +173,23 @@ def test_relative_output_paths_are_made_absolute_before_work_is_sent(laz, tmp_pa
     monkeypatch.chdir(tmp_path)
     res = augment(laz, "rel", 2, min_ground_points=1000, workers=1, progress=False)
     assert (tmp_path / "rel" / res["scans"][0]["file"]).exists()
+
+
+def test_scans_in_the_journal_are_not_redone(laz, tmp_path):
+    """An interrupted run may have scans only in manifest.scans.jsonl (the manifest is
+    rewritten every few seconds, not after each scan): a rerun keeps them."""
+    import json
+
+    from slr_ray.augment import JOURNAL
+
+    out = tmp_path / "aug"
+    kw = dict(min_ground_points=1000, workers=1, progress=False)
+    first = augment(laz, out, 3, **kw)
+    assert not (out / JOURNAL).exists()  # a completed run leaves only the manifest
+    manifest = json.loads((out / "manifest.json").read_text())
+    last = manifest["scans"].pop()
+    (out / "manifest.json").write_text(json.dumps(manifest))
+    (out / JOURNAL).write_text(json.dumps(last) + "\n" + '{"file": "cut sho')  # a torn last line
+    again = augment(laz, out, 3, **kw)
+    assert again["new_scans"] == 0 and len(again["scans"]) == len(first["scans"])
+    assert not (out / JOURNAL).exists()
