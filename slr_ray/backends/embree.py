@@ -284,11 +284,11 @@ def _grid_neighbours(pts, keys, ranges, sorted_keys, order, nv, nh, gate, s, idx
             dist[c, t] = 0.0
 
 
-def _fallback_directions(points, primary_origin):
+def _fallback_directions(points, primary_origin, dtype=np.float64):
     """Direction used where a normal is undefined: to the primary scanner, or +z."""
     if primary_origin is None:
-        return np.broadcast_to([0.0, 0.0, 1.0], points.shape)
-    out = np.empty((len(points), 3))
+        return np.broadcast_to(np.array([0.0, 0.0, 1.0], dtype), points.shape)
+    out = np.empty((len(points), 3), dtype)
     _towards(np.ascontiguousarray(points, np.float64), as_origin(primary_origin, "primary_origin"), out)
     return out
 
@@ -543,7 +543,8 @@ class DiscScanner(Scanner):
             if len(normals) != n:
                 raise InputValueError(f"normals has {len(normals)} rows for {n} points")
         elif o.orientation == "primary":
-            normals = np.array(_fallback_directions(pts, o.primary_origin))
+            # float32: what Embree holds anyway (a float64 copy would be 24 B a point of peak memory)
+            normals = np.array(_fallback_directions(pts, o.primary_origin, np.float32))
         if (need_spacing or need_normals) and o.neighbours == "pulse-grid":
             for s, d, idx, counts in grid_neighbourhoods(pts, o.primary_origin, o.primary_resolution,
                                                          o.grid_gate, o.chunk):
