@@ -632,15 +632,40 @@ def _write_xyz(path, cloud, binary):
     np.savetxt(path, np.hstack(_columns(cloud)), fmt="%.6f")
 
 
+#: E57 fields slr_ray writes from attributes of the same name (LAS colours map to these too).
+_E57_COLOURS = {"red": "colorRed", "green": "colorGreen", "blue": "colorBlue"}
+
+
 def _write_e57(path, cloud, binary):
+    """E57 (libE57 via pye57): coordinates in the scan frame with the origin as the pose's
+    translation; the attributes E57 defines (intensity, colorRed/Green/Blue, rowIndex,
+    columnIndex; LAS red/green/blue as colours, 16-bit values scaled to 8) and no other:
+    the rest are named in a warning, never written under a wrong type."""
     pye57 = _pye57()
+    from pye57.e57 import SUPPORTED_POINT_FIELDS
+
     if len(cloud) == 0:
         raise FormatError(f"{path}: libE57 cannot write a scan of zero points; choose another format")
     origin = cloud.origin if cloud.origin is not None else np.zeros(3)
     local = cloud.points - origin
     data = {"cartesianX": local[:, 0], "cartesianY": local[:, 1], "cartesianZ": local[:, 2]}
+    dropped, scaled = [], []
     for k, v in cloud.attributes.items():
-        data[k] = np.asarray(v)
+        name = _E57_COLOURS.get(k, k)
+        code = SUPPORTED_POINT_FIELDS.get(name)
+        v = np.asarray(v)
+        if code is None or name.startswith(("cartesian", "spherical")) or v.ndim != 1 or v.dtype.kind not in "biuf":
+            dropped.append(k)
+            continue
+        if code == "B" and len(v) and v.max() > 255:  # 16-bit colours (LAS) into E57's 8 bits
+            v = (v.astype(np.float64) * (255 / 65535)).round()
+            scaled.append(k)
+        data[name] = v.astype({"f": np.float32, "d": np.float64, "B": np.uint8, "H": np.uint16,
+                               "b": np.int8}[code])
+    if dropped:
+        warnings.warn(f"{path}: E57 has no field for {sorted(dropped)}; not written", stacklevel=3)
+    if scaled:
+        warnings.warn(f"{path}: 16-bit colours {sorted(scaled)} scaled to E57's 8 bits", stacklevel=3)
     e57 = pye57.E57(str(path), mode="w")
     try:
         e57.write_scan_raw(data, rotation=np.array([1.0, 0, 0, 0]), translation=np.asarray(origin, float))

@@ -359,3 +359,22 @@ def test_semantickitti_labels_round_trip(tmp_path):
     words[:10].tofile(tmp_path / "short.label")
     with pytest.raises(ValueError, match="labels for"):
         read_cloud(tmp_path / "short.bin")
+
+
+def test_las_to_e57_writes_what_e57_holds_and_names_the_rest(tmp_path):
+    pytest.importorskip("pye57")
+    from slr_ray.io import PointCloud, read_cloud, write_cloud
+
+    rng = np.random.default_rng(0)
+    n = 300
+    cloud = PointCloud(rng.normal(size=(n, 3)) * 5, {
+        "intensity": rng.integers(0, 65535, n).astype(np.uint16), "classification": np.full(n, 2, np.uint8),
+        "red": rng.integers(0, 65535, n).astype(np.uint16), "green": np.zeros(n, np.uint16),
+        "blue": np.full(n, 65535, np.uint16)}, origin=np.array([1.0, 2.0, 3.0]))
+    with pytest.warns(UserWarning) as said:
+        write_cloud(tmp_path / "o.e57", cloud)
+    text = " ".join(str(w.message) for w in said)
+    assert "classification" in text and "scaled" in text
+    back = read_cloud(tmp_path / "o.e57")
+    np.testing.assert_allclose(back.points, cloud.points, atol=1e-5)  # pye57 stores float32 coordinates
+    assert back.attributes["colorBlue"].max() == 255 and len(back) == n
