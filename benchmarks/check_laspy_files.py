@@ -15,7 +15,6 @@ results/check_laspy_files.json.
 from __future__ import annotations
 
 import argparse
-import json
 import subprocess
 import sys
 import tarfile

@@ -337,7 +337,7 @@ def test_las_fields_are_never_wrapped(tmp_path):
 
 
 def test_semantickitti_labels_round_trip(tmp_path):
-    from slr_ray.io import PointCloud, read_cloud, write_cloud
+    from slr_ray.io import read_cloud, write_cloud
 
     rng = np.random.default_rng(0)
     seq = tmp_path / "sequences" / "00"
