@@ -216,6 +216,15 @@ def test_cli_sensor_scan_with_range_image_and_labels(tmp_path, capsys):
     ri = np.load(tmp_path / "ri.npz")
     assert ri["range"].shape == (16, 1800) and (ri["index"] >= 0).sum() == len(back)
     assert "semantic" in ri.files
+    ply = tmp_path / "rings.ply"
+    assert main(["scan", str(src), "--sensor", "velodyne_vlp16", "--origin", "0.5", "0", "0", "-o", str(ply),
+                 "--keep-ring"]) == 0
+    capsys.readouterr()
+    rings = read_cloud(ply)
+    p16 = sensor("velodyne_vlp16")
+    keys, _ = p16.keys(rings.points, np.array([0.5, 0, 0]))
+    np.testing.assert_array_equal(p16.beam_of_row[keys // p16.columns], rings.attributes["ring"])
+    np.testing.assert_array_equal(keys % p16.columns, rings.attributes["column"])
     assert main(["scan", str(src), "--sensor", "velodyne_vlp16", "--resolution", "1", "--origin", "0", "0", "0",
                  "-o", str(tmp_path / "x.bin")]) == 2
 

@@ -59,6 +59,8 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("--format", help="output format, overriding the extension")
     A.add_input_format(p)
     p.add_argument("--keep-range", action="store_true", help="add a 'range' attribute")
+    p.add_argument("--keep-ring", action="store_true",
+                   help="add 'ring' (beam id; zenith row for uniform patterns) and 'column' attributes")
     p.add_argument("--range-image", metavar="NPZ",
                    help="also write the scan as a range image (.npz: range, index, ring, every attribute)")
     p.add_argument("--png", help="also draw the range image (PNG)")

@@ -87,6 +87,9 @@ def scan(args):
         sub, result = _scan_cloud(args, cloud, pattern)
     if args.keep_range:
         sub.attributes["range"] = result.ranges
+    if args.keep_ring:
+        sub.attributes["ring"] = result.rings.astype(np.uint16 if result.pattern.shape[0] < 2**16 else np.int64)
+        sub.attributes["column"] = result.columns.astype(np.uint32)
     t1 = time.perf_counter()
     write_cloud(out, sub, args.format)
     if args.range_image or args.png:
