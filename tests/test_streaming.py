@@ -62,3 +62,17 @@ def test_cli_scan_streams_las(las_file, tmp_path, capsys):
                  "--chunk-size", "5000", "--quiet", "-o", str(out)]) == 0
     res = json.loads(capsys.readouterr().out)
     assert res["streamed"] and res["points_out"] == len(read_cloud(out))
+
+
+def test_cli_scan_of_las_with_a_sensor_reads_it_whole(las_file, tmp_path, capsys):
+    import json
+
+    from slr_ray.cli import main
+
+    out = tmp_path / "os1.laz"
+    assert main(["scan", str(las_file), "--sensor", "ouster_os1_64", "--origin", "600001.5", "4999998", "101.7",
+                 "--keep-ring", "--quiet", "-o", str(out)]) == 0
+    res = json.loads(capsys.readouterr().out)
+    assert not res["streamed"] and res["points_out"] > 0
+    back = read_cloud(out)
+    assert "ring" in back.attributes and back.attributes["ring"].max() < 64

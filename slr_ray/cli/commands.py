@@ -71,7 +71,11 @@ def scan(args):
         return
     from ..streaming import STREAMED_FORMATS, scan_las
 
-    streamed = args.backend == "binning" and check_format(args.input, args.input_format) in STREAMED_FORMATS
+    from ..pattern import ScanPattern
+
+    # LAS/LAZ stream through the uniform binning reduction; beam tables read the file whole
+    streamed = (args.backend == "binning" and isinstance(pattern, ScanPattern)
+                and check_format(args.input, args.input_format) in STREAMED_FORMATS)
     if streamed:
         # LAS/LAZ: two passes in chunks, memory bounded by a chunk and the scan, not the file
         if args.origin is None:
