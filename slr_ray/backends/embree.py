@@ -35,6 +35,12 @@ engine
     the same polygons in Open3D's ``RaycastingScene`` (another Embree front
     end; no tie rule). The polygon engines are kept to cross-check the exact
     discs (tests measure how far they agree).
+neighbours
+    where 'spacing' radii and normals take neighbours from: ``"knn"``
+    (default; the ``k`` nearest, one kd-tree queried in chunks) or
+    ``"pulse-grid"`` (a primary scan of known ``primary_origin`` and
+    ``primary_resolution``: the points of the 8 adjacent pulses of its own
+    pulse grid, range-gated by ``grid_gate``; one sort, no kd-tree).
 ties
     Tie window in disc radii (default 1): among discs hit within ``ties``
     times the first disc's radius beyond the first hit, the one whose centre
