@@ -34,7 +34,7 @@ def _chunks(path, chunk):
     try:
         with laspy.open(str(path)) as reader:
             header = reader.header
-            evlrs = list(reader.evlrs or []) if getattr(reader, "evlrs", None) is not None else []
+            evlrs = list(getattr(reader, "evlrs", None) or [])
             for points in reader.chunk_iterator(chunk):
                 yield header, evlrs, points
     except (laspy.errors.LaspyException, ValueError, OSError) as exc:

@@ -216,6 +216,11 @@ def test_cli_sensor_scan_with_range_image_and_labels(tmp_path, capsys):
     ri = np.load(tmp_path / "ri.npz")
     assert ri["range"].shape == (16, 1800) and (ri["index"] >= 0).sum() == len(back)
     assert "semantic" in ri.files
+    # an output that cannot be written is refused before the scan: nothing is left behind
+    assert main(["scan", str(src), "--sensor", "velodyne_vlp16", "--origin", "0", "0", "0", "-o",
+                 str(tmp_path / "none.bin"), "--range-image", str(tmp_path / "missing" / "ri.npz")]) == 2
+    assert not (tmp_path / "none.bin").exists() and not (tmp_path / "none.label").exists()
+    capsys.readouterr()
     ply = tmp_path / "rings.ply"
     assert main(["scan", str(src), "--sensor", "velodyne_vlp16", "--origin", "0.5", "0", "0", "-o", str(ply),
                  "--keep-ring"]) == 0

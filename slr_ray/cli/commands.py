@@ -50,6 +50,8 @@ def _output(path, force: bool = False, inputs=()) -> Path | None:
             raise FileExistsError(f"{path} is an input of this command: refusing to write over it")
     if path.is_dir():
         raise IsADirectoryError(f"{path} is a directory")
+    if not path.parent.is_dir():
+        raise FileNotFoundError(f"no directory {path.parent} for {path}")
     if path.exists() and not force:
         raise FileExistsError(f"{path} exists (use --force to overwrite)")
     return path
@@ -58,6 +60,8 @@ def _output(path, force: bool = False, inputs=()) -> Path | None:
 def scan(args):
     from ..backends import options_for
     from ..io import check_format, read_cloud, write_cloud
+    from ..pattern import ScanPattern
+    from ..streaming import STREAMED_FORMATS, scan_las
 
     pattern = pattern_from(args)
     out = _output(args.output, args.force, [args.input])
@@ -69,10 +73,6 @@ def scan(args):
         emit({"input": str(args.input), "output": str(out), "origin": args.origin,
               "pattern": pattern.to_dict(), "backend": args.backend, "options": options.to_dict()})
         return
-    from ..streaming import STREAMED_FORMATS, scan_las
-
-    from ..pattern import ScanPattern
-
     # LAS/LAZ stream through the uniform binning reduction; beam tables read the file whole
     streamed = (args.backend == "binning" and isinstance(pattern, ScanPattern)
                 and check_format(args.input, args.input_format) in STREAMED_FORMATS)
@@ -94,26 +94,32 @@ def scan(args):
     if args.keep_ring:
         sub.attributes["ring"] = result.rings.astype(np.uint16 if result.pattern.shape[0] < 2**16 else np.int64)
         sub.attributes["column"] = result.columns.astype(np.uint32)
+    # the range image is made before anything is written: an error there leaves no scan behind
+    image = _range_image(sub, result) if args.range_image or args.png else None
     t1 = time.perf_counter()
     write_cloud(out, sub, args.format)
-    if args.range_image or args.png:
-        _range_image(args, sub, result)
+    if image is not None:
+        _write_range_image(args, image, result)
     emit({**result.summary(), "input": str(args.input), "output": str(out), "streamed": streamed,
           ("seconds_read_and_scan" if streamed else "seconds_read"): round(t_read, 6),
           "seconds_write": round(time.perf_counter() - t1, 6)})
 
 
-def _range_image(args, sub, result):
-    """The scan's range image (npz and/or PNG): ``sub`` is the scanned subset, in index order."""
-    from dataclasses import replace as _replace
+def _range_image(sub, result) -> dict:
+    """The scan's range image with every 1-D attribute of ``sub`` (the scanned subset, in index order)."""
+    from dataclasses import replace
 
-    from ..io import atomic_path
-    from ..plotting import range_image_figure, save_figure
-
-    local = _replace(result, indices=np.arange(len(result)))  # images of the subset's own rows
+    local = replace(result, indices=np.arange(len(result)))  # images of the subset's own rows
     attrs = {k: v for k, v in sub.attributes.items() if np.asarray(v).ndim == 1 and np.asarray(v).dtype.kind in "biuf"}
     image = local.range_image(attrs)
     image["index"] = np.where(image["index"] >= 0, result.indices[np.maximum(image["index"], 0)], -1)
+    return image
+
+
+def _write_range_image(args, image, result):
+    from ..io import atomic_path
+    from ..plotting import range_image_figure, save_figure
+
     if args.range_image:
         with atomic_path(Path(args.range_image)) as tmp:
             with open(tmp, "wb") as f:

@@ -107,7 +107,8 @@ def _run_scene(config, p: ScenePlan, out: Path, done, results, stages, bar) -> i
             stages.add(p.spec, res, "positions", time.perf_counter() - t0, len(positions))
         if wanted_here:
             t0 = time.perf_counter()
-            n_new += _pairs(config, p, scene, res, primary, positions, truths, done, results, stages, bar)
+            n_new += _pairs(config, p, scene, res, primary, positions, secondary, truths, done, results, stages,
+                            bar)
             stages.add(p.spec, res, "pairs", time.perf_counter() - t0, len(positions))
             _advance(bar, config.positions - len(positions))
         del primary
@@ -115,9 +116,9 @@ def _run_scene(config, p: ScenePlan, out: Path, done, results, stages, bar) -> i
     return n_new
 
 
-def _pairs(config, p: ScenePlan, scene, res, primary, positions, truths, done, results, stages, bar) -> int:
+def _pairs(config, p: ScenePlan, scene, res, primary, positions, secondary, truths, done, results, stages,
+           bar) -> int:
     """The rows of one primary: every wanted (backend, truth) at every position."""
-    secondary = ScanPattern(config.secondary_resolution)
     scanners = {}
 
     def scanner(backend):
