@@ -8,6 +8,7 @@ expected, what was given and, for non-finite rows, how many.
 from __future__ import annotations
 
 import numpy as np
+from numba import njit
 
 from .errors import InputTypeError, InputValueError
 
@@ -82,3 +83,20 @@ def as_origin(origin, name: str = "origin") -> np.ndarray:
     if not np.isfinite(arr).all():
         raise InputValueError(f"{name} must be finite, got {arr.tolist()}")
     return arr
+
+
+@njit(cache=True, nogil=True)
+def _unravel_into(ids, n_columns, out):
+    for j in range(ids.shape[0]):
+        v = ids[j] // n_columns
+        out[j, 0] = v
+        out[j, 1] = ids[j] - v * n_columns
+
+
+def unravel_ids(ids, n_columns: int) -> np.ndarray:
+    """``(m, 2) int64`` rows ``(id // n_columns, id % n_columns)`` of non-negative
+    flat ids: one integer division per id (numpy's divmod takes two)."""
+    ids = np.ascontiguousarray(ids, dtype=np.int64).ravel()
+    out = np.empty((len(ids), 2), dtype=np.int64)
+    _unravel_into(ids, np.int64(n_columns), out)
+    return out

@@ -20,6 +20,7 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
+from .arrays import unravel_ids
 from .errors import InputTypeError, InputValueError
 
 __all__ = ["ScanPattern", "PRESETS", "preset", "as_pattern", "pulse_rays", "pulse_directions"]
@@ -191,10 +192,9 @@ class ScanPattern:
     def unravel(self, ids) -> np.ndarray:
         """``(m, 2) int64`` pulses ``(v, h)`` of flat pulse ids (the inverse of :meth:`ravel`)."""
         ids = np.asarray(ids, dtype=np.int64).ravel()
-        out = np.empty((len(ids), 2), dtype=np.int64)
-        np.floor_divide(ids, self.n_azimuth, out=out[:, 0])
-        np.remainder(ids, self.n_azimuth, out=out[:, 1])
-        return out
+        if len(ids) and ids.min() < 0:
+            raise InputValueError("pulse ids must be >= 0")
+        return unravel_ids(ids, self.n_azimuth)
 
     def with_(self, **changes) -> "ScanPattern":
         """A copy with some fields changed (``pattern.with_(max_range=50)``)."""

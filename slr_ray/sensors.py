@@ -51,6 +51,7 @@ from pathlib import Path
 import numpy as np
 from numba import njit, prange
 
+from .arrays import unravel_ids
 from .errors import InputValueError
 from .threads import default_threads
 
@@ -184,7 +185,9 @@ class BeamPattern:
 
     def unravel(self, ids) -> np.ndarray:
         ids = np.asarray(ids, dtype=np.int64).ravel()
-        return np.column_stack([ids // self.columns, ids % self.columns])
+        if len(ids) and ids.min() < 0:
+            raise InputValueError("pulse ids must be >= 0")
+        return unravel_ids(ids, self.columns)
 
     def to_dict(self) -> dict:
         return {"name": self.name, "beams": self.n_beams, "columns": self.columns,

@@ -19,10 +19,11 @@ def brute_force_scan(points, origin, pattern):
     return np.array(sorted(i for _, i in best.values()), dtype=np.intp)
 
 
-@pytest.fixture(params=["dense", "hash"])
+@pytest.fixture(params=["dense", "slots", "hash"])
 def table_kind(request, monkeypatch):
-    """Run a test with both kinds of binning tables."""
+    """Run a test with each kind of binning table."""
     monkeypatch.setattr(BinTables, "dense_bytes", 2**62 if request.param == "dense" else 0)
+    monkeypatch.setattr(BinTables, "slot_bytes", 2**62 if request.param == "slots" else 0)
     return request.param
 
 

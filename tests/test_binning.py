@@ -66,25 +66,135 @@ def test_axes_and_signed_zeros_take_the_exact_path():
     np.testing.assert_array_equal(keys, exact_keys(pts, np.zeros(3), pattern))
 
 
-def test_dense_and_hash_tables_agree():
+def _tables(kind, origin, pattern, n_threads, monkeypatch):
+    monkeypatch.setattr(BinTables, "dense_bytes", 2**62 if kind == "dense" else 0)
+    monkeypatch.setattr(BinTables, "slot_bytes", 2**62 if kind == "slots" else 0)
+    t = BinTables(origin, pattern, n_threads)
+    assert t.kind == kind
+    return t
+
+
+def test_dense_slot_and_hash_tables_agree(monkeypatch):
     rng = np.random.default_rng(3)
     pts = rng.normal(size=(50000, 3)) * 10
+    pts[1000:1100] = pts[:100]  # exact ties: the lower index must win in every kind
     pattern = ScanPattern(0.5)
-    dense = BinTables(np.zeros(3), pattern, 2)
-    assert dense.dense
-    dense.add(pts)
-    old = BinTables.dense_bytes
-    try:
-        BinTables.dense_bytes = 0
-        hashed = BinTables(np.zeros(3), pattern, 2)
-        assert not hashed.dense
-        hashed.add(pts)
-    finally:
-        BinTables.dense_bytes = old
-    for a, b in zip(dense.winners(), hashed.winners()):
-        np.testing.assert_array_equal(a, b)
-    for a, b in zip(hashed.winners(pts), hashed.winners()):
-        np.testing.assert_array_equal(a, b)
+    results = {}
+    for kind in ("dense", "slots", "hash"):
+        t = _tables(kind, np.zeros(3), pattern, 3, monkeypatch)
+        t.add(pts)
+        results[kind] = t.winners()
+        for a, b in zip(t.winners(pts), results[kind]):  # ranges recomputed or carried: the same
+            np.testing.assert_array_equal(a, b)
+    np.testing.assert_array_equal(results["dense"][2], brute_force_scan(pts, np.zeros(3), pattern))
+    for kind in ("slots", "hash"):
+        for a, b in zip(results["dense"], results[kind]):
+            np.testing.assert_array_equal(a, b)
+
+
+@pytest.mark.parametrize("kind", ["dense", "slots", "hash"])
+def test_reset_tables_forget_the_last_position(kind, monkeypatch):
+    # a reused table must give what a fresh one gives, whether or not the last
+    # scan was read out (winners) before the reset
+    rng = np.random.default_rng(5)
+    pts = rng.normal(size=(30000, 3)) * 10
+    pattern = ScanPattern(1.0)
+    t = _tables(kind, np.zeros(3), pattern, 2, monkeypatch)
+    for i, origin in enumerate(rng.normal(size=(4, 3)) * 5):
+        t.reset(origin)
+        t.add(pts[i * 1000:])
+        if i % 2:
+            t.add(pts[:1000])
+        else:  # interrupted: never read out
+            t.winners(pts[i * 1000:])
+            t.reset(origin)
+            t.add(pts)
+        expected = brute_force_scan(pts, origin, pattern) if i % 2 == 0 else None
+        got = t.winners()[2]
+        if expected is not None:
+            np.testing.assert_array_equal(got, expected)
+        else:
+            ref = _tables(kind, origin, pattern, 1, monkeypatch)
+            ref.add(np.vstack([pts[i * 1000:], pts[:1000]]))
+            np.testing.assert_array_equal(got, ref.winners()[2])
+
+
+def test_accumulator_adds_after_reading_out(monkeypatch):
+    # winners() then more points: the merged dense tables must still take them
+    rng = np.random.default_rng(6)
+    pts = rng.normal(size=(20000, 3))
+    acc = ScanAccumulator(np.zeros(3), 2.0, n_threads=2)
+    acc.add(pts[:10000])
+    acc.result()
+    acc.add(pts[10000:])
+    np.testing.assert_array_equal(acc.result().indices, brute_force_scan(pts, np.zeros(3), ScanPattern(2.0)))
+
+
+def test_prepared_scanner_reuses_its_tables_exactly():
+    from slr_ray import prepare
+
+    rng = np.random.default_rng(7)
+    pts = rng.normal(size=(20000, 3)) * 10
+    scanner = prepare(pts)
+    for origin, res in [((0, 0, 0), 1.0), ((3, 1, 0), 1.0), ((3, 1, 0), 0.5), ((-2, 0, 1), 1.0)]:
+        got = scanner.scan(origin, res)
+        np.testing.assert_array_equal(got.indices, brute_force_scan(pts, np.asarray(origin, float),
+                                                                    ScanPattern(res)))
+        np.testing.assert_array_equal(got.ranges, np.linalg.norm(pts[got.indices] - origin, axis=1))
+
+
+def test_concurrent_scans_of_one_scanner_agree():
+    from concurrent.futures import ThreadPoolExecutor
+
+    from slr_ray import prepare
+
+    rng = np.random.default_rng(8)
+    pts = rng.normal(size=(40000, 3)) * 10
+    scanner = prepare(pts, n_threads=1)
+    origins = rng.normal(size=(8, 3))
+    with ThreadPoolExecutor(4) as pool:
+        scans = list(pool.map(lambda o: scanner.scan(o, 1.0), origins))
+    for o, got in zip(origins, scans):
+        np.testing.assert_array_equal(got.indices, brute_force_scan(pts, o, ScanPattern(1.0)))
+
+
+def test_polynomial_atan2_is_within_its_bound():
+    # the fast path's correctness rests on |fast - libm| < _FAST_TOL; the
+    # polynomial's own error is ~1e-11, checked here with a wide margin
+    import math
+
+    rng = np.random.default_rng(9)
+    ang = np.concatenate([rng.uniform(-np.pi, np.pi, 200000),
+                          (np.arange(-8, 9) * np.pi / 8 + rng.normal(scale=1e-9, size=(50, 17))).ravel()])
+    r = 10 ** rng.uniform(-6, 6, len(ang))
+    y, x = r * np.sin(ang), r * np.cos(ang)
+    theta, fast = np.empty(len(x)), np.empty(len(x))
+    binning._approx_angles(x, y, np.ones(len(x)), theta, fast, len(x))  # fast = atan2(y, x)
+    exact = np.array([math.atan2(a, b) for a, b in zip(y, x)])
+    assert np.abs(fast - exact).max() < 1e-10 < binning._FAST_TOL
+
+
+@pytest.mark.parametrize("pattern", [
+    ScanPattern(0.5, zenith_range=(40, 100), min_range=2.0, max_range=20.0),
+    ScanPattern(2.0, zenith_range=(0, 135), max_range=5.0),
+])
+def test_fast_path_outside_the_view_and_range_limits(pattern):
+    # points just inside and outside the zenith limits and the range limits
+    rng = np.random.default_rng(10)
+    d_theta, d_phi, th0, th1 = pattern.radians
+    rmin, rmax = pattern.range_limits
+    n = 20000
+    theta = rng.choice([th0, th1], n) + rng.choice([-1e-7, -1e-9, 0.0, 1e-9, 1e-7, 0.3, -0.3], n)
+    theta = np.clip(theta, 0, np.pi)
+    phi = rng.uniform(0, 2 * np.pi, n)
+    r = np.where(rng.random(n) < 0.5, rng.uniform(0.5 * rmin, 1.5 * rmin + 1, n),
+                 rmax * (1 + rng.choice([-1e-15, 0.0, 1e-15, -0.1, 0.1], n)))
+    pts = np.column_stack([r * np.sin(theta) * np.cos(phi), r * np.sin(theta) * np.sin(phi), r * np.cos(theta)])
+    keys, ranges = pulse_keys(pts, np.zeros(3), pattern)
+    ref = exact_keys(pts, np.zeros(3), pattern)
+    ref[(ranges < rmin) | (ranges > rmax) | (ranges == 0)] = -1
+    np.testing.assert_array_equal(keys, ref)
+    assert (keys == -1).any() and (keys >= 0).any()
 
 
 def test_hash_tables_grow_through_many_bins(monkeypatch):
@@ -103,6 +213,8 @@ def test_default_threads_is_positive():
     assert binning.default_threads() >= 1
     with pytest.raises(ValueError):
         BinTables(np.zeros(3), ScanPattern(1.0), n_threads=-1)
+    with pytest.raises(ValueError):
+        BinTables(np.zeros(3), ScanPattern(1.0), n_threads=257)
 
 
 def test_numba_kernels_are_cached_to_disk():
