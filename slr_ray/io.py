@@ -552,8 +552,8 @@ def _write_las(path, cloud, binary):
             else:
                 _add_las_extra(las, k, v, path)
     else:
-        fmt = int(cloud.meta.get("las_point_format", 6 if "gps_time" in cloud.attributes else 0))
-        header = laspy.LasHeader(point_format=fmt, version="1.4")
+        fmt, version = _las_format_for(cloud)
+        header = laspy.LasHeader(point_format=fmt, version=version)
         n = len(cloud)
         if "las_scales" in cloud.meta:
             header.scales = np.array(cloud.meta["las_scales"])
@@ -570,6 +570,31 @@ def _write_las(path, cloud, binary):
             else:
                 _add_las_extra(las, k, v, path)
     las.write(str(path), do_compress=Path(path).suffix.lower() == ".laz")
+
+
+def _las_format_for(cloud) -> tuple[int, str]:
+    """(point format, version) for a cloud that does not come from a LAS file.
+
+    The most widely read that holds its attributes: LAS 1.2 with format 0 to 3
+    (GPS time: 1, colour: 2, both: 3), unless a value needs LAS 1.4's wider
+    fields (classification above 31, more than 7 returns, 2**32 points or
+    more): then format 6, 7 (colour) or 8 (colour and NIR).
+    """
+    a = cloud.attributes
+    if "las_point_format" in cloud.meta:  # recorded by an earlier LAS read
+        fmt = int(cloud.meta["las_point_format"])
+        return fmt, "1.4" if fmt >= 6 else "1.3" if fmt >= 4 else "1.2"  # 4, 5: waveforms, LAS 1.3
+
+    def above(name, limit):
+        v = a.get(name)
+        return v is not None and np.size(v) > 0 and np.asarray(v).max() > limit
+
+    rgb = all(c in a for c in ("red", "green", "blue"))
+    wide = (len(cloud) >= 2**32 or above("classification", 31) or above("return_number", 7)
+            or above("number_of_returns", 7) or "nir" in a)
+    if wide:
+        return (8 if "nir" in a and rgb else 7 if rgb else 6), "1.4"
+    return (2 if rgb else 0) + (1 if "gps_time" in a else 0), "1.2"
 
 
 def _add_las_extra(las, name, values, path):
@@ -662,15 +687,99 @@ def _write_e57(path, cloud, binary):
             scaled.append(k)
         data[name] = v.astype({"f": np.float32, "d": np.float64, "B": np.uint8, "H": np.uint16,
                                "b": np.int8}[code])
+    channels = [c for c in ("colorRed", "colorGreen", "colorBlue") if c in data]
+    if 0 < len(channels) < 3:  # E57 colour is three channels or none
+        dropped += [k for k in cloud.attributes if _E57_COLOURS.get(k, k) in channels]
+        for c in channels:
+            del data[c]
     if dropped:
         warnings.warn(f"{path}: E57 has no field for {sorted(dropped)}; not written", stacklevel=3)
     if scaled:
         warnings.warn(f"{path}: 16-bit colours {sorted(scaled)} scaled to E57's 8 bits", stacklevel=3)
     e57 = pye57.E57(str(path), mode="w")
     try:
-        e57.write_scan_raw(data, rotation=np.array([1.0, 0, 0, 0]), translation=np.asarray(origin, float))
+        _e57_scan(e57, data, np.asarray(origin, float))
     finally:
         e57.close()
+
+
+def _e57_scan(e57, data: dict, translation) -> None:
+    """Append one scan to an E57 file open for writing, coordinates in **double**
+    precision (pye57's ``write_scan_raw`` stores them as float32: 3e-7 m lost at
+    5 m, metres at UTM-size offsets). The rest as in pye57: guid, name, the
+    limits and bounds E57 readers use, the pose (identity rotation,
+    ``translation``), and the points in one compressed vector."""
+    import uuid
+
+    from pye57 import libe57
+
+    f = e57.image_file
+    scan = libe57.StructureNode(f)
+    scan.set("guid", libe57.StringNode(f, "{%s}" % uuid.uuid4()))
+    scan.set("name", libe57.StringNode(f, "slr_ray scan"))
+    scan.set("description", libe57.StringNode(f, "written by slr_ray"))
+    xyz = [np.ascontiguousarray(data[k], np.float64) for k in ("cartesianX", "cartesianY", "cartesianZ")]
+    lo = np.array([a.min() for a in xyz])
+    hi = np.array([a.max() for a in xyz])
+    bounds = libe57.StructureNode(f)
+    for axis, a, b in zip("xyz", lo + translation, hi + translation):
+        bounds.set(f"{axis}Minimum", libe57.FloatNode(f, float(a)))
+        bounds.set(f"{axis}Maximum", libe57.FloatNode(f, float(b)))
+    scan.set("cartesianBounds", bounds)
+    pose = libe57.StructureNode(f)
+    rotation = libe57.StructureNode(f)
+    for k, v in zip("wxyz", (1.0, 0.0, 0.0, 0.0)):
+        rotation.set(k, libe57.FloatNode(f, v))
+    pose.set("rotation", rotation)
+    shift = libe57.StructureNode(f)
+    for k, v in zip("xyz", translation):
+        shift.set(k, libe57.FloatNode(f, float(v)))
+    pose.set("translation", shift)
+    scan.set("pose", pose)
+
+    proto = libe57.StructureNode(f)
+    names = ["cartesianX", "cartesianY", "cartesianZ"]
+    for name, a, b in zip(names, lo, hi):
+        proto.set(name, libe57.FloatNode(f, float((a + b) / 2), libe57.E57_DOUBLE, float(a), float(b)))
+    if "intensity" in data:
+        v = data["intensity"]
+        a, b = float(v.min()), float(v.max())
+        proto.set("intensity", libe57.FloatNode(f, a, libe57.E57_SINGLE, a, b))
+        limits = libe57.StructureNode(f)
+        limits.set("intensityMinimum", libe57.FloatNode(f, a))
+        limits.set("intensityMaximum", libe57.FloatNode(f, b))
+        scan.set("intensityLimits", limits)
+        names.append("intensity")
+    colours = ["colorRed", "colorGreen", "colorBlue"]
+    if all(c in data for c in colours):
+        limits = libe57.StructureNode(f)
+        for c in colours:
+            proto.set(c, libe57.IntegerNode(f, 0, 0, 255))
+            limits.set(f"{c}Minimum", libe57.IntegerNode(f, 0))
+            limits.set(f"{c}Maximum", libe57.IntegerNode(f, 255))
+        scan.set("colorLimits", limits)
+        names += colours
+    for c in ("rowIndex", "columnIndex"):
+        if c in data:
+            a, b = int(data[c].min()), int(data[c].max())
+            proto.set(c, libe57.IntegerNode(f, a, a, b))
+            names.append(c)
+    codecs = libe57.VectorNode(f, True)
+    points = libe57.CompressedVectorNode(f, proto, codecs)
+    scan.set("points", points)
+    e57.data3d.append(scan)
+    n = len(xyz[0])
+    chunk = min(n, 1 << 20)
+    arrays, buffers = e57.make_buffers(names, chunk)
+    writer = points.writer(buffers)
+    try:
+        for start in range(0, n, chunk):
+            m = min(chunk, n - start)
+            for name in names:
+                arrays[name][:m] = data[name][start:start + m]
+            writer.write(m)
+    finally:
+        writer.close()
 
 
 _WRITERS = {".npy": _write_npy, ".npz": _write_npz, ".ply": _write_ply, ".las": _write_las, ".laz": _write_las,

@@ -424,21 +424,22 @@ def label_ground(points, *, cloth_resolution: float = 0.5, rigidness: int = 2,
     """Ground labels by Cloth Simulation Filtering (PyPI ``cloth-simulation-filter``).
 
     The cloth is dropped from above the inverted cloud; points within
-    ``class_threshold`` of it are ground. CSF's own output is contained: it
-    runs in a temporary directory (it would write ``cloth_nodes.txt`` into the
-    working directory) with its console output silenced.
+    ``class_threshold`` of it are ground. CSF runs in a child process, in a
+    temporary directory (it writes ``cloth_nodes.txt`` into its working
+    directory and prints to the console): this process's working directory,
+    stdout and threads are never touched, so it is safe to call from threads,
+    and a crash inside CSF is an error here, not the end of the program.
 
     Returns
     -------
     is_ground : (n,) bool
     """
-    import contextlib
-    import os
-    import sys
-    import tempfile
+    import multiprocessing
+    from concurrent.futures import ProcessPoolExecutor
+    from concurrent.futures.process import BrokenProcessPool
 
     try:
-        import CSF
+        import CSF  # noqa: F401
     except ImportError as exc:
         from .errors import MissingDependencyError
 
@@ -453,32 +454,39 @@ def label_ground(points, *, cloth_resolution: float = 0.5, rigidness: int = 2,
     pts = as_points(points).astype(np.float64, copy=False)
     if len(pts) == 0:
         return np.zeros(0, bool)
-    csf = CSF.CSF()
-    csf.params.bSloopSmooth = bool(slope_smooth)
-    csf.params.cloth_resolution = float(cloth_resolution)
-    csf.params.rigidness = int(rigidness)
-    csf.params.class_threshold = float(class_threshold)
-    csf.params.interations = int(iterations)
-    csf.params.time_step = float(time_step)
-    centre = pts.mean(axis=0)
-    csf.setPointCloud((pts - centre).tolist() if len(pts) < 10_000 else (pts - centre))
-    ground, off = CSF.VecInt(), CSF.VecInt()
-    cwd = os.getcwd()
-    sys.stdout.flush()
-    saved = os.dup(1)
-    with tempfile.TemporaryDirectory() as tmp, open(os.devnull, "w") as null:
+    params = {"bSloopSmooth": bool(slope_smooth), "cloth_resolution": float(cloth_resolution),
+              "rigidness": int(rigidness), "class_threshold": float(class_threshold),
+              "interations": int(iterations), "time_step": float(time_step)}
+    # spawn: a forked child would inherit this process's thread pools mid-state
+    with ProcessPoolExecutor(1, mp_context=multiprocessing.get_context("spawn")) as pool:
         try:
-            os.chdir(tmp)
-            os.dup2(null.fileno(), 1)
-            with contextlib.redirect_stdout(null):
-                csf.do_filtering(ground, off, False)
-        finally:
-            os.dup2(saved, 1)
-            os.close(saved)
-            os.chdir(cwd)
+            ground = pool.submit(_csf_ground, pts - pts.mean(axis=0), params).result()
+        except BrokenProcessPool:
+            raise RuntimeError("CSF crashed (its process ended without an answer); "
+                               "try other cloth parameters") from None
     out = np.zeros(len(pts), bool)
-    out[np.asarray(list(ground), dtype=np.int64)] = True
+    out[ground] = True
     return out
+
+
+def _csf_ground(pts: np.ndarray, params: dict) -> np.ndarray:
+    """Indices of CSF's ground points, in a child process (see :func:`label_ground`)."""
+    import os
+    import tempfile
+
+    import CSF
+
+    csf = CSF.CSF()
+    for k, v in params.items():
+        setattr(csf.params, k, v)
+    csf.setPointCloud(pts.tolist() if len(pts) < 10_000 else pts)
+    ground, off = CSF.VecInt(), CSF.VecInt()
+    with tempfile.TemporaryDirectory() as tmp, open(os.devnull, "w") as null:
+        os.chdir(tmp)
+        os.dup2(null.fileno(), 1)  # CSF prints from C++: silence the child's fd 1
+        csf.do_filtering(ground, off, False)
+        os.chdir(os.path.dirname(tmp))  # leave before the directory is removed
+    return np.asarray(list(ground), dtype=np.int64)
 
 
 def ground_labels(cloud, attribute: str | None = None, value: int = 2, csf: bool = False,

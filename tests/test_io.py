@@ -142,10 +142,31 @@ def test_e57_round_trip_with_pose(tmp_path):
     c.attributes = {"intensity": np.linspace(0, 1, 400)}
     write_cloud(tmp_path / "c.e57", c)
     back = read_cloud(tmp_path / "c.e57")
-    np.testing.assert_allclose(back.points, c.points, atol=1e-6)
+    np.testing.assert_allclose(back.points, c.points, rtol=0, atol=1e-9)
     np.testing.assert_array_equal(back.origin, c.origin)
-    np.testing.assert_allclose(back.attributes["intensity"], c.attributes["intensity"])
+    np.testing.assert_allclose(back.attributes["intensity"], c.attributes["intensity"], rtol=1e-6)
     assert back.meta["e57_pose"] is True
+
+
+def test_e57_keeps_double_precision_far_from_the_origin(tmp_path):
+    # UTM-size coordinates: float32 would move them by metres, double by nothing
+    pytest.importorskip("pye57")
+    rng = np.random.default_rng(1)
+    origin = np.array([5e6, -5e6, 250.0])
+    c = PointCloud(origin + rng.normal(size=(1000, 3)) * 50, origin=origin)
+    c.points[0] = origin + [1e-9, 3.3e-7, 123456.789012345]
+    write_cloud(tmp_path / "utm.e57", c)
+    back = read_cloud(tmp_path / "utm.e57")
+    np.testing.assert_allclose(back.points, c.points, rtol=0, atol=1e-9)
+
+
+def test_e57_colour_is_three_channels_or_none(tmp_path):
+    pytest.importorskip("pye57")
+    c = _cloud(50)
+    c.attributes = {"red": np.arange(50, dtype=np.uint8)}
+    with pytest.warns(UserWarning, match="red"):
+        write_cloud(tmp_path / "r.e57", c)
+    assert "colorRed" not in read_cloud(tmp_path / "r.e57").attributes
 
 
 @pytest.mark.skipif(not (DATA / "pump_tls.e57").exists(), reason="../shared/data not present")
@@ -376,5 +397,25 @@ def test_las_to_e57_writes_what_e57_holds_and_names_the_rest(tmp_path):
     text = " ".join(str(w.message) for w in said)
     assert "classification" in text and "scaled" in text
     back = read_cloud(tmp_path / "o.e57")
-    np.testing.assert_allclose(back.points, cloud.points, atol=1e-5)  # pye57 stores float32 coordinates
+    np.testing.assert_allclose(back.points, cloud.points, rtol=0, atol=1e-12)  # double precision coordinates
     assert back.attributes["colorBlue"].max() == 255 and len(back) == n
+
+
+@pytest.mark.parametrize("attrs, fmt, version", [
+    ({}, 0, "1.2"),
+    ({"gps_time": np.arange(20.0)}, 1, "1.2"),
+    ({"red": np.zeros(20, np.uint16), "green": np.zeros(20, np.uint16), "blue": np.zeros(20, np.uint16)}, 2, "1.2"),
+    ({"classification": np.full(20, 40, np.uint8)}, 6, "1.4"),
+    ({"classification": np.full(20, 40, np.uint8), "red": np.zeros(20, np.uint16),
+      "green": np.zeros(20, np.uint16), "blue": np.zeros(20, np.uint16)}, 7, "1.4"),
+])
+def test_non_las_clouds_get_the_most_compatible_las_that_holds_them(tmp_path, attrs, fmt, version):
+    laspy = pytest.importorskip("laspy")
+    c = _cloud(20)
+    c.attributes = attrs
+    write_cloud(tmp_path / "o.las", c)
+    las = laspy.read(str(tmp_path / "o.las"))
+    assert (las.header.point_format.id, str(las.header.version)) == (fmt, version)
+    back = read_cloud(tmp_path / "o.las")
+    for k, v in attrs.items():
+        np.testing.assert_array_equal(back.attributes[k], v)

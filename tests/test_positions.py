@@ -1,3 +1,5 @@
+import os
+
 import numpy as np
 import pytest
 
@@ -123,6 +125,30 @@ def test_label_ground_with_csf_keeps_the_working_directory_clean(tmp_path, monke
     assert list(tmp_path.iterdir()) == []
     out = capfd.readouterr()
     assert out.out == ""
+
+
+def test_label_ground_is_safe_from_threads(tmp_path, monkeypatch):
+    # CSF runs in a child process: threads calling it at once get the same
+    # answer and this process's working directory never moves
+    pytest.importorskip("CSF")
+    from concurrent.futures import ThreadPoolExecutor
+
+    monkeypatch.chdir(tmp_path)
+    rng = np.random.default_rng(1)
+    pts = np.vstack([np.column_stack([rng.uniform(-5, 5, (4000, 2)), rng.normal(0, 0.02, 4000)]),
+                     np.column_stack([rng.normal(0, 0.3, (500, 2)), rng.uniform(1, 4, 500)])])
+    seen = set()
+
+    def watch():
+        for _ in range(200):
+            seen.add(os.getcwd())
+
+    with ThreadPoolExecutor(3) as pool:
+        w = pool.submit(watch)
+        labels = list(pool.map(lambda _: label_ground(pts, cloth_resolution=0.5), range(2)))
+        w.result()
+    np.testing.assert_array_equal(labels[0], labels[1])
+    assert labels[0][:4000].mean() > 0.95 and seen == {str(tmp_path)}
 
 
 def test_bad_inputs():
