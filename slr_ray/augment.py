@@ -4,14 +4,18 @@ Ground labels (the input's, or CSF), candidate positions by the grid method,
 and one SLR scan per position and scanner height, each written in the input's
 format (every attribute carried through the indices) under a temporary name
 and renamed, so an interrupted run never leaves a half-written scan. A
-manifest (``manifest.json``, rewritten atomically after every scan) records
-each position, the pattern, counts, timings and the software version; a rerun
-skips the scans it lists whose files exist, so it resumes to the same result.
+manifest (``manifest.json``, rewritten atomically every few seconds, with a
+journal line per scan in between) records the settings, each position, the
+pattern, counts, timings and the software version; a rerun with the same
+settings skips the scans it lists whose files exist, so it resumes to the
+same result, and a rerun with other settings is refused.
 
 Scans run in parallel: local worker processes by default (the cloud is sent
-to each worker once, when it starts), or the workers of a Dask cluster
+to each worker once, when it starts, and prepared once per worker; the cores
+are shared out between them), or the workers of a Dask cluster
 (``scheduler=ADDRESS`` of a running ``dask.distributed`` scheduler; the cloud
-is scattered to the workers once).
+is scattered to the workers once). In one process (``workers=1``) each file
+is written by a thread while the next scan runs.
 """
 
 from __future__ import annotations
@@ -102,20 +106,53 @@ def _scanner(cloud, backend, options):
     return cache[key]
 
 
-def _scan_one(job, cloud=None):
-    """One SLR scan written to ``job['path']``; returns its manifest entry."""
-    from .io import write_cloud
-
-    cloud = cloud if cloud is not None else _WORKER["cloud"]
+def _scan_job(job, cloud):
+    """The scan of one job: ``(subset cloud, manifest entry, start time)``."""
     t0 = time.perf_counter()
     pattern = as_pattern(job["sensor"]) if job.get("sensor") else ScanPattern.from_dict(job["pattern"])
     scan = _scanner(cloud, job["backend"], job["options"]).scan(job["origin"], pattern)
     sub = cloud.subset(scan.indices)
     sub.origin = np.asarray(job["origin"], float)
-    path = Path(job["path"])
-    write_cloud(path, sub)  # atomic: a temporary file renamed into place
-    return {"file": path.name, "position": job["position"], "height": job["height"],
-            "origin": list(job["origin"]), "points": len(scan), "seconds": round(time.perf_counter() - t0, 4)}
+    entry = {"file": Path(job["path"]).name, "position": job["position"], "height": job["height"],
+             "origin": list(job["origin"]), "points": len(scan)}
+    return sub, entry, t0
+
+
+def _write_job(job, sub, entry, t0):
+    """Write a job's scan (atomic: a temporary file renamed into place); its manifest entry."""
+    from .io import write_cloud
+
+    write_cloud(Path(job["path"]), sub)
+    return {**entry, "seconds": round(time.perf_counter() - t0, 4)}
+
+
+def _scan_one(job, cloud=None):
+    """One SLR scan written to ``job['path']``; returns its manifest entry."""
+    return _write_job(job, *_scan_job(job, cloud if cloud is not None else _WORKER["cloud"]))
+
+
+def _run_serial(jobs, cloud, done) -> None:
+    """The jobs in this process, each file written by a thread while the next
+    scan runs (at most one write pending, so at most two scans in memory).
+    ``done(entry)`` is called in job order; an interruption still waits for the
+    pending write, which is complete or absent, and records it."""
+    from concurrent.futures import ThreadPoolExecutor
+
+    with ThreadPoolExecutor(1) as writer:
+        pending = None
+        try:
+            for j in jobs:
+                scanned = _scan_job(j, cloud)
+                if pending is not None:
+                    entry, pending = pending.result(), None
+                    done(entry)
+                pending = writer.submit(_write_job, j, *scanned)
+            if pending is not None:
+                entry, pending = pending.result(), None
+                done(entry)
+        finally:
+            if pending is not None and pending.exception() is None:
+                done(pending.result())
 
 
 def _scan_on_dask(job, cloud):
@@ -145,6 +182,8 @@ def augment(input_path, outdir, n: int, *, backend: str = "binning", resolution:
         Output extension (default the input's).
     workers : int, optional
         Local worker processes (default all cores; 1 runs in this process).
+        Each gets ``cores // workers`` threads unless ``backend_options``
+        sets ``n_threads``.
     scheduler : str, optional
         Address of a ``dask.distributed`` scheduler to run the scans on.
 
@@ -243,6 +282,12 @@ def augment(input_path, outdir, n: int, *, backend: str = "binning", resolution:
                         bar.update()
         elif (workers or os.cpu_count() or 1) > 1 and len(jobs) > 1:
             n_workers = min(len(jobs), workers or os.cpu_count() or 1)
+            if "n_threads" not in (backend_options or {}):
+                # the cores shared out between the workers: W processes of W-fold
+                # threads on the same cores only contend (results do not depend on it)
+                per = max(1, (os.cpu_count() or 1) // n_workers)
+                for j in jobs:
+                    j["options"] = {**j["options"], "n_threads": per}
             # spawn, not fork: a forked child inherits the parent's thread pools
             # (numba's, the binning backend's) in whatever state they were and can hang.
             # multiprocessing.Pool, not ProcessPoolExecutor: on an interrupt (SIGINT, or
@@ -260,10 +305,12 @@ def augment(input_path, outdir, n: int, *, backend: str = "binning", resolution:
                 _remove_temporaries(jobs)
                 raise
         else:
-            for j in jobs:
-                record(_scan_one(j, cloud))
+            def done(entry):
+                record(entry)
                 if bar is not None:
                     bar.update()
+
+            _run_serial(jobs, cloud, done)
     finally:
         if bar is not None:
             bar.close()
