@@ -1,6 +1,6 @@
-"""`slr-ray scan` on a LAZ file larger than memory would comfortably hold: time and peak memory.
+"""`slr-ray scan` and `slr-ray augment` on a LAZ file larger than memory would comfortably hold: time and peak memory.
 
-    python benchmarks/bench_streaming.py [--points 100000000] [--chunk-size 2000000]
+    python benchmarks/bench_streaming.py [--points 100000000] [--chunk-size 2000000] [--augment 8]
 
 Generates (once, cached under results/, not committed) a LAZ of N points: a
 200 m x 200 m ground with 4000 box-shaped objects, point format 6 with GPS
@@ -8,7 +8,9 @@ time, intensity and classification, written in chunks. Then runs
 ``slr-ray scan BIG.laz --origin ... --resolution 0.144 -o out.laz`` in a child
 process (the binning backend reads LAS/LAZ in two passes of chunks) and reports
 its wall time and peak RSS (getrusage of the child), the points kept, and the
-size the whole cloud would take as float64 coordinates alone. Saves
+size the whole cloud would take as float64 coordinates alone. Then
+``slr-ray augment BIG.laz --n N --chunk-size ... --per-pass N`` (positions
+from the streamed ground points, N scans in one pass) the same way. Saves
 results/bench_streaming.json.
 """
 
@@ -19,6 +21,7 @@ import json
 import os
 import subprocess
 import sys
+import tempfile
 import time
 from pathlib import Path
 
@@ -68,6 +71,7 @@ def main(argv=None):
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     ap.add_argument("--points", type=int, default=100_000_000)
     ap.add_argument("--chunk-size", type=int, default=2_000_000)
+    ap.add_argument("--augment", type=int, default=8, help="positions of the streamed augment (0: skip it)")
     args = ap.parse_args(argv)
     RESULTS.mkdir(parents=True, exist_ok=True)
     big = RESULTS / f"big_{args.points}.laz"
@@ -80,22 +84,43 @@ def main(argv=None):
         out.unlink()
     cmd = [sys.executable, "-m", "slr_ray.cli", "scan", str(big), "--origin", "500001.3", "4000002.7", "1.65",
            "--resolution", "0.144", "--chunk-size", str(args.chunk_size), "--quiet", "-o", str(out)]
-    t0 = time.perf_counter()
-    proc = subprocess.Popen(cmd, stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True)
-    _, status, usage = os.wait4(proc.pid, 0)
-    wall = time.perf_counter() - t0
-    stdout, stderr = proc.stdout.read(), proc.stderr.read()
-    if os.waitstatus_to_exitcode(status):
-        sys.exit(f"scan failed: {stderr.strip().splitlines()[-1:]}")
-    res = json.loads(stdout.strip().splitlines()[-1])
+    wall, peak, res = _child(cmd, "scan")
     out.unlink()
     row = {"points": args.points, "file_bytes": big.stat().st_size, "chunk_size": args.chunk_size,
            "generate_seconds": gen, "scan_wall_seconds": round(wall, 2),
-           "peak_rss_gib": round(usage.ru_maxrss / 2**20, 3), "points_out": res["points_out"],
+           "peak_rss_gib": peak, "points_out": res["points_out"],
            "float64_coordinates_gib": round(args.points * 24 / 2**30, 2), "command": " ".join(cmd[1:])}
-    print(json.dumps(row, indent=1))
-    save("bench_streaming", {"machine": machine(), "inputs": vars(args), "result": row})
+    print(json.dumps(row, indent=1), flush=True)
+    aug = None
+    if args.augment:
+        import shutil
 
+        outdir = RESULTS / "tmp_big_augment"
+        shutil.rmtree(outdir, ignore_errors=True)
+        cmd = [sys.executable, "-m", "slr_ray.cli", "augment", str(big), "--n", str(args.augment),
+               "--chunk-size", str(args.chunk_size), "--per-pass", str(args.augment), "--quiet", "-o", str(outdir)]
+        wall, peak, res = _child(cmd, "augment")
+        aug = {"positions": args.augment, "wall_seconds": round(wall, 2), "peak_rss_gib": peak,
+               "points_out": res["points_out"], "scans": res["scans"], "command": " ".join(cmd[1:])}
+        shutil.rmtree(outdir, ignore_errors=True)
+        print(json.dumps(aug, indent=1))
+    save("bench_streaming", {"machine": machine(), "inputs": vars(args), "result": row, "augment": aug})
+
+
+def _child(cmd, what):
+    """(wall seconds, peak RSS GiB, last stdout line as JSON) of a child process."""
+    t0 = time.perf_counter()
+    # output to files, so that waiting on the child (for its own peak RSS) cannot block on a full pipe
+    with tempfile.TemporaryFile("w+") as out, tempfile.TemporaryFile("w+") as err:
+        proc = subprocess.Popen(cmd, stdout=out, stderr=err, text=True)
+        _, status, usage = os.wait4(proc.pid, 0)
+        wall = time.perf_counter() - t0
+        out.seek(0)
+        err.seek(0)
+        stdout, stderr = out.read(), err.read()
+    if os.waitstatus_to_exitcode(status):
+        sys.exit(f"{what} failed: {stderr.strip().splitlines()[-1:]}")
+    return wall, round(usage.ru_maxrss / 2**20, 3), json.loads(stdout.strip().splitlines()[-1])
 
 if __name__ == "__main__":
     main()

@@ -131,6 +131,22 @@ def _scan_one(job, cloud=None):
     return _write_job(job, *_scan_job(job, cloud if cloud is not None else _WORKER["cloud"]))
 
 
+def _run_streamed(jobs, path, pattern, chunk, per_pass, done, progress=False) -> None:
+    """The jobs on a LAS/LAZ file read in chunks, ``per_pass`` positions per two
+    passes over it; ``done(entry)`` in job order."""
+    from .streaming import scan_las_many
+
+    for b in range(0, len(jobs), per_pass):
+        batch = jobs[b:b + per_pass]
+        t0 = time.perf_counter()
+        scans = scan_las_many(path, [j["origin"] for j in batch], pattern, chunk=chunk, progress=progress)
+        for j, (sub, scan) in zip(batch, scans):
+            sub.origin = np.asarray(j["origin"], float)
+            entry = {"file": Path(j["path"]).name, "position": j["position"], "height": j["height"],
+                     "origin": list(j["origin"]), "points": len(scan)}
+            done(_write_job(j, sub, entry, t0))
+
+
 def _run_serial(jobs, cloud, done) -> None:
     """The jobs in this process, each file written by a thread while the next
     scan runs (at most one write pending, so at most two scans in memory).
@@ -164,7 +180,7 @@ def augment(input_path, outdir, n: int, *, backend: str = "binning", resolution:
             min_ground_points: int = MIN_GROUND_POINTS,
             ground=None, origin=None, workers: int | None = None, scheduler: str | None = None,
             progress: bool = True, backend_options: dict | None = None, allow_fewer: bool = True,
-            sensor: str | None = None) -> dict:
+            sensor: str | None = None, chunk_size: int | None = None, per_pass: int = 8) -> dict:
     """Write ``n`` positions x ``heights`` SLR scans of ``input_path`` into ``outdir``.
 
     Parameters
@@ -186,6 +202,17 @@ def augment(input_path, outdir, n: int, *, backend: str = "binning", resolution:
         sets ``n_threads``.
     scheduler : str, optional
         Address of a ``dask.distributed`` scheduler to run the scans on.
+    chunk_size : int, optional
+        Stream a LAS/LAZ input ``chunk_size`` points at a time instead of
+        reading it whole (clouds larger than memory; binning, uniform
+        patterns): positions from the ground points and one point per cell
+        (:func:`slr_ray.streaming.las_positions`), then ``per_pass`` scans per
+        two passes over the file (:func:`slr_ray.streaming.scan_las_many`).
+        The same positions and files as a whole read, in memory of a chunk,
+        the ground points and ``per_pass`` scans; runs in this process
+        (``workers`` is not used, ``scheduler`` is refused).
+    per_pass : int
+        Positions reduced together in one pass over a streamed file.
 
     Returns
     -------
@@ -209,13 +236,29 @@ def augment(input_path, outdir, n: int, *, backend: str = "binning", resolution:
     if repeated:
         raise InputValueError(f"heights repeat {repeated}: each height is one scan per position")
     ext = check_format(input_path, fmt)
-    cloud = read_cloud(input_path)  # check everything before creating anything
     ground_given = ground is not None
-    if ground is None:
-        ground = ground_labels(cloud)
-    positions, cells = select_positions(cloud.points, ground, n, seed=seed, min_ground_points=min_ground_points,
-                                        allow_fewer=allow_fewer, return_cells=True)
     pattern = as_pattern(sensor) if sensor else ScanPattern(resolution)
+    if chunk_size is not None:
+        from .streaming import STREAMED_FORMATS, las_positions
+
+        if input_path.suffix.lower() not in STREAMED_FORMATS:
+            raise InputValueError(f"chunk_size streams {'/'.join(STREAMED_FORMATS)} inputs, not {input_path.suffix!r}")
+        if backend != "binning" or not isinstance(pattern, ScanPattern):
+            raise InputValueError("a streamed augment runs the binning backend with a uniform pattern")
+        if scheduler:
+            raise InputValueError("a streamed augment runs in this process: chunk_size or scheduler, not both")
+        if int(chunk_size) != chunk_size or chunk_size < 1 or int(per_pass) != per_pass or per_pass < 1:
+            raise InputValueError(f"chunk_size and per_pass must be integers >= 1, got {chunk_size!r}, {per_pass!r}")
+        cloud = None
+        positions, cells, _ = las_positions(input_path, n, seed=seed, ground=ground, chunk=int(chunk_size),
+                                            min_ground_points=min_ground_points, allow_fewer=allow_fewer,
+                                            progress=progress)
+    else:
+        cloud = read_cloud(input_path)  # check everything before creating anything
+        if ground is None:
+            ground = ground_labels(cloud)
+        positions, cells = select_positions(cloud.points, ground, n, seed=seed, min_ground_points=min_ground_points,
+                                            allow_fewer=allow_fewer, return_cells=True)
     settings = {"input": str(input_path.resolve()), "input_bytes": input_path.stat().st_size, "seed": seed,
                 "pattern": pattern.to_dict(), "backend": backend,
                 "backend_options": options_for(backend, backend_options).to_dict(),
@@ -256,6 +299,7 @@ def augment(input_path, outdir, n: int, *, backend: str = "binning", resolution:
     def record(entry):
         # one line appended per scan; the manifest itself is rewritten at most every
         # MANIFEST_EVERY seconds (rewriting it after each of thousands of scans is quadratic)
+        entry = {**entry, "done": round(time.perf_counter() - record_start, 3)}  # seconds into this run
         manifest["scans"].append(entry)
         with open(journal, "a") as f:
             f.write(json.dumps(entry) + "\n")
@@ -270,7 +314,14 @@ def augment(input_path, outdir, n: int, *, backend: str = "binning", resolution:
 
         bar = tqdm(total=len(jobs), unit="scan", desc="augment")
     try:
-        if scheduler:
+        if cloud is None:  # streamed
+            def done(entry):
+                record(entry)
+                if bar is not None:
+                    bar.update()
+
+            _run_streamed(jobs, input_path, pattern, int(chunk_size), int(per_pass), done, progress)
+        elif scheduler:
             from dask.distributed import Client, as_completed
 
             with Client(scheduler) as client:

@@ -228,7 +228,7 @@ def _call3(typingctx, fptr, a, b, c):
 
 # query context: RTCRayQueryContext (slots 0-3, 32 bytes reserved) then ours
 _C_MODE, _C_CENTRES, _C_RADII, _C_DIV, _C_BEST = 4, 5, 6, 7, 8
-_C_SCORE, _C_ORG, _C_DIR, _C_REACH, _C_BEST_T = 9, 10, 13, 16, 17
+_C_SCORE, _C_ORG, _C_DIR, _C_REACH, _C_BEST_T, _C_RSTRIDE = 9, 10, 13, 16, 17, 18
 _CTX_WORDS = 20
 #: the tie window stops growing beyond 20 radii (incidence above ~87 deg)
 _MIN_COS = 0.05
@@ -247,13 +247,14 @@ def _filter(fargs):
     hit = carray(_as_pointer(a[4]), 8, dtype=np.uint32)
     owner = np.int64(hit[5]) // ctx[_C_DIV]
     cen = carray(_as_pointer(ctx[_C_CENTRES] + owner * 24), 3, dtype=np.float64)
-    rad = carray(_as_pointer(ctx[_C_RADII] + owner * 8), 1, dtype=np.float64)
+    # float32 radii with a stride: for discs, the radius column of Embree's own vertex buffer
+    rad = carray(_as_pointer(ctx[_C_RADII] + owner * ctx[_C_RSTRIDE]), 1, dtype=np.float32)
     cx = cen[0] - ctxf[_C_ORG]
     cy = cen[1] - ctxf[_C_ORG + 1]
     cz = cen[2] - ctxf[_C_ORG + 2]
     mode = ctx[_C_MODE]
     if mode & _MODE_SKIP:
-        reach = rad[0] * ctxf[_C_REACH]
+        reach = np.float64(rad[0]) * ctxf[_C_REACH]
         if cx * cx + cy * cy + cz * cz <= reach * reach:
             valid[0] = 0
             return
@@ -288,6 +289,7 @@ def _cast_blocks(isect, scene, filt, org32, org64, dirs, tnear, tfar, first_bloc
         ctx[j] = -1  # instance ids: RTC_INVALID_GEOMETRY_ID
     ctx[_C_CENTRES] = centres.ctypes.data
     ctx[_C_RADII] = radii.ctypes.data
+    ctx[_C_RSTRIDE] = radii.strides[0]
     ctx[_C_DIV] = div
     ctxf[_C_ORG] = org64[0]
     ctxf[_C_ORG + 1] = org64[1]
@@ -329,7 +331,7 @@ def _cast_blocks(isect, scene, filt, org32, org64, dirs, tnear, tfar, first_bloc
             if ties > 0.0:
                 # the depth along the ray that a disc-sized step over the first disc's
                 # surface spans: r / |cos(incidence)| (r for discs facing the ray)
-                window = ties * radii[owner]
+                window = ties * np.float64(radii[owner])
                 if normals.shape[0] > 0:
                     cos = abs(normals[owner, 0] * dx + normals[owner, 1] * dy + normals[owner, 2] * dz)
                     window /= max(cos, _MIN_COS)
@@ -401,7 +403,9 @@ class RayScene:
         self._buffers = buffers
         # float64 data of the owners (the points) for the filter: contiguous, kept alive here
         self._owner_centres = np.ascontiguousarray(owner_centres, np.float64)
-        self._owner_radii = np.ascontiguousarray(owner_radii, np.float64)
+        # float32 (what Embree holds): for discs a view of the vertex buffer's radius column
+        r = np.asarray(owner_radii)
+        self._owner_radii = r if r.dtype == np.float32 and r.ndim == 1 else np.ascontiguousarray(r, np.float32)
         if owner_normals is None:
             self._owner_normals = np.zeros((0, 3))
         else:
@@ -492,11 +496,13 @@ class RayScene:
             (``benchmarks/bench_compact_bvh.py``).
         """
         c = np.asarray(centres, np.float64)
-        r = np.asarray(radii, np.float64)
+        r = np.asarray(radii)
         if c.ndim != 2 or c.shape[1] != 3 or r.shape != (len(c),):
             raise InputValueError(f"centres must be (n, 3) and radii (n,), got {c.shape} and {r.shape}")
+        r = r.astype(np.float32, copy=False)  # Embree's precision; a float32 input is not copied
         if len(r) and not (np.all(np.isfinite(r)) and r.min() > 0):
-            raise InputValueError(f"disc radii must be finite and > 0 ({np.count_nonzero(~(r > 0))} are not)")
+            bad = np.count_nonzero(~(np.isfinite(r) & (r > 0)))
+            raise InputValueError(f"disc radii must be finite and > 0 in float32 ({bad} are not)")
         centre = _centre_of(c) if centre is None else as_origin(centre, "centre")
         vbuf = np.empty((len(c), 4), np.float32)
         np.subtract(c, centre, out=vbuf[:, :3], casting="unsafe")
@@ -515,8 +521,19 @@ class RayScene:
         scene = cls.__new__(cls)
         # the tie rule reads the float32 normals Embree has (12 B a point), not a float64 copy (24 B)
         owner_normals = buffers[1][4][:len(c)] if normals is not None else None
-        cls.__init__(scene, kind, gtype, buffers, len(c), centre, c, r, 1, 1.0, owner_normals, compact=compact)
+        del r  # the radii live on in the vertex buffer, which the tie rule reads
+        cls.__init__(scene, kind, gtype, buffers, len(c), centre, c, vbuf[:, 3], 1, 1.0, owner_normals,
+                     compact=compact)
         return scene
+
+    @property
+    def owner_radii(self) -> np.ndarray:
+        """``(n,) float32`` radii of the discs (or of the discs a triangle fan stands
+        for) as Embree and the tie rule use them; for discs, a read-only view of
+        the vertex buffer."""
+        v = self._owner_radii.view()
+        v.flags.writeable = False
+        return v
 
     # --- queries ------------------------------------------------------------------------
     def intersect(self, origin, directions, *, tnear: float = 0.0, tfar: float = math.inf,

@@ -17,10 +17,10 @@ from pathlib import Path
 import numpy as np
 
 from .accumulator import ScanAccumulator
-from .errors import FormatError
+from .errors import FormatError, InputValueError
 from .io import LasRecords, PointCloud
 
-__all__ = ["scan_las", "STREAMED_FORMATS", "DEFAULT_CHUNK"]
+__all__ = ["scan_las", "las_positions", "scan_las_many", "STREAMED_FORMATS", "DEFAULT_CHUNK"]
 
 #: Input formats :func:`scan_las` reads in chunks.
 STREAMED_FORMATS = (".las", ".laz")
@@ -95,6 +95,153 @@ def scan_las(path, origin, pattern, chunk: int = DEFAULT_CHUNK, progress: bool =
         raise FormatError(f"{path}: no points")
     array = np.concatenate(parts) if parts else np.zeros(0, header.point_format.dtype())
     return _cloud(header, evlrs, array), scan
+
+
+def _xyz(pts) -> np.ndarray:
+    return np.column_stack([np.asarray(pts.x), np.asarray(pts.y), np.asarray(pts.z)])
+
+
+def _chunk_ground(pts, names) -> np.ndarray:
+    """A chunk's ground labels: ``is_ground`` if the file has it, else LAS class 2
+    (what :func:`~slr_ray.positions.ground_labels` reads from a whole cloud)."""
+    if "is_ground" in names:
+        return np.asarray(pts["is_ground"]).astype(bool)
+    if "classification" in names:
+        return np.asarray(pts["classification"]) == 2
+    raise InputValueError("the input has no ground labels (is_ground, classification); "
+                          "pass them, or label the cloud first (slr-ray scan --csf is not streamed)")
+
+
+def las_positions(path, n: int, *, seed=0, ground=None, chunk: int = DEFAULT_CHUNK, progress: bool = False,
+                  **options):
+    """:func:`~slr_ray.positions.select_positions` on a LAS/LAZ file read in chunks.
+
+    The grid method needs only the ground points and which cells hold any
+    point. Pass 1 keeps the ground points (in file order) and the cloud's
+    lowest x and y; pass 2 keeps the first point of every occupied cell
+    (cells laid out exactly as :func:`~slr_ray.positions.candidate_cells` lays
+    them from that corner). On those points the grid method gives exactly the
+    positions it gives on the whole cloud (same cells, same ground points in
+    the same order, same draws; tested), in memory of the ground points plus
+    one point per cell. The azimuth test (``profile``) scans the whole cloud
+    per cell and is not offered here.
+
+    Parameters
+    ----------
+    ground : (n,) bool, optional
+        Labels for the whole file (default: ``is_ground``, else LAS class 2).
+    **options
+        :func:`~slr_ray.positions.select_positions` parameters
+        (``min_ground_points``, ``cell_size``, ``allow_fewer``, ...).
+
+    Returns
+    -------
+    positions : (m, 3) float64
+    cells : CandidateCells
+    n_points : int
+        Points in the file.
+    """
+    from .paper import CELL_SIZE
+    from .positions import select_positions
+
+    if options.get("profile") is not None:
+        raise InputValueError("the azimuth test (profile) scans the whole cloud per cell: not streamed")
+    cell = float(options.get("cell_size", CELL_SIZE))
+
+    def labelled(header, pts, start):
+        if ground is None:
+            return _chunk_ground(pts, set(header.point_format.dimension_names))
+        return np.asarray(ground[start:start + len(pts)], bool)
+
+    # pass 1: the lowest x and y (and which points hold them)
+    lo, lowest, total = np.full(2, np.inf), np.zeros(2, np.int64), 0
+    bar = _bar(path, "positions: pass 1", progress)
+    for _, _, pts in _chunks(path, chunk):
+        if bar is not None:
+            bar.update(len(pts))
+        if len(pts):
+            xy = _xyz(pts)[:, :2]
+            at = xy.argmin(axis=0)
+            better = xy[at, [0, 1]] < lo
+            lo = np.where(better, xy[at, [0, 1]], lo)
+            lowest = np.where(better, at + total, lowest)
+        total += len(pts)
+    if ground is not None and len(ground) != total:
+        raise InputValueError(f"ground has {len(ground)} labels for {total} points")
+    # pass 2: ground points, the first point of each occupied cell and the lowest
+    # points (so that candidate_cells finds the same corner), in file order
+    if bar is not None:
+        bar.close()
+    corner = np.floor(lo / cell) * cell
+    seen, parts, labels, start = set(), [], [], 0
+    bar = _bar(path, "positions: pass 2", progress)
+    for header, _, pts in _chunks(path, chunk):
+        if bar is not None:
+            bar.update(len(pts))
+        xyz = _xyz(pts)
+        g = labelled(header, pts, start)
+        keep = g.copy()
+        keep[lowest[(lowest >= start) & (lowest < start + len(pts))] - start] = True
+        if len(xyz):
+            ij = np.floor((xyz[:, :2] - corner) / cell).astype(np.int64)  # candidate_cells' cells
+            uniq, first = np.unique(ij[:, 0] * (1 << 32) + ij[:, 1], return_index=True)
+            new = np.fromiter((u not in seen for u in uniq.tolist()), bool, len(uniq))
+            seen.update(uniq[new].tolist())
+            keep[first[new]] = True
+        parts.append(xyz[keep])
+        labels.append(g[keep])
+        start += len(pts)
+    if bar is not None:
+        bar.close()
+    pts = np.concatenate(parts) if parts else np.empty((0, 3))
+    g = np.concatenate(labels) if labels else np.empty(0, bool)
+    if not g.any():
+        raise InputValueError(f"{path}: no point is labelled ground")
+    positions, cells = select_positions(pts, g, n, seed=seed, return_cells=True, progress=progress, **options)
+    return positions, cells, total
+
+
+def scan_las_many(path, origins, pattern, *, chunk: int = DEFAULT_CHUNK, n_threads: int | None = None,
+                  progress: bool = False):
+    """Binning scans of a LAS/LAZ file from several origins: one pass over the
+    file reduces all of them, a second keeps the raw records of each.
+
+    Yields ``(cloud, scan)`` per origin, in order, as :func:`scan_las` returns
+    them (the same clouds, records and indices). Memory: one chunk, one
+    reduction state per origin (a 0.144 deg pattern: 50 MB per thread each)
+    and the kept records.
+    """
+    path = Path(path)
+    accs = [ScanAccumulator(o, pattern, n_threads=n_threads) for o in origins]
+    bar = _bar(path, f"{len(accs)} scans: pass 1", progress)
+    for _, _, pts in _chunks(path, chunk):
+        xyz = _xyz(pts)
+        for acc in accs:
+            acc.add(xyz)
+        if bar is not None:
+            bar.update(len(pts))
+    if bar is not None:
+        bar.close()
+    scans = [acc.result() for acc in accs]
+    del accs
+    parts = [[] for _ in scans]
+    start, header, evlrs = 0, None, []
+    bar = _bar(path, f"{len(scans)} scans: pass 2", progress)
+    for header, evlrs, pts in _chunks(path, chunk):
+        if bar is not None:
+            bar.update(len(pts))
+        for scan, part in zip(scans, parts):
+            lo, hi = np.searchsorted(scan.indices, [start, start + len(pts)])
+            if hi > lo:
+                part.append(pts.array[scan.indices[lo:hi] - start])
+        start += len(pts)
+    if bar is not None:
+        bar.close()
+    if header is None:
+        raise FormatError(f"{path}: no points")
+    for scan, part in zip(scans, parts):
+        array = np.concatenate(part) if part else np.zeros(0, header.point_format.dtype())
+        yield _cloud(header, evlrs, array), scan
 
 
 def _cloud(header, evlrs, array) -> PointCloud:

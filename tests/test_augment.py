@@ -193,3 +193,33 @@ def test_scans_in_the_journal_are_not_redone(laz, tmp_path):
     again = augment(laz, out, 3, **kw)
     assert again["new_scans"] == 0 and len(again["scans"]) == len(first["scans"])
     assert not (out / JOURNAL).exists()
+
+
+def test_streamed_augment_writes_the_same_files_as_a_whole_read(laz, tmp_path):
+    # chunks of 7,001 points, 2 positions per pass: same positions, byte-identical LAZ files
+    whole = augment(laz, tmp_path / "whole", 3, heights=(1.0, 2.0), min_ground_points=1000, workers=1,
+                    progress=False)
+    streamed = augment(laz, tmp_path / "streamed", 3, heights=(1.0, 2.0), min_ground_points=1000,
+                       progress=False, chunk_size=7001, per_pass=2)
+    assert whole["positions"] == streamed["positions"] and len(streamed["scans"]) == 6
+    for entry in whole["scans"]:
+        a = (tmp_path / "whole" / entry["file"]).read_bytes()
+        assert a == (tmp_path / "streamed" / entry["file"]).read_bytes()
+    # the settings are the same, so a streamed rerun resumes a whole-read run
+    again = augment(laz, tmp_path / "whole", 4, heights=(1.0, 2.0), min_ground_points=1000,
+                    progress=False, chunk_size=50_000)
+    assert again["new_scans"] == 2 and len(again["scans"]) == 8
+
+
+def test_streamed_augment_refuses_what_it_cannot_stream(laz, tmp_path):
+    with pytest.raises(InputValueError, match="binning"):
+        augment(laz, tmp_path / "a", 2, backend="embree", chunk_size=1000, min_ground_points=1000, progress=False)
+    with pytest.raises(InputValueError, match="binning"):
+        augment(laz, tmp_path / "b", 2, sensor="velodyne_vlp16", chunk_size=1000, min_ground_points=1000,
+                progress=False)
+    npy = tmp_path / "c.npy"
+    np.save(npy, np.zeros((10, 3)))
+    with pytest.raises(InputValueError, match="streams"):
+        augment(npy, tmp_path / "c", 2, chunk_size=1000, progress=False, ground=np.ones(10, bool))
+    with pytest.raises(InputValueError, match="per_pass"):
+        augment(laz, tmp_path / "d", 2, chunk_size=1000, per_pass=0, min_ground_points=1000, progress=False)

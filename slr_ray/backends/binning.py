@@ -11,27 +11,42 @@ minimum needs no sort:
 
 1. a compiled loop (numba) takes the points in blocks of 512, subtracts the
    origin in float64 and computes both angles with a branch-free polynomial
-   ``atan2`` that the compiler vectorises (error below 1e-11 rad). Where that
-   leaves a point within 1e-8 rad of a bin edge, a field-of-view limit or the
-   azimuth wrap (a few points in 10^5), its bin is taken from the C library's
-   ``atan2`` instead, so every bin is exactly the definition's
+   ``atan2`` that the compiler vectorises (one division per angle, a 7-term
+   Chebyshev polynomial; error below 1e-11 rad);
+2. a second vectorised pass (selects, no branches) turns them into pulse
+   keys wherever they decide the bin for certain; a point within 1e-8 rad of
+   a bin edge, a field-of-view limit or the azimuth wrap (a few in 10^5) is
+   left to a third pass that takes its bin from the C library's ``atan2``, so
+   every bin is exactly the definition's
    (``floor((atan2(hypot(dx, dy), dz) - theta_min) / d_theta)``...);
-2. each point then goes into a table that keeps, per pulse key
-   ``v * n_azimuth + h``, the smallest ``(range, index)``. Each thread reduces
-   its own slice of the points into its own table; tables merge in
-   O(occupied bins) when the result is asked for. Non-finite rows are counted
-   first and refused, so a bad chunk leaves the state untouched.
+3. each point then goes into a table that keeps, per pulse key
+   ``v * n_azimuth + h``, the smallest ``(range, index)``. Non-finite rows are
+   counted first and refused, so a bad chunk leaves the state untouched (a
+   prepared scanner checks its cloud once, not per scan).
 
-Tables are of two kinds. Patterns with few pulses (``16 * n_pulses *
-n_threads`` bytes within :attr:`BinTables.dense_bytes`, 256 MiB: 0.144 deg
-has 3.1e6 pulses) use plain per-pulse arrays. Finer patterns use an
-open-addressing hash table of 24-byte records ``(key, range, index)`` that
-grows with the number of *occupied* bins (at most twice that while growing),
-never with the number of points or of possible pulses (0.001 deg would be
-6.5e10). Neighbouring pulses hash to neighbouring slots in groups of 16, so
-scan-ordered clouds touch memory in order. The tables outlive a call, which is
-what :class:`slr_ray.ScanAccumulator` uses to reduce a cloud chunk by chunk to
-exactly the one-shot answer.
+Tables are of three kinds, by the pattern's size:
+
+- **dense** (``16 * n_pulses * n_threads`` bytes within
+  :attr:`BinTables.dense_bytes`, 256 MiB; 0.144 deg has 3.1e6 pulses): plain
+  per-pulse arrays, one per thread; threads split the points and the tables
+  merge, in parallel, in O(pulses) when the result is asked for;
+- **slots** (``4 * n_pulses`` within :attr:`BinTables.slot_bytes`, 512 MiB;
+  SYNS's 0.036 deg has 3.75e7 pulses): one shared int32 slot per pulse
+  pointing into compact per-thread records ``(key, range, index)``; threads
+  own whole 64-byte lines of slots, so nothing is merged or hashed;
+- **hash** (finer patterns: 0.001 deg would be 6.5e10 pulses): an
+  open-addressing hash table of 24-byte records per thread that grows with
+  the number of *occupied* bins (at most twice that while growing), never
+  with the number of points or of possible pulses. Neighbouring pulses hash
+  to neighbouring slots in groups of 16, so scan-ordered clouds touch memory
+  in order.
+
+With slot and hash tables the threads split the *keys*: keys are computed
+for a superblock of points in parallel, then each thread inserts the keys it
+owns. Dense and slot tables are cleared in O(occupied bins) and reused from
+one scan to the next by a prepared :class:`BinningScanner`. The tables
+outlive a call, which is what :class:`slr_ray.ScanAccumulator` uses to reduce
+a cloud chunk by chunk to exactly the one-shot answer.
 """
 
 from __future__ import annotations

@@ -138,6 +138,11 @@ def build_parser() -> argparse.ArgumentParser:
     A.add_ground(p)
     p.add_argument("--workers", type=A.positive_int, help="local worker processes (default: all cores)")
     p.add_argument("--scheduler", help="address of a dask.distributed scheduler to run on")
+    p.add_argument("--chunk-size", type=A.positive_int,
+                   help="stream a LAS/LAZ input this many points at a time instead of reading it whole "
+                        "(clouds larger than memory; binning, uniform patterns; same files)")
+    p.add_argument("--per-pass", type=A.positive_int, default=8,
+                   help="positions reduced in one pass over a streamed input (default 8)")
     p.add_argument("--quiet", action="store_true")
 
     p = command("demo", "the main job on a built-in scene: scene, primary scan, SLR scans by both backends, report")

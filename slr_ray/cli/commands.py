@@ -289,7 +289,8 @@ def augment(args):
     res = run(args.input, args.output, args.n, backend=args.backend, resolution=args.resolution,
               heights=tuple(args.heights), fmt=args.format, seed=args.seed, sensor=args.sensor,
               min_ground_points=args.min_ground_points, ground=ground, workers=args.workers,
-              scheduler=args.scheduler, progress=not args.quiet, backend_options=backend_from(args))
+              scheduler=args.scheduler, progress=not args.quiet, backend_options=backend_from(args),
+              chunk_size=args.chunk_size, per_pass=args.per_pass)
     emit({k: res[k] for k in ("input", "n_requested", "new_scans", "seconds", "software")}
          | {"scans": len(res["scans"]), "positions": len(res["positions"]),
             "points_out": sum(s["points"] for s in res["scans"]), "output_dir": str(args.output)})
