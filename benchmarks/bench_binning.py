@@ -54,7 +54,6 @@ def main(argv=None):
                 rows.append({"pattern": name, "method": method, "threads": threads, "seconds": best,
                              "all_seconds": times, "points_out": len(scan), "speedup_vs_sort": base / best,
                              "identical_to_baseline": same})
-            del scanner
         print(f"{name}: baseline {base:.2f} s, prepared binning 1 thread {rows[-3]['seconds']:.3f} s, "
               f"2 threads {rows[-1]['seconds']:.3f} s ({rows[-1]['speedup_vs_sort']:.1f}x), "
               f"identical: {all(r.get('identical_to_baseline', True) for r in rows)}", file=sys.stderr)

@@ -223,3 +223,15 @@ def test_streamed_augment_refuses_what_it_cannot_stream(laz, tmp_path):
         augment(npy, tmp_path / "c", 2, chunk_size=1000, progress=False, ground=np.ones(10, bool))
     with pytest.raises(InputValueError, match="per_pass"):
         augment(laz, tmp_path / "d", 2, chunk_size=1000, per_pass=0, min_ground_points=1000, progress=False)
+
+
+def test_streamed_positions_thin_a_large_ground_with_a_warning(laz):
+    from slr_ray.streaming import las_positions
+
+    with pytest.warns(UserWarning, match="every 8th"):
+        a, cells, n = las_positions(laz, 4, seed=1, min_ground_points=1000, max_ground_points=20_000, chunk=9999)
+    with pytest.warns(UserWarning):
+        b, _, _ = las_positions(laz, 4, seed=1, min_ground_points=1000, max_ground_points=20_000, chunk=50_000)
+    np.testing.assert_array_equal(a, b)  # chunking does not change the thinning
+    assert n == 180_000 and len(a) == 4 and cells.params["min_ground_points"] == 125
+    np.testing.assert_allclose(a[:, 2], 100 + 1.65, atol=0.05)  # on the ground (z = 100), 1.65 m above
