@@ -188,7 +188,7 @@ def _hit_chunks(scene_or_mesh, origin, pattern, mode, supersample=4, spacing=0.0
 
 def scan_mesh(scene_or_mesh, origin, pattern, mode: str = "center", *, supersample: int = 4,
               spacing: float = 0.005, face_labels=None, rays_per_batch: int = 1 << 21,
-              progress: bool = False) -> MeshScan:
+              progress: bool = False, band_pulses: int | None = None) -> MeshScan:
     """Scan a mesh (or a :class:`~slr_ray.scenes.RectangleScene`) from ``origin``.
 
     Parameters
@@ -206,6 +206,14 @@ def scan_mesh(scene_or_mesh, origin, pattern, mode: str = "center", *, supersamp
         Grid spacing in metres for ``'dense'``.
     face_labels : (f,) int, optional
         Labels per face for a bare mesh (default: the face index).
+    band_pulses : int, optional
+        ``'dense'``: reduce in bands of whole zenith rows of at most this many
+        pulses, one pass over the samples each: the tables hold one band's
+        occupied pulses at a time, for the time of a pass per band. The same
+        scan (tested). Occupancy is rarely even: 73 % of the 0.00576 deg
+        rect-1000 primary's pulses lie within 10 deg of the horizon, so two
+        equal bands did not lower its peak (18.4 GiB); bands must be narrow
+        there. Default: one pass.
     rays_per_batch : int
         Rays cast at once (bounds memory).
     progress : bool
@@ -222,7 +230,7 @@ def scan_mesh(scene_or_mesh, origin, pattern, mode: str = "center", *, supersamp
     if mode == "dense":
         _check_mesh_args(scene_or_mesh, origin, pattern, mode, supersample, face_labels)
         pattern = as_pattern(pattern)
-        pts, lab, rng, pulses = _dense_scan(scene_or_mesh, origin, pattern, spacing)
+        pts, lab, rng, pulses = _dense_scan(scene_or_mesh, origin, pattern, spacing, band_pulses)
         return MeshScan(pts, lab, rng, pulses, origin, pattern, mode, time.perf_counter() - t0)
     parts = list(_hit_chunks(scene_or_mesh, origin, pattern, mode, supersample, spacing,
                              face_labels, rays_per_batch, progress))
@@ -320,7 +328,7 @@ class _CompactWriter:
         return False
 
 
-def _dense_scan(scene, origin, pattern, spacing):
+def _dense_scan(scene, origin, pattern, spacing, band_pulses=None):
     """The dense scan's arrays, filled in place: the count is known after the
     reduction, so the second pass writes each winner straight into its row
     (no list of chunks copied at the end). Peak: the larger of the reduction's
@@ -328,7 +336,7 @@ def _dense_scan(scene, origin, pattern, spacing):
     1000-rectangle scene: 2e8 points, 56 bytes each)."""
     from .arrays import unravel_ids
 
-    keys, want = _dense_winners(scene, origin, pattern, spacing)
+    keys, want = _dense_winners(scene, origin, pattern, spacing, band_pulses)
     n = len(want)
     pts = np.empty((n, 3))
     lab = np.empty(n, np.int64)
@@ -347,14 +355,30 @@ def _dense_scan(scene, origin, pattern, spacing):
     return pts, lab, rng, pulses
 
 
-def _dense_winners(scene, origin, pattern, spacing):
+def _dense_winners(scene, origin, pattern, spacing, band_pulses=None):
     """Pass 1 over the dense sample stream: ``(pulse keys, sample indices)`` of the
-    winners, by sample index (the reduction's tables are freed on return)."""
-    tables = BinTables(origin, pattern)
-    for pts, _ in dense_samples(scene, spacing, copy=False):
-        tables.add(pts)
-    keys, _, want = tables.winners(with_ranges=False)
-    return keys, want
+    winners, by sample index (the reduction's tables are freed on return).
+
+    With ``band_pulses``, the pattern is reduced in bands of whole zenith rows
+    of at most that many pulses, one pass over the samples each (the tables
+    hold one band's occupied pulses at a time)."""
+    nv, nh = pattern.shape
+    rows = nv if band_pulses is None else max(1, int(band_pulses) // nh)
+    bands = [(v0 * nh, min(nv, v0 + rows) * nh) for v0 in range(0, nv, rows)]
+    keys, want = [], []
+    for band in bands:
+        tables = BinTables(origin, pattern, key_range=band if len(bands) > 1 else None)
+        for pts, _ in dense_samples(scene, spacing, copy=False):
+            tables.add(pts)
+        k, _, w = tables.winners(with_ranges=False)
+        del tables
+        keys.append(k)
+        want.append(w)
+    if len(bands) == 1:
+        return keys[0], want[0]
+    keys, want = np.concatenate(keys), np.concatenate(want)
+    order = np.argsort(want, kind="stable")  # sorted runs, one per band: a merge
+    return keys[order], want[order]
 
 
 def _dense_chunks(scene, origin, pattern, spacing):

@@ -94,6 +94,35 @@ def test_dense_mode_equals_binning_the_samples(table_kind):
     np.testing.assert_array_equal(ms.pulses, ref.pulses)
 
 
+@pytest.mark.parametrize("band_pulses", [1, 120 * 7, 120 * 60 - 1])
+def test_dense_mode_in_zenith_bands_is_the_same_scan(band_pulses):
+    # a row per band, 7 rows a band, and bands not dividing the rows: the same arrays
+    sc = rectangle_scene(5, seed=1, ground_radius=4.0, xy_range=(-4, 4), z_range=(-1, 1))
+    p = ScanPattern(3.0)  # 60 x 120 pulses
+    whole = scan_mesh(sc, [0.3, -0.2, 0.1], p, mode="dense", spacing=0.02)
+    banded = scan_mesh(sc, [0.3, -0.2, 0.1], p, mode="dense", spacing=0.02, band_pulses=band_pulses)
+    for name in ("points", "labels", "ranges", "pulses"):
+        np.testing.assert_array_equal(getattr(banded, name), getattr(whole, name))
+
+
+def test_bin_tables_keep_only_their_key_range():
+    from slr_ray.backends.binning import BinTables
+
+    rng = np.random.default_rng(2)
+    pts = rng.normal(size=(20000, 3))
+    p = ScanPattern(2.0)
+    full = BinTables(np.zeros(3), p)
+    full.add(pts)
+    keys, _, idx = full.winners(pts)
+    lo, hi = 30 * p.n_azimuth, 60 * p.n_azimuth
+    band = BinTables(np.zeros(3), p, key_range=(lo, hi))
+    band.add(pts)
+    bk, _, bi = band.winners(pts)
+    inside = (keys >= lo) & (keys < hi)
+    np.testing.assert_array_equal(bk, keys[inside])
+    np.testing.assert_array_equal(bi, idx[inside])
+
+
 def test_grazing_tiny_and_inside_do_not_misbehave():
     # a rectangle seen edge-on, one far smaller than a pulse, and the scanner inside a box's bounds
     edge = trimesh.Trimesh([[3, -1, 0], [3, 1, 0], [6, 1, 0], [6, -1, 0]], [[0, 1, 2], [0, 2, 3]])

@@ -686,9 +686,13 @@ class BinTables:
         """Whether :meth:`reset` clears in O(occupied bins) (dense and slot tables)."""
         return self.kind in ("dense", "slots")
 
-    def __init__(self, origin, pattern, n_threads: int | None = None):
+    def __init__(self, origin, pattern, n_threads: int | None = None, key_range: tuple | None = None):
         self.origin = origin
         self.pattern = pattern
+        #: ``(lo, hi)``: only pulse keys in [lo, hi) are kept (a band of zenith rows
+        #: when lo, hi are multiples of n_azimuth), so a fine pattern can be reduced
+        #: band by band in bounded memory; slot and hash tables only
+        self.key_range = None if key_range is None else (int(key_range[0]), int(key_range[1]))
         self.n_threads = int(n_threads or default_threads())
         if not 1 <= self.n_threads <= 256:
             raise ValueError(f"n_threads must be in [1, 256], got {n_threads}")
@@ -698,6 +702,8 @@ class BinTables:
             self.kind = "slots"
         else:
             self.kind = "hash"
+        if self.key_range is not None and self.kind == "dense":
+            self.kind = "hash"  # a band of a coarse pattern: the tables follow the band, not the pattern
         self._slots = np.full(pattern.n_pulses, -1, np.int32) if self.kind == "slots" else None
         self.tables = [self._new_table() for _ in range(self.n_threads)]
         self.n_points = 0
@@ -796,6 +802,9 @@ class BinTables:
                 step = -(-m // T)
                 run(_block_keys_range, [(view, *self._params, keys, ranges, s, min(s + step, m))
                                         for s in range(0, m, step)])
+                if self.key_range is not None:
+                    lo, hi = self.key_range
+                    keys[:m][(keys[:m] < lo) | (keys[:m] >= hi)] = -1
                 run(lambda t, part: t.insert(keys[:m], ranges[:m], self.n_points + s0, part, T),
                     [(t, part) for part, t in enumerate(self.tables)])
         finally:
