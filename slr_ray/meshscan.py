@@ -370,7 +370,7 @@ def _dense_winners(scene, origin, pattern, spacing, band_pulses=None):
         tables = BinTables(origin, pattern, key_range=band if len(bands) > 1 else None)
         for pts, _ in dense_samples(scene, spacing, copy=False):
             tables.add(pts)
-        k, _, w = tables.winners(with_ranges=False)
+        k, _, w = tables.winners(with_ranges=False, release=True)
         del tables
         keys.append(k)
         want.append(w)

@@ -221,3 +221,22 @@ def test_numba_kernels_are_cached_to_disk():
     # compile once, load afterwards: the CLI and the tests must not recompile
     assert binning._block_keys._cache is not None
     assert simulate_scan(np.ones((3, 3)), np.zeros(3), 1.0).n_input == 3
+
+
+@pytest.mark.parametrize("kind", ["slots", "hash"])
+def test_released_tables_give_the_same_winners_and_refuse_more(kind, monkeypatch):
+    rng = np.random.default_rng(11)
+    pts = rng.normal(size=(30000, 3)) * 10
+    pattern = ScanPattern(0.5)
+    a = _tables(kind, np.zeros(3), pattern, 2, monkeypatch)
+    b = _tables(kind, np.zeros(3), pattern, 2, monkeypatch)
+    a.add(pts)
+    b.add(pts)
+    keep = a.winners(with_ranges=False)
+    gone = b.winners(with_ranges=False, release=True)
+    for x, y in zip(keep, gone):
+        np.testing.assert_array_equal(x, y) if x is not None else None
+    with pytest.raises(RuntimeError, match="released"):
+        b.add(pts)
+    with pytest.raises(RuntimeError, match="released"):
+        b.winners()

@@ -754,6 +754,8 @@ class BinTables:
         checked every row (a prepared scanner), so the counting pass is
         skipped; a non-finite row would then simply not be binned.
         """
+        if self.tables is None:
+            raise RuntimeError("these tables were released by winners(release=True)")
         n = len(points)
         if n == 0:
             return 0
@@ -835,15 +837,20 @@ class BinTables:
         """Bytes held by the tables."""
         return sum(t.nbytes for t in self.tables) + (0 if self._slots is None else self._slots.nbytes)
 
-    def winners(self, points=None, with_ranges: bool = True):
+    def winners(self, points=None, with_ranges: bool = True, release: bool = False):
         """Occupied bins as ``(keys, ranges, indices)``, sorted by index.
 
         ``points``: the cloud, when the caller still has it (one-shot scans):
         ranges are then recomputed from it, which is faster than carrying
         them through the sort. ``with_ranges=False`` returns ``None`` for the
         ranges and needs the least memory (the dense-scene path recomputes
-        them from the regenerated samples).
+        them from the regenerated samples). ``release=True`` frees each
+        thread's table as soon as it is read out, so the result never sits
+        next to all of them (the 0.00576 deg dense primary: 12.9 GB of hash
+        tables against 5 GB of result); the tables cannot be used afterwards.
         """
+        if self.tables is None:
+            raise RuntimeError("these tables were released by winners(release=True)")
         if self.dense:
             keys, ranges, idx = self._merged().extract()
             self._touched = keys
@@ -854,8 +861,12 @@ class BinTables:
         if m and fits and (points is not None or not with_ranges):
             packed = np.empty(m, np.int64)
             at = 0
-            for t in self.tables:
+            for i, t in enumerate(self.tables):
                 at = _pack_hash(t.tab, packed, n_pulse_bits, at)
+                if release:
+                    self.tables[i] = None  # freed before the next is read out
+            if release:
+                self.tables = self._slots = None
             packed.sort()
             keys = np.empty(m, np.int64)
             idx = np.empty(m, np.int64)
