@@ -17,6 +17,7 @@ from dataclasses import asdict, dataclass
 import numpy as np
 
 from .arrays import as_points
+from .cellgrid import CellGrid, GridUnsuitable
 from .paper import SIMILARITY_THRESHOLD
 
 __all__ = ["similarity", "agreement", "Agreement", "nearest_distances"]
@@ -51,12 +52,10 @@ def similarity(true_points, simulated_points, threshold: float = SIMILARITY_THRE
     10 cm. Empty ``true_points`` gives ``nan`` (nothing to match); empty
     ``simulated_points`` with some true points gives 0.0.
     """
-    if threshold <= 0:
+    if not threshold > 0:
         raise ValueError(f"threshold must be > 0, got {threshold}")
-    d = nearest_distances(true_points, simulated_points, workers, upper_bound=threshold)
-    if len(d) == 0:
-        return float("nan")
-    return float(np.count_nonzero(d < threshold) / len(d))
+    return _share_within(as_points(true_points, "true_points"), as_points(simulated_points, "simulated_points"),
+                         threshold, workers)
 
 
 @dataclass(frozen=True)
@@ -90,8 +89,17 @@ class Agreement:
 
 
 def _share_within(query, reference, threshold, workers) -> float:
-    d = nearest_distances(query, reference, workers, upper_bound=threshold)
-    return float(np.count_nonzero(d < threshold) / len(d)) if len(d) else float("nan")
+    """Share of ``query`` points with a ``reference`` point strictly closer than
+    ``threshold``: on a cell grid (no tree, early exit), or a kd-tree where the
+    grid does not suit the cloud (extent of more than 2e6 cells, huge coordinates)."""
+    if len(query) == 0:
+        return float("nan")
+    try:
+        hit = CellGrid(reference, threshold).any_within(query)
+    except GridUnsuitable:
+        d = nearest_distances(query, reference, workers, upper_bound=threshold)
+        hit = d < threshold
+    return float(np.count_nonzero(hit) / len(hit))
 
 
 def agreement(true_points, simulated_points, threshold: float = SIMILARITY_THRESHOLD,
@@ -105,7 +113,11 @@ def agreement(true_points, simulated_points, threshold: float = SIMILARITY_THRES
         Metres (the paper: 0.10). A pair exactly ``threshold`` apart does not
         match (strictly closer, as :func:`similarity`).
     workers : int
-        Threads of the kd-tree queries (-1: all).
+        Threads of the kd-tree queries (-1: all), where a kd-tree is used:
+        the test runs on a :class:`~slr_ray.cellgrid.CellGrid` of cells of the
+        threshold's size (numba's threads) unless the cloud spans more than
+        2e6 such cells along an axis or its coordinates are too large for
+        exact cell indices.
 
     Returns
     -------

@@ -240,3 +240,31 @@ def test_released_tables_give_the_same_winners_and_refuse_more(kind, monkeypatch
         b.add(pts)
     with pytest.raises(RuntimeError, match="released"):
         b.winners()
+
+
+def test_compact_and_wide_hash_records_agree_and_widen_when_indices_outgrow_them(monkeypatch):
+    # 16-byte records (int32 key, uint32 index) must give exactly the 24-byte ones'
+    # winners, ties included, also when a stream passes their index limit midway
+    rng = np.random.default_rng(5)
+    pts = rng.normal(size=(40000, 3)) * 10
+    pts[20000:20100] = pts[:100]  # exact ties: the lower index wins
+    pattern = ScanPattern(0.5)
+    compact = _tables("hash", np.zeros(3), pattern, 2, monkeypatch)
+    assert compact.tables[0].compact and compact.tables[0].tab.itemsize == 16
+    for s in range(0, len(pts), 7001):
+        compact.add(pts[s:s + 7001])
+    monkeypatch.setattr(binning, "_COMPACT_MAX_PULSES", 0)  # 24-byte records from the start
+    wide = _tables("hash", np.zeros(3), pattern, 2, monkeypatch)
+    assert not wide.tables[0].compact
+    wide.add(pts)
+    monkeypatch.setattr(binning, "_COMPACT_MAX_PULSES", 2**31 - 1)
+    monkeypatch.setattr(binning, "_COMPACT_MAX_POINTS", 25000)  # widened at the chunk that passes it
+    widened = _tables("hash", np.zeros(3), pattern, 2, monkeypatch)
+    for s in range(0, len(pts), 7001):
+        widened.add(pts[s:s + 7001])
+        assert widened.tables[0].compact == (s + 7001 - 1 <= 25000)
+    expected = brute_force_scan(pts, np.zeros(3), pattern)
+    for t in (compact, wide, widened):
+        keys, ranges, idx = t.winners(pts)
+        np.testing.assert_array_equal(idx, expected)
+        np.testing.assert_array_equal(keys, pulse_keys(pts[idx], np.zeros(3), pattern)[0])

@@ -77,6 +77,15 @@ _HASH = np.uint64(0x9E3779B97F4A7C15)
 _GROUP = 4
 _INITIAL_BITS = 12
 _RECORD = np.dtype([("key", np.int64), ("r", np.float64), ("idx", np.int64)])
+#: the hash tables' compact record (16 bytes instead of 24): for patterns of fewer
+#: than 2**31 pulses while point indices stay below 2**32 (a 0.00576 deg pattern
+#: has 1.95e9 pulses; its dense primary's 2e8 bins take 8 GiB of tables, not 12)
+_COMPACT_RECORD = np.dtype([("key", np.int32), ("idx", np.uint32), ("r", np.float64)])
+_COMPACT_MAX_PULSES = 2**31 - 1
+_COMPACT_MAX_POINTS = 2**32 - 1
+#: one hash table grows at a time: two threads doubling theirs at once held
+#: old and new tables of both (18.4 GiB for that primary instead of 12)
+_GROW_LOCK = threading.Lock()
 
 # atan(t) / t as a polynomial in t^2 for |t| <= tan(pi/8): the degree-6
 # Chebyshev interpolant at the first-kind nodes (its error, measured against
@@ -434,7 +443,7 @@ def _pack_hash(tab, packed, bits, at):
     j = at
     for s in range(tab.shape[0]):
         if tab[s].key != -1:
-            packed[j] = (tab[s].idx << bits) | tab[s].key
+            packed[j] = (np.int64(tab[s].idx) << bits) | np.int64(tab[s].key)
             j += 1
     return j
 
@@ -466,7 +475,7 @@ def _merge_hash(src, dst):
     for j in range(src.shape[0]):
         e = src[j]
         if e.key != -1:
-            new += _put(dst, bits, e.key, e.r, e.idx)[1]
+            new += _put(dst, bits, np.int64(e.key), e.r, np.int64(e.idx))[1]
     return new
 
 
@@ -531,20 +540,37 @@ class _HashTable:
     """One thread's open-addressing hash table of (key, range, index) records.
 
     Load factor at most 0.7 (linear probing, keys hashed in groups of 16).
+    ``compact``: 16-byte records (int32 key, uint32 index) instead of 24;
+    :meth:`widen` converts when indices outgrow them.
     """
 
     __slots__ = ("tab", "count")
 
-    def __init__(self, bits: int = _INITIAL_BITS):
-        self.tab = np.empty(1 << bits, dtype=_RECORD)
+    def __init__(self, bits: int = _INITIAL_BITS, compact: bool = False):
+        self.tab = np.empty(1 << bits, dtype=_COMPACT_RECORD if compact else _RECORD)
         self.tab["key"] = -1
         self.count = 0
 
+    @property
+    def compact(self) -> bool:
+        return self.tab.dtype == _COMPACT_RECORD
+
     def grow(self) -> None:
-        tab = np.empty(2 * len(self.tab), dtype=_RECORD)
-        tab["key"] = -1
-        _merge_hash(self.tab, tab)
-        self.tab = tab
+        with _GROW_LOCK:
+            tab = np.empty(2 * len(self.tab), dtype=self.tab.dtype)
+            tab["key"] = -1
+            _merge_hash(self.tab, tab)
+            self.tab = tab
+
+    def widen(self) -> None:
+        """Convert to 24-byte records in place of the compact ones (same slots:
+        a record's slot depends on its key and the capacity only)."""
+        if self.compact:
+            with _GROW_LOCK:
+                tab = np.empty(len(self.tab), dtype=_RECORD)
+                for f in ("key", "r", "idx"):
+                    tab[f] = self.tab[f]
+                self.tab = tab
 
     def insert(self, keys, ranges, offset, part, n_parts) -> None:
         start = 0
@@ -705,6 +731,7 @@ class BinTables:
         if self.key_range is not None and self.kind == "dense":
             self.kind = "hash"  # a band of a coarse pattern: the tables follow the band, not the pattern
         self._slots = np.full(pattern.n_pulses, -1, np.int32) if self.kind == "slots" else None
+        self._compact = self.kind == "hash" and pattern.n_pulses <= _COMPACT_MAX_PULSES
         self.tables = [self._new_table() for _ in range(self.n_threads)]
         self.n_points = 0
         self._params = _kernel_params(origin, pattern)
@@ -730,6 +757,7 @@ class BinTables:
             for t in self.tables:
                 t.clear()
         else:
+            self._compact = self.pattern.n_pulses <= _COMPACT_MAX_PULSES
             self.tables = [self._new_table() for _ in self.tables]
         self._touched = None
         return self
@@ -737,7 +765,7 @@ class BinTables:
     def _new_table(self):
         if self.kind == "dense":
             return _DenseTable(self.pattern.n_pulses)
-        return _SlotTable(self._slots) if self.kind == "slots" else _HashTable()
+        return _SlotTable(self._slots) if self.kind == "slots" else _HashTable(compact=self._compact)
 
     #: points whose keys are computed before the threads insert them (slot and hash tables)
     superblock = 1 << 21
@@ -794,6 +822,10 @@ class BinTables:
             bad = 0 if finite else sum(run(_count_nonfinite, [(points, s, e) for s, e in self._slices(n)]))
             if bad:
                 return bad
+            if self._compact and self.n_points + n - 1 > _COMPACT_MAX_POINTS:
+                for t in self.tables:  # indices outgrow the compact records
+                    t.widen()
+                self._compact = False
             size = min(n, self.superblock)
             keys = np.empty(size, np.int64)
             ranges = np.empty(size, np.float64)
