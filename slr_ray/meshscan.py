@@ -355,6 +355,10 @@ def _dense_scan(scene, origin, pattern, spacing, band_pulses=None):
     return pts, lab, rng, pulses
 
 
+#: memory allowed for the slot array of a dense scan's reduction (see BinTables)
+_DENSE_SLOT_BYTES = 2 * 2**30
+
+
 def _dense_winners(scene, origin, pattern, spacing, band_pulses=None):
     """Pass 1 over the dense sample stream: ``(pulse keys, sample indices)`` of the
     winners, by sample index (the reduction's tables are freed on return).
@@ -367,7 +371,10 @@ def _dense_winners(scene, origin, pattern, spacing, band_pulses=None):
     bands = [(v0 * nh, min(nv, v0 + rows) * nh) for v0 in range(0, nv, rows)]
     keys, want = [], []
     for band in bands:
-        tables = BinTables(origin, pattern, key_range=band if len(bands) > 1 else None)
+        # slots up to 2 GiB: a 0.0144 deg pattern's 3.1e8 pulses (1.25 GB) bin 1.9e9 dense
+        # samples in 38 s instead of 46 s through hash tables; finer patterns hash
+        tables = BinTables(origin, pattern, key_range=band if len(bands) > 1 else None,
+                           slot_bytes=_DENSE_SLOT_BYTES)
         for pts, _ in dense_samples(scene, spacing, copy=False):
             tables.add(pts)
         k, _, w = tables.winners(with_ranges=False, release=True)

@@ -8,7 +8,7 @@ import pytest
 from slr_ray import InputValueError
 from slr_ray.cli import main
 from slr_ray.plotting import paper_figure, save_figure, validation_figure
-from slr_ray.validation import load_config, run_validation
+from slr_ray.validation import load_config, run_validation, stage_summary
 
 
 @pytest.fixture(scope="module")
@@ -117,8 +117,14 @@ def test_primaries_of_a_scene_share_positions_and_true_scans(two_primaries):
     assert pos.shape == (3, 3) and float(by[("1", "center")][0.1]["x"]) == pytest.approx(pos[1, 0])
     assert not (out / ".truths" / "rect-0500").exists()  # shared true scans wait on disk until the scene is done
     stages = _rows(out / "stages.csv")
-    assert [s["stage"] for s in stages] == ["primary scan", "positions", "pairs", "primary scan", "pairs"]
+    # the paper's rows (binning vs centre) apart from the extras (the nearest truth)
+    assert [s["stage"] for s in stages] == ["primary scan", "positions", "pairs", "extras", "primary scan",
+                                            "pairs", "extras", "run"]
     assert all(float(s["peak_rss_gib"]) > 0 for s in stages)
+    summary = stage_summary(out / "stages.csv")
+    paper = sum(float(s["seconds"]) for s in stages if s["stage"] in ("primary scan", "positions", "pairs"))
+    assert summary["paper_seconds"] == pytest.approx(paper, abs=0.2) and summary["extras_seconds"] > 0
+    assert summary["sittings"] == 1 and summary["wall_seconds"] >= summary["paper_seconds"]
 
 
 def test_resume_reads_positions_and_skips_their_primary(two_primaries, tmp_path):
@@ -134,9 +140,10 @@ def test_resume_reads_positions_and_skips_their_primary(two_primaries, tmp_path)
         w.writerows(kept)
     res = run_validation(cfg, tmp_path / "r", progress=False)
     assert res["new_rows"] == len(rows) - len(kept)
-    new_stages = _rows(tmp_path / "r" / "stages.csv")[5:]
-    assert [(s["stage"], float(s["primary_resolution"])) for s in new_stages] == [("primary scan", 0.1),
-                                                                                   ("pairs", 0.1)]
+    new_stages = _rows(tmp_path / "r" / "stages.csv")[8:]
+    assert [(s["stage"], s["primary_resolution"]) for s in new_stages] == [
+        ("primary scan", "0.1"), ("pairs", "0.1"), ("extras", "0.1"), ("run", "")]
+    assert stage_summary(tmp_path / "r" / "stages.csv")["sittings"] == 2  # a resumed run says so
     key = lambda r: (r["primary_resolution"], r["position"], r["truth"])  # noqa: E731
     assert {key(r): r["similarity"] for r in rows} == \
         {key(r): r["similarity"] for r in _rows(tmp_path / "r" / "results.csv")}

@@ -712,9 +712,12 @@ class BinTables:
         """Whether :meth:`reset` clears in O(occupied bins) (dense and slot tables)."""
         return self.kind in ("dense", "slots")
 
-    def __init__(self, origin, pattern, n_threads: int | None = None, key_range: tuple | None = None):
+    def __init__(self, origin, pattern, n_threads: int | None = None, key_range: tuple | None = None,
+                 slot_bytes: int | None = None):
         self.origin = origin
         self.pattern = pattern
+        #: ``slot_bytes``: this call's allowance for slot tables instead of the class's
+        #: (a dense mesh scan allows more: its tables live through 1e9 samples)
         #: ``(lo, hi)``: only pulse keys in [lo, hi) are kept (a band of zenith rows
         #: when lo, hi are multiples of n_azimuth), so a fine pattern can be reduced
         #: band by band in bounded memory; slot and hash tables only
@@ -724,7 +727,7 @@ class BinTables:
             raise ValueError(f"n_threads must be in [1, 256], got {n_threads}")
         if pattern.n_pulses * 16 * self.n_threads <= self.dense_bytes:
             self.kind = "dense"
-        elif pattern.n_pulses * 4 <= self.slot_bytes:
+        elif pattern.n_pulses * 4 <= (self.slot_bytes if slot_bytes is None else slot_bytes):
             self.kind = "slots"
         else:
             self.kind = "hash"

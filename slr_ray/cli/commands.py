@@ -239,7 +239,8 @@ def validate(args):
     from ..io import atomic_path
     from ..paper import Q1_SCENES, Q2_SCENES
     from ..plotting import paper_figure, save_figure, validation_figure
-    from ..validation import load_config, load_rows, paper_report, paper_report_markdown, run_validation
+    from ..validation import (load_config, load_rows, paper_report, paper_report_markdown, run_validation,
+                              stage_summary)
 
     config = load_config(args.config)
     if args.positions is not None:
@@ -253,6 +254,7 @@ def validate(args):
     save_figure(validation_figure(rows), out / "figure3.png")
     res["figures"] = [str(out / "figure3.png")]
     report = paper_report(out / "results.csv")
+    report["run"] = stage_summary(out / "stages.csv")
     with atomic_path(out / "report.json") as tmp:
         tmp.write_text(json.dumps(report, indent=1))
     with atomic_path(out / "report.md") as tmp:

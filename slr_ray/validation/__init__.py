@@ -27,9 +27,9 @@ Figures are drawn by :mod:`slr_ray.plotting` (``validation_figure``,
 from .config import ValidationConfig, load_config
 from .diagnostics import hidden_from, miss_breakdown
 from .report import full_pairs, headline, load_rows, paper_report, paper_report_markdown, series, series_stats
-from .results import COLUMNS, peak_rss_gib, read_rows
+from .results import COLUMNS, peak_rss_gib, read_rows, stage_summary
 from .runner import run_validation
 
 __all__ = ["ValidationConfig", "load_config", "run_validation", "read_rows", "load_rows", "COLUMNS",
            "peak_rss_gib", "headline", "series", "series_stats", "full_pairs", "paper_report",
-           "paper_report_markdown", "miss_breakdown", "hidden_from"]
+           "paper_report_markdown", "miss_breakdown", "hidden_from", "stage_summary"]

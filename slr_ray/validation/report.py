@@ -174,4 +174,11 @@ def paper_report_markdown(report: dict) -> str:
               list(q.items()))
     for res, ser in report["semantics"].items():
         table(f"Backends and truth semantics on the same pairs ({res}° primaries, all scenes)", list(ser.items()))
+    run = report.get("run")
+    if run and run.get("sittings"):
+        lines.extend([
+            "**The run** (from `stages.csv`)", "",
+            "| sittings | wall time | paper's part | extras | peak memory |", "|---|---|---|---|---|",
+            f"| {run['sittings']} | {run['wall_seconds'] / 60:.1f} min | {run['paper_seconds'] / 60:.1f} min | "
+            f"{run['extras_seconds'] / 60:.1f} min | {run['peak_rss_gib']} GiB |", ""])
     return "\n".join(lines)

@@ -12,7 +12,8 @@ import csv
 import resource
 from pathlib import Path
 
-__all__ = ["COLUMNS", "read_rows", "row_key", "ResultsWriter", "StageLog", "peak_rss_gib"]
+__all__ = ["COLUMNS", "read_rows", "row_key", "ResultsWriter", "StageLog", "peak_rss_gib", "stage_summary",
+           "PAPER_STAGES", "EXTRA_STAGES"]
 
 COLUMNS = ["scene", "n_rectangles", "scene_seed", "primary_resolution", "position", "x", "y", "z",
            "distance_m", "backend", "truth", "similarity", "precision", "fscore", "true_points", "slr_points",
@@ -98,3 +99,28 @@ class StageLog(_AppendCSV):
         self.w.writerow({"scene": scene, "primary_resolution": resolution, "stage": stage,
                          "seconds": round(seconds, 2), "count": count, "peak_rss_gib": round(peak_rss_gib(), 2)})
         self.f.flush()
+
+
+#: stages of the paper's own experiment, and of what this project adds to it
+PAPER_STAGES = ("primary scan", "positions", "pairs")
+EXTRA_STAGES = ("embree discs", "extras")
+
+
+def stage_summary(path) -> dict:
+    """Totals of a ``stages.csv``: seconds of the paper's part (primary scans,
+    positions, its binning/pulse-centre pairs) and of the extras (embree discs,
+    nearest-in-pulse truths, embree pairs), the peak memory, and the sittings:
+    one ``run`` row per call of :func:`~slr_ray.validation.run_validation`
+    with its wall time (a run resumed over several sittings has several)."""
+    rows = list(csv.DictReader(open(path, newline=""))) if Path(path).exists() else []
+    total = {name: 0.0 for name in ("paper", "extras")}
+    for r in rows:
+        if r["stage"] in PAPER_STAGES:
+            total["paper"] += float(r["seconds"])
+        elif r["stage"] in EXTRA_STAGES:
+            total["extras"] += float(r["seconds"])
+    runs = [float(r["seconds"]) for r in rows if r["stage"] == "run"]
+    peaks = [float(r["peak_rss_gib"]) for r in rows if r["peak_rss_gib"]]
+    return {"paper_seconds": round(total["paper"], 1), "extras_seconds": round(total["extras"], 1),
+            "sittings": len(runs), "wall_seconds": round(sum(runs), 1),
+            "peak_rss_gib": max(peaks, default=None)}
