@@ -79,7 +79,10 @@ class ValidationConfig:
             raise InputValueError("positions must be >= 1 and threshold > 0")
         if self.nearest_every < 1 or self.embree_every < 1:
             raise InputValueError("nearest_every and embree_every must be >= 1")
-        options_for("embree", self.embree_options)  # unknown keys named here, not after the primaries
+        # unknown keys named here, not after the primaries; the runner gives the discs
+        # the primary's origin and resolution, so options that need them are valid
+        options_for("embree", {"primary_origin": [0.0, 0.0, 0.0], "primary_resolution": self.primary_resolutions[0],
+                               **self.embree_options})
         for entry in self.scenes:
             spec, res = self.scene_entry(entry)
             for b in self.scene_backends(entry):
