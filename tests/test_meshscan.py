@@ -182,3 +182,33 @@ def test_streamed_file_equals_the_in_memory_scan(tmp_path, mode):
     np.testing.assert_array_equal(back.pulses, ms.pulses)
     np.testing.assert_allclose(back.points, ms.points, atol=1e-5)
     assert [p.name for p in tmp_path.iterdir()] == ["s.npz"]  # temporary files removed
+
+
+def test_ray_cast_primaries_see_no_further_than_the_first_wall_where_a_5mm_grid_does():
+    # the fine primary of question 3: at 30 m a 0.00576 deg pulse is 3 mm tall,
+    # narrower than the paper's 5 mm dense grid, so binning that grid keeps
+    # back-wall points in pulses through the front wall (see-through); the
+    # ray-cast primary (mode='center') returns the front wall in every such pulse
+    front = trimesh.creation.box([0.01, 1.0, 1.0])
+    front.apply_translation([30, 0, 0])
+    back = trimesh.creation.box([0.01, 4.0, 4.0])
+    back.apply_translation([35, 0, 0])
+    mesh = trimesh.util.concatenate([front, back])
+    labels = np.r_[np.ones(len(front.faces), int), np.full(len(back.faces), 2)]
+    pattern = ScanPattern(azimuth_resolution=0.2, zenith_resolution=0.00576, zenith_range=(89.0, 91.0))
+    ms = scan_mesh(mesh, [0, 0, 0], pattern, face_labels=labels)
+    p = ms.points
+    # inside the front wall's angular extent (a margin of a pulse): only front-wall points
+    shadow = (np.abs(p[:, 1] / p[:, 0]) < 0.5 / 30 - 4e-3) & (np.abs(p[:, 2] / p[:, 0]) < 0.5 / 30 - 1e-4)
+    assert shadow.sum() > 1000 and np.all(ms.labels[shadow] == 1)
+    # the same walls as a 5 mm grid, binned: back-wall points inside that extent
+    g = np.arange(-0.4975, 0.5, 0.005)
+    gb = np.arange(-1.9975, 2.0, 0.005)
+    yy, zz = np.meshgrid(g, g)
+    yb, zb = np.meshgrid(gb, gb)
+    dense = np.vstack([np.column_stack([np.full(yy.size, 29.995), yy.ravel(), zz.ravel()]),
+                       np.column_stack([np.full(yb.size, 34.995), yb.ravel(), zb.ravel()])])
+    q = dense[simulate_scan(dense, [0, 0, 0], pattern).indices]
+    see_through = (q[:, 0] > 32) & (np.abs(q[:, 1] / q[:, 0]) < 0.5 / 30 - 4e-3) \
+        & (np.abs(q[:, 2] / q[:, 0]) < 0.5 / 30 - 1e-4)
+    assert see_through.sum() > 100

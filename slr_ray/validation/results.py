@@ -112,7 +112,10 @@ def stage_summary(path) -> dict:
     nearest-in-pulse truths, embree pairs), the peak memory, and the sittings:
     one ``run`` row per call of :func:`~slr_ray.validation.run_validation`
     with its wall time (a run resumed over several sittings has several)."""
-    rows = list(csv.DictReader(open(path, newline=""))) if Path(path).exists() else []
+    rows = []
+    if Path(path).exists():
+        with open(path, newline="") as f:
+            rows = list(csv.DictReader(f))
     total = {name: 0.0 for name in ("paper", "extras")}
     for r in rows:
         if r["stage"] in PAPER_STAGES:
