@@ -228,8 +228,10 @@ def _call3(typingctx, fptr, a, b, c):
 
 # query context: RTCRayQueryContext (slots 0-3, 32 bytes reserved) then ours
 _C_MODE, _C_CENTRES, _C_RADII, _C_DIV, _C_BEST = 4, 5, 6, 7, 8
-_C_SCORE, _C_ORG, _C_DIR, _C_REACH, _C_BEST_T, _C_RSTRIDE = 9, 10, 13, 16, 17, 18
+_C_SCORE, _C_ORG, _C_DIR, _C_REACH, _C_BEST_T, _C_RSTRIDE, _C_ASPECT = 9, 10, 13, 16, 17, 18, 19
 _CTX_WORDS = 20
+#: sin(zenith) below which a ray counts as polar in the pulse-unit tie score
+_MIN_RHO = 1e-9
 #: the tie window stops growing beyond 20 radii (incidence above ~87 deg)
 _MIN_COS = 0.05
 _MODE_SKIP, _MODE_TIES = 1, 2
@@ -263,6 +265,17 @@ def _filter(fargs):
         t = cx * dx + cy * dy + cz * dz
         ex, ey, ez = cx - t * dx, cy - t * dy, cz - t * dz
         s = ex * ex + ey * ey + ez * ez
+        aspect = ctxf[_C_ASPECT]
+        if aspect > 0.0 and t > 0.0:
+            # the centre's offset from the ray in pulse units: zenith and azimuth
+            # angles, the latter divided by sin(zenith) (pulses narrow towards the
+            # poles) and scaled by d_theta / d_phi, so that the point of the ray's
+            # own pulse wins over a nearer one of the next column
+            rho = max(math.sqrt(dx * dx + dy * dy), _MIN_RHO)
+            e_az = (ey * dx - ex * dy) / rho
+            e_ze2 = max(s - e_az * e_az, 0.0)
+            a = e_az * aspect / rho
+            s = (e_ze2 + a * a) / (t * t)
         if s < ctxf[_C_SCORE] or (s == ctxf[_C_SCORE] and owner < ctx[_C_BEST]):
             ctxf[_C_SCORE] = s
             ctx[_C_BEST] = owner
@@ -279,7 +292,7 @@ def _aligned(n_floats):
 
 @njit(cache=True, nogil=True)
 def _cast_blocks(isect, scene, filt, org32, org64, dirs, tnear, tfar, first_block, step,
-                 mode_first, ties, centres, radii, normals, div, reach, prim_out, owner_out, t_out):
+                 mode_first, ties, aspect, centres, radii, normals, div, reach, prim_out, owner_out, t_out):
     """Cast rays ``dirs`` from ``org32`` (scene frame), blocks first_block, +step, ..."""
     rh = _aligned(_RAYHIT_FLOATS)
     ru = rh.view(np.uint32)
@@ -295,6 +308,7 @@ def _cast_blocks(isect, scene, filt, org32, org64, dirs, tnear, tfar, first_bloc
     ctxf[_C_ORG + 1] = org64[1]
     ctxf[_C_ORG + 2] = org64[2]
     ctxf[_C_REACH] = reach
+    ctxf[_C_ASPECT] = aspect
     args = np.zeros(8, np.int64)  # RTCIntersectArguments (32 bytes used)
     args[0] = RAY_QUERY_FLAG_INVOKE_ARGUMENT_FILTER | (FEATURE_FLAGS_ALL << 32)
     args[1] = ctx.ctypes.data
@@ -538,7 +552,7 @@ class RayScene:
     # --- queries ------------------------------------------------------------------------
     def intersect(self, origin, directions, *, tnear: float = 0.0, tfar: float = math.inf,
                   ties: float = 0.0, skip_containing: bool = False, exact: bool = False,
-                  n_threads: int | None = None) -> RayHits:
+                  n_threads: int | None = None, pulse_aspect: float | None = None) -> RayHits:
         """First hit of every ray from ``origin``.
 
         Parameters
@@ -560,12 +574,21 @@ class RayScene:
             triangle's plane.
         n_threads : int, optional
             Default: all cores.
+        pulse_aspect : float, optional
+            With ``ties``: the rays are pulse centres of a scan pattern whose
+            zenith step over azimuth step is this; candidates are then ranked
+            by their angular offset from the ray in pulse units (the azimuth
+            offset divided by sin(zenith), as pulses narrow towards the poles),
+            not by their distance from it, so a ray keeps the point of its own
+            pulse. None: nearest to the ray.
 
         Returns
         -------
         RayHits
         """
         o = as_origin(origin)
+        if pulse_aspect is not None and not (math.isfinite(pulse_aspect) and pulse_aspect > 0):
+            raise InputValueError(f"pulse_aspect must be a finite number > 0, got {pulse_aspect!r}")
         d = np.ascontiguousarray(directions, np.float64)
         if d.ndim != 2 or d.shape[1] != 3:
             raise InputValueError(f"directions must be (m, 3), got {d.shape}")
@@ -587,6 +610,7 @@ class RayScene:
         n_threads = max(1, min(int(n_threads or default_threads()), -(-m // _BLOCK)))
         run = lambda k: _cast_blocks(lib.intersect1, self._scene, _filter.address, org32, o, d,  # noqa: E731
                                      np.float32(tnear), np.float32(tf), k, n_threads, mode, float(ties),
+                                     float(pulse_aspect or 0.0),
                                      self._owner_centres, self._owner_radii, self._owner_normals,
                                      self.prims_per_owner,
                                      self.reach, prim, owner, t)

@@ -152,3 +152,28 @@ def test_pulse_rays_one_rule_for_the_narrower_last_bin():
     d2, v2, _ = pulse_rays(p, k=3)
     th2 = np.degrees(np.arctan2(np.hypot(d2[:, 0], d2[:, 1]), d2[:, 2]))
     assert th2[v2 == p.n_zenith - 1].max() < 100 and th2.min() > 10
+
+
+def test_pulse_aspect_ranks_ties_in_pulse_units_near_the_pole():
+    # a ray 1 deg from the zenith: a disc 0.4 pulse away in zenith (its own pulse of a
+    # 1 deg pattern) and one 1.2 pulses away in azimuth, which near the pole lies far
+    # closer to the ray in metres; nearest-to-the-ray takes the latter, pulse units the former
+    def direction(zen, az):
+        z, a = np.radians(zen), np.radians(az)
+        return np.array([np.sin(z) * np.cos(a), np.sin(z) * np.sin(a), np.cos(z)])
+
+    ray = direction(1.0, 0.0)
+    centres = np.array([10 * direction(1.4, 0.0), 10 * direction(1.0, 1.2)])
+    assert np.linalg.norm(np.cross(centres[1], ray)) < np.linalg.norm(np.cross(centres[0], ray))
+    scene = RayScene.discs(centres, np.full(2, 0.2), np.tile(-ray, (2, 1)))
+    near = scene.intersect(np.zeros(3), ray[None], ties=1.0)
+    pulse = scene.intersect(np.zeros(3), ray[None], ties=1.0, pulse_aspect=1.0)
+    assert near.owners.tolist() == [1] and pulse.owners.tolist() == [0]
+    # away from the pole the two rules agree
+    ray = direction(90.0, 0.0)
+    centres = np.array([10 * direction(90.4, 0.0), 10 * direction(90.0, 0.6)])
+    scene = RayScene.discs(centres, np.full(2, 0.2), np.tile(-ray, (2, 1)))
+    for aspect in (None, 1.0):
+        assert scene.intersect(np.zeros(3), ray[None], ties=1.0, pulse_aspect=aspect).owners.tolist() == [0]
+    with pytest.raises(InputValueError):
+        scene.intersect(np.zeros(3), ray[None], ties=1.0, pulse_aspect=0.0)

@@ -122,10 +122,13 @@ class EmbreeOptions(BackendOptions):
         Points per neighbour query (bounds memory: about 100 bytes a point).
     n_threads : int, optional
         Threads casting rays (default: all cores).
-    neighbours : {'knn', 'pulse-grid'}
+    neighbours : {'knn', 'pulse-grid'}, optional
         Where 'spacing' radii and normals take neighbours from: the k nearest
         (kd-tree), or the 8 adjacent pulses of the primary's own pulse grid
-        (needs primary_origin and primary_resolution; no kd-tree).
+        (needs primary_origin and primary_resolution; no kd-tree). Default:
+        'pulse-grid' when both are given (2.3x faster to prepare, the same
+        precision, and no holes between rings when re-scanned coarser:
+        100 % of binning's points against 85 % with kNN), else 'knn'.
     grid_gate : float
         With 'pulse-grid': an adjacent pulse's point is a neighbour only when
         its primary range is within this fraction of the point's (a jump in
@@ -146,7 +149,7 @@ class EmbreeOptions(BackendOptions):
     fallback_radius: float = 0.01
     chunk: int = 1 << 20
     n_threads: int | None = None
-    neighbours: str = "knn"
+    neighbours: str | None = None
     grid_gate: float = 0.1
 
     @classmethod
@@ -175,6 +178,9 @@ class EmbreeOptions(BackendOptions):
             raise InputValueError(f"min_radius must be a finite number > 0, got {self.min_radius!r}")
         if self.orientation == "billboard" and self.engine != "embree":
             raise InputValueError("orientation='billboard' needs engine='embree' (ray-facing discs)")
+        if self.neighbours is None:  # frozen: set through object.__setattr__
+            known = self.primary_origin is not None and self.primary_resolution is not None
+            object.__setattr__(self, "neighbours", "pulse-grid" if known else "knn")
         if self.neighbours not in NEIGHBOURS:
             raise InputValueError(f"neighbours must be one of {NEIGHBOURS}, got {self.neighbours!r}")
         if self.neighbours == "pulse-grid" and (self.primary_origin is None or self.primary_resolution is None):
@@ -599,12 +605,12 @@ class DiscScanner(Scanner):
         self.build_seconds = time.perf_counter() - t1
         self.prepare_seconds = time.perf_counter() - t0
 
-    def _cast(self, origin, dirs, tfar):
+    def _cast(self, origin, dirs, tfar, aspect=None):
         o = self.options
         if o.engine == "open3d":
             return self._scene.cast(origin - self._centre, dirs, tfar, self._per_point, self._open3d_start)
         hits = self._scene.intersect(origin, dirs, tfar=tfar, ties=o.ties, skip_containing=True,
-                                     n_threads=o.n_threads)
+                                     n_threads=o.n_threads, pulse_aspect=aspect)
         return hits.owners, hits.distances
 
     def _hits(self, origin, pattern, rays_per_batch=1 << 21):
@@ -618,11 +624,12 @@ class DiscScanner(Scanner):
             inside = d <= self.radii * self.options.reach
             self._open3d_start = float((d + self.radii * self.options.reach)[inside].max(initial=0.0))
         nv, nh = pattern.shape
+        aspect = _pulse_aspect(pattern)
         rows_per = max(1, rays_per_batch // nh)
         parts = []
         for r0 in range(0, nv, rows_per):
             dirs, vv, hh = pulse_rays(pattern, slice(r0, min(nv, r0 + rows_per)))
-            pt, t = self._cast(origin, dirs, tfar)
+            pt, t = self._cast(origin, dirs, tfar, aspect)
             hit = pt >= 0
             parts.append((pt[hit], t[hit], vv[hit], hh[hit]))
         if not parts:
@@ -679,6 +686,18 @@ class DiscScanner(Scanner):
                     info={"cast_seconds": round(cast, 6), "rays": int(pattern.n_pulses),
                           "ray_hits": int(n_ray_hits), **self.options.to_dict()})
         return scan, rays
+
+
+def _pulse_aspect(pattern) -> float:
+    """Zenith step over azimuth step of a pattern's pulses (a beam table: its mean
+    row gap), the scale of the tie rule's pulse units."""
+    nv, nh = pattern.shape
+    if hasattr(pattern, "band_edges"):
+        edges = pattern.band_edges
+        d_theta = float(edges[-1] - edges[0]) / nv
+    else:
+        d_theta = pattern.radians[0]
+    return d_theta / (2 * math.pi / nh)
 
 
 class _Open3DFans:
