@@ -5,7 +5,9 @@ and the cost of the neighbour query and PCA normals per million points.
 
 Cases: 20,000 random points of an open plane scanned at 1 deg from 1.65 m above
 it; a 0.5 deg scan of a 30 x 24 x 8 m room (3 mm range noise) re-scanned from
-its own origin at 0.5 deg and at 1 deg; each with k = 6 (default) and k = 12.
+its own origin at 0.5, 1 and 2 deg; each with kNN discs (k = 6, the default
+without a primary, and k = 12) and, for the room, pulse-grid discs (the
+default when the primary's origin and resolution are given).
 Prints a table and saves results/bench_embree_return.json.
 """
 
@@ -30,23 +32,28 @@ def cases():
 
     rng = np.random.default_rng(1)
     xy = rng.uniform(-20, 20, (20_000, 2))
-    yield "random plane, 1 deg", np.column_stack([xy, np.full(len(xy), -1.65)]), np.zeros(3), 1.0
+    yield "random plane, 1 deg", np.column_stack([xy, np.full(len(xy), -1.65)]), np.zeros(3), 1.0, None
     o = np.array([1.0, -2.0, 0.5])
     room = scan_mesh(trimesh.creation.box(extents=[30, 24, 8]), o, ScanPattern(0.5)).points
     room = room + np.random.default_rng(0).normal(scale=0.003, size=room.shape)
-    yield "room 0.5 deg scan, 0.5 deg", room, o, 0.5
-    yield "room 0.5 deg scan, 1 deg", room, o, 1.0
+    yield "room 0.5 deg scan, 0.5 deg", room, o, 0.5, 0.5
+    yield "room 0.5 deg scan, 1 deg", room, o, 1.0, 0.5
+    yield "room 0.5 deg scan, 2 deg", room, o, 2.0, 0.5
 
 
 def main():
     rows = []
-    for name, pts, origin, res in cases():
+    for name, pts, origin, res, primary_res in cases():
         b = prepare(pts).scan(origin, ScanPattern(res))
-        for k in (6, 12):
-            e = prepare(pts, "embree", k=k).scan(origin, ScanPattern(res))
-            rows.append({"case": name, "k": k, "binning": len(b), "embree": len(e),
+        settings = [("knn k=6", {"k": 6}), ("knn k=12", {"k": 12})]
+        if primary_res is not None:  # the cloud is a scan of known origin and resolution
+            settings.append(("pulse-grid", {"neighbours": "pulse-grid", "primary_origin": origin,
+                                            "primary_resolution": primary_res}))
+        for label, opts in settings:
+            e = prepare(pts, "embree", **opts).scan(origin, ScanPattern(res))
+            rows.append({"case": name, "discs": label, "binning": len(b), "embree": len(e),
                          "ratio": len(e) / len(b)})
-            print(f"{name:<28} k={k:<3} binning {len(b):>7,} embree {len(e):>7,} ratio {len(e) / len(b):.3f}")
+            print(f"{name:<28} {label:<11} binning {len(b):>7,} embree {len(e):>7,} ratio {len(e) / len(b):.3f}")
     pts = np.ascontiguousarray(realistic_cloud()[:1_000_000])
     estimate_normals(pts[:1000], k=6)  # compile outside the timing
     t0 = time.perf_counter()
