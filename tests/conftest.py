@@ -1,5 +1,16 @@
+import os
+
 import numpy as np
 import pytest
+from hypothesis import settings
+
+# The suite is deterministic by default ("same seed, same result" holds for the
+# tests too): hypothesis draws the same examples on every run and CI cannot fail
+# by chance. HYPOTHESIS_PROFILE=explore draws new random examples on every run,
+# for a developer hunting edge cases.
+settings.register_profile("ci", derandomize=True, print_blob=True)
+settings.register_profile("explore", derandomize=False, print_blob=True)
+settings.load_profile(os.environ.get("HYPOTHESIS_PROFILE", "ci"))
 
 from slr_ray.backends.binning import BinTables
 

@@ -16,7 +16,7 @@ def _brute(q, r, radius):
 
 @settings(max_examples=60, deadline=None)
 @given(st.integers(0, 60), st.integers(0, 60), st.integers(0, 2**31 - 1), st.floats(0.01, 2.0),
-       st.sampled_from([0.0, 1e3, -4e6]))
+       st.sampled_from([0.0, 1e3, -4e6, 5.2e6, 1e12]))
 def test_any_within_equals_brute_force(n, m, seed, radius, offset):
     rng = np.random.default_rng(seed)
     r = rng.uniform(-1, 1, (n, 3)) * rng.choice([0.1, 1, 10]) + offset
@@ -59,8 +59,15 @@ def test_smaller_radius_empty_clouds_and_non_finite_queries():
 def test_clouds_the_grid_cannot_hold_are_refused():
     with pytest.raises(GridUnsuitable, match="spans"):
         CellGrid(np.array([[0.0, 0, 0], [1e6, 0, 0]]), 0.1)
-    with pytest.raises(GridUnsuitable, match="too large"):
-        CellGrid(np.array([[1e12, 0, 0]]), 0.1)
+
+
+def test_far_coordinates_and_tiny_radii_are_gridded_exactly():
+    # the case a CI run once found refused: UTM-size coordinates, 3 cm cells
+    rng = np.random.default_rng(1)
+    for offset, radius in [(-4e6, 0.03125), (5.3e6, 1e-3), (1e12, 0.05)]:
+        r = rng.uniform(-1, 1, (300, 3)) * 20 * radius + offset
+        q = np.vstack([r + rng.normal(scale=radius, size=r.shape), rng.uniform(-1, 1, (300, 3)) + offset])
+        np.testing.assert_array_equal(CellGrid(r, radius).any_within(q), _brute(q, r, radius))
 
 
 def test_agreement_falls_back_to_a_kdtree_where_the_grid_cannot_hold_the_cloud():
