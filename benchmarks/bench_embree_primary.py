@@ -15,8 +15,11 @@ scan's time and size. Saves results/bench_embree_primary.json.
 
 Settings: ``footprint`` = discs of each point's primary pulse footprint facing
 the primary scanner (no neighbour search); ``grid`` = footprint radii with
-normals from the primary's own pulse grid (no kd-tree); ``spacing`` = the
-general default (kNN radii, PCA normals).
+normals from the primary's own pulse grid (no kd-tree); ``pulse-grid`` = the
+default when the primary's origin and resolution are given (spacing radii and
+PCA normals, both from the pulse grid); ``spacing`` = the default without
+them (kNN radii, PCA normals). Rows of earlier runs for other resolutions or
+settings are kept in the JSON (each row says when it was measured).
 """
 
 from __future__ import annotations
@@ -40,6 +43,8 @@ def settings(res):
                           "primary_resolution": res},
             "grid": {"radius": "footprint", "neighbours": "pulse-grid", "primary_origin": [0.0, 0.0, 0.0],
                      "primary_resolution": res},
+            # the default when the primary is known: spacing radii and PCA normals from its pulse grid
+            "pulse-grid": {"primary_origin": [0.0, 0.0, 0.0], "primary_resolution": res},
             "spacing": {}}
 
 
@@ -101,7 +106,7 @@ def main(argv=None):
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     ap.add_argument("--scene", default="rect-1000")
     ap.add_argument("--resolutions", nargs="+", type=float, default=[0.0144, 0.00576])
-    ap.add_argument("--settings", nargs="+", default=["footprint"], choices=["footprint", "grid", "spacing"])
+    ap.add_argument("--settings", nargs="+", default=["footprint"], choices=["footprint", "grid", "pulse-grid", "spacing"])
     ap.add_argument("--no-baseline", action="store_true")
     ap.add_argument("--job", nargs=3, help=argparse.SUPPRESS)
     args = ap.parse_args(argv)
@@ -133,6 +138,16 @@ def main(argv=None):
                   f"{r['peak_rss_gib']:>9.2f} {r.get('scan_seconds', 0):>7.2f} {r['points_out']:>10,}")
         elif "error" in r:
             print(f"{r['resolution']:>8g} {r.get('setting', r.get('job'))}: {r['error']}")
+    # keep the rows of earlier runs this one did not repeat (a 0.00576 deg run takes ~20 GiB and a while)
+    old = RESULTS / "bench_embree_primary.json"
+    done = {(r.get("resolution"), r.get("setting", r.get("job"))) for r in rows}
+    kept = []
+    if old.exists():
+        prev = json.loads(old.read_text())
+        kept = [{**r, "measured": r.get("measured", prev.get("machine", {}).get("date"))} for r in prev["rows"]
+                if (r.get("resolution"), r.get("setting", r.get("job"))) not in done]
+    stamp = time.strftime("%Y-%m-%d %H:%M:%S")
+    rows = kept + [{**r, "measured": stamp} for r in rows]
     save("bench_embree_primary", {"inputs": vars(args), "machine": machine(), "rows": rows})
 
 

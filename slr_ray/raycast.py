@@ -549,6 +549,17 @@ class RayScene:
         v.flags.writeable = False
         return v
 
+    @property
+    def owner_normals(self) -> np.ndarray | None:
+        """``(n, 3)`` unit normals of the discs as the tie rule uses them (for
+        oriented discs, a read-only view of Embree's float32 normal buffer), or
+        ``None`` for billboards and plain triangles."""
+        if len(self._owner_normals) == 0:
+            return None
+        v = self._owner_normals.view()
+        v.flags.writeable = False
+        return v
+
     # --- queries ------------------------------------------------------------------------
     def intersect(self, origin, directions, *, tnear: float = 0.0, tfar: float = math.inf,
                   ties: float = 0.0, skip_containing: bool = False, exact: bool = False,

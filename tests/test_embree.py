@@ -356,14 +356,17 @@ def test_pulse_grid_neighbours_against_brute_force(seed):
     d /= np.linalg.norm(d, axis=1, keepdims=True)
     pts = d * rng.uniform(5, 6, (3000, 1))
     pts[:200, 1] = rng.normal(scale=1e-3, size=200)  # on the wrap (y ~ 0, x > 0 or < 0)
+    pts[200:300] = pts[300:400]  # duplicates: equal ranges in one pulse, the lowest index wins
     origin = np.array([1e5, -2e5, 30.0])
     pts += origin
     want = _grid_brute(pts, origin, 6.0, 0.1)
-    got = []
-    for s, dist, idx, counts in grid_neighbourhoods(pts, origin, 6.0, 0.1, chunk=700):
-        for c in range(len(idx)):
-            got.append(set(idx[c, :counts[c]].tolist()))
-            assert np.all(idx[c, counts[c]:] == s + c) and np.all(dist[c, counts[c]:] == 0)
+    got = [None] * len(pts)
+    for members, dist, idx, counts in grid_neighbourhoods(pts, origin, 6.0, 0.1, chunk=700):
+        for c, i in enumerate(members):
+            assert got[i] is None  # every point once
+            got[i] = set(idx[c, :counts[c]].tolist())
+            assert np.all(idx[c, counts[c]:] == i) and np.all(dist[c, counts[c]:] == 0)
+            np.testing.assert_allclose(dist[c, :counts[c]], np.linalg.norm(pts[idx[c, :counts[c]]] - pts[i], axis=1))
     assert got == want
 
 
@@ -401,3 +404,31 @@ def test_pulse_grid_needs_the_primary():
         prepare(pts, "embree", neighbours="pulse-grid")
     with pytest.raises(InputValueError, match="neighbours"):
         prepare(pts, "embree", neighbours="voronoi")
+
+
+@pytest.mark.parametrize("seed", [0, 1])
+def test_fused_pulse_grid_pass_equals_neighbourhoods_then_pca(seed):
+    """The one-pass spacing and normals are those of grid_neighbourhoods'
+    neighbours (the brute-force-tested ones) followed by PCA, point for point,
+    including points outside the pattern and points with no neighbour."""
+    from slr_ray.backends.embree import _chunk_normals, grid_neighbourhoods, pulse_grid_spacing_normals
+
+    rng = np.random.default_rng(seed)
+    d = rng.normal(size=(4000, 3))
+    d /= np.linalg.norm(d, axis=1, keepdims=True)
+    pts = d * rng.uniform(5, 6, (4000, 1))
+    pts[:50] = [0.0, 0.0, 0.0]  # at the scanner: outside the pattern's range
+    pts[50:60] *= 50  # far beyond the gate of every neighbour
+    origin = np.array([3e5, 2e5, -10.0])
+    pts += origin
+    spacing, normals = pulse_grid_spacing_normals(pts, origin, 4.0, 0.1)
+    want_s = np.full(len(pts), -1.0)
+    want_n = np.zeros((len(pts), 3))
+    for members, dist, idx, counts in grid_neighbourhoods(pts, origin, 4.0, 0.1, chunk=500):
+        want_s[members] = dist.sum(axis=1) / np.maximum(counts, 1)
+        want_n[members] = _chunk_normals(pts, members, idx, origin)
+    np.testing.assert_allclose(spacing, want_s, rtol=1e-12)
+    np.testing.assert_allclose(normals, want_n, rtol=1e-9, atol=1e-12)
+    assert np.all(spacing[50:60] == 0)
+    s_only, none = pulse_grid_spacing_normals(pts, origin, 4.0, 0.1, normals=False)
+    assert none is None and np.array_equal(s_only, spacing)

@@ -77,7 +77,7 @@ from .base import BackendOptions, Scanner
 from .binning import pulse_keys, ranges_of
 
 __all__ = ["EmbreeOptions", "DiscScanner", "disc_radii", "estimate_normals", "neighbourhoods",
-           "grid_neighbourhoods", "RADIUS_MODES", "ORIENTATIONS", "ENGINES", "NEIGHBOURS"]
+           "grid_neighbourhoods", "pulse_grid_spacing_normals", "RADIUS_MODES", "ORIENTATIONS", "ENGINES", "NEIGHBOURS"]
 
 RADIUS_MODES = ("spacing", "footprint")
 ORIENTATIONS = ("normal", "billboard", "primary")
@@ -231,11 +231,16 @@ def grid_neighbourhoods(points, primary_origin, primary_resolution, gate: float 
     at ``primary_origin`` (the binning backend's exact bins); a point's
     neighbours are the points of the 8 adjacent pulses (azimuth wrapping)
     whose primary range is within ``gate`` times its own, at most one per
-    pulse (the nearest to the scanner). No kd-tree: one sort of the pulse keys.
+    pulse (the nearest to the scanner, then the lowest index). No kd-tree: one
+    sort of the pulse keys, then a linear walk along each zenith row with a
+    pointer into the rows above and below (O(n) after the sort).
 
-    Yields ``(start, distances (c, 8), indices (c, 8), counts (c,))`` chunk by
-    chunk, like :func:`neighbourhoods`; missing neighbours are the point
-    itself at distance 0 (``counts`` says how many are real).
+    Yields ``(members (c,), distances (c, 8), indices (c, 8), counts (c,))``
+    chunk by chunk: ``members`` are the indices of the chunk's points (whole
+    zenith rows of about ``chunk`` points, in pulse order; points outside the
+    pattern come first, with no neighbours). Missing neighbours are the point
+    itself at distance 0 (``counts`` says how many are real). Memory: three
+    ``(n,)`` arrays and one chunk's ``(c, 8)`` arrays.
     """
     from ..pattern import ScanPattern
 
@@ -245,55 +250,190 @@ def grid_neighbourhoods(points, primary_origin, primary_resolution, gate: float 
         return
     pattern = ScanPattern(float(primary_resolution))
     keys, ranges = pulse_keys(pts, as_origin(primary_origin, "primary_origin"), pattern)
-    order = np.argsort(keys, kind="stable")
+    order = np.argsort(keys, kind="stable")  # scan-ordered clouds are nearly sorted: fast
     sorted_keys = keys[order]
-    for s in range(0, n, chunk):
-        e = min(n, s + chunk)
-        idx = np.empty((e - s, 8), np.int64)
-        dist = np.empty((e - s, 8))
-        counts = np.empty(e - s, np.int64)
-        _grid_neighbours(pts, keys, ranges, sorted_keys, order, pattern.n_zenith, pattern.n_azimuth,
-                         float(gate), s, idx, dist, counts)
-        yield s, dist, idx, counts
+    del keys
+    nv, nh = pattern.n_zenith, pattern.n_azimuth
+    # sorted position where each zenith row starts (row nv: the end); unseen points come first
+    row_start = np.searchsorted(sorted_keys, np.arange(nv + 1, dtype=np.int64) * nh)
+    unseen = int(row_start[0])
+    if unseen:
+        members = order[:unseen]
+        yield (members, np.zeros((unseen, 8)), np.repeat(members[:, None], 8, axis=1),
+               np.zeros(unseen, np.int64))
+    v0 = 0
+    while v0 < nv:
+        # whole rows, at least one, about `chunk` points
+        v1 = max(v0 + 1, int(np.searchsorted(row_start, row_start[v0] + chunk, side="right")) - 1)
+        v1 = min(v1, nv)
+        a, b = int(row_start[v0]), int(row_start[v1])
+        if b > a:
+            idx = np.empty((b - a, 8), np.int64)
+            dist = np.empty((b - a, 8))
+            counts = np.empty(b - a, np.int64)
+            _grid_rows(pts, ranges, sorted_keys, order, row_start, _row_tasks(row_start, v0, v1), nh, float(gate),
+                       idx, dist, counts)
+            yield order[a:b], dist, idx, counts
+        v0 = v1
+
+
+@njit(cache=True, inline="always")
+def _offer(slot, q, ranges, ri, gate, best):
+    """Keep ``q`` in ``best[slot]`` if within the range gate and nearer the scanner
+    (candidates come in index order within a pulse: ties keep the lowest index)."""
+    if abs(ranges[q] - ri) <= gate * ri and (best[slot] < 0 or ranges[q] < ranges[best[slot]]):
+        best[slot] = q
+
+
+@njit(cache=True, inline="always")
+def _pulse_neighbours(sk, order, ranges, row_start, ptr, v, h, ri, gate, nh, best):
+    """Fill ``best[slot]`` (-1: none) with the neighbour in each of the 8 pulses
+    around pulse ``(v, h)``; slot ``(dv + 1) * 3 + dh + 1`` (4 is the pulse
+    itself), the output order of a (dv, dh) double loop. ``ptr[t]``: a
+    position in row ``v + t - 1`` at or before azimuth ``h - 1``; called with
+    non-decreasing ``h`` along a row, the pointers only move forward."""
+    nv = row_start.shape[0] - 1
+    best[:] = -1
+    for t in range(3):
+        rr = v + t - 1
+        if rr < 0 or rr >= nv:
+            continue
+        end = row_start[rr + 1]
+        row0 = rr * nh
+        while ptr[t] < end and sk[ptr[t]] < row0 + h - 1:
+            ptr[t] += 1
+        q = ptr[t]
+        while q < end and sk[q] <= row0 + h + 1:
+            dh = sk[q] - row0 - h
+            if not (t == 1 and dh == 0):
+                _offer(t * 3 + dh + 1, order[q], ranges, ri, gate, best)
+            q += 1
+        if nh >= 3 and h == 0:  # azimuth wrap: the row's last pulse is h - 1
+            q = end - 1
+            while q >= row_start[rr] and sk[q] == row0 + nh - 1:
+                q -= 1
+            for q2 in range(q + 1, end):  # forward, so ties keep the lowest index
+                _offer(t * 3, order[q2], ranges, ri, gate, best)
+        if nh >= 3 and h == nh - 1:  # and its first pulse is h + 1
+            q = row_start[rr]
+            while q < end and sk[q] == row0:
+                _offer(t * 3 + 2, order[q], ranges, ri, gate, best)
+                q += 1
+
+
+def _row_tasks(row_start, v0, v1, tasks_per_thread: int = 8):
+    """Split rows ``v0 .. v1`` into runs of about equal point counts, a few per
+    thread (a prange over the rows themselves would give one thread every
+    occupied row when the cloud covers part of the zenith range)."""
+    a, b = int(row_start[v0]), int(row_start[v1])
+    k = max(1, min(v1 - v0, default_threads() * tasks_per_thread))
+    cuts = np.searchsorted(row_start[v0:v1 + 1], np.linspace(a, b, k + 1)[1:-1]) + v0
+    return np.unique(np.concatenate([[v0], cuts, [v1]])).astype(np.int64)
+
+
+@njit(cache=True, inline="always")
+def _row_pointers(row_start, v):
+    nv = row_start.shape[0] - 1
+    ptr = np.empty(3, np.int64)
+    for t in range(3):
+        rr = v + t - 1
+        ptr[t] = row_start[rr] if 0 <= rr < nv else 0
+    return ptr
 
 
 @njit(cache=True, parallel=True)
-def _grid_neighbours(pts, keys, ranges, sorted_keys, order, nv, nh, gate, s, idx, dist, counts):
-    for c in prange(idx.shape[0]):
-        i = s + c
-        k = keys[i]
-        m = 0
-        if k >= 0:
-            v = k // nh
-            h = k - v * nh
-            for dv in (-1, 0, 1):
-                vv = v + dv
-                if vv < 0 or vv >= nv:
-                    continue
-                for dh in (-1, 0, 1):
-                    if dv == 0 and dh == 0:
-                        continue
-                    hh = (h + dh + nh) % nh
-                    kk = vv * nh + hh
-                    j = np.searchsorted(sorted_keys, kk)
-                    best = -1
-                    while j < len(sorted_keys) and sorted_keys[j] == kk:
-                        q = order[j]
-                        near = abs(ranges[q] - ranges[i]) <= gate * ranges[i]
-                        if near and (best < 0 or ranges[q] < ranges[best]):
-                            best = q
-                        j += 1
-                    if best >= 0:
-                        idx[c, m] = best
-                        dx = pts[best, 0] - pts[i, 0]
-                        dy = pts[best, 1] - pts[i, 1]
-                        dz = pts[best, 2] - pts[i, 2]
+def _grid_rows(pts, ranges, sk, order, row_start, tasks, nh, gate, idx, dist, counts):
+    """Pulse-grid neighbours of the points of rows ``tasks[0] .. tasks[-1]``
+    (see :func:`grid_neighbourhoods`): each task walks its rows linearly."""
+    base = row_start[tasks[0]]
+    for task in prange(len(tasks) - 1):
+        best = np.empty(9, np.int64)
+        for v in range(tasks[task], tasks[task + 1]):
+            ptr = _row_pointers(row_start, v)
+            for j in range(row_start[v], row_start[v + 1]):
+                i = order[j]
+                _pulse_neighbours(sk, order, ranges, row_start, ptr, v, sk[j] - v * nh, ranges[i], gate, nh,
+                                  best)
+                c = j - base
+                m = 0
+                for slot in range(9):
+                    q = best[slot]
+                    if q >= 0:
+                        idx[c, m] = q
+                        dx = pts[q, 0] - pts[i, 0]
+                        dy = pts[q, 1] - pts[i, 1]
+                        dz = pts[q, 2] - pts[i, 2]
                         dist[c, m] = math.sqrt(dx * dx + dy * dy + dz * dz)
                         m += 1
-        counts[c] = m
-        for t in range(m, 8):
-            idx[c, t] = i
-            dist[c, t] = 0.0
+                counts[c] = m
+                for t in range(m, 8):
+                    idx[c, t] = i
+                    dist[c, t] = 0.0
+
+
+def pulse_grid_spacing_normals(points, primary_origin, primary_resolution, gate: float = 0.1,
+                               spacing: bool = True, normals: bool = True, dtype=np.float64):
+    """Mean neighbour spacing ``(n,)`` and PCA normals ``(n, 3)`` of a primary
+    scan from its pulse grid, in one pass and without neighbour arrays.
+
+    The same neighbours as :func:`grid_neighbourhoods` and the same normals as
+    :func:`estimate_normals` would compute from them (missing neighbours count
+    as the point itself); memory is the outputs and three ``(n,)`` arrays.
+    Points outside the pattern, or with no neighbour, get spacing 0 (the disc
+    radius floor applies) and the direction to the primary scanner. Either
+    output is ``None`` when not asked for; ``dtype`` is the normals' (float32
+    for Embree halves their memory).
+    """
+    from ..pattern import ScanPattern
+
+    pts = np.ascontiguousarray(points, np.float64)
+    n = len(pts)
+    o = as_origin(primary_origin, "primary_origin")
+    sp = np.zeros(n) if spacing else np.empty(0)
+    nr = np.empty((n, 3), dtype) if normals else np.empty((0, 3), dtype)
+    if n:
+        if normals:  # the unseen points' (and every point's) fallback
+            _towards(pts, o, nr)
+        pattern = ScanPattern(float(primary_resolution))
+        keys, ranges = pulse_keys(pts, o, pattern)
+        order = np.argsort(keys, kind="stable")
+        sorted_keys = keys[order]
+        del keys
+        nv, nh = pattern.n_zenith, pattern.n_azimuth
+        row_start = np.searchsorted(sorted_keys, np.arange(nv + 1, dtype=np.int64) * nh)
+        _grid_fused(pts, ranges, sorted_keys, order, row_start, _row_tasks(row_start, 0, nv), nh, float(gate), o,
+                    spacing, normals, sp, nr)
+    return (sp if spacing else None), (nr if normals else None)
+
+
+@njit(cache=True, parallel=True)
+def _grid_fused(pts, ranges, sk, order, row_start, tasks, nh, gate, po, want_spacing, want_normals, sp, nr):
+    for task in prange(len(tasks) - 1):
+        best = np.empty(9, np.int64)
+        nbr = np.empty(8, np.int64)
+        for v in range(tasks[task], tasks[task + 1]):
+            ptr = _row_pointers(row_start, v)
+            for j in range(row_start[v], row_start[v + 1]):
+                i = order[j]
+                _pulse_neighbours(sk, order, ranges, row_start, ptr, v, sk[j] - v * nh, ranges[i], gate, nh,
+                                  best)
+                m = 0
+                total = 0.0
+                for slot in range(9):
+                    q = best[slot]
+                    if q >= 0:
+                        nbr[m] = q
+                        dx = pts[q, 0] - pts[i, 0]
+                        dy = pts[q, 1] - pts[i, 1]
+                        dz = pts[q, 2] - pts[i, 2]
+                        total += math.sqrt(dx * dx + dy * dy + dz * dz)
+                        m += 1
+                if want_spacing and m:
+                    sp[i] = total / m
+                if want_normals:
+                    for t in range(m, 8):
+                        nbr[t] = i
+                    nr[i, 0], nr[i, 1], nr[i, 2] = _pca_normal(pts, i, nbr, 8, True, po)
 
 
 def _fallback_directions(points, primary_origin, dtype=np.float64):
@@ -370,16 +510,17 @@ def estimate_normals(points, k: int = 10, primary_origin=None, chunk: int = 1 <<
         return np.array(_fallback_directions(pts, primary_origin))
     out = np.empty((len(pts), 3))
     for s, _, idx in neighbourhoods(pts, k, chunk):
-        out[s:s + len(idx)] = _chunk_normals(pts, s, idx, primary_origin)
+        out[s:s + len(idx)] = _chunk_normals(pts, np.arange(s, s + len(idx)), idx, primary_origin)
     return out
 
 
-def _chunk_normals(pts, s, idx, primary_origin):
-    """PCA normals of points ``s .. s + len(idx)`` with their neighbours ``idx``."""
+def _chunk_normals(pts, members, idx, primary_origin):
+    """PCA normals of the points ``members`` with their neighbours ``idx``."""
     out = np.empty((len(idx), 3))
     has = primary_origin is not None
     po = as_origin(primary_origin, "primary_origin") if has else np.zeros(3)
-    _pca_normals(pts, s, np.ascontiguousarray(idx, np.int64), has, po, out)
+    _pca_normals(pts, np.ascontiguousarray(members, np.int64), np.ascontiguousarray(idx, np.int64),
+                 has, po, out)
     return out
 
 
@@ -405,76 +546,79 @@ def _eigvec(a00, a01, a02, a11, a12, a22, lam):
     return vx / n, vy / n, vz / n, True
 
 
-@njit(cache=True, nogil=True)
-def _pca_normals(pts, s, idx, has_primary, po, out):
-    """Normals by PCA of each point and its neighbours, eigenvalues in closed form
-    (trigonometric solution of the symmetric 3x3 characteristic polynomial)."""
-    c, k = idx.shape
-    for i in range(c):
-        p = s + i
-        # fallback direction: to the primary scanner, or +z
-        fx, fy, fz = 0.0, 0.0, 1.0
-        if has_primary:
-            hx, hy, hz = po[0] - pts[p, 0], po[1] - pts[p, 1], po[2] - pts[p, 2]
+@njit(cache=True, inline="always")
+def _pca_normal(pts, p, nbr, k, has_primary, po):
+    """Normal of point ``p`` by PCA of it and its neighbours ``nbr[:k]``,
+    eigenvalues in closed form (trigonometric solution of the symmetric 3x3
+    characteristic polynomial)."""
+    # fallback direction: to the primary scanner, or +z
+    fx, fy, fz = 0.0, 0.0, 1.0
+    if has_primary:
+        hx, hy, hz = po[0] - pts[p, 0], po[1] - pts[p, 1], po[2] - pts[p, 2]
+        hn = math.sqrt(hx * hx + hy * hy + hz * hz)
+        if hn > 0:
+            fx, fy, fz = hx / hn, hy / hn, hz / hn
+    mx, my, mz = pts[p, 0], pts[p, 1], pts[p, 2]
+    for j in range(k):
+        q = nbr[j]
+        mx += pts[q, 0]
+        my += pts[q, 1]
+        mz += pts[q, 2]
+    mx /= k + 1
+    my /= k + 1
+    mz /= k + 1
+    a00 = a01 = a02 = a11 = a12 = a22 = 0.0
+    for j in range(-1, k):
+        q = p if j < 0 else nbr[j]
+        dx, dy, dz = pts[q, 0] - mx, pts[q, 1] - my, pts[q, 2] - mz
+        a00 += dx * dx
+        a01 += dx * dy
+        a02 += dx * dz
+        a11 += dy * dy
+        a12 += dy * dz
+        a22 += dz * dz
+    scale = 1e-9 * (1.0 + max(abs(pts[p, 0]), abs(pts[p, 1]), abs(pts[p, 2])))
+    tiny = scale * scale * (k + 1)
+    q3 = (a00 + a11 + a22) / 3.0
+    b00, b11, b22 = a00 - q3, a11 - q3, a22 - q3
+    p2 = (b00 * b00 + b11 * b11 + b22 * b22 + 2.0 * (a01 * a01 + a02 * a02 + a12 * a12)) / 6.0
+    if a00 + a11 + a22 <= tiny:  # identical points: no direction
+        return fx, fy, fz
+    if p2 <= 0.0:  # isotropic: any direction is a normal
+        return fx, fy, fz
+    pp = math.sqrt(p2)
+    det = (b00 * (b11 * b22 - a12 * a12) - a01 * (a01 * b22 - a12 * a02)
+           + a02 * (a01 * a12 - b11 * a02)) / (pp * pp * pp)
+    r = min(1.0, max(-1.0, det / 2.0))
+    phi = math.acos(r) / 3.0
+    lam2 = q3 + 2.0 * pp * math.cos(phi)  # largest
+    lam0 = q3 + 2.0 * pp * math.cos(phi + 2.0 * math.pi / 3.0)  # smallest
+    lam1 = 3.0 * q3 - lam0 - lam2
+    if lam1 <= 1e-9 * lam2:
+        # collinear: orthogonal to the line, towards the fallback direction
+        ax, ay, az, ok = _eigvec(a00, a01, a02, a11, a12, a22, lam2)
+        t = fx * ax + fy * ay + fz * az
+        hx, hy, hz = fx - t * ax, fy - t * ay, fz - t * az
+        hn = math.sqrt(hx * hx + hy * hy + hz * hz)
+        if hn <= 1e-12:  # the fallback lies along the line: any orthogonal direction
+            if abs(ax) < 0.9:
+                hx, hy, hz = 0.0, az, -ay
+            else:
+                hx, hy, hz = -az, 0.0, ax
             hn = math.sqrt(hx * hx + hy * hy + hz * hz)
-            if hn > 0:
-                fx, fy, fz = hx / hn, hy / hn, hz / hn
-        mx, my, mz = pts[p, 0], pts[p, 1], pts[p, 2]
-        for j in range(k):
-            q = idx[i, j]
-            mx += pts[q, 0]
-            my += pts[q, 1]
-            mz += pts[q, 2]
-        mx /= k + 1
-        my /= k + 1
-        mz /= k + 1
-        a00 = a01 = a02 = a11 = a12 = a22 = 0.0
-        for j in range(-1, k):
-            q = p if j < 0 else idx[i, j]
-            dx, dy, dz = pts[q, 0] - mx, pts[q, 1] - my, pts[q, 2] - mz
-            a00 += dx * dx
-            a01 += dx * dy
-            a02 += dx * dz
-            a11 += dy * dy
-            a12 += dy * dz
-            a22 += dz * dz
-        scale = 1e-9 * (1.0 + max(abs(pts[p, 0]), abs(pts[p, 1]), abs(pts[p, 2])))
-        tiny = scale * scale * (k + 1)
-        q3 = (a00 + a11 + a22) / 3.0
-        b00, b11, b22 = a00 - q3, a11 - q3, a22 - q3
-        p2 = (b00 * b00 + b11 * b11 + b22 * b22 + 2.0 * (a01 * a01 + a02 * a02 + a12 * a12)) / 6.0
-        if a00 + a11 + a22 <= tiny:  # identical points: no direction
-            out[i, 0], out[i, 1], out[i, 2] = fx, fy, fz
-            continue
-        if p2 <= 0.0:  # isotropic: any direction is a normal
-            out[i, 0], out[i, 1], out[i, 2] = fx, fy, fz
-            continue
-        pp = math.sqrt(p2)
-        det = (b00 * (b11 * b22 - a12 * a12) - a01 * (a01 * b22 - a12 * a02)
-               + a02 * (a01 * a12 - b11 * a02)) / (pp * pp * pp)
-        r = min(1.0, max(-1.0, det / 2.0))
-        phi = math.acos(r) / 3.0
-        lam2 = q3 + 2.0 * pp * math.cos(phi)  # largest
-        lam0 = q3 + 2.0 * pp * math.cos(phi + 2.0 * math.pi / 3.0)  # smallest
-        lam1 = 3.0 * q3 - lam0 - lam2
-        if lam1 <= 1e-9 * lam2:
-            # collinear: orthogonal to the line, towards the fallback direction
-            ax, ay, az, ok = _eigvec(a00, a01, a02, a11, a12, a22, lam2)
-            t = fx * ax + fy * ay + fz * az
-            hx, hy, hz = fx - t * ax, fy - t * ay, fz - t * az
-            hn = math.sqrt(hx * hx + hy * hy + hz * hz)
-            if hn <= 1e-12:  # the fallback lies along the line: any orthogonal direction
-                if abs(ax) < 0.9:
-                    hx, hy, hz = 0.0, az, -ay
-                else:
-                    hx, hy, hz = -az, 0.0, ax
-                hn = math.sqrt(hx * hx + hy * hy + hz * hz)
-            out[i, 0], out[i, 1], out[i, 2] = hx / hn, hy / hn, hz / hn
-            continue
-        vx, vy, vz, ok = _eigvec(a00, a01, a02, a11, a12, a22, lam0)
-        if not ok:
-            vx, vy, vz = fx, fy, fz
-        out[i, 0], out[i, 1], out[i, 2] = vx, vy, vz
+        return hx / hn, hy / hn, hz / hn
+    vx, vy, vz, ok = _eigvec(a00, a01, a02, a11, a12, a22, lam0)
+    if not ok:
+        vx, vy, vz = fx, fy, fz
+    return vx, vy, vz
+
+
+@njit(cache=True, parallel=True)
+def _pca_normals(pts, members, idx, has_primary, po, out):
+    """:func:`_pca_normal` of every point ``members[i]`` with neighbours ``idx[i]``."""
+    k = idx.shape[1]
+    for i in prange(idx.shape[0]):
+        out[i, 0], out[i, 1], out[i, 2] = _pca_normal(pts, members[i], idx[i], k, has_primary, po)
 
 
 def _frames(normals):
@@ -549,30 +693,37 @@ class DiscScanner(Scanner):
         need_normals = o.orientation == "normal" and o.normals is None
         spacing = np.zeros(n) if need_spacing else None
         normals = None
+        # estimated normals in float32 for Embree (its precision; 12 B a point less at the peak)
+        ndtype = np.float32 if o.engine == "embree" else np.float64
+        grid = (need_spacing or need_normals) and o.neighbours == "pulse-grid"
         if o.orientation == "normal":
-            # estimated normals are filled chunk by chunk below; fewer than two
+            # kNN normals are filled chunk by chunk below, pulse-grid ones come whole; fewer than two
             # points have no neighbours and keep the fallback direction
-            normals = ((np.empty((n, 3)) if n >= 2 else np.array(_fallback_directions(pts, o.primary_origin)))
-                       if need_normals else np.asarray(as_points(o.normals, "normals"), np.float64))
-            if len(normals) != n:
+            if not need_normals:
+                normals = np.asarray(as_points(o.normals, "normals"), np.float64)
+            elif n < 2:
+                normals = np.array(_fallback_directions(pts, o.primary_origin, ndtype))
+            elif not grid:
+                normals = np.empty((n, 3), ndtype)
+            if normals is not None and len(normals) != n:
                 raise InputValueError(f"normals has {len(normals)} rows for {n} points")
         elif o.orientation == "primary":
             # float32: what Embree holds anyway (a float64 copy would be 24 B a point of peak memory)
             normals = np.array(_fallback_directions(pts, o.primary_origin, np.float32))
-        if (need_spacing or need_normals) and o.neighbours == "pulse-grid":
-            for s, d, idx, counts in grid_neighbourhoods(pts, o.primary_origin, o.primary_resolution,
-                                                         o.grid_gate, o.chunk):
-                if need_spacing:  # mean over the real neighbours (0: the floor applies)
-                    spacing[s:s + len(d)] = d.sum(axis=1) / np.maximum(counts, 1)
-                if need_normals:
-                    normals[s:s + len(idx)] = _chunk_normals(pts, s, idx, o.primary_origin)
+        if grid and n >= 2:
+            # one fused pass: no neighbour arrays (spacing 0 where none: the floor applies)
+            spacing, grid_normals = pulse_grid_spacing_normals(pts, o.primary_origin, o.primary_resolution,
+                                                               o.grid_gate, need_spacing, need_normals, ndtype)
+            if need_normals:
+                normals = grid_normals
         elif need_spacing or need_normals:
             # one neighbour query per chunk serves radii and normals
             for s, d, idx in neighbourhoods(pts, o.k, o.chunk):
                 if need_spacing:
                     spacing[s:s + len(d)] = d.mean(axis=1)
                 if need_normals:
-                    normals[s:s + len(idx)] = _chunk_normals(pts, s, idx, o.primary_origin)
+                    normals[s:s + len(idx)] = _chunk_normals(pts, np.arange(s, s + len(idx)), idx,
+                                                             o.primary_origin)
         # float32, Embree's precision (4 B a point instead of 8: 0.8 GB on a 209 M-point primary)
         self.radii = disc_radii(pts, o.radius, k=o.k, radius_scale=o.radius_scale,
                                 primary_origin=o.primary_origin, primary_resolution=o.primary_resolution,
@@ -597,10 +748,10 @@ class DiscScanner(Scanner):
             else:
                 self._scene = _Open3DFans(verts - self._centre, faces)
             del verts, faces
-        if o.orientation == "primary" and o.engine == "embree":
-            # the directions to the primary are implied by the points: Embree and the tie rule hold
-            # their own float32 copy, so the float64 one (24 B a point) is not kept
-            self.normals = None
+        if o.engine == "embree" and normals is not None:
+            # Embree and the tie rule hold their own float32 copy: the float64 one (24 B a point, 5 GB on
+            # a 209 M-point primary) is not kept; ``normals`` is a read-only view of Embree's
+            self.normals = normals = self._scene.owner_normals
         self.nbytes = self._scene.nbytes
         self.build_seconds = time.perf_counter() - t1
         self.prepare_seconds = time.perf_counter() - t0
