@@ -345,8 +345,9 @@ def _grid_brute(pts, origin, res, gate):
     return out
 
 
+@pytest.mark.parametrize("layout", ["rows", "columns", "auto"])
 @pytest.mark.parametrize("seed", [0, 1, 2])
-def test_pulse_grid_neighbours_against_brute_force(seed):
+def test_pulse_grid_neighbours_against_brute_force(seed, layout):
     """Random points on a sphere shell and a box, including the azimuth wrap
     (points either side of azimuth 0) and both poles."""
     from slr_ray.backends.embree import grid_neighbourhoods
@@ -361,7 +362,7 @@ def test_pulse_grid_neighbours_against_brute_force(seed):
     pts += origin
     want = _grid_brute(pts, origin, 6.0, 0.1)
     got = [None] * len(pts)
-    for members, dist, idx, counts in grid_neighbourhoods(pts, origin, 6.0, 0.1, chunk=700):
+    for members, dist, idx, counts in grid_neighbourhoods(pts, origin, 6.0, 0.1, chunk=700, layout=layout):
         for c, i in enumerate(members):
             assert got[i] is None  # every point once
             got[i] = set(idx[c, :counts[c]].tolist())
@@ -432,3 +433,27 @@ def test_fused_pulse_grid_pass_equals_neighbourhoods_then_pca(seed):
     assert np.all(spacing[50:60] == 0)
     s_only, none = pulse_grid_spacing_normals(pts, origin, 4.0, 0.1, normals=False)
     assert none is None and np.array_equal(s_only, spacing)
+    # walking columns instead of rows finds the same neighbours in the same order: the same bits
+    for layout in ("rows", "columns"):
+        s2, n2 = pulse_grid_spacing_normals(pts, origin, 4.0, 0.1, layout=layout)
+        assert np.array_equal(s2, spacing) and np.array_equal(n2, normals)
+
+
+def test_pulse_grid_walks_the_order_the_cloud_is_stored_in():
+    """A primary stored column by column (as a TLS scanner records it) is
+    walked by columns, one stored row by row by rows; the neighbours are the
+    same either way (tested above)."""
+    from slr_ray import scan_mesh
+    from slr_ray.backends.binning import pulse_keys
+    from slr_ray.backends.embree import _sorted_pulse_grid
+    from slr_ray.scenes import rectangle_scene
+
+    pattern = ScanPattern(1.0)
+    cloud = scan_mesh(rectangle_scene(20, seed=1), [0, 0, 0], pattern).points  # row by row, as scanned
+    k, _ = pulse_keys(cloud, np.zeros(3), pattern)
+    v, h = np.divmod(k, pattern.n_azimuth)
+    by_column = cloud[np.lexsort((v, h))]
+    assert _sorted_pulse_grid(cloud, np.zeros(3), 1.0)[5] is False
+    assert _sorted_pulse_grid(by_column, np.zeros(3), 1.0)[5] is True
+    with pytest.raises(InputValueError, match="layout"):
+        _sorted_pulse_grid(cloud, np.zeros(3), 1.0, "diagonal")
