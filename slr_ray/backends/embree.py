@@ -454,8 +454,6 @@ def pulse_grid_spacing_normals(points, primary_origin, primary_resolution, gate:
     for Embree halves their memory); ``layout``: see :func:`_sorted_pulse_grid`
     (the answer does not depend on it, only the speed).
     """
-    from ..pattern import ScanPattern
-
     pts = np.ascontiguousarray(points, np.float64)
     n = len(pts)
     o = as_origin(primary_origin, "primary_origin")
