@@ -91,7 +91,7 @@ class Agreement:
 def _share_within(query, reference, threshold, workers) -> float:
     """Share of ``query`` points with a ``reference`` point strictly closer than
     ``threshold``: on a cell grid (no tree, early exit), or a kd-tree where the
-    grid does not suit the cloud (extent of more than 2e6 cells, huge coordinates)."""
+    grid does not suit the cloud (an extent of more than 2e6 cells)."""
     if len(query) == 0:
         return float("nan")
     try:
@@ -116,8 +116,7 @@ def agreement(true_points, simulated_points, threshold: float = SIMILARITY_THRES
         Threads of the kd-tree queries (-1: all), where a kd-tree is used:
         the test runs on a :class:`~slr_ray.cellgrid.CellGrid` of cells of the
         threshold's size (numba's threads) unless the cloud spans more than
-        2e6 such cells along an axis or its coordinates are too large for
-        exact cell indices.
+        2e6 such cells along an axis.
 
     Returns
     -------
