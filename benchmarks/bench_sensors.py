@@ -10,12 +10,15 @@
 2. Time per HDL-64E frame against the number of input points (every k-th
    point of the cloud, N = 1e5 ... 2.9e7).
 3. The KITTI HDL-64E frame of ../shared/data re-scanned as a VLP-16 and a
-   VLP-32C from its own origin and from 1 m to the side (binning and embree):
-   points out, time; range images saved as docs/figures/kitti_<sensor>_<where>.png.
+   VLP-32C from its own origin and from 1 m to the side (binning, embree with
+   kNN discs, and embree with discs from the frame's own beam-table pulse grid,
+   ``primary_pattern='velodyne_hdl64e_s2'``): points out, time; range images
+   saved as docs/figures/kitti_<sensor>_<where>.png.
 4. With ground truth: a synthetic room with a pillar scanned as an HDL-64E
    frame (exact ray casting), re-scanned as a VLP-16 from the same origin and
-   from 1 m to the side by each backend, against the room's exact VLP-16
-   scans: coverage and precision (10 cm).
+   from 1 m to the side by each backend (embree with kNN discs and with the
+   frame's own pulse grid), against the room's exact VLP-16 scans: coverage
+   and precision (10 cm).
 
 Saves results/bench_sensors.json.
 """
@@ -37,6 +40,9 @@ from slr_ray import ScanPattern, prepare  # noqa: E402
 from slr_ray.sensors import sensor  # noqa: E402
 
 ORIGIN = [12.3, -7.1, 0.0]
+#: how each frame is re-scanned: binning, kNN discs, discs from the frame's own beam-table grid
+BACKENDS = (("binning", {}), ("embree", {}),
+            ("embree pulse-grid", {"primary_origin": [0.0, 0.0, 0.0], "primary_pattern": "velodyne_hdl64e_s2"}))
 KITTI = Path(__file__).resolve().parents[2] / "shared" / "data" / "kitti_hdl64_000000.bin"
 FIGURES = Path(__file__).resolve().parents[1] / "docs" / "figures"
 
@@ -82,8 +88,8 @@ def main(argv=None):
         FIGURES.mkdir(parents=True, exist_ok=True)
         for name in ("velodyne_vlp16", "velodyne_vlp32c"):
             for where, origin in (("own origin", [0.0, 0.0, 0.0]), ("1 m to the side", [0.0, 1.0, 0.0])):
-                for backend in ("binning", "embree"):
-                    sc = prepare(k.points, backend)
+                for backend, opts in BACKENDS:
+                    sc = prepare(k.points, backend.split()[0], **opts)
                     sc.scan(origin, sensor(name))
                     t, s = best(lambda: sc.scan(origin, sensor(name)), args.repeat)
                     kitti.append({"sensor": name, "where": where, "backend": backend, "seconds": t,
@@ -115,8 +121,10 @@ def with_truth():
     for where, shift in (("own origin", [0, 0, 0]), ("1 m to the side", [0, 1.0, 0])):
         origin = o + shift
         truth = scan_mesh(mesh, origin, sensor("velodyne_vlp16"))
-        for backend in ("binning", "embree"):
-            s = prepare(frame.points, backend).scan(origin, sensor("velodyne_vlp16"))
+        for backend, opts in BACKENDS:
+            if opts:
+                opts = {**opts, "primary_origin": o}
+            s = prepare(frame.points, backend.split()[0], **opts).scan(origin, sensor("velodyne_vlp16"))
             a = agreement(truth.points, frame.points[s.indices])
             rows.append({"where": where, "backend": backend, "frame_points": len(frame), "true_points": len(truth),
                          "points_out": len(s), "coverage": a.coverage, "precision": a.precision})

@@ -12,7 +12,10 @@ discs, the occlusion diagnostics of the validation) goes through
   becomes float32, and rays start from the scanner recentred the same way;
 * the cast loop: compiled (numba, ``nogil``), calling ``rtcIntersect1`` through
   its C function pointer, one ``RTCRayHit`` per thread, rays split over threads
-  in interleaved blocks;
+  in interleaved blocks; a ray that misses the scene's padded bounding box is
+  answered without the call (a float64 slab test: most rays of a scan from
+  outside a cloud's bounds miss it, and a call costs as much as a short
+  traversal; from inside the bounds nothing is saved);
 * two refinements that make results independent of float32 noise: for
   triangles, the hit distance recomputed in float64 on the hit triangle's plane
   (``exact=True``); for discs, the deterministic tie rule (``ties``, below).
@@ -290,10 +293,43 @@ def _aligned(n_floats):
     return buf[off:off + n_floats]
 
 
+@njit(cache=True, nogil=True, inline="always")
+def _misses_box(ox, oy, oz, dx, dy, dz, box, tnear, tfar):
+    """Whether the ray surely misses the axis-aligned box ``(lo, hi)`` on [tnear, tfar]
+    (float64 slab test; the box is padded, so a True is never a ray Embree would hit)."""
+    t0 = tnear
+    t1 = tfar
+    for a in range(3):
+        o = (ox, oy, oz)[a]
+        d = (dx, dy, dz)[a]
+        lo = box[a]
+        hi = box[a + 3]
+        if d == 0.0:
+            if o < lo or o > hi:
+                return True
+        else:
+            inv = 1.0 / d
+            ta = (lo - o) * inv
+            tb = (hi - o) * inv
+            if ta > tb:
+                ta, tb = tb, ta
+            if ta > t0:
+                t0 = ta
+            if tb < t1:
+                t1 = tb
+            if t0 > t1:
+                return True
+    return False
+
+
 @njit(cache=True, nogil=True)
 def _cast_blocks(isect, scene, filt, org32, org64, dirs, tnear, tfar, first_block, step,
-                 mode_first, ties, aspect, centres, radii, normals, div, reach, prim_out, owner_out, t_out):
-    """Cast rays ``dirs`` from ``org32`` (scene frame), blocks first_block, +step, ..."""
+                 mode_first, ties, aspect, centres, radii, normals, div, reach, box, prim_out, owner_out, t_out):
+    """Cast rays ``dirs`` from ``org32`` (scene frame), blocks first_block, +step, ...
+
+    Rays that miss ``box`` (the scene's padded bounds, scene frame) are answered
+    here without a call into Embree: a call costs about as much as a short
+    traversal, and most rays of a scan from outside a cloud's bounds miss it."""
     rh = _aligned(_RAYHIT_FLOATS)
     ru = rh.view(np.uint32)
     ctx = np.zeros(_CTX_WORDS, np.int64)
@@ -318,9 +354,15 @@ def _cast_blocks(isect, scene, filt, org32, org64, dirs, tnear, tfar, first_bloc
     first_args = args_ptr if mode_first else np.int64(0)
     m = dirs.shape[0]
     n_blocks = (m + _BLOCK - 1) // _BLOCK
+    ox, oy, oz = np.float64(org32[0]), np.float64(org32[1]), np.float64(org32[2])
     for blk in range(first_block, n_blocks, step):
         for i in range(blk * _BLOCK, min(m, (blk + 1) * _BLOCK)):
             dx, dy, dz = dirs[i, 0], dirs[i, 1], dirs[i, 2]
+            if _misses_box(ox, oy, oz, dx, dy, dz, box, np.float64(tnear), np.float64(tfar)):
+                prim_out[i] = -1
+                owner_out[i] = -1
+                t_out[i] = np.inf
+                continue
             rh[0], rh[1], rh[2], rh[3] = org32[0], org32[1], org32[2], tnear
             rh[4], rh[5], rh[6], rh[7] = dx, dy, dz, 0.0
             rh[_TFAR] = tfar
@@ -434,6 +476,9 @@ class RayScene:
         self.reach = float(reach)
         self.nbytes = int(sum(b[4].nbytes for b in buffers))
         self._has_owners = bool(has_owners)
+        # vertex rows (a triangle buffer's spare row excluded): the bounds rays are tested against first
+        self._box = _padded_bounds(buffers[0][4], buffers[0][5] if self.n_primitives else 0,
+                                   geometry_type != GEOMETRY_TRIANGLE)
         lib = embree_library()
         t0 = time.perf_counter()
         self._scene = lib.new_scene(lib.device)
@@ -624,7 +669,7 @@ class RayScene:
                                      float(pulse_aspect or 0.0),
                                      self._owner_centres, self._owner_radii, self._owner_normals,
                                      self.prims_per_owner,
-                                     self.reach, prim, owner, t)
+                                     self.reach, self._box, prim, owner, t)
         if n_threads == 1:
             run(0)
         else:
@@ -650,6 +695,22 @@ class RayScene:
             except Exception:  # pragma: no cover - interpreter shutdown
                 pass
             self._scene = None
+
+
+def _padded_bounds(vbuf, n, with_radius):
+    """``(lo, hi)`` float64 of the vertex buffer's first ``n`` rows (scene frame),
+    grown by the largest radius (discs) and a margin far above float32 rounding:
+    a ray that misses it misses the scene. Empty scene: an empty box."""
+    if n == 0:
+        return np.array([np.inf, np.inf, np.inf, -np.inf, -np.inf, -np.inf])
+    xyz = vbuf[:n, :3]
+    lo = xyz.min(axis=0).astype(np.float64)
+    hi = xyz.max(axis=0).astype(np.float64)
+    grow = float(vbuf[:n, 3].max()) if with_radius else 0.0
+    # Embree's own bounds are conservative in float32; 1e-5 of the extent (and 1 µm) is
+    # far beyond its rounding, so no ray it could report a hit for is answered here
+    pad = grow + 1e-5 * float(np.max(hi - lo)) + 1e-5 * float(np.max(np.abs(np.concatenate([lo, hi])))) + 1e-6
+    return np.concatenate([lo - pad, hi + pad])
 
 
 def _centre_of(points: np.ndarray) -> np.ndarray:

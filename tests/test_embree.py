@@ -320,12 +320,14 @@ def test_polygon_engines_agree_with_the_exact_discs(engine):
 # --- neighbours from the primary's own pulse grid ---------------------------------------------------------
 
 def _grid_brute(pts, origin, res, gate):
-    """Pulse-grid neighbours by a Python loop over the exact bins."""
+    """Pulse-grid neighbours by a Python loop over the exact bins (``res``:
+    degrees or a pattern, a beam table included)."""
     from slr_ray.backends.binning import pulse_keys
+    from slr_ray.pattern import as_pattern
 
-    pattern = ScanPattern(res)
+    pattern = as_pattern(res)
     keys, ranges = pulse_keys(pts, np.asarray(origin, float), pattern)
-    nh, nv = pattern.n_azimuth, pattern.n_zenith
+    nv, nh = pattern.shape
     by_key = {}
     for i, k in enumerate(keys):
         by_key.setdefault(int(k), []).append(i)
@@ -333,6 +335,9 @@ def _grid_brute(pts, origin, res, gate):
     for i, k in enumerate(keys):
         v, h = divmod(int(k), nh)
         nb = set()
+        if k < 0:  # outside the pattern (a beam table's bands): no neighbours
+            out.append(nb)
+            continue
         for dv in (-1, 0, 1):
             for dh in (-1, 0, 1):
                 if (dv, dh) == (0, 0) or not 0 <= v + dv < nv:
@@ -345,12 +350,25 @@ def _grid_brute(pts, origin, res, gate):
     return out
 
 
+def _beam_table():
+    """A small irregular beam table: 12 beams, uneven gaps, per-beam azimuth offsets."""
+    from slr_ray.sensors import BeamPattern
+
+    el = [-55.0, -41.0, -30.5, -22.0, -15.0, -9.5, -5.0, -1.0, 4.0, 11.0, 23.0, 50.0]
+    return BeamPattern(el, columns=60, azimuth_offset_deg=np.linspace(-3, 3, 12)[::-1])
+
+
 @pytest.mark.parametrize("layout", ["rows", "columns", "auto"])
 @pytest.mark.parametrize("seed", [0, 1, 2])
-def test_pulse_grid_neighbours_against_brute_force(seed, layout):
+@pytest.mark.parametrize("primary", ["uniform", "beams"])
+def test_pulse_grid_neighbours_against_brute_force(seed, layout, primary):
     """Random points on a sphere shell and a box, including the azimuth wrap
-    (points either side of azimuth 0) and both poles."""
+    (points either side of azimuth 0) and both poles; the primary's grid a
+    uniform 6 deg pattern or a beam table (rows of uneven height, points above
+    and below every beam's band)."""
     from slr_ray.backends.embree import grid_neighbourhoods
+
+    res = 6.0 if primary == "uniform" else _beam_table()
 
     rng = np.random.default_rng(seed)
     d = rng.normal(size=(3000, 3))
@@ -360,9 +378,10 @@ def test_pulse_grid_neighbours_against_brute_force(seed, layout):
     pts[200:300] = pts[300:400]  # duplicates: equal ranges in one pulse, the lowest index wins
     origin = np.array([1e5, -2e5, 30.0])
     pts += origin
-    want = _grid_brute(pts, origin, 6.0, 0.1)
+    want = _grid_brute(pts, origin, res, 0.1)
+    assert sum(map(len, want)) > 2 * len(pts)  # the grid is populated
     got = [None] * len(pts)
-    for members, dist, idx, counts in grid_neighbourhoods(pts, origin, 6.0, 0.1, chunk=700, layout=layout):
+    for members, dist, idx, counts in grid_neighbourhoods(pts, origin, res, 0.1, chunk=700, layout=layout):
         for c, i in enumerate(members):
             assert got[i] is None  # every point once
             got[i] = set(idx[c, :counts[c]].tolist())
@@ -397,6 +416,62 @@ def test_pulse_grid_normals_on_a_scanned_room_and_its_edges():
     hit = pts[scan.indices]
     behind = (hit[:, 0] > 8) & (np.abs(hit[:, 1]) < 0.5 * 0.8) & (np.abs(hit[:, 2]) < 0.5 * 0.8)
     assert not behind.any(), "the back wall seen through the front wall"
+
+
+def test_a_beam_table_scan_rescanned_coarser_with_its_own_pulse_grid():
+    """A room scanned as a VLP-32C, re-scanned from the same place as a VLP-16:
+    discs from the primary's beam-table grid (``primary_pattern``) return at
+    least what binning returns and are more precise against the true VLP-16
+    scan (measured: 1.04 x binning's points, precision 0.62 against 0.39; kNN
+    discs 0.90 x)."""
+    import trimesh
+
+    from slr_ray import agreement, scan_mesh
+    from slr_ray.sensors import sensor
+
+    o = np.array([1.0, -2.0, 0.5])
+    room = trimesh.creation.box(extents=[30, 24, 8])
+    primary, secondary = sensor("velodyne_vlp32c", columns=900), sensor("velodyne_vlp16", columns=900)
+    cloud = scan_mesh(room, o, primary).points
+    cloud = cloud + np.random.default_rng(0).normal(scale=0.003, size=cloud.shape)
+    truth = scan_mesh(room, o, secondary).points
+    b = simulate_scan(cloud, o, secondary)
+    sc = prepare(cloud, "embree", primary_origin=o, primary_pattern=primary)
+    assert sc.options.neighbours == "pulse-grid"
+    e = sc.scan(o, secondary)
+    assert len(e) >= len(b)
+    assert agreement(truth, cloud[e.indices]).precision > agreement(truth, cloud[b.indices]).precision
+    # by name, the same discs
+    named = prepare(cloud, "embree", primary_origin=o, primary_pattern="velodyne_vlp32c")
+    assert named.options.to_dict()["primary_pattern"] == "velodyne_vlp32c"
+    import json
+
+    json.dumps(sc.options.to_dict())  # a pattern object is described, not dumped raw
+
+
+def test_primary_pattern_options():
+    pts = np.random.default_rng(0).normal(size=(100, 3))
+    with pytest.raises(InputValueError, match="not both"):
+        prepare(pts, "embree", primary_origin=[0, 0, 0], primary_resolution=0.1, primary_pattern="velodyne_vlp16")
+    with pytest.raises(InputValueError, match="unknown pattern"):
+        prepare(pts, "embree", primary_origin=[0, 0, 0], primary_pattern="velodyne_vlp17")
+    # footprint radii of a beam table: R * tan(rms of its mean row gap and column step)
+    from slr_ray.backends.embree import disc_radii
+    from slr_ray.sensors import sensor
+
+    vlp = sensor("velodyne_vlp16")
+    r = disc_radii(np.array([[10.0, 0, 0]]), "footprint", primary_origin=[0, 0, 0], primary_resolution=vlp)
+    d_theta = np.radians(32.0) / 16  # 16 beams over 30 deg plus half a gap either side
+    d_phi = 2 * np.pi / vlp.columns
+    np.testing.assert_allclose(r[0], 10 * np.tan(np.sqrt((d_theta ** 2 + d_phi ** 2) / 2)), rtol=1e-12)
+    # a uniform pattern given as a pattern or as degrees: the same radii
+    from slr_ray import ScanPattern
+
+    np.testing.assert_allclose(disc_radii(np.array([[10.0, 0, 0]]), "footprint", primary_origin=[0, 0, 0],
+                                          primary_resolution=0.5)[0], 10 * np.tan(np.radians(0.5)), rtol=1e-15)
+    np.testing.assert_allclose(disc_radii(np.array([[10.0, 0, 0]]), "footprint", primary_origin=[0, 0, 0],
+                                          primary_resolution=ScanPattern(0.5))[0], 10 * np.tan(np.radians(0.5)),
+                               rtol=1e-12)
 
 
 def test_pulse_grid_needs_the_primary():

@@ -66,6 +66,44 @@ def test_discs_match_brute_force(oriented, seed):
     assert np.all(np.isinf(hits.distances[~rim & (idx < 0)]))
 
 
+@pytest.mark.parametrize("oriented", [True, False])
+@pytest.mark.parametrize("offset", [0.0, 4e6])
+def test_rays_from_outside_the_bounds_graze_the_outermost_discs(oriented, offset):
+    """Rays that miss the scene's padded bounds are answered without a call into
+    Embree: rays aimed just inside the rim of every disc, on the side facing
+    each axis (the rims that make the bounds), still hit, from a scanner
+    outside the bounds, also at UTM-size coordinates."""
+    rng = np.random.default_rng(5)
+    n = 300
+    c = rng.uniform(-2, 2, (n, 3)) + offset
+    r = rng.uniform(0.05, 0.3, n)
+    nrm = _unit(rng, n) if oriented else None
+    o = np.array([-30.0, 7.0, 3.0]) + offset
+    targets = []
+    for e in np.vstack([np.eye(3), -np.eye(3)]):
+        # the disc's rim point furthest along e: in the disc's plane, or across the ray for billboards
+        axis = nrm if oriented else (c - o) / np.linalg.norm(c - o, axis=1, keepdims=True)
+        u = e - np.einsum("ij,j->i", axis, e)[:, None] * axis
+        u /= np.linalg.norm(u, axis=1, keepdims=True)
+        targets.append(c + 0.98 * r[:, None] * u)
+    targets = np.vstack(targets)
+    dirs = targets - o
+    dirs /= np.linalg.norm(dirs, axis=1, keepdims=True)
+    hits = RayScene.discs(c, r, nrm).intersect(o, dirs)
+    idx, t = brute_discs(o, dirs, c, r, nrm)
+    assert (idx >= 0).all()  # every ray meets its own disc at least
+    # except a disc seen edge-on (|cos| < 1e-3), where its float32 normal decides
+    own = np.tile(np.arange(n), 6)
+    cos = np.abs(np.einsum("ij,ij->i", nrm[own], dirs)) if oriented else np.ones(len(dirs))
+    assert (hits.owners[cos > 1e-3] >= 0).all()
+    assert (hits.owners != idx).mean() <= 0.005  # another disc's rim, in float32
+    # and rays just outside the bounds miss
+    lo, hi = (c - r[:, None]).min(axis=0), (c + r[:, None]).max(axis=0)
+    away = np.array([[0.0, 1.0, 0.0], [0.0, 0.0, 1.0], [0.0, 0.0, -1.0]])
+    assert (RayScene.discs(c, r, nrm).intersect(o, away).owners == -1).all()
+    assert o[0] < lo[0]  # the scanner is outside the bounds
+
+
 def test_triangles_exact_distances_far_from_the_origin():
     import trimesh
 

@@ -161,7 +161,8 @@ def add_backend(p, default: str = Backend.BINNING.value) -> None:
         choices = cls.choices().get(name)
         g.add_argument("--" + name.replace("_", "-"), dest=f"opt_{name}", type=kind, nargs=nargs, choices=choices,
                        default=None, metavar=None if choices else name.split("_")[-1].upper(),
-                       help=f"[{', '.join(backends)}] {(text or typ).replace('``', '')}")
+                       # argparse formats help with %: a docstring's "85 %" must not read as a conversion
+                       help=f"[{', '.join(backends)}] {(text or typ).replace('``', '').replace('%', '%%')}")
 
 
 def backend_from(args, backend: str | None = None) -> dict:
