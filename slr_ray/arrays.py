@@ -8,11 +8,11 @@ expected, what was given and, for non-finite rows, how many.
 from __future__ import annotations
 
 import numpy as np
-from numba import njit
+from numba import njit, prange
 
 from .errors import InputTypeError, InputValueError
 
-__all__ = ["as_points", "as_origin", "count_nonfinite_rows"]
+__all__ = ["as_points", "as_origin", "count_nonfinite_rows", "bounds"]
 
 
 def _check_real_dtype(name: str, arr: np.ndarray) -> None:
@@ -100,3 +100,38 @@ def unravel_ids(ids, n_columns: int) -> np.ndarray:
     out = np.empty((len(ids), 2), dtype=np.int64)
     _unravel_into(ids, np.int64(n_columns), out)
     return out
+
+
+def bounds(points) -> tuple[np.ndarray, np.ndarray]:
+    """``(lo, hi)``, float64, of the first three columns of ``(n, >=3)`` finite
+    rows, in one parallel pass (numpy's ``min(axis=0)`` on an ``(n, 3)`` array
+    is ~20x slower: 2.4 s on 58 M points). Empty input: ``(+inf, -inf)``."""
+    a = np.asarray(points)
+    lo = np.full(3, np.inf)
+    hi = np.full(3, -np.inf)
+    if len(a):
+        chunks = max(1, min(64, len(a) // 65536))
+        los = np.empty((chunks, 3))
+        his = np.empty((chunks, 3))
+        _chunk_bounds(a, chunks, los, his)
+        lo, hi = los.min(axis=0), his.max(axis=0)
+    return lo, hi
+
+
+@njit(cache=True, parallel=True)
+def _chunk_bounds(a, chunks, los, his):
+    n = a.shape[0]
+    for c in prange(chunks):
+        s = c * n // chunks
+        e = (c + 1) * n // chunks
+        for j in range(3):
+            lo = np.float64(a[s, j])
+            hi = lo
+            for i in range(s + 1, e):
+                x = np.float64(a[i, j])
+                if x < lo:
+                    lo = x
+                elif x > hi:
+                    hi = x
+            los[c, j] = lo
+            his[c, j] = hi

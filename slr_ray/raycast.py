@@ -75,11 +75,11 @@ from numba import carray, cfunc, njit, prange, types
 from numba.core import cgutils
 from numba.extending import intrinsic
 
-from .arrays import as_origin
+from .arrays import as_origin, bounds
 from .errors import InputValueError, MissingDependencyError
 from .threads import default_threads
 
-__all__ = ["RayScene", "RayHits", "embree_library", "embree_available"]
+__all__ = ["RayScene", "RayHits", "embree_library", "embree_available", "padded_rows"]
 
 # --- Embree 4 constants (rtcore_geometry.h, rtcore_buffer.h, rtcore_common.h, rtcore_scene.h)
 GEOMETRY_TRIANGLE = 0
@@ -546,7 +546,10 @@ class RayScene:
             Radii in metres, > 0.
         normals : (n, 3) float, optional
             Disc normals (any length > 0): ``ORIENTED_DISC_POINT``. Without,
-            ``DISC_POINT``: every disc faces the ray that meets it.
+            ``DISC_POINT``: every disc faces the ray that meets it. A float32
+            C-contiguous array with spare bytes after it (:func:`padded_rows`)
+            is shared with Embree, not copied (12 bytes a point less): do not
+            change it while the scene lives.
         centre : (3,) float, optional
         compact : bool
             Embree's compact BVH (``RTC_SCENE_FLAG_COMPACT``; default): the
@@ -564,22 +567,24 @@ class RayScene:
             raise InputValueError(f"disc radii must be finite and > 0 in float32 ({bad} are not)")
         centre = _centre_of(c) if centre is None else as_origin(centre, "centre")
         vbuf = np.empty((len(c), 4), np.float32)
-        np.subtract(c, centre, out=vbuf[:, :3], casting="unsafe")
-        vbuf[:, 3] = r
+        _fill_vertices(c, centre, r, vbuf)  # one parallel pass, no float64 temporaries
         buffers = [(BUFFER_VERTEX, 0, FORMAT_FLOAT4, 16, vbuf, len(c))]
         if normals is not None:
             nrm = np.asarray(normals)
             if nrm.shape != c.shape:
                 raise InputValueError(f"normals has shape {nrm.shape}, centres {c.shape}")
-            nbuf = np.zeros((len(c) + 2, 3), np.float32)  # spare rows: 16-byte reads
-            nbuf[:len(c)] = nrm
+            if nrm.dtype == np.float32 and nrm.flags.c_contiguous and _spare_bytes(nrm) >= 4:
+                nbuf = nrm  # shared: Embree's 16-byte reads of the last row stay inside the allocation
+            else:
+                nbuf = padded_rows(len(c))
+                nbuf[:] = nrm
             buffers.append((BUFFER_NORMAL, 0, FORMAT_FLOAT3, 12, nbuf, len(c)))
             gtype, kind = GEOMETRY_ORIENTED_DISC_POINT, "oriented discs"
         else:
             gtype, kind = GEOMETRY_DISC_POINT, "discs"
         scene = cls.__new__(cls)
         # the tie rule reads the float32 normals Embree has (12 B a point), not a float64 copy (24 B)
-        owner_normals = buffers[1][4][:len(c)] if normals is not None else None
+        owner_normals = buffers[1][4] if normals is not None else None
         del r  # the radii live on in the vertex buffer, which the tie rule reads
         cls.__init__(scene, kind, gtype, buffers, len(c), centre, c, vbuf[:, 3], 1, 1.0, owner_normals,
                      compact=compact)
@@ -697,15 +702,42 @@ class RayScene:
             self._scene = None
 
 
+def padded_rows(n: int, dtype=np.float32) -> np.ndarray:
+    """An uninitialised ``(n, 3)`` array followed, in the same allocation, by two
+    spare rows: Embree reads a float3 buffer 16 bytes at a time, so normals made
+    in one of these are shared with :meth:`RayScene.discs` instead of copied."""
+    buf = np.empty((n + 2, 3), dtype)
+    buf[n:] = 0
+    return buf[:n]
+
+
+def _spare_bytes(a: np.ndarray) -> int:
+    """Bytes of ``a``'s allocation after its last element (``a`` C-contiguous)."""
+    owner = a
+    while isinstance(owner.base, np.ndarray):
+        owner = owner.base
+    if not owner.flags.c_contiguous:
+        return 0
+    return int(owner.ctypes.data + owner.nbytes - (a.ctypes.data + a.nbytes))
+
+
+@njit(cache=True, parallel=True)
+def _fill_vertices(c, centre, r, out):
+    """Embree's float4 vertices: centre-relative float32 coordinates and the radius."""
+    for i in prange(c.shape[0]):
+        out[i, 0] = np.float32(c[i, 0] - centre[0])
+        out[i, 1] = np.float32(c[i, 1] - centre[1])
+        out[i, 2] = np.float32(c[i, 2] - centre[2])
+        out[i, 3] = r[i]
+
+
 def _padded_bounds(vbuf, n, with_radius):
     """``(lo, hi)`` float64 of the vertex buffer's first ``n`` rows (scene frame),
     grown by the largest radius (discs) and a margin far above float32 rounding:
     a ray that misses it misses the scene. Empty scene: an empty box."""
     if n == 0:
         return np.array([np.inf, np.inf, np.inf, -np.inf, -np.inf, -np.inf])
-    xyz = vbuf[:n, :3]
-    lo = xyz.min(axis=0).astype(np.float64)
-    hi = xyz.max(axis=0).astype(np.float64)
+    lo, hi = bounds(vbuf[:n])
     grow = float(vbuf[:n, 3].max()) if with_radius else 0.0
     # Embree's own bounds are conservative in float32; 1e-5 of the extent (and 1 µm) is
     # far beyond its rounding, so no ray it could report a hit for is answered here
@@ -716,7 +748,8 @@ def _padded_bounds(vbuf, n, with_radius):
 def _centre_of(points: np.ndarray) -> np.ndarray:
     if len(points) == 0:
         return np.zeros(3)
-    return 0.5 * (points.min(axis=0) + points.max(axis=0))
+    lo, hi = bounds(points)
+    return 0.5 * (lo + hi)
 
 
 @njit(cache=True, parallel=True)

@@ -40,3 +40,24 @@ def test_nonfinite_rows_are_counted():
 def test_bad_origins(bad):
     with pytest.raises((InputValueError, InputTypeError), match="origin"):
         as_origin(bad)
+
+
+@pytest.mark.parametrize("n", [0, 1, 2, 7, 65536 * 3 + 5])
+@pytest.mark.parametrize("dtype", [np.float64, np.float32])
+def test_bounds_equal_numpy(n, dtype):
+    from slr_ray.arrays import bounds
+
+    rng = np.random.default_rng(n)
+    a = (rng.normal(size=(n, 4)) * 1e3 + 4e6).astype(dtype)  # 4 columns: only the first 3 count
+    lo, hi = bounds(a)
+    assert lo.dtype == hi.dtype == np.float64
+    if n == 0:
+        assert np.all(lo == np.inf) and np.all(hi == -np.inf)
+    else:
+        np.testing.assert_array_equal(lo, a[:, :3].min(axis=0))
+        np.testing.assert_array_equal(hi, a[:, :3].max(axis=0))
+    # a strided view (every other row) and a monotone column (elif branch never taken)
+    if n > 2:
+        np.testing.assert_array_equal(bounds(a[::2])[0], a[::2, :3].min(axis=0))
+        m = np.column_stack([np.arange(n), -np.arange(n), np.zeros(n)]).astype(dtype)
+        np.testing.assert_array_equal(bounds(m)[1], [n - 1, 0, 0])

@@ -268,3 +268,19 @@ def test_compact_and_wide_hash_records_agree_and_widen_when_indices_outgrow_them
         keys, ranges, idx = t.winners(pts)
         np.testing.assert_array_equal(idx, expected)
         np.testing.assert_array_equal(keys, pulse_keys(pts[idx], np.zeros(3), pattern)[0])
+
+
+def test_pulse_keys_split_over_threads_equal_one_pass():
+    # inputs above 2**20 points are keyed by several threads: the same keys and ranges
+    from slr_ray.backends.binning import _block_keys_range, _kernel_params, pulse_keys
+
+    rng = np.random.default_rng(3)
+    pts = rng.normal(size=(3 * 2**20 + 7, 3)) * 30 + [4e5, -3e6, 20]
+    origin = np.array([4e5 + 1, -3e6 - 2, 21.5])
+    p = ScanPattern(0.2, max_range=80)
+    keys, ranges = pulse_keys(pts, origin, p)
+    k1, r1 = np.empty(len(pts), np.int64), np.empty(len(pts))
+    _block_keys_range(pts, *_kernel_params(origin, p), k1, r1, 0, len(pts))
+    np.testing.assert_array_equal(keys, k1)
+    np.testing.assert_array_equal(ranges, r1)
+    assert (keys == -1).any() and (keys >= 0).any()

@@ -71,10 +71,10 @@ import numpy as np
 from numba import njit, prange
 from scipy.spatial import cKDTree
 
-from ..arrays import as_origin, as_points
+from ..arrays import as_origin, as_points, bounds
 from ..errors import InputValueError, MissingDependencyError
 from ..pattern import as_pattern, pulse_rays
-from ..raycast import RayScene
+from ..raycast import RayScene, padded_rows
 from ..scan import Scan
 from ..threads import default_threads
 from .base import BackendOptions, Scanner
@@ -334,12 +334,71 @@ def _sorted_pulse_grid(pts, origin, primary_resolution, layout: str = "auto"):
         raise InputValueError(f"layout must be 'auto', 'rows' or 'columns', got {layout!r}")
     if transposed:
         _transpose_keys(keys, nv, nh)
-    order = np.argsort(keys, kind="stable")  # nearly sorted in the stored order: fast
-    sorted_keys = keys[order]
-    del keys
     lines, line_len = (nh, nv) if transposed else (nv, nh)
-    line_start = np.searchsorted(sorted_keys, np.arange(lines + 1, dtype=np.int64) * line_len)
+    # a counting sort by line, then each line sorted on its own (in parallel): the order
+    # of a stable argsort of the keys, 3-4x faster on a 58 M-point primary
+    order, sorted_keys, line_start = _line_sort(keys, line_len, lines)
+    del keys
     return ranges, sorted_keys, order, line_start, line_len, transposed
+
+
+@njit(cache=True)
+def _line_counting_sort(keys, line_len, lines, order, bucket):
+    """Indices of ``keys`` grouped by line (``key // line_len``; negative keys first),
+    each group in index order; returns ``line_start`` (lines + 1,) past the unseen."""
+    counts = np.zeros(lines + 2, np.int64)
+    for i in range(keys.shape[0]):
+        k = keys[i]
+        b = 0 if k < 0 else k // line_len + 1
+        bucket[i] = b
+        counts[b + 1] += 1
+    for b in range(lines + 1):
+        counts[b + 1] += counts[b]
+    start = counts[1:].copy()  # line_start: where line 0 begins is after the unseen points
+    fill = counts[:-1].copy()
+    for i in range(keys.shape[0]):
+        b = bucket[i]
+        order[fill[b]] = i
+        fill[b] += 1
+    return start
+
+
+@njit(cache=True, parallel=True)
+def _sort_lines(keys, order, line_start, sorted_keys):
+    """Within each line, order by key (stable: equal keys keep index order)."""
+    n0 = line_start[0]
+    for j in range(n0):
+        sorted_keys[j] = keys[order[j]]
+    for v in prange(line_start.shape[0] - 1):
+        a, b = line_start[v], line_start[v + 1]
+        if b - a == 0:
+            continue
+        seg = np.empty(b - a, np.int64)
+        ordered = True
+        for j in range(a, b):
+            seg[j - a] = keys[order[j]]
+            if j > a and seg[j - a] < seg[j - a - 1]:
+                ordered = False
+        if not ordered:
+            perm = np.argsort(seg, kind="mergesort")
+            idx = order[a:b].copy()
+            for j in range(b - a):
+                order[a + j] = idx[perm[j]]
+                sorted_keys[a + j] = seg[perm[j]]
+        else:
+            for j in range(b - a):
+                sorted_keys[a + j] = seg[j]
+
+
+def _line_sort(keys, line_len, lines):
+    n = len(keys)
+    order = np.empty(n, np.int64)
+    bucket = np.empty(n, np.int32 if lines < 2**31 - 2 else np.int64)
+    line_start = _line_counting_sort(keys, line_len, lines, order, bucket)
+    del bucket
+    sorted_keys = np.empty(n, np.int64)
+    _sort_lines(keys, order, line_start, sorted_keys)
+    return order, sorted_keys, line_start
 
 
 @njit(cache=True)
@@ -501,7 +560,8 @@ def pulse_grid_spacing_normals(points, primary_origin, primary_resolution, gate:
     n = len(pts)
     o = as_origin(primary_origin, "primary_origin")
     sp = np.zeros(n) if spacing else np.empty(0)
-    nr = np.empty((n, 3), dtype) if normals else np.empty((0, 3), dtype)
+    # spare rows after the normals: Embree shares float32 ones instead of copying them
+    nr = padded_rows(n, dtype) if normals else np.empty((0, 3), dtype)
     if n:
         ranges, sorted_keys, order, line_start, line_len, transposed = _sorted_pulse_grid(
             pts, o, primary_resolution, layout)
@@ -536,7 +596,7 @@ def _fallback_directions(points, primary_origin, dtype=np.float64):
     """Direction used where a normal is undefined: to the primary scanner, or +z."""
     if primary_origin is None:
         return np.broadcast_to(np.array([0.0, 0.0, 1.0], dtype), points.shape)
-    out = np.empty((len(points), 3), dtype)
+    out = padded_rows(len(points), dtype)  # shared with Embree as they are
     _towards(np.ascontiguousarray(points, np.float64), as_origin(primary_origin, "primary_origin"), out)
     return out
 
@@ -800,12 +860,12 @@ class DiscScanner(Scanner):
             elif n < 2:
                 normals = np.array(_fallback_directions(pts, o.primary_origin, ndtype))
             elif not grid:
-                normals = np.empty((n, 3), ndtype)
+                normals = padded_rows(n, ndtype)  # shared with Embree, not copied
             if normals is not None and len(normals) != n:
                 raise InputValueError(f"normals has {len(normals)} rows for {n} points")
         elif o.orientation == "primary":
             # float32: what Embree holds anyway (a float64 copy would be 24 B a point of peak memory)
-            normals = np.array(_fallback_directions(pts, o.primary_origin, np.float32))
+            normals = _fallback_directions(pts, o.primary_origin, np.float32)
         if grid and n >= 2:
             # one fused pass: no neighbour arrays (spacing 0 where none: the floor applies)
             spacing, grid_normals = pulse_grid_spacing_normals(pts, o.primary_origin, o.primary_grid,
@@ -829,7 +889,7 @@ class DiscScanner(Scanner):
         self.normals = normals
         self.neighbour_seconds = time.perf_counter() - t0
         t1 = time.perf_counter()
-        self._centre = 0.5 * (pts.min(axis=0) + pts.max(axis=0)) if n else np.zeros(3)
+        self._centre = 0.5 * np.add(*bounds(pts)) if n else np.zeros(3)
         self._scene = None
         if o.engine == "embree":
             self._scene = RayScene.discs(pts, self.radii, normals, centre=self._centre)
