@@ -104,8 +104,10 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("--force", action="store_true", help="overwrite an existing output")
 
     p = command("validate", "reproduce the paper's validation (Experiment 1) from a config")
-    p.add_argument("config", help="a shipped config name (quick, paper, distance, occlusion, resolution) "
-                                  "or a TOML path")
+    from ..scenes import SCENES_DIR
+
+    shipped = sorted(q.stem[len("validate-"):] for q in SCENES_DIR.glob("validate-*.toml"))
+    p.add_argument("config", help=f"a shipped config name ({', '.join(shipped)}) or a TOML path")
     p.add_argument("-o", "--output", help="output directory (default slr_ray_validate_NAME); reruns resume")
     p.add_argument("--positions", type=A.positive_int, help="override the number of positions per scene")
     p.add_argument("--quiet", action="store_true", help="no progress bar")
