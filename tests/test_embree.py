@@ -532,3 +532,21 @@ def test_pulse_grid_walks_the_order_the_cloud_is_stored_in():
     assert _sorted_pulse_grid(by_column, np.zeros(3), 1.0)[5] is True
     with pytest.raises(InputValueError, match="layout"):
         _sorted_pulse_grid(cloud, np.zeros(3), 1.0, "diagonal")
+
+
+@pytest.mark.parametrize("seed", [0, 1, 2])
+def test_line_sort_is_a_stable_argsort(seed):
+    """The pulse grid's counting sort by line, each line then sorted on its own,
+    gives the order of a stable argsort of the keys (unseen keys -1 first)."""
+    from slr_ray.backends.embree import _line_sort
+
+    rng = np.random.default_rng(seed)
+    lines, line_len = int(rng.integers(1, 40)), int(rng.integers(1, 50))
+    n = int(rng.integers(0, 5000))
+    keys = rng.integers(-1, lines * line_len, n)
+    keys[: n // 3] = np.sort(keys[: n // 3])  # a sorted run (the fast path of a line) next to random ones
+    order, sorted_keys, line_start = _line_sort(keys, line_len, lines)
+    want = np.argsort(keys, kind="stable")
+    np.testing.assert_array_equal(order, want)
+    np.testing.assert_array_equal(sorted_keys, keys[want])
+    np.testing.assert_array_equal(line_start, np.searchsorted(keys[want], np.arange(lines + 1) * line_len))
