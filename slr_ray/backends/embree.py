@@ -81,7 +81,7 @@ from .base import BackendOptions, Scanner
 from .binning import pulse_keys, ranges_of
 
 __all__ = ["EmbreeOptions", "DiscScanner", "disc_radii", "estimate_normals", "neighbourhoods",
-           "grid_neighbourhoods", "pulse_grid_spacing_normals", "RADIUS_MODES", "ORIENTATIONS", "ENGINES", "NEIGHBOURS"]
+           "grid_neighbourhoods", "pulse_grid_spacing_normals", "grid_gate", "RADIUS_MODES", "ORIENTATIONS", "ENGINES", "NEIGHBOURS"]
 
 RADIUS_MODES = ("spacing", "footprint")
 ORIENTATIONS = ("normal", "billboard", "primary")
@@ -143,10 +143,14 @@ class EmbreeOptions(BackendOptions):
         binning's points against 85 % with kNN; but larger discs on grazing
         ground: precision 70 % against kNN's 97 % on bare ground, 92 against
         96.5 % on rect-1000, README "Speed and accuracy"), else 'knn'.
-    grid_gate : float
+    grid_gate : float, optional
         With 'pulse-grid': an adjacent pulse's point is a neighbour only when
         its primary range is within this fraction of the point's (a jump in
-        range is an edge, not the same surface).
+        range is an edge, not the same surface). Default: the range step of
+        a surface seen at 89 deg incidence, ``tan(89 deg)`` times the
+        primary's pulse step, at most 0.1 (0.1 for pulses of 0.1 deg and
+        coarser; 0.014 at 0.0144 deg, where 0.1 let discs at object edges take
+        neighbours metres behind them and grow to 7 m).
     """
 
     radius: object = "spacing"
@@ -165,7 +169,7 @@ class EmbreeOptions(BackendOptions):
     chunk: int = 1 << 20
     n_threads: int | None = None
     neighbours: str | None = None
-    grid_gate: float = 0.1
+    grid_gate: float | None = None
 
     @classmethod
     def choices(cls) -> dict:
@@ -205,7 +209,7 @@ class EmbreeOptions(BackendOptions):
         if self.neighbours == "pulse-grid" and (self.primary_origin is None or self.primary_grid is None):
             raise InputValueError("neighbours='pulse-grid' needs primary_origin and primary_resolution "
                                   "(or primary_pattern)")
-        if not (isinstance(self.grid_gate, (int, float)) and self.grid_gate > 0):
+        if self.grid_gate is not None and not (isinstance(self.grid_gate, (int, float)) and self.grid_gate > 0):
             raise InputValueError(f"grid_gate must be a number > 0, got {self.grid_gate!r}")
         if self.orientation == "primary" and self.primary_origin is None:
             raise InputValueError("orientation='primary' needs primary_origin")
@@ -259,7 +263,7 @@ def neighbourhoods(points, k: int, chunk: int = 1 << 20):
         yield s, d[:, 1:], i[:, 1:]
 
 
-def grid_neighbourhoods(points, primary_origin, primary_resolution, gate: float = 0.1, chunk: int = 1 << 20,
+def grid_neighbourhoods(points, primary_origin, primary_resolution, gate: float | None = None, chunk: int = 1 << 20,
                         layout: str = "auto"):
     """Neighbours of every point of a primary scan from its own pulse grid.
 
@@ -268,7 +272,8 @@ def grid_neighbourhoods(points, primary_origin, primary_resolution, gate: float 
     :func:`~slr_ray.pattern.as_pattern` takes, a beam table included) at
     ``primary_origin`` (the binning backend's exact bins); a point's
     neighbours are the points of the 8 adjacent pulses (azimuth wrapping)
-    whose primary range is within ``gate`` times its own, at most one per
+    whose primary range is within ``gate`` times its own (default
+    :func:`grid_gate`), at most one per
     pulse (the nearest to the scanner, then the lowest index). No kd-tree: one
     sort of the pulse keys, then a linear walk along each zenith row with a
     pointer into the rows above and below (O(n) after the sort); for a cloud
@@ -306,9 +311,27 @@ def grid_neighbourhoods(points, primary_origin, primary_resolution, gate: float 
             dist = np.empty((b - a, 8))
             counts = np.empty(b - a, np.int64)
             _grid_rows(pts, ranges, sorted_keys, order, row_start, _row_tasks(row_start, v0, v1), line_len,
-                       transposed, float(gate), idx, dist, counts)
+                       transposed, grid_gate(primary_resolution, gate), idx, dist, counts)
             yield order[a:b], dist, idx, counts
         v0 = v1
+
+
+#: incidence beyond which a surface's range steps count as an edge (the default range gate)
+_GATE_INCIDENCE_DEG = 89.0
+
+
+def grid_gate(primary, gate: float | None = None) -> float:
+    """The pulse grid's range gate: ``gate`` if given, else the relative range
+    step between adjacent pulses of a surface seen at 89 deg incidence
+    (``tan(89 deg)`` times the primary's larger pulse step, radians), at most
+    0.1. ``primary``: degrees or a pattern."""
+    if gate is not None:
+        return float(gate)
+    if isinstance(primary, (int, float, np.integer, np.floating)):
+        step = math.radians(float(primary))
+    else:
+        step = max(_pulse_steps(as_pattern(primary)))
+    return min(0.1, math.tan(math.radians(_GATE_INCIDENCE_DEG)) * step)
 
 
 def _sorted_pulse_grid(pts, origin, primary_resolution, layout: str = "auto"):
@@ -539,7 +562,7 @@ def _grid_rows(pts, ranges, sk, order, row_start, tasks, line_len, transposed, g
                                               transposed, best, idx[c], dist[c])
 
 
-def pulse_grid_spacing_normals(points, primary_origin, primary_resolution, gate: float = 0.1,
+def pulse_grid_spacing_normals(points, primary_origin, primary_resolution, gate: float | None = None,
                                spacing: bool = True, normals: bool = True, dtype=np.float64,
                                layout: str = "auto"):
     """Mean neighbour spacing ``(n,)`` and PCA normals ``(n, 3)`` of a primary
@@ -569,7 +592,7 @@ def pulse_grid_spacing_normals(points, primary_origin, primary_resolution, gate:
             unseen = order[:line_start[0]]
             nr[unseen] = _fallback_directions(pts[unseen], o, dtype)
         _grid_fused(pts, ranges, sorted_keys, order, line_start, _row_tasks(line_start, 0, len(line_start) - 1),
-                    line_len, transposed, float(gate), o, spacing, normals, sp, nr)
+                    line_len, transposed, grid_gate(primary_resolution, gate), o, spacing, normals, sp, nr)
     return (sp if spacing else None), (nr if normals else None)
 
 
