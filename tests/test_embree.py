@@ -550,3 +550,41 @@ def test_line_sort_is_a_stable_argsort(seed):
     np.testing.assert_array_equal(order, want)
     np.testing.assert_array_equal(sorted_keys, keys[want])
     np.testing.assert_array_equal(line_start, np.searchsorted(keys[want], np.arange(lines + 1) * line_len))
+
+
+def test_grid_gate_follows_the_primary_pulse_step():
+    from slr_ray.backends.embree import grid_gate
+    from slr_ray.sensors import sensor
+
+    t89 = np.tan(np.radians(89.0))
+    assert grid_gate(1.0) == grid_gate(0.5) == 0.1  # coarse primaries: capped at 10 %
+    np.testing.assert_allclose(grid_gate(0.0144), t89 * np.radians(0.0144), rtol=1e-12)
+    assert grid_gate(0.0144, 0.3) == 0.3  # given: kept
+    hdl = sensor("velodyne_hdl64e_s2")  # 0.17 deg columns, ~0.4 deg rows: the larger step, capped
+    assert grid_gate(hdl) == 0.1
+    with pytest.raises(InputValueError, match="grid_gate"):
+        prepare(np.zeros((3, 3)) + [[1, 0, 0], [0, 1, 0], [0, 0, 1]], "embree", primary_origin=[0, 0, 0],
+                primary_resolution=1.0, grid_gate=0.0)
+
+
+def test_discs_at_an_edge_do_not_reach_the_surface_behind():
+    """A plate 20 m away with a wall 1 m behind it, scanned at 0.02 deg: the
+    range jump at the plate's rim is 5 %. A fixed 10 % gate made the rim's
+    points neighbours of wall points a metre behind (discs of ~0.5 m); the
+    default gate (2 % at 0.02 deg) keeps the rim's discs at the plate's
+    spacing."""
+    import trimesh
+
+    from slr_ray import scan_mesh
+
+    plate = trimesh.creation.box(extents=[0.01, 1.0, 1.0])
+    plate.apply_translation([20.0, 0, 0])
+    wall = trimesh.creation.box(extents=[0.01, 3.0, 3.0])
+    wall.apply_translation([21.0, 0, 0])
+    pts = scan_mesh(trimesh.util.concatenate([plate, wall]), [0, 0, 0], ScanPattern(0.02)).points
+    on_plate = pts[:, 0] < 20.5
+    spacing = 20 * np.radians(0.02)  # 7 mm
+    auto = prepare(pts, "embree", primary_origin=[0, 0, 0], primary_resolution=0.02)
+    loose = prepare(pts, "embree", primary_origin=[0, 0, 0], primary_resolution=0.02, grid_gate=0.1)
+    assert auto.radii[on_plate].max() < 3 * spacing
+    assert loose.radii[on_plate].max() > 20 * spacing  # what the fixed gate did
