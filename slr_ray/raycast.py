@@ -11,8 +11,9 @@ discs, the occlusion diagnostics of the validation) goes through
 * the float32 boundary: geometry is recentred on a float64 ``centre`` before it
   becomes float32, and rays start from the scanner recentred the same way;
 * the cast loop: compiled (numba, ``nogil``), calling ``rtcIntersect1`` through
-  its C function pointer, one ``RTCRayHit`` per thread, rays split over threads
-  in interleaved blocks; a ray that misses the scene's padded bounding box is
+  its C function pointer, one ``RTCRayHit`` per thread, rays split into tasks
+  of 32,768 that the threads take in turn (a signal stops a cast after the
+  running tasks, not after all of it); a ray that misses the scene's padded bounding box is
   answered without the call (a float64 slab test: most rays of a scan from
   outside a cloud's bounds miss it, and a call costs as much as a short
   traversal; from inside the bounds nothing is saved);
@@ -101,8 +102,10 @@ INVALID_ID = 0xFFFFFFFF
 _RAYHIT_FLOATS = 24
 _TFAR, _MASK, _PRIM, _GEOM, _INST = 8, 9, 17, 18, 19
 
-#: rays handed to a thread at a time (threads take blocks in turn)
+#: rays of one block of the compiled cast loop
 _BLOCK = 4096
+#: rays of one task handed to a thread: small enough that a stopped scan stops soon
+_TASK_RAYS = 8 * _BLOCK
 
 _lock = threading.Lock()
 _lib = None
@@ -669,17 +672,27 @@ class RayScene:
         tf = float(np.float32(min(tfar, 3.0e38)))
         mode = _MODE_SKIP if skip_containing else 0
         n_threads = max(1, min(int(n_threads or default_threads()), -(-m // _BLOCK)))
-        run = lambda k: _cast_blocks(lib.intersect1, self._scene, _filter.address, org32, o, d,  # noqa: E731
-                                     np.float32(tnear), np.float32(tf), k, n_threads, mode, float(ties),
-                                     float(pulse_aspect or 0.0),
-                                     self._owner_centres, self._owner_radii, self._owner_normals,
-                                     self.prims_per_owner,
-                                     self.reach, self._box, prim, owner, t)
+
+        def run(a):
+            # one task: rays a .. a + _TASK_RAYS (threads take tasks in turn)
+            e = min(m, a + _TASK_RAYS)
+            _cast_blocks(lib.intersect1, self._scene, _filter.address, org32, o, d[a:e],
+                         np.float32(tnear), np.float32(tf), 0, 1, mode, float(ties), float(pulse_aspect or 0.0),
+                         self._owner_centres, self._owner_radii, self._owner_normals, self.prims_per_owner,
+                         self.reach, self._box, prim[a:e], owner[a:e], t[a:e])
+
+        starts = range(0, m, _TASK_RAYS)
         if n_threads == 1:
-            run(0)
+            for a in starts:  # a signal (Ctrl-C, SIGTERM) is handled between tasks
+                run(a)
         else:
-            with ThreadPoolExecutor(n_threads) as pool:
-                list(pool.map(run, range(n_threads)))
+            pool = ThreadPoolExecutor(n_threads)
+            try:
+                list(pool.map(run, starts))
+            finally:
+                # on an exception here (a signal), tasks not yet started are dropped: the
+                # call returns after the running ones, not after the whole cast
+                pool.shutdown(wait=True, cancel_futures=True)
         if exact:
             if self.kind != "triangles":
                 raise InputValueError("exact=True is for triangle scenes")
