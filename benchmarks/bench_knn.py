@@ -17,24 +17,13 @@ from __future__ import annotations
 
 import argparse
 import sys
-import time
 from pathlib import Path
 
 import numpy as np
 
 sys.path.insert(0, str(Path(__file__).resolve().parent))
 
-from common import machine, realistic_cloud, save  # noqa: E402
-
-
-def _best(f, repeat):
-    best = None
-    for _ in range(repeat):
-        t0 = time.perf_counter()
-        out = f()
-        dt = time.perf_counter() - t0
-        best = dt if best is None else min(best, dt)
-    return best, out
+from common import machine, realistic_cloud, save, timed  # noqa: E402
 
 
 def main(argv=None):
@@ -57,18 +46,18 @@ def main(argv=None):
         tree = cKDTree(centred, balanced_tree=False, compact_nodes=False)
         return tree.query(centred, k=k, workers=-1)
 
-    sec, (d_ref, _) = _best(ckdtree, args.repeat)
+    sec, _, (d_ref, _) = timed(ckdtree, args.repeat)
     rows.append({"method": "scipy cKDTree, build + query", "seconds": sec})
     try:
         from pykdtree.kdtree import KDTree
     except ImportError:
         rows.append({"method": "pykdtree, build + query", "error": "not installed (pip install pykdtree)"})
     else:
-        sec, (d, _) = _best(lambda: KDTree(centred, leafsize=16).query(centred, k=k), args.repeat)
+        sec, _, (d, _) = timed(lambda: KDTree(centred, leafsize=16).query(centred, k=k), args.repeat)
         rows.append({"method": "pykdtree, build + query", "seconds": sec,
                      "same_distances": bool(np.allclose(d, d_ref, rtol=0, atol=1e-9))})
     pulse_grid_spacing_normals(pts[:2000], [0, 0, 0], 0.029)  # compile outside the timing
-    sec, _ = _best(lambda: pulse_grid_spacing_normals(pts, [0, 0, 0], 0.029, dtype=np.float32), args.repeat)
+    sec, _, _ = timed(lambda: pulse_grid_spacing_normals(pts, [0, 0, 0], 0.029, dtype=np.float32), args.repeat)
     rows.append({"method": "pulse grid: spacing and normals in one pass", "seconds": sec})
     for r in rows:
         print(f"{r['method']:<46} " + (f"{r['seconds']:7.2f} s" if "seconds" in r else r["error"]))

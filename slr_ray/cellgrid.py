@@ -29,7 +29,7 @@ import math
 import numpy as np
 from numba import njit, prange
 
-from .arrays import as_points
+from .arrays import as_points, bounds
 
 __all__ = ["CellGrid", "GridUnsuitable"]
 
@@ -81,8 +81,9 @@ class CellGrid:
         # box, not of |x|), so a cell index is off by at most ~3e-16 * dims
         # < 1e-9 cells, far inside the 1e-6 margin, at UTM or 1e12 coordinates.
         # one cell of slack on each side: a query's neighbour cells stay inside the key space
-        self.lo = pts.min(axis=0) - self.cell
-        dims = np.floor((pts.max(axis=0) - self.lo) / self.cell).astype(np.int64) + 2
+        lo, hi = bounds(pts)
+        self.lo = lo - self.cell
+        dims = np.floor((hi - self.lo) / self.cell).astype(np.int64) + 2
         if np.any(dims >= (1 << _AXIS_BITS) - 1):
             raise GridUnsuitable(f"the cloud spans {dims.tolist()} cells of {self.cell:.3g}")
         self.dims = dims

@@ -102,10 +102,8 @@ INVALID_ID = 0xFFFFFFFF
 _RAYHIT_FLOATS = 24
 _TFAR, _MASK, _PRIM, _GEOM, _INST = 8, 9, 17, 18, 19
 
-#: rays of one block of the compiled cast loop
-_BLOCK = 4096
 #: rays of one task handed to a thread: small enough that a stopped scan stops soon
-_TASK_RAYS = 8 * _BLOCK
+_TASK_RAYS = 32768
 
 _lock = threading.Lock()
 _lib = None
@@ -326,9 +324,9 @@ def _misses_box(ox, oy, oz, dx, dy, dz, box, tnear, tfar):
 
 
 @njit(cache=True, nogil=True)
-def _cast_blocks(isect, scene, filt, org32, org64, dirs, tnear, tfar, first_block, step,
+def _cast_rays(isect, scene, filt, org32, org64, dirs, tnear, tfar,
                  mode_first, ties, aspect, centres, radii, normals, div, reach, box, prim_out, owner_out, t_out):
-    """Cast rays ``dirs`` from ``org32`` (scene frame), blocks first_block, +step, ...
+    """Cast rays ``dirs`` from ``org32`` (scene frame) into ``*_out``.
 
     Rays that miss ``box`` (the scene's padded bounds, scene frame) are answered
     here without a call into Embree: a call costs about as much as a short
@@ -355,61 +353,59 @@ def _cast_blocks(isect, scene, filt, org32, org64, dirs, tnear, tfar, first_bloc
     rh_ptr = np.int64(rh.ctypes.data)
     args_ptr = np.int64(args.ctypes.data)
     first_args = args_ptr if mode_first else np.int64(0)
-    m = dirs.shape[0]
-    n_blocks = (m + _BLOCK - 1) // _BLOCK
     ox, oy, oz = np.float64(org32[0]), np.float64(org32[1]), np.float64(org32[2])
-    for blk in range(first_block, n_blocks, step):
-        for i in range(blk * _BLOCK, min(m, (blk + 1) * _BLOCK)):
-            dx, dy, dz = dirs[i, 0], dirs[i, 1], dirs[i, 2]
-            if _misses_box(ox, oy, oz, dx, dy, dz, box, np.float64(tnear), np.float64(tfar)):
-                prim_out[i] = -1
-                owner_out[i] = -1
-                t_out[i] = np.inf
-                continue
-            rh[0], rh[1], rh[2], rh[3] = org32[0], org32[1], org32[2], tnear
-            rh[4], rh[5], rh[6], rh[7] = dx, dy, dz, 0.0
-            rh[_TFAR] = tfar
-            ru[_MASK] = INVALID_ID
-            ru[10] = 0
-            ru[11] = 0
+    t_lo, t_hi = np.float64(tnear), np.float64(tfar)
+    for i in range(dirs.shape[0]):
+        dx, dy, dz = dirs[i, 0], dirs[i, 1], dirs[i, 2]
+        if _misses_box(ox, oy, oz, dx, dy, dz, box, t_lo, t_hi):
+            prim_out[i] = -1
+            owner_out[i] = -1
+            t_out[i] = np.inf
+            continue
+        rh[0], rh[1], rh[2], rh[3] = org32[0], org32[1], org32[2], tnear
+        rh[4], rh[5], rh[6], rh[7] = dx, dy, dz, 0.0
+        rh[_TFAR] = tfar
+        ru[_MASK] = INVALID_ID
+        ru[10] = 0
+        ru[11] = 0
+        ru[_PRIM] = INVALID_ID
+        ru[_GEOM] = INVALID_ID
+        ru[_INST] = INVALID_ID
+        ru[_INST + 1] = INVALID_ID
+        ctx[_C_MODE] = mode_first
+        _call3(isect, scene, rh_ptr, first_args)
+        if ru[_GEOM] == INVALID_ID:
+            prim_out[i] = -1
+            owner_out[i] = -1
+            t_out[i] = np.inf
+            continue
+        t0 = rh[_TFAR]
+        prim = np.int64(ru[_PRIM])
+        owner = prim // div
+        t_hit = t0
+        if ties > 0.0:
+            # the depth along the ray that a disc-sized step over the first disc's
+            # surface spans: r / |cos(incidence)| (r for discs facing the ray)
+            window = ties * np.float64(radii[owner])
+            if normals.shape[0] > 0:
+                cos = abs(normals[owner, 0] * dx + normals[owner, 1] * dy + normals[owner, 2] * dz)
+                window /= max(cos, _MIN_COS)
+            rh[3] = max(tnear, t0 - window)
+            rh[_TFAR] = t0 + window
             ru[_PRIM] = INVALID_ID
             ru[_GEOM] = INVALID_ID
-            ru[_INST] = INVALID_ID
-            ru[_INST + 1] = INVALID_ID
-            ctx[_C_MODE] = mode_first
-            _call3(isect, scene, rh_ptr, first_args)
-            if ru[_GEOM] == INVALID_ID:
-                prim_out[i] = -1
-                owner_out[i] = -1
-                t_out[i] = np.inf
-                continue
-            t0 = rh[_TFAR]
-            prim = np.int64(ru[_PRIM])
-            owner = prim // div
-            t_hit = t0
-            if ties > 0.0:
-                # the depth along the ray that a disc-sized step over the first disc's
-                # surface spans: r / |cos(incidence)| (r for discs facing the ray)
-                window = ties * np.float64(radii[owner])
-                if normals.shape[0] > 0:
-                    cos = abs(normals[owner, 0] * dx + normals[owner, 1] * dy + normals[owner, 2] * dz)
-                    window /= max(cos, _MIN_COS)
-                rh[3] = max(tnear, t0 - window)
-                rh[_TFAR] = t0 + window
-                ru[_PRIM] = INVALID_ID
-                ru[_GEOM] = INVALID_ID
-                ctx[_C_MODE] = mode_first | _MODE_TIES
-                ctx[_C_BEST] = -1
-                ctxf[_C_SCORE] = np.inf
-                ctxf[_C_DIR], ctxf[_C_DIR + 1], ctxf[_C_DIR + 2] = dx, dy, dz
-                _call3(isect, scene, rh_ptr, args_ptr)
-                if ctx[_C_BEST] >= 0 and ctx[_C_BEST] != owner:
-                    owner = ctx[_C_BEST]
-                    prim = -1  # the owner, not one primitive of it, is the answer
-                    t_hit = ctxf[_C_BEST_T]
-            prim_out[i] = prim
-            owner_out[i] = owner
-            t_out[i] = t_hit
+            ctx[_C_MODE] = mode_first | _MODE_TIES
+            ctx[_C_BEST] = -1
+            ctxf[_C_SCORE] = np.inf
+            ctxf[_C_DIR], ctxf[_C_DIR + 1], ctxf[_C_DIR + 2] = dx, dy, dz
+            _call3(isect, scene, rh_ptr, args_ptr)
+            if ctx[_C_BEST] >= 0 and ctx[_C_BEST] != owner:
+                owner = ctx[_C_BEST]
+                prim = -1  # the owner, not one primitive of it, is the answer
+                t_hit = ctxf[_C_BEST_T]
+        prim_out[i] = prim
+        owner_out[i] = owner
+        t_out[i] = t_hit
 
 
 @dataclass(frozen=True)
@@ -671,13 +667,13 @@ class RayScene:
         org32 = local.astype(np.float32)
         tf = float(np.float32(min(tfar, 3.0e38)))
         mode = _MODE_SKIP if skip_containing else 0
-        n_threads = max(1, min(int(n_threads or default_threads()), -(-m // _BLOCK)))
+        n_threads = max(1, min(int(n_threads or default_threads()), -(-m // _TASK_RAYS)))
 
         def run(a):
             # one task: rays a .. a + _TASK_RAYS (threads take tasks in turn)
             e = min(m, a + _TASK_RAYS)
-            _cast_blocks(lib.intersect1, self._scene, _filter.address, org32, o, d[a:e],
-                         np.float32(tnear), np.float32(tf), 0, 1, mode, float(ties), float(pulse_aspect or 0.0),
+            _cast_rays(lib.intersect1, self._scene, _filter.address, org32, o, d[a:e],
+                         np.float32(tnear), np.float32(tf), mode, float(ties), float(pulse_aspect or 0.0),
                          self._owner_centres, self._owner_radii, self._owner_normals, self.prims_per_owner,
                          self.reach, self._box, prim[a:e], owner[a:e], t[a:e])
 

@@ -562,6 +562,11 @@ def test_grid_gate_follows_the_primary_pulse_step():
     assert grid_gate(0.0144, 0.3) == 0.3  # given: kept
     hdl = sensor("velodyne_hdl64e_s2")  # 0.17 deg columns, ~0.4 deg rows: the larger step, capped
     assert grid_gate(hdl) == 0.1
+    from slr_ray.sensors import BeamPattern
+
+    # a fine table: rows 2/63 deg apart, columns 0.01 deg: the gate follows the larger step (the rows)
+    fine = BeamPattern(np.linspace(-1.0, 1.0, 64), columns=36000)
+    np.testing.assert_allclose(grid_gate(fine), t89 * np.radians(2 / 63), rtol=1e-9)
     with pytest.raises(InputValueError, match="grid_gate"):
         prepare(np.zeros((3, 3)) + [[1, 0, 0], [0, 1, 0], [0, 0, 1]], "embree", primary_origin=[0, 0, 0],
                 primary_resolution=1.0, grid_gate=0.0)

@@ -253,7 +253,7 @@ def neighbourhoods(points, k: int, chunk: int = 1 << 20):
     k = min(k, n - 1)
     if k < 1:
         return
-    c = 0.5 * (pts.min(axis=0) + pts.max(axis=0))
+    c = 0.5 * np.add(*bounds(pts))
     tree = cKDTree(pts - c, balanced_tree=False, compact_nodes=False)
     for s in range(0, n, chunk):
         q = pts[s:s + chunk] - c
@@ -327,11 +327,7 @@ def grid_gate(primary, gate: float | None = None) -> float:
     0.1. ``primary``: degrees or a pattern."""
     if gate is not None:
         return float(gate)
-    if isinstance(primary, (int, float, np.integer, np.floating)):
-        step = math.radians(float(primary))
-    else:
-        step = max(_pulse_steps(as_pattern(primary)))
-    return min(0.1, math.tan(math.radians(_GATE_INCIDENCE_DEG)) * step)
+    return min(0.1, math.tan(math.radians(_GATE_INCIDENCE_DEG)) * max(_primary_steps(primary)))
 
 
 def _sorted_pulse_grid(pts, origin, primary_resolution, layout: str = "auto"):
@@ -931,6 +927,7 @@ class DiscScanner(Scanner):
             # Embree and the tie rule hold their own float32 copy: the float64 one (24 B a point, 5 GB on
             # a 209 M-point primary) is not kept; ``normals`` is a read-only view of Embree's
             self.normals = normals = self._scene.owner_normals
+        self._max_radius = float(self.radii.max(initial=0.0))  # read by every scan: computed once
         self.nbytes = self._scene.nbytes
         self.build_seconds = time.perf_counter() - t1
         self.prepare_seconds = time.perf_counter() - t0
@@ -946,7 +943,7 @@ class DiscScanner(Scanner):
     def _hits(self, origin, pattern, rays_per_batch=1 << 21):
         """Every ray that hits a disc: (point index, t, v, h) arrays."""
         rmin, rmax = pattern.range_limits
-        reach = self.radii.max(initial=0.0) * self.options.reach
+        reach = self._max_radius * self.options.reach
         tfar = min(rmax + 2 * reach, 3e37)
         if self.options.engine == "open3d":
             # Open3D has no filter: rays start beyond the discs that hold the scanner
@@ -1037,14 +1034,21 @@ def _pulse_aspect(pattern) -> float:
     return d_theta / d_phi
 
 
-def _footprint_angle(primary) -> float:
-    """The primary pulse's angular width, radians: ``primary`` degrees, or for a
-    pattern the root mean square of its zenith and azimuth steps (a beam table's
-    pulses are taller than wide)."""
+def _primary_steps(primary) -> tuple[float, float]:
+    """Zenith and azimuth pulse steps of the primary, radians: ``primary``
+    degrees (both), or those of a pattern (:func:`_pulse_steps`)."""
     if isinstance(primary, (int, float, np.integer, np.floating)):
-        return math.radians(float(primary))
-    d_theta, d_phi = _pulse_steps(as_pattern(primary))
-    return math.sqrt(0.5 * (d_theta * d_theta + d_phi * d_phi))
+        step = math.radians(float(primary))
+        return step, step
+    return _pulse_steps(as_pattern(primary))
+
+
+def _footprint_angle(primary) -> float:
+    """The primary pulse's angular width, radians: the root mean square of its
+    zenith and azimuth steps (a beam table's pulses are taller than wide; for
+    degrees, exactly their radians)."""
+    d_theta, d_phi = _primary_steps(primary)
+    return d_theta if d_theta == d_phi else math.sqrt(0.5 * (d_theta * d_theta + d_phi * d_phi))
 
 
 class _Open3DFans:
