@@ -12,7 +12,8 @@
 3. The KITTI HDL-64E frame of ../shared/data re-scanned as a VLP-16 and a
    VLP-32C from its own origin and from 1 m to the side (binning, embree with
    kNN discs, and embree with discs from the frame's own beam-table pulse grid,
-   ``primary_pattern='velodyne_hdl64e_s2'``): points out, time; range images
+   ``primary_pattern='velodyne_hdl64e_s2'``, with spacing radii and with the
+   table's footprint radii): points out, time; range images
    saved as docs/figures/kitti_<sensor>_<where>.png.
 4. With ground truth: a synthetic room with a pillar scanned as an HDL-64E
    frame (exact ray casting), re-scanned as a VLP-16 from the same origin and
@@ -42,7 +43,9 @@ from slr_ray.sensors import sensor  # noqa: E402
 ORIGIN = [12.3, -7.1, 0.0]
 #: how each frame is re-scanned: binning, kNN discs, discs from the frame's own beam-table grid
 BACKENDS = (("binning", {}), ("embree", {}),
-            ("embree pulse-grid", {"primary_origin": [0.0, 0.0, 0.0], "primary_pattern": "velodyne_hdl64e_s2"}))
+            ("embree pulse-grid", {"primary_origin": [0.0, 0.0, 0.0], "primary_pattern": "velodyne_hdl64e_s2"}),
+            ("embree footprint", {"primary_origin": [0.0, 0.0, 0.0], "primary_pattern": "velodyne_hdl64e_s2",
+                                  "radius": "footprint"}))
 KITTI = Path(__file__).resolve().parents[2] / "shared" / "data" / "kitti_hdl64_000000.bin"
 FIGURES = Path(__file__).resolve().parents[1] / "docs" / "figures"
 
