@@ -113,7 +113,7 @@ def main(argv=None):
                     # +15 deg look above the HDL-64E's +2 deg: binning's 2 deg-tall bin there still
                     # catches the frame's top row, a ray at the beam's centre cannot)
                     inside = _rows_inside(sensor(name), k.points, origin)
-                    row["points_out_rows_inside"] = int(inside[s.pulses[:, 0]].sum())
+                    row["points_out_rows_inside"] = int(inside[s.rings].sum())
                     kitti.append(row)
                     print(f"  KITTI -> {name} from {where}, {backend}: {len(s):,} points "
                           f"({row['points_out_rows_inside']:,} in rows inside the frame's span), {t:.3f} s",
