@@ -9,8 +9,8 @@
    (the issue's target: HDL-64E <= 1.2 x the uniform scan).
 2. Time per HDL-64E frame against the number of input points (every k-th
    point of the cloud, N = 1e5 ... 2.9e7).
-3. The KITTI HDL-64E frame of ../shared/data re-scanned with its own table, as a VLP-16 and a
-   VLP-32C from its own origin and from 1 m to the side (binning, embree with
+3. The KITTI HDL-64E frame of ../shared/data re-scanned with its own table, as a VLP-16, a
+   VLP-32C and at 0.4 deg from its own origin and from 1 m to the side (binning, embree with
    kNN discs, and embree with discs from the frame's own beam-table pulse grid,
    ``primary_pattern='velodyne_hdl64e_s2'``, with spacing radii and with the
    table's footprint radii): points out, time; range images
@@ -101,24 +101,28 @@ def main(argv=None):
 
         k = read_cloud(KITTI)
         FIGURES.mkdir(parents=True, exist_ok=True)
-        for name in ("velodyne_hdl64e_s2", "velodyne_vlp16", "velodyne_vlp32c"):
+        hdl_rows = np.asarray(hdl.elevation_deg)
+        for name in ("velodyne_hdl64e_s2", "velodyne_vlp16", "velodyne_vlp32c", "uniform 0.4"):
+            target = ScanPattern(0.4) if name.startswith("uniform") else sensor(name)
             for where, origin in (("own origin", [0.0, 0.0, 0.0]), ("1 m to the side", [0.0, 1.0, 0.0])):
                 for backend, opts in BACKENDS:
                     sc = prepare(k.points, backend.split()[0], **opts)
-                    sc.scan(origin, sensor(name))
-                    t, s = best(lambda: sc.scan(origin, sensor(name)), args.repeat)
+                    sc.scan(origin, target)
+                    t, s = best(lambda: sc.scan(origin, target), args.repeat)
                     row = {"sensor": name, "where": where, "backend": backend, "seconds": t,
                            "points_in": len(k), "points_out": len(s)}
-                    # rows whose beam lies inside the frame's own elevation span (a VLP-16's beams up to
-                    # +15 deg look above the HDL-64E's +2 deg: binning's 2 deg-tall bin there still
-                    # catches the frame's top row, a ray at the beam's centre cannot)
-                    inside = _rows_inside(sensor(name), k.points, origin)
-                    row["points_out_rows_inside"] = int(inside[s.rings].sum())
+                    if not name.startswith("uniform"):
+                        # rows whose beam lies within the frame's own table (+2 ... -24.9 deg): a VLP-16's
+                        # +3 deg band (2 ... 4 deg) still catches the frame's top ring by binning, a ray
+                        # along the beam cannot
+                        inside = (np.asarray(target.elevation_deg) >= hdl_rows.min()) & (
+                            np.asarray(target.elevation_deg) <= hdl_rows.max())
+                        row["points_out_rows_inside"] = int(inside[s.rings].sum())
                     kitti.append(row)
-                    print(f"  KITTI -> {name} from {where}, {backend}: {len(s):,} points "
-                          f"({row['points_out_rows_inside']:,} in rows inside the frame's span), {t:.3f} s",
-                          flush=True)
-                    if backend == "binning":
+                    print(f"  KITTI -> {name} from {where}, {backend}: {len(s):,} points"
+                          + (f" ({row['points_out_rows_inside']:,} in rows inside the frame's table)"
+                             if "points_out_rows_inside" in row else "") + f", {t:.3f} s", flush=True)
+                    if backend == "binning" and not name.startswith("uniform"):
                         tag = "own" if where == "own origin" else "side"
                         img = s.range_image({"intensity": k.attributes["intensity"]})
                         save_figure(range_image_figure(img, title=f"KITTI frame as {name}, {where}", max_range=50),
@@ -128,15 +132,6 @@ def main(argv=None):
     save("bench_sensors", {"machine": machine(), "inputs": vars(args), "frame_vs_uniform": frame,
                            "sizes": sizes, "kitti": kitti, "room_hdl64_to_vlp16": truth_rows,
                            "real_frame_with_truth": real_rows})
-
-
-def _rows_inside(pattern, points, origin):
-    """Per row of ``pattern``: whether its beam's elevation lies within the
-    elevations of ``points`` seen from ``origin`` (bool array, table order)."""
-    d = points - origin
-    el = np.degrees(np.arctan2(d[:, 2], np.hypot(d[:, 0], d[:, 1])))
-    beams = np.asarray(pattern.elevation_deg)
-    return (beams >= el.min()) & (beams <= el.max())
 
 
 def with_truth():
