@@ -172,13 +172,11 @@ def real_frame_with_truth(seed: int = 0):
     VLP-16 and 0.4 deg from its own origin and from 1 m and 3 m aside, against
     exact scans of the box: points out (against binning's), coverage and
     precision (10 cm)."""
-    import dataclasses
-
     import trimesh
 
     from slr_ray import agreement, scan_mesh
+    from slr_ray.sensors import miscalibrated, sensor_noise
 
-    rng = np.random.default_rng(seed)
     box = trimesh.creation.box(extents=[40, 30, 8])
     box.invert()
     cyl = trimesh.creation.cylinder(radius=0.8, height=8.0)
@@ -187,15 +185,9 @@ def real_frame_with_truth(seed: int = 0):
     car.apply_translation([6, -4, -3.25])
     mesh = trimesh.util.concatenate([box, cyl, car])
     nominal = sensor("velodyne_hdl64e_s2")
-    real = dataclasses.replace(
-        nominal, elevation_deg=tuple(np.array(nominal.elevation_deg) + rng.normal(0, 0.1, 64)),
-        azimuth_offset_deg=tuple(np.array(nominal.azimuth_offset_deg) + rng.normal(0, 0.1, 64)))
     o = np.array([0.0, 0.0, -2.0])
-    frame = scan_mesh(mesh, o, real)
-    d = frame.points - o
-    r = np.linalg.norm(d, axis=1)
-    noise = rng.normal(0, 0.01, len(r)) + rng.normal(0, 0.03, 64)[frame.pulses[:, 0]]
-    pts = (frame.points + d / r[:, None] * noise[:, None])[rng.random(len(r)) > 0.1]
+    frame = scan_mesh(mesh, o, miscalibrated(nominal, seed=seed))
+    pts, _ = sensor_noise(frame.points, o, frame.pulses[:, 0], seed=seed)
     rows = []
     for backend, opts in BACKENDS:
         if opts:

@@ -43,6 +43,7 @@ source. Your own calibration: :func:`read_ouster_metadata`,
 
 from __future__ import annotations
 
+import dataclasses
 import json
 import math
 from dataclasses import dataclass, field
@@ -56,7 +57,7 @@ from .errors import InputValueError
 from .threads import default_threads
 
 __all__ = ["BeamPattern", "sensor", "SENSORS", "SENSORS_DIR", "read_ouster_metadata",
-           "read_velodyne_calibration"]
+           "read_velodyne_calibration", "miscalibrated", "sensor_noise"]
 
 #: Directory of the shipped beam tables (package data).
 SENSORS_DIR = Path(__file__).resolve().parent / "data" / "sensors"
@@ -319,6 +320,62 @@ def sensor(name: str, **changes) -> BeamPattern:
     if not path.is_file():
         raise InputValueError(f"unknown sensor {name!r}; shipped: {list(SENSORS)}")
     return BeamPattern.from_table(json.loads(path.read_text()), **changes)
+
+
+def miscalibrated(pattern: BeamPattern, elevation_sd: float = 0.1, azimuth_sd: float = 0.1,
+                  seed: int = 0) -> BeamPattern:
+    """``pattern`` with every beam moved off its table: each beam's elevation
+    and azimuth offset plus a normal draw of ``elevation_sd`` / ``azimuth_sd``
+    degrees (``seed``: the same draws every time).
+
+    A real unit's beams are not where its nominal table says. Scan a mesh
+    with the miscalibrated pattern (:func:`~slr_ray.meshscan.scan_mesh`),
+    then re-scan the frame described by the nominal table, to see what the
+    difference does (``benchmarks/bench_sensors.py``, part 5).
+    """
+    if not isinstance(pattern, BeamPattern):
+        raise InputValueError(f"miscalibrated needs a BeamPattern, got {type(pattern).__name__}")
+    for name, v in (("elevation_sd", elevation_sd), ("azimuth_sd", azimuth_sd)):
+        if not (math.isfinite(v) and v >= 0):
+            raise InputValueError(f"{name} must be a finite number >= 0, got {v!r}")
+    rng = np.random.default_rng(seed)
+    n = len(pattern.elevation_deg)
+    el = np.asarray(pattern.elevation_deg) + rng.normal(0.0, elevation_sd, n)
+    az = np.asarray(pattern.azimuth_offset_deg) + rng.normal(0.0, azimuth_sd, n)
+    return dataclasses.replace(pattern, elevation_deg=tuple(el.tolist()), azimuth_offset_deg=tuple(az.tolist()))
+
+
+def sensor_noise(points, origin, beams, range_sd: float = 0.01, beam_range_sd: float = 0.03,
+                 dropout: float = 0.1, seed: int = 0):
+    """Points of a frame with a real sensor's range errors and lost pulses.
+
+    Every point moves along its ray from ``origin`` by a normal draw of
+    ``range_sd`` metres plus its beam's own offset (one normal draw of
+    ``beam_range_sd`` per value of ``beams``, the beam id or range-image row
+    of each point: the beam-to-beam range offsets of a real unit), and a share ``dropout`` of the points is dropped
+    (pulses with no return). The input is not changed.
+
+    Returns
+    -------
+    points : (m, 3) float64
+        The kept points, moved.
+    kept : (m,) intp
+        Their indices in the input (labels and attributes follow them).
+    """
+    pts = np.asarray(points, dtype=np.float64)
+    beams = np.asarray(beams)
+    if pts.ndim != 2 or pts.shape[1] != 3 or beams.shape != (len(pts),):
+        raise InputValueError(f"points must be (n, 3) and beams (n,), got {pts.shape} and {beams.shape}")
+    if not 0 <= dropout < 1:
+        raise InputValueError(f"dropout must be in [0, 1), got {dropout!r}")
+    rng = np.random.default_rng(seed)
+    d = pts - np.asarray(origin, dtype=np.float64)
+    r = np.linalg.norm(d, axis=1)
+    offsets = rng.normal(0.0, beam_range_sd, int(beams.max(initial=-1)) + 1)
+    step = rng.normal(0.0, range_sd, len(pts)) + offsets[beams]
+    moved = pts + d * np.divide(step, r, out=np.zeros_like(r), where=r > 0)[:, None]
+    kept = np.flatnonzero(rng.random(len(pts)) >= dropout)
+    return moved[kept], kept
 
 
 def read_ouster_metadata(path, **changes) -> BeamPattern:

@@ -695,30 +695,21 @@ def real_sensor_frame(seed=0, columns=1000):
     0.1 deg, per-beam range offsets of 3 cm), with 1 cm range noise and 10 % of
     pulses lost: what a real frame (KITTI) departs from its beam table by.
     Returns the mesh, the origin, the nominal table and the points."""
-    import dataclasses
-
     import trimesh
 
     from slr_ray import scan_mesh
-    from slr_ray.sensors import sensor
+    from slr_ray.sensors import miscalibrated, sensor, sensor_noise
 
-    rng = np.random.default_rng(seed)
     room = trimesh.creation.box(extents=[40, 30, 8])
     room.invert()  # seen from inside
     car = trimesh.creation.box(extents=[4, 1.8, 1.5])
     car.apply_translation([6, -4, -3.25])
     mesh = trimesh.util.concatenate([room, car])
     nominal = sensor("velodyne_hdl64e_s2", columns=columns)
-    real = dataclasses.replace(
-        nominal, elevation_deg=tuple(np.array(nominal.elevation_deg) + rng.normal(0, 0.1, 64)),
-        azimuth_offset_deg=tuple(np.array(nominal.azimuth_offset_deg) + rng.normal(0, 0.1, 64)))
     o = np.array([0.0, 0.0, -2.0])
-    frame = scan_mesh(mesh, o, real)
-    d = frame.points - o
-    r = np.linalg.norm(d, axis=1)
-    noise = rng.normal(0, 0.01, len(r)) + rng.normal(0, 0.03, 64)[frame.pulses[:, 0]]
-    pts = frame.points + d / r[:, None] * noise[:, None]
-    return mesh, o, nominal, pts[rng.random(len(pts)) > 0.1]
+    frame = scan_mesh(mesh, o, miscalibrated(nominal, seed=seed))
+    pts, _ = sensor_noise(frame.points, o, frame.pulses[:, 0], seed=seed)
+    return mesh, o, nominal, pts
 
 
 @pytest.mark.parametrize("where", ["own origin", "1 m aside"])

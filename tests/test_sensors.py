@@ -240,3 +240,50 @@ def test_compare_backends_with_a_sensor():
     frame = scan_mesh(_room(), [0, 0, 0], sensor("velodyne_vlp16"))
     res = compare_backends(frame.points, [[0.5, 0.2, 0.0]], sensor("velodyne_vlp16"))
     assert res["positions"][0]["binning"] > 0 and res["positions"][0]["embree"] > 0
+
+
+def test_miscalibrated_moves_every_beam_by_the_given_spread_and_repeats():
+    from slr_ray.sensors import miscalibrated
+
+    nominal = sensor("velodyne_hdl64e_s2")
+    a = miscalibrated(nominal, elevation_sd=0.2, azimuth_sd=0.5, seed=3)
+    b = miscalibrated(nominal, elevation_sd=0.2, azimuth_sd=0.5, seed=3)
+    # the same draws for the same seed
+    assert (a.elevation_deg, a.azimuth_offset_deg) == (b.elevation_deg, b.azimuth_offset_deg)
+    de = np.array(a.elevation_deg) - np.array(nominal.elevation_deg)
+    da = np.array(a.azimuth_offset_deg) - np.array(nominal.azimuth_offset_deg)
+    assert 0.1 < de.std() < 0.3 and 0.3 < da.std() < 0.7
+    assert a.columns == nominal.columns and a.shape == nominal.shape
+    same = miscalibrated(nominal, 0.0, 0.0)
+    assert (same.elevation_deg, same.azimuth_offset_deg) == (nominal.elevation_deg, nominal.azimuth_offset_deg)
+    with pytest.raises(InputValueError, match="BeamPattern"):
+        miscalibrated(slr_ray.ScanPattern(1.0))
+    with pytest.raises(InputValueError, match="elevation_sd"):
+        miscalibrated(nominal, elevation_sd=-1)
+
+
+def test_sensor_noise_moves_points_along_their_rays_and_drops_a_share():
+    from slr_ray.sensors import sensor_noise
+
+    rng = np.random.default_rng(0)
+    o = np.array([1e6, -2e6, 10.0])
+    d = rng.normal(size=(20000, 3))
+    pts = o + d / np.linalg.norm(d, axis=1)[:, None] * rng.uniform(2, 50, (20000, 1))
+    beams = rng.integers(0, 16, 20000)
+    before = pts.copy()
+    out, kept = sensor_noise(pts, o, beams, range_sd=0.01, beam_range_sd=0.05, dropout=0.25, seed=1)
+    np.testing.assert_array_equal(pts, before)  # the input is not changed
+    assert abs(len(kept) / len(pts) - 0.75) < 0.02
+    u = (pts[kept] - o) / np.linalg.norm(pts[kept] - o, axis=1)[:, None]
+    step = ((out - pts[kept]) * u).sum(1)
+    np.testing.assert_allclose(out - pts[kept], step[:, None] * u, atol=1e-8)  # along the ray
+    # one offset per beam: the within-beam spread is the range noise
+    within = [step[beams[kept] == b].std() for b in range(16)]
+    assert 0.008 < np.mean(within) < 0.012
+    assert np.std([step[beams[kept] == b].mean() for b in range(16)]) > 0.02
+    out2, kept2 = sensor_noise(pts, o, beams, range_sd=0.01, beam_range_sd=0.05, dropout=0.25, seed=1)
+    np.testing.assert_array_equal(out, out2)
+    with pytest.raises(InputValueError, match="dropout"):
+        sensor_noise(pts, o, beams, dropout=1.0)
+    with pytest.raises(InputValueError, match="beams"):
+        sensor_noise(pts, o, beams[:-1])
