@@ -371,7 +371,7 @@ def sensor_noise(points, origin, beams, range_sd: float = 0.01, beam_range_sd: f
     rng = np.random.default_rng(seed)
     d = pts - np.asarray(origin, dtype=np.float64)
     r = np.linalg.norm(d, axis=1)
-    offsets = rng.normal(0.0, beam_range_sd, int(beams.max(initial=-1)) + 1)
+    offsets = rng.normal(0.0, beam_range_sd, beams.max(initial=-1) + 1)
     step = rng.normal(0.0, range_sd, len(pts)) + offsets[beams]
     moved = pts + d * np.divide(step, r, out=np.zeros_like(r), where=r > 0)[:, None]
     kept = np.flatnonzero(rng.random(len(pts)) >= dropout)
