@@ -1089,20 +1089,29 @@ class DiscScanner(Scanner):
         # points the pattern itself would not see (range limits, field of view) are not returned
         uniq, inverse = np.unique(pt, return_inverse=True)
         keys, _ = pulse_keys(self.points[uniq], origin, pattern)
-        ok = (keys >= 0)[inverse]
-        pt, tt, v, h = pt[ok], tt[ok], v[ok], h[ok]
-        order = np.lexsort((tt, pt))  # per point, its nearest ray first
-        pt, v, h = pt[order], v[order], h[order]
-        first = np.ones(len(pt), bool)
-        first[1:] = pt[1:] != pt[:-1]
-        idx = pt[first].astype(np.intp)
+        nearest = _nearest_ray(inverse, tt, len(uniq))  # per point, its nearest ray (the first of equals)
+        seen = keys >= 0
+        idx = uniq[seen].astype(np.intp)
+        nearest = nearest[seen]
         scan = Scan(indices=idx, ranges=ranges_of(self.points, idx, origin),
-                    pulses=np.column_stack([v[first], h[first]]).astype(np.int64),
+                    pulses=np.column_stack([v[nearest], h[nearest]]).astype(np.int64),
                     origin=origin, pattern=pattern, backend=self.backend, n_input=len(self.points),
                     seconds=time.perf_counter() - t_start,
                     info={"cast_seconds": round(cast, 6), "rays": int(pattern.n_pulses),
                           "ray_hits": int(n_ray_hits), **self.options.to_dict()})
         return scan, rays
+
+
+@njit(cache=True)
+def _nearest_ray(group, t, n_groups):
+    """Per group (a point), the index of its ray of least ``t``, the first of equals."""
+    best = np.full(n_groups, -1, np.int64)
+    for i in range(len(group)):
+        g = group[i]
+        b = best[g]
+        if b < 0 or t[i] < t[b]:
+            best[g] = i
+    return best
 
 
 def _pulse_steps(pattern) -> tuple[float, float]:
