@@ -732,3 +732,21 @@ def test_a_real_sensor_frame_rescanned_keeps_what_binning_keeps_at_its_precision
         e = sc.scan(origin, pattern)
         assert len(e) >= 0.95 * len(b)
         assert agreement(truth, pts[e.indices]).precision >= agreement(truth, pts[b.indices]).precision
+
+
+@pytest.mark.parametrize("seed", [0, 1])
+def test_nearest_ray_per_point_is_the_first_of_the_least_distance(seed):
+    """Against the lexsort it replaced: per point, its ray of least t, the
+    first in ray order among equal t (ties made common on purpose)."""
+    from slr_ray.backends.embree import _nearest_ray
+
+    rng = np.random.default_rng(seed)
+    group = rng.integers(0, 300, 5000)
+    t = rng.integers(0, 20, 5000).astype(float)  # many equal distances
+    got = _nearest_ray(group, t, 300)
+    order = np.lexsort((t, group))
+    first = np.ones(len(order), bool)
+    first[1:] = group[order][1:] != group[order][:-1]
+    want = np.full(300, -1)
+    want[group[order][first]] = order[first]
+    np.testing.assert_array_equal(got, want)
