@@ -750,3 +750,18 @@ def test_nearest_ray_per_point_is_the_first_of_the_least_distance(seed):
     want = np.full(300, -1)
     want[group[order][first]] = order[first]
     np.testing.assert_array_equal(got, want)
+
+
+def test_pulse_grid_pass_turns_normals_as_the_separate_pass_does():
+    """The pulse-grid pass turns edge-on normals as it makes them (no second
+    pass over the points); the answer is the separate pass's."""
+    from slr_ray.backends.embree import _limit_incidence, pulse_grid_spacing_normals
+
+    mesh, o, nominal, pts = real_sensor_frame()
+    _, plain = pulse_grid_spacing_normals(pts, o, nominal, None, False, True)
+    _, turned = pulse_grid_spacing_normals(pts, o, nominal, None, False, True, max_incidence=80.0)
+    want = plain.copy()
+    _limit_incidence(pts, want, o, np.cos(np.radians(80.0)))
+    changed = np.any(want != plain, axis=1)
+    assert changed.sum() > 1000  # grazing floor: many edge-on discs
+    np.testing.assert_allclose(turned, want, atol=1e-12)

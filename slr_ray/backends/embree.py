@@ -618,7 +618,7 @@ def _grid_rows(pts, ranges, sk, order, row_start, tasks, line_len, transposed, g
 
 def pulse_grid_spacing_normals(points, primary_origin, primary_resolution, gate: float | None = None,
                                spacing: bool = True, normals: bool = True, dtype=np.float64,
-                               layout: str = "auto"):
+                               layout: str = "auto", max_incidence: float = 90.0):
     """Mean neighbour spacing ``(n,)`` and PCA normals ``(n, 3)`` of a primary
     scan from its pulse grid, in one pass and without neighbour arrays.
 
@@ -631,7 +631,9 @@ def pulse_grid_spacing_normals(points, primary_origin, primary_resolution, gate:
     :func:`grid_neighbourhoods`). Either
     output is ``None`` when not asked for; ``dtype`` is the normals' (float32
     for Embree halves their memory); ``layout``: see :func:`_sorted_pulse_grid`
-    (the answer does not depend on it, only the speed).
+    (the answer does not depend on it, only the speed); ``max_incidence``
+    (degrees): normals turned as they are made to meet the line of sight to
+    the primary at no more than this (:class:`EmbreeOptions`; 90: not turned).
     """
     pts = np.ascontiguousarray(points, np.float64)
     n = len(pts)
@@ -646,13 +648,15 @@ def pulse_grid_spacing_normals(points, primary_origin, primary_resolution, gate:
             unseen = order[:line_start[0]]
             nr[unseen] = _fallback_directions(pts[unseen], o, dtype)
         _grid_fused(pts, ranges, sorted_keys, order, line_start, _row_tasks(line_start, 0, len(line_start) - 1),
-                    line_len, transposed, grid_gate(primary_resolution, gate), o, spacing, normals, sp, nr)
+                    line_len, transposed, grid_gate(primary_resolution, gate), o, spacing, normals, sp, nr,
+                    math.cos(math.radians(max_incidence)) if max_incidence < 90 else 0.0)
     return (sp if spacing else None), (nr if normals else None)
 
 
 @njit(cache=True, parallel=True)
 def _grid_fused(pts, ranges, sk, order, row_start, tasks, line_len, transposed, gate, po, want_spacing, want_normals,
-                sp, nr):
+                sp, nr, cos_min):
+    sin_min = math.sqrt(max(0.0, 1.0 - cos_min * cos_min))
     for task in prange(len(tasks) - 1):
         best = np.empty(9, np.int64)
         nbr = np.empty(8, np.int64)
@@ -666,7 +670,10 @@ def _grid_fused(pts, ranges, sk, order, row_start, tasks, line_len, transposed, 
                 if want_spacing and m:
                     sp[i] = dist[:m].sum() / m
                 if want_normals:
-                    nr[i, 0], nr[i, 1], nr[i, 2] = _pca_normal(pts, i, nbr, 8, True, po)
+                    nx, ny, nz = _pca_normal(pts, i, nbr, 8, True, po)
+                    if cos_min > 0.0:
+                        nx, ny, nz = _turned(pts[i, 0], pts[i, 1], pts[i, 2], nx, ny, nz, po, cos_min, sin_min)
+                    nr[i, 0], nr[i, 1], nr[i, 2] = nx, ny, nz
 
 
 def _fallback_directions(points, primary_origin, dtype=np.float64):
@@ -678,33 +685,40 @@ def _fallback_directions(points, primary_origin, dtype=np.float64):
     return out
 
 
+@njit(cache=True, inline="always")
+def _turned(px, py, pz, nx, ny, nz, o, cos_min, sin_min):
+    """The unit normal ``n`` of a disc at ``p``, turned within the plane it spans
+    with the line of sight to ``o`` until it meets that line at no more than
+    ``acos(cos_min)`` (unchanged when it already does, or at ``o``)."""
+    ux, uy, uz = o[0] - px, o[1] - py, o[2] - pz
+    un = math.sqrt(ux * ux + uy * uy + uz * uz)
+    if un == 0.0:
+        return nx, ny, nz
+    ux, uy, uz = ux / un, uy / un, uz / un
+    c = nx * ux + ny * uy + nz * uz
+    if abs(c) >= cos_min:
+        return nx, ny, nz
+    if c < 0.0:  # a disc has no back: turn the side that faces away
+        nx, ny, nz, c = -nx, -ny, -nz, -c
+    # v: the normal's part orthogonal to the line of sight; the turned normal is
+    # cos_min along the line and sin_min along v (the same plane, the same side)
+    vx, vy, vz = nx - c * ux, ny - c * uy, nz - c * uz
+    vn = math.sqrt(vx * vx + vy * vy + vz * vz)
+    if vn == 0.0:
+        return nx, ny, nz
+    return (cos_min * ux + sin_min * vx / vn, cos_min * uy + sin_min * vy / vn,
+            cos_min * uz + sin_min * vz / vn)
+
+
 @njit(cache=True, parallel=True)
 def _limit_incidence(points, normals, o, cos_min):
-    """Turn each unit normal, in place, within the plane it spans with the line
-    of sight to ``o``, until it meets that line at no more than ``acos(cos_min)``;
-    normals facing away are flipped first (a disc has no back)."""
+    """:func:`_turned` applied to every normal in place (normals not computed by
+    the pulse-grid pass, which turns its own as it makes them)."""
     sin_min = math.sqrt(max(0.0, 1.0 - cos_min * cos_min))
     for i in prange(points.shape[0]):
-        ux, uy, uz = o[0] - points[i, 0], o[1] - points[i, 1], o[2] - points[i, 2]
-        un = math.sqrt(ux * ux + uy * uy + uz * uz)
-        if un == 0.0:
-            continue
-        ux, uy, uz = ux / un, uy / un, uz / un
-        nx, ny, nz = np.float64(normals[i, 0]), np.float64(normals[i, 1]), np.float64(normals[i, 2])
-        c = nx * ux + ny * uy + nz * uz
-        if c < 0.0:
-            nx, ny, nz, c = -nx, -ny, -nz, -c
-        if c >= cos_min:
-            continue
-        # v: the normal's part orthogonal to the line of sight; the turned normal is
-        # cos_min along the line and sin_min along v (the same plane, the same side)
-        vx, vy, vz = nx - c * ux, ny - c * uy, nz - c * uz
-        vn = math.sqrt(vx * vx + vy * vy + vz * vz)
-        if vn == 0.0:
-            continue
-        normals[i, 0] = cos_min * ux + sin_min * vx / vn
-        normals[i, 1] = cos_min * uy + sin_min * vy / vn
-        normals[i, 2] = cos_min * uz + sin_min * vz / vn
+        normals[i, 0], normals[i, 1], normals[i, 2] = _turned(
+            points[i, 0], points[i, 1], points[i, 2], np.float64(normals[i, 0]), np.float64(normals[i, 1]),
+            np.float64(normals[i, 2]), o, cos_min, sin_min)
 
 
 @njit(cache=True, parallel=True)
@@ -975,7 +989,8 @@ class DiscScanner(Scanner):
         if grid and n >= 2:
             # one fused pass: no neighbour arrays (spacing 0 where none: the floor applies)
             spacing, grid_normals = pulse_grid_spacing_normals(pts, o.primary_origin, o.primary_grid,
-                                                               o.grid_gate, need_spacing, need_normals, ndtype)
+                                                               o.grid_gate, need_spacing, need_normals, ndtype,
+                                                               max_incidence=o.max_incidence)
             if need_normals:
                 normals = grid_normals
         elif need_spacing or need_normals:
@@ -986,7 +1001,7 @@ class DiscScanner(Scanner):
                 if need_normals:
                     normals[s:s + len(idx)] = _chunk_normals(pts, np.arange(s, s + len(idx)), idx,
                                                              o.primary_origin)
-        if need_normals and n >= 2 and o.max_incidence < 90:
+        if need_normals and n >= 2 and o.max_incidence < 90 and not grid:  # the grid pass turns its own
             _limit_incidence(pts, normals, as_origin(o.primary_origin, "primary_origin"),
                              math.cos(math.radians(o.max_incidence)))
         # float32, Embree's precision (4 B a point instead of 8: 0.8 GB on a 209 M-point primary)
