@@ -337,3 +337,37 @@ def test_unknown_config_keys_are_named(tmp_path):
     bad.write_text("[validate]\nembree_options = {radius_scal = 2}\n")
     with pytest.raises(ValueError, match="radius_scal"):
         load_config(bad)
+
+
+def test_spill_primary_maps_the_points_only_when_memory_is_short(tmp_path):
+    from slr_ray.validation.runner import spill_primary
+
+    pts = np.random.default_rng(0).normal(size=(1000, 3))
+    assert spill_primary(pts, tmp_path, 67, available=1e12) is pts
+    mapped = spill_primary(pts, tmp_path, 67, available=0.0)
+    assert isinstance(mapped, np.memmap) and not mapped.flags.writeable
+    np.testing.assert_array_equal(mapped, pts)
+    assert list(tmp_path.iterdir()) == []  # unlinked once mapped: nothing left behind
+
+
+def test_a_run_whose_primary_does_not_fit_gives_the_same_rows(tmp_path, monkeypatch):
+    """With too little memory for the primary and its discs, the points go to a
+    memory-mapped file (a stage of its own in stages.csv) and every row is
+    the same as in memory."""
+    import slr_ray.validation.runner as runner
+
+    cfg = load_config("quick")
+    cfg.positions = 2
+    cfg.truths = ["center"]
+    in_memory = run_validation(cfg, tmp_path / "mem", progress=False)
+    monkeypatch.setattr(runner, "available_memory", lambda: 0.0)
+    mapped = run_validation(cfg, tmp_path / "mapped", progress=False)
+    assert mapped["rows"] == in_memory["rows"] == 2 * len(cfg.backends)
+    drop = ("seconds",)
+    a = [{k: v for k, v in r.items() if k not in drop} for r in _rows(tmp_path / "mem" / "results.csv")]
+    b = [{k: v for k, v in r.items() if k not in drop} for r in _rows(tmp_path / "mapped" / "results.csv")]
+    assert a == b
+    stages = [r["stage"] for r in _rows(tmp_path / "mapped" / "stages.csv")]
+    assert "primary to a mapped file" in stages
+    assert "primary to a mapped file" not in [r["stage"] for r in _rows(tmp_path / "mem" / "stages.csv")]
+    assert not [f for f in (tmp_path / "mapped").iterdir() if f.name.startswith(".primary")]

@@ -103,7 +103,8 @@ class StageLog(_AppendCSV):
 
 #: stages of the paper's own experiment, and of what this project adds to it
 PAPER_STAGES = ("primary scan", "positions", "pairs")
-EXTRA_STAGES = ("embree discs", "extras")
+#: "primary to a mapped file": the points of a primary that, with its discs, would not fit in memory
+EXTRA_STAGES = ("embree discs", "extras", "primary to a mapped file")
 
 
 def stage_summary(path) -> dict:

@@ -31,11 +31,58 @@ from .report import headline
 from .results import ResultsWriter, StageLog, peak_rss_gib, read_rows, row_key
 from .truths import TruthCache
 
-__all__ = ["run_validation", "PAPER_BACKEND", "PAPER_TRUTH"]
+__all__ = ["run_validation", "PAPER_BACKEND", "PAPER_TRUTH", "spill_primary", "available_memory"]
 
 #: the paper's own rows: its subsampling (binning) against its truth (the pulse-centre scan)
 PAPER_BACKEND = "binning"
 PAPER_TRUTH = "center"
+
+#: bytes a point the embree backend holds beyond the float64 points (16 vertex + 12 normal
+#: + ~35 Embree BVH, measured on the 58 M-point rect-1000 primary; its build peak, +4)
+EMBREE_BYTES_PER_POINT = 67
+#: share of the available memory a primary and its discs may take before the points are
+#: moved to a memory-mapped file
+_MEMORY_SHARE = 0.85
+
+
+def available_memory() -> float:
+    """Bytes of memory available to new allocations (``MemAvailable`` of
+    /proc/meminfo); infinite where it cannot be read."""
+    try:
+        with open("/proc/meminfo") as f:
+            for line in f:
+                if line.startswith("MemAvailable:"):
+                    return float(line.split()[1]) * 1024
+    except OSError:
+        pass
+    return math.inf
+
+
+def spill_primary(primary: np.ndarray, folder: Path, extra_bytes_per_point: float,
+                  available: float | None = None) -> np.ndarray:
+    """``primary``, or the same points memory-mapped from a file, when they and
+    ``extra_bytes_per_point`` (what will be built on them: the embree
+    backend's discs) would take more than 85 % of the available memory.
+
+    A memory-mapped primary lets the kernel drop its pages under pressure and
+    read them back when needed (a scan then costs more, it does not fail):
+    rect-2000's 0.00576 deg primary is 253 M points, 6.1 GB, with ~17 GB of
+    discs on a 24 GB machine. The file is unlinked as soon as it is mapped,
+    so nothing is left behind, even when the run is killed. The caller must
+    drop its own reference to the in-memory array.
+    """
+    n = len(primary)
+    avail = available_memory() if available is None else available
+    if primary.nbytes + n * extra_bytes_per_point <= _MEMORY_SHARE * (avail + primary.nbytes):
+        return primary
+    folder.mkdir(parents=True, exist_ok=True)
+    path = folder / f".primary-{time.time_ns()}.npy"
+    try:
+        np.save(path, primary)
+        mapped = np.load(path, mmap_mode="r")
+    finally:
+        path.unlink(missing_ok=True)
+    return mapped
 
 
 def run_validation(config: ValidationConfig, outdir, progress: bool = True) -> dict:
@@ -115,6 +162,13 @@ def _run_scene(config, p: ScenePlan, out: Path, done, results, stages, bar) -> i
                            header=positions_tag(config, config.positions)[2:])
             stages.add(p.spec, res, "positions", time.perf_counter() - t0, len(positions))
         if wanted_here:
+            if any(b == "embree" for i in range(len(positions)) for b, _ in config.wanted(res, i, p.backends)):
+                t0 = time.perf_counter()
+                spilled = spill_primary(primary, out, EMBREE_BYTES_PER_POINT)
+                if spilled is not primary:
+                    primary = spilled
+                    stages.add(p.spec, res, "primary to a mapped file", time.perf_counter() - t0, len(primary))
+                del spilled
             n_new += _pairs(config, p, scene, res, primary, positions, secondary, truths, done, results, stages,
                             bar)
             _advance(bar, config.positions - len(positions))
