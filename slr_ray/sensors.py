@@ -52,7 +52,7 @@ from pathlib import Path
 import numpy as np
 from numba import njit, prange
 
-from .arrays import unravel_ids
+from .arrays import as_origin, unravel_ids
 from .errors import InputValueError
 from .threads import default_threads
 
@@ -368,8 +368,13 @@ def sensor_noise(points, origin, beams, range_sd: float = 0.01, beam_range_sd: f
         raise InputValueError(f"points must be (n, 3) and beams (n,), got {pts.shape} and {beams.shape}")
     if not 0 <= dropout < 1:
         raise InputValueError(f"dropout must be in [0, 1), got {dropout!r}")
+    for name, v in (("range_sd", range_sd), ("beam_range_sd", beam_range_sd)):
+        if not (math.isfinite(v) and v >= 0):
+            raise InputValueError(f"{name} must be a finite number >= 0, got {v!r}")
+    if len(beams) and (beams.dtype.kind not in "iu" or beams.min() < 0):
+        raise InputValueError("beams must be integers >= 0 (a beam id or range-image row per point)")
     rng = np.random.default_rng(seed)
-    d = pts - np.asarray(origin, dtype=np.float64)
+    d = pts - as_origin(origin)
     r = np.linalg.norm(d, axis=1)
     offsets = rng.normal(0.0, beam_range_sd, beams.max(initial=-1) + 1)
     step = rng.normal(0.0, range_sd, len(pts)) + offsets[beams]

@@ -287,3 +287,7 @@ def test_sensor_noise_moves_points_along_their_rays_and_drops_a_share():
         sensor_noise(pts, o, beams, dropout=1.0)
     with pytest.raises(InputValueError, match="beams"):
         sensor_noise(pts, o, beams[:-1])
+    with pytest.raises(InputValueError, match="beams must be integers"):
+        sensor_noise(pts, o, beams - 1)
+    with pytest.raises(InputValueError, match="range_sd"):
+        sensor_noise(pts, o, beams, range_sd=-0.01)

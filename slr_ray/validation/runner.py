@@ -162,7 +162,9 @@ def _run_scene(config, p: ScenePlan, out: Path, done, results, stages, bar) -> i
                            header=positions_tag(config, config.positions)[2:])
             stages.add(p.spec, res, "positions", time.perf_counter() - t0, len(positions))
         if wanted_here:
-            if any(b == "embree" for i in range(len(positions)) for b, _ in config.wanted(res, i, p.backends)):
+            # only when embree rows remain to be made (a resumed run whose discs are done does not spill)
+            if any(b == "embree" and row_key(p.spec, res, i, b, t) not in done
+                   for i in range(len(positions)) for b, t in config.wanted(res, i, p.backends)):
                 t0 = time.perf_counter()
                 spilled = spill_primary(primary, out, EMBREE_BYTES_PER_POINT)
                 if spilled is not primary:
