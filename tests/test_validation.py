@@ -61,6 +61,45 @@ def test_figure(quick, tmp_path):
     assert (tmp_path / "f.png").stat().st_size > 5000
 
 
+def test_a_resume_with_settings_that_change_rows_is_refused(quick, tmp_path, capsys):
+    cfg, out, _ = quick
+    before = (out / "results.csv").read_bytes()
+    settings = json.loads((out / "settings.json").read_text())
+    assert settings["secondary_resolution"] == cfg.secondary_resolution
+    for name, value in (("secondary_resolution", cfg.secondary_resolution * 2), ("seed", cfg.seed + 1),
+                        ("embree_options", {"ties": 0.0})):
+        old = getattr(cfg, name)
+        setattr(cfg, name, value)
+        try:
+            with pytest.raises(InputValueError, match=name):
+                run_validation(cfg, out, progress=False)
+        finally:
+            setattr(cfg, name, old)
+    assert (out / "results.csv").read_bytes() == before  # nothing appended
+    # what only adds rows is not a change of settings; an old run without the file takes the current ones
+    cfg.truths, truths = ["center"], cfg.truths
+    try:
+        assert run_validation(cfg, out, progress=False)["new_rows"] == 0
+    finally:
+        cfg.truths = truths
+    old = tmp_path / "old"
+    old.mkdir()
+    (old / "results.csv").write_bytes(before)
+    for f in ("positions",):
+        (old / f).mkdir()
+        for p in (out / f).iterdir():
+            (old / f / p.name).write_bytes(p.read_bytes())
+    assert run_validation(cfg, old, progress=False)["new_rows"] == 0
+    assert json.loads((old / "settings.json").read_text()) == settings
+    # the command line says it in one line and exits 2
+    cfg_file = tmp_path / "q.toml"
+    text = (Path(__file__).parents[1] / "scenes" / "validate-quick.toml").read_text()
+    assert "secondary_resolution = 0.36" in text
+    cfg_file.write_text(text.replace("secondary_resolution = 0.36", "secondary_resolution = 0.5"))
+    assert main(["validate", str(cfg_file), "--quiet", "-o", str(out)]) == 2
+    assert "secondary_resolution" in capsys.readouterr().err
+
+
 def test_configs_and_cli(tmp_path, capsys):
     for name in ("quick", "paper", "distance", "occlusion", "resolution"):
         assert load_config(name).positions >= 1

@@ -1,19 +1,27 @@
-"""The files a validation run writes as it goes: ``results.csv`` rows and ``stages.csv``.
+"""The files a validation run writes as it goes: ``results.csv`` rows, ``stages.csv``
+and ``settings.json``.
 
 Rows are appended and flushed as they are made, so an interrupted run
 resumes where it stopped. A row is keyed by (scene, primary resolution,
 position, backend, truth); rows written before precision was recorded read
-back with ``precision`` and ``fscore`` empty.
+back with ``precision`` and ``fscore`` empty. ``settings.json`` holds the
+settings that change a row's value (:data:`ROW_SETTINGS`): a run resumed with
+other values is refused rather than mixed with the old rows. What only adds
+rows (more positions, scenes, backends, truths) may change between sittings.
 """
 
 from __future__ import annotations
 
 import csv
+import json
 import resource
 from pathlib import Path
 
+from ..errors import InputValueError
+from ..io import atomic_path
+
 __all__ = ["COLUMNS", "read_rows", "row_key", "ResultsWriter", "StageLog", "peak_rss_gib", "stage_summary",
-           "PAPER_STAGES", "EXTRA_STAGES"]
+           "PAPER_STAGES", "EXTRA_STAGES", "ROW_SETTINGS", "check_settings"]
 
 COLUMNS = ["scene", "n_rectangles", "scene_seed", "primary_resolution", "position", "x", "y", "z",
            "distance_m", "backend", "truth", "similarity", "precision", "fscore", "true_points", "slr_points",
@@ -37,6 +45,40 @@ def read_rows(path) -> dict:
             r.setdefault(k, "")
     return {row_key(r["scene"], r["primary_resolution"], r["position"], r["backend"], r["truth"]): r
             for r in rows}
+
+
+#: config fields that change the value of a row (or which positions the rows are at)
+ROW_SETTINGS = ("primary_semantics", "dense_spacing", "seed", "secondary_resolution", "nearest_supersample",
+                "positions_resolution", "min_ground_points", "threshold", "embree_options")
+
+
+def check_settings(outdir, config) -> dict:
+    """Refuse to resume ``outdir`` with settings that would change its rows.
+
+    The first sitting writes ``outdir/settings.json`` with the config's
+    :data:`ROW_SETTINGS`; a later one must match them. A directory with rows
+    but no settings file (made before it existed) takes the current settings.
+    Returns the settings.
+
+    Raises
+    ------
+    InputValueError
+        Naming each setting that differs, with the run's and the config's value.
+    """
+    path = Path(outdir) / "settings.json"
+    now = json.loads(json.dumps({k: getattr(config, k) for k in ROW_SETTINGS}))  # tuples -> lists
+    if path.exists():
+        then = json.loads(path.read_text())
+        differ = {k: (then.get(k), now[k]) for k in ROW_SETTINGS if then.get(k, now[k]) != now[k]}
+        if differ:
+            said = "; ".join(f"{k}: {a!r} in the run, {b!r} now" for k, (a, b) in differ.items())
+            raise InputValueError(f"{outdir} holds rows made with other settings ({said}); resuming would mix "
+                                  "them: write to another directory, or resume with the run's settings")
+        if all(k in then for k in ROW_SETTINGS):
+            return now
+    with atomic_path(path) as tmp:
+        Path(tmp).write_text(json.dumps(now, indent=1, sort_keys=True) + "\n")
+    return now
 
 
 def peak_rss_gib() -> float:

@@ -28,7 +28,7 @@ from ..similarity import agreement
 from .config import ValidationConfig
 from .planning import ScenePlan, load_positions, plan, positions_file, positions_tag
 from .report import headline
-from .results import ResultsWriter, StageLog, peak_rss_gib, read_rows, row_key
+from .results import ResultsWriter, StageLog, check_settings, peak_rss_gib, read_rows, row_key
 from .truths import TruthCache
 
 __all__ = ["run_validation", "PAPER_BACKEND", "PAPER_TRUTH", "spill_primary", "available_memory"]
@@ -90,12 +90,15 @@ def run_validation(config: ValidationConfig, outdir, progress: bool = True) -> d
 
     Writes ``outdir/results.csv`` (a row per pair, appended as made; see
     :mod:`slr_ray.validation.results`), ``outdir/positions/<scene>.csv`` (the
-    drawn positions) and ``outdir/stages.csv`` (seconds and peak memory of
-    every primary scan, position draw, disc preparation and position loop).
+    drawn positions), ``outdir/stages.csv`` (seconds and peak memory of
+    every primary scan, position draw, disc preparation and position loop)
+    and ``outdir/settings.json`` (the settings its rows depend on: a resume
+    with other values raises :class:`~slr_ray.errors.InputValueError`).
     """
     config.check()
     out = Path(outdir)
     out.mkdir(parents=True, exist_ok=True)
+    check_settings(out, config)
     csv_path = out / "results.csv"
     done = read_rows(csv_path)
     plans = plan(config, done)
