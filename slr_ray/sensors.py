@@ -43,7 +43,9 @@ source. Your own calibration: :func:`read_ouster_metadata`,
 
 from __future__ import annotations
 
+import copy
 import dataclasses
+import functools
 import json
 import math
 from dataclasses import dataclass, field
@@ -316,10 +318,18 @@ def sensor(name: str, **changes) -> BeamPattern:
     >>> slr_ray.sensor("velodyne_vlp16").shape  # doctest: +SKIP
     (16, 1800)
     """
+    if not isinstance(name, str):
+        raise InputValueError(f"a sensor is named by a string, got {name!r}; shipped: {list(SENSORS)}")
+    return BeamPattern.from_table(copy.deepcopy(_shipped_table(name)), **changes)
+
+
+@functools.lru_cache(maxsize=None)
+def _shipped_table(name: str) -> dict:
+    """A shipped table, read once per process (options naming a sensor resolve it often)."""
     path = SENSORS_DIR / f"{name}.json"
     if not path.is_file():
         raise InputValueError(f"unknown sensor {name!r}; shipped: {list(SENSORS)}")
-    return BeamPattern.from_table(json.loads(path.read_text()), **changes)
+    return json.loads(path.read_text())
 
 
 def miscalibrated(pattern: BeamPattern, elevation_sd: float = 0.1, azimuth_sd: float = 0.1,
