@@ -204,15 +204,48 @@ class BeamPattern:
 
         return replace(self, **changes)
 
-    def keys(self, points, origin):
-        """Flat pulse ids ``row * columns + column`` (``-1``: not seen) and ranges of ``points``."""
+    def keys(self, points, origin, beams=None):
+        """Flat pulse ids ``row * columns + column`` (``-1``: not seen) and ranges of ``points``.
+
+        ``beams`` (optional, ``(n,)`` integers): the beam (table position) that
+        fired each point, as a frame's ``ring`` field records it; -1 where
+        unknown. A point with a beam takes that beam's row whatever its
+        elevation (a real unit's beams depart from the table, and a beam's
+        vertical offset moves near points' elevation by degrees); the others
+        take the row of the band their elevation falls in.
+        """
         pts = np.ascontiguousarray(points, dtype=np.float64)
         o = np.asarray(origin, dtype=np.float64)
         keys = np.empty(len(pts), np.int64)
         ranges = np.empty(len(pts))
         rmin, rmax = self.range_limits
-        _beam_keys(pts, o[0], o[1], o[2], self._cos_edges, self.row_offsets, self.columns, rmin, rmax, keys, ranges)
+        if beams is None:
+            _beam_keys(pts, o[0], o[1], o[2], self._cos_edges, self.row_offsets, self.columns, rmin, rmax, keys,
+                       ranges)
+        else:
+            rows = self.rows_of_beams(beams, len(pts))
+            _beam_keys_given(pts, o[0], o[1], o[2], self._cos_edges, self.row_offsets, self.columns, rmin, rmax,
+                             rows, keys, ranges)
         return keys, ranges
+
+    def rows_of_beams(self, beams, n: int | None = None) -> np.ndarray:
+        """``(n,) int64``: the range-image row of each point's beam (-1 stays -1).
+
+        Raises :class:`InputValueError` for a length other than ``n``,
+        non-integers, or beams outside ``[-1, n_beams)``."""
+        b = np.asarray(beams)
+        if b.ndim != 1 or (n is not None and len(b) != n):
+            raise InputValueError(f"beams must be one integer a point ({n} values), got shape {b.shape}")
+        if b.dtype.kind not in "iu":
+            if b.dtype.kind != "f" or not np.all(np.isfinite(b)) or np.any(b != np.round(b)):
+                raise InputValueError(f"beams must be integers (beam ids, -1 unknown), got dtype {b.dtype}")
+        b = b.astype(np.int64)
+        if len(b) and (b.min() < -1 or b.max() >= self.n_beams):
+            raise InputValueError(f"beams must lie in [-1, {self.n_beams}) for a {self.n_beams}-beam table, "
+                                  f"got {b.min()} ... {b.max()}")
+        row_of_beam = np.empty(self.n_beams, np.int64)
+        row_of_beam[self.beam_of_row] = np.arange(self.n_beams)
+        return np.where(b >= 0, row_of_beam[np.maximum(b, 0)], -1)
 
     @property
     def _cos_edges(self) -> np.ndarray:
@@ -280,13 +313,35 @@ def _beam_key(dx, dy, dz, neg_cos_edges, offsets, columns, rmin, rmax):
     if q < neg_cos_edges[0] or q >= neg_cos_edges[nrow]:
         return -1, r
     row = np.searchsorted(neg_cos_edges, q, side="right") - 1
+    return row * columns + _column(dx, dy, offsets[row], columns), r
+
+
+@njit(cache=True, inline="always", error_model="numpy")
+def _column(dx, dy, offset, columns):
+    """The column of azimuth ``atan2(dy, dx)`` for a beam firing ``offset`` radians off it."""
     two_pi = 2.0 * math.pi
-    a = math.atan2(dy, dx) - offsets[row]
+    a = math.atan2(dy, dx) - offset
     a = a - two_pi * math.floor(a / two_pi)
     col = int(math.floor(a / (two_pi / columns)))
     if col >= columns:  # a = 2 pi - tiny rounds to the last column's end
         col = columns - 1
-    return row * columns + col, r
+    return col
+
+
+@njit(cache=True, parallel=True, error_model="numpy")
+def _beam_keys_given(pts, ox, oy, oz, edges, offsets, columns, rmin, rmax, rows, keys, ranges):
+    """As :func:`_beam_keys`, a point with ``rows[i] >= 0`` in that row."""
+    for i in prange(len(pts)):
+        dx, dy, dz = pts[i, 0] - ox, pts[i, 1] - oy, pts[i, 2] - oz
+        if rows[i] < 0:
+            keys[i], ranges[i] = _beam_key(dx, dy, dz, edges, offsets, columns, rmin, rmax)
+            continue
+        r = math.sqrt(dx * dx + dy * dy + dz * dz)
+        ranges[i] = r
+        if not (r > 0.0) or r < rmin or r > rmax:
+            keys[i] = -1
+            continue
+        keys[i] = rows[i] * columns + _column(dx, dy, offsets[rows[i]], columns)
 
 
 @njit(cache=True, parallel=True, error_model="numpy")

@@ -136,6 +136,14 @@ class EmbreeOptions(BackendOptions):
         ``velodyne_hdl64e_s2``), a preset, or a pattern object. The pulse
         grid is then its rows (beams) and columns, and the footprint angle
         the root mean square of its row gap and column step.
+    primary_beams : (n,) int, optional
+        With ``primary_pattern`` a beam table: the beam (table position) that
+        fired each point, -1 where unknown, as a frame's ``ring`` field or
+        its scan order records it. The pulse grid then puts each point in its
+        beam's row instead of the band its elevation falls in: a real unit's
+        beams depart from any table, and a beam's vertical offset moves near
+        points' elevation by degrees (KITTI frame: README "Where the KITTI
+        frame's VLP-16 re-scan loses its points").
     normals : (n, 3) float, optional
         Normals to use instead of estimating them (``orientation='normal'``).
     min_radius : float, optional
@@ -192,6 +200,7 @@ class EmbreeOptions(BackendOptions):
     primary_origin: object = None
     primary_resolution: float | None = None
     primary_pattern: object = None
+    primary_beams: object = None
     normals: object = None
     min_radius: float | None = None
     fallback_radius: float = 0.01
@@ -236,6 +245,11 @@ class EmbreeOptions(BackendOptions):
             if self.primary_resolution is not None:
                 raise InputValueError("give primary_resolution or primary_pattern, not both")
             as_pattern(self.primary_pattern)  # an unknown name or type fails here, not in prepare
+        if self.primary_beams is not None and not hasattr(as_pattern(self.primary_pattern)
+                                                          if self.primary_pattern is not None else None,
+                                                          "rows_of_beams"):
+            raise InputValueError("primary_beams (each point's beam) needs primary_pattern, the primary's "
+                                  "beam table")
         if self.neighbours is None:  # frozen: set through object.__setattr__
             known = self.primary_origin is not None and self.primary_grid is not None
             object.__setattr__(self, "neighbours", "pulse-grid" if known else "knn")
@@ -306,7 +320,7 @@ def neighbourhoods(points, k: int, chunk: int = 1 << 20):
 
 
 def grid_neighbourhoods(points, primary_origin, primary_resolution, gate: float | None = None, chunk: int = 1 << 20,
-                        layout: str = "auto"):
+                        layout: str = "auto", beams=None):
     """Neighbours of every point of a primary scan from its own pulse grid.
 
     The points are binned into the pulses of a ``primary_resolution`` pattern
@@ -321,7 +335,9 @@ def grid_neighbourhoods(points, primary_origin, primary_resolution, gate: float 
     pointer into the rows above and below (O(n) after the sort); for a cloud
     stored column by column (as TLS scanners record), along each azimuth
     column instead (``layout``: ``"auto"``, ``"rows"``, ``"columns"``; the
-    neighbours do not depend on it).
+    neighbours do not depend on it). ``beams`` (optional, a beam table's
+    primary): the beam that fired each point (-1 unknown), which sets its row
+    instead of its elevation.
 
     Yields ``(members (c,), distances (c, 8), indices (c, 8), counts (c,))``
     chunk by chunk: ``members`` are the indices of the chunk's points (whole
@@ -335,7 +351,7 @@ def grid_neighbourhoods(points, primary_origin, primary_resolution, gate: float 
     if n == 0:
         return
     ranges, sorted_keys, order, row_start, line_len, transposed = _sorted_pulse_grid(
-        pts, as_origin(primary_origin, "primary_origin"), primary_resolution, layout)
+        pts, as_origin(primary_origin, "primary_origin"), primary_resolution, layout, beams)
     nv = len(row_start) - 1  # lines: zenith rows, or azimuth columns for a column-ordered cloud
     unseen = int(row_start[0])
     if unseen:
@@ -372,7 +388,7 @@ def grid_gate(primary, gate: float | None = None) -> float:
     return min(0.1, math.tan(math.radians(_GATE_INCIDENCE_DEG)) * max(_primary_steps(primary)))
 
 
-def _sorted_pulse_grid(pts, origin, primary_resolution, layout: str = "auto"):
+def _sorted_pulse_grid(pts, origin, primary_resolution, layout: str = "auto", beams=None):
     """The pulse keys of a primary's points, sorted line by line.
 
     Lines are zenith rows (key ``v * n_azimuth + h``), or azimuth columns
@@ -387,10 +403,18 @@ def _sorted_pulse_grid(pts, origin, primary_resolution, layout: str = "auto"):
     azimuth offsets set to 0): a beam fires ``offset`` degrees off the
     column's azimuth, so column ``h`` of two adjacent beams can lie degrees
     apart (up to 8 deg between an HDL-64E's beams), and the pulses adjacent
-    in space are the ones adjacent in absolute azimuth.
+    in space are the ones adjacent in absolute azimuth. ``beams`` (a beam
+    table's primary only): each point's beam, which then sets its row
+    (:meth:`~slr_ray.sensors.BeamPattern.keys`).
     """
     pattern = _grid_pattern(primary_resolution)
-    keys, ranges = pulse_keys(pts, origin, pattern)
+    if beams is None:
+        keys, ranges = pulse_keys(pts, origin, pattern)
+    elif not hasattr(pattern, "rows_of_beams"):
+        raise InputValueError("beams (a point's beam id) need a beam-table primary (primary_pattern), "
+                              "not degrees")
+    else:
+        keys, ranges = pattern.keys(pts, origin, beams)
     nv, nh = pattern.n_zenith, pattern.n_azimuth
     if layout == "auto":
         rows_up, cols_up = _runs(keys, nv, nh)
@@ -618,7 +642,7 @@ def _grid_rows(pts, ranges, sk, order, row_start, tasks, line_len, transposed, g
 
 def pulse_grid_spacing_normals(points, primary_origin, primary_resolution, gate: float | None = None,
                                spacing: bool = True, normals: bool = True, dtype=np.float64,
-                               layout: str = "auto", max_incidence: float = 90.0):
+                               layout: str = "auto", max_incidence: float = 90.0, beams=None):
     """Mean neighbour spacing ``(n,)`` and PCA normals ``(n, 3)`` of a primary
     scan from its pulse grid, in one pass and without neighbour arrays.
 
@@ -633,7 +657,8 @@ def pulse_grid_spacing_normals(points, primary_origin, primary_resolution, gate:
     for Embree halves their memory); ``layout``: see :func:`_sorted_pulse_grid`
     (the answer does not depend on it, only the speed); ``max_incidence``
     (degrees): normals turned as they are made to meet the line of sight to
-    the primary at no more than this (:class:`EmbreeOptions`; 90: not turned).
+    the primary at no more than this (:class:`EmbreeOptions`; 90: not turned);
+    ``beams``: each point's beam, as in :func:`grid_neighbourhoods`.
     """
     pts = np.ascontiguousarray(points, np.float64)
     n = len(pts)
@@ -643,7 +668,7 @@ def pulse_grid_spacing_normals(points, primary_origin, primary_resolution, gate:
     nr = padded_rows(n, dtype) if normals else np.empty((0, 3), dtype)
     if n:
         ranges, sorted_keys, order, line_start, line_len, transposed = _sorted_pulse_grid(
-            pts, o, primary_resolution, layout)
+            pts, o, primary_resolution, layout, beams)
         if normals and line_start[0]:  # points outside the pattern: the direction to the scanner
             unseen = order[:line_start[0]]
             nr[unseen] = _fallback_directions(pts[unseen], o, dtype)
@@ -972,6 +997,8 @@ class DiscScanner(Scanner):
         # estimated normals in float32 for Embree (its precision; 12 B a point less at the peak)
         ndtype = np.float32 if o.engine == "embree" else np.float64
         grid = (need_spacing or need_normals) and o.neighbours == "pulse-grid"
+        if o.primary_beams is not None:
+            o.primary_grid.rows_of_beams(o.primary_beams, n)  # a bad length or beam id fails here, used or not
         if o.orientation == "normal":
             # kNN normals are filled chunk by chunk below, pulse-grid ones come whole; fewer than two
             # points have no neighbours and keep the fallback direction
@@ -990,7 +1017,8 @@ class DiscScanner(Scanner):
             # one fused pass: no neighbour arrays (spacing 0 where none: the floor applies)
             spacing, grid_normals = pulse_grid_spacing_normals(pts, o.primary_origin, o.primary_grid,
                                                                o.grid_gate, need_spacing, need_normals, ndtype,
-                                                               max_incidence=o.max_incidence)
+                                                               max_incidence=o.max_incidence,
+                                                               beams=o.primary_beams)
             if need_normals:
                 normals = grid_normals
         elif need_spacing or need_normals:

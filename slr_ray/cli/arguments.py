@@ -120,8 +120,8 @@ def pattern_from(args):
 
 # --- backend and its options ---------------------------------------------------------------------------------
 
-#: Option fields not settable from the command line (arrays).
-_NOT_ON_CLI = {"normals"}
+#: Option fields not settable from the command line (arrays a point).
+_NOT_ON_CLI = {"normals", "primary_beams"}
 
 
 def _option_type(name: str, typ: str):
