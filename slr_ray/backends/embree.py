@@ -245,9 +245,7 @@ class EmbreeOptions(BackendOptions):
             if self.primary_resolution is not None:
                 raise InputValueError("give primary_resolution or primary_pattern, not both")
             as_pattern(self.primary_pattern)  # an unknown name or type fails here, not in prepare
-        if self.primary_beams is not None and not hasattr(as_pattern(self.primary_pattern)
-                                                          if self.primary_pattern is not None else None,
-                                                          "rows_of_beams"):
+        if self.primary_beams is not None and not hasattr(self.primary_grid, "rows_of_beams"):
             raise InputValueError("primary_beams (each point's beam) needs primary_pattern, the primary's "
                                   "beam table")
         if self.neighbours is None:  # frozen: set through object.__setattr__
