@@ -101,11 +101,18 @@ def test_a_resume_with_settings_that_change_rows_is_refused(quick, tmp_path, cap
 
 
 def test_configs_and_cli(tmp_path, capsys):
-    for name in ("quick", "paper", "distance", "occlusion", "resolution"):
+    for name in ("quick", "paper", "paper-hour", "distance", "occlusion", "resolution", "embree"):
         assert load_config(name).positions >= 1
-    paper = load_config("paper")
-    entries = [paper.scene_entry(e) for e in paper.scenes]
-    assert len(entries) == 9 and sum(len(r) for _, r in entries) == 13  # 9 x 0.0144 + 4 x 0.00576
+    paper, hour = load_config("paper"), load_config("paper-hour")
+    for cfg in (paper, hour):
+        entries = [cfg.scene_entry(e) for e in cfg.scenes]
+        assert len(entries) == 9 and sum(len(r) for _, r in entries) == 13  # 9 x 0.0144 + 4 x 0.00576
+    # validate-paper: embree at every position of every primary; the hour-long one at every 10th
+    assert (paper.embree_every, paper.embree_primary_resolutions, paper.backends) == (1, None, ["binning", "embree"])
+    assert hour.embree_every == 10
+    # the two make the same rows where they overlap (the same settings; the hour-long run is a subset)
+    from slr_ray.validation.results import ROW_SETTINGS
+    assert all(getattr(paper, k) == getattr(hour, k) for k in ROW_SETTINGS)
     assert load_config("resolution").positions_resolution == 0.0144
     assert main(["validate", "distance", "--print-config"]) == 0
     cfg = json.loads(capsys.readouterr().out)
@@ -296,8 +303,15 @@ def test_paper_report_groups_the_questions(tmp_path):
     assert sem["binning/nearest"]["mean"] - sem["binning/center"]["mean"] == pytest.approx(0.03)
     assert sem["embree/center"]["mean"] - sem["binning/center"]["mean"] == pytest.approx(-0.01)
     assert "0.00576" not in rep["semantics"]  # a single series there: nothing to compare
+    # embree beside binning where both ran against pulse-centre truth (other truths present or not)
+    cross = rep["cross_check"]["0.0144"]["embree"]
+    assert set(cross) == {f"distance-{k}" for k in range(1, 6)} | {"ground-only", "rect-2000", "all"}
+    assert cross["all"]["binning"]["pairs"] == cross["all"]["embree"]["pairs"] == 7 * 4
+    assert cross["rect-2000"]["embree"]["mean"] - cross["rect-2000"]["binning"]["mean"] == pytest.approx(-0.01)
+    assert "0.00576" not in rep["cross_check"]  # no embree rows there
     md = paper_report_markdown(rep)
-    assert md.count("| distance-") == 5 and "0.00576° primaries" in md and "embree/nearest" in md
+    assert md.count("| distance-") == 5 + 10 and "0.00576° primaries" in md and "embree/nearest" in md
+    assert "| all, embree | 28 |" in md
     save_figure(paper_figure(tmp_path / "r.csv", backend="embree"), tmp_path / "f.png")
     assert (tmp_path / "f.png").stat().st_size > 5000
 

@@ -98,13 +98,15 @@ def series_stats(distance, similarity, precision=None) -> dict:
             "bands": bands, "slope_per_10m": slope}
 
 
-def full_pairs(rows, resolution, series_names) -> set:
-    """The (scene, position) pairs at one primary that have a row for every (backend, truth) series."""
+def full_pairs(rows, resolution, series_names, exact: bool = True) -> set:
+    """The (scene, position) pairs at one primary that have a row for every (backend, truth) series
+    (``exact``: and no other series)."""
     have: dict = {}
     for r in rows:
         if float(r["primary_resolution"]) == float(resolution):
             have.setdefault((r["scene"], r["position"]), set()).add((r["backend"], r["truth"]))
-    return {k for k, v in have.items() if v == set(series_names)}
+    want = set(series_names)
+    return {k for k, v in have.items() if (v == want if exact else v >= want)}
 
 
 def paper_report(csv_path) -> dict:
@@ -115,12 +117,15 @@ def paper_report(csv_path) -> dict:
     ``occlusion[res]``: the 0/500/1000/2000-rectangle scenes (questions 2 and
     3: 0.0144 and 0.00576 deg); ``semantics[res]``: the positions where
     every backend and truth was run, each series on the same pairs, pooled
-    over scenes. ``res`` is a primary resolution as text ('0.0144'). Every
-    entry is :func:`series_stats` of binning vs pulse-centre truth unless
-    named otherwise.
+    over scenes; ``cross_check[res][backend][scene]``: each backend other than
+    binning beside binning (``{"binning": ..., backend: ...}``) on the pairs
+    where both were run against pulse-centre truth, per scene and ``all``.
+    ``res`` is a primary resolution as text ('0.0144'). Every entry is
+    :func:`series_stats` of binning vs pulse-centre truth unless named
+    otherwise.
     """
     rows = load_rows(csv_path)
-    out: dict = {"rows": len(rows), "q1": {}, "occlusion": {}, "semantics": {}}
+    out: dict = {"rows": len(rows), "q1": {}, "occlusion": {}, "semantics": {}, "cross_check": {}}
     resolutions = sorted({float(r["primary_resolution"]) for r in rows}, reverse=True)
     for res in resolutions:
         by = {sc: series_stats(*series(rows, [sc], res)) for sc in Q1_SCENES}
@@ -137,6 +142,16 @@ def paper_report(csv_path) -> dict:
         if full and len(names) > 1:
             out["semantics"][f"{res:g}"] = {f"{b}/{t}": series_stats(*series(rows, None, res, b, t, full))
                                            for b, t in names}
+    for res in resolutions:
+        for b in sorted({r["backend"] for r in rows} - {"binning"}):
+            both = full_pairs(rows, res, [("binning", "center"), (b, "center")], exact=False)
+            scenes = [sc for sc in (*Q1_SCENES, *Q2_SCENES) if any(k[0] == sc for k in both)]
+            if not scenes:
+                continue
+            per = {sc: {x: series_stats(*series(rows, [sc], res, x, "center", both)) for x in ("binning", b)}
+                   for sc in scenes}
+            per["all"] = {x: series_stats(*series(rows, scenes, res, x, "center", both)) for x in ("binning", b)}
+            out["cross_check"].setdefault(f"{res:g}", {})[b] = per
     return out
 
 
@@ -174,6 +189,10 @@ def paper_report_markdown(report: dict) -> str:
               list(q.items()))
     for res, ser in report["semantics"].items():
         table(f"Backends and truth semantics on the same pairs ({res}° primaries, all scenes)", list(ser.items()))
+    for res, by_backend in report.get("cross_check", {}).items():
+        for b, per in by_backend.items():
+            table(f"{b} beside binning on the same pairs ({res}° primaries, vs pulse-centre truth)",
+                  [(f"{sc}, {x}", st) for sc, pair in per.items() for x, st in pair.items()])
     run = report.get("run")
     if run and run.get("sittings"):
         lines.extend([
