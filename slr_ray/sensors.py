@@ -378,7 +378,7 @@ def sensor(name: str, **changes) -> BeamPattern:
     return BeamPattern.from_table(copy.deepcopy(_shipped_table(name)), **changes)
 
 
-@functools.lru_cache(maxsize=None)
+@functools.cache
 def _shipped_table(name: str) -> dict:
     """A shipped table, read once per process (options naming a sensor resolve it often)."""
     path = SENSORS_DIR / f"{name}.json"
