@@ -173,6 +173,21 @@ def test_primaries_of_a_scene_share_positions_and_true_scans(two_primaries):
     assert summary["sittings"] == 1 and summary["wall_seconds"] >= summary["paper_seconds"]
 
 
+def test_stage_summary_counts_sittings_that_were_cut_off(tmp_path):
+    """A sitting killed before its run row still counts, with its stages as its wall time; a call that
+    found nothing to do does not."""
+    head = "scene,primary_resolution,stage,seconds,count,peak_rss_gib\n"
+    body = ("a,0.1,primary scan,10,5,1\na,0.1,pairs,20,3,1\n"       # sitting 1, killed
+            "a,0.1,primary scan,11,5,1\na,0.1,pairs,30,5,2\n(all),,run,50,5,2\n"  # sitting 2, finished
+            "(all),,run,0.0,0,0.1\n"                                   # nothing left to do
+            "b,0.1,primary scan,7,5,1\n")                               # sitting 3, running or killed
+    (tmp_path / "stages.csv").write_text(head + body)
+    st = stage_summary(tmp_path / "stages.csv")
+    assert (st["sittings"], st["interrupted"]) == (3, 2)
+    assert st["wall_seconds"] == pytest.approx(30 + 50 + 7) and st["paper_seconds"] == pytest.approx(78)
+    assert st["peak_rss_gib"] == 2
+
+
 def test_resume_reads_positions_and_skips_their_primary(two_primaries, tmp_path):
     import shutil
 

@@ -198,6 +198,7 @@ def paper_report_markdown(report: dict) -> str:
         lines.extend([
             "**The run** (from `stages.csv`)", "",
             "| sittings | wall time | paper's part | extras | peak memory |", "|---|---|---|---|---|",
-            f"| {run['sittings']} | {run['wall_seconds'] / 60:.1f} min | {run['paper_seconds'] / 60:.1f} min | "
+            f"| {run['sittings']}" + (f" ({run['interrupted']} cut off: stage times)" if run.get("interrupted") else "")
+            + f" | {run['wall_seconds'] / 60:.1f} min | {run['paper_seconds'] / 60:.1f} min | "
             f"{run['extras_seconds'] / 60:.1f} min | {run['peak_rss_gib']} GiB |", ""])
     return "\n".join(lines)

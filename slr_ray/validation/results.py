@@ -154,7 +154,12 @@ def stage_summary(path) -> dict:
     positions, its binning/pulse-centre pairs) and of the extras (embree discs,
     nearest-in-pulse truths, embree pairs), the peak memory, and the sittings:
     one ``run`` row per call of :func:`~slr_ray.validation.run_validation`
-    with its wall time (a run resumed over several sittings has several)."""
+    with its wall time (a run resumed over several sittings has several).
+
+    A sitting that was cut off (killed, out of time) writes no ``run`` row: it
+    is recognised where a stage of a primary repeats, and its wall time is
+    the sum of its stages (``interrupted`` counts them). A call that found
+    nothing to do is not a sitting."""
     rows = []
     if Path(path).exists():
         with open(path, newline="") as f:
@@ -165,8 +170,25 @@ def stage_summary(path) -> dict:
             total["paper"] += float(r["seconds"])
         elif r["stage"] in EXTRA_STAGES:
             total["extras"] += float(r["seconds"])
-    runs = [float(r["seconds"]) for r in rows if r["stage"] == "run"]
+    walls, interrupted = [], 0
+    seen, open_seconds = set(), 0.0
+    for r in rows:
+        if r["stage"] == "run":
+            if seen or int(r.get("count") or 0):
+                walls.append(float(r["seconds"]))
+            seen, open_seconds = set(), 0.0
+            continue
+        key = (r["scene"], r["primary_resolution"], r["stage"])
+        if key in seen:  # the previous sitting stopped without its run row
+            walls.append(open_seconds)
+            interrupted += 1
+            seen, open_seconds = set(), 0.0
+        seen.add(key)
+        open_seconds += float(r["seconds"])
+    if seen:  # the last sitting stopped (or is still running)
+        walls.append(open_seconds)
+        interrupted += 1
     peaks = [float(r["peak_rss_gib"]) for r in rows if r["peak_rss_gib"]]
     return {"paper_seconds": round(total["paper"], 1), "extras_seconds": round(total["extras"], 1),
-            "sittings": len(runs), "wall_seconds": round(sum(runs), 1),
+            "sittings": len(walls), "interrupted": interrupted, "wall_seconds": round(sum(walls), 1),
             "peak_rss_gib": max(peaks, default=None)}
