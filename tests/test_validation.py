@@ -76,6 +76,16 @@ def test_a_resume_with_settings_that_change_rows_is_refused(quick, tmp_path, cap
         finally:
             setattr(cfg, name, old)
     assert (out / "results.csv").read_bytes() == before  # nothing appended
+    # a default of this version that differs from the one the rows were made with (an upgrade) is named too;
+    # options only one side knows (added by a newer version) are not compared
+    assert settings["embree_resolved"]["ties"] == 1.0 and "primary_origin" not in settings["embree_resolved"]
+    tampered = {**settings, "embree_resolved": {**settings["embree_resolved"], "ties": 3.0, "gone_option": 1}}
+    (out / "settings.json").write_text(json.dumps(tampered))
+    try:
+        with pytest.raises(InputValueError, match="embree option ties: 3.0 in the run, 1.0 now"):
+            run_validation(cfg, out, progress=False)
+    finally:
+        (out / "settings.json").write_text(json.dumps(settings))
     # what only adds rows is not a change of settings; an old run without the file takes the current ones
     cfg.truths, truths = ["center"], cfg.truths
     try:

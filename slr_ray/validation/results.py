@@ -56,9 +56,12 @@ def check_settings(outdir, config) -> dict:
     """Refuse to resume ``outdir`` with settings that would change its rows.
 
     The first sitting writes ``outdir/settings.json`` with the config's
-    :data:`ROW_SETTINGS`; a later one must match them. A directory with rows
-    but no settings file (made before it existed) takes the current settings.
-    Returns the settings.
+    :data:`ROW_SETTINGS` and the embree options they resolve to in this
+    version of slr_ray (``embree_resolved``: a default changed by an upgrade
+    changes the embree rows as surely as a setting); a later sitting must
+    match them (options a newer version adds are not compared). A directory
+    with rows but no settings file (made before it existed) takes the
+    current settings. Returns the settings.
 
     Raises
     ------
@@ -66,19 +69,36 @@ def check_settings(outdir, config) -> dict:
         Naming each setting that differs, with the run's and the config's value.
     """
     path = Path(outdir) / "settings.json"
-    now = json.loads(json.dumps({k: getattr(config, k) for k in ROW_SETTINGS}))  # tuples -> lists
+    now = json.loads(json.dumps({**{k: getattr(config, k) for k in ROW_SETTINGS},
+                                 "embree_resolved": _embree_resolved(config)}))  # tuples -> lists
     if path.exists():
         then = json.loads(path.read_text())
         differ = {k: (then.get(k), now[k]) for k in ROW_SETTINGS if then.get(k, now[k]) != now[k]}
+        old_opts, new_opts = then.get("embree_resolved", {}), now["embree_resolved"]
+        differ.update({f"embree option {k}": (old_opts[k], new_opts[k]) for k in old_opts
+                       if k in new_opts and old_opts[k] != new_opts[k]})
         if differ:
             said = "; ".join(f"{k}: {a!r} in the run, {b!r} now" for k, (a, b) in differ.items())
             raise InputValueError(f"{outdir} holds rows made with other settings ({said}); resuming would mix "
                                   "them: write to another directory, or resume with the run's settings")
-        if all(k in then for k in ROW_SETTINGS):
+        if all(k in then for k in (*ROW_SETTINGS, "embree_resolved")):
             return now
     with atomic_path(path) as tmp:
         Path(tmp).write_text(json.dumps(now, indent=1, sort_keys=True) + "\n")
     return now
+
+
+def _embree_resolved(config) -> dict:
+    """The embree options of the config's first primary as this version resolves them
+    (defaults filled in), without the primary's origin and resolution."""
+    from ..backends.embree import EmbreeOptions
+
+    res = config.scene_entry(config.scenes[0])[1][0] if config.scenes else config.primary_resolutions[0]
+    opts = EmbreeOptions(**{"primary_origin": [0.0, 0.0, 0.0], "primary_resolution": res,
+                            **config.embree_options}).to_dict()
+    for k in ("primary_origin", "primary_resolution", "n_threads", "chunk"):  # not the rows' business
+        opts.pop(k, None)
+    return opts
 
 
 def peak_rss_gib() -> float:
