@@ -148,6 +148,23 @@ def test_no_paths_outside_the_repository(page):
         assert (ROOT / script).exists(), f"{_rel(page)} names {script}, which does not exist"
 
 
+def _cli_flags(parser) -> set[str]:
+    flags = set()
+    for action in parser._actions:
+        flags.update(action.option_strings)
+        if isinstance(action.choices, dict):  # a subcommand's parsers
+            for sub in action.choices.values():
+                flags |= _cli_flags(sub)
+    return flags
+
+
+@pytest.mark.parametrize("page", PAGES, ids=_rel)
+def test_flags_named_in_the_text_exist(page):
+    """A flag the prose names on its own (`--primary-origin`) is a flag of some subcommand."""
+    named = {span.split()[0] for span in re.findall(r"`(--[a-z][^`]*)`", FENCE.sub("", page.read_text()))}
+    assert not named - _cli_flags(build_parser()), f"{_rel(page)} names flags slr-ray does not have"
+
+
 def test_every_docs_page_is_in_the_index():
     index = (ROOT / "docs" / "index.md").read_text(encoding="utf-8")
     linked = set(LINK.findall(prose(index)))
