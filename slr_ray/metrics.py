@@ -28,8 +28,8 @@ Chamfer distance (:func:`point_metrics`)
 F-score at a threshold ``tau``
     ``precision = |{s: d(s, T) < tau}| / |S|``, ``recall = |{t: d(t, S) < tau}| /
     |T|``, ``F = 2PR / (P + R)`` (0 when both are 0), **strictly closer** and
-    on **distances** (as :func:`~slr_ray.similarity.agreement`, which it
-    equals). The field quotes 5 cm; SLR's paper 10 cm. LiDAR-NeRF and
+    on **distances**, tested from the input coordinates on a cell grid (as
+    :func:`~slr_ray.similarity.agreement`, which it equals). The field quotes 5 cm; SLR's paper 10 cm. LiDAR-NeRF and
     LiDAR4D's code compare *squared* distances with 0.05, i.e. a distance
     threshold of sqrt(0.05) = 22.4 cm; pass ``thresholds=(..., 0.05 ** 0.5)``
     to reproduce their number.
@@ -153,16 +153,27 @@ def _mean(x) -> float:
     return float(np.mean(x)) if len(x) else float("nan")
 
 
-def _point_block(d_t, d_s, thresholds) -> dict:
+def _within(query, reference, tau, d) -> np.ndarray:
+    """Whether each query point has a reference point strictly closer than ``tau``, from the
+    input coordinates (the cell grid: what a brute-force loop gives, points at exactly ``tau``
+    included); ``d < tau`` from the kd-tree's distances where the grid does not suit the cloud."""
+    try:
+        return CellGrid(reference, tau).any_within(query)
+    except GridUnsuitable:
+        return d < tau
+
+
+def _point_block(d_t, d_s, hits) -> dict:
     """The figures of one set of target-side (``d_t``: target to simulated) and
-    simulated-side (``d_s``: simulated to target) nearest distances."""
+    simulated-side (``d_s``: simulated to target) nearest distances; ``hits``:
+    threshold -> (target within, simulated within) booleans."""
     to_t, to_s = _mean(np.square(d_s)), _mean(np.square(d_t))
     out = {"target_points": int(len(d_t)), "simulated_points": int(len(d_s)),
            "to_target": to_t, "to_simulated": to_s, "chamfer_sum": to_t + to_s, "chamfer_mean": 0.5 * (to_t + to_s),
            "to_target_distance": _mean(d_s), "to_simulated_distance": _mean(d_t), "fscore": {}}
-    for tau in thresholds:
-        p = float(np.count_nonzero(d_s < tau) / len(d_s)) if len(d_s) else float("nan")
-        r = float(np.count_nonzero(d_t < tau) / len(d_t)) if len(d_t) else float("nan")
+    for tau, (h_t, h_s) in hits.items():
+        p = float(np.count_nonzero(h_s) / len(h_s)) if len(h_s) else float("nan")
+        r = float(np.count_nonzero(h_t) / len(h_t)) if len(h_t) else float("nan")
         out["fscore"][float(tau)] = {"precision": p, "recall": r, "fscore": _fscore(p, r)}
     return out
 
@@ -253,11 +264,14 @@ def point_metrics(target, simulated, thresholds=(FIELD_THRESHOLD, PAPER_THRESHOL
     labs = _labels(groups, len(t), "target point")
     d_t, _ = nearest(t, s, workers)
     d_s, j = nearest(s, t, workers)
-    top = _point_block(d_t, d_s, th)
+    hits = {tau: (_within(t, s, tau, d_t), _within(s, t, tau, d_s)) for tau in th}
+    top = _point_block(d_t, d_s, hits)
     out = {}
     for name, lab in labs.items():
         s_lab = lab[j] if len(t) else np.empty(0, lab.dtype)
-        out[name] = {u.item(): _point_block(d_t[lab == u], d_s[s_lab == u], th) for u in np.unique(lab)}
+        out[name] = {u.item(): _point_block(d_t[lab == u], d_s[s_lab == u],
+                                            {k: (a[lab == u], b[s_lab == u]) for k, (a, b) in hits.items()})
+                     for u in np.unique(lab)}
     return PointMetrics(groups=out, **top)
 
 
