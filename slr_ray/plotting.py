@@ -19,7 +19,7 @@ from .errors import MissingDependencyError
 from .paper import NEAR_DISTANCE, PRIMARY_RESOLUTION, PRIMARY_RESOLUTION_FINE, Q1_SCENES, Q2_SCENES
 
 __all__ = ["save_figure", "validation_figure", "paper_figure", "comparison_figure", "demo_figure",
-           "distances_figure", "cells_figure", "range_image_figure"]
+           "distances_figure", "cells_figure", "range_image_figure", "evaluation_figure"]
 
 DPI = 110
 
@@ -298,5 +298,42 @@ def range_image_figure(image: dict, title: str = "", max_range: float | None = N
     filled = np.isfinite(rng).mean() if rng.size else 0.0
     ax.set(xlabel="column (azimuth)", ylabel="row (beam, by elevation)",
            title=f"{title} {rows} x {cols}, {100 * filled:.1f} % of pulses returned".strip())
+    fig.tight_layout()
+    return fig
+
+
+def evaluation_figure(result: dict, max_range: float = 50.0, max_error: float = 1.0):
+    """A real-pair evaluation (:func:`slr_ray.evaluate.evaluate_pair`): the real
+    range image, each method's simulated one and its error (simulated - real,
+    where both return; grey where only one returns)."""
+    images = result["images"]
+    real = np.asarray(images["real"], float)
+    methods = [r["method"] for r in result["rows"]]
+    n = 1 + 2 * len(methods)
+    rows, cols = real.shape
+    fig = _figure(figsize=(min(18, 2 + cols / 120), 1.0 + n * min(2.2, max(1.0, rows / 30))))
+    axes = fig.subplots(n, 1, squeeze=False)[:, 0]
+    kw = {"aspect": "auto", "interpolation": "nearest"}
+    im = axes[0].imshow(real, cmap="turbo", vmin=0, vmax=max_range, **kw)
+    axes[0].set_title(f"real B: {100 * np.isfinite(real).mean():.1f} % of pulses returned", fontsize=9)
+    fig.colorbar(im, ax=axes[0], label="range (m)", pad=0.01)
+    by = {r["method"]: r for r in result["rows"]}
+    for k, m in enumerate(methods):
+        sim = np.asarray(images[m], float)
+        ax = axes[1 + 2 * k]
+        im = ax.imshow(sim, cmap="turbo", vmin=0, vmax=max_range, **kw)
+        fig.colorbar(im, ax=ax, label="range (m)", pad=0.01)
+        img = by[m]["image"]
+        ax.set_title(f"{by[m]['label']}, simulated from A: RMSE {img['rmse']:.2f} m, MedAE {img['medae']:.3f} m, "
+                     f"ray-drop accuracy {100 * img['accuracy']:.1f} %", fontsize=9)
+        ax = axes[2 + 2 * k]
+        only_one = np.isfinite(real) != np.isfinite(sim)
+        ax.imshow(np.where(only_one, 1.0, np.nan), cmap="Greys", vmin=0, vmax=2, **kw)
+        im = ax.imshow(sim - real, cmap="RdBu_r", vmin=-max_error, vmax=max_error, **kw)
+        fig.colorbar(im, ax=ax, label="sim - real (m)", pad=0.01)
+        ax.set_title(f"{by[m]['label']}: error (grey: only one of real and simulated returns)", fontsize=9)
+    for ax in axes:
+        ax.set_yticks([])
+    axes[-1].set_xlabel("column (azimuth)")
     fig.tight_layout()
     return fig

@@ -24,6 +24,8 @@ from ..meshscan import MESH_MODES
 from ..sensors import SENSORS
 from . import arguments as A
 from .commands import COMMANDS
+from ..evaluate import METHODS as EVALUATE_METHODS
+from .evaluate_command import evaluate as evaluate_command
 
 __all__ = ["main", "build_parser"]
 
@@ -155,6 +157,28 @@ def build_parser() -> argparse.ArgumentParser:
     backends = [b.value for b in Backend]
     p.add_argument("--backends", nargs="+", default=backends, choices=backends, help="backends run at each position")
     p.add_argument("--quick", action="store_true", help="a coarser, faster run (for tests)")
+
+    # evaluate: its handler lives in .evaluate_command (self-contained)
+    help_text = "re-simulate frame B from frame A at B's pose and score it against the real B (novel-view metrics)"
+    p = sub.add_parser("evaluate", help=help_text, description=help_text)
+    p.set_defaults(func=evaluate_command)
+    p.add_argument("a", help=f"frame A, the primary, in its sensor's frame ({_FORMATS})")
+    p.add_argument("b", help="frame B, the real scan to re-simulate, in its sensor's frame")
+    p.add_argument("-o", "--output", required=True, help="output directory (table.md, table.csv, evaluation.json, "
+                   "evaluation.png); refused if it exists and is not empty, unless --force")
+    p.add_argument("--sensor", default="velodyne_hdl64e_s2", choices=list(SENSORS),
+                   help="the sensor's shipped beam table (default velodyne_hdl64e_s2, KITTI's)")
+    p.add_argument("--beams", default="auto", choices=["auto", "scan-order", "none"],
+                   help="each point's beam: auto (a 'ring' field, else the scan order of a KITTI .bin), "
+                        "scan-order, or none (elevation bands of the shipped table)")
+    p.add_argument("--methods", nargs="+", default=list(EVALUATE_METHODS), choices=list(EVALUATE_METHODS),
+                   help=f"methods scored (default all: {', '.join(EVALUATE_METHODS)})")
+    p.add_argument("--transform", help="B's pose in A's frame, a 4 x 4 text matrix, instead of registering")
+    p.add_argument("--seen-threshold", type=A.positive_float, default=paper.SIMILARITY_THRESHOLD,
+                   help="a point of B is seen from A when an A point is closer than this (m, default 0.1)")
+    A.add_input_format(p)
+    p.add_argument("--quiet", action="store_true", help="no progress bar")
+    p.add_argument("--force", action="store_true", help="replace the evaluation files of an existing directory")
 
     p = command("scene", "synthetic rectangle scenes: info, build, scan")
     ssub = p.add_subparsers(dest="scene_cmd", required=True)

@@ -1,0 +1,45 @@
+"""``slr-ray evaluate``: a real pair of frames, B re-simulated from A at B's pose
+(:mod:`slr_ray.evaluate`). Kept apart from :mod:`.commands` so that the
+subcommand stands alone: flags in, library call, files and one JSON line out."""
+
+from __future__ import annotations
+
+from pathlib import Path
+
+import numpy as np
+
+from ..errors import InputValueError
+from .commands import emit
+
+__all__ = ["evaluate"]
+
+
+def evaluate(args):
+    from ..evaluate import evaluate_pair, evaluation_table, write_evaluation
+    from ..io import read_cloud
+
+    out = Path(args.output)
+    for i in (args.a, args.b):
+        if out.exists() and Path(i).exists() and out.resolve() == Path(i).resolve():
+            raise FileExistsError(f"{out} is an input of this command: refusing to write over it")
+    if out.exists() and (not out.is_dir() or any(out.iterdir())) and not args.force:
+        raise FileExistsError(f"{out} exists and is not empty (use --force to replace its evaluation files)")
+    transform = None
+    if args.transform:
+        transform = np.loadtxt(args.transform, dtype=np.float64, ndmin=2)
+        if transform.shape != (4, 4):
+            raise InputValueError(f"--transform {args.transform}: expected a 4 x 4 matrix, got {transform.shape}")
+    clouds = [read_cloud(p, args.input_format) for p in (args.a, args.b)]
+    beams = []
+    for c in clouds:  # a 'ring' field where the file has one, else the scan order (KITTI .bin), or none
+        ring = c.attributes.get("ring")
+        beams.append(np.asarray(ring, np.int64) if ring is not None and args.beams == "auto" else
+                     ("scan-order" if args.beams in ("auto", "scan-order") else None))
+    res = evaluate_pair(clouds[0].points, clouds[1].points, a_beams=beams[0], b_beams=beams[1], sensor=args.sensor,
+                        methods=args.methods, transform=transform, seen_threshold=args.seen_threshold,
+                        progress=not args.quiet)
+    paths = write_evaluation(res, out, force=args.force,
+                             inputs={"a": str(args.a), "b": str(args.b), "sensor": args.sensor, "beams": args.beams})
+    emit({"a": str(args.a), "b": str(args.b), "output_dir": str(out), "files": paths,
+          "registration": res["registration"], "unseen_share": res["unseen_share"], "seconds": res["seconds"],
+          "table": evaluation_table(res)})

@@ -1,0 +1,511 @@
+"""A real pair of frames: scan B re-simulated from scan A at B's pose, scored against the real B.
+
+The smallest real test of SLR. Two frames of one sensor, taken a short way
+apart (two consecutive KITTI frames: the vehicle moved well under a metre):
+
+1. **register** B to A (:func:`register`: Open3D ICP, point-to-plane, from
+   the identity, coarse to fine; a coarse FPFH + RANSAC alignment first when
+   ICP from the identity finds too few correspondences). The pose of B in A's
+   frame, its fitness (share of B's points with an A point within the final
+   correspondence distance) and inlier RMSE are recorded;
+2. **move A into B's frame** and **re-simulate B** from it with B's sensor:
+   B's own beam table when B's points carry their beams (a ``ring`` field, or
+   the scan order of a KITTI ``.bin``: :func:`scan_order_beams`), fitted to B
+   (:func:`fitted_pattern`: each beam's elevation the median of its points'),
+   otherwise the shipped table (``sensor``);
+3. **score** each method (:data:`METHODS`) against the real B with
+   :mod:`slr_ray.metrics`: Chamfer distance and F-scores against all of B's
+   points, depth errors and ray drop against B's range image (B's points,
+   nearest per pulse, each in its own beam's row), each split by range band,
+   beam and whether the part of B was seen from A.
+
+Methods
+-------
+``zbuffer`` (no SLR)
+    The baseline a user tries first: every point of A, moved to B's pose,
+    that lies in B's field of view and range limits. Its range image is a
+    z-buffer of those points in B's range image (nearest per pulse).
+    **For a beam table that z-buffer is the binning rule itself**, pulse for
+    pulse (both keep the nearest point per (beam band, column), ties to the
+    lowest index; ``images_identical`` in the result checks it on every run):
+    the novel-view papers' "project and keep the nearest per pixel" *is*
+    SLR's binning on a range image. The baseline differs from binning only in
+    its points: it keeps every point of A behind the nearest (no visibility
+    rule), which the point metrics see.
+``binning``
+    :func:`slr_ray.prepare` ``(A, "binning")``: the nearest point per pulse.
+``embree-knn``
+    ``prepare(A, "embree")`` with its defaults and nothing about the primary:
+    discs sized and oriented from the k nearest neighbours.
+``embree-grid``
+    ``prepare(A, "embree", primary_origin=A's origin, primary_pattern=A's
+    table)``: the defaults a user gets by naming the primary (pulse-grid
+    neighbours, tie window 3, discs turned to at most 80 deg).
+``embree-beams``
+    The same with ``primary_beams`` (each of A's points in its own beam's row
+    of the pulse grid); only when A's beams are known.
+
+A is moved into B's frame in float64; the primary's pulse grid is then tilted
+by the (small) rotation between the frames, which moves rows of the
+beam-table grid (not of the primary-beams grid, whose rows are the beams).
+"""
+
+from __future__ import annotations
+
+import csv
+import io
+import json
+import math
+import time
+from dataclasses import dataclass
+from pathlib import Path
+
+import numpy as np
+
+from .arrays import as_points
+from .backends import prepare
+from .errors import InputValueError
+from .metrics import (FIELD_THRESHOLD, LIDAR4D_CODE_THRESHOLD, PAPER_THRESHOLD, point_metrics, range_bands,
+                      range_image_metrics, seen_from)
+from .scan import Scan
+from .sensors import BeamPattern, sensor
+
+__all__ = ["METHODS", "LABELS", "Registration", "register", "scan_order_beams", "fitted_pattern", "zbuffer",
+           "evaluate_pair", "evaluation_table", "markdown_table", "write_evaluation"]
+
+#: the methods scored, in table order, and their names in tables and figures
+METHODS = ("zbuffer", "binning", "embree-knn", "embree-grid", "embree-beams")
+LABELS = {"zbuffer": "no SLR (z-buffer)", "binning": "binning", "embree-knn": "embree (kNN discs)",
+          "embree-grid": "embree (beam-table grid)", "embree-beams": "embree (primary beams)"}
+BASELINE = METHODS[0]
+#: F-score thresholds of the table: the field's 5 cm, SLR's 10 cm, LiDAR-NeRF/LiDAR4D code's 22.4 cm
+THRESHOLDS = (FIELD_THRESHOLD, PAPER_THRESHOLD, LIDAR4D_CODE_THRESHOLD)
+
+
+# --- frames -------------------------------------------------------------------------------------------------
+
+def scan_order_beams(points, n_beams: int = 64) -> np.ndarray | None:
+    """Each point's beam from the order of a frame stored beam by beam (a KITTI ``.bin``).
+
+    KITTI's HDL-64E frames hold the points ring after ring, highest beam
+    first, each ring one turn of azimuth (counter-clockwise) starting at the
+    front. The azimuth, unwrapped along the file, grows by one turn per ring,
+    so ``floor(unwrapped azimuth / 2 pi)`` is the ring, which is the row of
+    the range image (beam 0 highest). Returns ``None`` when that does not give
+    exactly ``n_beams`` rings whose median elevations fall from first to last
+    (the file is not in scan order).
+    """
+    p = as_points(points, "points")
+    if len(p) < n_beams:
+        return None
+    u = np.unwrap(np.arctan2(p[:, 1], p[:, 0]))
+    ring = np.floor((u - u[0]) / (2 * math.pi) + 1e-9).astype(np.int64)
+    if ring.min() < 0 or ring.max() != n_beams - 1 or np.any(np.diff(ring) < 0):
+        return None
+    r = np.linalg.norm(p, axis=1)
+    el = np.arcsin(np.divide(p[:, 2], r, out=np.zeros_like(r), where=r > 0))
+    med = np.array([np.median(el[ring == b]) if np.any(ring == b) else np.nan for b in range(n_beams)])
+    if not np.all(np.isfinite(med)) or np.any(np.diff(med) >= 0):
+        return None
+    return ring
+
+
+def fitted_pattern(points, beams, base: BeamPattern, columns: int | None = None) -> BeamPattern:
+    """``base`` with each beam's elevation the median elevation of its points in this frame.
+
+    A real unit's beams are not where another unit's table says (the shipped
+    HDL-64E S2 table tops out at +5 deg, KITTI's unit at +2.6): a frame whose
+    points carry their beams gives its own elevations. Azimuth offsets are
+    zero (the points' azimuths are where they were measured); ``columns``
+    defaults to ``360 /`` the median azimuth step between a beam's
+    consecutive points, rounded. Beams with no point keep ``base``'s elevation.
+    """
+    p = as_points(points, "points")
+    base.rows_of_beams(beams, len(p))  # checks the beam ids
+    b = np.asarray(beams, np.int64)
+    r = np.linalg.norm(p, axis=1)
+    el = np.degrees(np.arcsin(np.divide(p[:, 2], r, out=np.zeros_like(r), where=r > 0)))
+    az = np.arctan2(p[:, 1], p[:, 0])
+    elev = np.array(base.elevation_deg, dtype=np.float64)
+    steps = []
+    for i in range(base.n_beams):
+        mine = b == i
+        if np.any(mine):
+            elev[i] = np.median(el[mine])
+            d = np.abs(np.diff(np.unwrap(az[mine])))
+            if len(d):
+                steps.append(np.median(d))
+    if columns is None:
+        columns = int(round(2 * math.pi / np.median(steps))) if steps else base.columns
+    while len(np.unique(elev)) != len(elev):  # two beams at one median: part them by a micro-degree
+        _, first = np.unique(elev, return_index=True)
+        dup = np.setdiff1d(np.arange(len(elev)), first)
+        elev[dup] += 1e-6
+    return base.with_(elevation_deg=tuple(elev.tolist()), azimuth_offset_deg=None, columns=int(columns),
+                      name=f"{base.name or 'sensor'} fitted to the frame",
+                      meta={**base.meta, "fitted": "elevations: median of each beam's points; offsets 0"})
+
+
+def zbuffer(points, pattern: BeamPattern, origin=(0.0, 0.0, 0.0), beams=None, backend: str = "z-buffer") -> Scan:
+    """The nearest point per pulse of ``pattern`` (ties to the lowest index), as a :class:`Scan`.
+
+    With ``beams`` each point goes to its own beam's row (a real frame's
+    range image); without, to the band its elevation falls in, which is the
+    binning backend's rule exactly.
+    """
+    p = as_points(points, "points")
+    o = np.asarray(origin, np.float64)
+    keys, ranges = pattern.keys(p, o, beams=beams)
+    ok = np.flatnonzero(keys >= 0)
+    order = np.lexsort((ok, ranges[ok], keys[ok]))  # by pulse, then range, then index
+    k = keys[ok][order]
+    first = np.r_[True, k[1:] != k[:-1]] if len(k) else np.zeros(0, bool)
+    idx = ok[order][first]
+    srt = np.argsort(idx, kind="stable")
+    idx = idx[srt]
+    return Scan.from_keys(k[first][srt], ranges[idx], idx, o, pattern, backend, len(p))
+
+
+# --- registration -------------------------------------------------------------------------------------------
+
+@dataclass(frozen=True)
+class Registration:
+    """The pose of B in A's frame.
+
+    Attributes
+    ----------
+    transform : (4, 4) float64
+        Maps B's coordinates into A's: ``a = R b + t``.
+    fitness : float
+        Share of B's points with an A point within ``max_distance`` after the fit (Open3D's fitness).
+    inlier_rmse : float
+        RMS distance of those pairs (m).
+    max_distance : float
+        The final correspondence distance (m).
+    init : str
+        ``"identity"`` or ``"fpfh-ransac"``.
+    seconds : float
+    """
+
+    transform: np.ndarray
+    fitness: float
+    inlier_rmse: float
+    max_distance: float
+    init: str
+    seconds: float
+
+    def to_dict(self) -> dict:
+        R, t = self.transform[:3, :3], self.transform[:3, 3]
+        angle = math.degrees(math.acos(max(-1.0, min(1.0, (np.trace(R) - 1) / 2))))
+        return {"transform": self.transform.tolist(), "translation_m": t.tolist(),
+                "translation_norm_m": float(np.linalg.norm(t)), "rotation_deg": angle,
+                "fitness": self.fitness, "inlier_rmse_m": self.inlier_rmse, "max_distance_m": self.max_distance,
+                "init": self.init, "seconds": round(self.seconds, 3)}
+
+
+def register(source, target, max_distance: float = 0.2, min_fitness: float = 0.5, seed: int = 0) -> Registration:
+    """Align ``source`` (B) to ``target`` (A): Open3D ICP, point-to-plane, from the identity.
+
+    ICP runs at correspondence distances 2, 1, 0.5 m and ``max_distance``
+    (each from the last one's result; normals of ``target`` from 30
+    neighbours within 1 m). When its fitness at ``max_distance`` is below
+    ``min_fitness``, a coarse alignment by FPFH features and RANSAC (0.5 m
+    voxels, ``seed``) starts a second ICP; the better fit is kept.
+    """
+    try:
+        import open3d as o3d
+    except ImportError:
+        from .errors import MissingDependencyError
+
+        raise MissingDependencyError("registration needs open3d: pip install open3d") from None
+    reg = o3d.pipelines.registration
+    t0 = time.perf_counter()
+    s_pts, t_pts = as_points(source, "source"), as_points(target, "target")
+    c = t_pts.mean(axis=0) if len(t_pts) else np.zeros(3)  # recentre: float64 throughout, small numbers
+    src, tgt = o3d.geometry.PointCloud(), o3d.geometry.PointCloud()
+    src.points = o3d.utility.Vector3dVector(s_pts - c)
+    tgt.points = o3d.utility.Vector3dVector(t_pts - c)
+    tgt.estimate_normals(o3d.geometry.KDTreeSearchParamHybrid(radius=1.0, max_nn=30))
+    plane = reg.TransformationEstimationPointToPlane()
+
+    def icp(init):
+        T = init
+        for d in (2.0, 1.0, 0.5, max_distance):
+            T = reg.registration_icp(src, tgt, d, T, plane, reg.ICPConvergenceCriteria(max_iteration=50)).transformation
+        return reg.evaluate_registration(src, tgt, max_distance, T), T
+
+    ev, T = icp(np.eye(4))
+    how = "identity"
+    if ev.fitness < min_fitness:
+        o3d.utility.random.seed(seed)
+        feats = []
+        for pc in (src, tgt):
+            down = pc.voxel_down_sample(0.5)
+            down.estimate_normals(o3d.geometry.KDTreeSearchParamHybrid(radius=1.0, max_nn=30))
+            feats.append((down, reg.compute_fpfh_feature(down, o3d.geometry.KDTreeSearchParamHybrid(
+                radius=2.5, max_nn=100))))
+        coarse = reg.registration_ransac_based_on_feature_matching(
+            feats[0][0], feats[1][0], feats[0][1], feats[1][1], True, 1.5,
+            reg.TransformationEstimationPointToPoint(False), 3,
+            [reg.CorrespondenceCheckerBasedOnEdgeLength(0.9), reg.CorrespondenceCheckerBasedOnDistance(1.5)],
+            reg.RANSACConvergenceCriteria(100000, 0.999))
+        ev2, T2 = icp(coarse.transformation)
+        if ev2.fitness > ev.fitness:
+            ev, T, how = ev2, T2, "fpfh-ransac"
+    T = np.array(T, dtype=np.float64)
+    # undo the recentring: a = R (b - c) + t' + c
+    T[:3, 3] = T[:3, 3] + c - T[:3, :3] @ c
+    return Registration(T, float(ev.fitness), float(ev.inlier_rmse), float(max_distance), how,
+                        time.perf_counter() - t0)
+
+
+# --- the evaluation -----------------------------------------------------------------------------------------
+
+def _resolve_sensor(name_or_pattern) -> BeamPattern:
+    p = sensor(name_or_pattern) if isinstance(name_or_pattern, str) else name_or_pattern
+    if not isinstance(p, BeamPattern):
+        raise InputValueError(f"sensor must be a shipped sensor name or a BeamPattern, got {name_or_pattern!r}")
+    return p
+
+
+def _beams_of(points, beams, base, what):
+    if isinstance(beams, str):
+        if beams != "scan-order":
+            raise InputValueError(f"{what} must be an array, None or 'scan-order', got {beams!r}")
+        return scan_order_beams(points, base.n_beams)
+    if beams is None:
+        return None
+    b = np.asarray(beams)
+    base.rows_of_beams(b, len(points))
+    return b.astype(np.int64)
+
+
+def _split_labels(rows_of_points, ranges, seen):
+    return {"range band": range_bands(ranges), "beam": rows_of_points,
+            "seen": np.where(seen, "seen", "unseen")}
+
+
+def evaluate_pair(a_points, b_points, a_beams="scan-order", b_beams="scan-order",
+                  sensor: str | BeamPattern = "velodyne_hdl64e_s2", methods=METHODS,
+                  transform=None, seen_threshold: float = PAPER_THRESHOLD, thresholds=THRESHOLDS,
+                  progress: bool = False) -> dict:
+    """Re-simulate frame B from frame A at B's pose and score every method against the real B.
+
+    Parameters
+    ----------
+    a_points, b_points : (n, 3), (m, 3) float
+        Each frame in its own sensor frame (the sensor at the origin).
+    a_beams, b_beams : (n,) int, None or 'scan-order'
+        The beam (table position, -1 unknown) of each point; ``'scan-order'``
+        (default) derives them from the file order (:func:`scan_order_beams`)
+        and falls back to none when that fails.
+    sensor : str or BeamPattern
+        The sensor's shipped table (columns, range limits; the elevations
+        where a frame's beams are unknown).
+    methods : sequence of str
+        A subset of :data:`METHODS`.
+    transform : (4, 4) float, optional
+        B's pose in A's frame (``a = R b + t``), instead of registering.
+    seen_threshold : float
+        A point of B is seen from A when an A point lies strictly closer (m).
+    thresholds : sequence of float
+        F-score thresholds (m).
+
+    Returns
+    -------
+    dict
+        ``registration``, ``patterns``, ``unseen_share`` (of B's points),
+        ``rows`` (one per method: counts, :class:`~slr_ray.metrics.PointMetrics`
+        and :class:`~slr_ray.metrics.RangeImageMetrics` as dicts, seconds),
+        ``images`` (range images, not JSON: ``real`` and per method) and
+        ``seconds`` per stage.
+    """
+    from tqdm import tqdm
+
+    t_all = time.perf_counter()
+    unknown = [m for m in methods if m not in METHODS]
+    if unknown:
+        raise InputValueError(f"unknown method(s) {unknown}; choose from {list(METHODS)}")
+    base = _resolve_sensor(sensor)
+    a = as_points(a_points, "a_points")
+    b = as_points(b_points, "b_points")
+    a_beams = _beams_of(a, a_beams, base, "a_beams")
+    b_beams = _beams_of(b, b_beams, base, "b_beams")
+    pat_a = fitted_pattern(a, a_beams, base) if a_beams is not None else base
+    pat_b = fitted_pattern(b, b_beams, base) if b_beams is not None else base
+    seconds = {}
+
+    t0 = time.perf_counter()
+    if transform is None:
+        reg = register(b, a)
+        T = reg.transform
+        registration = reg.to_dict()
+    else:
+        T = np.asarray(transform, np.float64)
+        if T.shape != (4, 4) or not np.all(np.isfinite(T)):
+            raise InputValueError(f"transform must be a finite 4 x 4 matrix, got shape {T.shape}")
+        registration = Registration(T, float("nan"), float("nan"), float("nan"), "given", 0.0).to_dict()
+    seconds["registration"] = time.perf_counter() - t0
+    R, t = T[:3, :3], T[:3, 3]
+    a_in_b = (a - t) @ R  # R^T (a - t), row by row, in float64
+    a_origin = -(R.T @ t)
+
+    # the real B: its range image (each point in its own beam's row), its rows, ranges and seen flags
+    t0 = time.perf_counter()
+    real = zbuffer(b, pat_b, beams=b_beams, backend="real")
+    real_img = real.range_image()
+    b_keys, b_ranges = pat_b.keys(b, np.zeros(3), beams=b_beams)
+    b_rows = np.where(b_keys >= 0, b_keys // pat_b.columns, -1)
+    seen = seen_from(b, a_in_b, seen_threshold)
+    point_groups = _split_labels(b_rows, b_ranges, seen)
+    pix_seen = np.full(real_img["range"].shape, "no return", dtype=object)
+    filled = real_img["index"] >= 0
+    pix_seen[filled] = np.where(seen[real_img["index"][filled]], "seen", "unseen")
+    seconds["target"] = time.perf_counter() - t0
+
+    rows, images = [], {"real": real_img["range"]}
+    binning_img = None
+    todo = [m for m in methods if not (m == "embree-beams" and a_beams is None)]
+    for m in tqdm(todo, desc="methods", disable=not progress):
+        t0 = time.perf_counter()
+        prep = 0.0
+        if m == BASELINE:
+            sc = zbuffer(a_in_b, pat_b, backend="z-buffer")
+            keys, _ = pat_b.keys(a_in_b, np.zeros(3))
+            sim_idx = np.flatnonzero(keys >= 0)  # every point of A in B's view: no visibility rule
+        else:
+            opts = {}
+            if m in ("embree-grid", "embree-beams"):
+                opts = {"primary_origin": a_origin, "primary_pattern": pat_a}
+                if m == "embree-beams":
+                    opts["primary_beams"] = a_beams
+            scanner = prepare(a_in_b, "binning" if m == "binning" else "embree", **opts)
+            prep = scanner.prepare_seconds
+            sc = scanner.scan(np.zeros(3), pat_b)
+            sim_idx = sc.indices
+        img = sc.range_image()["range"]
+        images[m] = img
+        if m == "binning":
+            binning_img = img
+        sim_ranges = np.where(np.isfinite(real_img["range"]), real_img["range"], img)
+        pm = point_metrics(b, a_in_b[sim_idx], thresholds=thresholds, groups=point_groups)
+        im = range_image_metrics(real_img["range"], img,
+                                 groups={"range band": range_bands(sim_ranges), "beam": np.arange(pat_b.n_beams),
+                                         "seen": pix_seen.astype(str)})
+        rows.append({"method": m, "label": LABELS[m], "points_out": int(len(sim_idx)),
+                     "pulses_returned": int(len(sc)),
+                     "prepare_seconds": round(prep, 3), "seconds": round(time.perf_counter() - t0, 3),
+                     "points": pm.to_dict(), "image": im.to_dict()})
+        seconds[m] = time.perf_counter() - t0
+    if BASELINE in images and binning_img is not None:
+        identical = bool(np.array_equal(images[BASELINE], binning_img, equal_nan=True))
+    else:
+        identical = None
+    seconds["total"] = time.perf_counter() - t_all
+    return {"registration": registration,
+            "patterns": {"a": pat_a.to_dict() | {"beams_known": a_beams is not None},
+                         "b": pat_b.to_dict() | {"beams_known": b_beams is not None}},
+            "frames": {"a_points": int(len(a)), "b_points": int(len(b)), "b_pulses_returned": int(len(real)),
+                       "b_points_sharing_a_pulse": int(np.count_nonzero(b_keys >= 0) - len(real))},
+            "seen_threshold": seen_threshold, "thresholds": [float(x) for x in thresholds],
+            "unseen_share": float(np.mean(~seen)) if len(seen) else float("nan"),
+            "unseen_pulse_share": float(np.mean(pix_seen[filled] == "unseen")) if filled.any() else float("nan"),
+            "images_identical": {"zbuffer vs binning": identical},
+            "rows": rows, "images": images, "seconds": {k: round(v, 3) for k, v in seconds.items()}}
+
+
+# --- tables and files ---------------------------------------------------------------------------------------
+
+def _cm(x):
+    return f"{100 * x:g}cm"
+
+
+def evaluation_table(result: dict) -> list[dict]:
+    """One flat row per method: the figures of the table (JSON-ready)."""
+    out = []
+    for r in result["rows"]:
+        p, im = r["points"], r["image"]
+        row = {"method": r["label"], "points": r["points_out"],
+               "cd_sum_m2": p["chamfer_sum"], "cd_to_real_m": p["to_target_distance"],
+               "cd_to_sim_m": p["to_simulated_distance"]}
+        for tau in result["thresholds"]:
+            f = p["fscore"][_cm(tau)]
+            row[f"P@{_cm(tau)}"], row[f"R@{_cm(tau)}"], row[f"F@{_cm(tau)}"] = (f["precision"], f["recall"],
+                                                                              f["fscore"])
+        seen = p["groups"]["seen"]
+        tau = result["seen_threshold"]
+        row[f"R@{_cm(tau)} seen"] = seen.get("seen", {}).get("fscore", {}).get(_cm(tau), {}).get("recall", math.nan)
+        n_t = p["target_points"]
+        un = seen.get("unseen", {})
+        row["unseen share of real->sim CD"] = (un.get("to_simulated", 0.0) * un.get("target_points", 0)
+                                              / (p["to_simulated"] * n_t)) if n_t and p["to_simulated"] else math.nan
+        row |= {"depth_rmse_m": im["rmse"], "depth_medae_m": im["medae"], "both_return": im["both_return"],
+                "drop_accuracy": im["accuracy"], "drop_recall": im["drop_recall"],
+                "drop_precision": im["drop_precision"]}
+        sse_un = im["groups"]["seen"].get("unseen", {}).get("sse", 0.0)
+        row["unseen share of depth SSE"] = sse_un / im["sse"] if im["sse"] else math.nan
+        row["rmse seen pulses"] = im["groups"]["seen"].get("seen", {}).get("rmse", math.nan)
+        out.append(row)
+    return out
+
+
+def _fmt(v):
+    if isinstance(v, float):
+        if math.isnan(v):
+            return "–"
+        return f"{v:.4f}" if abs(v) < 10 else f"{v:.2f}"
+    return f"{v:,}" if isinstance(v, int) else str(v)
+
+
+def markdown_table(table: list[dict], columns=None) -> str:
+    """``table`` (from :func:`evaluation_table`) as a markdown table."""
+    cols = columns or list(table[0])
+    lines = ["| " + " | ".join(cols) + " |", "|" + "---|" * len(cols)]
+    lines += ["| " + " | ".join(_fmt(r.get(c, math.nan)) for c in cols) + " |" for r in table]
+    return "\n".join(lines)
+
+
+def _plain(obj):
+    if isinstance(obj, float):
+        return obj if math.isfinite(obj) else None
+    if isinstance(obj, dict):
+        return {str(k): _plain(v) for k, v in obj.items()}
+    if isinstance(obj, (list, tuple)):
+        return [_plain(v) for v in obj]
+    if isinstance(obj, np.generic):
+        return _plain(obj.item())
+    return obj
+
+
+def write_evaluation(result: dict, directory, force: bool = False, inputs: dict | None = None) -> dict:
+    """Write ``evaluation.json`` (everything, splits included), ``table.md``,
+    ``table.csv`` and ``evaluation.png`` into a new ``directory``.
+
+    Refuses an existing non-empty directory unless ``force`` (then only these
+    four files are replaced). Returns the paths written.
+    """
+    from .io import atomic_path
+    from .plotting import evaluation_figure, save_figure
+
+    d = Path(directory)
+    if d.exists() and not d.is_dir():
+        raise FileExistsError(f"{d} exists and is not a directory")
+    if d.is_dir() and any(d.iterdir()) and not force:
+        raise FileExistsError(f"{d} exists and is not empty (use --force to replace its evaluation files)")
+    d.mkdir(parents=True, exist_ok=True)
+    table = evaluation_table(result)
+    doc = {k: v for k, v in result.items() if k != "images"} | {"table": table, "inputs": inputs or {}}
+    paths = {"json": d / "evaluation.json", "markdown": d / "table.md", "csv": d / "table.csv",
+             "figure": d / "evaluation.png"}
+    with atomic_path(paths["json"]) as tmp:
+        tmp.write_text(json.dumps(_plain(doc), indent=1, allow_nan=False) + "\n")
+    with atomic_path(paths["markdown"]) as tmp:
+        tmp.write_text(markdown_table(table) + "\n")
+    buf = io.StringIO()
+    w = csv.DictWriter(buf, fieldnames=list(table[0]))
+    w.writeheader()
+    w.writerows(table)
+    with atomic_path(paths["csv"]) as tmp:
+        tmp.write_text(buf.getvalue())
+    save_figure(evaluation_figure(result), paths["figure"])
+    return {k: str(v) for k, v in paths.items()}

@@ -1,0 +1,173 @@
+import json
+import math
+
+import numpy as np
+import pytest
+
+from slr_ray import prepare
+from slr_ray.evaluate import (METHODS, evaluate_pair, evaluation_table, fitted_pattern, register, scan_order_beams,
+                              write_evaluation, zbuffer)
+from slr_ray.sensors import BeamPattern, sensor
+from slr_ray.similarity import nearest_distances
+
+SMALL = BeamPattern(np.linspace(2.0, -24.0, 16), 360, max_range=120.0, name="small")
+
+
+def ring_ordered_frame(pattern, rng, radius=lambda el, az: 20.0):
+    """Points ring after ring (highest beam first), each ring one turn from azimuth 0, as KITTI stores them."""
+    pts, beams = [], []
+    for row, beam in enumerate(pattern.beam_of_row):
+        el = math.radians(pattern.elevation_deg[beam])
+        az = (np.arange(pattern.columns) + 0.5) * 2 * math.pi / pattern.columns
+        az = az[rng.random(len(az)) > 0.1]  # lost pulses
+        r = np.array([radius(el, a) for a in az])
+        pts.append(np.column_stack([r * np.cos(el) * np.cos(az), r * np.cos(el) * np.sin(az), r * np.sin(el)]))
+        beams.append(np.full(len(az), beam))
+    return np.vstack(pts), np.concatenate(beams)
+
+
+def room():
+    trimesh = pytest.importorskip("trimesh")
+    box = trimesh.creation.box(extents=[30, 20, 8])
+    box.invert()
+    pillar = trimesh.creation.box(extents=[1, 1, 8])
+    pillar.apply_translation([4, 3, 0])
+    car = trimesh.creation.box(extents=[4, 1.8, 1.5])
+    car.apply_translation([-5, -3, -3.25])
+    return trimesh.util.concatenate([box, pillar, car])
+
+
+def test_zbuffer_without_beams_is_the_binning_rule():
+    """The no-SLR baseline's image is binning's, pulse for pulse, duplicates and ties included."""
+    rng = np.random.default_rng(0)
+    pts = rng.uniform(-30, 30, (20000, 3))
+    pts[:, 2] = rng.uniform(-5, 3, len(pts))
+    pts = np.vstack([pts, pts[:500]])  # exact duplicates: ties to the lowest index
+    for pattern in (SMALL, sensor("velodyne_hdl64e_s2", columns=500)):
+        for origin in ([0.0, 0, 0], [0.7, -0.2, 0.1]):
+            z = zbuffer(pts, pattern, origin)
+            b = prepare(pts, "binning").scan(origin, pattern)
+            np.testing.assert_array_equal(z.indices, b.indices)
+            np.testing.assert_array_equal(z.pulses, b.pulses)
+            np.testing.assert_allclose(z.ranges, b.ranges, rtol=0, atol=1e-12)
+
+
+def test_zbuffer_with_beams_puts_points_in_their_beams_rows():
+    rng = np.random.default_rng(1)
+    pts, beams = ring_ordered_frame(SMALL, rng)
+    wrong = pts.copy()
+    wrong[:, 2] += 0.5  # elevations off the table: beams still decide the rows
+    s = zbuffer(wrong, SMALL, beams=beams)
+    assert len(s) == len(pts)
+    np.testing.assert_array_equal(s.rings, beams[s.indices])
+
+
+def test_scan_order_beams_recovers_rings_and_refuses_other_orders():
+    rng = np.random.default_rng(2)
+    pts, beams = ring_ordered_frame(SMALL, rng, radius=lambda el, a: 10 + 5 * math.sin(3 * a))
+    np.testing.assert_array_equal(scan_order_beams(pts, SMALL.n_beams), beams)
+    assert scan_order_beams(pts[rng.permutation(len(pts))], SMALL.n_beams) is None
+    assert scan_order_beams(pts, 32) is None
+    assert scan_order_beams(pts[:5], 16) is None
+
+
+def test_fitted_pattern_takes_each_beams_median_elevation_and_column_step():
+    rng = np.random.default_rng(3)
+    true = BeamPattern(np.linspace(2.5, -23.5, 16), 720)
+    pts, beams = ring_ordered_frame(true, rng)
+    fit = fitted_pattern(pts, beams, SMALL)  # another unit's table: 2 ... -24 deg, 360 columns
+    np.testing.assert_allclose(fit.elevation_deg, true.elevation_deg, atol=1e-9)
+    assert fit.columns == 720 and fit.n_beams == 16
+    assert fit.max_range == SMALL.max_range
+
+
+def test_register_recovers_a_known_pose():
+    from slr_ray import scan_mesh
+
+    mesh = room()
+    a = scan_mesh(mesh, [0.0, 0, 0], SMALL)
+    b = scan_mesh(mesh, [0.6, 0.3, 0.05], SMALL)
+    reg = register(b.points - [0.6, 0.3, 0.05], a.points)
+    assert reg.init == "identity" and reg.fitness > 0.5  # sparse rings: many B points lie > 0.2 m from A
+    np.testing.assert_allclose(reg.transform[:3, 3], [0.6, 0.3, 0.05], atol=0.03)
+    np.testing.assert_allclose(reg.transform[:3, :3], np.eye(3), atol=5e-3)
+
+
+@pytest.fixture(scope="module")
+def pair():
+    from slr_ray import scan_mesh
+
+    mesh = room()
+    oa, ob = np.array([0.0, 0, 0]), np.array([0.6, 0.3, 0.0])
+    a = scan_mesh(mesh, oa, SMALL)
+    b = scan_mesh(mesh, ob, SMALL)
+    beams_a = SMALL.beam_of_row[a.pulses[:, 0]]
+    beams_b = SMALL.beam_of_row[b.pulses[:, 0]]
+    T = np.eye(4)
+    T[:3, 3] = ob - oa
+    res = evaluate_pair(a.points - oa, b.points - ob, a_beams=beams_a, b_beams=beams_b, sensor=SMALL, transform=T)
+    return a, b, res
+
+
+def test_evaluate_pair_scores_every_method(pair):
+    a, b, res = pair
+    assert [r["method"] for r in res["rows"]] == list(METHODS)
+    assert res["images_identical"] == {"zbuffer vs binning": True}
+    table = {r["method"]: r for r in evaluation_table(res)}
+    assert set(table) == {r["label"] for r in res["rows"]}
+    base, binning = table["no SLR (z-buffer)"], table["binning"]
+    # one image, so the same depth and drop figures; the baseline keeps every point of A in view
+    for k in ("depth_rmse_m", "depth_medae_m", "drop_accuracy", "drop_recall", "drop_precision"):
+        assert base[k] == binning[k] or (math.isnan(base[k]) and math.isnan(binning[k]))
+    assert base["points"] >= binning["points"]
+    # unseen: no point of A (moved to B's frame) within 10 cm, by an independent search
+    d = nearest_distances(b.points - [0.6, 0.3, 0.0], a.points - [0.6, 0.3, 0.0])
+    assert res["unseen_share"] == pytest.approx(np.mean(d >= 0.1), abs=1e-12)
+    # exact scans of one mesh: the real image holds every point of B; every seen point of B has
+    # an A point within 10 cm in the baseline (all of A in view), and binning keeps most
+    assert res["frames"]["b_pulses_returned"] == len(b)
+    assert base["R@10cm seen"] > 0.98 and binning["R@10cm seen"] > 0.8
+    rows = {r["method"]: r for r in res["rows"]}
+    groups = rows["binning"]["points"]["groups"]
+    assert sum(g["target_points"] for g in groups["seen"].values()) == len(b)
+    assert sum(g["target_points"] for g in groups["beam"].values()) == len(b)
+    assert rows["binning"]["image"]["pulses"] == SMALL.n_pulses
+
+
+def test_write_evaluation_refuses_a_non_empty_directory(pair, tmp_path):
+    _, _, res = pair
+    out = tmp_path / "ev"
+    paths = write_evaluation(res, out)
+    doc = json.loads((out / "evaluation.json").read_text())
+    assert len(doc["table"]) == len(METHODS) and "images" not in doc
+    assert (out / "table.csv").read_text().count("\n") == len(METHODS) + 1
+    assert (out / "table.md").read_text().startswith("| method |")
+    assert set(paths) == {"json", "markdown", "csv", "figure"}
+    with pytest.raises(FileExistsError):
+        write_evaluation(res, out)
+    write_evaluation(res, out, force=True)
+
+
+def test_cli_evaluate(tmp_path, capsys):
+    from slr_ray import scan_mesh
+    from slr_ray.cli import main
+    from slr_ray.io import PointCloud, write_cloud
+
+    mesh = room()
+    files = []
+    for name, o in (("a", [0.0, 0, 0]), ("b", [0.5, 0.0, 0.0])):
+        s = scan_mesh(mesh, o, SMALL)
+        p = tmp_path / f"{name}.ply"
+        write_cloud(p, PointCloud(s.points - o, {"ring": SMALL.beam_of_row[s.pulses[:, 0]].astype(np.int32)}))
+        files.append(str(p))
+    out = tmp_path / "out"
+    argv = ["evaluate", *files, "-o", str(out), "--sensor", "velodyne_vlp16", "--quiet",
+            "--methods", "zbuffer", "binning"]
+    # a 16-beam table with the small pattern's rings: beams come from the 'ring' field
+    assert main(argv) == 0
+    res = json.loads(capsys.readouterr().out)
+    assert res["registration"]["fitness"] > 0.5
+    assert abs(res["registration"]["translation_m"][0] - 0.5) < 0.05
+    assert [r["method"] for r in res["table"]] == ["no SLR (z-buffer)", "binning"]
+    assert main(argv) == 2 and "not empty" in capsys.readouterr().err
+    assert main(argv + ["--force"]) == 0
