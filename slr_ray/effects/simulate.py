@@ -177,8 +177,9 @@ def simulate(scanner, origin, pattern, effects=None, *, intensity=None, normals=
     scanner : Scanner
         ``slr_ray.prepare(points, backend)``; divergence and per-column motion
         need the embree backend (``scanner.cast``).
-    origin : (3,) float
-        Scanner position (ignored with ``poses``).
+    origin : (3,) float or None
+        Scanner position (with ``poses``: None; the result's ``origin`` is then
+        the end pose's).
     pattern : ScanPattern, BeamPattern, str or float
     effects : Effects or dict, optional
         Default none: the ideal scan.
@@ -203,11 +204,13 @@ def simulate(scanner, origin, pattern, effects=None, *, intensity=None, normals=
     n = len(scanner.points)
     intensity = _check_per_point("intensity", intensity, n)
     normals = _check_per_point("normals", normals, n, 3)
-    origin = as_origin(origin)
     if eff.motion and poses is None:
         raise InputValueError("these effects include motion: give poses (start and end of the sweep, or a trajectory)")
     if poses is not None:
         poses = _motion.as_poses(poses)
+        origin = poses[-1][:3, 3].copy()  # the sensor at the end of the sweep
+    else:
+        origin = as_origin(origin)
     embree = scanner.backend == "embree"
     if eff.divergence_mrad and not embree:
         raise InputValueError("beam divergence needs the embree backend: binning keeps one point per pulse bin "
