@@ -25,3 +25,17 @@ def test_off_by_default_and_sensor_values_need_a_table():
     with pytest.raises(InputValueError, match="table"):
         Effects(range_noise="sensor").resolve(ScanPattern(1.0))
     assert Effects.from_dict({"returns": "first"}).returns == ("first",)
+
+
+def test_scene_toml_says_which_effects_it_requires(tmp_path):
+    from slr_ray.scenes import scene_effects
+
+    spec = tmp_path / "noisy.toml"
+    spec.write_text('[scene]\nn_rectangles = 3\n\n[effects]\nrange_noise = 0.02\nmin_range = 1.0\n'
+                    'returns = ["first", "last"]\n')
+    eff = scene_effects(spec)
+    assert eff.range_noise == 0.02 and eff.min_range == 1.0 and eff.returns == ("first", "last")
+    assert scene_effects("rect-0500") is None
+    spec.write_text("[scene]\nn_rectangles = 3\n\n[effects]\nnoise = 1\n")
+    with pytest.raises(InputValueError, match="noisy.toml"):
+        scene_effects(spec)
