@@ -18,10 +18,11 @@ from pathlib import Path
 import numpy as np
 from numba import njit
 
+from .effects import Effects
 from .errors import InputValueError
 from .paper import SCANNER_HEIGHT
 
-__all__ = ["RectangleScene", "rectangle_scene", "load_scene_spec", "scene_from_spec",
+__all__ = ["RectangleScene", "rectangle_scene", "load_scene_spec", "scene_from_spec", "scene_effects",
            "dense_samples", "SCENES_DIR", "MESH_FORMATS"]
 
 #: Mesh files a scene can be written to (trimesh's exporters).
@@ -259,6 +260,19 @@ def scene_from_spec(spec) -> RectangleScene:
         return rectangle_scene(**kwargs)
     except TypeError as exc:
         raise InputValueError(f"scene spec {spec!r}: {exc}") from None
+
+
+def scene_effects(spec) -> Effects | None:
+    """The sensor effects a scene requires: its ``[effects]`` table
+    (:class:`~slr_ray.effects.Effects` keys, e.g. ``range_noise = 0.02``), or
+    None when it has none. Unknown keys are an error naming the file."""
+    data, path = load_toml_spec(spec, "scene", "scene spec")
+    if "effects" not in data:
+        return None
+    try:
+        return Effects.from_dict(data["effects"])
+    except InputValueError as exc:
+        raise InputValueError(f"{path}: [effects]: {exc}") from None
 
 
 @njit(cache=True, nogil=True)

@@ -1109,6 +1109,35 @@ class DiscScanner(Scanner):
         pt, t, v, h = self._hits(as_origin(origin), as_pattern(pattern))
         return np.column_stack([v, h]), pt.astype(np.intp), t
 
+    # --- hook for slr_ray.effects (sub-rays of a diverging beam, rays from moving poses) ---------------
+    def cast(self, origin, directions, max_range: float = math.inf):
+        """First disc met by each ray from ``origin`` along ``directions``.
+
+        The tie rule (``ties``) ranks candidates by their distance from the ray
+        (no pulse grid: the rays are anyone's), and discs holding ``origin``
+        are skipped, as in :meth:`scan`.
+
+        Parameters
+        ----------
+        origin : (3,) float
+        directions : (m, 3) float
+            Unit vectors.
+        max_range : float
+            Metres; discs beyond are not met.
+
+        Returns
+        -------
+        indices : (m,) int64
+            The point whose disc each ray meets, -1 on a miss.
+        distances : (m,) float64
+            Distance along the ray to the disc, ``inf`` on a miss.
+        """
+        if self.options.engine == "open3d":
+            raise InputValueError("cast needs engine 'embree' or 'fan' (Open3D's scene has no tie rule)")
+        d = np.ascontiguousarray(directions, np.float64).reshape(-1, 3)
+        pt, t = self._cast(as_origin(origin), d, min(float(max_range), 3e37))
+        return pt, np.where(pt >= 0, t, np.inf)
+
     def scan(self, origin, pattern, rays_per_batch: int = 1 << 21) -> Scan:
         """Scan the discs from ``origin`` with ``pattern``.
 

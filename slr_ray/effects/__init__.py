@@ -1,0 +1,23 @@
+"""Optional sensor effects of a simulated scan, each off by default (docs/effects.md).
+
+>>> import numpy as np, slr_ray
+>>> from slr_ray.effects import Effects, simulate
+>>> pts = np.array([[5.0, 0, 0], [0, 5.0, 0]])
+>>> es = simulate(slr_ray.prepare(pts), [0, 0, 0], 1.0, Effects(range_noise=0.02, seed=1))
+>>> len(es), es.return_number.tolist()
+(2, [1, 1])
+
+Modules: :mod:`.options` (:class:`Effects`), :mod:`.returns` (beam
+divergence, multiple returns), :mod:`.noise` (range noise, blind zone,
+maximum range by reflectivity), :mod:`.raydrop` (a drop model fitted from a
+real frame), :mod:`.intensity`, :mod:`.motion` (motion during a sweep) and
+:mod:`.simulate` (the stages in order).
+"""
+
+from .motion import pose
+from .options import Effects
+from .raydrop import RayDropModel, fit_ray_drop, frame_pulses, rings_from_scan_order
+from .simulate import EffectScan, simulate
+
+__all__ = ["Effects", "EffectScan", "simulate", "RayDropModel", "fit_ray_drop", "frame_pulses",
+           "rings_from_scan_order", "pose"]

@@ -1,0 +1,203 @@
+"""Which sensor effects a simulated scan carries (:class:`Effects`), every one off by default.
+
+The same names serve the library, a scene's ``[effects]`` table
+(:func:`slr_ray.scenes.scene_effects`) and JSON; an unknown name is an error
+that lists the known ones. Values a sensor's datasheet gives (``'sensor'``)
+are read from the shipped table's fields (``range_accuracy_m``,
+``max_range_at_reflectivity``, ``beam_divergence_mrad``) when the pattern is
+a :class:`~slr_ray.sensors.BeamPattern`.
+"""
+
+from __future__ import annotations
+
+import dataclasses
+import json
+import math
+from dataclasses import dataclass
+from pathlib import Path
+
+from ..errors import InputValueError
+from .raydrop import RayDropModel
+
+__all__ = ["Effects", "RETURN_KINDS", "INTENSITY_MODES"]
+
+#: Which returns of a pulse a multiple-return scan reports.
+RETURN_KINDS = ("first", "last", "strongest", "all")
+#: What happens to the primary point's intensity.
+INTENSITY_MODES = ("carry", "correct")
+
+
+def _positive(name, v, allow_zero=False):
+    if not (isinstance(v, (int, float)) and not isinstance(v, bool) and math.isfinite(v)
+            and (v >= 0 if allow_zero else v > 0)):
+        raise InputValueError(f"{name} must be a finite number {'>=' if allow_zero else '>'} 0, got {v!r}")
+    return float(v)
+
+
+@dataclass(frozen=True)
+class Effects:
+    """Sensor effects of a simulated scan (module docstring); all off by default.
+
+    Attributes
+    ----------
+    divergence_mrad : float or 'sensor', optional
+        Full beam divergence angle, milliradians: each pulse is a cone sampled
+        by sub-rays (embree backend only; :mod:`slr_ray.effects.returns`).
+        'sensor': the table's ``beam_divergence_mrad``.
+    beam_rings : int
+        Rings of sub-rays across the footprint (HELIOS++'s
+        ``beamSampleQuality``): 1 + 6 + 12 + ... + 6 (beam_rings - 1) rays.
+    returns : tuple of {'first', 'last', 'strongest', 'all'}
+        Which returns of a pulse are reported (a dual-return unit: first and
+        strongest). Duplicates (first is also strongest) are reported once.
+    return_separation : float
+        Metres: hits of one pulse nearer than this along the range are one
+        return (a receiver's minimum separation).
+    min_share : float
+        A return needs at least this share of the footprint (0-1).
+    range_noise : float or 'sensor', optional
+        Gaussian range noise, sigma in metres ('sensor': ``range_accuracy_m``).
+    range_noise_slope : float
+        Sigma grows by this many metres per metre of range.
+    min_range : float, optional
+        Blind zone, metres: nearer returns are dropped.
+    max_range_at : (2,) float or 'sensor', optional
+        ``(range_m, reflectivity)`` a datasheet quotes (50 m at 0.10): a return
+        of reflectivity rho is kept up to ``range_m * sqrt(rho / reflectivity)``
+        (received power ~ rho / R^2). Needs intensity; 'sensor': the table's
+        ``max_range_at_reflectivity`` (its first pair).
+    reflectivity_scale : float
+        The intensity value that means reflectivity 1 (KITTI: 1; 8-bit: 255).
+    ray_drop : RayDropModel, dict or str, optional
+        A fitted drop model (:mod:`slr_ray.effects.raydrop`), its dict, or a
+        JSON file of it.
+    intensity : {'carry', 'correct'}, optional
+        'carry' the primary point's intensity; 'correct' it for the new range
+        and incidence (:mod:`slr_ray.effects.intensity`). Never invented: a
+        cloud without intensity has none.
+    motion : bool
+        The scan needs poses (motion during the sweep): :func:`simulate`
+        refuses a call without them.
+    motion_sectors : int, optional
+        Azimuth sectors with one pose each (default: every column with the
+        embree backend, 72 with binning, which scans once per sector).
+    seed : int
+        Seed of every random draw (noise, drop); the same seed, the same scan.
+    """
+
+    divergence_mrad: float | str | None = None
+    beam_rings: int = 3
+    returns: tuple = ("first", "strongest", "last")
+    return_separation: float = 1.0
+    min_share: float = 0.05
+    range_noise: float | str | None = None
+    range_noise_slope: float = 0.0
+    min_range: float | None = None
+    max_range_at: object = None
+    reflectivity_scale: float = 1.0
+    ray_drop: object = None
+    intensity: str | None = None
+    motion: bool = False
+    motion_sectors: int | None = None
+    seed: int = 0
+
+    def __post_init__(self):
+        set_ = lambda k, v: object.__setattr__(self, k, v)  # noqa: E731 (frozen dataclass)
+        if self.divergence_mrad is not None and self.divergence_mrad != "sensor":
+            _positive("divergence_mrad", self.divergence_mrad)
+        if int(self.beam_rings) != self.beam_rings or not 1 <= self.beam_rings <= 64:
+            raise InputValueError(f"beam_rings must be an integer in [1, 64], got {self.beam_rings!r}")
+        ret = (self.returns,) if isinstance(self.returns, str) else tuple(self.returns)
+        bad = [r for r in ret if r not in RETURN_KINDS]
+        if not ret or bad:
+            raise InputValueError(f"returns must be one or more of {RETURN_KINDS}, got {self.returns!r}")
+        set_("returns", ret)
+        _positive("return_separation", self.return_separation)
+        if not (isinstance(self.min_share, (int, float)) and 0 <= self.min_share <= 1):
+            raise InputValueError(f"min_share must be in [0, 1], got {self.min_share!r}")
+        if self.range_noise is not None and self.range_noise != "sensor":
+            _positive("range_noise", self.range_noise, allow_zero=True)
+        _positive("range_noise_slope", self.range_noise_slope, allow_zero=True)
+        if self.min_range is not None:
+            _positive("min_range", self.min_range, allow_zero=True)
+        if self.max_range_at is not None and self.max_range_at != "sensor":
+            try:
+                r, rho = (float(x) for x in self.max_range_at)
+            except (TypeError, ValueError):
+                raise InputValueError(f"max_range_at must be (range_m, reflectivity) or 'sensor', "
+                                      f"got {self.max_range_at!r}") from None
+            _positive("max_range_at range", r)
+            _positive("max_range_at reflectivity", rho)
+            set_("max_range_at", (r, rho))
+        _positive("reflectivity_scale", self.reflectivity_scale)
+        if self.intensity is not None and self.intensity not in INTENSITY_MODES:
+            raise InputValueError(f"intensity must be one of {INTENSITY_MODES} or None, got {self.intensity!r}")
+        if not isinstance(self.motion, bool):
+            raise InputValueError(f"motion must be true or false, got {self.motion!r}")
+        if self.motion_sectors is not None and (int(self.motion_sectors) != self.motion_sectors
+                                                or self.motion_sectors < 1):
+            raise InputValueError(f"motion_sectors must be an integer >= 1, got {self.motion_sectors!r}")
+        if isinstance(self.ray_drop, (str, Path)):
+            path = Path(self.ray_drop)
+            if not path.is_file():
+                raise InputValueError(f"ray_drop: no model file {str(path)!r} (a JSON of RayDropModel.to_dict())")
+            set_("ray_drop", json.loads(path.read_text()))
+        if isinstance(self.ray_drop, dict):
+            set_("ray_drop", RayDropModel.from_dict(self.ray_drop))
+        if self.ray_drop is not None and not isinstance(self.ray_drop, RayDropModel):
+            raise InputValueError(f"ray_drop must be a RayDropModel, its dict or a JSON path, "
+                                  f"got {type(self.ray_drop).__name__}")
+        if int(self.seed) != self.seed:
+            raise InputValueError(f"seed must be an integer, got {self.seed!r}")
+
+    @classmethod
+    def from_dict(cls, options: dict | None = None, **more) -> "Effects":
+        """Effects from a mapping (a scene's ``[effects]`` table) and keywords.
+
+        Raises
+        ------
+        InputValueError
+            naming unknown keys and listing the known ones.
+        """
+        merged = {**(options or {}), **more}
+        known = {f.name for f in dataclasses.fields(cls)}
+        unknown = sorted(set(merged) - known)
+        if unknown:
+            raise InputValueError(f"unknown effect option(s) {unknown}; known: {sorted(known)}")
+        return cls(**merged)
+
+    @property
+    def any(self) -> bool:
+        """Whether any effect is on."""
+        return self != Effects(seed=self.seed)
+
+    def to_dict(self) -> dict:
+        """Plain-JSON description."""
+        out = {}
+        for f in dataclasses.fields(self):
+            v = getattr(self, f.name)
+            out[f.name] = v.to_dict() if hasattr(v, "to_dict") else list(v) if isinstance(v, tuple) else v
+        return out
+
+    def resolve(self, pattern) -> "Effects":
+        """A copy with every 'sensor' value read from ``pattern``'s table.
+
+        Raises
+        ------
+        InputValueError
+            when the pattern is not a sensor's or its table lacks the field.
+        """
+        meta = getattr(pattern, "meta", None)
+        fields = {"divergence_mrad": "beam_divergence_mrad", "range_noise": "range_accuracy_m",
+                  "max_range_at": "max_range_at_reflectivity"}
+        changes = {}
+        for name, key in fields.items():
+            if getattr(self, name) != "sensor":
+                continue
+            if meta is None or meta.get(key) is None:
+                who = getattr(pattern, "name", None) or type(pattern).__name__
+                raise InputValueError(f"{name}='sensor': the pattern {who!r} has no {key!r} in its table; "
+                                      f"give {name} as a number")
+            v = meta[key]
+            changes[name] = tuple(v[0]) if name == "max_range_at" else float(v)
+        return dataclasses.replace(self, **changes) if changes else self

@@ -1,0 +1,310 @@
+"""A simulated scan with sensor effects: :func:`simulate` and its result :class:`EffectScan`.
+
+Order of the stages (each skipped when its effect is off):
+
+1. geometry: the ideal scan (``scanner.scan``), or, with beam divergence or
+   motion, rays cast by this module: sub-rays of each pulse's cone
+   (:mod:`.returns`), from each column's own pose (:mod:`.motion`);
+2. ray drop (:mod:`.raydrop`): one draw per pulse, from its first return's
+   range, incidence and intensity; a dropped pulse loses all its returns;
+3. blind zone and the maximum range of each return's reflectivity (:mod:`.noise`);
+4. range noise along each return's ray (:mod:`.noise`);
+5. intensity, carried or corrected (:mod:`.intensity`).
+
+With every effect off the result is the ideal scan: the same points, the
+same indices (``EffectScan.ideal`` holds it).
+"""
+
+from __future__ import annotations
+
+import time
+from dataclasses import dataclass, field
+
+import numpy as np
+
+from ..arrays import as_origin
+from ..backends import prepare
+from ..backends.embree import estimate_normals
+from ..errors import InputValueError
+from ..io import PointCloud
+from ..pattern import as_pattern, pulse_rays
+from ..scan import Scan
+from . import motion as _motion
+from .intensity import corrected_intensity
+from .noise import add_range_noise, reflectivity_max_range
+from .options import Effects
+from .returns import footprint_samples, group_returns, select_returns, subray_directions
+
+__all__ = ["EffectScan", "simulate"]
+
+#: rays cast per call (bounds memory: about 100 bytes a ray)
+RAYS_PER_BATCH = 1 << 21
+
+
+@dataclass(frozen=True, eq=False)
+class EffectScan:
+    """A simulated scan with sensor effects: one row per return.
+
+    Attributes
+    ----------
+    points : (m, 3) float64
+        Where each return lands: the cloud's coordinates, or with motion the
+        sensor frame at the end of the sweep (``frame``).
+    indices : (m,) intp
+        The point of the scanned cloud behind each return (its attributes
+        and labels follow: ``labels[es.indices]``).
+    ranges : (m,) float64
+        Measured range (with noise, if on).
+    pulses : (m, 2) int64
+        ``(v, h)`` of each return's pulse.
+    return_number, number_of_returns : (m,) int64
+        1-based position of the return along its pulse, and how many the pulse
+        has (1 and 1 without divergence).
+    share : (m,) float64
+        Share of the pulse's footprint behind the return (1 without divergence).
+    intensity : (m,) float64 or None
+        None when the cloud has none or ``intensity`` is off.
+    frame : {'world', 'sensor-end'}
+    ideal : Scan or None
+        The ideal scan the effects start from (None when rays were cast here).
+    info : dict
+        ``seconds`` per stage, returns removed by each effect, the effects.
+    """
+
+    points: np.ndarray
+    indices: np.ndarray
+    ranges: np.ndarray
+    pulses: np.ndarray
+    return_number: np.ndarray
+    number_of_returns: np.ndarray
+    share: np.ndarray
+    intensity: np.ndarray | None
+    origin: np.ndarray
+    pattern: object
+    frame: str = "world"
+    ideal: Scan | None = None
+    info: dict = field(default_factory=dict)
+
+    def __len__(self) -> int:
+        return len(self.indices)
+
+    def to_cloud(self, attributes: dict | None = None) -> PointCloud:
+        """The returns as a :class:`~slr_ray.io.PointCloud`: ``return_number``,
+        ``number_of_returns`` (LAS's standard fields), ``intensity`` where
+        known, and each of ``attributes`` (per point of the scanned cloud)
+        taken at :attr:`indices`."""
+        att = {k: np.asarray(v)[self.indices] for k, v in (attributes or {}).items()}
+        att["return_number"] = self.return_number.astype(np.uint8)
+        att["number_of_returns"] = self.number_of_returns.astype(np.uint8)
+        if self.intensity is not None:
+            att["intensity"] = self.intensity
+        return PointCloud(self.points, att, None if self.frame != "world" else self.origin)
+
+
+def _cast_returns(scanner, origin, pattern, eff: Effects, poses, intensity):
+    """Rays cast here (embree): sub-rays of every pulse from its column's pose."""
+    nv, nh = pattern.shape
+    div = eff.divergence_mrad
+    offsets, weights = footprint_samples(div * 1e-3, eff.beam_rings) if div else (np.zeros((1, 2)), np.ones(1))
+    s = len(weights)
+    rmin, rmax = pattern.range_limits
+    if poses is None:
+        starts, stops, rots, origins = [0], [nh], np.eye(3)[None], origin[None]
+    else:
+        starts, stops, times = _motion.column_sectors(nh, eff.motion_sectors or nh)
+        rots, origins = _motion.interpolate_poses(poses, times)
+    dirs_all, vv, hh = pulse_rays(pattern)
+    dirs_all = dirs_all.reshape(nv, nh, 3)
+    parts = []
+    for a, b, rot, o in zip(starts, stops, rots, origins):
+        rows_per = max(1, RAYS_PER_BATCH // ((b - a) * s))
+        for r0 in range(0, nv, rows_per):
+            r1 = min(nv, r0 + rows_per)
+            d = dirs_all[r0:r1, a:b].reshape(-1, 3) @ rot.T
+            idx, t = scanner.cast(o, subray_directions(d, offsets) if div else d, max_range=rmax)
+            g = group_returns(idx.reshape(-1, s), t.reshape(-1, s), weights, eff.return_separation,
+                              eff.min_share if div else 0.0, intensity)
+            v = r0 + g["pulse"] // (b - a)
+            h = a + g["pulse"] % (b - a)
+            g.update(v=v, h=h, dir=d[g["pulse"]], fire=np.broadcast_to(o, (len(v), 3)))
+            parts.append(g)
+    keys = ("v", "h", "range", "share", "index", "strength", "return_number", "number_of_returns", "dir", "fire")
+    out = {k: np.concatenate([p[k] for p in parts]) for k in keys}
+    if div:
+        keep = select_returns({**out, "pulse": out["v"] * nh + out["h"]}, eff.returns)
+        out = {k: v[keep] for k, v in out.items()}
+    inside = (out["range"] >= rmin) & (out["range"] <= rmax)
+    return {k: v[inside] for k, v in out.items()}
+
+
+def _binning_motion(scanner, pattern, eff: Effects, poses):
+    """Binning with motion: the cloud seen from each sector's pose, one binning scan per sector."""
+    nh = pattern.shape[1]
+    starts, stops, times = _motion.column_sectors(nh, eff.motion_sectors or 72)
+    rots, origins = _motion.interpolate_poses(poses, times)
+    parts = []
+    for a, b, rot, o in zip(starts, stops, rots, origins):
+        local = (scanner.points - o) @ rot  # the sensor frame of this sector's pose
+        sc = prepare(local, "binning").scan(np.zeros(3), pattern)
+        mine = (sc.pulses[:, 1] >= a) & (sc.pulses[:, 1] < b)
+        idx = sc.indices[mine]
+        r = sc.ranges[mine]
+        d = (local[idx] / r[:, None]) @ rot.T
+        parts.append({"v": sc.pulses[mine, 0], "h": sc.pulses[mine, 1], "range": r, "index": idx, "dir": d,
+                      "fire": np.broadcast_to(o, (len(idx), 3))})
+    out = {k: np.concatenate([p[k] for p in parts]) for k in parts[0]}
+    m = len(out["v"])
+    out.update(share=np.ones(m), return_number=np.ones(m, np.int64), number_of_returns=np.ones(m, np.int64))
+    return out
+
+
+def _check_per_point(name, a, n, width=None):
+    if a is None:
+        return None
+    a = np.asarray(a, np.float64)
+    want = (n,) if width is None else (n, width)
+    if a.shape != want:
+        raise InputValueError(f"{name} must have shape {want} (one per point of the scanned cloud), got {a.shape}")
+    return a
+
+
+def simulate(scanner, origin, pattern, effects=None, *, intensity=None, normals=None, poses=None,
+             primary_origin=None) -> EffectScan:
+    """Scan a prepared cloud with sensor effects.
+
+    Parameters
+    ----------
+    scanner : Scanner
+        ``slr_ray.prepare(points, backend)``; divergence and per-column motion
+        need the embree backend (``scanner.cast``).
+    origin : (3,) float or None
+        Scanner position (with ``poses``: None; the result's ``origin`` is then
+        the end pose's).
+    pattern : ScanPattern, BeamPattern, str or float
+    effects : Effects or dict, optional
+        Default none: the ideal scan.
+    intensity : (n,) float, optional
+        The cloud's intensity (strongest return, maximum range by
+        reflectivity, the drop model's intensity term, carried intensity).
+    normals : (n, 3) float, optional
+        For incidence angles (ray drop, corrected intensity); default the
+        embree scanner's disc normals, or PCA normals of the cloud.
+    poses : (k, 4, 4) float, optional
+        Sensor-to-world poses over the sweep (:mod:`slr_ray.effects.motion`).
+    primary_origin : (3,) float, optional
+        Where the cloud was scanned from (``intensity='correct'``).
+
+    Returns
+    -------
+    EffectScan
+    """
+    pattern = as_pattern(pattern)
+    eff = effects if isinstance(effects, Effects) else Effects.from_dict(effects)
+    eff = eff.resolve(pattern)
+    n = len(scanner.points)
+    intensity = _check_per_point("intensity", intensity, n)
+    normals = _check_per_point("normals", normals, n, 3)
+    if eff.motion and poses is None:
+        raise InputValueError("these effects include motion: give poses (start and end of the sweep, or a trajectory)")
+    if poses is not None:
+        poses = _motion.as_poses(poses)
+        origin = poses[-1][:3, 3].copy()  # the sensor at the end of the sweep
+    else:
+        origin = as_origin(origin)
+    embree = scanner.backend == "embree"
+    if eff.divergence_mrad and not embree:
+        raise InputValueError("beam divergence needs the embree backend: binning keeps one point per pulse bin "
+                              "and has no footprint beyond it (docs/effects.md)")
+    secs = {}
+    t0 = time.perf_counter()
+    ideal = None
+    if poses is None and not eff.divergence_mrad:
+        ideal = scanner.scan(origin, pattern)
+        idx = ideal.indices
+        d = scanner.points[idx] - origin
+        m = len(idx)
+        g = {"v": ideal.pulses[:, 0], "h": ideal.pulses[:, 1], "range": ideal.ranges.copy(), "index": idx,
+             "dir": d / np.maximum(ideal.ranges, 1e-300)[:, None], "fire": np.broadcast_to(origin, (m, 3)),
+             "share": np.ones(m), "return_number": np.ones(m, np.int64), "number_of_returns": np.ones(m, np.int64)}
+    elif embree:
+        g = _cast_returns(scanner, origin, pattern, eff, poses, intensity)
+    else:
+        g = _binning_motion(scanner, pattern, eff, poses)
+    if poses is None:
+        order = np.lexsort((g["return_number"], g["h"], g["v"]))
+        g = {k: v[order] for k, v in g.items()}
+    secs["geometry"] = time.perf_counter() - t0
+    info = {"returns_geometry": int(len(g["v"]))}
+    drop_rng, noise_rng = (np.random.default_rng(s) for s in np.random.SeedSequence(eff.seed).spawn(2))
+
+    def incidence_cos(rows):
+        nonlocal normals
+        if normals is None:
+            own = getattr(scanner, "normals", None)
+            normals = (np.asarray(own, np.float64) if own is not None
+                       else estimate_normals(scanner.points, k=10, primary_origin=origin))
+        nrm = normals[g["index"][rows]]
+        return np.abs(np.einsum("ij,ij->i", nrm, g["dir"][rows])) / np.linalg.norm(nrm, axis=1)
+
+    def keep(mask, what):
+        nonlocal g
+        info[f"removed_{what}"] = int(np.count_nonzero(~mask))
+        g = {k: v[mask] for k, v in g.items()}
+
+    if eff.ray_drop is not None:
+        t0 = time.perf_counter()
+        key = g["v"] * pattern.shape[1] + g["h"]  # the returns of a pulse are contiguous
+        first = np.flatnonzero(np.r_[True, key[1:] != key[:-1]])
+        inc = np.degrees(np.arccos(np.clip(incidence_cos(first), 0.0, 1.0)))
+        i_first = None if intensity is None else intensity[g["index"][first]]
+        dropped = eff.ray_drop.sample(g["range"][first], inc, i_first if eff.ray_drop.uses_intensity else None,
+                                      rng=drop_rng)
+        pulse_dropped = np.repeat(dropped, np.diff(np.r_[first, len(key)]))
+        keep(~pulse_dropped, "ray_drop")
+        secs["ray_drop"] = time.perf_counter() - t0
+    if eff.min_range is not None or (eff.max_range_at is not None and intensity is not None):
+        t0 = time.perf_counter()
+        ok = np.ones(len(g["v"]), bool)
+        if eff.min_range is not None:
+            ok &= g["range"] >= eff.min_range
+        if eff.max_range_at is not None and intensity is not None:
+            rho = intensity[g["index"]] / eff.reflectivity_scale * g["share"]
+            ok &= g["range"] <= reflectivity_max_range(rho, *eff.max_range_at)
+        keep(ok, "range_limits")
+        secs["range_limits"] = time.perf_counter() - t0
+    if eff.max_range_at is not None and intensity is None:
+        info["max_range_at"] = "not applied: the cloud has no intensity"
+    if eff.range_noise:
+        t0 = time.perf_counter()
+        g["range"] = add_range_noise(g["range"], eff.range_noise, eff.range_noise_slope, noise_rng)
+        secs["range_noise"] = time.perf_counter() - t0
+    out_intensity = None
+    if intensity is not None and (eff.intensity is not None or eff.divergence_mrad):
+        t0 = time.perf_counter()
+        i0 = intensity[g["index"]]
+        if eff.intensity == "correct":
+            if primary_origin is None:
+                raise InputValueError("intensity='correct' needs primary_origin (where the cloud was scanned from)")
+            po = as_origin(primary_origin, "primary_origin")
+            all_rows = np.arange(len(g["v"]))
+            cos_new = incidence_cos(all_rows)
+            d0 = scanner.points[g["index"]] - po
+            r0 = np.linalg.norm(d0, axis=1)
+            nrm = normals[g["index"]]
+            cos_old = np.abs(np.einsum("ij,ij->i", nrm, d0)) / np.maximum(r0 * np.linalg.norm(nrm, axis=1), 1e-300)
+            i0 = corrected_intensity(i0, g["range"], r0, cos_new, cos_old, ceiling=intensity.max(initial=0.0))
+        out_intensity = i0 * g["share"]
+        secs["intensity"] = time.perf_counter() - t0
+    pts = g["fire"] + g["dir"] * g["range"][:, None]
+    frame = "world"
+    if poses is not None:
+        pts = _motion.to_frame(pts, poses[-1])
+        frame = "sensor-end"
+    if ideal is not None and len(g["v"]) == len(ideal.indices) and not eff.range_noise:
+        pts = scanner.points[g["index"]]  # exactly the ideal scan's points (no rounding through the range)
+    info.update(seconds={k: round(v, 6) for k, v in secs.items()}, effects=eff.to_dict(), backend=scanner.backend)
+    return EffectScan(points=np.ascontiguousarray(pts), indices=g["index"].astype(np.intp), ranges=g["range"],
+                      pulses=np.column_stack([g["v"], g["h"]]).astype(np.int64),
+                      return_number=g["return_number"].astype(np.int64),
+                      number_of_returns=g["number_of_returns"].astype(np.int64), share=g["share"],
+                      intensity=out_intensity, origin=origin, pattern=pattern, frame=frame, ideal=ideal, info=info)

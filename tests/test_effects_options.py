@@ -1,0 +1,41 @@
+"""Effects options (slr_ray.effects.options): unknown keys rejected, values checked, off by default."""
+
+import pytest
+
+from slr_ray import InputValueError
+from slr_ray.effects import Effects
+from slr_ray.pattern import ScanPattern
+
+
+def test_unknown_keys_listed():
+    with pytest.raises(InputValueError, match="known:"):
+        Effects.from_dict({"range_nosie": 0.02})
+
+
+@pytest.mark.parametrize("bad", [{"range_noise": -1}, {"returns": ("second",)}, {"beam_rings": 0},
+                                 {"min_share": 2}, {"intensity": "invent"}, {"max_range_at": (50,)},
+                                 {"ray_drop": "/no/such/model.json"}, {"motion": "yes"}])
+def test_bad_values(bad):
+    with pytest.raises(InputValueError):
+        Effects.from_dict(bad)
+
+
+def test_off_by_default_and_sensor_values_need_a_table():
+    assert not Effects().any and Effects(range_noise=0.01).any
+    with pytest.raises(InputValueError, match="table"):
+        Effects(range_noise="sensor").resolve(ScanPattern(1.0))
+    assert Effects.from_dict({"returns": "first"}).returns == ("first",)
+
+
+def test_scene_toml_says_which_effects_it_requires(tmp_path):
+    from slr_ray.scenes import scene_effects
+
+    spec = tmp_path / "noisy.toml"
+    spec.write_text('[scene]\nn_rectangles = 3\n\n[effects]\nrange_noise = 0.02\nmin_range = 1.0\n'
+                    'returns = ["first", "last"]\n')
+    eff = scene_effects(spec)
+    assert eff.range_noise == 0.02 and eff.min_range == 1.0 and eff.returns == ("first", "last")
+    assert scene_effects("rect-0500") is None
+    spec.write_text("[scene]\nn_rectangles = 3\n\n[effects]\nnoise = 1\n")
+    with pytest.raises(InputValueError, match="noisy.toml"):
+        scene_effects(spec)
