@@ -25,3 +25,9 @@ class FormatError(SlrError, ValueError):
 
 class MissingDependencyError(SlrError, ImportError):
     """An optional dependency needed for this call is not installed."""
+
+
+class OutputError(SlrError, OSError):
+    """An output cannot be written safely: it is an input (or the same file as
+    another output), it exists and ``force`` was not given, it is not a
+    regular file, or its directory is locked by another run."""

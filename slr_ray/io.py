@@ -38,7 +38,8 @@ from pathlib import Path
 
 import numpy as np
 
-from .errors import FormatError
+from .errors import FormatError, MissingDependencyError, OutputError
+from .outputs import label_path, part_prefix, resolve
 
 __all__ = ["PointCloud", "LasRecords", "read_cloud", "write_cloud", "read_e57_scans", "check_format",
            "label_path", "FORMATS"]
@@ -186,6 +187,9 @@ def _read_las(path):
     import laspy
 
     las = laspy.read(str(path))
+    if len(las.points) != las.header.point_count:  # laspy stops quietly where a lying header's points run out
+        raise FormatError(f"{path}: the header declares {las.header.point_count:,} points, the file holds "
+                          f"{len(las.points):,} (truncated or corrupt)")
     pts = np.column_stack([np.asarray(las.x), np.asarray(las.y), np.asarray(las.z)])
     attrs = {name: np.asarray(las[name]) for name in las.point_format.dimension_names
              if name not in ("X", "Y", "Z")}
@@ -195,24 +199,19 @@ def _read_las(path):
     return PointCloud(pts, attrs, None, meta)
 
 
-def label_path(bin_path) -> Path | None:
-    """The SemanticKITTI ``.label`` file of a KITTI ``.bin``, if there is one: next
-    to it (``000000.label``), or in the sequence's ``labels/`` beside ``velodyne/``."""
-    p = Path(bin_path)
-    for cand in (p.with_suffix(".label"), p.parent.parent / "labels" / (p.stem + ".label")):
-        if cand.is_file():
-            return cand
-    return None
-
-
 def _read_kitti(path):
-    raw = np.fromfile(path, dtype=np.float32)
-    if raw.size % 4:
-        raise FormatError(f"{path}: {raw.size} float32 values, not a multiple of 4 (x, y, z, intensity)")
+    size = os.path.getsize(path)
+    if size % 16:
+        raise FormatError(f"{path}: {size} bytes, not a multiple of 16 (float32 x, y, z, intensity a point): "
+                          "truncated, or not a KITTI .bin")
+    raw = np.fromfile(path, dtype="<f4")
     a = raw.reshape(-1, 4)
     attrs = {"intensity": a[:, 3].copy()}
     lab = label_path(path)
     if lab is not None:  # SemanticKITTI: uint32, semantic class in the low 16 bits, instance in the high 16
+        if os.path.getsize(lab) != 4 * len(a):
+            raise FormatError(f"{lab}: {os.path.getsize(lab)} bytes for the {len(a)} points of {path} "
+                              f"(SemanticKITTI labels: 4 bytes a point)")
         words = np.fromfile(lab, dtype="<u4")
         if len(words) != len(a):
             raise FormatError(f"{lab}: {len(words)} labels for {len(a)} points of {path}")
@@ -262,6 +261,12 @@ def _read_pcd(path):
         types = header["TYPE"]
         counts = [int(x) for x in header.get("COUNT", ["1"] * len(fields))]
         n = int(header["POINTS"][0])
+        if n < 0 or any(c < 1 for c in counts) or any(sz < 1 for sz in sizes):
+            raise ValueError(f"POINTS {n}, SIZE {sizes}, COUNT {counts}: counts must be >= 0 and sizes >= 1")
+        if not len(fields) == len(sizes) == len(types) == len(counts):
+            raise ValueError(f"{len(fields)} FIELDS, {len(sizes)} SIZE, {len(types)} TYPE, {len(counts)} COUNT")
+        if "WIDTH" in header and "HEIGHT" in header and int(header["WIDTH"][0]) * int(header["HEIGHT"][0]) != n:
+            raise ValueError(f"WIDTH x HEIGHT = {header['WIDTH'][0]} x {header['HEIGHT'][0]} is not POINTS {n}")
         dtype = np.dtype([(name if c == 1 else name, _PCD_TYPES[(t, sz)], () if c == 1 else (c,))
                           for name, sz, t, c in zip(fields, sizes, types, counts)])
     except (KeyError, ValueError, IndexError) as exc:
@@ -281,8 +286,9 @@ def _read_pcd(path):
             data[name] = flat[:, col] if c == 1 else flat[:, col:col + c]
             col += c
     elif kind == "binary":
-        if len(body) < n * dtype.itemsize:
-            raise FormatError(f"{path}: truncated ({len(body)} bytes for {n} points)")
+        if len(body) < n * dtype.itemsize:  # bytes after the points are tolerated, as PCL does
+            raise FormatError(f"{path}: truncated ({len(body)} bytes of data for POINTS {n} of "
+                              f"{dtype.itemsize} bytes)")
         data = np.frombuffer(body[: n * dtype.itemsize], dtype)
     else:
         raise FormatError(f"{path}: PCD DATA {kind} is not supported (ascii and binary are)")
@@ -327,8 +333,6 @@ def _pye57():
     try:
         import pye57
     except ImportError as exc:
-        from .errors import MissingDependencyError
-
         raise MissingDependencyError('E57 needs pye57: pip install "slr_ray[e57]" (or pip install pye57)') from exc
     return pye57
 
@@ -403,17 +407,26 @@ def atomic_path(path):
     """Yield a temporary path next to ``path``; rename it to ``path`` on success,
     remove it on failure, so no half-written file is ever left under ``path``.
 
+    A ``path`` that is a symbolic link is written *through*: the file it
+    points to is replaced and the link stays. A ``path`` that exists and is
+    not a regular file (a directory, a device, a FIFO) is refused with
+    :class:`~slr_ray.errors.OutputError`. The temporary is named
+    ``.NAME.PID@HOST.RANDOM.partEXT``, so that the next run can tell one left
+    by a killed process (:func:`slr_ray.outputs.clean_stale_parts`).
+
     The file gets the mode a plain ``open(path, "w")`` would give it (0666
     less the umask), not the 0600 of a temporary file: colleagues on shared
     storage can read what slr_ray writes when their umask lets them.
     """
-    path = Path(path)
-    fd, tmp = tempfile.mkstemp(prefix=f".{path.name}.", suffix=".part" + path.suffix, dir=path.parent or ".")
+    target = resolve(path)
+    if target.exists() and not target.is_file():
+        raise OutputError(f"{path} is not a regular file: refusing to write it")
+    fd, tmp = tempfile.mkstemp(prefix=part_prefix(target), suffix=".part" + target.suffix, dir=target.parent)
     os.fchmod(fd, 0o666 & ~_umask())
     os.close(fd)
     try:
         yield Path(tmp)
-        os.replace(tmp, path)
+        os.replace(tmp, target)
     except BaseException:
         if os.path.exists(tmp):
             os.unlink(tmp)
@@ -431,6 +444,11 @@ def write_cloud(path, cloud: PointCloud, format: str | None = None, binary: bool
     ext = check_format(path, format)
     if not path.parent.exists():
         raise FormatError(f"cannot write {path}: directory {path.parent} does not exist")
+    words = None
+    if ext == ".bin":
+        _warn_kitti_precision(path, cloud)
+        if "semantic" in cloud.attributes:  # checked before anything is written
+            words = _label_words(path.with_suffix(".label"), cloud)
     with atomic_path(path) as tmp:
         try:
             with warnings.catch_warnings(record=True) as said:
@@ -443,21 +461,40 @@ def write_cloud(path, cloud: PointCloud, format: str | None = None, binary: bool
                 raise
             # the user named `path`, not our temporary file: say it in their terms
             raise FormatError(str(exc).replace(str(tmp), str(path))) from exc
-    if ext == ".bin" and "semantic" in cloud.attributes:
-        _write_labels(path.with_suffix(".label"), cloud)
+    if ext == ".bin":
+        label = path.with_suffix(".label")
+        if words is not None:
+            with atomic_path(label) as tmp:
+                words.tofile(tmp)
+        elif label.is_file():  # an older file's labels: every reader would pair them with this .bin
+            label.unlink()
     return path
 
 
-def _write_labels(path, cloud):
-    """SemanticKITTI labels next to a KITTI ``.bin``: uint32, semantic | instance << 16."""
+def _label_words(path, cloud) -> np.ndarray:
+    """SemanticKITTI labels of a KITTI ``.bin``: little-endian uint32, semantic | instance << 16."""
     sem = np.asarray(cloud.attributes["semantic"])
     inst = np.asarray(cloud.attributes.get("instance", np.zeros(len(sem), np.uint32)))
     for name, v in (("semantic", sem), ("instance", inst)):
         if v.dtype.kind not in "iu" or (len(v) and (v.min() < 0 or v.max() > 0xFFFF)):
             raise FormatError(f"{path}: SemanticKITTI {name} labels must be integers in [0, 65535]")
-    words = (sem.astype(np.uint32) & 0xFFFF) | (inst.astype(np.uint32) << 16)
-    with atomic_path(path) as tmp:
-        words.astype("<u4").tofile(tmp)
+    return ((sem.astype(np.uint32) & 0xFFFF) | (inst.astype(np.uint32) << 16)).astype("<u4")
+
+
+#: Largest coordinate error (m) a KITTI ``.bin`` (float32) may add before :func:`write_cloud` warns.
+KITTI_TOLERANCE = 1e-3
+
+
+def _warn_kitti_precision(path, cloud) -> None:
+    """Warn when float32 storage moves a coordinate by more than :data:`KITTI_TOLERANCE`."""
+    pts = np.asarray(cloud.points, np.float64)
+    if not len(pts):
+        return
+    err = float(np.abs(pts.astype(np.float32).astype(np.float64) - pts).max())
+    if err > KITTI_TOLERANCE:
+        warnings.warn(f"{path}: KITTI .bin stores float32 coordinates: these (up to "
+                      f"{np.abs(pts).max():.4g} m from 0) move by up to {err:.3g} m; write .las/.ply/.npz "
+                      "to keep them, or subtract an offset first", stacklevel=3)
 
 
 def _columns(cloud):
@@ -470,10 +507,31 @@ def _columns(cloud):
     return cols
 
 
+def _exact_in_float64(v) -> bool:
+    """Whether every value of dtype ``v.dtype`` is a float64 (so a plain column keeps it)."""
+    return v.dtype.kind == "b" or (v.dtype.kind == "f" and v.dtype.itemsize <= 8) or \
+        (v.dtype.kind in "iu" and v.dtype.itemsize <= 4)
+
+
 def _write_npy(path, cloud, binary):
-    cols = _columns(cloud)
+    """Plain float64 columns (x, y, z, then each attribute) when float64 holds every
+    attribute exactly; otherwise (int64, uint64 attributes) a structured array with
+    fields ``x, y, z`` and each attribute in its own dtype, so no digit is lost."""
+    attrs = {k: np.asarray(v) for k, v in cloud.attributes.items()}
+    if all(_exact_in_float64(v) for v in attrs.values()):
+        cols = _columns(cloud)
+        data = np.hstack(cols) if len(cols) > 1 else cloud.points
+    else:
+        bad = [k for k, v in attrs.items() if v.dtype.kind not in "biuf" or k in ("x", "y", "z")]
+        if bad:
+            raise FormatError(f".npy cannot store attribute(s) {bad} beside x, y, z")
+        data = np.empty(len(cloud), [("x", "f8"), ("y", "f8"), ("z", "f8")]
+                        + [(k, v.dtype, v.shape[1:]) for k, v in attrs.items()])
+        data["x"], data["y"], data["z"] = np.asarray(cloud.points, np.float64).T
+        for k, v in attrs.items():
+            data[k] = v
     with open(path, "wb") as f:
-        np.save(f, np.hstack(cols) if len(cols) > 1 else cloud.points)
+        np.save(f, data)
 
 
 def _write_npz(path, cloud, binary):
@@ -536,9 +594,9 @@ def _write_las(path, cloud, binary):
 
         if getattr(header, "evlrs", None) is not None:  # laspy keeps EVLRs read with the header too
             header.evlrs = VLRList(evlrs)
-        las = laspy.LasData(header)
-        las.points = laspy.ScaleAwarePointRecord(src.array.copy(), header.point_format, header.scales,
-                                                 header.offsets)
+        # the records given, never header.point_count (a header that lies, or 7e8 points, would be allocated)
+        las = laspy.LasData(header, laspy.ScaleAwarePointRecord(src.array.copy(), header.point_format,
+                                                                header.scales, header.offsets))
         las.evlrs = VLRList(evlrs)
         given = np.column_stack([np.asarray(las.x), np.asarray(las.y), np.asarray(las.z)]) if len(cloud) else \
             np.empty((0, 3))
