@@ -210,8 +210,8 @@ def _read_kitti(path):
     lab = label_path(path)
     if lab is not None:  # SemanticKITTI: uint32, semantic class in the low 16 bits, instance in the high 16
         if os.path.getsize(lab) != 4 * len(a):
-            raise FormatError(f"{lab}: {os.path.getsize(lab)} bytes for the {len(a)} points of {path} "
-                              f"(SemanticKITTI labels: 4 bytes a point)")
+            raise FormatError(f"{lab}: {os.path.getsize(lab)} bytes, not 4 a point: not the labels for the "
+                              f"{len(a)} points of {path}")
         words = np.fromfile(lab, dtype="<u4")
         if len(words) != len(a):
             raise FormatError(f"{lab}: {len(words)} labels for {len(a)} points of {path}")

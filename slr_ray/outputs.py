@@ -50,11 +50,12 @@ def resolve(path) -> Path:
     return Path(os.path.realpath(os.path.abspath(os.path.expanduser(os.fspath(path)))))
 
 
-def output_sidecars(path) -> list:
-    """The files :func:`slr_ray.io.write_cloud` writes (or removes) beside ``path``:
-    a KITTI ``.bin``'s SemanticKITTI ``.label``."""
+def output_sidecars(path, fmt: str | None = None) -> list:
+    """The files :func:`slr_ray.io.write_cloud` writes (or removes) beside ``path``
+    written as ``fmt`` (default: its extension): a KITTI ``.bin``'s SemanticKITTI ``.label``."""
     p = Path(path)
-    return [p.with_suffix(".label")] if p.suffix.lower() == ".bin" else []
+    ext = (fmt or p.suffix).lower()
+    return [p.with_suffix(".label")] if ext in (".bin", "bin") else []
 
 
 def label_path(bin_path) -> Path | None:
@@ -208,6 +209,7 @@ class OutputPlan:
         self.force = bool(force)
         self.inputs: dict = {}      # resolved -> as named
         self.outputs: dict = {}     # resolved -> as named
+        self.resumed: dict = {}     # outputs a resumed run may replace without force
         self.directories: dict = {}
         self._locks: list = []
         self._created: list = []
@@ -223,17 +225,20 @@ class OutputPlan:
                 self.inputs.setdefault(resolve(s), str(s))
         return Path(path)
 
-    def write(self, path, sidecars: bool = True):
-        """An output file (and, with ``sidecars``, what the writer writes beside it).
-        Returns the path to write: through a link, the file it points to. None is skipped."""
+    def write(self, path, sidecars: bool = True, fmt: str | None = None, resumed: bool = False):
+        """An output file (and, with ``sidecars``, what the writer of format ``fmt``,
+        default the extension's, writes beside it). ``resumed``: a file the command
+        itself may find from an earlier run and replace (augment's scans), exempt
+        from the ``force`` check, never from the others. Returns the path to write:
+        through a link, the file it points to. None is skipped."""
         if path is None:
             return None
-        for p in [Path(path)] + (output_sidecars(path) if sidecars else []):
+        for p in [Path(path)] + (output_sidecars(path, fmt) if sidecars else []):
             r = resolve(p)
-            if r in self.outputs:
+            if r in self.outputs or r in self.resumed:
                 raise OutputError(f"{p} is named twice among this command's outputs "
-                                  f"({self.outputs[r]} is the same file)")
-            self.outputs[r] = str(p)
+                                  f"({self.outputs.get(r) or self.resumed.get(r)} is the same file)")
+            (self.resumed if resumed else self.outputs)[r] = str(p)
         return resolve(path)
 
     def directory(self, path) -> Path:
@@ -257,7 +262,8 @@ class OutputPlan:
                 raise OutputError(f"{named} exists and is not a directory")
             if r in self.inputs:
                 raise OutputError(f"{named} is an input of this command")
-        for r, named in self.outputs.items():
+        for r, named in [*self.outputs.items(), *self.resumed.items()]:
+            resumed = r in self.resumed
             if r in self.inputs:
                 raise OutputError(f"{named} is an input of this command ({self.inputs[r]}): refusing to write "
                                   "over it, with --force too")
@@ -272,7 +278,7 @@ class OutputPlan:
                 if (st.st_dev, st.st_ino) in inodes:
                     raise OutputError(f"{named} is the same file as the input {inodes[(st.st_dev, st.st_ino)]} "
                                       "(a hard link): refusing to write over it")
-                if not self.force:
+                if not self.force and not resumed:
                     raise OutputError(f"{named} exists (use --force to overwrite)")
             parent = r.parent
             if not parent.is_dir() and not any(parent == d or d in parent.parents for d in self.directories):
@@ -291,8 +297,9 @@ class OutputPlan:
                 lock.acquire()
                 self._locks.append(lock)
                 clean_stale_parts(r, locked=True)
-            for parent in {r.parent for r in self.outputs} - set(self.directories):
-                clean_stale_parts(parent, [r.name for r in self.outputs if r.parent == parent])
+            files = [*self.outputs, *self.resumed]
+            for parent in {r.parent for r in files} - set(self.directories):
+                clean_stale_parts(parent, [r.name for r in files if r.parent == parent])
             self.check()  # again under the lock: another run may have written meanwhile
         except BaseException:
             self.__exit__(OutputError, None, None)
