@@ -462,8 +462,8 @@ def label_ground(points, *, cloth_resolution: float = 0.5, rigidness: int = 2,
         try:
             ground = pool.submit(_csf_ground, pts - pts.mean(axis=0), params).result()
         except BrokenProcessPool:
-            raise RuntimeError("CSF crashed (its process ended without an answer); "
-                               "try other cloth parameters") from None
+            raise InputValueError("CSF crashed (its process ended without an answer); "
+                                  "try other cloth parameters") from None
     out = np.zeros(len(pts), bool)
     out[ground] = True
     return out

@@ -78,7 +78,7 @@ from numba import njit, prange
 from scipy.spatial import cKDTree
 
 from ..arrays import as_origin, as_points, bounds
-from ..errors import InputValueError, MissingDependencyError
+from ..errors import InputValueError, MissingDependencyError, refuse_memory
 from ..pattern import as_pattern, pulse_rays
 from ..raycast import RayScene, padded_rows
 from ..scan import Scan
@@ -997,6 +997,9 @@ class DiscScanner(Scanner):
         grid = (need_spacing or need_normals) and o.neighbours == "pulse-grid"
         if o.primary_beams is not None:
             o.primary_grid.rows_of_beams(o.primary_beams, n)  # a bad length or beam id fails here, used or not
+        if o.engine != "embree":  # polygon fans: vertices (24 B) and faces (24 B) per segment, before any work
+            refuse_memory(48.0 * n * o.segments, f"discs as fans of {o.segments:,} segments for {n:,} points",
+                          "use fewer segments (3 to 16 is plenty) or engine='embree'")
         if o.orientation == "normal":
             # kNN normals are filled chunk by chunk below, pulse-grid ones come whole; fewer than two
             # points have no neighbours and keep the fallback direction
@@ -1082,6 +1085,9 @@ class DiscScanner(Scanner):
             inside = d <= self.radii * self.options.reach
             self._open3d_start = float((d + self.radii * self.options.reach)[inside].max(initial=0.0))
         nv, nh = pattern.shape
+        # a batch holds whole rows (directions, pulse ids, answers: about 100 B a ray)
+        refuse_memory(100.0 * max(nh, min(rays_per_batch, nv * nh)),
+                      f"a row of {nh:,} rays ({pattern.n_pulses:.3g} pulses in all)", "choose a coarser pattern")
         aspect = _pulse_aspect(pattern)
         rows_per = max(1, rays_per_batch // nh)
         parts = []
