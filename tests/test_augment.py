@@ -9,6 +9,8 @@ import pytest
 
 from slr_ray import InputValueError
 from slr_ray.augment import AugmentConfig, augment
+from slr_ray.cli import main
+from slr_ray.errors import SlrError
 from slr_ray.io import PointCloud, read_cloud, write_cloud
 
 
@@ -239,3 +241,67 @@ def test_streamed_positions_thin_a_large_ground_with_a_warning(laz):
     np.testing.assert_array_equal(a, b)  # chunking does not change the thinning
     assert n == 180_000 and len(a) == 4 and cells.params["min_ground_points"] == 125
     np.testing.assert_allclose(a[:, 2], 100 + 1.65, atol=0.05)  # on the ground (z = 100), 1.65 m above
+
+
+# --- issue 26: what augment reads and writes ---------------------------------------------------------------------
+
+def test_an_input_inside_the_output_directory_is_never_a_scan_name(laz, tmp_path):
+    out = tmp_path / "aug"
+    out.mkdir()
+    victim = out / "scan_0000_h1.65.laz"
+    victim.write_bytes(laz.read_bytes())
+    before = victim.read_bytes()
+    with pytest.raises(SlrError, match="input"):
+        _run(victim, out, 2, min_ground_points=1000, workers=1)
+    assert victim.read_bytes() == before and sorted(p.name for p in out.iterdir()) == [victim.name]
+
+
+def test_a_second_run_into_a_locked_directory_is_refused(laz, tmp_path):
+    from slr_ray.errors import OutputError
+    from slr_ray.outputs import OutputPlan
+
+    plan = OutputPlan()
+    plan.directory(tmp_path / "aug")
+    with plan:  # another run holds it (a flock per open file: as another process would)
+        with pytest.raises(OutputError, match="in use"):
+            _run(laz, tmp_path / "aug", 2, min_ground_points=1000, workers=1)
+
+
+def test_an_input_edited_in_place_is_not_resumed(laz, tmp_path):
+    import os
+    import shutil
+
+    src = tmp_path / "in.laz"
+    shutil.copy(laz, src)
+    out = tmp_path / "aug"
+    _run(src, out, 2, min_ground_points=1000, workers=1)
+    c = read_cloud(src)
+    c.attributes["intensity"] = c.attributes["intensity"][::-1].copy()  # same size, other content
+    st = src.stat()
+    write_cloud(src, c)
+    os.utime(src, ns=(st.st_atime_ns, st.st_mtime_ns))
+    with pytest.raises(InputValueError, match="input_digest"):
+        _run(src, out, 2, min_ground_points=1000, workers=1)
+
+
+def test_a_run_that_fails_before_its_first_scan_leaves_nothing(laz, tmp_path, monkeypatch):
+    import slr_ray.augment as A
+
+    def boom(*a, **k):
+        raise InputValueError("no scan for you")
+
+    monkeypatch.setattr(A, "_scan_job", boom)
+    with pytest.raises(InputValueError, match="no scan"):
+        _run(laz, tmp_path / "new" / "aug", 2, min_ground_points=1000, workers=1)
+    assert not (tmp_path / "new").exists()
+
+
+def test_scanner_height_is_honoured(laz, tmp_path):
+    a = _run(laz, tmp_path / "a", 2, min_ground_points=1000, workers=1)
+    b = _run(laz, tmp_path / "b", 2, min_ground_points=1000, workers=1, scanner_height=3.0)
+    pa, pb = np.array([s["origin"] for s in a["scans"]]), np.array([s["origin"] for s in b["scans"]])
+    assert b["heights"] == [3.0] and a["heights"] == [1.65]
+    np.testing.assert_allclose(pb[:, 2] - pa[:, 2], 3.0 - 1.65, atol=1e-9)
+    assert main(["augment", str(laz), "--n", "1", "--min-ground-points", "1000", "--scanner-height", "2.5",
+                 "--workers", "1", "--quiet", "-o", str(tmp_path / "c")]) == 0
+    assert json.loads((tmp_path / "c" / "manifest.json").read_text())["heights"] == [2.5]
