@@ -430,7 +430,7 @@ def _augment(input_path, out, config, pattern, options, ext, names, ground, prog
         if bar is not None:
             bar.update()
 
-    failed = True
+    failed = False  # an error (exit 2), not an interruption (which keeps what it made, to resume)
     try:
         if cloud is None:  # streamed
             _run_streamed(jobs, input_path, pattern, int(config.chunk_size), int(config.per_pass), done_one,
@@ -467,13 +467,15 @@ def _augment(input_path, out, config, pattern, options, ext, names, ground, prog
                 raise
         else:
             _run_serial(jobs, cloud, done_one)
-        failed = False
+    except Exception:
+        failed = True
+        raise
     finally:
         if bar is not None:
             bar.close()
         if failed and fresh and not manifest["scans"]:
-            # nothing recorded: leave nothing (none of these files existed before this run; the plan
-            # then removes the directory if it created it)
+            # an error before any scan was recorded: leave nothing (none of these files existed before
+            # this run; the plan then removes the directory if it created it)
             _remove_temporaries(jobs)
             for j in jobs:
                 for path in [Path(j["path"]), *output_sidecars(j["path"])]:
