@@ -30,7 +30,7 @@ def main(argv=None):
     ap.add_argument("--min-ground-points", type=int, default=2000)
     args = ap.parse_args(argv)
 
-    from slr_ray.augment import augment
+    from slr_ray.augment import AugmentConfig, augment
     from slr_ray.io import read_cloud
     from slr_ray.positions import label_ground
 
@@ -40,17 +40,18 @@ def main(argv=None):
     rows = []
     tmp = Path(tempfile.mkdtemp(dir=Path(__file__).resolve().parent / "results"))
     try:
-        common = dict(ground=ground, min_ground_points=args.min_ground_points, progress=False)
+        config = AugmentConfig(n=args.n, min_ground_points=args.min_ground_points)
         for name, kw in (("serial", {"workers": 1}), ("2 local processes", {"workers": 2})):
             t0 = time.perf_counter()
-            m = augment(args.input, tmp / name.replace(" ", "_"), args.n, **common, **kw)
+            m = augment(args.input, tmp / name.replace(" ", "_"), config.with_(**kw), ground=ground, progress=False)
             rows.append({"mode": name, "seconds": time.perf_counter() - t0, "scans": len(m["scans"]),
                          "points_out": sum(s["points"] for s in m["scans"])})
         from dask.distributed import LocalCluster
 
         with LocalCluster(n_workers=2, threads_per_worker=1, processes=True, dashboard_address=None) as cl:
             t0 = time.perf_counter()
-            m = augment(args.input, tmp / "dask", args.n, scheduler=cl.scheduler_address, **common)
+            m = augment(args.input, tmp / "dask", config.with_(scheduler=cl.scheduler_address), ground=ground,
+                        progress=False)
             rows.append({"mode": "dask LocalCluster, 2 processes", "seconds": time.perf_counter() - t0,
                          "scans": len(m["scans"]), "points_out": sum(s["points"] for s in m["scans"])})
     finally:

@@ -35,7 +35,7 @@ sys.path.insert(0, str(Path(__file__).resolve().parent))
 from common import RESULTS, machine, realistic_cloud, save  # noqa: E402
 
 from slr_ray import ScanPattern, prepare, select_positions  # noqa: E402
-from slr_ray.augment import augment  # noqa: E402
+from slr_ray.augment import AugmentConfig, augment  # noqa: E402
 from slr_ray.io import read_cloud  # noqa: E402
 
 PAPER_SCANS = 13_000
@@ -84,8 +84,8 @@ def main(argv=None):
             for fmt in args.formats:
                 out = Path(tmp) / f"{fmt}_{workers}"
                 t0 = time.perf_counter()
-                manifest = augment(src, out, args.n, fmt=f".{fmt}", ground=ground, workers=workers,
-                                   progress=False)
+                manifest = augment(src, out, AugmentConfig(n=args.n, fmt=f".{fmt}", workers=workers),
+                                   ground=ground, progress=False)
                 wall = time.perf_counter() - t0
                 n_scans = len(manifest["scans"])
                 # the steady rate: between the first and the last scan recorded (worker

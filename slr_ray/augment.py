@@ -20,24 +20,33 @@ is written by a thread while the next scan runs.
 
 from __future__ import annotations
 
+import dataclasses
 import json
 import multiprocessing
 import os
 import time
+from dataclasses import dataclass, field
 from pathlib import Path
 
 import numpy as np
 
+from . import __version__
 from .backends import options_for, prepare
-from .errors import InputValueError, MissingDependencyError
+from .errors import InputValueError, MissingDependencyError, OutputError
+from .io import PointCloud, atomic_path, check_format, read_cloud, write_cloud
+from .outputs import OutputPlan, content_digest, output_sidecars
 from .paper import MIN_GROUND_POINTS, SCANNER_HEIGHT, SECONDARY_RESOLUTION
 from .pattern import ScanPattern, as_pattern
+from .positions import ground_labels, select_positions
+from .streaming import STREAMED_FORMATS, las_positions, scan_las_many
 
-__all__ = ["augment"]
+__all__ = ["augment", "AugmentConfig", "MANIFEST", "JOURNAL"]
 
 _WORKER = {}
 
 
+#: The run's record in its output directory.
+MANIFEST = "manifest.json"
 #: Scans finished since the manifest was last written, one JSON line each (removed when a run completes).
 JOURNAL = "manifest.scans.jsonl"
 #: Seconds between rewrites of manifest.json during a run.
@@ -81,8 +90,6 @@ def _resumable(manifest_path: Path, settings: dict, positions, out: Path) -> dic
 
 
 def _init_worker(points, attributes, origin, meta):
-    from .io import PointCloud
-
     _WORKER["cloud"] = PointCloud(points, attributes, origin, meta)
 
 
@@ -120,8 +127,6 @@ def _scan_job(job, cloud):
 
 def _write_job(job, sub, entry, t0):
     """Write a job's scan (atomic: a temporary file renamed into place); its manifest entry."""
-    from .io import write_cloud
-
     write_cloud(Path(job["path"]), sub)
     return {**entry, "seconds": round(time.perf_counter() - t0, 4)}
 
@@ -134,8 +139,6 @@ def _scan_one(job, cloud=None):
 def _run_streamed(jobs, path, pattern, chunk, per_pass, done, progress=False) -> None:
     """The jobs on a LAS/LAZ file read in chunks, ``per_pass`` positions per two
     passes over it; ``done(entry)`` in job order."""
-    from .streaming import scan_las_many
-
     for b in range(0, len(jobs), per_pass):
         batch = jobs[b:b + per_pass]
         t0 = time.perf_counter()
@@ -175,27 +178,45 @@ def _scan_on_dask(job, cloud):
     return _scan_one(job, cloud)
 
 
-def augment(input_path, outdir, n: int, *, backend: str = "binning", resolution: float = SECONDARY_RESOLUTION,
-            heights=(SCANNER_HEIGHT,), fmt: str | None = None, seed: int = 0,
-            min_ground_points: int = MIN_GROUND_POINTS,
-            ground=None, origin=None, workers: int | None = None, scheduler: str | None = None,
-            progress: bool = True, backend_options: dict | None = None, allow_fewer: bool = True,
-            sensor: str | None = None, chunk_size: int | None = None, per_pass: int = 8) -> dict:
-    """Write ``n`` positions x ``heights`` SLR scans of ``input_path`` into ``outdir``.
+@dataclass
+class AugmentConfig:
+    """What :func:`augment` makes, and how it runs.
 
-    Parameters
-    ----------
-    ground : (n,) bool, optional
-        Ground labels; default from the input (:func:`~slr_ray.positions.ground_labels`:
-        ``is_ground``, LAS class 2), which must have some (use
-        :func:`slr_ray.label_ground` otherwise).
-    heights : sequence of float
-        Scanner heights above the local ground.
+    What the scans are (a rerun into the same directory resumes only when
+    these agree: ``n`` may grow, the rest must be equal):
+
+    n : int
+        Positions to draw (the grid method, :func:`~slr_ray.positions.select_positions`);
+        fewer when the cloud has fewer valid cells and ``allow_fewer``.
+    resolution : float
+        Degrees between pulses, both axes, of the uniform pattern (default
+        the paper's 0.036). Not used with ``sensor``.
     sensor : str, optional
-        A shipped sensor's beam table (:data:`slr_ray.sensors.SENSORS`) instead
-        of a uniform ``resolution``.
+        A shipped sensor's beam table (:data:`slr_ray.sensors.SENSORS`)
+        instead of a uniform ``resolution``.
+    heights : sequence of float, optional
+        Scanner heights above the local ground, one scan each per position
+        (default: ``scanner_height`` alone).
+    scanner_height : float
+        The height the positions are drawn at (m above the ground; the
+        paper's 1.65), and the default scan height.
+    backend : {'binning', 'embree'}
+    backend_options : dict
+        Fields of the backend's options class
+        (:class:`~slr_ray.backends.BinningOptions`, :class:`~slr_ray.backends.EmbreeOptions`);
+        checked, and resolved once, by :meth:`check`.
     fmt : str, optional
-        Output extension (default the input's).
+        Output extension, e.g. ``'.laz'`` (default: the input's).
+    seed : int
+        Seed of the position draw: the same seed, the same positions.
+    min_ground_points : int
+        Ground points a position needs within 5 m (the paper's 200,000 for
+        0.036 deg scans).
+    allow_fewer : bool
+        Return fewer than ``n`` positions when cells run out (else an error).
+
+    How it runs (free to change between a run and its resume):
+
     workers : int, optional
         Local worker processes (default all cores; 1 runs in this process).
         Each gets ``cores // workers`` threads unless ``backend_options``
@@ -213,77 +234,167 @@ def augment(input_path, outdir, n: int, *, backend: str = "binning", resolution:
         (``workers`` is not used, ``scheduler`` is refused).
     per_pass : int
         Positions reduced together in one pass over a streamed file.
+    """
+
+    n: int
+    resolution: float = SECONDARY_RESOLUTION
+    sensor: str | None = None
+    heights: tuple | None = None
+    scanner_height: float = SCANNER_HEIGHT
+    backend: str = "binning"
+    backend_options: dict = field(default_factory=dict)
+    fmt: str | None = None
+    seed: int = 0
+    min_ground_points: int = MIN_GROUND_POINTS
+    allow_fewer: bool = True
+    workers: int | None = None
+    scheduler: str | None = None
+    chunk_size: int | None = None
+    per_pass: int = 8
+
+    def with_(self, **changes) -> "AugmentConfig":
+        """A copy with ``changes``."""
+        return dataclasses.replace(self, **changes)
+
+    @property
+    def scan_heights(self) -> tuple:
+        """The heights scanned at each position (``heights``, else ``scanner_height``)."""
+        return tuple(float(h) for h in (self.heights if self.heights is not None else (self.scanner_height,)))
+
+    def check(self):
+        """Raise :class:`~slr_ray.errors.InputValueError` on a bad field; return
+        ``(pattern, options)``: the scan pattern and the backend's options object,
+        each built once."""
+        if not (isinstance(self.n, (int, np.integer)) and self.n >= 1):
+            raise InputValueError(f"n must be an integer >= 1, got {self.n!r}")
+        heights = self.scan_heights
+        if not heights or not all(np.isfinite(heights)) or min(heights) <= 0:
+            raise InputValueError(f"heights must be finite numbers > 0, got {list(heights)}")
+        repeated = sorted({h for h in heights if heights.count(h) > 1})
+        if repeated:
+            raise InputValueError(f"heights repeat {repeated}: each height is one scan per position")
+        if not (np.isfinite(self.scanner_height) and self.scanner_height > 0):
+            raise InputValueError(f"scanner_height must be a finite number > 0, got {self.scanner_height!r}")
+        if self.chunk_size is not None and (int(self.chunk_size) != self.chunk_size or self.chunk_size < 1
+                                            or int(self.per_pass) != self.per_pass or self.per_pass < 1):
+            raise InputValueError(f"chunk_size and per_pass must be integers >= 1, got {self.chunk_size!r}, "
+                                  f"{self.per_pass!r}")
+        pattern = as_pattern(self.sensor) if self.sensor else ScanPattern(self.resolution)
+        options = options_for(self.backend, self.backend_options or None)
+        if self.chunk_size is not None:
+            if self.backend != "binning" or not isinstance(pattern, ScanPattern):
+                raise InputValueError("a streamed augment runs the binning backend with a uniform pattern")
+            if self.scheduler:
+                raise InputValueError("a streamed augment runs in this process: chunk_size or scheduler, not both")
+        return pattern, options
+
+
+def _scan_name(i: int, h: float, ext: str) -> str:
+    return f"scan_{i:04d}_h{h:g}{ext}"
+
+
+def augment(input_path, outdir, config: AugmentConfig, *, ground=None, progress: bool = True) -> dict:
+    """Write ``config.n`` positions x heights SLR scans of ``input_path`` into ``outdir``.
+
+    Parameters
+    ----------
+    input_path : path
+        The cloud (any format :func:`~slr_ray.io.read_cloud` reads; LAS/LAZ
+        can be streamed, ``config.chunk_size``).
+    outdir : path
+        Created if missing, and locked while the run writes there (a second
+        run into it is refused). A rerun with the same settings and the same
+        input *content* (:func:`~slr_ray.outputs.content_digest`) resumes;
+        anything else is refused with the differences named. A run that
+        fails before its first scan leaves nothing behind.
+    config : AugmentConfig
+    ground : (n,) bool or dict, optional
+        Ground labels, or keywords of :func:`~slr_ray.positions.ground_labels`
+        (``attribute``, ``value``, ``csf``, ``cloth_resolution``) to label the
+        input once it is read; default from the input (``is_ground``, LAS
+        class 2), which must have some (use :func:`slr_ray.label_ground` otherwise).
+    progress : bool
+        A progress bar on stderr.
 
     Returns
     -------
     dict
         The manifest.
     """
-    from . import __version__
-    from .io import atomic_path, check_format, read_cloud
-    from .positions import ground_labels, select_positions
-
-    options_for(backend, backend_options)  # bad options fail before any work
-    if scheduler:
+    pattern, options = config.check()  # bad settings fail before any work or file
+    if config.scheduler:
         try:
             import dask.distributed  # noqa: F401
         except ImportError:
             raise MissingDependencyError('augment on a scheduler needs dask: pip install "slr_ray[dask]"') from None
     input_path = Path(input_path)
-    out = Path(outdir).resolve()  # absolute before any path is sent to a worker or a cluster
-    heights = tuple(float(h) for h in heights)
-    repeated = sorted({h for h in heights if heights.count(h) > 1})
-    if repeated:
-        raise InputValueError(f"heights repeat {repeated}: each height is one scan per position")
-    ext = check_format(input_path, fmt)
-    ground_given = ground is not None
-    pattern = as_pattern(sensor) if sensor else ScanPattern(resolution)
-    if chunk_size is not None:
-        from .streaming import STREAMED_FORMATS, las_positions
+    heights = config.scan_heights
+    ext = check_format(input_path, config.fmt)
+    if config.chunk_size is not None and input_path.suffix.lower() not in STREAMED_FORMATS:
+        raise InputValueError(f"chunk_size streams {'/'.join(STREAMED_FORMATS)} inputs, not {input_path.suffix!r}")
+    plan = OutputPlan()
+    plan.read(input_path)
+    out = plan.directory(outdir)  # absolute before any path is sent to a worker or a cluster
+    names = [_scan_name(i, h, ext) for i in range(config.n) for h in heights]
+    for name in names:
+        plan.write(out / name, fmt=ext, resumed=True)
+    plan.write(out / MANIFEST, resumed=True)
+    plan.write(out / JOURNAL, resumed=True)
+    with plan:
+        return _augment(input_path, out, config, pattern, options, ext, names, ground, progress)
 
-        if input_path.suffix.lower() not in STREAMED_FORMATS:
-            raise InputValueError(f"chunk_size streams {'/'.join(STREAMED_FORMATS)} inputs, not {input_path.suffix!r}")
-        if backend != "binning" or not isinstance(pattern, ScanPattern):
-            raise InputValueError("a streamed augment runs the binning backend with a uniform pattern")
-        if scheduler:
-            raise InputValueError("a streamed augment runs in this process: chunk_size or scheduler, not both")
-        if int(chunk_size) != chunk_size or chunk_size < 1 or int(per_pass) != per_pass or per_pass < 1:
-            raise InputValueError(f"chunk_size and per_pass must be integers >= 1, got {chunk_size!r}, {per_pass!r}")
+
+def _augment(input_path, out, config, pattern, options, ext, names, ground, progress) -> dict:
+    """:func:`augment` in its locked directory."""
+    heights = config.scan_heights
+    backend, backend_options = config.backend, dict(config.backend_options or {})
+    ground_setting = "from the input" if ground is None else dict(ground) if isinstance(ground, dict) else "given"
+    if isinstance(ground, dict) and config.chunk_size is not None:  # labels (CSF) need the whole cloud
+        ground = ground_labels(read_cloud(input_path), **ground)
+    if config.chunk_size is not None:
         cloud = None
-        positions, cells, _ = las_positions(input_path, n, seed=seed, ground=ground, chunk=int(chunk_size),
-                                            min_ground_points=min_ground_points, allow_fewer=allow_fewer,
+        positions, cells, _ = las_positions(input_path, config.n, seed=config.seed, ground=ground,
+                                            chunk=int(config.chunk_size), min_ground_points=config.min_ground_points,
+                                            allow_fewer=config.allow_fewer, scanner_height=config.scanner_height,
                                             progress=progress)
     else:
-        cloud = read_cloud(input_path)  # check everything before creating anything
-        if ground is None:
-            ground = ground_labels(cloud)
-        positions, cells = select_positions(cloud.points, ground, n, seed=seed, min_ground_points=min_ground_points,
-                                            allow_fewer=allow_fewer, return_cells=True)
-    settings = {"input": str(input_path.resolve()), "input_bytes": input_path.stat().st_size, "seed": seed,
-                "pattern": pattern.to_dict(), "backend": backend,
-                "backend_options": options_for(backend, backend_options).to_dict(),
-                "min_ground_points": min_ground_points, "format": ext, "heights": list(heights),
-                "ground": "given" if ground_given else "from the input"}
-    manifest_path = out / "manifest.json"
+        cloud = read_cloud(input_path)
+        if ground is None or isinstance(ground, dict):
+            ground = ground_labels(cloud, **(ground or {}))
+        positions, cells = select_positions(cloud.points, ground, config.n, seed=config.seed,
+                                            min_ground_points=config.min_ground_points,
+                                            scanner_height=config.scanner_height,
+                                            allow_fewer=config.allow_fewer, return_cells=True)
+    settings = {"input": str(input_path.resolve()), "input_bytes": input_path.stat().st_size,
+                "input_digest": content_digest(input_path), "seed": config.seed,
+                "pattern": pattern.to_dict(), "backend": backend, "backend_options": options.to_dict(),
+                "min_ground_points": config.min_ground_points, "format": ext, "heights": list(heights),
+                "ground": ground_setting}
+    manifest_path = out / MANIFEST
     done = {}
-    if manifest_path.exists():
+    fresh = not manifest_path.exists()
+    if not fresh:
         done = _resumable(manifest_path, settings, positions, out)
-    out.mkdir(parents=True, exist_ok=True)
+    else:
+        strays = sorted(n for n in names if (out / n).exists())
+        if strays:
+            raise OutputError(f"{out} holds {strays[0]}{f' and {len(strays) - 1} more' if len(strays) > 1 else ''} "
+                              f"but no {MANIFEST}: not a run this one can resume; write elsewhere")
     if not os.access(out, os.W_OK):
         raise PermissionError(f"cannot write to {out}")
     jobs = []
     for i, p in enumerate(positions):
-        ground_z = p[2] - SCANNER_HEIGHT  # select_positions puts them SCANNER_HEIGHT above ground
+        ground_z = p[2] - config.scanner_height  # select_positions puts them scanner_height above ground
         for h in heights:
-            name = f"scan_{i:04d}_h{h:g}{ext}"
+            name = _scan_name(i, h, ext)
             if name in done:
                 continue
             jobs.append({"path": str(out / name), "position": i, "height": float(h),
                          "origin": [float(p[0]), float(p[1]), float(ground_z + h)],
-                         "pattern": pattern.to_dict(), "sensor": sensor, "backend": backend,
-                         "options": backend_options or {}})
+                         "pattern": pattern.to_dict(), "sensor": config.sensor, "backend": backend,
+                         "options": backend_options})
     manifest = {"software": f"slr_ray {__version__}", "settings": settings, "input": str(input_path),
-                "n_requested": n, "seed": seed, "pattern": pattern.to_dict(), "backend": backend,
+                "n_requested": config.n, "seed": config.seed, "pattern": pattern.to_dict(), "backend": backend,
                 "heights": list(heights),
                 "positions": positions.tolist(), "stages": cells.stages, "scans": list(done.values())}
 
@@ -313,27 +424,28 @@ def augment(input_path, outdir, n: int, *, backend: str = "binning", resolution:
         from tqdm import tqdm
 
         bar = tqdm(total=len(jobs), unit="scan", desc="augment")
+
+    def done_one(entry):
+        record(entry)
+        if bar is not None:
+            bar.update()
+
+    failed = False  # an error (exit 2), not an interruption (which keeps what it made, to resume)
     try:
         if cloud is None:  # streamed
-            def done(entry):
-                record(entry)
-                if bar is not None:
-                    bar.update()
-
-            _run_streamed(jobs, input_path, pattern, int(chunk_size), int(per_pass), done, progress)
-        elif scheduler:
+            _run_streamed(jobs, input_path, pattern, int(config.chunk_size), int(config.per_pass), done_one,
+                          progress)
+        elif config.scheduler:
             from dask.distributed import Client, as_completed
 
-            with Client(scheduler) as client:
+            with Client(config.scheduler) as client:
                 shared = client.scatter(cloud, broadcast=True)  # once, not once per task
                 futures = [client.submit(_scan_on_dask, j, shared, pure=False) for j in jobs]
                 for fut in as_completed(futures):
-                    record(fut.result())
-                    if bar is not None:
-                        bar.update()
-        elif (workers or os.cpu_count() or 1) > 1 and len(jobs) > 1:
-            n_workers = min(len(jobs), workers or os.cpu_count() or 1)
-            if "n_threads" not in (backend_options or {}):
+                    done_one(fut.result())
+        elif (config.workers or os.cpu_count() or 1) > 1 and len(jobs) > 1:
+            n_workers = min(len(jobs), config.workers or os.cpu_count() or 1)
+            if "n_threads" not in backend_options:
                 # the cores shared out between the workers: W processes of W-fold
                 # threads on the same cores only contend (results do not depend on it)
                 per = max(1, (os.cpu_count() or 1) // n_workers)
@@ -349,23 +461,29 @@ def augment(input_path, outdir, n: int, *, backend: str = "binning", resolution:
                 with ctx.Pool(n_workers, initializer=_init_worker,
                               initargs=(cloud.points, cloud.attributes, cloud.origin, cloud.meta)) as pool:
                     for entry in pool.imap(_scan_one, jobs):
-                        record(entry)
-                        if bar is not None:
-                            bar.update()
+                        done_one(entry)
             except BaseException:
                 _remove_temporaries(jobs)
                 raise
         else:
-            def done(entry):
-                record(entry)
-                if bar is not None:
-                    bar.update()
-
-            _run_serial(jobs, cloud, done)
+            _run_serial(jobs, cloud, done_one)
+    except Exception:
+        failed = True
+        raise
     finally:
         if bar is not None:
             bar.close()
-        write_manifest()  # complete or interrupted: the manifest lists every scan written
+        if failed and fresh and not manifest["scans"]:
+            # an error before any scan was recorded: leave nothing (none of these files existed before
+            # this run; the plan then removes the directory if it created it)
+            _remove_temporaries(jobs)
+            for j in jobs:
+                for path in [Path(j["path"]), *output_sidecars(j["path"])]:
+                    path.unlink(missing_ok=True)
+            manifest_path.unlink(missing_ok=True)
+            journal.unlink(missing_ok=True)
+        else:
+            write_manifest()  # complete or interrupted: the manifest lists every scan written
     journal.unlink(missing_ok=True)
     manifest["seconds"] = round(time.perf_counter() - record_start, 3)
     manifest["new_scans"] = len(jobs)

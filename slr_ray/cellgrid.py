@@ -30,6 +30,7 @@ import numpy as np
 from numba import njit, prange
 
 from .arrays import as_points, bounds
+from .errors import InputValueError
 
 __all__ = ["CellGrid", "GridUnsuitable"]
 
@@ -65,7 +66,7 @@ class CellGrid:
 
     def __init__(self, points, radius: float):
         if not (math.isfinite(radius) and radius > 0):
-            raise ValueError(f"radius must be a finite number > 0, got {radius!r}")
+            raise InputValueError(f"radius must be a finite number > 0, got {radius!r}")
         pts = as_points(points, "points").astype(np.float64, copy=False)
         self.radius = float(radius)
         self.cell = self.radius * (1 + _MARGIN)
@@ -105,7 +106,7 @@ class CellGrid:
         strictly closer than ``radius`` (default: the grid's; at most that)."""
         r = self.radius if radius is None else float(radius)
         if not (r > 0 and r <= self.radius):
-            raise ValueError(f"radius must be in (0, {self.radius}], got {radius!r}")
+            raise InputValueError(f"radius must be in (0, {self.radius}], got {radius!r}")
         q = as_points(query, "query").astype(np.float64, copy=False)
         out = np.zeros(len(q), bool)
         if self._empty or len(q) == 0:

@@ -21,9 +21,17 @@ from pathlib import Path
 import numpy as np
 
 from . import paper
-from .io import atomic_path
+from .backends import Backend, available_backends, prepare
+from .io import PointCloud, atomic_path, write_cloud
+from .meshscan import scan_mesh
+from .outputs import OutputPlan
+from .pattern import ScanPattern, preset
+from .plotting import demo_figure, save_figure
+from .positions import select_positions
+from .scenes import rectangle_scene
+from .similarity import agreement
 
-__all__ = ["run_demo"]
+__all__ = ["run_demo", "demo_files"]
 
 
 def _log(msg):
@@ -32,7 +40,7 @@ def _log(msg):
 
 def run_demo(outdir="slr_ray_demo", n_rectangles: int = 200, n_positions: int = 4, seed: int = 0,
              quick: bool = False, primary_resolution: float | None = None,
-             backends=None) -> dict:
+             backends=None, force: bool = False) -> dict:
     """Run the demo and return its summary (the full report is written to ``outdir/report.json``).
 
     Parameters
@@ -51,18 +59,26 @@ def run_demo(outdir="slr_ray_demo", n_rectangles: int = 200, n_positions: int = 
     backends : sequence of {'binning', 'embree'}, optional
         Backends run at every position (default: every :class:`~slr_ray.backends.Backend`;
         one whose library is missing is left out, with a note).
+    force : bool
+        Replace the files of an earlier demo in ``outdir`` (without it, an
+        existing one is an :class:`~slr_ray.errors.OutputError` before any work).
     """
-    from .backends import Backend, available_backends, prepare
-    from .io import PointCloud, write_cloud
-    from .meshscan import scan_mesh
-    from .pattern import ScanPattern, preset
-    from .plotting import demo_figure, save_figure
-    from .positions import select_positions
-    from .scenes import rectangle_scene
-    from .similarity import agreement
+    backends = [b.value for b in Backend] if backends is None else list(backends)
+    plan = OutputPlan(force=force)
+    out = plan.directory(outdir)
+    for name in demo_files(n_positions, backends):
+        plan.write(out / name)
+    with plan:
+        return _run_demo(Path(outdir), n_rectangles, n_positions, seed, quick, primary_resolution, backends)
 
-    out = Path(outdir)
-    out.mkdir(parents=True, exist_ok=True)
+
+def demo_files(n_positions: int, backends) -> list:
+    """The files :func:`run_demo` may write (fewer when fewer positions are found)."""
+    return ["demo.png", "report.json"] + [f"position_{i:02d}_{kind}.ply" for i in range(n_positions)
+                                         for kind in ["true", *(f"slr_{b}" for b in backends)]]
+
+
+def _run_demo(out, n_rectangles, n_positions, seed, quick, primary_resolution, backends) -> dict:
     t_all = time.perf_counter()
     primary_res = float(primary_resolution or (0.12 if quick else paper.SYNS_RESOLUTION))
     secondary = ScanPattern(0.36) if quick else preset("slr")
@@ -80,7 +96,6 @@ def run_demo(outdir="slr_ray_demo", n_rectangles: int = 200, n_positions: int = 
                                  min_ground_points=min_ground, allow_fewer=True)
     _log(f"{len(positions)} positions by the grid method (>= {min_ground:,} ground points within 5 m)")
 
-    backends = [b.value for b in Backend] if backends is None else list(backends)
     missing = [b for b in backends if b not in available_backends()]
     if missing:
         _log(f"left out (library missing): {missing}")

@@ -25,7 +25,7 @@ from .errors import InputValueError
 from .paper import MIN_GROUND_POINTS, SCANNER_HEIGHT, SECONDARY_RESOLUTION, SWEEP_HEIGHTS
 
 __all__ = ["pulse_sized_bins", "DistanceHistogram", "distance_histogram", "height_sweep", "DistanceStudy",
-           "distance_study"]
+           "distance_study", "study_files"]
 
 KINDS = ("all", "ground", "non_ground")
 
@@ -264,9 +264,8 @@ class DistanceStudy:
     inputs: list
 
     def tables(self) -> dict:
-        """File name -> histogram, as :meth:`write` names them."""
-        return {"original.csv": self.original, "slr.csv": self.slr} | {
-            f"height_{h:g}m.csv": v for h, v in self.sweep.items()}
+        """File name -> histogram, as :meth:`write` names them (:func:`study_files`)."""
+        return dict(zip(study_files(self.sweep)[:-1], [self.original, self.slr, *self.sweep.values()]))
 
     def write(self, outdir) -> list:
         """CSV tables and ``distances.png`` (the paper's Figure 4) into ``outdir``; returns the file names."""
@@ -285,6 +284,11 @@ class DistanceStudy:
         return {"inputs": self.inputs, "original": self.original.summary(), "slr": self.slr.summary(),
                 "heights": {f"{h:g}": {"peak_ground_m": v.peak("ground"), "peak_non_ground_m": v.peak("non_ground")}
                             for h, v in self.sweep.items()}}
+
+
+def study_files(heights) -> list:
+    """The files :meth:`DistanceStudy.write` writes for a sweep over ``heights``."""
+    return ["original.csv", "slr.csv", *(f"height_{float(h):g}m.csv" for h in heights), "distances.png"]
 
 
 def distance_study(inputs, *, origin=None, heights=SWEEP_HEIGHTS, positions: int = 20, seed: int = 0,

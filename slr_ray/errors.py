@@ -4,7 +4,12 @@ Every error the library raises on purpose derives from :class:`SlrError`, and
 also from the built-in class a numpy user expects (``ValueError`` for a bad
 value or shape, ``TypeError`` for the wrong kind of data), so both
 ``except SlrError`` and ``except ValueError`` work.
+
+:func:`refuse_memory` turns a setting that would exhaust memory into an
+:class:`InputValueError` with the figure, before the work.
 """
+
+import os
 
 
 class SlrError(Exception):
@@ -25,3 +30,26 @@ class FormatError(SlrError, ValueError):
 
 class MissingDependencyError(SlrError, ImportError):
     """An optional dependency needed for this call is not installed."""
+
+
+class OutputError(SlrError, OSError):
+    """An output cannot be written safely: it is an input (or the same file as
+    another output), it exists and ``force`` was not given, it is not a
+    regular file, or its directory is locked by another run."""
+
+
+def physical_memory() -> int:
+    """Bytes of physical memory of this machine (0 where it cannot be read)."""
+    try:
+        return os.sysconf("SC_PAGE_SIZE") * os.sysconf("SC_PHYS_PAGES")
+    except (ValueError, OSError, AttributeError):
+        return 0
+
+
+def refuse_memory(nbytes: float, what: str, hint: str = "") -> None:
+    """Raise :class:`InputValueError` before the work when ``what`` would need
+    ``nbytes`` of memory, more than the machine has (the figure in the message)."""
+    have = physical_memory()
+    if have and nbytes > have:
+        raise InputValueError(f"{what} would need about {nbytes / 2**30:,.1f} GiB of memory, more than this "
+                              f"machine's {have / 2**30:,.1f} GiB{': ' + hint if hint else ''}")

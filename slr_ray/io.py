@@ -38,7 +38,9 @@ from pathlib import Path
 
 import numpy as np
 
-from .errors import FormatError
+from . import e57
+from .errors import FormatError, OutputError
+from .outputs import label_path, part_prefix, resolve
 
 __all__ = ["PointCloud", "LasRecords", "read_cloud", "write_cloud", "read_e57_scans", "check_format",
            "label_path", "FORMATS"]
@@ -186,6 +188,9 @@ def _read_las(path):
     import laspy
 
     las = laspy.read(str(path))
+    if len(las.points) != las.header.point_count:  # laspy stops quietly where a lying header's points run out
+        raise FormatError(f"{path}: the header declares {las.header.point_count:,} points, the file holds "
+                          f"{len(las.points):,} (truncated or corrupt)")
     pts = np.column_stack([np.asarray(las.x), np.asarray(las.y), np.asarray(las.z)])
     attrs = {name: np.asarray(las[name]) for name in las.point_format.dimension_names
              if name not in ("X", "Y", "Z")}
@@ -195,24 +200,19 @@ def _read_las(path):
     return PointCloud(pts, attrs, None, meta)
 
 
-def label_path(bin_path) -> Path | None:
-    """The SemanticKITTI ``.label`` file of a KITTI ``.bin``, if there is one: next
-    to it (``000000.label``), or in the sequence's ``labels/`` beside ``velodyne/``."""
-    p = Path(bin_path)
-    for cand in (p.with_suffix(".label"), p.parent.parent / "labels" / (p.stem + ".label")):
-        if cand.is_file():
-            return cand
-    return None
-
-
 def _read_kitti(path):
-    raw = np.fromfile(path, dtype=np.float32)
-    if raw.size % 4:
-        raise FormatError(f"{path}: {raw.size} float32 values, not a multiple of 4 (x, y, z, intensity)")
+    size = os.path.getsize(path)
+    if size % 16:
+        raise FormatError(f"{path}: {size} bytes, not a multiple of 16 (float32 x, y, z, intensity a point): "
+                          "truncated, or not a KITTI .bin")
+    raw = np.fromfile(path, dtype="<f4")
     a = raw.reshape(-1, 4)
     attrs = {"intensity": a[:, 3].copy()}
     lab = label_path(path)
     if lab is not None:  # SemanticKITTI: uint32, semantic class in the low 16 bits, instance in the high 16
+        if os.path.getsize(lab) != 4 * len(a):
+            raise FormatError(f"{lab}: {os.path.getsize(lab)} bytes, not 4 a point: not the labels for the "
+                              f"{len(a)} points of {path}")
         words = np.fromfile(lab, dtype="<u4")
         if len(words) != len(a):
             raise FormatError(f"{lab}: {len(words)} labels for {len(a)} points of {path}")
@@ -262,6 +262,12 @@ def _read_pcd(path):
         types = header["TYPE"]
         counts = [int(x) for x in header.get("COUNT", ["1"] * len(fields))]
         n = int(header["POINTS"][0])
+        if n < 0 or any(c < 1 for c in counts) or any(sz < 1 for sz in sizes):
+            raise ValueError(f"POINTS {n}, SIZE {sizes}, COUNT {counts}: counts must be >= 0 and sizes >= 1")
+        if not len(fields) == len(sizes) == len(types) == len(counts):
+            raise ValueError(f"{len(fields)} FIELDS, {len(sizes)} SIZE, {len(types)} TYPE, {len(counts)} COUNT")
+        if "WIDTH" in header and "HEIGHT" in header and int(header["WIDTH"][0]) * int(header["HEIGHT"][0]) != n:
+            raise ValueError(f"WIDTH x HEIGHT = {header['WIDTH'][0]} x {header['HEIGHT'][0]} is not POINTS {n}")
         dtype = np.dtype([(name if c == 1 else name, _PCD_TYPES[(t, sz)], () if c == 1 else (c,))
                           for name, sz, t, c in zip(fields, sizes, types, counts)])
     except (KeyError, ValueError, IndexError) as exc:
@@ -281,8 +287,9 @@ def _read_pcd(path):
             data[name] = flat[:, col] if c == 1 else flat[:, col:col + c]
             col += c
     elif kind == "binary":
-        if len(body) < n * dtype.itemsize:
-            raise FormatError(f"{path}: truncated ({len(body)} bytes for {n} points)")
+        if len(body) < n * dtype.itemsize:  # bytes after the points are tolerated, as PCL does
+            raise FormatError(f"{path}: truncated ({len(body)} bytes of data for POINTS {n} of "
+                              f"{dtype.itemsize} bytes)")
         data = np.frombuffer(body[: n * dtype.itemsize], dtype)
     else:
         raise FormatError(f"{path}: PCD DATA {kind} is not supported (ascii and binary are)")
@@ -323,54 +330,12 @@ def _write_pcd(path, cloud, binary):
             np.savetxt(f, np.column_stack([a.astype(np.float64) for a in arrays]), fmt="%.10g")
 
 
-def _pye57():
-    try:
-        import pye57
-    except ImportError as exc:
-        from .errors import MissingDependencyError
-
-        raise MissingDependencyError('E57 needs pye57: pip install "slr_ray[e57]" (or pip install pye57)') from exc
-    return pye57
-
-
 def read_e57_scans(path) -> list:
     """Every scan of an E57 file as a :class:`PointCloud` (global frame; origin =
-    the scan's pose translation). A scan without a pose gets origin None: the
-    E57 standard reads an absent pose as identity (scanner at the file's
-    origin), but a missing pose is as often a lost one, so the caller decides
-    (``--origin 0 0 0``). Points flagged
-    invalid (``cartesianInvalidState`` != 0) hold no coordinates and are left
-    out; their number is in ``meta['e57_invalid']``."""
-    pye57 = _pye57()
-    try:
-        e57 = pye57.E57(str(path))
-        out = []
-        for i in range(e57.scan_count):
-            raw = e57.read_scan_raw(i)
-            header = e57.get_header(i)
-            has_pose = bool(header.has_pose())
-            if has_pose:
-                rot = np.asarray(header.rotation_matrix, np.float64)
-                origin = np.asarray(header.translation, np.float64)
-            else:
-                rot, origin = np.eye(3), None
-            local = np.column_stack([raw["cartesianX"], raw["cartesianY"], raw["cartesianZ"]]).astype(np.float64)
-            valid = np.ones(len(local), bool)
-            if "cartesianInvalidState" in raw:
-                valid = np.asarray(raw["cartesianInvalidState"]) == 0
-            pts = local[valid] @ rot.T + (origin if origin is not None else 0.0)
-            attrs = {k: np.asarray(v)[valid] for k, v in raw.items()
-                     if k not in ("cartesianX", "cartesianY", "cartesianZ", "cartesianInvalidState")}
-            if not valid.all():
-                warnings.warn(f"{path}: scan {i} has {int((~valid).sum())} invalid points (no coordinates, "
-                              "cartesianInvalidState != 0): left out", stacklevel=3)
-            out.append(PointCloud(pts, attrs, origin,
-                                  {"e57_scan": i, "e57_invalid": int((~valid).sum()), "e57_pose": has_pose}))
-        return out
-    except FormatError:
-        raise
-    except Exception as exc:
-        raise FormatError(f"cannot read {path} as .e57: {type(exc).__name__}: {exc}") from exc
+    the scan's pose translation, None for a scan without a pose: the caller
+    decides, e.g. ``--origin 0 0 0``); points flagged invalid are left out,
+    their number in ``meta['e57_invalid']`` (:func:`slr_ray.e57.read_scans`)."""
+    return [PointCloud(*scan) for scan in e57.read_scans(path)]
 
 
 def _read_e57(path):
@@ -403,17 +368,26 @@ def atomic_path(path):
     """Yield a temporary path next to ``path``; rename it to ``path`` on success,
     remove it on failure, so no half-written file is ever left under ``path``.
 
+    A ``path`` that is a symbolic link is written *through*: the file it
+    points to is replaced and the link stays. A ``path`` that exists and is
+    not a regular file (a directory, a device, a FIFO) is refused with
+    :class:`~slr_ray.errors.OutputError`. The temporary is named
+    ``.NAME.PID@HOST.RANDOM.partEXT``, so that the next run can tell one left
+    by a killed process (:func:`slr_ray.outputs.clean_stale_parts`).
+
     The file gets the mode a plain ``open(path, "w")`` would give it (0666
     less the umask), not the 0600 of a temporary file: colleagues on shared
     storage can read what slr_ray writes when their umask lets them.
     """
-    path = Path(path)
-    fd, tmp = tempfile.mkstemp(prefix=f".{path.name}.", suffix=".part" + path.suffix, dir=path.parent or ".")
+    target = resolve(path)
+    if target.exists() and not target.is_file():
+        raise OutputError(f"{path} is not a regular file: refusing to write it")
+    fd, tmp = tempfile.mkstemp(prefix=part_prefix(target), suffix=".part" + target.suffix, dir=target.parent)
     os.fchmod(fd, 0o666 & ~_umask())
     os.close(fd)
     try:
         yield Path(tmp)
-        os.replace(tmp, path)
+        os.replace(tmp, target)
     except BaseException:
         if os.path.exists(tmp):
             os.unlink(tmp)
@@ -431,6 +405,11 @@ def write_cloud(path, cloud: PointCloud, format: str | None = None, binary: bool
     ext = check_format(path, format)
     if not path.parent.exists():
         raise FormatError(f"cannot write {path}: directory {path.parent} does not exist")
+    words = None
+    if ext == ".bin":
+        _warn_kitti_precision(path, cloud)
+        if "semantic" in cloud.attributes:  # checked before anything is written
+            words = _label_words(path.with_suffix(".label"), cloud)
     with atomic_path(path) as tmp:
         try:
             with warnings.catch_warnings(record=True) as said:
@@ -443,21 +422,40 @@ def write_cloud(path, cloud: PointCloud, format: str | None = None, binary: bool
                 raise
             # the user named `path`, not our temporary file: say it in their terms
             raise FormatError(str(exc).replace(str(tmp), str(path))) from exc
-    if ext == ".bin" and "semantic" in cloud.attributes:
-        _write_labels(path.with_suffix(".label"), cloud)
+    if ext == ".bin":
+        label = path.with_suffix(".label")
+        if words is not None:
+            with atomic_path(label) as tmp:
+                words.tofile(tmp)
+        elif label.is_file():  # an older file's labels: every reader would pair them with this .bin
+            label.unlink()
     return path
 
 
-def _write_labels(path, cloud):
-    """SemanticKITTI labels next to a KITTI ``.bin``: uint32, semantic | instance << 16."""
+def _label_words(path, cloud) -> np.ndarray:
+    """SemanticKITTI labels of a KITTI ``.bin``: little-endian uint32, semantic | instance << 16."""
     sem = np.asarray(cloud.attributes["semantic"])
     inst = np.asarray(cloud.attributes.get("instance", np.zeros(len(sem), np.uint32)))
     for name, v in (("semantic", sem), ("instance", inst)):
         if v.dtype.kind not in "iu" or (len(v) and (v.min() < 0 or v.max() > 0xFFFF)):
             raise FormatError(f"{path}: SemanticKITTI {name} labels must be integers in [0, 65535]")
-    words = (sem.astype(np.uint32) & 0xFFFF) | (inst.astype(np.uint32) << 16)
-    with atomic_path(path) as tmp:
-        words.astype("<u4").tofile(tmp)
+    return ((sem.astype(np.uint32) & 0xFFFF) | (inst.astype(np.uint32) << 16)).astype("<u4")
+
+
+#: Largest coordinate error (m) a KITTI ``.bin`` (float32) may add before :func:`write_cloud` warns.
+KITTI_TOLERANCE = 1e-3
+
+
+def _warn_kitti_precision(path, cloud) -> None:
+    """Warn when float32 storage moves a coordinate by more than :data:`KITTI_TOLERANCE`."""
+    pts = np.asarray(cloud.points, np.float64)
+    if not len(pts):
+        return
+    err = float(np.abs(pts.astype(np.float32).astype(np.float64) - pts).max())
+    if err > KITTI_TOLERANCE:
+        warnings.warn(f"{path}: KITTI .bin stores float32 coordinates: these (up to "
+                      f"{np.abs(pts).max():.4g} m from 0) move by up to {err:.3g} m; write .las/.ply/.npz "
+                      "to keep them, or subtract an offset first", stacklevel=3)
 
 
 def _columns(cloud):
@@ -470,10 +468,31 @@ def _columns(cloud):
     return cols
 
 
+def _exact_in_float64(v) -> bool:
+    """Whether every value of dtype ``v.dtype`` is a float64 (so a plain column keeps it)."""
+    return v.dtype.kind == "b" or (v.dtype.kind == "f" and v.dtype.itemsize <= 8) or \
+        (v.dtype.kind in "iu" and v.dtype.itemsize <= 4)
+
+
 def _write_npy(path, cloud, binary):
-    cols = _columns(cloud)
+    """Plain float64 columns (x, y, z, then each attribute) when float64 holds every
+    attribute exactly; otherwise (int64, uint64 attributes) a structured array with
+    fields ``x, y, z`` and each attribute in its own dtype, so no digit is lost."""
+    attrs = {k: np.asarray(v) for k, v in cloud.attributes.items()}
+    if all(_exact_in_float64(v) for v in attrs.values()):
+        cols = _columns(cloud)
+        data = np.hstack(cols) if len(cols) > 1 else cloud.points
+    else:
+        bad = [k for k, v in attrs.items() if v.dtype.kind not in "biuf" or k in ("x", "y", "z")]
+        if bad:
+            raise FormatError(f".npy cannot store attribute(s) {bad} beside x, y, z")
+        data = np.empty(len(cloud), [("x", "f8"), ("y", "f8"), ("z", "f8")]
+                        + [(k, v.dtype, v.shape[1:]) for k, v in attrs.items()])
+        data["x"], data["y"], data["z"] = np.asarray(cloud.points, np.float64).T
+        for k, v in attrs.items():
+            data[k] = v
     with open(path, "wb") as f:
-        np.save(f, np.hstack(cols) if len(cols) > 1 else cloud.points)
+        np.save(f, data)
 
 
 def _write_npz(path, cloud, binary):
@@ -536,9 +555,9 @@ def _write_las(path, cloud, binary):
 
         if getattr(header, "evlrs", None) is not None:  # laspy keeps EVLRs read with the header too
             header.evlrs = VLRList(evlrs)
-        las = laspy.LasData(header)
-        las.points = laspy.ScaleAwarePointRecord(src.array.copy(), header.point_format, header.scales,
-                                                 header.offsets)
+        # the records given, never header.point_count (a header that lies, or 7e8 points, would be allocated)
+        las = laspy.LasData(header, laspy.ScaleAwarePointRecord(src.array.copy(), header.point_format,
+                                                                header.scales, header.offsets))
         las.evlrs = VLRList(evlrs)
         given = np.column_stack([np.asarray(las.x), np.asarray(las.y), np.asarray(las.z)]) if len(cloud) else \
             np.empty((0, 3))
@@ -657,131 +676,6 @@ def _write_xyz(path, cloud, binary):
     np.savetxt(path, np.hstack(_columns(cloud)), fmt="%.6f")
 
 
-#: E57 fields slr_ray writes from attributes of the same name (LAS colours map to these too).
-_E57_COLOURS = {"red": "colorRed", "green": "colorGreen", "blue": "colorBlue"}
-
-
-def _write_e57(path, cloud, binary):
-    """E57 (libE57 via pye57): coordinates in the scan frame with the origin as the pose's
-    translation; the attributes E57 defines (intensity, colorRed/Green/Blue, rowIndex,
-    columnIndex; LAS red/green/blue as colours, 16-bit values scaled to 8) and no other:
-    the rest are named in a warning, never written under a wrong type."""
-    pye57 = _pye57()
-    from pye57.e57 import SUPPORTED_POINT_FIELDS
-
-    if len(cloud) == 0:
-        raise FormatError(f"{path}: libE57 cannot write a scan of zero points; choose another format")
-    origin = cloud.origin if cloud.origin is not None else np.zeros(3)
-    local = cloud.points - origin
-    data = {"cartesianX": local[:, 0], "cartesianY": local[:, 1], "cartesianZ": local[:, 2]}
-    dropped, scaled = [], []
-    for k, v in cloud.attributes.items():
-        name = _E57_COLOURS.get(k, k)
-        code = SUPPORTED_POINT_FIELDS.get(name)
-        v = np.asarray(v)
-        if code is None or name.startswith(("cartesian", "spherical")) or v.ndim != 1 or v.dtype.kind not in "biuf":
-            dropped.append(k)
-            continue
-        if code == "B" and len(v) and v.max() > 255:  # 16-bit colours (LAS) into E57's 8 bits
-            v = (v.astype(np.float64) * (255 / 65535)).round()
-            scaled.append(k)
-        data[name] = v.astype({"f": np.float32, "d": np.float64, "B": np.uint8, "H": np.uint16,
-                               "b": np.int8}[code])
-    channels = [c for c in ("colorRed", "colorGreen", "colorBlue") if c in data]
-    if 0 < len(channels) < 3:  # E57 colour is three channels or none
-        dropped += [k for k in cloud.attributes if _E57_COLOURS.get(k, k) in channels]
-        for c in channels:
-            del data[c]
-    if dropped:
-        warnings.warn(f"{path}: E57 has no field for {sorted(dropped)}; not written", stacklevel=3)
-    if scaled:
-        warnings.warn(f"{path}: 16-bit colours {sorted(scaled)} scaled to E57's 8 bits", stacklevel=3)
-    e57 = pye57.E57(str(path), mode="w")
-    try:
-        _e57_scan(e57, data, np.asarray(origin, float))
-    finally:
-        e57.close()
-
-
-def _e57_scan(e57, data: dict, translation) -> None:
-    """Append one scan to an E57 file open for writing, coordinates in **double**
-    precision (pye57's ``write_scan_raw`` stores them as float32: 3e-7 m lost at
-    5 m, metres at UTM-size offsets). The rest as in pye57: guid, name, the
-    limits and bounds E57 readers use, the pose (identity rotation,
-    ``translation``), and the points in one compressed vector."""
-    import uuid
-
-    from pye57 import libe57
-
-    f = e57.image_file
-    scan = libe57.StructureNode(f)
-    scan.set("guid", libe57.StringNode(f, "{%s}" % uuid.uuid4()))
-    scan.set("name", libe57.StringNode(f, "slr_ray scan"))
-    scan.set("description", libe57.StringNode(f, "written by slr_ray"))
-    xyz = [np.ascontiguousarray(data[k], np.float64) for k in ("cartesianX", "cartesianY", "cartesianZ")]
-    lo = np.array([a.min() for a in xyz])
-    hi = np.array([a.max() for a in xyz])
-    bounds = libe57.StructureNode(f)
-    for axis, a, b in zip("xyz", lo + translation, hi + translation):
-        bounds.set(f"{axis}Minimum", libe57.FloatNode(f, float(a)))
-        bounds.set(f"{axis}Maximum", libe57.FloatNode(f, float(b)))
-    scan.set("cartesianBounds", bounds)
-    pose = libe57.StructureNode(f)
-    rotation = libe57.StructureNode(f)
-    for k, v in zip("wxyz", (1.0, 0.0, 0.0, 0.0)):
-        rotation.set(k, libe57.FloatNode(f, v))
-    pose.set("rotation", rotation)
-    shift = libe57.StructureNode(f)
-    for k, v in zip("xyz", translation):
-        shift.set(k, libe57.FloatNode(f, float(v)))
-    pose.set("translation", shift)
-    scan.set("pose", pose)
-
-    proto = libe57.StructureNode(f)
-    names = ["cartesianX", "cartesianY", "cartesianZ"]
-    for name, a, b in zip(names, lo, hi):
-        proto.set(name, libe57.FloatNode(f, float((a + b) / 2), libe57.E57_DOUBLE, float(a), float(b)))
-    if "intensity" in data:
-        v = data["intensity"]
-        a, b = float(v.min()), float(v.max())
-        proto.set("intensity", libe57.FloatNode(f, a, libe57.E57_SINGLE, a, b))
-        limits = libe57.StructureNode(f)
-        limits.set("intensityMinimum", libe57.FloatNode(f, a))
-        limits.set("intensityMaximum", libe57.FloatNode(f, b))
-        scan.set("intensityLimits", limits)
-        names.append("intensity")
-    colours = ["colorRed", "colorGreen", "colorBlue"]
-    if all(c in data for c in colours):
-        limits = libe57.StructureNode(f)
-        for c in colours:
-            proto.set(c, libe57.IntegerNode(f, 0, 0, 255))
-            limits.set(f"{c}Minimum", libe57.IntegerNode(f, 0))
-            limits.set(f"{c}Maximum", libe57.IntegerNode(f, 255))
-        scan.set("colorLimits", limits)
-        names += colours
-    for c in ("rowIndex", "columnIndex"):
-        if c in data:
-            a, b = int(data[c].min()), int(data[c].max())
-            proto.set(c, libe57.IntegerNode(f, a, a, b))
-            names.append(c)
-    codecs = libe57.VectorNode(f, True)
-    points = libe57.CompressedVectorNode(f, proto, codecs)
-    scan.set("points", points)
-    e57.data3d.append(scan)
-    n = len(xyz[0])
-    chunk = min(n, 1 << 20)
-    arrays, buffers = e57.make_buffers(names, chunk)
-    writer = points.writer(buffers)
-    try:
-        for start in range(0, n, chunk):
-            m = min(chunk, n - start)
-            for name in names:
-                arrays[name][:m] = data[name][start:start + m]
-            writer.write(m)
-    finally:
-        writer.close()
-
-
 _WRITERS = {".npy": _write_npy, ".npz": _write_npz, ".ply": _write_ply, ".las": _write_las, ".laz": _write_las,
-            ".bin": _write_kitti, ".xyz": _write_xyz, ".txt": _write_xyz, ".e57": _write_e57,
+            ".bin": _write_kitti, ".xyz": _write_xyz, ".txt": _write_xyz, ".e57": e57.write,
             ".pcd": _write_pcd}

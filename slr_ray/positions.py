@@ -462,8 +462,8 @@ def label_ground(points, *, cloth_resolution: float = 0.5, rigidness: int = 2,
         try:
             ground = pool.submit(_csf_ground, pts - pts.mean(axis=0), params).result()
         except BrokenProcessPool:
-            raise RuntimeError("CSF crashed (its process ended without an answer); "
-                               "try other cloth parameters") from None
+            raise InputValueError("CSF crashed (its process ended without an answer); "
+                                  "try other cloth parameters") from None
     out = np.zeros(len(pts), bool)
     out[ground] = True
     return out
@@ -489,7 +489,7 @@ def _csf_ground(pts: np.ndarray, params: dict) -> np.ndarray:
     return np.asarray(list(ground), dtype=np.int64)
 
 
-def ground_labels(cloud, attribute: str | None = None, value: int = 2, csf: bool = False,
+def ground_labels(cloud, attribute: str | None = None, value: int | None = None, csf: bool = False,
                   cloth_resolution: float = 0.5) -> np.ndarray:
     """Ground labels of a :class:`~slr_ray.io.PointCloud`: from its attributes, or by CSF when asked.
 
@@ -500,8 +500,9 @@ def ground_labels(cloud, attribute: str | None = None, value: int = 2, csf: bool
         A per-point attribute holding the labels; ground is where it equals
         ``value`` (or is true, for a boolean attribute). Without it:
         ``is_ground`` if present, else ``classification == 2`` (LAS ground).
-    value : int
-        The ground value of ``attribute`` (LAS: 2).
+    value : int, optional
+        The ground value of ``attribute`` (default 2, LAS ground); an error
+        without ``attribute`` (it would be ignored).
     csf : bool
         Label by Cloth Simulation Filtering (:func:`label_ground`) when the
         cloud has no labels or they mark no point.
@@ -519,7 +520,11 @@ def ground_labels(cloud, attribute: str | None = None, value: int = 2, csf: bool
         ``csf`` is off (the message says which flag to use).
     """
     attrs = cloud.attributes
+    if value is not None and not attribute:
+        raise InputValueError(f"a ground value ({value}) needs the attribute that holds it: "
+                              "give --ground-attribute NAME too")
     if attribute:
+        value = 2 if value is None else value
         if attribute not in attrs:
             raise InputValueError(f"no attribute {attribute!r} in the input (has {sorted(attrs)})")
         a = np.asarray(attrs[attribute])

@@ -10,6 +10,7 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
+from .errors import InputValueError
 from .pattern import ScanPattern
 
 __all__ = ["Scan"]
@@ -102,7 +103,7 @@ class Scan:
         """
         nv, nh = self.pattern.shape
         if nv * nh > max_pixels:
-            raise ValueError(f"a range image of {nv} x {nh} pulses is larger than max_pixels={max_pixels}")
+            raise InputValueError(f"a range image of {nv} x {nh} pulses is larger than max_pixels={max_pixels}")
         r, c = self.pulses[:, 0], self.pulses[:, 1]
         out = {"range": np.full((nv, nh), np.nan, np.float32), "index": np.full((nv, nh), -1, np.int64)}
         out["range"][r, c] = self.ranges
@@ -112,7 +113,7 @@ class Scan:
         for name, values in (attributes or {}).items():
             v = np.asarray(values)[self.indices]
             if name in out:
-                raise ValueError(f"attribute name {name!r} is taken by the range image")
+                raise InputValueError(f"attribute name {name!r} is taken by the range image")
             img = np.full((nv, nh) + v.shape[1:], np.nan if v.dtype.kind == "f" else -1,
                           dtype=v.dtype if v.dtype.kind in "fi" else np.int64)
             img[r, c] = v

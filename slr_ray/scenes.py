@@ -19,7 +19,7 @@ import numpy as np
 from numba import njit
 
 from .effects import Effects
-from .errors import InputValueError
+from .errors import InputValueError, refuse_memory
 from .paper import SCANNER_HEIGHT
 
 __all__ = ["RectangleScene", "rectangle_scene", "load_scene_spec", "scene_from_spec", "scene_effects",
@@ -166,14 +166,19 @@ def rectangle_scene(
     import trimesh
     from scipy.spatial.transform import Rotation
 
-    if n_rectangles < 0 or int(n_rectangles) != n_rectangles:
-        raise InputValueError(f"n_rectangles must be a non-negative integer, got {n_rectangles!r}")
-    if ground_radius <= 0:
-        raise InputValueError(f"ground_radius must be > 0, got {ground_radius}")
-    if not (0 < side_range[0] <= side_range[1]):
+    _check_number("n_rectangles", n_rectangles, integer=True, low=0)
+    _check_number("ground_radius", ground_radius, low=0, open_low=True)
+    _check_number("ground_z", ground_z)
+    _check_number("ground_segments", ground_segments, integer=True, low=8)
+    for name, r in (("side_range", side_range), ("xy_range", xy_range), ("z_range", z_range)):
+        if len(r) != 2 or not all(isinstance(v, (int, float, np.integer, np.floating)) and math.isfinite(v)
+                                  for v in r) or not r[0] <= r[1]:
+            raise InputValueError(f"{name} must be two finite numbers, min <= max, got {list(r)!r}")
+    if not side_range[0] > 0:
         raise InputValueError(f"side_range must be 0 < min <= max, got {side_range}")
-    if ground_segments < 8:
-        raise InputValueError(f"ground_segments must be >= 8, got {ground_segments}")
+    # the arrays, the clipped polygons (Python objects) and the mesh: about 1.5 kB a rectangle
+    refuse_memory(1500.0 * n_rectangles + 100.0 * ground_segments, f"a scene of {int(n_rectangles):,} rectangles",
+                  "ask for fewer rectangles")
     n = int(n_rectangles)
     rng = np.random.default_rng(seed)
     sides = rng.uniform(*side_range, size=(n, 2))
@@ -217,6 +222,19 @@ def rectangle_scene(
                   ground_segments=ground_segments)
     return RectangleScene(mesh, np.concatenate(labels), polygons,
                           np.array(polygon_labels, np.int64), n, len(polygons), params)
+
+
+def _check_number(name, v, integer: bool = False, low=None, open_low: bool = False) -> None:
+    """A scene parameter: a finite number (an integer if ``integer``), >= ``low`` (> with ``open_low``)."""
+    ok = isinstance(v, (int, float, np.integer, np.floating)) and not isinstance(v, bool) and math.isfinite(v)
+    if ok and integer:
+        ok = int(v) == v
+    if ok and low is not None:
+        ok = v > low if open_low else v >= low
+    if not ok:
+        kind = "an integer" if integer else "a finite number"
+        bound = "" if low is None else f" {'>' if open_low else '>='} {low}"
+        raise InputValueError(f"{name} must be {kind}{bound}, got {v!r}")
 
 
 def load_toml_spec(spec, table: str, what: str, prefix: str = "") -> tuple[dict, Path]:

@@ -55,7 +55,7 @@ import numpy as np
 from numba import njit, prange
 
 from .arrays import as_origin, unravel_ids
-from .errors import InputValueError
+from .errors import FormatError, InputValueError, SlrError
 from .threads import default_threads
 
 __all__ = ["BeamPattern", "sensor", "SENSORS", "SENSORS_DIR", "read_ouster_metadata",
@@ -448,6 +448,24 @@ def sensor_noise(points, origin, beams, range_sd: float = 0.01, beam_range_sd: f
     return moved[kept], kept
 
 
+def _sensor_file(what: str):
+    """A reader of a calibration file whose malformed content (bad JSON/YAML, a
+    key missing or of the wrong type) raises one :class:`FormatError` naming the file."""
+    def wrap(reader):
+        @functools.wraps(reader)
+        def read(path, *args, **kwargs):
+            try:
+                return reader(path, *args, **kwargs)
+            except (SlrError, OSError):
+                raise
+            except Exception as exc:  # json/yaml errors, KeyError, TypeError, AttributeError of odd content
+                msg = str(exc).splitlines()[0] if str(exc) else ""
+                raise FormatError(f"{path}: not a readable {what} ({type(exc).__name__}: {msg})") from exc
+        return read
+    return wrap
+
+
+@_sensor_file("Ouster metadata JSON")
 def read_ouster_metadata(path, **changes) -> BeamPattern:
     """A :class:`BeamPattern` from an Ouster sensor metadata JSON (ouster-sdk's
     ``beam_intrinsics``: ``beam_altitude_angles``, ``beam_azimuth_angles``; the
@@ -470,6 +488,7 @@ def read_ouster_metadata(path, **changes) -> BeamPattern:
                        meta={"source": str(path), "format": "ouster metadata"}).with_(**changes)
 
 
+@_sensor_file("Velodyne calibration YAML")
 def read_velodyne_calibration(path, columns: int = 1800, **changes) -> BeamPattern:
     """A :class:`BeamPattern` from a Velodyne calibration YAML (the ros-drivers/velodyne
     ``lasers:`` list: ``vert_correction`` and ``rot_correction`` in radians)."""

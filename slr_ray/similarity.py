@@ -18,6 +18,7 @@ import numpy as np
 
 from .arrays import as_points
 from .cellgrid import CellGrid, GridUnsuitable
+from .errors import InputValueError
 from .paper import SIMILARITY_THRESHOLD
 
 __all__ = ["similarity", "agreement", "Agreement", "nearest_distances"]
@@ -53,7 +54,7 @@ def similarity(true_points, simulated_points, threshold: float = SIMILARITY_THRE
     ``simulated_points`` with some true points gives 0.0.
     """
     if not threshold > 0:
-        raise ValueError(f"threshold must be > 0, got {threshold}")
+        raise InputValueError(f"threshold must be > 0, got {threshold}")
     return _share_within(as_points(true_points, "true_points"), as_points(simulated_points, "simulated_points"),
                          threshold, workers)
 
@@ -132,7 +133,7 @@ def agreement(true_points, simulated_points, threshold: float = SIMILARITY_THRES
     (0.5, 0.5, 0.5)
     """
     if not threshold > 0:
-        raise ValueError(f"threshold must be > 0, got {threshold}")
+        raise InputValueError(f"threshold must be > 0, got {threshold}")
     t = as_points(true_points, "true_points")
     s = as_points(simulated_points, "simulated_points")
     cov = _share_within(t, s, threshold, workers)

@@ -36,10 +36,17 @@ def _chunks(path, chunk):
         with laspy.open(str(path)) as reader:
             header = reader.header
             evlrs = list(getattr(reader, "evlrs", None) or [])
+            seen = 0
             for points in reader.chunk_iterator(chunk):
+                seen += len(points)
                 yield header, evlrs, points
-    except (laspy.errors.LaspyException, ValueError, OSError) as exc:
-        raise FormatError(f"cannot read {path}: {exc}") from exc
+            if seen != header.point_count:  # laspy stops quietly where a lying header's points run out
+                raise FormatError(f"{path}: the header declares {header.point_count:,} points, the file holds "
+                                  f"{seen:,} (truncated or corrupt)")
+    except (laspy.errors.LaspyException, ValueError, OSError, RuntimeError) as exc:  # lazrs: RuntimeError
+        if isinstance(exc, FormatError):
+            raise
+        raise FormatError(f"cannot read {path}: {type(exc).__name__}: {exc}") from exc
 
 
 def scan_las(path, origin, pattern, chunk: int = DEFAULT_CHUNK, progress: bool = False):

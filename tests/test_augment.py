@@ -8,7 +8,9 @@ import numpy as np
 import pytest
 
 from slr_ray import InputValueError
-from slr_ray.augment import augment
+from slr_ray.augment import AugmentConfig, augment
+from slr_ray.cli import main
+from slr_ray.errors import SlrError
 from slr_ray.io import PointCloud, read_cloud, write_cloud
 
 
@@ -24,13 +26,17 @@ def laz(tmp_path_factory):
     return path
 
 
+def _run(src, out, n, *, ground=None, progress=False, **settings):
+    return augment(src, out, AugmentConfig(n=n, **settings), ground=ground, progress=progress)
+
+
 def _files(d):
     return {p.name: read_cloud(p) for p in sorted(d.iterdir()) if p.suffix == ".laz"}
 
 
 def test_serial_local_processes_and_dask_give_the_same_scans(laz, tmp_path):
-    a = augment(laz, tmp_path / "serial", 3, heights=(1.0, 2.0), min_ground_points=1000, workers=1, progress=False)
-    augment(laz, tmp_path / "procs", 3, heights=(1.0, 2.0), min_ground_points=1000, workers=2, progress=False)
+    a = _run(laz, tmp_path / "serial", 3, heights=(1.0, 2.0), min_ground_points=1000, workers=1, progress=False)
+    _run(laz, tmp_path / "procs", 3, heights=(1.0, 2.0), min_ground_points=1000, workers=2, progress=False)
     assert len(a["scans"]) == 6 and a["software"].startswith("slr_ray")
     fa, fb = _files(tmp_path / "serial"), _files(tmp_path / "procs")
     assert sorted(fa) == sorted(fb) and len(fa) == 6
@@ -40,7 +46,7 @@ def test_serial_local_processes_and_dask_give_the_same_scans(laz, tmp_path):
     distributed = pytest.importorskip("dask.distributed")
     with distributed.LocalCluster(n_workers=2, threads_per_worker=1, processes=True,
                                   dashboard_address=None) as cluster:
-        augment(laz, tmp_path / "dask", 3, heights=(1.0, 2.0), min_ground_points=1000,
+        _run(laz, tmp_path / "dask", 3, heights=(1.0, 2.0), min_ground_points=1000,
                 scheduler=cluster.scheduler_address, progress=False)
     fc = _files(tmp_path / "dask")
     for name in fa:
@@ -48,7 +54,7 @@ def test_serial_local_processes_and_dask_give_the_same_scans(laz, tmp_path):
 
 
 def test_manifest_and_attributes(laz, tmp_path):
-    m = augment(laz, tmp_path / "o", 2, min_ground_points=1000, workers=1, progress=False)
+    m = _run(laz, tmp_path / "o", 2, min_ground_points=1000, workers=1, progress=False)
     disk = json.loads((tmp_path / "o" / "manifest.json").read_text())
     assert disk["scans"] == m["scans"] and len(disk["positions"]) == 2
     src = read_cloud(laz)
@@ -62,7 +68,7 @@ def test_manifest_and_attributes(laz, tmp_path):
         assert d.max() < 1e-6
         np.testing.assert_array_equal(c.attributes["intensity"], src.attributes["intensity"][idx])
         np.testing.assert_array_equal(c.attributes["classification"], src.attributes["classification"][idx])
-    again = augment(laz, tmp_path / "o", 2, min_ground_points=1000, workers=1, progress=False)
+    again = _run(laz, tmp_path / "o", 2, min_ground_points=1000, workers=1, progress=False)
     assert again["new_scans"] == 0
 
 
@@ -95,7 +101,7 @@ def test_bad_inputs(laz, tmp_path, capsys):
     nolabel = tmp_path / "n.ply"
     write_cloud(nolabel, PointCloud(np.random.default_rng(0).normal(size=(100, 3))))
     with pytest.raises(InputValueError, match="ground labels"):
-        augment(nolabel, tmp_path / "x", 2, progress=False)
+        _run(nolabel, tmp_path / "x", 2, progress=False)
     assert not (tmp_path / "x").exists()
     assert main(["augment", str(tmp_path / "missing.laz"), "--n", "2", "-o", str(tmp_path / "y")]) == 2
     assert main(["augment", str(laz), "--n", "2", "--format", "doc", "-o", str(tmp_path / "z")]) == 2
@@ -129,7 +135,7 @@ def test_sigterm_stops_workers_and_leaves_no_temporaries(laz, tmp_path):
            "1000", "--workers", "2", "--quiet", "-o", str(out)]
     proc = subprocess.Popen(cmd, stdout=subprocess.PIPE, stderr=subprocess.PIPE)
     deadline = time.time() + 120
-    while time.time() < deadline and not list(out.glob("*.laz")):
+    while time.time() < deadline and not [p for p in out.glob("*.laz") if not p.name.startswith(".")]:
         time.sleep(0.01)
     children = subprocess.run(["pgrep", "-P", str(proc.pid)], capture_output=True, text=True).stdout.split()
     proc.send_signal(signal.SIGTERM)
@@ -155,23 +161,23 @@ def test_sigterm_stops_workers_and_leaves_no_temporaries(laz, tmp_path):
 def test_a_rerun_with_other_settings_never_mixes_with_the_old_scans(laz, tmp_path):
     out = tmp_path / "aug"
     kw = dict(min_ground_points=1000, workers=1, progress=False)
-    first = augment(laz, out, 3, **kw)
+    first = _run(laz, out, 3, **kw)
     files = sorted(p.name for p in out.iterdir())
     for change, match in (({"seed": 1}, "seed"), ({"resolution": 0.5}, "pattern"),
                           ({"heights": (2.0,)}, "heights"), ({"backend": "embree"}, "backend")):
         with pytest.raises(InputValueError, match=match):
-            augment(laz, out, 3, **(kw | change))
+            _run(laz, out, 3, **(kw | change))
         assert sorted(p.name for p in out.iterdir()) == files
-    more = augment(laz, out, 5, **kw)  # more positions of the same draw extend the run
+    more = _run(laz, out, 5, **kw)  # more positions of the same draw extend the run
     assert more["positions"][:3] == first["positions"] and len(more["scans"]) == 5
     with pytest.raises(InputValueError, match="repeat"):
-        augment(laz, tmp_path / "h", 2, heights=(1.65, 1.65), **kw)
+        _run(laz, tmp_path / "h", 2, heights=(1.65, 1.65), **kw)
     assert not (tmp_path / "h").exists()
 
 
 def test_relative_output_paths_are_made_absolute_before_work_is_sent(laz, tmp_path, monkeypatch):
     monkeypatch.chdir(tmp_path)
-    res = augment(laz, "rel", 2, min_ground_points=1000, workers=1, progress=False)
+    res = _run(laz, "rel", 2, min_ground_points=1000, workers=1, progress=False)
     assert (tmp_path / "rel" / res["scans"][0]["file"]).exists()
 
 
@@ -184,45 +190,45 @@ def test_scans_in_the_journal_are_not_redone(laz, tmp_path):
 
     out = tmp_path / "aug"
     kw = dict(min_ground_points=1000, workers=1, progress=False)
-    first = augment(laz, out, 3, **kw)
+    first = _run(laz, out, 3, **kw)
     assert not (out / JOURNAL).exists()  # a completed run leaves only the manifest
     manifest = json.loads((out / "manifest.json").read_text())
     last = manifest["scans"].pop()
     (out / "manifest.json").write_text(json.dumps(manifest))
     (out / JOURNAL).write_text(json.dumps(last) + "\n" + '{"file": "cut sho')  # a torn last line
-    again = augment(laz, out, 3, **kw)
+    again = _run(laz, out, 3, **kw)
     assert again["new_scans"] == 0 and len(again["scans"]) == len(first["scans"])
     assert not (out / JOURNAL).exists()
 
 
 def test_streamed_augment_writes_the_same_files_as_a_whole_read(laz, tmp_path):
     # chunks of 7,001 points, 2 positions per pass: same positions, byte-identical LAZ files
-    whole = augment(laz, tmp_path / "whole", 3, heights=(1.0, 2.0), min_ground_points=1000, workers=1,
+    whole = _run(laz, tmp_path / "whole", 3, heights=(1.0, 2.0), min_ground_points=1000, workers=1,
                     progress=False)
-    streamed = augment(laz, tmp_path / "streamed", 3, heights=(1.0, 2.0), min_ground_points=1000,
+    streamed = _run(laz, tmp_path / "streamed", 3, heights=(1.0, 2.0), min_ground_points=1000,
                        progress=False, chunk_size=7001, per_pass=2)
     assert whole["positions"] == streamed["positions"] and len(streamed["scans"]) == 6
     for entry in whole["scans"]:
         a = (tmp_path / "whole" / entry["file"]).read_bytes()
         assert a == (tmp_path / "streamed" / entry["file"]).read_bytes()
     # the settings are the same, so a streamed rerun resumes a whole-read run
-    again = augment(laz, tmp_path / "whole", 4, heights=(1.0, 2.0), min_ground_points=1000,
+    again = _run(laz, tmp_path / "whole", 4, heights=(1.0, 2.0), min_ground_points=1000,
                     progress=False, chunk_size=50_000)
     assert again["new_scans"] == 2 and len(again["scans"]) == 8
 
 
 def test_streamed_augment_refuses_what_it_cannot_stream(laz, tmp_path):
     with pytest.raises(InputValueError, match="binning"):
-        augment(laz, tmp_path / "a", 2, backend="embree", chunk_size=1000, min_ground_points=1000, progress=False)
+        _run(laz, tmp_path / "a", 2, backend="embree", chunk_size=1000, min_ground_points=1000, progress=False)
     with pytest.raises(InputValueError, match="binning"):
-        augment(laz, tmp_path / "b", 2, sensor="velodyne_vlp16", chunk_size=1000, min_ground_points=1000,
+        _run(laz, tmp_path / "b", 2, sensor="velodyne_vlp16", chunk_size=1000, min_ground_points=1000,
                 progress=False)
     npy = tmp_path / "c.npy"
     np.save(npy, np.zeros((10, 3)))
     with pytest.raises(InputValueError, match="streams"):
-        augment(npy, tmp_path / "c", 2, chunk_size=1000, progress=False, ground=np.ones(10, bool))
+        _run(npy, tmp_path / "c", 2, chunk_size=1000, progress=False, ground=np.ones(10, bool))
     with pytest.raises(InputValueError, match="per_pass"):
-        augment(laz, tmp_path / "d", 2, chunk_size=1000, per_pass=0, min_ground_points=1000, progress=False)
+        _run(laz, tmp_path / "d", 2, chunk_size=1000, per_pass=0, min_ground_points=1000, progress=False)
 
 
 def test_streamed_positions_thin_a_large_ground_with_a_warning(laz):
@@ -235,3 +241,67 @@ def test_streamed_positions_thin_a_large_ground_with_a_warning(laz):
     np.testing.assert_array_equal(a, b)  # chunking does not change the thinning
     assert n == 180_000 and len(a) == 4 and cells.params["min_ground_points"] == 125
     np.testing.assert_allclose(a[:, 2], 100 + 1.65, atol=0.05)  # on the ground (z = 100), 1.65 m above
+
+
+# --- issue 26: what augment reads and writes ---------------------------------------------------------------------
+
+def test_an_input_inside_the_output_directory_is_never_a_scan_name(laz, tmp_path):
+    out = tmp_path / "aug"
+    out.mkdir()
+    victim = out / "scan_0000_h1.65.laz"
+    victim.write_bytes(laz.read_bytes())
+    before = victim.read_bytes()
+    with pytest.raises(SlrError, match="input"):
+        _run(victim, out, 2, min_ground_points=1000, workers=1)
+    assert victim.read_bytes() == before and sorted(p.name for p in out.iterdir()) == [victim.name]
+
+
+def test_a_second_run_into_a_locked_directory_is_refused(laz, tmp_path):
+    from slr_ray.errors import OutputError
+    from slr_ray.outputs import OutputPlan
+
+    plan = OutputPlan()
+    plan.directory(tmp_path / "aug")
+    with plan:  # another run holds it (a flock per open file: as another process would)
+        with pytest.raises(OutputError, match="in use"):
+            _run(laz, tmp_path / "aug", 2, min_ground_points=1000, workers=1)
+
+
+def test_an_input_edited_in_place_is_not_resumed(laz, tmp_path):
+    import os
+    import shutil
+
+    src = tmp_path / "in.laz"
+    shutil.copy(laz, src)
+    out = tmp_path / "aug"
+    _run(src, out, 2, min_ground_points=1000, workers=1)
+    c = read_cloud(src)
+    c.attributes["intensity"] = c.attributes["intensity"][::-1].copy()  # same size, other content
+    st = src.stat()
+    write_cloud(src, c)
+    os.utime(src, ns=(st.st_atime_ns, st.st_mtime_ns))
+    with pytest.raises(InputValueError, match="input_digest"):
+        _run(src, out, 2, min_ground_points=1000, workers=1)
+
+
+def test_a_run_that_fails_before_its_first_scan_leaves_nothing(laz, tmp_path, monkeypatch):
+    import slr_ray.augment as A
+
+    def boom(*a, **k):
+        raise InputValueError("no scan for you")
+
+    monkeypatch.setattr(A, "_scan_job", boom)
+    with pytest.raises(InputValueError, match="no scan"):
+        _run(laz, tmp_path / "new" / "aug", 2, min_ground_points=1000, workers=1)
+    assert not (tmp_path / "new").exists()
+
+
+def test_scanner_height_is_honoured(laz, tmp_path):
+    a = _run(laz, tmp_path / "a", 2, min_ground_points=1000, workers=1)
+    b = _run(laz, tmp_path / "b", 2, min_ground_points=1000, workers=1, scanner_height=3.0)
+    pa, pb = np.array([s["origin"] for s in a["scans"]]), np.array([s["origin"] for s in b["scans"]])
+    assert b["heights"] == [3.0] and a["heights"] == [1.65]
+    np.testing.assert_allclose(pb[:, 2] - pa[:, 2], 3.0 - 1.65, atol=1e-9)
+    assert main(["augment", str(laz), "--n", "1", "--min-ground-points", "1000", "--scanner-height", "2.5",
+                 "--workers", "1", "--quiet", "-o", str(tmp_path / "c")]) == 0
+    assert json.loads((tmp_path / "c" / "manifest.json").read_text())["heights"] == [2.5]

@@ -67,3 +67,45 @@ def test_non_finite_rows_are_refused_at_prepare_with_their_count():
     pts[[3, 9]] = np.nan
     with pytest.raises(InputValueError, match="2 row"):
         prepare(pts)
+
+
+# --- translation invariance -----------------------------------------------------------------------------------
+
+from hypothesis import HealthCheck, given, settings  # noqa: E402
+from hypothesis import strategies as st  # noqa: E402
+
+_Q = 1 / 1024  # coordinates and offsets on a 1/1024 m grid: every sum and difference below is exact in float64
+
+
+def _exact_cloud(seed, n):
+    """A floor, a wall and clutter around the origin, and a dense patch (millimetre
+    spacing: where a threshold scaled by absolute coordinates would call neighbourhoods
+    degenerate); every coordinate a multiple of 1/1024 m."""
+    rng = np.random.default_rng(seed)
+    floor = np.column_stack([rng.uniform(-8, 8, (n, 2)), rng.normal(-1.6, 0.01, n)])
+    wall = np.column_stack([rng.uniform(-8, 8, n // 2), np.full(n // 2, 6.0) + rng.normal(0, 0.01, n // 2),
+                            rng.uniform(-1.6, 2, n // 2)])
+    clutter = rng.uniform(-5, 5, (n // 4, 3))
+    patch = np.column_stack([rng.uniform(0, 0.15, (n, 2)), rng.normal(-1.6, 0.002, n)])
+    return np.unique(np.round(np.vstack([floor, wall, clutter, patch]) / _Q), axis=0) * _Q
+
+
+@pytest.mark.parametrize("backend", ["binning", "embree"])
+@settings(max_examples=12, deadline=None, suppress_health_check=[HealthCheck.function_scoped_fixture])
+@given(seed=st.integers(0, 2**16), offset=st.tuples(*[st.integers(-10**7 * 1024, 10**7 * 1024)] * 3),
+       origin=st.tuples(*[st.integers(-512, 512)] * 3), resolution=st.sampled_from([0.25, 0.5, 1.0]))
+def test_scans_do_not_depend_on_where_the_cloud_lies(backend, seed, offset, origin, resolution):
+    """Moving cloud and scanner by one offset (up to 1e7 m) changes no index and no pulse:
+    the backends work on offsets from the scanner (and, for embree's normals, from each
+    point), never on absolute coordinates. Exactly representable clouds, so that the
+    moved cloud is the same cloud."""
+    pts = _exact_cloud(seed, 1500)
+    shift = np.array(offset, float) * _Q
+    o = np.array(origin, float) * _Q
+    moved = pts + shift
+    assert np.array_equal(moved - shift, pts)  # the premise: the translation is exact
+    a = prepare(pts, backend).scan(o, resolution)
+    b = prepare(moved, backend).scan(o + shift, resolution)
+    assert len(a) > 100
+    np.testing.assert_array_equal(a.indices, b.indices)
+    np.testing.assert_array_equal(a.pulses, b.pulses)

@@ -225,3 +225,86 @@ def test_results_are_strict_json():
     out = json.dumps(_plain({"a": float("nan"), "b": [1.0, float("inf")], "c": {"d": -float("inf")}}),
                      allow_nan=False)
     assert json.loads(out) == {"a": None, "b": [1.0, None], "c": {"d": None}}
+
+
+# --- issue 26/27: one line for deliberate errors, a traceback for bugs ---------------------------------------------
+
+def _small(tmp_path, **attrs):
+    src = tmp_path / "c.npz"
+    rng = np.random.default_rng(0)
+    np.savez(src, points=rng.uniform(-5, 5, (300, 3)), origin=np.zeros(3), **attrs)
+    return src
+
+
+@pytest.mark.parametrize("content, ext", [("{not json", ".json"), ('{"beam_altitude_angles": 3}', ".json"),
+                                          ("[1, 2]", ".json"), ("lasers: [{}]", ".yaml"), ("a: [", ".yaml"),
+                                          ("- 1\n- 2", ".yaml")])
+def test_malformed_sensor_files_are_one_line_naming_the_file(tmp_path, capsys, content, ext):
+    sensor = tmp_path / f"s{ext}"
+    sensor.write_text(content)
+    rc = main(["scan", str(_small(tmp_path)), "--sensor-file", str(sensor), "-o", str(tmp_path / "o.npz")])
+    err = capsys.readouterr().err
+    assert rc == 2 and len(err.strip().splitlines()) == 1 and str(sensor) in err, err
+    assert not (tmp_path / "o.npz").exists()
+
+
+def test_a_bug_shows_its_traceback_and_asks_for_a_report(tmp_path, capsys, monkeypatch):
+    import slr_ray.cli.commands as C
+
+    def broken(args):
+        raise ValueError("an internal inconsistency")  # a library bug, not a deliberate error
+
+    monkeypatch.setitem(C.COMMANDS, "scan", broken)
+    rc = main(_scan_args(tmp_path))
+    err = capsys.readouterr().err
+    assert rc == 1 and "Traceback" in err and "report" in err
+
+
+def _scan_args(tmp_path, *extra):
+    return ["scan", str(_small(tmp_path)), "--resolution", "5", "-o", str(tmp_path / "o.npz"), *extra]
+
+
+def test_ground_value_without_ground_attribute_is_an_error(tmp_path, capsys):
+    src = _small(tmp_path, is_ground=np.ones(300, bool))
+    assert main(["positions", str(src), "--n", "1", "--ground-value", "7", "-o", str(tmp_path / "p.json")]) == 2
+    assert "--ground-attribute" in capsys.readouterr().err
+    assert not (tmp_path / "p.json").exists()
+
+
+@pytest.mark.parametrize("flag, name", [("--keep-range", "range"), ("--keep-ring", "ring"), ("--keep-ring", "column")])
+def test_keep_flags_never_replace_the_inputs_own_attributes(tmp_path, capsys, flag, name):
+    src = _small(tmp_path, **{name: np.arange(300.0)})
+    assert main(["scan", str(src), "--resolution", "5", "-o", str(tmp_path / "o.npz"), flag]) == 2
+    assert repr(name) in capsys.readouterr().err and not (tmp_path / "o.npz").exists()
+
+
+def test_a_results_csv_of_another_program_is_a_clear_error(tmp_path, capsys):
+    out = tmp_path / "v"
+    out.mkdir()
+    (out / "results.csv").write_text("a,b,c\n1,2,3\n")
+    cfg = tmp_path / "c.toml"
+    cfg.write_text('[validate]\nname = "t"\nscenes = ["rect-100"]\npositions = 1\n')
+    assert main(["validate", str(cfg), "-o", str(out), "--quiet"]) == 2
+    err = capsys.readouterr().err
+    assert "not a results.csv of slr_ray" in err and len(err.strip().splitlines()) == 1
+    assert (out / "results.csv").read_text() == "a,b,c\n1,2,3\n"
+
+
+@pytest.mark.parametrize("line", ["n_rectangles = 3000000000", "xy_range = [nan, 10.0]", "z_range = [0.0, inf]"])
+def test_scene_specs_that_would_exhaust_memory_or_hold_nan_are_refused_first(tmp_path, capsys, line):
+    spec = tmp_path / "s.toml"
+    spec.write_text(f"[scene]\n{line}\n")
+    assert main(["scene", "info", str(spec)]) == 2
+    err = capsys.readouterr().err
+    assert len(err.strip().splitlines()) == 1 and ("GiB" in err or "finite" in err)
+
+
+def test_embree_settings_that_would_exhaust_memory_are_refused_with_the_figure(tmp_path, capsys):
+    src = tmp_path / "big.npz"
+    np.savez(src, points=np.random.default_rng(0).uniform(-5, 5, (100_000, 3)), origin=np.zeros(3))
+    for settings in (["--resolution", "5", "--engine", "fan", "--segments", "1000000"], ["--resolution", "2e-7"]):
+        rc = main(["scan", str(src), "--backend", "embree", "--radius", "0.1", *settings,
+                   "-o", str(tmp_path / "o.npz")])
+        err = capsys.readouterr().err
+        assert rc == 2 and "GiB" in err and len(err.strip().splitlines()) == 1, err
+        assert not (tmp_path / "o.npz").exists()

@@ -34,11 +34,11 @@ def test_csf_without_its_package(without):
 
 
 def test_scheduler_without_dask(without, tmp_path):
-    from slr_ray.augment import augment
+    from slr_ray.augment import AugmentConfig, augment
 
     without("dask", "dask.distributed")
     with pytest.raises(MissingDependencyError, match=r'pip install "slr_ray\[dask\]"'):
-        augment(tmp_path / "in.npz", tmp_path / "out", 1, scheduler="tcp://127.0.0.1:1")
+        augment(tmp_path / "in.npz", tmp_path / "out", AugmentConfig(n=1, scheduler="tcp://127.0.0.1:1"))
     assert not (tmp_path / "out").exists()
 
 

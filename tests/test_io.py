@@ -419,3 +419,103 @@ def test_non_las_clouds_get_the_most_compatible_las_that_holds_them(tmp_path, at
     back = read_cloud(tmp_path / "o.las")
     for k, v in attrs.items():
         np.testing.assert_array_equal(back.attributes[k], v)
+
+
+# --- issue 26: readers that check what a file declares; writers that never believe a header ----------------------
+
+def _las(tmp_path, n=1000):
+    from slr_ray.io import PointCloud, write_cloud
+
+    rng = np.random.default_rng(0)
+    path = tmp_path / "a.las"
+    write_cloud(path, PointCloud(rng.uniform(0, 10, (n, 3)), {"intensity": np.arange(n, dtype=np.uint16)}))
+    return path
+
+
+def _lie_about_count(path, count):
+    import struct
+
+    data = bytearray(path.read_bytes())
+    struct.pack_into("<I", data, 107, count)  # legacy point count (LAS 1.2)
+    path.write_bytes(bytes(data))
+
+
+@pytest.mark.parametrize("streamed", [False, True])
+def test_a_las_header_that_claims_more_points_than_the_file_holds(tmp_path, streamed):
+    from slr_ray.io import read_cloud
+    from slr_ray.streaming import scan_las
+
+    path = _las(tmp_path)
+    _lie_about_count(path, 1500)
+    with pytest.raises(FormatError, match="declares 1,500 points, the file holds 1,000"):
+        if streamed:
+            scan_las(path, [5, 5, 5], 5.0, chunk=300)
+        else:
+            read_cloud(path)
+
+
+def test_a_corrupt_laz_in_the_streamed_path_is_a_format_error(tmp_path):
+    from slr_ray.io import PointCloud, write_cloud
+    from slr_ray.streaming import scan_las
+
+    rng = np.random.default_rng(0)
+    path = tmp_path / "a.laz"
+    write_cloud(path, PointCloud(rng.uniform(0, 10, (50_000, 3))))
+    data = bytearray(path.read_bytes())
+    data[len(data) // 2:len(data) // 2 + 2000] = rng.integers(0, 256, 2000, dtype=np.uint8).tobytes()
+    path.write_bytes(bytes(data))
+    with pytest.raises(FormatError, match=str(path)):
+        scan_las(path, [5, 5, 5], 5.0, chunk=10_000)
+
+
+def test_the_las_writer_allocates_the_records_not_the_headers_claim(tmp_path):
+    from slr_ray.io import read_cloud, write_cloud
+
+    c = read_cloud(_las(tmp_path))
+    c.meta["las"].header.point_count = 10**13  # 340 TB if allocated
+    write_cloud(tmp_path / "b.las", c.subset(np.arange(10)))
+    assert len(read_cloud(tmp_path / "b.las")) == 10
+
+
+@pytest.mark.parametrize("counts", ["WIDTH 4\nHEIGHT 1\nPOINTS -4", "WIDTH 3\nHEIGHT 1\nPOINTS 4"])
+def test_pcd_counts_that_cannot_be(tmp_path, counts):
+    from slr_ray.io import read_cloud
+
+    head = f"VERSION 0.7\nFIELDS x y z\nSIZE 4 4 4\nTYPE F F F\nCOUNT 1 1 1\n{counts}\nDATA binary\n"
+    (tmp_path / "a.pcd").write_bytes(head.encode() + np.arange(12, dtype="<f4").tobytes())
+    with pytest.raises(FormatError, match="a.pcd"):
+        read_cloud(tmp_path / "a.pcd")
+
+
+def test_a_kitti_bin_with_trailing_bytes_is_refused(tmp_path):
+    from slr_ray.io import read_cloud
+
+    np.zeros((10, 4), np.float32).tofile(tmp_path / "a.bin")
+    with open(tmp_path / "a.bin", "ab") as f:
+        f.write(b"\0" * 8)  # two floats: not a whole point, and a multiple of 4 bytes
+    with pytest.raises(FormatError, match="not a multiple of 16"):
+        read_cloud(tmp_path / "a.bin")
+
+
+def test_kitti_output_of_large_coordinates_warns_with_the_error(tmp_path):
+    from slr_ray.io import PointCloud, write_cloud
+
+    pts = np.array([[5e5 + 0.123, 4e6 + 0.456, 100.0], [5e5, 4e6, 101.0]])
+    with pytest.warns(UserWarning, match="float32"):
+        write_cloud(tmp_path / "a.bin", PointCloud(pts))
+    import warnings
+
+    with warnings.catch_warnings():
+        warnings.simplefilter("error")
+        write_cloud(tmp_path / "b.bin", PointCloud(pts - [5e5, 4e6, 0]))  # near 0: exact enough, no word
+
+
+@pytest.mark.parametrize("ext", [".npy", ".npz"])
+def test_int64_attributes_stay_int64(tmp_path, ext):
+    from slr_ray.io import PointCloud, read_cloud, write_cloud
+
+    big = np.array([2**62 + 1, -(2**60) - 3, 7], np.int64)
+    write_cloud(tmp_path / f"a{ext}", PointCloud(np.zeros((3, 3)), {"gps_id": big, "f": np.ones(3, np.float32)}))
+    back = read_cloud(tmp_path / f"a{ext}")
+    assert back.attributes["gps_id"].dtype == np.int64
+    np.testing.assert_array_equal(back.attributes["gps_id"], big)

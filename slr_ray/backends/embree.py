@@ -78,7 +78,7 @@ from numba import njit, prange
 from scipy.spatial import cKDTree
 
 from ..arrays import as_origin, as_points, bounds
-from ..errors import InputValueError, MissingDependencyError
+from ..errors import InputValueError, MissingDependencyError, refuse_memory
 from ..pattern import as_pattern, pulse_rays
 from ..raycast import RayScene, padded_rows
 from ..scan import Scan
@@ -857,27 +857,31 @@ def _pca_normal(pts, p, nbr, k, has_primary, po):
         hn = math.sqrt(hx * hx + hy * hy + hz * hz)
         if hn > 0:
             fx, fy, fz = hx / hn, hy / hn, hz / hn
-    mx, my, mz = pts[p, 0], pts[p, 1], pts[p, 2]
+    # in coordinates relative to the point itself: the offsets, their mean and so the
+    # covariance do not depend on where the cloud lies (translation invariance; at 1e7 m
+    # an absolute mean would round to 2e-9 m and a threshold scaled by |x| called 1 cm
+    # neighbourhoods "identical points")
+    px, py, pz = pts[p, 0], pts[p, 1], pts[p, 2]
+    mx = my = mz = 0.0
     for j in range(k):
         q = nbr[j]
-        mx += pts[q, 0]
-        my += pts[q, 1]
-        mz += pts[q, 2]
+        mx += pts[q, 0] - px
+        my += pts[q, 1] - py
+        mz += pts[q, 2] - pz
     mx /= k + 1
     my /= k + 1
     mz /= k + 1
     a00 = a01 = a02 = a11 = a12 = a22 = 0.0
     for j in range(-1, k):
         q = p if j < 0 else nbr[j]
-        dx, dy, dz = pts[q, 0] - mx, pts[q, 1] - my, pts[q, 2] - mz
+        dx, dy, dz = (pts[q, 0] - px) - mx, (pts[q, 1] - py) - my, (pts[q, 2] - pz) - mz
         a00 += dx * dx
         a01 += dx * dy
         a02 += dx * dz
         a11 += dy * dy
         a12 += dy * dz
         a22 += dz * dz
-    scale = 1e-9 * (1.0 + max(abs(pts[p, 0]), abs(pts[p, 1]), abs(pts[p, 2])))
-    tiny = scale * scale * (k + 1)
+    tiny = 0.0  # identical points: every offset is exactly 0
     q3 = (a00 + a11 + a22) / 3.0
     b00, b11, b22 = a00 - q3, a11 - q3, a22 - q3
     p2 = (b00 * b00 + b11 * b11 + b22 * b22 + 2.0 * (a01 * a01 + a02 * a02 + a12 * a12)) / 6.0
@@ -997,6 +1001,9 @@ class DiscScanner(Scanner):
         grid = (need_spacing or need_normals) and o.neighbours == "pulse-grid"
         if o.primary_beams is not None:
             o.primary_grid.rows_of_beams(o.primary_beams, n)  # a bad length or beam id fails here, used or not
+        if o.engine != "embree":  # polygon fans: vertices (24 B) and faces (24 B) per segment, before any work
+            refuse_memory(48.0 * n * o.segments, f"discs as fans of {o.segments:,} segments for {n:,} points",
+                          "use fewer segments (3 to 16 is plenty) or engine='embree'")
         if o.orientation == "normal":
             # kNN normals are filled chunk by chunk below, pulse-grid ones come whole; fewer than two
             # points have no neighbours and keep the fallback direction
@@ -1082,6 +1089,9 @@ class DiscScanner(Scanner):
             inside = d <= self.radii * self.options.reach
             self._open3d_start = float((d + self.radii * self.options.reach)[inside].max(initial=0.0))
         nv, nh = pattern.shape
+        # a batch holds whole rows (directions, pulse ids, answers: about 100 B a ray)
+        refuse_memory(100.0 * max(nh, min(rays_per_batch, nv * nh)),
+                      f"a row of {nh:,} rays ({pattern.n_pulses:.3g} pulses in all)", "choose a coarser pattern")
         aspect = _pulse_aspect(pattern)
         rows_per = max(1, rays_per_batch // nh)
         parts = []

@@ -1,8 +1,11 @@
 """The ``slr-ray`` command.
 
-Results go to stdout as one line of JSON; logs and progress go to stderr. Any
-error exits with status 2 and one line ``slr-ray: error: ...`` on stderr, and
-leaves no output file behind.
+Results go to stdout as one line of JSON; logs and progress go to stderr. An
+error of the input or the settings (:class:`~slr_ray.errors.SlrError`) or of
+the system (``OSError``: no such file, no permission, disk full) exits with
+status 2 and one line ``slr-ray: error: ...`` on stderr, and leaves no output
+file behind. Anything else is a bug of slr_ray: the full traceback, a request
+to report it, and status 1.
 
 ``arguments``
     argument groups shared by subcommands (pattern, backend and its options,
@@ -17,10 +20,13 @@ import argparse
 import signal
 import sys
 import threading
+import traceback
 
-from .. import paper
+from .. import __version__, paper
+from ..errors import SlrError
 from ..backends import Backend
 from ..meshscan import MESH_MODES
+from ..scenes import SCENES_DIR
 from ..sensors import SENSORS
 from . import arguments as A
 from .commands import COMMANDS
@@ -40,8 +46,6 @@ class _Parser(argparse.ArgumentParser):
 
 
 def build_parser() -> argparse.ArgumentParser:
-    from .. import __version__
-
     ap = _Parser(prog="slr-ray", description=(
         "Simulated LiDAR Repositioning: simulate the scans an ideal static scanner "
         "would record from new positions, using only points of one cloud."))
@@ -106,8 +110,6 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("--force", action="store_true", help="overwrite an existing output")
 
     p = command("validate", "reproduce the paper's validation (Experiment 1) from a config")
-    from ..scenes import SCENES_DIR
-
     shipped = sorted(q.stem[len("validate-"):] for q in SCENES_DIR.glob("validate-*.toml"))
     p.add_argument("config", help=f"a shipped config name ({', '.join(shipped)}) or a TOML path")
     p.add_argument("-o", "--output", help="output directory (default slr_ray_validate_NAME); reruns resume")
@@ -127,14 +129,15 @@ def build_parser() -> argparse.ArgumentParser:
     A.add_positions(p)
     A.add_ground(p)
     p.add_argument("--quiet", action="store_true")
+    p.add_argument("--force", action="store_true", help="overwrite the tables and figure of an earlier run")
 
     p = command("augment", "many simulated scans of one real scan (resumable, parallel)")
     p.add_argument("input", help=f"input cloud ({_FORMATS})")
     p.add_argument("--n", type=A.positive_int, required=True, help="positions")
     p.add_argument("-o", "--output", required=True, help="output directory (a rerun resumes)")
     p.add_argument("--resolution", type=A.positive_float, default=paper.SECONDARY_RESOLUTION)
-    p.add_argument("--heights", nargs="+", type=A.positive_float, default=[paper.SCANNER_HEIGHT],
-                   help="scanner heights above ground")
+    p.add_argument("--heights", nargs="+", type=A.positive_float,
+                   help="scanner heights above ground, a scan each (default: --scanner-height)")
     p.add_argument("--format", help="output extension (default: the input's)")
     p.add_argument("--sensor", choices=list(SENSORS), help="a spinning sensor's beam table instead of --resolution")
     A.add_backend(p)
@@ -157,6 +160,7 @@ def build_parser() -> argparse.ArgumentParser:
     backends = [b.value for b in Backend]
     p.add_argument("--backends", nargs="+", default=backends, choices=backends, help="backends run at each position")
     p.add_argument("--quick", action="store_true", help="a coarser, faster run (for tests)")
+    p.add_argument("--force", action="store_true", help="overwrite the files of an earlier demo")
 
     # evaluate: its handler lives in .evaluate_command (self-contained)
     help_text = "re-simulate frame B from frame A at B's pose and score it against the real B (novel-view metrics)"
@@ -226,10 +230,15 @@ def main(argv=None) -> int:
     except KeyboardInterrupt:
         print("slr-ray: interrupted", file=sys.stderr)
         return 130
-    except (OSError, ValueError, TypeError, ImportError) as exc:
+    except (SlrError, OSError) as exc:
         msg = str(exc).splitlines()[0] if str(exc) else type(exc).__name__
         print(f"slr-ray: error: {msg}", file=sys.stderr)
         return 2
+    except Exception:  # not a deliberate error: a bug, which the user should see whole and report
+        traceback.print_exc()
+        print(f"slr-ray: internal error (a bug in slr_ray {__version__}): please report it with the command "
+              "line and the traceback above", file=sys.stderr)
+        return 1
     finally:
         if previous is not None:
             signal.signal(signal.SIGTERM, previous)

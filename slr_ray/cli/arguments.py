@@ -188,7 +188,7 @@ def add_ground(p) -> None:
     """Where ground labels come from (:func:`slr_ray.positions.ground_labels`)."""
     g = p.add_argument_group("ground labels", "default: the input's is_ground or LAS classification 2")
     g.add_argument("--ground-attribute", help="per-point attribute holding ground labels")
-    g.add_argument("--ground-value", type=int, default=2, help="its ground value (default 2, LAS ground)")
+    g.add_argument("--ground-value", type=int, help="its ground value (default 2, LAS ground; needs --ground-attribute)")
     g.add_argument("--csf", action="store_true",
                    help="label ground by Cloth Simulation Filtering when the input has no labels")
     g.add_argument("--cloth-resolution", type=positive_float, default=0.5, help="CSF cloth cell (m, default 0.5)")
@@ -196,6 +196,9 @@ def add_ground(p) -> None:
 
 def ground_from(args) -> dict:
     """Keywords of :func:`slr_ray.positions.ground_labels` from the ground group."""
+    if args.ground_value is not None and not args.ground_attribute:
+        raise InputValueError(f"--ground-value {args.ground_value} needs --ground-attribute NAME (the attribute "
+                              "holding it): alone it would be ignored")
     return {"attribute": args.ground_attribute, "value": args.ground_value, "csf": args.csf,
             "cloth_resolution": args.cloth_resolution}
 

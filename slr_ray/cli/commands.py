@@ -16,7 +16,10 @@ from pathlib import Path
 
 import numpy as np
 
+from ..augment import AugmentConfig
+from ..backends import options_for
 from ..errors import InputValueError
+from ..outputs import OutputPlan
 from .arguments import backend_from, ground_from, pattern_from
 
 __all__ = ["emit", "COMMANDS"]
@@ -39,70 +42,80 @@ def emit(obj) -> None:
     sys.stdout.flush()
 
 
-def _output(path, force: bool = False, inputs=()) -> Path | None:
-    """An output path, checked before any work: never one of the ``inputs``
-    (not even with ``--force``), and not an existing file unless ``force``."""
-    if path is None:
-        return None
-    path = Path(path)
-    for i in inputs:
-        if path.exists() and Path(i).exists() and path.resolve() == Path(i).resolve():
-            raise FileExistsError(f"{path} is an input of this command: refusing to write over it")
-    if path.is_dir():
-        raise IsADirectoryError(f"{path} is a directory")
-    if not path.parent.is_dir():
-        raise FileNotFoundError(f"no directory {path.parent} for {path}")
-    if path.exists() and not force:
-        raise FileExistsError(f"{path} exists (use --force to overwrite)")
-    return path
+def _plan(args, *, inputs=(), outputs=(), fmt=None) -> OutputPlan:
+    """The command's :class:`~slr_ray.outputs.OutputPlan`: its inputs (with their
+    sidecars and the secondary inputs its flags name) and its outputs, checked."""
+    plan = OutputPlan(force=getattr(args, "force", False))
+    for path in inputs:
+        plan.read(path)
+    for flag in ("sensor_file", "profile_file"):
+        plan.read(getattr(args, flag, None), sidecars=False)
+    for i, path in enumerate(outputs):
+        plan.write(path, fmt=fmt if i == 0 else None)
+    return plan.check()
 
 
 def scan(args):
-    from ..backends import options_for
+    from ..backends import prepare
     from ..io import check_format, read_cloud, write_cloud
     from ..pattern import ScanPattern
     from ..streaming import STREAMED_FORMATS, scan_las
 
+    check_format(args.output, args.format)  # refuse an unknown output format before any work
+    plan = _plan(args, inputs=[args.input], outputs=[args.output, args.range_image, args.png], fmt=args.format)
     pattern = pattern_from(args)
-    out = _output(args.output, args.force, [args.input])
-    for extra in (args.range_image, args.png):
-        _output(extra, args.force, [args.input, args.output])
-    check_format(out, args.format)  # refuse an unknown output format before any work
-    options = options_for(args.backend, backend_from(args))
+    options = options_for(args.backend, backend_from(args))  # built once, used below
     if args.print_config:
-        emit({"input": str(args.input), "output": str(out), "origin": args.origin,
+        emit({"input": str(args.input), "output": str(args.output), "origin": args.origin,
               "pattern": pattern.to_dict(), "backend": args.backend, "options": options.to_dict()})
         return
     # LAS/LAZ stream through the uniform binning reduction; beam tables read the file whole
     streamed = (args.backend == "binning" and isinstance(pattern, ScanPattern)
                 and check_format(args.input, args.input_format) in STREAMED_FORMATS)
-    if streamed:
-        # LAS/LAZ: two passes in chunks, memory bounded by a chunk and the scan, not the file
-        if args.origin is None:
-            raise InputValueError(f"{args.input} records no scanner origin: give --origin X Y Z")
-        t0 = time.perf_counter()
-        sub, result = scan_las(args.input, args.origin, pattern, chunk=args.chunk_size, progress=not args.quiet)
-        sub.origin = np.asarray(args.origin, float)
-        t_read = time.perf_counter() - t0
-    else:
-        t0 = time.perf_counter()
-        cloud = read_cloud(args.input, args.input_format)
-        t_read = time.perf_counter() - t0
-        sub, result = _scan_cloud(args, cloud, pattern)
-    if args.keep_range:
-        sub.attributes["range"] = result.ranges
-    if args.keep_ring:
-        sub.attributes["ring"] = result.rings.astype(np.uint16 if result.pattern.shape[0] < 2**16 else np.int64)
-        sub.attributes["column"] = result.columns.astype(np.uint32)
-    # the range image is made before anything is written: an error there leaves no scan behind
-    image = _range_image(sub, result) if args.range_image or args.png else None
-    t1 = time.perf_counter()
-    write_cloud(out, sub, args.format)
-    if image is not None:
-        _write_range_image(args, image, result)
-    emit({**result.summary(), "input": str(args.input), "output": str(out), "streamed": streamed,
+    with plan:
+        if streamed:
+            # LAS/LAZ: two passes in chunks, memory bounded by a chunk and the scan, not the file
+            if args.origin is None:
+                raise InputValueError(f"{args.input} records no scanner origin: give --origin X Y Z")
+            t0 = time.perf_counter()
+            sub, result = scan_las(args.input, args.origin, pattern, chunk=args.chunk_size, progress=not args.quiet)
+            sub.origin = np.asarray(args.origin, float)
+            t_read = time.perf_counter() - t0
+        else:
+            t0 = time.perf_counter()
+            cloud = read_cloud(args.input, args.input_format)
+            t_read = time.perf_counter() - t0
+            origin = _origin(args, cloud)
+            result = prepare(cloud.points, args.backend, options).scan(origin, pattern)
+            sub = cloud.subset(result.indices)
+            sub.origin = np.asarray(origin, float)
+        _keep(args, sub, result)
+        # the range image is made before anything is written: an error there leaves no scan behind
+        image = _range_image(sub, result) if args.range_image or args.png else None
+        t1 = time.perf_counter()
+        write_cloud(args.output, sub, args.format)
+        if image is not None:
+            _write_range_image(args, image, result)
+    emit({**result.summary(), "input": str(args.input), "output": str(args.output), "streamed": streamed,
           ("seconds_read_and_scan" if streamed else "seconds_read"): round(t_read, 6),
           "seconds_write": round(time.perf_counter() - t1, 6)})
+
+
+def _keep(args, sub, result) -> None:
+    """--keep-range / --keep-ring as attributes; an input attribute of those names is never replaced."""
+    added = {}
+    if args.keep_range:
+        added["range"] = ("--keep-range", result.ranges)
+    if args.keep_ring:
+        dtype = np.uint16 if result.pattern.shape[0] < 2**16 else np.int64
+        added["ring"] = ("--keep-ring", result.rings.astype(dtype))
+        added["column"] = ("--keep-ring", result.columns.astype(np.uint32))
+    clash = [f"{flag} ({name!r})" for name, (flag, _) in added.items() if name in sub.attributes]
+    if clash:
+        raise InputValueError(f"{args.input} has its own attribute(s) of the names {', '.join(clash)} would add: "
+                              "refusing to replace them (rename them in the input, or drop the flag)")
+    for name, (_, values) in added.items():
+        sub.attributes[name] = values
 
 
 def _range_image(sub, result) -> dict:
@@ -129,25 +142,21 @@ def _write_range_image(args, image, result):
                                                     f"from {np.round(result.origin, 2).tolist()}"), args.png)
 
 
-def _scan_cloud(args, cloud, pattern):
-    from ..backends import simulate_scan
-
+def _origin(args, cloud):
+    """--origin, else the input's recorded origin."""
     origin = args.origin if args.origin is not None else cloud.origin
     if origin is None:
         hint = (" (its scan has no pose; by the E57 standard that means the scanner frame is the file's:"
                 " --origin 0 0 0)") if cloud.meta.get("e57_pose") is False else ""
         raise InputValueError(f"{args.input} records no scanner origin: give --origin X Y Z{hint}")
-    result = simulate_scan(cloud.points, origin, pattern, args.backend, **backend_from(args))
-    sub = cloud.subset(result.indices)
-    sub.origin = np.asarray(origin, float)
-    return sub, result
+    return origin
 
 
 def demo(args):
     from ..demo import run_demo
 
     emit(run_demo(args.output, n_rectangles=args.rectangles, n_positions=args.positions, seed=args.seed,
-                  quick=args.quick, backends=args.backends))
+                  quick=args.quick, backends=args.backends, force=args.force))
 
 
 def scene(args):
@@ -155,28 +164,32 @@ def scene(args):
     from ..meshscan import scan_mesh
     from ..scenes import MESH_FORMATS, scene_from_spec
 
-    sc = scene_from_spec(args.spec)
+    spec_file = args.spec if Path(args.spec).suffix.lower() == ".toml" else None
     if args.scene_cmd == "info":
-        emit({"spec": args.spec, **sc.info()})
+        emit({"spec": args.spec, **scene_from_spec(args.spec).info()})
         return
     if args.scene_cmd == "build":
-        out = _output(args.output, args.force)
+        out = Path(args.output)
         if out.suffix.lower()[1:] not in MESH_FORMATS:
             raise InputValueError(f"mesh output must be one of {['.' + f for f in MESH_FORMATS]}, "
                                   f"got {out.suffix!r}")
-        with atomic_path(out) as tmp:
+        plan = _plan(args, inputs=[spec_file] if spec_file else [], outputs=[out])
+        sc = scene_from_spec(args.spec)
+        with plan, atomic_path(out) as tmp:
             sc.mesh.export(tmp, file_type=out.suffix[1:].lower())
         emit({"spec": args.spec, "output": str(out), **sc.info()})
         return
-    pattern = pattern_from(args)
-    _output(args.output, args.force)
     check_format(args.output)  # refuse an unknown output format before the scan
-    ms = scan_mesh(sc, args.origin, pattern, mode=args.mode, supersample=args.supersample,
-                   spacing=args.spacing, progress=not args.quiet)
-    cloud = PointCloud(ms.points, {"label": ms.labels.astype(np.int32), "range": ms.ranges,
-                                   "v": ms.pulses[:, 0].astype(np.int32), "h": ms.pulses[:, 1].astype(np.int32)},
-                       origin=ms.origin)
-    write_cloud(args.output, cloud)
+    plan = _plan(args, inputs=[spec_file] if spec_file else [], outputs=[args.output])
+    pattern = pattern_from(args)
+    sc = scene_from_spec(args.spec)
+    with plan:
+        ms = scan_mesh(sc, args.origin, pattern, mode=args.mode, supersample=args.supersample,
+                       spacing=args.spacing, progress=not args.quiet)
+        cloud = PointCloud(ms.points, {"label": ms.labels.astype(np.int32), "range": ms.ranges,
+                                       "v": ms.pulses[:, 0].astype(np.int32), "h": ms.pulses[:, 1].astype(np.int32)},
+                           origin=ms.origin)
+        write_cloud(args.output, cloud)
     emit({"spec": args.spec, "output": str(args.output), **ms.summary()})
 
 
@@ -185,14 +198,16 @@ def compare(args):
     from ..io import read_cloud
     from ..plotting import comparison_figure, save_figure
 
+    plan = _plan(args, inputs=[args.input], outputs=[args.png])
     pattern = pattern_from(args)
-    _output(args.png, args.force, [args.input])
-    cloud = read_cloud(args.input, args.input_format)
-    res = compare_backends(cloud.points, np.array(args.origin, float).reshape(-1, 3), pattern,
-                           tolerance=args.tolerance, embree_options=backend_from(args, "embree"))
-    if args.png:
-        save_figure(comparison_figure(res), args.png)
-        res["png"] = args.png
+    embree_options = backend_from(args, "embree")
+    with plan:
+        cloud = read_cloud(args.input, args.input_format)
+        res = compare_backends(cloud.points, np.array(args.origin, float).reshape(-1, 3), pattern,
+                               tolerance=args.tolerance, embree_options=embree_options)
+        if args.png:
+            save_figure(comparison_figure(res), args.png)
+            res["png"] = args.png
     emit(res)
 
 
@@ -201,36 +216,37 @@ def positions(args):
     from ..plotting import cells_figure, save_figure
     from ..positions import AzimuthProfile, default_profile, ground_labels, select_positions
 
-    out = _output(args.output, args.force, [args.input])
-    _output(args.png, args.force, [args.input, args.output])
-    if not out.parent.is_dir():
-        raise FileNotFoundError(f"no directory {out.parent} for {out}")
-    cloud = read_cloud(args.input, args.input_format)
-    is_ground = ground_labels(cloud, **ground_from(args))
-    profile = None if args.profile == "none" else default_profile() if args.profile == "default" \
-        else AzimuthProfile.load(args.profile)
-    pos, cells = select_positions(
-        cloud.points, is_ground, args.n, seed=args.seed, cell_size=args.cell_size,
-        min_ground_points=args.min_ground_points, ground_count_radius=args.ground_count_radius,
-        ground_height_radius=args.ground_height_radius, scanner_height=args.scanner_height,
-        profile=profile, allow_fewer=args.allow_fewer, return_cells=True, progress=profile is not None)
-    res = {"input": str(args.input), "n_requested": args.n, "seed": args.seed,
-           "positions": pos.tolist(), "ground_points": int(is_ground.sum()), **cells.summary()}
-    with atomic_path(out) as tmp:
-        tmp.write_text(json.dumps(res, indent=1))
-    if args.png:
-        save_figure(cells_figure(cells, pos, cloud.points), args.png)
-    emit({k: v for k, v in res.items() if k != "positions"} | {"n_positions": len(pos), "output": str(out)})
+    args.profile_file = None if args.profile in ("none", "default") else args.profile
+    plan = _plan(args, inputs=[args.input], outputs=[args.output, args.png])
+    ground = ground_from(args)
+    with plan:
+        cloud = read_cloud(args.input, args.input_format)
+        is_ground = ground_labels(cloud, **ground)
+        profile = None if args.profile == "none" else default_profile() if args.profile == "default" \
+            else AzimuthProfile.load(args.profile)
+        pos, cells = select_positions(
+            cloud.points, is_ground, args.n, seed=args.seed, cell_size=args.cell_size,
+            min_ground_points=args.min_ground_points, ground_count_radius=args.ground_count_radius,
+            ground_height_radius=args.ground_height_radius, scanner_height=args.scanner_height,
+            profile=profile, allow_fewer=args.allow_fewer, return_cells=True, progress=profile is not None)
+        res = {"input": str(args.input), "n_requested": args.n, "seed": args.seed,
+               "positions": pos.tolist(), "ground_points": int(is_ground.sum()), **cells.summary()}
+        with atomic_path(args.output) as tmp:
+            tmp.write_text(json.dumps(res, indent=1))
+        if args.png:
+            save_figure(cells_figure(cells, pos, cloud.points), args.png)
+    emit({k: v for k, v in res.items() if k != "positions"} | {"n_positions": len(pos), "output": str(args.output)})
 
 
 def profile(args):
     from ..io import atomic_path
     from ..positions import build_synthetic_profile
 
-    _output(args.output, args.force)
-    prof = build_synthetic_profile(tuple(args.scenes.split(",")), args.positions_per_scene, args.seed)
-    with atomic_path(Path(args.output)) as tmp:
-        prof.save(tmp)
+    plan = _plan(args, outputs=[args.output])
+    with plan:
+        prof = build_synthetic_profile(tuple(args.scenes.split(",")), args.positions_per_scene, args.seed)
+        with atomic_path(args.output) as tmp:
+            prof.save(tmp)
     emit({"output": args.output, "n_scans": prof.meta["n_scans"], "min": int(prof.counts[0]),
           "max": int(prof.counts[-1])})
 
@@ -249,7 +265,7 @@ def validate(args):
         emit(asdict(config))
         return
     out = Path(args.output or f"slr_ray_validate_{config.name}")
-    res = run_validation(config, out, progress=not args.quiet)
+    res = run_validation(config, out, progress=not args.quiet)  # locks `out` while it runs
     rows = load_rows(out / "results.csv")
     save_figure(validation_figure(rows), out / "figure3.png")
     res["figures"] = [str(out / "figure3.png")]
@@ -270,29 +286,37 @@ def validate(args):
 
 
 def distances(args):
-    from ..distances import distance_study
+    from ..distances import distance_study, study_files
 
-    study = distance_study(args.input, origin=args.origin, heights=args.heights, positions=args.positions,
-                           seed=args.seed, resolution=args.resolution, max_range=args.max_range,
-                           scanner_height=args.scanner_height, min_ground_points=args.min_ground_points,
-                           ground=ground_from(args), progress=not args.quiet)
-    files = study.write(args.output)
+    plan = OutputPlan(force=args.force)
+    for path in args.input:
+        plan.read(path)
+    out = plan.directory(args.output)
+    for name in study_files(args.heights):
+        plan.write(out / name)
+    ground = ground_from(args)
+    with plan:
+        study = distance_study(args.input, origin=args.origin, heights=args.heights, positions=args.positions,
+                               seed=args.seed, resolution=args.resolution, max_range=args.max_range,
+                               scanner_height=args.scanner_height, min_ground_points=args.min_ground_points,
+                               ground=ground, progress=not args.quiet)
+        files = study.write(args.output)
     emit({"output_dir": str(args.output), **study.summary(), "files": files})
 
 
 def augment(args):
     from ..augment import augment as run
-    from ..io import read_cloud
-    from ..positions import ground_labels
 
-    ground = None
-    if args.csf or args.ground_attribute:
-        ground = ground_labels(read_cloud(args.input), **ground_from(args))
-    res = run(args.input, args.output, args.n, backend=args.backend, resolution=args.resolution,
-              heights=tuple(args.heights), fmt=args.format, seed=args.seed, sensor=args.sensor,
-              min_ground_points=args.min_ground_points, ground=ground, workers=args.workers,
-              scheduler=args.scheduler, progress=not args.quiet, backend_options=backend_from(args),
-              chunk_size=args.chunk_size, per_pass=args.per_pass)
+    ground = ground_from(args)
+    # the pattern and the backend's options are built once, by config.check() in augment()
+    config = AugmentConfig(n=args.n, resolution=args.resolution, sensor=args.sensor,
+                           heights=tuple(args.heights) if args.heights else None,
+                           scanner_height=args.scanner_height, backend=args.backend,
+                           backend_options=backend_from(args), fmt=args.format, seed=args.seed,
+                           min_ground_points=args.min_ground_points, workers=args.workers,
+                           scheduler=args.scheduler, chunk_size=args.chunk_size, per_pass=args.per_pass)
+    res = run(args.input, args.output, config, ground=ground if args.csf or args.ground_attribute else None,
+              progress=not args.quiet)
     emit({k: res[k] for k in ("input", "n_requested", "new_scans", "seconds", "software")}
          | {"scans": len(res["scans"]), "positions": len(res["positions"]),
             "points_out": sum(s["points"] for s in res["scans"]), "output_dir": str(args.output)})

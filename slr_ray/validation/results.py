@@ -17,7 +17,7 @@ import json
 import resource
 from pathlib import Path
 
-from ..errors import InputValueError
+from ..errors import FormatError, InputValueError
 from ..io import atomic_path
 
 __all__ = ["COLUMNS", "read_rows", "row_key", "ResultsWriter", "StageLog", "peak_rss_gib", "stage_summary",
@@ -33,14 +33,31 @@ def row_key(scene, resolution, position, backend, truth) -> tuple:
     return (str(scene), str(resolution), str(position), str(backend), str(truth))
 
 
+#: Columns a row is keyed and reported by: a results.csv without them is another program's.
+_KEY_COLUMNS = ("scene", "primary_resolution", "position", "backend", "truth", "similarity", "distance_m")
+
+
 def read_rows(path) -> dict:
     """Rows of a ``results.csv`` by :func:`row_key` (empty when there is no file)."""
     path = Path(path)
     if not path.exists():
         return {}
-    with open(path, newline="") as f:
-        rows = list(csv.DictReader(f))
+    try:
+        with open(path, newline="") as f:
+            reader = csv.DictReader(f)
+            head = reader.fieldnames or []
+            missing = [c for c in _KEY_COLUMNS if c not in head]
+            if missing and path.stat().st_size:
+                raise FormatError(f"{path} is not a results.csv of slr_ray (no column(s) {missing}): "
+                                  "write the validation elsewhere")
+            rows = list(reader)
+    except UnicodeDecodeError:
+        raise FormatError(f"{path} is not a results.csv of slr_ray (not text): write the validation elsewhere") \
+            from None
     for r in rows:
+        if None in r or any(r.get(c) is None for c in _KEY_COLUMNS):  # a row longer or shorter than the header
+            raise FormatError(f"{path}: a row does not match the header ({len(head)} columns): "
+                              "cut short or edited; remove it to resume")
         for k in ("precision", "fscore"):
             r.setdefault(k, "")
     return {row_key(r["scene"], r["primary_resolution"], r["position"], r["backend"], r["truth"]): r
@@ -119,7 +136,7 @@ class _AppendCSV:
                 head = next(csv.reader(f), [])
             missing = [c for c in head if c not in self.columns]
             if missing:
-                raise ValueError(f"{self.path} has columns {missing} this version does not write; "
+                raise FormatError(f"{self.path} has columns {missing} this version does not write; "
                                  "resume it with the version that made it or write elsewhere")
             self.header = head
         else:

@@ -21,6 +21,7 @@ import numpy as np
 from ..backends import prepare
 from ..io import atomic_path
 from ..meshscan import scan_mesh
+from ..outputs import OutputPlan
 from ..pattern import ScanPattern
 from ..positions import select_positions
 from ..scenes import scene_from_spec
@@ -94,10 +95,23 @@ def run_validation(config: ValidationConfig, outdir, progress: bool = True) -> d
     every primary scan, position draw, disc preparation and position loop)
     and ``outdir/settings.json`` (the settings its rows depend on: a resume
     with other values raises :class:`~slr_ray.errors.InputValueError`).
+    ``outdir`` is locked while the run writes there: a second run into it is
+    refused (:class:`~slr_ray.errors.OutputError`).
     """
     config.check()
-    out = Path(outdir)
-    out.mkdir(parents=True, exist_ok=True)
+    plan = OutputPlan()  # resumable files; the directory locked while this run writes
+    out = plan.directory(outdir)
+    for name in ("results.csv", "stages.csv", "settings.json"):
+        plan.write(out / name, resumed=True)
+    for entry in config.scenes:
+        spec = config.scene_entry(entry)[0]
+        if Path(spec).suffix.lower() == ".toml":
+            plan.read(spec, sidecars=False)
+    with plan:
+        return _run_validation(config, out, progress)
+
+
+def _run_validation(config: ValidationConfig, out: Path, progress: bool) -> dict:
     check_settings(out, config)
     csv_path = out / "results.csv"
     done = read_rows(csv_path)

@@ -1,0 +1,320 @@
+"""Every file a command touches, checked before the work: :class:`OutputPlan`.
+
+A command lists what it reads (the input, its sidecars such as a
+SemanticKITTI ``.label``, sensor files, profiles, configs) and what it will
+write (clouds and their sidecars, range images, PNGs, JSON, output
+directories), then enters the plan. The plan
+
+- resolves relative paths and links: an output that is a symbolic link is
+  written *through* (the link stays, the file it points to is replaced, as
+  ``cp`` and ``open(path, "w")`` do); an output that exists and is not a
+  regular file (a directory, a device, a FIFO) is refused;
+- refuses two outputs that are one file, and any output that is an input
+  (by resolved path, or by device and inode: a hard link), with ``--force``
+  too;
+- refuses an existing output unless ``force``;
+- locks every output directory (``.slr_ray.lock``, an advisory ``flock``,
+  released by the kernel when the process dies, even by ``kill -9``), so two
+  runs into one directory cannot both proceed;
+- removes the ``.part`` temporaries that a killed run left beside its
+  outputs (:func:`slr_ray.io.atomic_path` names them with the writer's host
+  and process id; those of a process still alive are left alone);
+- on an error, removes the directories it created, if they hold nothing.
+
+:func:`content_digest` is the identity of an input that resumes compare.
+"""
+
+from __future__ import annotations
+
+import errno
+import fcntl
+import hashlib
+import os
+import re
+import socket
+import stat
+from pathlib import Path
+
+from .errors import OutputError
+
+__all__ = ["OutputPlan", "resolve", "output_sidecars", "input_sidecars", "content_digest",
+           "clean_stale_parts", "part_prefix", "label_path", "LOCK_NAME"]
+
+#: The lock file in an output directory while a command writes there.
+LOCK_NAME = ".slr_ray.lock"
+
+
+def resolve(path) -> Path:
+    """``path`` absolute, ``~`` expanded and every symbolic link followed
+    (a dangling link: the path it points to)."""
+    return Path(os.path.realpath(os.path.abspath(os.path.expanduser(os.fspath(path)))))
+
+
+def output_sidecars(path, fmt: str | None = None) -> list:
+    """The files :func:`slr_ray.io.write_cloud` writes (or removes) beside ``path``
+    written as ``fmt`` (default: its extension): a KITTI ``.bin``'s SemanticKITTI ``.label``."""
+    p = Path(path)
+    ext = (fmt or p.suffix).lower()
+    return [p.with_suffix(".label")] if ext in (".bin", "bin") else []
+
+
+def label_path(bin_path) -> Path | None:
+    """The SemanticKITTI ``.label`` file of a KITTI ``.bin``, if there is one: next
+    to it (``000000.label``), or in the sequence's ``labels/`` beside ``velodyne/``."""
+    p = Path(bin_path)
+    for cand in (p.with_suffix(".label"), p.parent.parent / "labels" / (p.stem + ".label")):
+        if cand.is_file():
+            return cand
+    return None
+
+
+def input_sidecars(path) -> list:
+    """The files :func:`slr_ray.io.read_cloud` reads beside ``path`` (a ``.bin``'s labels)."""
+    if Path(path).suffix.lower() == ".bin":
+        lab = label_path(path)
+        return [lab] if lab is not None else []
+    return []
+
+
+# --- temporaries ---------------------------------------------------------------------------------------------
+
+_HOST = re.sub(r"[^A-Za-z0-9_-]", "_", socket.gethostname())[:40] or "host"
+_PART = re.compile(r"^\.(?P<name>.+)\.(?P<pid>\d+)@(?P<host>[A-Za-z0-9_-]+)\.[^.]+\.part")
+
+
+def part_prefix(path) -> str:
+    """The start of a temporary's name for ``path``: ``.NAME.PID@HOST.``."""
+    return f".{Path(path).name}.{os.getpid()}@{_HOST}."
+
+
+def _alive(pid: int) -> bool:
+    try:
+        os.kill(pid, 0)
+    except ProcessLookupError:
+        return False
+    except PermissionError:
+        return True
+    return True
+
+
+def clean_stale_parts(directory, names=None, *, locked: bool = False) -> list:
+    """Remove temporaries left in ``directory`` by writers that died (kill -9,
+    power loss): those of this host whose process is gone. With ``locked``
+    (the caller holds the directory's lock, so no other run writes there),
+    also those of an older slr_ray without host and process in the name.
+    ``names``: only temporaries of these file names. Returns the paths removed."""
+    d = Path(directory)
+    if not d.is_dir():
+        return []
+    wanted = None if names is None else {Path(n).name for n in names}
+    removed = []
+    for p in d.iterdir():
+        if not (p.name.startswith(".") and ".part" in p.name) or not p.is_file():
+            continue
+        m = _PART.match(p.name)
+        if m is not None:
+            stale = m["host"] == _HOST and not _alive(int(m["pid"]))
+            name = m["name"]
+        else:  # .NAME.RANDOM.partEXT (slr_ray before 0.2)
+            stale = locked
+            name = p.name[1:].rsplit(".part", 1)[0].rsplit(".", 1)[0]
+        if stale and (wanted is None or name in wanted):
+            p.unlink(missing_ok=True)
+            removed.append(p)
+    return removed
+
+
+# --- identity ------------------------------------------------------------------------------------------------
+
+def content_digest(path, block: int = 1 << 22) -> str:
+    """BLAKE2b (128 bit) of the whole file, as hex: an input edited in place
+    (same size, even the same mtime) has another digest. Reads the file once
+    (about 1 GB/s a core; see docs/guarantees.md for the measured cost)."""
+    h = hashlib.blake2b(digest_size=16)
+    with open(path, "rb") as f:
+        while chunk := f.read(block):
+            h.update(chunk)
+    return h.hexdigest()
+
+
+# --- the plan ------------------------------------------------------------------------------------------------
+
+class _Lock:
+    """An exclusive advisory lock on ``directory/.slr_ray.lock`` (non-blocking)."""
+
+    def __init__(self, directory: Path):
+        self.path = directory / LOCK_NAME
+        self.fd = None
+
+    def acquire(self) -> None:
+        for _ in range(3):
+            fd = os.open(self.path, os.O_RDWR | os.O_CREAT, 0o666)
+            try:
+                fcntl.flock(fd, fcntl.LOCK_EX | fcntl.LOCK_NB)
+            except OSError as exc:
+                holder = os.pread(fd, 64, 0).decode("ascii", "replace").strip()
+                os.close(fd)
+                if exc.errno in (errno.EAGAIN, errno.EACCES):
+                    raise OutputError(f"{self.path.parent} is in use by another slr-ray run"
+                                      f"{f' ({holder})' if holder else ''}: wait for it, or write elsewhere") from None
+                raise
+            # the file may have been removed by the run that held it, between our open and flock
+            try:
+                same = os.stat(self.path).st_ino == os.fstat(fd).st_ino
+            except FileNotFoundError:
+                same = False
+            if same:
+                os.ftruncate(fd, 0)
+                os.pwrite(fd, f"pid {os.getpid()} on {_HOST}".encode(), 0)
+                self.fd = fd
+                return
+            os.close(fd)
+        raise OutputError(f"cannot lock {self.path.parent}: its lock file keeps changing")
+
+    def release(self) -> None:
+        if self.fd is not None:
+            try:
+                os.unlink(self.path)
+            except FileNotFoundError:
+                pass
+            os.close(self.fd)
+            self.fd = None
+
+
+class OutputPlan:
+    """What one command reads and writes, checked before any work.
+
+    Parameters
+    ----------
+    force : bool
+        Existing output files may be replaced (never an input).
+
+    Build it with :meth:`read`, :meth:`write` and :meth:`directory`, then
+    ``with plan:`` (or :meth:`check` alone, for a plan without directories).
+    Entering checks everything (:class:`~slr_ray.errors.OutputError` naming
+    the path), creates and locks the output directories and removes stale
+    temporaries; leaving releases the locks, and on an error also removes
+    the directories the plan created if nothing else was left in them.
+
+    Examples
+    --------
+    >>> plan = OutputPlan(force=False)
+    >>> plan.read("in.bin")                       # doctest: +SKIP
+    >>> out = plan.write("out.bin")               # doctest: +SKIP  (and out.label)
+    >>> with plan:                                # doctest: +SKIP
+    ...     write_cloud(out, cloud)
+    """
+
+    def __init__(self, force: bool = False):
+        self.force = bool(force)
+        self.inputs: dict = {}      # resolved -> as named
+        self.outputs: dict = {}     # resolved -> as named
+        self.resumed: dict = {}     # outputs a resumed run may replace without force
+        self.directories: dict = {}
+        self._locks: list = []
+        self._created: list = []
+
+    # -- building --
+    def read(self, path, sidecars: bool = True):
+        """An input (and, with ``sidecars``, what the reader reads beside it). None is skipped."""
+        if path is None:
+            return None
+        self.inputs.setdefault(resolve(path), str(path))
+        if sidecars:
+            for s in input_sidecars(path):
+                self.inputs.setdefault(resolve(s), str(s))
+        return Path(path)
+
+    def write(self, path, sidecars: bool = True, fmt: str | None = None, resumed: bool = False):
+        """An output file (and, with ``sidecars``, what the writer of format ``fmt``,
+        default the extension's, writes beside it). ``resumed``: a file the command
+        itself may find from an earlier run and replace (augment's scans), exempt
+        from the ``force`` check, never from the others. Returns the path to write:
+        through a link, the file it points to. None is skipped."""
+        if path is None:
+            return None
+        for p in [Path(path)] + (output_sidecars(path, fmt) if sidecars else []):
+            r = resolve(p)
+            if r in self.outputs or r in self.resumed:
+                raise OutputError(f"{p} is named twice among this command's outputs "
+                                  f"({self.outputs.get(r) or self.resumed.get(r)} is the same file)")
+            (self.resumed if resumed else self.outputs)[r] = str(p)
+        return resolve(path)
+
+    def directory(self, path) -> Path:
+        """An output directory: created if missing and locked while the plan is entered."""
+        r = resolve(path)
+        self.directories.setdefault(r, str(path))
+        return r
+
+    # -- checking --
+    def check(self) -> "OutputPlan":
+        """Every check that needs no lock; raises OutputError; returns self."""
+        inodes = {}
+        for r, named in self.inputs.items():
+            try:
+                st = os.stat(r)
+                inodes[(st.st_dev, st.st_ino)] = named
+            except OSError:
+                pass  # a missing input is the reader's error
+        for r, named in self.directories.items():
+            if r.exists() and not r.is_dir():
+                raise OutputError(f"{named} exists and is not a directory")
+            if r in self.inputs:
+                raise OutputError(f"{named} is an input of this command")
+        for r, named in [*self.outputs.items(), *self.resumed.items()]:
+            resumed = r in self.resumed
+            if r in self.inputs:
+                raise OutputError(f"{named} is an input of this command ({self.inputs[r]}): refusing to write "
+                                  "over it, with --force too")
+            try:
+                st = os.stat(r)
+            except FileNotFoundError:
+                st = None
+            if st is not None:
+                if not stat.S_ISREG(st.st_mode):
+                    kind = "a directory" if stat.S_ISDIR(st.st_mode) else "not a regular file"
+                    raise OutputError(f"{named} is {kind}: refusing to write it")
+                if (st.st_dev, st.st_ino) in inodes:
+                    raise OutputError(f"{named} is the same file as the input {inodes[(st.st_dev, st.st_ino)]} "
+                                      "(a hard link): refusing to write over it")
+                if not self.force and not resumed:
+                    raise OutputError(f"{named} exists (use --force to overwrite)")
+            parent = r.parent
+            if not parent.is_dir() and not any(parent == d or d in parent.parents for d in self.directories):
+                raise OutputError(f"no directory {parent} for {named}")
+        return self
+
+    # -- entering --
+    def __enter__(self) -> "OutputPlan":
+        self.check()
+        try:
+            for r in sorted(self.directories):
+                missing = [p for p in [r, *r.parents] if not p.exists()]
+                r.mkdir(parents=True, exist_ok=True)
+                self._created += sorted(missing, key=lambda p: len(p.parts), reverse=True)
+                lock = _Lock(r)
+                lock.acquire()
+                self._locks.append(lock)
+                clean_stale_parts(r, locked=True)
+            files = [*self.outputs, *self.resumed]
+            for parent in {r.parent for r in files} - set(self.directories):
+                clean_stale_parts(parent, [r.name for r in files if r.parent == parent])
+            self.check()  # again under the lock: another run may have written meanwhile
+        except BaseException:
+            self.__exit__(OutputError, None, None)
+            raise
+        return self
+
+    def __exit__(self, exc_type, exc, tb) -> bool:
+        for lock in reversed(self._locks):
+            lock.release()
+        self._locks.clear()
+        if exc_type is not None:
+            for d in self._created:  # deepest first
+                try:
+                    d.rmdir()
+                except OSError:
+                    pass  # not empty (or gone): what a run wrote there stays
+        self._created.clear()
+        return False
