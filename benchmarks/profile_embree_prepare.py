@@ -47,7 +47,7 @@ def main(argv=None):
     from slr_ray import ScanPattern
     from slr_ray.arrays import bounds
     from slr_ray.backends import embree as E
-    from slr_ray.backends.binning import pulse_keys
+    from slr_ray.core import pulse_keys
     from slr_ray.pattern import as_pattern, pulse_rays
     from slr_ray.raycast import RayScene, _fill_vertices
 
@@ -62,7 +62,7 @@ def main(argv=None):
     # touching ~16 bytes a point of fresh memory, this one only for the arithmetic
     from concurrent.futures import ThreadPoolExecutor
 
-    from slr_ray.backends.binning import _block_keys_range, _kernel_params
+    from slr_ray.core.grid import block_keys_range as _block_keys_range, kernel_params as _kernel_params
 
     params = _kernel_params(o, pat)
     n = len(pts)

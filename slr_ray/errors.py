@@ -25,3 +25,11 @@ class FormatError(SlrError, ValueError):
 
 class MissingDependencyError(SlrError, ImportError):
     """An optional dependency needed for this call is not installed."""
+
+
+class StateError(SlrError, RuntimeError):
+    """An object was asked for something its state no longer allows (tables already released...)."""
+
+
+class EngineError(SlrError, RuntimeError):
+    """The ray engine (the Embree library) reported an error."""

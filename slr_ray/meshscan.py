@@ -34,7 +34,7 @@ from pathlib import Path
 import numpy as np
 
 from .arrays import as_origin
-from .backends.binning import BinTables, ranges_of
+from .core import BinTables, ranges_of
 from .errors import InputValueError
 from .io import atomic_path
 from .pattern import ScanPattern, as_pattern, pulse_rays

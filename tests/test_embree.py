@@ -325,7 +325,7 @@ def _grid_brute(pts, origin, res, gate, beams=None):
     azimuth, per-beam offsets 0; with ``beams``, each point in its beam's row)."""
     import dataclasses
 
-    from slr_ray.backends.binning import pulse_keys
+    from slr_ray.core import pulse_keys
     from slr_ray.pattern import as_pattern
 
     pattern = as_pattern(res)
@@ -560,7 +560,7 @@ def test_pulse_grid_walks_the_order_the_cloud_is_stored_in():
     walked by columns, one stored row by row by rows; the neighbours are the
     same either way (tested above)."""
     from slr_ray import scan_mesh
-    from slr_ray.backends.binning import pulse_keys
+    from slr_ray.core import pulse_keys
     from slr_ray.backends.embree import _sorted_pulse_grid
     from slr_ray.scenes import rectangle_scene
 

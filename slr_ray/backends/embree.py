@@ -68,7 +68,6 @@ not returned.
 
 from __future__ import annotations
 
-import dataclasses
 import math
 import time
 from dataclasses import dataclass
@@ -78,13 +77,13 @@ from numba import njit, prange
 from scipy.spatial import cKDTree
 
 from ..arrays import as_origin, as_points, bounds
+from ..core import ranges_of
 from ..errors import InputValueError, MissingDependencyError
 from ..pattern import as_pattern, pulse_rays
 from ..raycast import RayScene, padded_rows
 from ..scan import Scan
 from ..threads import default_threads
 from .base import BackendOptions, Scanner
-from .binning import pulse_keys, ranges_of
 
 __all__ = ["EmbreeOptions", "DiscScanner", "disc_radii", "estimate_normals", "neighbourhoods",
            "grid_neighbourhoods", "pulse_grid_spacing_normals", "grid_gate", "RADIUS_MODES", "ORIENTATIONS", "ENGINES", "NEIGHBOURS"]
@@ -231,9 +230,7 @@ class EmbreeOptions(BackendOptions):
             if not (isinstance(v, (int, float)) and math.isfinite(v) and v > 0):
                 raise InputValueError(f"{name} must be a finite number > 0, got {v!r}")
         if self.ties is None:  # frozen: set through object.__setattr__
-            from ..sensors import BeamPattern
-
-            beams = self.primary_pattern is not None and isinstance(as_pattern(self.primary_pattern), BeamPattern)
+            beams = self.primary_pattern is not None and as_pattern(self.primary_pattern).has_beams
             object.__setattr__(self, "ties", 3.0 if beams else 1.0)
         if not (isinstance(self.ties, (int, float)) and math.isfinite(self.ties) and self.ties >= 0):
             raise InputValueError(f"ties must be a finite number >= 0, got {self.ties!r}")
@@ -245,7 +242,7 @@ class EmbreeOptions(BackendOptions):
             if self.primary_resolution is not None:
                 raise InputValueError("give primary_resolution or primary_pattern, not both")
             as_pattern(self.primary_pattern)  # an unknown name or type fails here, not in prepare
-        if self.primary_beams is not None and not hasattr(self.primary_grid, "rows_of_beams"):
+        if self.primary_beams is not None and not getattr(self.primary_grid, "has_beams", False):
             raise InputValueError("primary_beams (each point's beam) needs primary_pattern, the primary's "
                                   "beam table")
         if self.neighbours is None:  # frozen: set through object.__setattr__
@@ -407,8 +404,8 @@ def _sorted_pulse_grid(pts, origin, primary_resolution, layout: str = "auto", be
     """
     pattern = _grid_pattern(primary_resolution)
     if beams is None:
-        keys, ranges = pulse_keys(pts, origin, pattern)
-    elif not hasattr(pattern, "rows_of_beams"):
+        keys, ranges = pattern.keys(pts, origin)
+    elif not pattern.has_beams:
         raise InputValueError("beams (a point's beam id) need a beam-table primary (primary_pattern), "
                               "not degrees")
     else:
@@ -434,11 +431,7 @@ def _sorted_pulse_grid(pts, origin, primary_resolution, layout: str = "auto", be
 def _grid_pattern(primary):
     """The pattern whose pulses make the pulse grid: ``primary`` (degrees or a
     pattern) as a pattern, a beam table's per-beam azimuth offsets set to 0."""
-    pattern = as_pattern(primary)
-    offsets = getattr(pattern, "azimuth_offset_deg", None)
-    if offsets is not None and any(offsets):
-        pattern = dataclasses.replace(pattern, azimuth_offset_deg=(0.0,) * len(offsets))
-    return pattern
+    return as_pattern(primary).aligned()
 
 
 @njit(cache=True)
@@ -1129,7 +1122,7 @@ class DiscScanner(Scanner):
         n_ray_hits = len(pt)
         # points the pattern itself would not see (range limits, field of view) are not returned
         uniq, inverse = np.unique(pt, return_inverse=True)
-        keys, _ = pulse_keys(self.points[uniq], origin, pattern)
+        keys, _ = pattern.keys(self.points[uniq], origin)
         nearest = _nearest_ray(inverse, tt, len(uniq))  # per point, its nearest ray (the first of equals)
         seen = keys >= 0
         idx = uniq[seen].astype(np.intp)
@@ -1158,13 +1151,7 @@ def _nearest_ray(group, t, n_groups):
 def _pulse_steps(pattern) -> tuple[float, float]:
     """Zenith and azimuth step of a pattern's pulses, radians (a beam table: its
     mean row gap)."""
-    nv, nh = pattern.shape
-    if hasattr(pattern, "band_edges"):
-        edges = pattern.band_edges
-        d_theta = float(edges[-1] - edges[0]) / nv
-    else:
-        d_theta = pattern.radians[0]
-    return d_theta, 2 * math.pi / nh
+    return pattern.pulse_steps
 
 
 def _pulse_aspect(pattern) -> float:
