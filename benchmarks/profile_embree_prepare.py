@@ -49,7 +49,8 @@ def main(argv=None):
     from slr_ray.backends import embree as E
     from slr_ray.core import pulse_keys
     from slr_ray.pattern import as_pattern, pulse_rays
-    from slr_ray.raycast import RayScene, _fill_vertices
+    from slr_ray.raycast import RayScene
+    from slr_ray.raycast.scene import _fill_vertices
 
     pts = np.ascontiguousarray(np.load(path, mmap_mode="r"))
     res, o = args.resolution, np.zeros(3)
