@@ -243,7 +243,7 @@ def augment(input_path, outdir, n: int, *, backend: str = "binning", resolution:
 
         if input_path.suffix.lower() not in STREAMED_FORMATS:
             raise InputValueError(f"chunk_size streams {'/'.join(STREAMED_FORMATS)} inputs, not {input_path.suffix!r}")
-        if backend != "binning" or not isinstance(pattern, ScanPattern):
+        if backend != "binning" or not pattern.streamable:
             raise InputValueError("a streamed augment runs the binning backend with a uniform pattern")
         if scheduler:
             raise InputValueError("a streamed augment runs in this process: chunk_size or scheduler, not both")

@@ -89,7 +89,7 @@ def run_demo(outdir="slr_ray_demo", n_rectangles: int = 200, n_positions: int = 
         # embree on a primary of known origin and resolution: discs of the pulse footprint facing the
         # primary scanner need no neighbour search (the dearest part of preparing discs)
         options = {"radius": "footprint", "orientation": "primary", "primary_origin": origin,
-                   "primary_resolution": primary_res} if b == "embree" else None
+                   "primary_resolution": primary_res} if b == Backend.EMBREE else None
         scanners[b] = prepare(primary.points, b, options)
         _log(f"{b}: prepared in {scanners[b].prepare_seconds:.1f} s")
 

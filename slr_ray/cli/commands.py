@@ -60,7 +60,6 @@ def _output(path, force: bool = False, inputs=()) -> Path | None:
 def scan(args):
     from ..backends import options_for
     from ..io import check_format, read_cloud, write_cloud
-    from ..pattern import ScanPattern
     from ..streaming import STREAMED_FORMATS, scan_las
 
     pattern = pattern_from(args)
@@ -74,7 +73,7 @@ def scan(args):
               "pattern": pattern.to_dict(), "backend": args.backend, "options": options.to_dict()})
         return
     # LAS/LAZ stream through the uniform binning reduction; beam tables read the file whole
-    streamed = (args.backend == "binning" and isinstance(pattern, ScanPattern)
+    streamed = (args.backend == "binning" and pattern.streamable
                 and check_format(args.input, args.input_format) in STREAMED_FORMATS)
     if streamed:
         # LAS/LAZ: two passes in chunks, memory bounded by a chunk and the scan, not the file
