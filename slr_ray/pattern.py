@@ -193,10 +193,10 @@ class ScanPattern(Pattern):
         """``(d_theta, 2 pi / n_azimuth)``, radians."""
         return self.radians[0], 2 * math.pi / self.n_azimuth
 
-    def keys(self, points, origin, beams=None):
-        """Pulse key ``v * n_azimuth + h`` and range of every point (:mod:`slr_ray.core.grid`).
+    def pulse_ids(self, points, origin, beams=None):
+        """Pulse id ``v * n_azimuth + h`` and range of every point (:mod:`slr_ray.core.grid`).
 
-        Key -1: not seen; -2: not finite. ``beams`` is for beam tables only."""
+        -1: not seen; -2: not finite. ``beams`` is for beam tables only."""
         if beams is not None:
             raise InputValueError("beams (a point's beam id) need a beam-table pattern, not a uniform grid")
         return grid_keys(points, origin, self)

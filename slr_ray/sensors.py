@@ -48,6 +48,7 @@ import dataclasses
 import functools
 import json
 import math
+import warnings
 from dataclasses import dataclass, field
 from pathlib import Path
 
@@ -157,7 +158,7 @@ class BeamPattern(Pattern):
     # --- the pattern protocol (slr_ray.core.Pattern) -----------------------------------------------------
     @property
     def has_beams(self) -> bool:
-        """A point may carry the beam that fired it (:meth:`keys`, :meth:`rows_of_beams`)."""
+        """A point may carry the beam that fired it (:meth:`pulse_ids`, :meth:`rows_of_beams`)."""
         return True
 
     @property
@@ -199,6 +200,11 @@ class BeamPattern(Pattern):
         return dataclasses.replace(self, **changes)
 
     def keys(self, points, origin, beams=None):
+        """Deprecated name of :meth:`pulse_ids`."""
+        warnings.warn("BeamPattern.keys is deprecated; use BeamPattern.pulse_ids", DeprecationWarning, stacklevel=2)
+        return self.pulse_ids(points, origin, beams)
+
+    def pulse_ids(self, points, origin, beams=None):
         """Flat pulse ids ``row * columns + column`` (``-1``: not seen) and ranges of ``points``.
 
         ``beams`` (optional, ``(n,)`` integers): the beam (table position) that

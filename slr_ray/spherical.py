@@ -69,7 +69,7 @@ def pulse_bins(points, origin, pattern: Pattern):
     side of it here as in a scan (numpy's own ``arctan2`` may differ from the
     C library's in the last bit).
     """
-    keys, ranges = pattern.keys(as_points(points), as_origin(origin))
+    keys, ranges = pattern.pulse_ids(as_points(points), as_origin(origin))
     visible = keys >= 0
     nh = pattern.n_azimuth
     return np.where(visible, keys // nh, -1), np.where(visible, keys % nh, -1), ranges, visible

@@ -43,7 +43,7 @@ def test_a_beam_table_is_reduced_by_its_own_rule():
     pattern = sensor("velodyne_vlp16", columns=360)
     assert not pattern.streamable
     got = prepare(pts).scan([0, 0, 0], pattern)
-    keys, ranges = pattern.keys(pts, np.zeros(3))
+    keys, ranges = pattern.pulse_ids(pts, np.zeros(3))
     best = {}
     for i in np.flatnonzero(keys >= 0):  # nearest per pulse, ties to the lowest index
         k = keys[i]
@@ -57,11 +57,17 @@ def test_names_moved_to_the_core_still_import_with_a_warning():
     from slr_ray import core
     from slr_ray.backends import binning
 
-    with pytest.warns(DeprecationWarning, match="slr_ray.core.pulse_keys"):
-        assert binning.pulse_keys is core.pulse_keys
+    with pytest.warns(DeprecationWarning, match="slr_ray.core.pulse_ids"):
+        assert binning.pulse_keys is core.pulse_ids
     with pytest.warns(DeprecationWarning, match="slr_ray.core.BinTables"):
         assert binning.BinTables is core.BinTables
     with warnings.catch_warnings():
         warnings.simplefilter("error")
         with pytest.raises(AttributeError):
             binning.no_such_name
+    pattern = sensor("velodyne_vlp16")
+    pts = np.random.default_rng(0).normal(size=(50, 3))
+    with pytest.warns(DeprecationWarning, match="pulse_ids"):
+        old = pattern.keys(pts, np.zeros(3))
+    for a, b in zip(old, pattern.pulse_ids(pts, np.zeros(3))):
+        np.testing.assert_array_equal(a, b)

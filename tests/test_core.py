@@ -7,7 +7,7 @@ from hypothesis import given, settings
 from hypothesis import strategies as st
 
 from slr_ray import ScanAccumulator, ScanPattern
-from slr_ray.core import BinTables, grid, pulse_keys, tables
+from slr_ray.core import BinTables, grid, pulse_ids, tables
 from slr_ray.core.grid import block_keys_range, kernel_params, keys_exact
 from slr_ray.errors import StateError
 from slr_ray.errors import InputValueError
@@ -45,7 +45,7 @@ def near_edge_points(pattern, n=20000, seed=0, eps=(0.0, 1e-15, 1e-12, 1e-9, 1e-
 ])
 def test_fast_path_equals_libm_near_edges(pattern):
     pts = near_edge_points(pattern)
-    keys, _ = pulse_keys(pts, np.zeros(3), pattern)
+    keys, _ = pulse_ids(pts, np.zeros(3), pattern)
     np.testing.assert_array_equal(keys, exact_keys(pts, np.zeros(3), pattern))
 
 
@@ -55,7 +55,7 @@ def test_fast_path_equals_libm_near_edges(pattern):
 def test_fast_path_equals_libm_anywhere(xyz, res):
     pattern = ScanPattern(res)
     pts = np.array([xyz])
-    keys, ranges = pulse_keys(pts, np.zeros(3), pattern)
+    keys, ranges = pulse_ids(pts, np.zeros(3), pattern)
     if ranges[0] > 0:  # below ~1e-154 m the squared range underflows: "at the origin"
         assert keys[0] == exact_keys(pts, np.zeros(3), pattern)[0]
     else:
@@ -66,7 +66,7 @@ def test_axes_and_signed_zeros_take_the_exact_path():
     pts = np.array([[0.0, 0, 1], [0, 0, -1], [-0.0, 0, 1], [1, 0, 0], [-1, 0, 0], [-1, -0.0, 0],
                     [0, 1, 0], [0, -1, 0], [1e-300, 1e-300, 1], [1, 1, 0.0]])
     pattern = ScanPattern(1.0)
-    keys, _ = pulse_keys(pts, np.zeros(3), pattern)
+    keys, _ = pulse_ids(pts, np.zeros(3), pattern)
     np.testing.assert_array_equal(keys, exact_keys(pts, np.zeros(3), pattern))
 
 
@@ -166,7 +166,7 @@ def test_fast_path_outside_the_view_and_range_limits(pattern):
     r = np.where(rng.random(n) < 0.5, rng.uniform(0.5 * rmin, 1.5 * rmin + 1, n),
                  rmax * (1 + rng.choice([-1e-15, 0.0, 1e-15, -0.1, 0.1], n)))
     pts = np.column_stack([r * np.sin(theta) * np.cos(phi), r * np.sin(theta) * np.sin(phi), r * np.cos(theta)])
-    keys, ranges = pulse_keys(pts, np.zeros(3), pattern)
+    keys, ranges = pulse_ids(pts, np.zeros(3), pattern)
     ref = exact_keys(pts, np.zeros(3), pattern)
     ref[(ranges < rmin) | (ranges > rmax) | (ranges == 0)] = -1
     np.testing.assert_array_equal(keys, ref)
@@ -237,7 +237,7 @@ def test_compact_and_wide_hash_records_agree_and_widen_when_indices_outgrow_them
     for t in (compact, wide, widened):
         keys, ranges, idx = t.winners(pts)
         np.testing.assert_array_equal(idx, expected)
-        np.testing.assert_array_equal(keys, pulse_keys(pts[idx], np.zeros(3), pattern)[0])
+        np.testing.assert_array_equal(keys, pulse_ids(pts[idx], np.zeros(3), pattern)[0])
 
 
 def test_pulse_keys_split_over_threads_equal_one_pass():
@@ -246,7 +246,7 @@ def test_pulse_keys_split_over_threads_equal_one_pass():
     pts = rng.normal(size=(3 * 2**20 + 7, 3)) * 30 + [4e5, -3e6, 20]
     origin = np.array([4e5 + 1, -3e6 - 2, 21.5])
     p = ScanPattern(0.2, max_range=80)
-    keys, ranges = pulse_keys(pts, origin, p)
+    keys, ranges = pulse_ids(pts, origin, p)
     k1, r1 = np.empty(len(pts), np.int64), np.empty(len(pts))
     block_keys_range(pts, *kernel_params(origin, p), k1, r1, 0, len(pts))
     np.testing.assert_array_equal(keys, k1)

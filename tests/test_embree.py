@@ -325,14 +325,14 @@ def _grid_brute(pts, origin, res, gate, beams=None):
     azimuth, per-beam offsets 0; with ``beams``, each point in its beam's row)."""
     import dataclasses
 
-    from slr_ray.core import pulse_keys
+    from slr_ray.core import pulse_ids
     from slr_ray.pattern import as_pattern
 
     pattern = as_pattern(res)
     if getattr(pattern, "azimuth_offset_deg", None) is not None:
         pattern = dataclasses.replace(pattern, azimuth_offset_deg=(0.0,) * len(pattern.azimuth_offset_deg))
     if beams is None:
-        keys, ranges = pulse_keys(pts, np.asarray(origin, float), pattern)
+        keys, ranges = pulse_ids(pts, np.asarray(origin, float), pattern)
     else:  # a point's row is its beam's; its column, its absolute azimuth's
         nh = pattern.shape[1]
         rel = pts - np.asarray(origin, float)
@@ -561,13 +561,13 @@ def test_pulse_grid_walks_the_order_the_cloud_is_stored_in():
     walked by columns, one stored row by row by rows; the neighbours are the
     same either way (tested above)."""
     from slr_ray import scan_mesh
-    from slr_ray.core import pulse_keys
+    from slr_ray.core import pulse_ids
     from slr_ray.backends.embree.pulsegrid import sorted_pulse_grid as _sorted_pulse_grid
     from slr_ray.scenes import rectangle_scene
 
     pattern = ScanPattern(1.0)
     cloud = scan_mesh(rectangle_scene(20, seed=1), [0, 0, 0], pattern).points  # row by row, as scanned
-    k, _ = pulse_keys(cloud, np.zeros(3), pattern)
+    k, _ = pulse_ids(cloud, np.zeros(3), pattern)
     v, h = np.divmod(k, pattern.n_azimuth)
     by_column = cloud[np.lexsort((v, h))]
     assert _sorted_pulse_grid(cloud, np.zeros(3), 1.0)[5] is False
@@ -773,8 +773,8 @@ def test_primary_beams_put_each_point_in_its_beams_row():
     frame = scan_mesh(mesh, o, sensor("velodyne_hdl64e_s3", columns=1000))
     pts, kept = sensor_noise(frame.points, o, frame.pulses[:, 0], seed=0)
     beams = nominal.beam_of_row[frame.pulses[kept, 0]]
-    k_band, _ = nominal.keys(pts, o)
-    k_beam, _ = nominal.keys(pts, o, beams)
+    k_band, _ = nominal.pulse_ids(pts, o)
+    k_beam, _ = nominal.pulse_ids(pts, o, beams)
     assert np.mean(k_band // nominal.columns != k_beam // nominal.columns) > 0.5  # the two units differ
     # neighbours against the brute force on a slice of the frame (keys from the beams)
     sub, sub_beams = pts[::7], beams[::7]

@@ -33,7 +33,7 @@ from .base import Backend, BackendOptions, Scanner
 __all__ = ["BinningOptions", "BinningScanner"]
 
 #: names this module had before the pulse geometry moved to slr_ray.core (deprecated here)
-_MOVED = {"pulse_keys": (core.pulse_keys, "slr_ray.core.pulse_keys"),
+_MOVED = {"pulse_keys": (core.pulse_ids, "slr_ray.core.pulse_ids"),
           "ranges_of": (core.ranges_of, "slr_ray.core.ranges_of"),
           "BinTables": (core.BinTables, "slr_ray.core.BinTables"),
           "default_threads": (threads.default_threads, "slr_ray.threads.default_threads")}

@@ -8,6 +8,11 @@
   (range, index) that the binning backend, streamed scans and mesh ground
   truths reduce points with.
 
+The pulse index has one name: the *pulse id* ``row * columns + column``
+(``v * n_azimuth + h`` for a uniform grid; :attr:`slr_ray.Scan.pulse_ids`,
+:meth:`Pattern.ravel`). The kernels call a point's id, or its -1 / -2
+sentinel, its *key*.
+
 Nothing here imports a backend, a pattern class or any module above it:
 backends, mesh scans, streaming and the pattern modules import the core.
 """
@@ -16,14 +21,15 @@ from .grid import grid_keys, ranges_of
 from .protocol import Pattern
 from .tables import BinTables
 
-__all__ = ["Pattern", "BinTables", "pulse_keys", "grid_keys", "ranges_of"]
+__all__ = ["Pattern", "BinTables", "pulse_ids", "grid_keys", "ranges_of"]
 
 
-def pulse_keys(points, origin, pattern: Pattern):
-    """Pulse key ``row * columns + column`` and range of every point
-    (``pattern.keys``). Key -1: not seen; -2: not finite.
+def pulse_ids(points, origin, pattern: Pattern):
+    """Pulse id ``row * columns + column`` and range of every point
+    (``pattern.pulse_ids``): -1 where the point is not seen, -2 where it is
+    not finite.
 
     The same compiled arithmetic as every scan, so a point on a bin edge
     falls on the same side here as in a scan.
     """
-    return pattern.keys(points, origin)
+    return pattern.pulse_ids(points, origin)

@@ -25,11 +25,11 @@ __all__ = ["Pattern"]
 
 
 class Pattern(ABC):
-    """A scanner's pulses: ``rows x columns`` of them, each with a key
+    """A scanner's pulses: ``rows x columns`` of them, each with a pulse id
     ``row * columns + column``.
 
     Abstract members: :attr:`shape`, :attr:`range_limits`,
-    :attr:`pulse_steps`, :meth:`keys`, :meth:`rays`, :meth:`reduce`,
+    :attr:`pulse_steps`, :meth:`pulse_ids`, :meth:`rays`, :meth:`reduce`,
     :meth:`aligned`, :meth:`to_dict`, :meth:`with_`.
     """
 
@@ -45,7 +45,7 @@ class Pattern(ABC):
     @property
     def has_beams(self) -> bool:
         """Whether the pulses are fired by a fixed set of beams, so that a
-        point can carry the beam that fired it (``keys(..., beams=...)``,
+        point can carry the beam that fired it (``pulse_ids(..., beams=...)``,
         ``rows_of_beams``): a real sensor's frame."""
         return False
 
@@ -82,12 +82,12 @@ class Pattern(ABC):
         mean row gap)."""
 
     def ravel(self, pulses) -> np.ndarray:
-        """Flat pulse keys ``row * columns + column`` (int64) of ``(m, 2)`` pulses ``(row, column)``."""
+        """Flat pulse ids ``row * columns + column`` (int64) of ``(m, 2)`` pulses ``(row, column)``."""
         p = np.asarray(pulses, dtype=np.int64).reshape(-1, 2)
         return p[:, 0] * self.n_azimuth + p[:, 1]
 
     def unravel(self, ids) -> np.ndarray:
-        """``(m, 2) int64`` pulses ``(row, column)`` of flat pulse keys (the inverse of :meth:`ravel`)."""
+        """``(m, 2) int64`` pulses ``(row, column)`` of flat pulse ids (the inverse of :meth:`ravel`)."""
         ids = np.asarray(ids, dtype=np.int64).ravel()
         if len(ids) and ids.min() < 0:
             raise InputValueError("pulse ids must be >= 0")
@@ -95,8 +95,8 @@ class Pattern(ABC):
 
     # --- binning and rays -------------------------------------------------------------------------------
     @abstractmethod
-    def keys(self, points, origin, beams=None):
-        """Pulse key (``-1``: not seen; ``-2``: not finite) and range of every point.
+    def pulse_ids(self, points, origin, beams=None):
+        """Pulse id (``-1``: not seen; ``-2``: not finite) and range of every point.
 
         Parameters
         ----------
@@ -107,7 +107,7 @@ class Pattern(ABC):
 
         Returns
         -------
-        keys : (n,) int64
+        ids : (n,) int64
         ranges : (n,) float64
         """
 

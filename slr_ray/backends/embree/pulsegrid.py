@@ -110,16 +110,16 @@ def sorted_pulse_grid(pts, origin, primary_resolution, layout: str = "auto", bea
     apart (up to 8 deg between an HDL-64E's beams), and the pulses adjacent
     in space are the ones adjacent in absolute azimuth. ``beams`` (a beam
     table's primary only): each point's beam, which then sets its row
-    (:meth:`~slr_ray.sensors.BeamPattern.keys`).
+    (:meth:`~slr_ray.sensors.BeamPattern.pulse_ids`).
     """
     pattern = _grid_pattern(primary_resolution)
     if beams is None:
-        keys, ranges = pattern.keys(pts, origin)
+        keys, ranges = pattern.pulse_ids(pts, origin)
     elif not pattern.has_beams:
         raise InputValueError("beams (a point's beam id) need a beam-table primary (primary_pattern), "
                               "not degrees")
     else:
-        keys, ranges = pattern.keys(pts, origin, beams)
+        keys, ranges = pattern.pulse_ids(pts, origin, beams)
     nv, nh = pattern.n_zenith, pattern.n_azimuth
     if layout == "auto":
         rows_up, cols_up = _runs(keys, nv, nh)

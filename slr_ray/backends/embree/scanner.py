@@ -194,7 +194,7 @@ class DiscScanner(Scanner):
         n_ray_hits = len(pt)
         # points the pattern itself would not see (range limits, field of view) are not returned
         uniq, inverse = np.unique(pt, return_inverse=True)
-        keys, _ = pattern.keys(self.points[uniq], origin)
+        keys, _ = pattern.pulse_ids(self.points[uniq], origin)
         nearest = _nearest_ray(inverse, tt, len(uniq))  # per point, its nearest ray (the first of equals)
         seen = keys >= 0
         idx = uniq[seen].astype(np.intp)
