@@ -24,14 +24,20 @@ import json
 import multiprocessing
 import os
 import time
+from concurrent.futures import ThreadPoolExecutor
 from pathlib import Path
 
 import numpy as np
+from tqdm import tqdm
 
+from . import __version__
 from .backends import options_for, prepare
 from .errors import InputValueError, MissingDependencyError
+from .io import PointCloud, atomic_path, check_format, read_cloud, write_cloud
 from .paper import MIN_GROUND_POINTS, SCANNER_HEIGHT, SECONDARY_RESOLUTION
 from .pattern import ScanPattern, as_pattern
+from .positions import ground_labels, select_positions
+from .streaming import STREAMED_FORMATS, las_positions, scan_las_many
 
 __all__ = ["augment"]
 
@@ -81,8 +87,6 @@ def _resumable(manifest_path: Path, settings: dict, positions, out: Path) -> dic
 
 
 def _init_worker(points, attributes, origin, meta):
-    from .io import PointCloud
-
     _WORKER["cloud"] = PointCloud(points, attributes, origin, meta)
 
 
@@ -120,8 +124,6 @@ def _scan_job(job, cloud):
 
 def _write_job(job, sub, entry, t0):
     """Write a job's scan (atomic: a temporary file renamed into place); its manifest entry."""
-    from .io import write_cloud
-
     write_cloud(Path(job["path"]), sub)
     return {**entry, "seconds": round(time.perf_counter() - t0, 4)}
 
@@ -134,8 +136,6 @@ def _scan_one(job, cloud=None):
 def _run_streamed(jobs, path, pattern, chunk, per_pass, done, progress=False) -> None:
     """The jobs on a LAS/LAZ file read in chunks, ``per_pass`` positions per two
     passes over it; ``done(entry)`` in job order."""
-    from .streaming import scan_las_many
-
     for b in range(0, len(jobs), per_pass):
         batch = jobs[b:b + per_pass]
         t0 = time.perf_counter()
@@ -152,8 +152,6 @@ def _run_serial(jobs, cloud, done) -> None:
     scan runs (at most one write pending, so at most two scans in memory).
     ``done(entry)`` is called in job order; an interruption still waits for the
     pending write, which is complete or absent, and records it."""
-    from concurrent.futures import ThreadPoolExecutor
-
     with ThreadPoolExecutor(1) as writer:
         pending = None
         try:
@@ -219,10 +217,6 @@ def augment(input_path, outdir, n: int, *, backend: str = "binning", resolution:
     dict
         The manifest.
     """
-    from . import __version__
-    from .io import atomic_path, check_format, read_cloud
-    from .positions import ground_labels, select_positions
-
     options_for(backend, backend_options)  # bad options fail before any work
     if scheduler:
         try:
@@ -239,8 +233,6 @@ def augment(input_path, outdir, n: int, *, backend: str = "binning", resolution:
     ground_given = ground is not None
     pattern = as_pattern(sensor) if sensor else ScanPattern(resolution)
     if chunk_size is not None:
-        from .streaming import STREAMED_FORMATS, las_positions
-
         if input_path.suffix.lower() not in STREAMED_FORMATS:
             raise InputValueError(f"chunk_size streams {'/'.join(STREAMED_FORMATS)} inputs, not {input_path.suffix!r}")
         if backend != "binning" or not pattern.streamable:
@@ -310,8 +302,6 @@ def augment(input_path, outdir, n: int, *, backend: str = "binning", resolution:
     record_start = time.perf_counter()
     bar = None
     if progress:
-        from tqdm import tqdm
-
         bar = tqdm(total=len(jobs), unit="scan", desc="augment")
     try:
         if cloud is None:  # streamed

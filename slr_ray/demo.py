@@ -21,7 +21,14 @@ from pathlib import Path
 import numpy as np
 
 from . import paper
-from .io import atomic_path
+from .backends import Backend, available_backends, prepare
+from .io import PointCloud, atomic_path, write_cloud
+from .meshscan import scan_mesh
+from .pattern import ScanPattern, preset
+from .plotting import demo_figure, save_figure
+from .positions import select_positions
+from .scenes import rectangle_scene
+from .similarity import agreement
 
 __all__ = ["run_demo"]
 
@@ -52,15 +59,6 @@ def run_demo(outdir="slr_ray_demo", n_rectangles: int = 200, n_positions: int = 
         Backends run at every position (default: every :class:`~slr_ray.backends.Backend`;
         one whose library is missing is left out, with a note).
     """
-    from .backends import Backend, available_backends, prepare
-    from .io import PointCloud, write_cloud
-    from .meshscan import scan_mesh
-    from .pattern import ScanPattern, preset
-    from .plotting import demo_figure, save_figure
-    from .positions import select_positions
-    from .scenes import rectangle_scene
-    from .similarity import agreement
-
     out = Path(outdir)
     out.mkdir(parents=True, exist_ok=True)
     t_all = time.perf_counter()

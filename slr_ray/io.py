@@ -28,17 +28,22 @@ Writes are atomic: the file appears under its name complete, or not at all.
 
 from __future__ import annotations
 
+import copy
 import io
 import os
 import tempfile
+import uuid
 import warnings
 from contextlib import contextmanager
 from dataclasses import dataclass, field
 from pathlib import Path
 
+import laspy
 import numpy as np
+from laspy.vlrs.vlrlist import VLRList
+from plyfile import PlyData, PlyElement
 
-from .errors import FormatError
+from .errors import FormatError, MissingDependencyError
 
 __all__ = ["PointCloud", "LasRecords", "read_cloud", "write_cloud", "read_e57_scans", "check_format",
            "label_path", "FORMATS"]
@@ -169,8 +174,6 @@ def _read_npz(path):
 
 
 def _read_ply(path):
-    from plyfile import PlyData
-
     ply = PlyData.read(str(path))
     if "vertex" not in ply:
         raise FormatError(f"{path}: no vertex element")
@@ -183,8 +186,6 @@ def _read_ply(path):
 
 
 def _read_las(path):
-    import laspy
-
     las = laspy.read(str(path))
     pts = np.column_stack([np.asarray(las.x), np.asarray(las.y), np.asarray(las.z)])
     attrs = {name: np.asarray(las[name]) for name in las.point_format.dimension_names
@@ -327,8 +328,6 @@ def _pye57():
     try:
         import pye57
     except ImportError as exc:
-        from .errors import MissingDependencyError
-
         raise MissingDependencyError('E57 needs pye57: pip install "slr_ray[e57]" (or pip install pye57)') from exc
     return pye57
 
@@ -483,8 +482,6 @@ def _write_npz(path, cloud, binary):
 
 
 def _write_ply(path, cloud, binary):
-    from plyfile import PlyData, PlyElement
-
     fields = [("x", "f8"), ("y", "f8"), ("z", "f8")]
     for k, v in cloud.attributes.items():
         v = np.asarray(v)
@@ -518,10 +515,6 @@ def _write_las(path, cloud, binary):
     never wrapped: floats in [0, 1] for an unsigned field are scaled to its
     full range, anything else goes to an extra dimension ``<name>_value``;
     either is said in a warning."""
-    import copy
-
-    import laspy
-
     src = cloud.meta.get("las")
     if isinstance(src, LasRecords) and len(src.array) == len(cloud):
         header = copy.deepcopy(src.header)
@@ -532,8 +525,6 @@ def _write_las(path, cloud, binary):
                 header.vlrs.remove(v)
             warnings.warn(f"{path}: COPC records dropped (they index the whole input, not this subset); "
                           "the file is a plain LAS/LAZ", stacklevel=4)
-        from laspy.vlrs.vlrlist import VLRList
-
         if getattr(header, "evlrs", None) is not None:  # laspy keeps EVLRs read with the header too
             header.evlrs = VLRList(evlrs)
         las = laspy.LasData(header)
@@ -599,8 +590,6 @@ def _las_format_for(cloud) -> tuple[int, str]:
 
 def _add_las_extra(las, name, values, path):
     """An attribute as an extra dimension with its own type (arrays of up to 3 values a point)."""
-    import laspy
-
     v = np.asarray(values)
     if v.dtype == bool:
         v = v.astype(np.uint8)
@@ -709,8 +698,6 @@ def _e57_scan(e57, data: dict, translation) -> None:
     5 m, metres at UTM-size offsets). The rest as in pye57: guid, name, the
     limits and bounds E57 readers use, the pose (identity rotation,
     ``translation``), and the points in one compressed vector."""
-    import uuid
-
     from pye57 import libe57
 
     f = e57.image_file

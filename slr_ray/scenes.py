@@ -16,7 +16,9 @@ from dataclasses import dataclass, field
 from pathlib import Path
 
 import numpy as np
+import trimesh
 from numba import njit
+from scipy.spatial.transform import Rotation
 
 from .errors import InputValueError
 from .paper import SCANNER_HEIGHT
@@ -162,9 +164,6 @@ def rectangle_scene(
     and the part outside the disc are cut away, so a rectangle crossing the
     ground keeps its upper part. One that keeps no area is not present.
     """
-    import trimesh
-    from scipy.spatial.transform import Rotation
-
     if n_rectangles < 0 or int(n_rectangles) != n_rectangles:
         raise InputValueError(f"n_rectangles must be a non-negative integer, got {n_rectangles!r}")
     if ground_radius <= 0:

@@ -53,6 +53,7 @@ from dataclasses import dataclass, field
 from pathlib import Path
 
 import numpy as np
+import yaml
 
 from .arrays import as_origin
 from .core.beams import beam_keys, beam_keys_given, beam_reduce
@@ -410,8 +411,6 @@ def read_ouster_metadata(path, **changes) -> BeamPattern:
 def read_velodyne_calibration(path, columns: int = 1800, **changes) -> BeamPattern:
     """A :class:`BeamPattern` from a Velodyne calibration YAML (the ros-drivers/velodyne
     ``lasers:`` list: ``vert_correction`` and ``rot_correction`` in radians)."""
-    import yaml
-
     d = yaml.safe_load(Path(path).read_text())
     lasers = sorted(d.get("lasers") or [], key=lambda x: x["laser_id"])
     if not lasers:

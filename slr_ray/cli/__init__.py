@@ -18,9 +18,10 @@ import signal
 import sys
 import threading
 
-from .. import paper
+from .. import __version__, paper
 from ..backends import Backend
 from ..meshscan import MESH_MODES
+from ..scenes import SCENES_DIR
 from ..sensors import SENSORS
 from . import arguments as A
 from .commands import COMMANDS
@@ -38,8 +39,6 @@ class _Parser(argparse.ArgumentParser):
 
 
 def build_parser() -> argparse.ArgumentParser:
-    from .. import __version__
-
     ap = _Parser(prog="slr-ray", description=(
         "Simulated LiDAR Repositioning: simulate the scans an ideal static scanner "
         "would record from new positions, using only points of one cloud."))
@@ -104,8 +103,6 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("--force", action="store_true", help="overwrite an existing output")
 
     p = command("validate", "reproduce the paper's validation (Experiment 1) from a config")
-    from ..scenes import SCENES_DIR
-
     shipped = sorted(q.stem[len("validate-"):] for q in SCENES_DIR.glob("validate-*.toml"))
     p.add_argument("config", help=f"a shipped config name ({', '.join(shipped)}) or a TOML path")
     p.add_argument("-o", "--output", help="output directory (default slr_ray_validate_NAME); reruns resume")

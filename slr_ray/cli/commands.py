@@ -11,13 +11,26 @@ import json
 import math
 import sys
 import time
-from dataclasses import asdict
+from dataclasses import asdict, replace
 from pathlib import Path
 
 import numpy as np
 
+from ..augment import augment as run_augment
+from ..backends import options_for, simulate_scan
+from ..compare import compare_backends
+from ..demo import run_demo
+from ..distances import distance_study
 from ..errors import InputValueError
 from .arguments import backend_from, ground_from, pattern_from
+from ..io import PointCloud, atomic_path, check_format, read_cloud, write_cloud
+from ..meshscan import scan_mesh
+from ..paper import Q1_SCENES, Q2_SCENES
+from ..plotting import cells_figure, comparison_figure, paper_figure, range_image_figure, save_figure, validation_figure
+from ..positions import AzimuthProfile, build_synthetic_profile, default_profile, ground_labels, select_positions
+from ..scenes import MESH_FORMATS, scene_from_spec
+from ..streaming import STREAMED_FORMATS, scan_las
+from ..validation import load_config, load_rows, paper_report, paper_report_markdown, run_validation, stage_summary
 
 __all__ = ["emit", "COMMANDS"]
 
@@ -58,10 +71,6 @@ def _output(path, force: bool = False, inputs=()) -> Path | None:
 
 
 def scan(args):
-    from ..backends import options_for
-    from ..io import check_format, read_cloud, write_cloud
-    from ..streaming import STREAMED_FORMATS, scan_las
-
     pattern = pattern_from(args)
     out = _output(args.output, args.force, [args.input])
     for extra in (args.range_image, args.png):
@@ -106,8 +115,6 @@ def scan(args):
 
 def _range_image(sub, result) -> dict:
     """The scan's range image with every 1-D attribute of ``sub`` (the scanned subset, in index order)."""
-    from dataclasses import replace
-
     local = replace(result, indices=np.arange(len(result)))  # images of the subset's own rows
     attrs = {k: v for k, v in sub.attributes.items() if np.asarray(v).ndim == 1 and np.asarray(v).dtype.kind in "biuf"}
     image = local.range_image(attrs)
@@ -116,9 +123,6 @@ def _range_image(sub, result) -> dict:
 
 
 def _write_range_image(args, image, result):
-    from ..io import atomic_path
-    from ..plotting import range_image_figure, save_figure
-
     if args.range_image:
         with atomic_path(Path(args.range_image)) as tmp:
             with open(tmp, "wb") as f:
@@ -129,8 +133,6 @@ def _write_range_image(args, image, result):
 
 
 def _scan_cloud(args, cloud, pattern):
-    from ..backends import simulate_scan
-
     origin = args.origin if args.origin is not None else cloud.origin
     if origin is None:
         hint = (" (its scan has no pose; by the E57 standard that means the scanner frame is the file's:"
@@ -143,17 +145,11 @@ def _scan_cloud(args, cloud, pattern):
 
 
 def demo(args):
-    from ..demo import run_demo
-
     emit(run_demo(args.output, n_rectangles=args.rectangles, n_positions=args.positions, seed=args.seed,
                   quick=args.quick, backends=args.backends))
 
 
 def scene(args):
-    from ..io import PointCloud, atomic_path, check_format, write_cloud
-    from ..meshscan import scan_mesh
-    from ..scenes import MESH_FORMATS, scene_from_spec
-
     sc = scene_from_spec(args.spec)
     if args.scene_cmd == "info":
         emit({"spec": args.spec, **sc.info()})
@@ -180,10 +176,6 @@ def scene(args):
 
 
 def compare(args):
-    from ..compare import compare_backends
-    from ..io import read_cloud
-    from ..plotting import comparison_figure, save_figure
-
     pattern = pattern_from(args)
     _output(args.png, args.force, [args.input])
     cloud = read_cloud(args.input, args.input_format)
@@ -196,10 +188,6 @@ def compare(args):
 
 
 def positions(args):
-    from ..io import atomic_path, read_cloud
-    from ..plotting import cells_figure, save_figure
-    from ..positions import AzimuthProfile, default_profile, ground_labels, select_positions
-
     out = _output(args.output, args.force, [args.input])
     _output(args.png, args.force, [args.input, args.output])
     if not out.parent.is_dir():
@@ -223,9 +211,6 @@ def positions(args):
 
 
 def profile(args):
-    from ..io import atomic_path
-    from ..positions import build_synthetic_profile
-
     _output(args.output, args.force)
     prof = build_synthetic_profile(tuple(args.scenes.split(",")), args.positions_per_scene, args.seed)
     with atomic_path(Path(args.output)) as tmp:
@@ -235,12 +220,6 @@ def profile(args):
 
 
 def validate(args):
-    from ..io import atomic_path
-    from ..paper import Q1_SCENES, Q2_SCENES
-    from ..plotting import paper_figure, save_figure, validation_figure
-    from ..validation import (load_config, load_rows, paper_report, paper_report_markdown, run_validation,
-                              stage_summary)
-
     config = load_config(args.config)
     if args.positions is not None:
         config.positions = args.positions
@@ -269,8 +248,6 @@ def validate(args):
 
 
 def distances(args):
-    from ..distances import distance_study
-
     study = distance_study(args.input, origin=args.origin, heights=args.heights, positions=args.positions,
                            seed=args.seed, resolution=args.resolution, max_range=args.max_range,
                            scanner_height=args.scanner_height, min_ground_points=args.min_ground_points,
@@ -280,14 +257,10 @@ def distances(args):
 
 
 def augment(args):
-    from ..augment import augment as run
-    from ..io import read_cloud
-    from ..positions import ground_labels
-
     ground = None
     if args.csf or args.ground_attribute:
         ground = ground_labels(read_cloud(args.input), **ground_from(args))
-    res = run(args.input, args.output, args.n, backend=args.backend, resolution=args.resolution,
+    res = run_augment(args.input, args.output, args.n, backend=args.backend, resolution=args.resolution,
               heights=tuple(args.heights), fmt=args.format, seed=args.seed, sensor=args.sensor,
               min_ground_points=args.min_ground_points, ground=ground, workers=args.workers,
               scheduler=args.scheduler, progress=not args.quiet, backend_options=backend_from(args),

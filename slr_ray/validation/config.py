@@ -8,6 +8,7 @@ from .. import paper
 from ..backends import Backend, options_for
 from ..errors import InputValueError
 from ..meshscan import MESH_MODES
+from ..scenes import load_toml_spec
 
 __all__ = ["ValidationConfig", "load_config", "TRUTHS", "PRIMARY_SEMANTICS"]
 
@@ -120,8 +121,6 @@ class ValidationConfig:
 
 def load_config(spec) -> ValidationConfig:
     """A config by path or by shipped name (``validate-<name>.toml``)."""
-    from ..scenes import load_toml_spec
-
     data, path = load_toml_spec(spec, "validate", "validation config", prefix="validate-")
     table = data["validate"]
     unknown = sorted(set(table) - {f.name for f in fields(ValidationConfig)})

@@ -17,6 +17,7 @@ from dataclasses import asdict
 from pathlib import Path
 
 import numpy as np
+from tqdm import tqdm
 
 from ..backends import Backend, prepare
 from ..io import atomic_path
@@ -105,8 +106,6 @@ def run_validation(config: ValidationConfig, outdir, progress: bool = True) -> d
     t_all = time.perf_counter()
     bar = None
     if progress:
-        from tqdm import tqdm
-
         bar = tqdm(total=sum(len(p.resolutions) for p in plans) * config.positions, unit="position",
                    desc=config.name, file=sys.stderr)
     n_new = 0
