@@ -28,7 +28,8 @@ from common import RESULTS, machine, run_isolated, save  # noqa: E402
 
 def run(cloud, res, n, compact):
     from slr_ray import ScanPattern
-    from slr_ray.backends.embree import _fallback_directions, disc_radii
+    from slr_ray.backends.embree import disc_radii
+    from slr_ray.backends.embree.discs import fallback_directions as _fallback_directions
     from slr_ray.pattern import pulse_rays
     from slr_ray.raycast import RayScene
 

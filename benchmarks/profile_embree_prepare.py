@@ -46,10 +46,12 @@ def main(argv=None):
 
     from slr_ray import ScanPattern
     from slr_ray.arrays import bounds
-    from slr_ray.backends import embree as E
-    from slr_ray.backends.binning import pulse_keys
+    from slr_ray.backends.embree import disc_radii
+    from slr_ray.backends.embree import pulsegrid as E
+    from slr_ray.core import pulse_ids
     from slr_ray.pattern import as_pattern, pulse_rays
-    from slr_ray.raycast import RayScene, _fill_vertices
+    from slr_ray.raycast import RayScene
+    from slr_ray.raycast.scene import _fill_vertices
 
     pts = np.ascontiguousarray(np.load(path, mmap_mode="r"))
     res, o = args.resolution, np.zeros(3)
@@ -57,12 +59,12 @@ def main(argv=None):
     pat = as_pattern(res)
     nv, nh = pat.n_zenith, pat.n_azimuth
     stages = {}
-    stages["pulse keys"], (keys, ranges) = _timed(lambda: pulse_keys(pts, o, pat))
+    stages["pulse keys"], (keys, ranges) = _timed(lambda: pulse_ids(pts, o, pat))
     # the same kernel again into the same (now resident) arrays: the first pass pays for
     # touching ~16 bytes a point of fresh memory, this one only for the arithmetic
     from concurrent.futures import ThreadPoolExecutor
 
-    from slr_ray.backends.binning import _block_keys_range, _kernel_params
+    from slr_ray.core.grid import block_keys_range as _block_keys_range, kernel_params as _kernel_params
 
     params = _kernel_params(o, pat)
     n = len(pts)
@@ -87,7 +89,7 @@ def main(argv=None):
     stages["spacing and normals"], _ = _timed(lambda: E._grid_fused(pts, ranges, sk, order, ls, tasks, line_len,
                                                                      transposed, gate, o, True, True, sp, nr))
     del ranges, sk, order
-    stages["radii"], r = _timed(lambda: E.disc_radii(pts, "spacing", spacing=sp).astype(np.float32))
+    stages["radii"], r = _timed(lambda: disc_radii(pts, "spacing", spacing=sp).astype(np.float32))
     stages["bounds"], (lo, hi) = _timed(lambda: bounds(pts))
     centre = 0.5 * (lo + hi)
     v = np.empty((len(pts), 4), np.float32)
@@ -109,7 +111,8 @@ def main(argv=None):
         print(name, json.dumps(radii[name]), flush=True)
 
     dirs, _, _ = pulse_rays(ScanPattern(0.144))
-    aspect = E._pulse_aspect(ScanPattern(0.144))
+    d_theta, d_phi = ScanPattern(0.144).pulse_steps
+    aspect = d_theta / d_phi
     cast = {}
     for ties in (1.0, 0.0):
         scene.intersect(ORIGIN, dirs[:1000], ties=ties, skip_containing=True, pulse_aspect=aspect)

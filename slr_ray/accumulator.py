@@ -7,8 +7,9 @@ import time
 
 from .arrays import as_origin, as_points
 from .errors import InputValueError
-from .backends.binning import BinTables
-from .pattern import ScanPattern, as_pattern
+from .backends.base import Backend
+from .core import BinTables
+from .pattern import as_pattern
 from .scan import Scan
 
 __all__ = ["ScanAccumulator"]
@@ -45,8 +46,8 @@ class ScanAccumulator:
     def __init__(self, origin, pattern, n_threads: int | None = None):
         self.origin = as_origin(origin)
         self.pattern = as_pattern(pattern)
-        if not isinstance(self.pattern, ScanPattern):
-            raise InputValueError("ScanAccumulator reduces uniform patterns; scan a beam table "
+        if not self.pattern.streamable:
+            raise InputValueError("ScanAccumulator reduces streamable patterns (uniform grids); scan a beam table "
                                   "(slr_ray.sensors) with slr_ray.prepare(points).scan(origin, pattern)")
         self._tables = BinTables(self.origin, self.pattern, n_threads=n_threads)
         self._seconds = 0.0
@@ -85,4 +86,5 @@ class ScanAccumulator:
         t0 = time.perf_counter()
         keys, ranges, idx = self._tables.winners()
         seconds = self._seconds + time.perf_counter() - t0
-        return Scan.from_keys(keys, ranges, idx, self.origin, self.pattern, "binning", self.n_points, seconds)
+        return Scan.from_keys(keys, ranges, idx, self.origin, self.pattern, Backend.BINNING, self.n_points,
+                              seconds)

@@ -25,13 +25,15 @@ import json
 import multiprocessing
 import os
 import time
+from concurrent.futures import ThreadPoolExecutor
 from dataclasses import dataclass, field
 from pathlib import Path
 
 import numpy as np
+from tqdm import tqdm
 
 from . import __version__
-from .backends import options_for, prepare
+from .backends import Backend, options_for, prepare
 from .errors import InputValueError, MissingDependencyError, OutputError
 from .io import PointCloud, atomic_path, check_format, read_cloud, write_cloud
 from .outputs import OutputPlan, content_digest, output_sidecars
@@ -155,8 +157,6 @@ def _run_serial(jobs, cloud, done) -> None:
     scan runs (at most one write pending, so at most two scans in memory).
     ``done(entry)`` is called in job order; an interruption still waits for the
     pending write, which is complete or absent, and records it."""
-    from concurrent.futures import ThreadPoolExecutor
-
     with ThreadPoolExecutor(1) as writer:
         pending = None
         try:
@@ -282,7 +282,7 @@ class AugmentConfig:
         pattern = as_pattern(self.sensor) if self.sensor else ScanPattern(self.resolution)
         options = options_for(self.backend, self.backend_options or None)
         if self.chunk_size is not None:
-            if self.backend != "binning" or not isinstance(pattern, ScanPattern):
+            if Backend(self.backend) is not Backend.BINNING or not pattern.streamable:
                 raise InputValueError("a streamed augment runs the binning backend with a uniform pattern")
             if self.scheduler:
                 raise InputValueError("a streamed augment runs in this process: chunk_size or scheduler, not both")
@@ -421,8 +421,6 @@ def _augment(input_path, out, config, pattern, options, ext, names, ground, prog
     record_start = time.perf_counter()
     bar = None
     if progress:
-        from tqdm import tqdm
-
         bar = tqdm(total=len(jobs), unit="scan", desc="augment")
 
     def done_one(entry):

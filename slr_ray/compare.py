@@ -16,7 +16,7 @@ import numpy as np
 
 from .arrays import as_origin, as_points
 from .errors import InputValueError
-from .backends import Scanner, prepare
+from .backends import Backend, Scanner, prepare
 from .pattern import as_pattern
 
 __all__ = ["compare_backends", "DEFAULT_BANDS"]
@@ -84,9 +84,9 @@ def compare_backends(points, origins, pattern, *, tolerance: float = 0.10, bands
     if len(bands) < 2 or any(hi <= lo for lo, hi in zip(bands[:-1], bands[1:])):
         raise InputValueError(f"bands must be at least two increasing edges, got {bands}")
     if scene is None:
-        scene = prepare(pts, "embree", embree_options)
+        scene = prepare(pts, Backend.EMBREE, embree_options)
     if binning is None:
-        binning = prepare(pts, "binning")
+        binning = prepare(pts, Backend.BINNING)
     out = []
     nh = pattern.n_azimuth
     for origin in origins:

@@ -104,7 +104,7 @@ def _run_demo(out, n_rectangles, n_positions, seed, quick, primary_resolution, b
         # embree on a primary of known origin and resolution: discs of the pulse footprint facing the
         # primary scanner need no neighbour search (the dearest part of preparing discs)
         options = {"radius": "footprint", "orientation": "primary", "primary_origin": origin,
-                   "primary_resolution": primary_res} if b == "embree" else None
+                   "primary_resolution": primary_res} if b == Backend.EMBREE else None
         scanners[b] = prepare(primary.points, b, options)
         _log(f"{b}: prepared in {scanners[b].prepare_seconds:.1f} s")
 

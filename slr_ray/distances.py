@@ -19,10 +19,16 @@ from dataclasses import dataclass, field
 from pathlib import Path
 
 import numpy as np
+from tqdm import tqdm
 
 from .arrays import as_origin, as_points
+from .backends import prepare
 from .errors import InputValueError
+from .io import PointCloud, atomic_path, read_cloud
 from .paper import MIN_GROUND_POINTS, SCANNER_HEIGHT, SECONDARY_RESOLUTION, SWEEP_HEIGHTS
+from .pattern import ScanPattern, as_pattern
+from .plotting import distances_figure, save_figure
+from .positions import ground_labels, select_positions
 
 __all__ = ["pulse_sized_bins", "DistanceHistogram", "distance_histogram", "height_sweep", "DistanceStudy",
            "distance_study", "study_files"]
@@ -207,9 +213,6 @@ def height_sweep(points, is_ground, positions, heights=SWEEP_HEIGHTS, pattern=No
     height, with a first bin from 0), so that a pure ground plane stays flat
     in counts at every height.
     """
-    from .backends import prepare
-    from .pattern import ScanPattern, as_pattern
-
     pts = as_points(points).astype(np.float64, copy=False)
     g = np.asarray(is_ground, bool)
     pattern = as_pattern(pattern or ScanPattern(SECONDARY_RESOLUTION))
@@ -226,8 +229,6 @@ def height_sweep(points, is_ground, positions, heights=SWEEP_HEIGHTS, pattern=No
     out = {float(h): DistanceHistogram(bins_for(h), horizontal=horizontal) for h in heights}
     bar = None
     if progress:
-        from tqdm import tqdm
-
         bar = tqdm(total=len(pos) * len(heights), unit="scan", desc="height sweep", leave=False)
     for p in pos:
         ground_z = p[2] - scanner_height
@@ -269,9 +270,6 @@ class DistanceStudy:
 
     def write(self, outdir) -> list:
         """CSV tables and ``distances.png`` (the paper's Figure 4) into ``outdir``; returns the file names."""
-        from .io import atomic_path
-        from .plotting import distances_figure, save_figure
-
         out = Path(outdir)
         out.mkdir(parents=True, exist_ok=True)
         for name, hist in self.tables().items():
@@ -314,11 +312,6 @@ def distance_study(inputs, *, origin=None, heights=SWEEP_HEIGHTS, positions: int
         Keywords of :func:`~slr_ray.positions.ground_labels` (``attribute``,
         ``value``, ``csf``, ``cloth_resolution``).
     """
-    from .backends import prepare
-    from .io import PointCloud, read_cloud
-    from .pattern import ScanPattern
-    from .positions import ground_labels, select_positions
-
     bins = pulse_sized_bins(scanner_height, resolution, max_range, from_zero=True)
     original, slr, sweep, per_input = DistanceHistogram(bins), DistanceHistogram(bins), {}, []
     pattern = ScanPattern(resolution, max_range=max_range)

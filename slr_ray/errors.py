@@ -53,3 +53,9 @@ def refuse_memory(nbytes: float, what: str, hint: str = "") -> None:
     if have and nbytes > have:
         raise InputValueError(f"{what} would need about {nbytes / 2**30:,.1f} GiB of memory, more than this "
                               f"machine's {have / 2**30:,.1f} GiB{': ' + hint if hint else ''}")
+class StateError(SlrError, RuntimeError):
+    """An object was asked for something its state no longer allows (tables already released...)."""
+
+
+class EngineError(SlrError, RuntimeError):
+    """The ray engine (the Embree library) reported an error."""

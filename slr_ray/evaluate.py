@@ -61,12 +61,15 @@ from dataclasses import dataclass
 from pathlib import Path
 
 import numpy as np
+from tqdm import tqdm
 
 from .arrays import as_points
 from .backends import prepare
-from .errors import InputValueError
+from .errors import InputValueError, MissingDependencyError
+from .io import atomic_path
 from .metrics import (FIELD_THRESHOLD, LIDAR4D_CODE_THRESHOLD, PAPER_THRESHOLD, point_metrics, range_bands,
                       range_image_metrics, seen_from)
+from .plotting import evaluation_figure, save_figure
 from .scan import Scan
 from .sensors import BeamPattern, sensor
 
@@ -155,7 +158,7 @@ def zbuffer(points, pattern: BeamPattern, origin=(0.0, 0.0, 0.0), beams=None, ba
     """
     p = as_points(points, "points")
     o = np.asarray(origin, np.float64)
-    keys, ranges = pattern.keys(p, o, beams=beams)
+    keys, ranges = pattern.pulse_ids(p, o, beams=beams)
     ok = np.flatnonzero(keys >= 0)
     order = np.lexsort((ok, ranges[ok], keys[ok]))  # by pulse, then range, then index
     k = keys[ok][order]
@@ -215,8 +218,6 @@ def register(source, target, max_distance: float = 0.2, min_fitness: float = 0.5
     try:
         import open3d as o3d
     except ImportError:
-        from .errors import MissingDependencyError
-
         raise MissingDependencyError("registration needs open3d: pip install open3d") from None
     reg = o3d.pipelines.registration
     t0 = time.perf_counter()
@@ -263,7 +264,7 @@ def register(source, target, max_distance: float = 0.2, min_fitness: float = 0.5
 
 def _resolve_sensor(name_or_pattern) -> BeamPattern:
     p = sensor(name_or_pattern) if isinstance(name_or_pattern, str) else name_or_pattern
-    if not isinstance(p, BeamPattern):
+    if not getattr(p, "has_beams", False):
         raise InputValueError(f"sensor must be a shipped sensor name or a BeamPattern, got {name_or_pattern!r}")
     return p
 
@@ -320,8 +321,6 @@ def evaluate_pair(a_points, b_points, a_beams="scan-order", b_beams="scan-order"
         ``images`` (range images, not JSON: ``real`` and per method) and
         ``seconds`` per stage.
     """
-    from tqdm import tqdm
-
     t_all = time.perf_counter()
     unknown = [m for m in methods if m not in METHODS]
     if unknown:
@@ -354,7 +353,7 @@ def evaluate_pair(a_points, b_points, a_beams="scan-order", b_beams="scan-order"
     t0 = time.perf_counter()
     real = zbuffer(b, pat_b, beams=b_beams, backend="real")
     real_img = real.range_image()
-    b_keys, b_ranges = pat_b.keys(b, np.zeros(3), beams=b_beams)
+    b_keys, b_ranges = pat_b.pulse_ids(b, np.zeros(3), beams=b_beams)
     b_rows = np.where(b_keys >= 0, b_keys // pat_b.columns, -1)
     seen = seen_from(b, a_in_b, seen_threshold)
     point_groups = _split_labels(b_rows, b_ranges, seen)
@@ -371,7 +370,7 @@ def evaluate_pair(a_points, b_points, a_beams="scan-order", b_beams="scan-order"
         prep = 0.0
         if m == BASELINE:
             sc = zbuffer(a_in_b, pat_b, backend="z-buffer")
-            keys, _ = pat_b.keys(a_in_b, np.zeros(3))
+            keys, _ = pat_b.pulse_ids(a_in_b, np.zeros(3))
             sim_idx = np.flatnonzero(keys >= 0)  # every point of A in B's view: no visibility rule
         else:
             opts = {}
@@ -484,9 +483,6 @@ def write_evaluation(result: dict, directory, force: bool = False, inputs: dict 
     Refuses an existing non-empty directory unless ``force`` (then only these
     four files are replaced). Returns the paths written.
     """
-    from .io import atomic_path
-    from .plotting import evaluation_figure, save_figure
-
     d = Path(directory)
     if d.exists() and not d.is_dir():
         raise FileExistsError(f"{d} exists and is not a directory")

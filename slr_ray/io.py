@@ -28,6 +28,7 @@ Writes are atomic: the file appears under its name complete, or not at all.
 
 from __future__ import annotations
 
+import copy
 import io
 import os
 import tempfile
@@ -36,7 +37,10 @@ from contextlib import contextmanager
 from dataclasses import dataclass, field
 from pathlib import Path
 
+import laspy
 import numpy as np
+from laspy.vlrs.vlrlist import VLRList
+from plyfile import PlyData, PlyElement
 
 from . import e57
 from .errors import FormatError, OutputError
@@ -171,8 +175,6 @@ def _read_npz(path):
 
 
 def _read_ply(path):
-    from plyfile import PlyData
-
     ply = PlyData.read(str(path))
     if "vertex" not in ply:
         raise FormatError(f"{path}: no vertex element")
@@ -185,8 +187,6 @@ def _read_ply(path):
 
 
 def _read_las(path):
-    import laspy
-
     las = laspy.read(str(path))
     if len(las.points) != las.header.point_count:  # laspy stops quietly where a lying header's points run out
         raise FormatError(f"{path}: the header declares {las.header.point_count:,} points, the file holds "
@@ -502,8 +502,6 @@ def _write_npz(path, cloud, binary):
 
 
 def _write_ply(path, cloud, binary):
-    from plyfile import PlyData, PlyElement
-
     fields = [("x", "f8"), ("y", "f8"), ("z", "f8")]
     for k, v in cloud.attributes.items():
         v = np.asarray(v)
@@ -537,10 +535,6 @@ def _write_las(path, cloud, binary):
     never wrapped: floats in [0, 1] for an unsigned field are scaled to its
     full range, anything else goes to an extra dimension ``<name>_value``;
     either is said in a warning."""
-    import copy
-
-    import laspy
-
     src = cloud.meta.get("las")
     if isinstance(src, LasRecords) and len(src.array) == len(cloud):
         header = copy.deepcopy(src.header)
@@ -551,8 +545,6 @@ def _write_las(path, cloud, binary):
                 header.vlrs.remove(v)
             warnings.warn(f"{path}: COPC records dropped (they index the whole input, not this subset); "
                           "the file is a plain LAS/LAZ", stacklevel=4)
-        from laspy.vlrs.vlrlist import VLRList
-
         if getattr(header, "evlrs", None) is not None:  # laspy keeps EVLRs read with the header too
             header.evlrs = VLRList(evlrs)
         # the records given, never header.point_count (a header that lies, or 7e8 points, would be allocated)
@@ -618,8 +610,6 @@ def _las_format_for(cloud) -> tuple[int, str]:
 
 def _add_las_extra(las, name, values, path):
     """An attribute as an extra dimension with its own type (arrays of up to 3 values a point)."""
-    import laspy
-
     v = np.asarray(values)
     if v.dtype == bool:
         v = v.astype(np.uint8)

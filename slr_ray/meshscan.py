@@ -32,9 +32,10 @@ from dataclasses import dataclass
 from pathlib import Path
 
 import numpy as np
+from tqdm import tqdm
 
-from .arrays import as_origin
-from .backends.binning import BinTables, ranges_of
+from .arrays import as_origin, unravel_ids
+from .core import BinTables, ranges_of
 from .errors import InputValueError
 from .io import atomic_path
 from .pattern import ScanPattern, as_pattern, pulse_rays
@@ -155,8 +156,6 @@ def _hit_chunks(scene_or_mesh, origin, pattern, mode, supersample=4, spacing=0.0
     rows_per = max(1, rays_per_batch // (nh * k * k))
     bar = None
     if progress:
-        from tqdm import tqdm
-
         bar = tqdm(total=nv, unit="row", desc=f"scan {mode}", leave=False)
     try:
         for r0 in range(0, nv, rows_per):
@@ -334,8 +333,6 @@ def _dense_scan(scene, origin, pattern, spacing, band_pulses=None):
     (no list of chunks copied at the end). Peak: the larger of the reduction's
     tables and the result plus its keys (a 0.00576 deg primary of a
     1000-rectangle scene: 2e8 points, 56 bytes each)."""
-    from .arrays import unravel_ids
-
     keys, want = _dense_winners(scene, origin, pattern, spacing, band_pulses)
     n = len(want)
     pts = np.empty((n, 3))

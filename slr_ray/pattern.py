@@ -20,10 +20,13 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
-from .arrays import unravel_ids
+from .core.grid import grid_keys
+from .core.protocol import Pattern
+from .core.tables import BinTables
 from .errors import InputTypeError, InputValueError
+from .sensors import SENSORS, sensor
 
-__all__ = ["ScanPattern", "PRESETS", "preset", "as_pattern", "pulse_rays", "pulse_directions"]
+__all__ = ["Pattern", "ScanPattern", "PRESETS", "preset", "as_pattern", "pulse_rays", "pulse_directions"]
 
 
 #: Most pulses a pattern may have: pulse keys are int64 with negative values
@@ -54,7 +57,7 @@ def _check_number(name: str, value) -> float:
 
 
 @dataclass(frozen=True)
-class ScanPattern:
+class ScanPattern(Pattern):
     """Angular grid, field of view and range limits of an ideal scanner.
 
     Parameters
@@ -143,6 +146,12 @@ class ScanPattern:
         elif self.resolution is not None and self.azimuth_resolution != self.zenith_resolution:
             set_("resolution", None)
 
+    # --- capabilities (the pattern protocol) -------------------------------
+    @property
+    def streamable(self) -> bool:
+        """A uniform grid reduces chunk by chunk (:class:`slr_ray.ScanAccumulator`)."""
+        return True
+
     # --- derived quantities -------------------------------------------------
     @property
     def n_azimuth(self) -> int:
@@ -159,11 +168,6 @@ class ScanPattern:
     def shape(self) -> tuple[int, int]:
         """``(n_zenith, n_azimuth)``."""
         return self.n_zenith, self.n_azimuth
-
-    @property
-    def n_pulses(self) -> int:
-        """Number of pulses in one scan, ``n_zenith * n_azimuth``."""
-        return self.n_zenith * self.n_azimuth
 
     @property
     def radians(self) -> tuple[float, float, float, float]:
@@ -184,17 +188,50 @@ class ScanPattern:
             math.inf if self.max_range is None else self.max_range,
         )
 
-    def ravel(self, pulses) -> np.ndarray:
-        """Flat pulse ids ``v * n_azimuth + h`` (int64) of ``(m, 2)`` pulses ``(v, h)``."""
-        pulses = np.asarray(pulses, dtype=np.int64).reshape(-1, 2)
-        return pulses[:, 0] * self.n_azimuth + pulses[:, 1]
+    @property
+    def pulse_steps(self) -> tuple[float, float]:
+        """``(d_theta, 2 pi / n_azimuth)``, radians."""
+        return self.radians[0], 2 * math.pi / self.n_azimuth
 
-    def unravel(self, ids) -> np.ndarray:
-        """``(m, 2) int64`` pulses ``(v, h)`` of flat pulse ids (the inverse of :meth:`ravel`)."""
-        ids = np.asarray(ids, dtype=np.int64).ravel()
-        if len(ids) and ids.min() < 0:
-            raise InputValueError("pulse ids must be >= 0")
-        return unravel_ids(ids, self.n_azimuth)
+    def pulse_ids(self, points, origin, beams=None):
+        """Pulse id ``v * n_azimuth + h`` and range of every point (:mod:`slr_ray.core.grid`).
+
+        -1: not seen; -2: not finite. ``beams`` is for beam tables only."""
+        if beams is not None:
+            raise InputValueError("beams (a point's beam id) need a beam-table pattern, not a uniform grid")
+        return grid_keys(points, origin, self)
+
+    def reduce(self, points, origin, n_threads: int | None = None):
+        """Nearest point per pulse, ties to the lowest index: ``(keys, ranges,
+        indices)`` of the occupied pulses, indices ascending."""
+        tables = BinTables(origin, self, n_threads=n_threads)
+        bad = tables.add(points)
+        if bad:
+            raise InputValueError(f"points has {bad} row(s) with NaN or inf out of {len(points)}; "
+                                  "remove them first (nothing is dropped silently)")
+        return tables.winners(points)
+
+    def rays(self, rows: slice | None = None, k: int = 1):
+        """Rays of the pulses of zenith rows ``rows``, ``k x k`` sub-rays per pulse
+        (:func:`pulse_rays`)."""
+        rows = slice(0, self.n_zenith) if rows is None else rows
+        d_theta, d_phi, th0, th1 = self.radians
+        nh = self.n_azimuth
+        v = np.arange(rows.start, rows.stop, dtype=np.int64)
+        theta = _sub_angles(th0, d_theta, th1, v, k)
+        phi = _sub_angles(0.0, d_phi, 2 * math.pi, np.arange(nh, dtype=np.int64), k)
+        st, ct = np.sin(theta), np.cos(theta)
+        dirs = np.empty((len(theta), len(phi), 3))
+        dirs[..., 0] = st[:, None] * np.cos(phi)[None, :]
+        dirs[..., 1] = st[:, None] * np.sin(phi)[None, :]
+        dirs[..., 2] = ct[:, None]
+        vv = np.broadcast_to(np.repeat(v, k)[:, None], (len(theta), len(phi)))
+        hh = np.broadcast_to(np.repeat(np.arange(nh, dtype=np.int64), k)[None, :], (len(theta), len(phi)))
+        return dirs.reshape(-1, 3), vv.ravel(), hh.ravel()
+
+    def aligned(self) -> "ScanPattern":
+        """Itself: a uniform grid's neighbouring pulses are neighbours in space."""
+        return self
 
     def with_(self, **changes) -> "ScanPattern":
         """A copy with some fields changed (``pattern.with_(max_range=50)``)."""
@@ -255,11 +292,12 @@ def preset(name: str) -> ScanPattern:
         ) from None
 
 
-def as_pattern(pattern) -> ScanPattern:
+def as_pattern(pattern) -> Pattern:
     """A pattern from a pattern, a preset or sensor name, or a resolution in degrees.
 
-    A :class:`ScanPattern` or :class:`~slr_ray.sensors.BeamPattern` is returned
-    as it is; a string names a preset (:data:`PRESETS`) or a shipped sensor
+    A :class:`~slr_ray.core.Pattern` (a :class:`ScanPattern`, a
+    :class:`~slr_ray.sensors.BeamPattern`) is returned as it is; a string
+    names a preset (:data:`PRESETS`) or a shipped sensor
     (:data:`slr_ray.sensors.SENSORS`).
 
     Raises
@@ -269,15 +307,11 @@ def as_pattern(pattern) -> ScanPattern:
     InputValueError
         for an unknown preset or an impossible resolution.
     """
-    if isinstance(pattern, ScanPattern):
-        return pattern
-    if type(pattern).__name__ == "BeamPattern":  # slr_ray.sensors (imported lazily: it needs numba)
+    if isinstance(pattern, Pattern):
         return pattern
     if isinstance(pattern, str):
         if pattern in PRESETS:
             return preset(pattern)
-        from .sensors import SENSORS, sensor
-
         if pattern in SENSORS:
             return sensor(pattern)
         raise InputValueError(f"unknown pattern {pattern!r}: presets {sorted(PRESETS)}, sensors {list(SENSORS)}")
@@ -325,12 +359,13 @@ def pulse_directions(pulses, pattern: ScanPattern) -> np.ndarray:
     return np.column_stack([s * np.cos(phi), s * np.sin(phi), np.cos(theta)])
 
 
-def pulse_rays(pattern: ScanPattern, rows: slice | None = None, k: int = 1):
+def pulse_rays(pattern: Pattern, rows: slice | None = None, k: int = 1):
     """Rays of the pulses of zenith rows ``rows``, ``k x k`` sub-rays per pulse.
 
     Parameters
     ----------
-    pattern : ScanPattern
+    pattern : Pattern
+        A uniform grid, or a beam table (one ray per (beam, column): ``k = 1`` only).
     rows : slice, optional
         Zenith rows (default all); bounds memory when cast in batches.
     k : int
@@ -344,19 +379,4 @@ def pulse_rays(pattern: ScanPattern, rows: slice | None = None, k: int = 1):
     v, h : (m,) int64
         The pulse of each ray.
     """
-    if not isinstance(pattern, ScanPattern):  # a beam table: one ray per (beam, column)
-        return pattern.rays(slice(None) if rows is None else rows, k)
-    rows = slice(0, pattern.n_zenith) if rows is None else rows
-    d_theta, d_phi, th0, th1 = pattern.radians
-    nh = pattern.n_azimuth
-    v = np.arange(rows.start, rows.stop, dtype=np.int64)
-    theta = _sub_angles(th0, d_theta, th1, v, k)
-    phi = _sub_angles(0.0, d_phi, 2 * math.pi, np.arange(nh, dtype=np.int64), k)
-    st, ct = np.sin(theta), np.cos(theta)
-    dirs = np.empty((len(theta), len(phi), 3))
-    dirs[..., 0] = st[:, None] * np.cos(phi)[None, :]
-    dirs[..., 1] = st[:, None] * np.sin(phi)[None, :]
-    dirs[..., 2] = ct[:, None]
-    vv = np.broadcast_to(np.repeat(v, k)[:, None], (len(theta), len(phi)))
-    hh = np.broadcast_to(np.repeat(np.arange(nh, dtype=np.int64), k)[None, :], (len(theta), len(phi)))
-    return dirs.reshape(-1, 3), vv.ravel(), hh.ravel()
+    return pattern.rays(rows, k)

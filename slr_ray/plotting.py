@@ -4,8 +4,7 @@ No function here touches pyplot's global state or calls ``matplotlib.use``:
 each builds a ``Figure`` directly, so a notebook user's backend is left as it
 is, figures can be drawn from threads, and nothing stays open. Show one in a
 notebook by leaving it as a cell's value, or write it with
-:func:`save_figure` (atomically, PNG by default). matplotlib is imported on
-first use: the rest of slr_ray runs without it.
+:func:`save_figure` (atomically, PNG by default).
 
 >>> from slr_ray.plotting import comparison_figure, save_figure  # doctest: +SKIP
 >>> save_figure(comparison_figure(result), "compare.png")         # doctest: +SKIP
@@ -13,10 +12,17 @@ first use: the rest of slr_ray runs without it.
 
 from __future__ import annotations
 
-import numpy as np
+from pathlib import Path
 
-from .errors import MissingDependencyError
+import matplotlib
+import numpy as np
+from matplotlib.figure import Figure
+from matplotlib.patches import Patch
+
+from .errors import InputValueError
+from .io import atomic_path
 from .paper import NEAR_DISTANCE, PRIMARY_RESOLUTION, PRIMARY_RESOLUTION_FINE, Q1_SCENES, Q2_SCENES
+from .validation import full_pairs, load_rows, series
 
 __all__ = ["save_figure", "validation_figure", "paper_figure", "comparison_figure", "demo_figure",
            "distances_figure", "cells_figure", "range_image_figure", "evaluation_figure"]
@@ -25,19 +31,11 @@ DPI = 110
 
 
 def _figure(**kw):
-    try:
-        from matplotlib.figure import Figure
-    except ImportError:  # pragma: no cover - matplotlib is a dependency
-        raise MissingDependencyError("figures need matplotlib: pip install matplotlib") from None
     return Figure(**kw)
 
 
 def save_figure(fig, path, dpi: int = DPI) -> None:
     """Write ``fig`` to ``path`` atomically (format from the extension, default PNG)."""
-    from pathlib import Path
-
-    from .io import atomic_path
-
     path = Path(path)
     with atomic_path(path) as tmp:
         fig.savefig(tmp, dpi=dpi, format=path.suffix[1:].lower() or "png")
@@ -57,12 +55,8 @@ def _binned_means(d, s, edges):
 def _rows_of(rows_or_csv):
     if isinstance(rows_or_csv, list):
         if not rows_or_csv:
-            from .errors import InputValueError
-
             raise InputValueError("no rows to plot")
         return rows_or_csv
-    from .validation import load_rows
-
     return load_rows(rows_or_csv)
 
 
@@ -121,8 +115,6 @@ def paper_figure(rows, backend: str = "binning", truth: str = "center"):
     positions where all were run; (e) precision against distance for the
     series of (a) and (b), where the rows record it. Lines are means in 5 m bins.
     """
-    from .validation import full_pairs, series
-
     rows = _rows_of(rows)
     have_precision = any(r.get("precision") not in (None, "") for r in rows)
     n = 5 if have_precision else 4
@@ -223,17 +215,13 @@ def distances_figure(original, slr, sweep, max_distance: float = 40.0):
     """The paper's Figure 4 panels: (a) original clouds, (b) SLR clouds, (c)
     ground by scanner height, (d) non-ground by scanner height
     (:class:`~slr_ray.distances.DistanceHistogram` each; ``None`` hides a panel)."""
-    import matplotlib
-
-    from .distances import KINDS
-
     fig = _figure(figsize=(11, 8))
     ax = fig.subplots(2, 2)
     for a, h, title in ((ax[0, 0], original, "(a) original clouds"), (ax[0, 1], slr, "(b) SLR clouds")):
         if h is None:
             a.set_visible(False)
             continue
-        for kind in KINDS:
+        for kind in h.counts:  # the kinds of slr_ray.distances.KINDS, in its order
             a.stairs(h.density(kind), h.edges, label=f"{kind.replace('_', '-')} (peak {h.peak(kind):.1f} m)")
         a.set(title=f"{title}, {h.n_scans} scans", xlim=(0.3, max_distance), xscale="log")
     if sweep:
@@ -259,8 +247,6 @@ def cells_figure(cells, positions=None, points=None):
     """Top view of the candidate cells each stage of the grid method removed and
     kept (the paper's supplementary figure), with the drawn positions
     (:class:`~slr_ray.positions.CandidateCells`)."""
-    from matplotlib.patches import Patch
-
     fig = _figure(figsize=(8, 8))
     ax = fig.subplots()
     if points is not None and len(points):

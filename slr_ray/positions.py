@@ -20,17 +20,27 @@ from __future__ import annotations
 
 import json
 import math
+import multiprocessing
+import os
+import tempfile
 import time
+from concurrent.futures import ProcessPoolExecutor
+from concurrent.futures.process import BrokenProcessPool
 from dataclasses import dataclass, field
 from pathlib import Path
 
 import numpy as np
+from scipy.spatial import cKDTree
+from tqdm import tqdm
 
 from .arrays import as_points
-from .errors import InputValueError
+from .backends import prepare
+from .errors import InputValueError, MissingDependencyError
+from .meshscan import scan_mesh
 from .paper import (CELL_SIZE, GROUND_COUNT_RADIUS, GROUND_HEIGHT_RADIUS, MIN_GROUND_POINTS, SCANNER_HEIGHT,
                     SECONDARY_RESOLUTION)
 from .pattern import ScanPattern
+from .scenes import scene_from_spec
 
 __all__ = ["CandidateCells", "AzimuthProfile", "candidate_cells", "select_positions",
            "azimuth_histogram", "minimum_profile", "default_profile", "build_synthetic_profile", "suggest_resolution",
@@ -122,9 +132,6 @@ def build_synthetic_profile(scenes=("distance-1", "distance-2", "distance-3", "d
     centres) at ``pattern`` (0.144 deg): these stand in for the paper's
     reference scans (Yang and Purves' dataset, 0.144 deg).
     """
-    from .meshscan import scan_mesh
-    from .scenes import scene_from_spec
-
     pattern = pattern or ScanPattern(SECONDARY_RESOLUTION)
     rng = np.random.default_rng(seed)
     scans = []
@@ -193,8 +200,6 @@ class CandidateCells:
 
 
 def _ground_tree(points, is_ground):
-    from scipy.spatial import cKDTree
-
     g = points[is_ground]
     centre = g[:, :2].mean(axis=0) if len(g) else np.zeros(2)
     # unbalanced, non-compact: 3x faster to build on 2e7 points, and the counts are exact either way
@@ -287,15 +292,11 @@ def candidate_cells(points, is_ground, *, cell_size: float = CELL_SIZE, min_grou
 
     az = ok.copy()
     if profile is not None:
-        from .backends import prepare
-
         scanner = prepare(pts)
         todo = np.flatnonzero(ok)
         zs = _ground_z(tree, gpts, gcentre, centres[todo], ground_height_radius)
         bar = None
         if progress:
-            from tqdm import tqdm
-
             bar = tqdm(total=len(todo), unit="cell", desc="azimuth test", leave=False)
         for i, z in zip(todo, zs):
             if not np.isfinite(z):
@@ -398,8 +399,6 @@ def suggest_resolution(points, position, *, radius: float = 30.0, k: int = 8, qu
     choice). This also works for MLS clouds, which have no single primary
     scanner.
     """
-    from scipy.spatial import cKDTree
-
     pts = as_points(points).astype(np.float64, copy=False)
     pos = np.asarray(position, np.float64)
     d = np.linalg.norm(pts - pos, axis=1)
@@ -434,15 +433,9 @@ def label_ground(points, *, cloth_resolution: float = 0.5, rigidness: int = 2,
     -------
     is_ground : (n,) bool
     """
-    import multiprocessing
-    from concurrent.futures import ProcessPoolExecutor
-    from concurrent.futures.process import BrokenProcessPool
-
     try:
         import CSF  # noqa: F401
     except ImportError as exc:
-        from .errors import MissingDependencyError
-
         raise MissingDependencyError(
             'ground labelling needs cloth-simulation-filter: pip install "slr_ray[csf]"') from exc
     for name, value, lo in (("cloth_resolution", cloth_resolution, 0.0), ("class_threshold", class_threshold, 0.0),
@@ -471,9 +464,6 @@ def label_ground(points, *, cloth_resolution: float = 0.5, rigidness: int = 2,
 
 def _csf_ground(pts: np.ndarray, params: dict) -> np.ndarray:
     """Indices of CSF's ground points, in a child process (see :func:`label_ground`)."""
-    import os
-    import tempfile
-
     import CSF
 
     csf = CSF.CSF()

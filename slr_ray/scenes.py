@@ -16,7 +16,9 @@ from dataclasses import dataclass, field
 from pathlib import Path
 
 import numpy as np
+import trimesh
 from numba import njit
+from scipy.spatial.transform import Rotation
 
 from .effects import Effects
 from .errors import InputValueError, refuse_memory
@@ -163,9 +165,6 @@ def rectangle_scene(
     and the part outside the disc are cut away, so a rectangle crossing the
     ground keeps its upper part. One that keeps no area is not present.
     """
-    import trimesh
-    from scipy.spatial.transform import Rotation
-
     _check_number("n_rectangles", n_rectangles, integer=True, low=0)
     _check_number("ground_radius", ground_radius, low=0, open_low=True)
     _check_number("ground_z", ground_z)

@@ -48,13 +48,16 @@ import dataclasses
 import functools
 import json
 import math
+import warnings
 from dataclasses import dataclass, field
 from pathlib import Path
 
 import numpy as np
-from numba import njit, prange
+import yaml
 
-from .arrays import as_origin, unravel_ids
+from .arrays import as_origin
+from .core.beams import beam_keys, beam_keys_given, beam_reduce
+from .core.protocol import Pattern
 from .errors import FormatError, InputValueError, SlrError
 from .threads import default_threads
 
@@ -74,7 +77,7 @@ SENSORS = _names()
 
 
 @dataclass(frozen=True, eq=False)
-class BeamPattern:
+class BeamPattern(Pattern):
     """The beam table of a spinning multi-beam sensor (module docstring).
 
     Parameters
@@ -153,25 +156,16 @@ class BeamPattern:
         """Azimuth offset of each row's beam, radians."""
         return np.radians(np.asarray(self.azimuth_offset_deg)[self.beam_of_row])
 
-    # --- the pattern protocol (what ScanPattern offers the backends) -----------------------------------------
+    # --- the pattern protocol (slr_ray.core.Pattern) -----------------------------------------------------
+    @property
+    def has_beams(self) -> bool:
+        """A point may carry the beam that fired it (:meth:`pulse_ids`, :meth:`rows_of_beams`)."""
+        return True
+
     @property
     def shape(self) -> tuple[int, int]:
         """``(n_beams, columns)``: rows by elevation, columns by azimuth."""
         return self.n_beams, self.columns
-
-    @property
-    def n_pulses(self) -> int:
-        return self.n_beams * self.columns
-
-    @property
-    def n_zenith(self) -> int:
-        """Rows (beams), the name :class:`~slr_ray.pattern.ScanPattern` gives them."""
-        return self.n_beams
-
-    @property
-    def n_azimuth(self) -> int:
-        """Columns, the name :class:`~slr_ray.pattern.ScanPattern` gives them."""
-        return self.columns
 
     @property
     def azimuth_resolution(self) -> float:
@@ -182,15 +176,19 @@ class BeamPattern:
         return (0.0 if self.min_range is None else float(self.min_range),
                 math.inf if self.max_range is None else float(self.max_range))
 
-    def ravel(self, pulses) -> np.ndarray:
-        p = np.asarray(pulses, dtype=np.int64).reshape(-1, 2)
-        return p[:, 0] * self.columns + p[:, 1]
+    @property
+    def pulse_steps(self) -> tuple[float, float]:
+        """The mean row gap (the bands' zenith extent over the rows) and ``2 pi / columns``, radians."""
+        edges = self.band_edges
+        return float(edges[-1] - edges[0]) / self.n_beams, 2 * math.pi / self.columns
 
-    def unravel(self, ids) -> np.ndarray:
-        ids = np.asarray(ids, dtype=np.int64).ravel()
-        if len(ids) and ids.min() < 0:
-            raise InputValueError("pulse ids must be >= 0")
-        return unravel_ids(ids, self.columns)
+    def aligned(self) -> "BeamPattern":
+        """The table with every beam's azimuth offset 0: column ``h`` of two
+        adjacent beams then lies at the same absolute azimuth (the offsets put
+        it up to 8 deg apart between an HDL-64E's beams)."""
+        if not any(self.azimuth_offset_deg):
+            return self
+        return dataclasses.replace(self, azimuth_offset_deg=(0.0,) * self.n_beams)
 
     def to_dict(self) -> dict:
         return {"name": self.name, "beams": self.n_beams, "columns": self.columns,
@@ -200,11 +198,14 @@ class BeamPattern:
                 "source": self.meta.get("source")}
 
     def with_(self, **changes) -> "BeamPattern":
-        from dataclasses import replace
-
-        return replace(self, **changes)
+        return dataclasses.replace(self, **changes)
 
     def keys(self, points, origin, beams=None):
+        """Deprecated name of :meth:`pulse_ids`."""
+        warnings.warn("BeamPattern.keys is deprecated; use BeamPattern.pulse_ids", DeprecationWarning, stacklevel=2)
+        return self.pulse_ids(points, origin, beams)
+
+    def pulse_ids(self, points, origin, beams=None):
         """Flat pulse ids ``row * columns + column`` (``-1``: not seen) and ranges of ``points``.
 
         ``beams`` (optional, ``(n,)`` integers): the beam (table position) that
@@ -220,11 +221,11 @@ class BeamPattern:
         ranges = np.empty(len(pts))
         rmin, rmax = self.range_limits
         if beams is None:
-            _beam_keys(pts, o[0], o[1], o[2], self._cos_edges, self.row_offsets, self.columns, rmin, rmax, keys,
+            beam_keys(pts, o[0], o[1], o[2], self._cos_edges, self.row_offsets, self.columns, rmin, rmax, keys,
                        ranges)
         else:
             rows = self.rows_of_beams(beams, len(pts))
-            _beam_keys_given(pts, o[0], o[1], o[2], self._cos_edges, self.row_offsets, self.columns, rmin, rmax,
+            beam_keys_given(pts, o[0], o[1], o[2], self._cos_edges, self.row_offsets, self.columns, rmin, rmax,
                              rows, keys, ranges)
         return keys, ranges
 
@@ -252,14 +253,14 @@ class BeamPattern:
         """Cosines of the band edges, negated so that they ascend (for a binary search)."""
         return -np.cos(self.band_edges)
 
-    def rays(self, rows=slice(None), k: int = 1):
+    def rays(self, rows: slice | None = None, k: int = 1):
         """Unit directions of the pulses of ``rows`` (row-major), with their ``(row, column)``.
 
         Only pulse centres (``k = 1``): a beam is a direction, not a solid angle."""
         if k != 1:
             raise InputValueError("beam patterns cast one ray per pulse (mode 'center'); "
                                   "sub-rays (mode 'nearest') are defined for uniform patterns only")
-        r = np.arange(self.n_beams, dtype=np.int64)[rows]
+        r = np.arange(self.n_beams, dtype=np.int64)[slice(None) if rows is None else rows]
         c = np.arange(self.columns, dtype=np.int64)
         v = np.repeat(r, self.columns)
         h = np.tile(c, len(r))
@@ -279,7 +280,7 @@ class BeamPattern:
         best_r = np.full((t, self.n_pulses), np.inf)
         best_i = np.full((t, self.n_pulses), -1, np.int64)
         rmin, rmax = self.range_limits
-        _beam_reduce(pts, o[0], o[1], o[2], self._cos_edges, self.row_offsets, self.columns, rmin, rmax,
+        beam_reduce(pts, o[0], o[1], o[2], self._cos_edges, self.row_offsets, self.columns, rmin, rmax,
                      best_r, best_i)
         r, i = best_r[0], best_i[0]
         for j in range(1, t):
@@ -300,69 +301,6 @@ class BeamPattern:
               "columns": table.get("columns", 1024), "max_range": table.get("max_range_m_nominal"),
               "name": table.get("name"), "meta": meta}
         return cls(**(kw | changes))
-
-
-@njit(cache=True, inline="always", error_model="numpy")
-def _beam_key(dx, dy, dz, neg_cos_edges, offsets, columns, rmin, rmax):
-    r = math.sqrt(dx * dx + dy * dy + dz * dz)
-    if not (r > 0.0) or r < rmin or r > rmax:
-        return -1, r
-    # zenith in [e_i, e_{i+1})  <=>  -cos(e_i) <= -z/r < -cos(e_{i+1}): ascending, no arctangent
-    q = -dz / r
-    nrow = len(neg_cos_edges) - 1
-    if q < neg_cos_edges[0] or q >= neg_cos_edges[nrow]:
-        return -1, r
-    row = np.searchsorted(neg_cos_edges, q, side="right") - 1
-    return row * columns + _column(dx, dy, offsets[row], columns), r
-
-
-@njit(cache=True, inline="always", error_model="numpy")
-def _column(dx, dy, offset, columns):
-    """The column of azimuth ``atan2(dy, dx)`` for a beam firing ``offset`` radians off it."""
-    two_pi = 2.0 * math.pi
-    a = math.atan2(dy, dx) - offset
-    a = a - two_pi * math.floor(a / two_pi)
-    col = int(math.floor(a / (two_pi / columns)))
-    if col >= columns:  # a = 2 pi - tiny rounds to the last column's end
-        col = columns - 1
-    return col
-
-
-@njit(cache=True, parallel=True, error_model="numpy")
-def _beam_keys_given(pts, ox, oy, oz, edges, offsets, columns, rmin, rmax, rows, keys, ranges):
-    """As :func:`_beam_keys`, a point with ``rows[i] >= 0`` in that row."""
-    for i in prange(len(pts)):
-        dx, dy, dz = pts[i, 0] - ox, pts[i, 1] - oy, pts[i, 2] - oz
-        if rows[i] < 0:
-            keys[i], ranges[i] = _beam_key(dx, dy, dz, edges, offsets, columns, rmin, rmax)
-            continue
-        r = math.sqrt(dx * dx + dy * dy + dz * dz)
-        ranges[i] = r
-        if not (r > 0.0) or r < rmin or r > rmax:
-            keys[i] = -1
-            continue
-        keys[i] = rows[i] * columns + _column(dx, dy, offsets[rows[i]], columns)
-
-
-@njit(cache=True, parallel=True, error_model="numpy")
-def _beam_keys(pts, ox, oy, oz, edges, offsets, columns, rmin, rmax, keys, ranges):
-    for i in prange(len(pts)):
-        keys[i], ranges[i] = _beam_key(pts[i, 0] - ox, pts[i, 1] - oy, pts[i, 2] - oz, edges, offsets, columns,
-                                       rmin, rmax)
-
-
-@njit(cache=True, parallel=True, error_model="numpy")
-def _beam_reduce(pts, ox, oy, oz, edges, offsets, columns, rmin, rmax, best_r, best_i):
-    t_count = best_r.shape[0]
-    n = len(pts)
-    for t in prange(t_count):
-        lo = n * t // t_count
-        hi = n * (t + 1) // t_count
-        for i in range(lo, hi):
-            k, r = _beam_key(pts[i, 0] - ox, pts[i, 1] - oy, pts[i, 2] - oz, edges, offsets, columns, rmin, rmax)
-            if k >= 0 and r < best_r[t, k]:  # ascending i within a thread: a tie keeps the lower index
-                best_r[t, k] = r
-                best_i[t, k] = i
 
 
 def sensor(name: str, **changes) -> BeamPattern:
@@ -492,8 +430,6 @@ def read_ouster_metadata(path, **changes) -> BeamPattern:
 def read_velodyne_calibration(path, columns: int = 1800, **changes) -> BeamPattern:
     """A :class:`BeamPattern` from a Velodyne calibration YAML (the ros-drivers/velodyne
     ``lasers:`` list: ``vert_correction`` and ``rot_correction`` in radians)."""
-    import yaml
-
     d = yaml.safe_load(Path(path).read_text())
     lasers = sorted(d.get("lasers") or [], key=lambda x: x["laser_id"])
     if not lasers:

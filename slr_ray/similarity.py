@@ -12,9 +12,11 @@ Temples: precision, recall and F-score at a distance threshold).
 
 from __future__ import annotations
 
+import warnings
 from dataclasses import asdict, dataclass
 
 import numpy as np
+from scipy.spatial import cKDTree
 
 from .arrays import as_points
 from .cellgrid import CellGrid, GridUnsuitable
@@ -24,16 +26,27 @@ from .paper import SIMILARITY_THRESHOLD
 __all__ = ["similarity", "agreement", "Agreement", "nearest_distances"]
 
 
-def nearest_distances(query, reference, workers: int = -1, upper_bound: float = np.inf) -> np.ndarray:
+def _kdtree_workers(n_threads, workers) -> int:
+    """scipy's ``workers`` (-1: all) from ``n_threads`` (None: all), or from the
+    deprecated ``workers`` keyword."""
+    if workers is not None:
+        warnings.warn("workers= is deprecated; use n_threads= (None: all cores)", DeprecationWarning, stacklevel=3)
+        n_threads = workers
+    return -1 if n_threads is None or n_threads == -1 else int(n_threads)
+
+
+def nearest_distances(query, reference, n_threads: int | None = None, upper_bound: float = np.inf, *,
+                      workers: int | None = None) -> np.ndarray:
     """Distance from each ``query`` point to its nearest ``reference`` point.
 
     ``inf`` for every query point when ``reference`` is empty (what Open3D's
     ``compute_point_cloud_distance`` leaves undefined), and for those with no
     reference point closer than ``upper_bound`` (a bound makes the search
     several times faster when many points have no close neighbour).
+    ``n_threads``: threads of the kd-tree query (default all cores;
+    ``workers``, scipy's name, is a deprecated alias).
     """
-    from scipy.spatial import cKDTree
-
+    kd_workers = _kdtree_workers(n_threads, workers)
     q = as_points(query, "query").astype(np.float64, copy=False)
     r = as_points(reference, "reference").astype(np.float64, copy=False)
     if len(r) == 0:
@@ -42,11 +55,12 @@ def nearest_distances(query, reference, workers: int = -1, upper_bound: float = 
         return np.empty(0)
     # recentre so the tree works on small numbers whatever the coordinates
     c = r.mean(axis=0)
-    d, _ = cKDTree(r - c).query(q - c, k=1, workers=workers, distance_upper_bound=upper_bound)
+    d, _ = cKDTree(r - c).query(q - c, k=1, workers=kd_workers, distance_upper_bound=upper_bound)
     return d
 
 
-def similarity(true_points, simulated_points, threshold: float = SIMILARITY_THRESHOLD, workers: int = -1) -> float:
+def similarity(true_points, simulated_points, threshold: float = SIMILARITY_THRESHOLD, n_threads: int | None = None,
+               *, workers: int | None = None) -> float:
     """Fraction of true points whose nearest simulated point is closer than ``threshold``.
 
     The paper's similarity of a secondary (true) scan and its SLR scan, with
@@ -56,7 +70,7 @@ def similarity(true_points, simulated_points, threshold: float = SIMILARITY_THRE
     if not threshold > 0:
         raise InputValueError(f"threshold must be > 0, got {threshold}")
     return _share_within(as_points(true_points, "true_points"), as_points(simulated_points, "simulated_points"),
-                         threshold, workers)
+                         threshold, _kdtree_workers(n_threads, workers))
 
 
 @dataclass(frozen=True)
@@ -98,13 +112,13 @@ def _share_within(query, reference, threshold, workers) -> float:
     try:
         hit = CellGrid(reference, threshold).any_within(query)
     except GridUnsuitable:
-        d = nearest_distances(query, reference, workers, upper_bound=threshold)
+        d = nearest_distances(query, reference, workers, upper_bound=threshold)  # scipy's workers: -1 all
         hit = d < threshold
     return float(np.count_nonzero(hit) / len(hit))
 
 
 def agreement(true_points, simulated_points, threshold: float = SIMILARITY_THRESHOLD,
-              workers: int = -1) -> Agreement:
+              n_threads: int | None = None, *, workers: int | None = None) -> Agreement:
     """Coverage and precision of ``simulated_points`` against ``true_points``.
 
     Parameters
@@ -113,8 +127,9 @@ def agreement(true_points, simulated_points, threshold: float = SIMILARITY_THRES
     threshold : float
         Metres (the paper: 0.10). A pair exactly ``threshold`` apart does not
         match (strictly closer, as :func:`similarity`).
-    workers : int
-        Threads of the kd-tree queries (-1: all), where a kd-tree is used:
+    n_threads : int, optional
+        Threads of the kd-tree queries (default all cores; ``workers``, scipy's
+        name, is a deprecated alias), where a kd-tree is used:
         the test runs on a :class:`~slr_ray.cellgrid.CellGrid` of cells of the
         threshold's size (numba's threads) unless the cloud spans more than
         2e6 such cells along an axis.
@@ -136,8 +151,9 @@ def agreement(true_points, simulated_points, threshold: float = SIMILARITY_THRES
         raise InputValueError(f"threshold must be > 0, got {threshold}")
     t = as_points(true_points, "true_points")
     s = as_points(simulated_points, "simulated_points")
-    cov = _share_within(t, s, threshold, workers)
-    prec = _share_within(s, t, threshold, workers)
+    kd_workers = _kdtree_workers(n_threads, workers)
+    cov = _share_within(t, s, threshold, kd_workers)
+    prec = _share_within(s, t, threshold, kd_workers)
     if np.isnan(cov) or np.isnan(prec):
         f = float("nan")
     else:

@@ -1,7 +1,7 @@
 """Spherical coordinates and pulse bins of points seen from a scanner (numpy).
 
-These are the readable definitions of the ideal scanner (README, "The ideal scanner"); the binning backend computes
-the same quantities fused in a compiled loop. Everything is done in float64
+These are the readable definitions of the ideal scanner (README, "The ideal scanner"); the pulse keys of
+:mod:`slr_ray.core` compute the same quantities fused in a compiled loop. Everything is done in float64
 after subtracting the scanner origin, so a cloud in UTM coordinates (10^6 m)
 bins exactly like the same cloud near 0.
 """
@@ -11,8 +11,8 @@ from __future__ import annotations
 import numpy as np
 
 from .arrays import as_origin, as_points
-from .backends.binning import pulse_keys
-from .pattern import ScanPattern, pulse_directions
+from .core import Pattern
+from .pattern import pulse_directions
 
 __all__ = ["spherical_coordinates", "pulse_bins", "pulse_directions"]
 
@@ -46,7 +46,7 @@ def spherical_coordinates(points, origin):
     return ranges, zenith, azimuth
 
 
-def pulse_bins(points, origin, pattern: ScanPattern):
+def pulse_bins(points, origin, pattern: Pattern):
     """Pulse bin of every point, and whether the scanner can see it at all.
 
     Returns
@@ -69,7 +69,7 @@ def pulse_bins(points, origin, pattern: ScanPattern):
     side of it here as in a scan (numpy's own ``arctan2`` may differ from the
     C library's in the last bit).
     """
-    keys, ranges = pulse_keys(as_points(points), as_origin(origin), pattern)
+    keys, ranges = pattern.pulse_ids(as_points(points), as_origin(origin))
     visible = keys >= 0
     nh = pattern.n_azimuth
     return np.where(visible, keys // nh, -1), np.where(visible, keys % nh, -1), ranges, visible

@@ -12,13 +12,20 @@ reduction's state and the scan itself.
 
 from __future__ import annotations
 
+import warnings
+from concurrent.futures import ThreadPoolExecutor
 from pathlib import Path
 
+import laspy
 import numpy as np
+from tqdm import tqdm
 
 from .accumulator import ScanAccumulator
 from .errors import FormatError, InputValueError
 from .io import LasRecords, PointCloud
+from .paper import CELL_SIZE, MIN_GROUND_POINTS
+from .positions import select_positions
+from .threads import default_threads
 
 __all__ = ["scan_las", "las_positions", "scan_las_many", "STREAMED_FORMATS", "DEFAULT_CHUNK",
            "MAX_GROUND_POINTS"]
@@ -30,8 +37,6 @@ DEFAULT_CHUNK = 2_000_000
 
 
 def _chunks(path, chunk):
-    import laspy
-
     try:
         with laspy.open(str(path)) as reader:
             header = reader.header
@@ -159,9 +164,6 @@ def las_positions(path, n: int, *, seed=0, ground=None, chunk: int = DEFAULT_CHU
     n_points : int
         Points in the file.
     """
-    from .paper import CELL_SIZE, MIN_GROUND_POINTS
-    from .positions import select_positions
-
     if options.get("profile") is not None:
         raise InputValueError("the azimuth test (profile) scans the whole cloud per cell: not streamed")
     cell = float(options.get("cell_size", CELL_SIZE))
@@ -194,8 +196,6 @@ def las_positions(path, n: int, *, seed=0, ground=None, chunk: int = DEFAULT_CHU
     corner = np.floor(lo / cell) * cell
     stride = max(1, -(-n_ground // int(max_ground_points)))
     if stride > 1:
-        import warnings
-
         options["min_ground_points"] = -(-int(options.get("min_ground_points", MIN_GROUND_POINTS)) // stride)
         warnings.warn(f"{path}: {n_ground:,} ground points; positions from every {stride}th "
                       f"(min_ground_points {options['min_ground_points']:,}): close to, not exactly, "
@@ -244,10 +244,6 @@ def scan_las_many(path, origins, pattern, *, chunk: int = DEFAULT_CHUNK, n_threa
     ``n_threads`` of them run at once) and the kept records.
     """
     path = Path(path)
-    from concurrent.futures import ThreadPoolExecutor
-
-    from .threads import default_threads
-
     # one thread per reduction, the reductions side by side: the tables of one
     # thread each (a 0.144 deg pattern: 50 MB a scan) instead of n_threads each
     accs = [ScanAccumulator(o, pattern, n_threads=1) for o in origins]
@@ -283,8 +279,6 @@ def scan_las_many(path, origins, pattern, *, chunk: int = DEFAULT_CHUNK, n_threa
 
 
 def _cloud(header, evlrs, array) -> PointCloud:
-    import laspy
-
     rec = laspy.ScaleAwarePointRecord(array, header.point_format, header.scales, header.offsets)
     pts = np.column_stack([np.asarray(rec.x), np.asarray(rec.y), np.asarray(rec.z)]) if len(array) else \
         np.empty((0, 3))
@@ -298,9 +292,6 @@ def _cloud(header, evlrs, array) -> PointCloud:
 def _bar(path, what, progress):
     if not progress:
         return None
-    import laspy
-    from tqdm import tqdm
-
     with laspy.open(str(path)) as r:
         total = r.header.point_count
     return tqdm(total=total, unit="pt", unit_scale=True, desc=what, leave=False)

@@ -12,7 +12,7 @@ settings.register_profile("ci", derandomize=True, print_blob=True)
 settings.register_profile("explore", derandomize=False, print_blob=True)
 settings.load_profile(os.environ.get("HYPOTHESIS_PROFILE", "ci"))
 
-from slr_ray.backends.binning import BinTables
+from slr_ray.core import BinTables
 
 
 def brute_force_scan(points, origin, pattern):

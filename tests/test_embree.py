@@ -325,14 +325,14 @@ def _grid_brute(pts, origin, res, gate, beams=None):
     azimuth, per-beam offsets 0; with ``beams``, each point in its beam's row)."""
     import dataclasses
 
-    from slr_ray.backends.binning import pulse_keys
+    from slr_ray.core import pulse_ids
     from slr_ray.pattern import as_pattern
 
     pattern = as_pattern(res)
     if getattr(pattern, "azimuth_offset_deg", None) is not None:
         pattern = dataclasses.replace(pattern, azimuth_offset_deg=(0.0,) * len(pattern.azimuth_offset_deg))
     if beams is None:
-        keys, ranges = pulse_keys(pts, np.asarray(origin, float), pattern)
+        keys, ranges = pulse_ids(pts, np.asarray(origin, float), pattern)
     else:  # a point's row is its beam's; its column, its absolute azimuth's
         nh = pattern.shape[1]
         rel = pts - np.asarray(origin, float)
@@ -528,7 +528,8 @@ def test_fused_pulse_grid_pass_equals_neighbourhoods_then_pca(seed):
     """The one-pass spacing and normals are those of grid_neighbourhoods'
     neighbours (the brute-force-tested ones) followed by PCA, point for point,
     including points outside the pattern and points with no neighbour."""
-    from slr_ray.backends.embree import _chunk_normals, grid_neighbourhoods, pulse_grid_spacing_normals
+    from slr_ray.backends.embree import grid_neighbourhoods, pulse_grid_spacing_normals
+    from slr_ray.backends.embree.discs import chunk_normals as _chunk_normals
 
     rng = np.random.default_rng(seed)
     d = rng.normal(size=(4000, 3))
@@ -560,13 +561,13 @@ def test_pulse_grid_walks_the_order_the_cloud_is_stored_in():
     walked by columns, one stored row by row by rows; the neighbours are the
     same either way (tested above)."""
     from slr_ray import scan_mesh
-    from slr_ray.backends.binning import pulse_keys
-    from slr_ray.backends.embree import _sorted_pulse_grid
+    from slr_ray.core import pulse_ids
+    from slr_ray.backends.embree.pulsegrid import sorted_pulse_grid as _sorted_pulse_grid
     from slr_ray.scenes import rectangle_scene
 
     pattern = ScanPattern(1.0)
     cloud = scan_mesh(rectangle_scene(20, seed=1), [0, 0, 0], pattern).points  # row by row, as scanned
-    k, _ = pulse_keys(cloud, np.zeros(3), pattern)
+    k, _ = pulse_ids(cloud, np.zeros(3), pattern)
     v, h = np.divmod(k, pattern.n_azimuth)
     by_column = cloud[np.lexsort((v, h))]
     assert _sorted_pulse_grid(cloud, np.zeros(3), 1.0)[5] is False
@@ -579,7 +580,7 @@ def test_pulse_grid_walks_the_order_the_cloud_is_stored_in():
 def test_line_sort_is_a_stable_argsort(seed):
     """The pulse grid's counting sort by line, each line then sorted on its own,
     gives the order of a stable argsort of the keys (unseen keys -1 first)."""
-    from slr_ray.backends.embree import _line_sort
+    from slr_ray.backends.embree.pulsegrid import _line_sort
 
     rng = np.random.default_rng(seed)
     lines, line_len = int(rng.integers(1, 40)), int(rng.integers(1, 50))
@@ -641,7 +642,7 @@ def test_limit_incidence_turns_only_edge_on_normals_to_the_bound(seed):
     """Brute-force check of the turn: unit, in the plane of the normal and the
     line of sight, on the normal's side, at exactly the bound; normals within
     the bound untouched."""
-    from slr_ray.backends.embree import _limit_incidence
+    from slr_ray.backends.embree.discs import limit_incidence as _limit_incidence
 
     rng = np.random.default_rng(seed)
     pts = rng.normal(size=(2000, 3)) * 10 + 1e6  # far from the origin: angles from float64 differences
@@ -772,8 +773,8 @@ def test_primary_beams_put_each_point_in_its_beams_row():
     frame = scan_mesh(mesh, o, sensor("velodyne_hdl64e_s3", columns=1000))
     pts, kept = sensor_noise(frame.points, o, frame.pulses[:, 0], seed=0)
     beams = nominal.beam_of_row[frame.pulses[kept, 0]]
-    k_band, _ = nominal.keys(pts, o)
-    k_beam, _ = nominal.keys(pts, o, beams)
+    k_band, _ = nominal.pulse_ids(pts, o)
+    k_beam, _ = nominal.pulse_ids(pts, o, beams)
     assert np.mean(k_band // nominal.columns != k_beam // nominal.columns) > 0.5  # the two units differ
     # neighbours against the brute force on a slice of the frame (keys from the beams)
     sub, sub_beams = pts[::7], beams[::7]
@@ -801,7 +802,7 @@ def test_primary_beams_put_each_point_in_its_beams_row():
 def test_nearest_ray_per_point_is_the_first_of_the_least_distance(seed):
     """Against the lexsort it replaced: per point, its ray of least t, the
     first in ray order among equal t (ties made common on purpose)."""
-    from slr_ray.backends.embree import _nearest_ray
+    from slr_ray.backends.embree.scanner import _nearest_ray
 
     rng = np.random.default_rng(seed)
     group = rng.integers(0, 300, 5000)
@@ -818,7 +819,8 @@ def test_nearest_ray_per_point_is_the_first_of_the_least_distance(seed):
 def test_pulse_grid_pass_turns_normals_as_the_separate_pass_does():
     """The pulse-grid pass turns edge-on normals as it makes them (no second
     pass over the points); the answer is the separate pass's."""
-    from slr_ray.backends.embree import _limit_incidence, pulse_grid_spacing_normals
+    from slr_ray.backends.embree import pulse_grid_spacing_normals
+    from slr_ray.backends.embree.discs import limit_incidence as _limit_incidence
 
     mesh, o, nominal, pts, _ = real_sensor_frame()
     _, plain = pulse_grid_spacing_normals(pts, o, nominal, None, False, True)

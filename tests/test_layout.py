@@ -1,11 +1,27 @@
-"""The joints between modules: no module imports another's private names, no
-import cycles among slr_ray's modules (imports at module level), and
-docstrings cite only what users have."""
+"""The structure of the package, read from its AST: every import (module level
+and in functions) is counted, so a joint cannot hide inside a function.
+
+- no import cycles among slr_ray's modules;
+- no module imports another module's private (``_name``) names;
+- imports inside functions only of optional extras (:data:`OPTIONAL_EXTRAS`);
+- no module over :data:`MAX_LINES` lines;
+- no ``isinstance`` on pattern classes outside the pattern modules: what a
+  pattern can do is a property of the protocol (``streamable``, ``has_beams``);
+- docstrings cite only what users have; figures leave matplotlib alone.
+"""
 
 import ast
 import pathlib
 
 PKG = pathlib.Path(__file__).resolve().parents[1] / "slr_ray"
+
+#: the optional dependencies (extras, and the Embree wheel the ray engine looks in): the only
+#: imports allowed inside functions, so that ``import slr_ray`` works without them
+OPTIONAL_EXTRAS = {"open3d", "dask", "pye57", "CSF", "embreex"}
+MAX_LINES = 800
+#: the modules that define patterns, and the classes no other module may test for
+PATTERN_MODULES = {"slr_ray.pattern", "slr_ray.sensors", "slr_ray.core.protocol"}
+PATTERN_CLASSES = {"Pattern", "ScanPattern", "BeamPattern"}
 
 
 def _modules():
@@ -32,6 +48,7 @@ def _package_of(mod, path):
 
 
 def _imports(mod, path, top_level_only):
+    """``(node, absolute target)`` of every ``from ... import`` (and ``import x``)."""
     tree = ast.parse(path.read_text())
     nodes = tree.body if top_level_only else list(ast.walk(tree))
     for node in nodes:
@@ -42,13 +59,26 @@ def _imports(mod, path, top_level_only):
             else:
                 target = node.module or ""
             yield node, target
+        elif isinstance(node, ast.Import):
+            for alias in node.names:
+                yield node, alias.name
+
+
+def _function_imports(path):
+    """Import nodes inside functions (at any depth)."""
+    tree = ast.parse(path.read_text())
+    for fn in ast.walk(tree):
+        if isinstance(fn, (ast.FunctionDef, ast.AsyncFunctionDef)):
+            for node in ast.walk(fn):
+                if isinstance(node, (ast.Import, ast.ImportFrom)):
+                    yield node
 
 
 def test_no_module_imports_another_modules_private_names():
     bad = []
     for mod, path in _modules():
         for node, target in _imports(mod, path, top_level_only=False):
-            if not target.startswith("slr_ray"):
+            if not target.startswith("slr_ray") or isinstance(node, ast.Import):
                 continue
             for alias in node.names:
                 if alias.name.startswith("_") and not alias.name.startswith("__"):
@@ -56,25 +86,30 @@ def test_no_module_imports_another_modules_private_names():
     assert not bad, "\n".join(bad)
 
 
-def test_no_import_cycles_between_modules():
+def _import_graph():
+    """``{module: modules it imports}``, in-function imports included."""
     graph = {}
     for mod, path in _modules():
         deps = set()
-        for node, target in _imports(mod, path, top_level_only=True):
+        for node, target in _imports(mod, path, top_level_only=False):
             if target.startswith("slr_ray"):
                 deps.add(target)
-                for alias in node.names:  # "from . import x" may name a submodule
-                    deps.add(f"{target}.{alias.name}")
+                if isinstance(node, ast.ImportFrom):
+                    for alias in node.names:  # "from . import x" may name a submodule
+                        deps.add(f"{target}.{alias.name}")
         graph[mod] = {d for d in deps if d != mod}
     known = set(graph)
-    graph = {m: {d for d in ds if d in known} for m, ds in graph.items()}
-    # a package's __init__ importing its own submodules is not a cycle by itself
+    return {m: {d for d in ds if d in known} for m, ds in graph.items()}
+
+
+def _cycles(graph):
+    # a package's __init__ importing its own submodules (or a submodule its package) is not a cycle by itself
     state, stack, cycles = {}, [], []
 
     def visit(m):
         state[m] = 1
         stack.append(m)
-        for d in graph[m]:
+        for d in sorted(graph[m]):
             if m.startswith(d + ".") or d.startswith(m + "."):
                 continue  # package <-> its own submodule
             if state.get(d) == 1:
@@ -87,7 +122,68 @@ def test_no_import_cycles_between_modules():
     for m in sorted(graph):
         if m not in state:
             visit(m)
-    assert not cycles, cycles
+    return cycles
+
+
+def test_no_import_cycles_between_modules():
+    graph = _import_graph()
+    assert len(graph) > 40 and graph["slr_ray.backends.binning"]  # the graph is read, not empty
+    assert not _cycles(graph), _cycles(graph)
+
+
+def test_the_cycle_check_sees_imports_inside_functions():
+    # the check that missed distances <-> plotting read module-level imports only
+    assert _cycles({"a": {"b"}, "b": {"a"}}) == [["a", "b", "a"]]
+    assert _cycles({"p": {"p.x"}, "p.x": {"p"}}) == []
+
+
+def test_imports_inside_functions_are_of_optional_extras_only():
+    bad = []
+    for mod, path in _modules():
+        for node in _function_imports(path):
+            if isinstance(node, ast.ImportFrom):
+                root = "." if node.level else (node.module or "").split(".")[0]
+            else:
+                root = node.names[0].name.split(".")[0]
+            if root not in OPTIONAL_EXTRAS:
+                bad.append(f"{mod}:{node.lineno}: {ast.unparse(node)}")
+    assert not bad, "move to the top of the module:\n" + "\n".join(bad)
+
+
+def test_no_module_is_over_800_lines():
+    long = {mod: n for mod, path in _modules() if (n := len(path.read_text().splitlines())) > MAX_LINES}
+    assert not long, long
+
+
+def _pattern_class_tests(tree):
+    """Lines that test for a pattern class: ``isinstance``/``issubclass`` with one
+    (tuples included), or a comparison with a pattern class's name."""
+    def names(node):
+        if isinstance(node, ast.Tuple):
+            return {n for e in node.elts for n in names(e)}
+        if isinstance(node, ast.Name):
+            return {node.id}
+        if isinstance(node, ast.Attribute):
+            return {node.attr}
+        return set()
+
+    for node in ast.walk(tree):
+        if isinstance(node, ast.Call) and isinstance(node.func, ast.Name) and \
+                node.func.id in ("isinstance", "issubclass") and len(node.args) == 2 and \
+                names(node.args[1]) & PATTERN_CLASSES:
+            yield node.lineno
+        if isinstance(node, ast.Compare) and any(isinstance(c, ast.Constant) and c.value in PATTERN_CLASSES
+                                                 for c in node.comparators + [node.left]):
+            yield node.lineno
+
+
+def test_no_isinstance_on_pattern_classes_outside_the_pattern_modules():
+    bad = [f"{mod}:{line}" for mod, path in _modules() if mod not in PATTERN_MODULES
+           for line in _pattern_class_tests(ast.parse(path.read_text()))]
+    assert not bad, "use a capability of slr_ray.core.Pattern instead:\n" + "\n".join(bad)
+    found = list(_pattern_class_tests(ast.parse("isinstance(p, (int, slr_ray.ScanPattern))\n"
+                                                 "type(p).__name__ == 'BeamPattern'\n")))
+    assert found == [1, 2]  # the check sees both forms
 
 
 def test_docstrings_do_not_cite_files_users_do_not_have():

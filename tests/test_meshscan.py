@@ -106,7 +106,7 @@ def test_dense_mode_in_zenith_bands_is_the_same_scan(band_pulses):
 
 
 def test_bin_tables_keep_only_their_key_range():
-    from slr_ray.backends.binning import BinTables
+    from slr_ray.core import BinTables
 
     rng = np.random.default_rng(2)
     pts = rng.normal(size=(20000, 3))

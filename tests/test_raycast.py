@@ -166,6 +166,35 @@ def test_discs_holding_the_origin_are_skipped():
     np.testing.assert_allclose(hits.distances[0], 4.9)
 
 
+def test_open3d_scene_meets_the_triangles_embree_meets():
+    """The engine='open3d' cross-check casts through this package too: the same
+    triangles hit at the same distances as RayScene's, owners by triangle
+    count, and owners holding the origin skipped."""
+    pytest.importorskip("open3d")
+    import trimesh
+
+    from slr_ray.raycast import Open3DScene
+
+    m = trimesh.creation.icosphere(2, radius=2.0)
+    shift = np.array([3e5, -2e5, 40.0])
+    rng = np.random.default_rng(1)
+    dirs = _unit(rng, 2000)
+    o = shift + [0.1, -0.2, 0.05]
+    ref = RayScene.triangles(m.vertices + shift, m.faces).intersect(o, dirs, exact=True)
+    centres = np.zeros((len(m.faces) // 4, 3)) + shift + [9.0, 0, 0]  # owners far from the origin
+    got = Open3DScene(m.vertices + shift, m.faces, centres, np.full(len(centres), 0.1), prims_per_owner=4).intersect(
+        o, dirs)
+    assert got.hit.all() and ref.hit.all()
+    assert (got.primitives == ref.primitives).mean() > 0.99  # shared edges may go either way
+    np.testing.assert_allclose(got.distances, ref.distances, atol=1e-4)
+    np.testing.assert_array_equal(got.owners, got.primitives // 4)
+    # an owner whose reach holds the origin: rays start beyond it, and far limits are kept
+    holding = Open3DScene(m.vertices + shift, m.faces, np.array([o]), np.array([3.0]), prims_per_owner=len(m.faces))
+    assert not holding.intersect(o, dirs).hit.any()
+    assert not Open3DScene(m.vertices + shift, m.faces, centres, np.full(len(centres), 0.1), 4).intersect(
+        o, dirs, tfar=1.0).hit.any()
+
+
 def test_bad_input():
     with pytest.raises(InputValueError, match="radii"):
         RayScene.discs(np.zeros((2, 3)), np.array([0.1, 0.0]))

@@ -71,7 +71,7 @@ def test_binning_matches_the_definition(name, seed):
     az = rng.choice([0.0, 2 * math.pi, math.pi], k) + rng.normal(scale=1e-9, size=k)
     d[:k] = np.column_stack([np.sin(edges) * np.cos(az), np.sin(edges) * np.sin(az), np.cos(edges)])
     pts = origin + d * rng.uniform(0.1, 80, (3000, 1))
-    keys, _ = p.keys(pts, origin)
+    keys, _ = p.pulse_ids(pts, origin)
     np.testing.assert_array_equal(keys, brute_keys(pts, origin, p))
     scan = prepare(pts).scan(origin, p)
     # nearest per key, ties to the lowest index
@@ -117,7 +117,7 @@ def test_a_sensors_own_frame_comes_back_whole(name, shape):
         assert len(frame) > 0.9 * p.n_pulses  # closed: (almost) every ray hits
     else:
         assert len(frame) > 0
-    keys, _ = p.keys(frame.points, origin)
+    keys, _ = p.pulse_ids(frame.points, origin)
     np.testing.assert_array_equal(keys, p.ravel(frame.pulses))
     scan = prepare(frame.points).scan(origin, p)
     assert len(scan) == len(frame)
@@ -157,11 +157,11 @@ def test_offsets_and_outer_beams_at_their_extremes():
     pts = np.array([[math.cos(math.radians(e)) * math.cos(math.radians(a)),
                      math.cos(math.radians(e)) * math.sin(math.radians(a)), math.sin(math.radians(e))]
                     for e, a in ((14.9, 180.0), (15.1, 0.0), (-44.9, 0.0), (-45.1, 0.0), (0.0, 89.9))])
-    keys, _ = p.keys(pts, np.zeros(3))
+    keys, _ = p.pulse_ids(pts, np.zeros(3))
     np.testing.assert_array_equal(keys, brute_keys(pts, np.zeros(3), p))
     assert keys[1] == -1 and keys[3] == -1 and keys[0] >= 0 and keys[2] >= 0
     one = BeamPattern([0.0], columns=1)
-    assert one.keys(np.array([[1.0, 0, 0], [-1.0, 0.0, 0.0]]), np.zeros(3))[0].tolist() == [0, 0]
+    assert one.pulse_ids(np.array([[1.0, 0, 0], [-1.0, 0.0, 0.0]]), np.zeros(3))[0].tolist() == [0, 0]
     with pytest.raises(InputValueError):
         BeamPattern([1.0, 1.0], columns=10)
     with pytest.raises(InputValueError):
@@ -227,7 +227,7 @@ def test_cli_sensor_scan_with_range_image_and_labels(tmp_path, capsys):
     capsys.readouterr()
     rings = read_cloud(ply)
     p16 = sensor("velodyne_vlp16")
-    keys, _ = p16.keys(rings.points, np.array([0.5, 0, 0]))
+    keys, _ = p16.pulse_ids(rings.points, np.array([0.5, 0, 0]))
     np.testing.assert_array_equal(p16.beam_of_row[keys // p16.columns], rings.attributes["ring"])
     np.testing.assert_array_equal(keys % p16.columns, rings.attributes["column"])
     assert main(["scan", str(src), "--sensor", "velodyne_vlp16", "--resolution", "1", "--origin", "0", "0", "0",

@@ -115,3 +115,15 @@ def test_see_through_points_lower_precision_not_coverage():
     assert clean.precision == 1.0
     assert dirty.precision == pytest.approx(len(slr) / (len(slr) + len(behind[::4])))
     assert dirty.fscore < clean.fscore
+
+
+def test_n_threads_names_the_parallelism_and_workers_is_a_deprecated_alias():
+    rng = np.random.default_rng(4)
+    a, b = rng.normal(size=(300, 3)), rng.normal(size=(200, 3))
+    ref = agreement(a, b, 0.3)
+    assert agreement(a, b, 0.3, n_threads=1) == ref
+    with pytest.warns(DeprecationWarning, match="n_threads"):
+        assert agreement(a, b, 0.3, workers=1) == ref
+    with pytest.warns(DeprecationWarning, match="n_threads"):
+        np.testing.assert_array_equal(nearest_distances(a, b, workers=2), nearest_distances(a, b, n_threads=2))
+    assert similarity(a, b, 0.3, n_threads=2) == ref.coverage

@@ -23,29 +23,33 @@ from __future__ import annotations
 
 import time
 from dataclasses import replace
-from enum import Enum
+from typing import NamedTuple
 
 from ..arrays import as_origin, as_points
 from ..errors import InputValueError
 from ..pattern import as_pattern
 from ..raycast import embree_available
 from ..scan import Scan
-from .base import BackendOptions, Scanner
+from .base import Backend, BackendOptions, Scanner
 from .binning import BinningOptions, BinningScanner
 from .embree import DiscScanner, EmbreeOptions
 
-__all__ = ["Backend", "Scanner", "BackendOptions", "prepare", "simulate_scan", "options_for",
+__all__ = ["Backend", "BACKENDS", "Scanner", "BackendOptions", "prepare", "simulate_scan", "options_for",
            "available_backends", "BinningOptions", "EmbreeOptions"]
 
 
-class Backend(str, Enum):
-    """Names of the subsampling backends."""
+class BackendEntry(NamedTuple):
+    """A backend's scanner class and options class."""
 
-    BINNING = "binning"
-    EMBREE = "embree"
+    scanner: type
+    options: type
 
 
-_SCANNERS = {Backend.BINNING: (BinningScanner, BinningOptions), Backend.EMBREE: (DiscScanner, EmbreeOptions)}
+#: The one registry of backends: what ``prepare``, ``options_for`` and the command line's flags read.
+BACKENDS: dict[Backend, BackendEntry] = {
+    Backend.BINNING: BackendEntry(BinningScanner, BinningOptions),
+    Backend.EMBREE: BackendEntry(DiscScanner, EmbreeOptions),
+}
 
 
 def _backend(name) -> Backend:
@@ -57,7 +61,7 @@ def _backend(name) -> Backend:
 
 def options_for(backend, options: dict | BackendOptions | None = None, **more) -> BackendOptions:
     """Typed options of ``backend`` from a mapping and keywords (unknown keys are an error)."""
-    cls = _SCANNERS[_backend(backend)][1]
+    cls = BACKENDS[_backend(backend)].options
     if isinstance(options, BackendOptions):
         if not isinstance(options, cls):
             raise InputValueError(f"{type(options).__name__} given for backend {Backend(backend).value!r}")
@@ -65,7 +69,7 @@ def options_for(backend, options: dict | BackendOptions | None = None, **more) -
     return cls.from_dict(options, **more)
 
 
-def prepare(points, backend: str = "binning", options=None, **more) -> Scanner:
+def prepare(points, backend: str | Backend = Backend.BINNING, options=None, **more) -> Scanner:
     """Prepare ``points`` for scanning from many positions.
 
     Parameters
@@ -91,12 +95,11 @@ def prepare(points, backend: str = "binning", options=None, **more) -> Scanner:
         complex, object or boolean data.
     """
     b = _backend(backend)
-    cls, _ = _SCANNERS[b]
     opts = options_for(b, options, **more)
-    return cls(as_points(points, check_finite=False), opts)
+    return BACKENDS[b].scanner(as_points(points, check_finite=False), opts)
 
 
-def simulate_scan(points, origin, pattern, backend: str = "binning", **options) -> Scan:
+def simulate_scan(points, origin, pattern, backend: str | Backend = Backend.BINNING, **options) -> Scan:
     """Simulate the scan an ideal static scanner at ``origin`` would record.
 
     Prepare-then-scan in one call; to scan one cloud from many positions,
@@ -141,7 +144,7 @@ def simulate_scan(points, origin, pattern, backend: str = "binning", **options) 
     scanner = prepare(points, backend, **options)
     scan = scanner.scan(origin, pattern)
     info = dict(scan.info)
-    if scanner.prepare_seconds and backend != Backend.BINNING:
+    if scanner.prepare_seconds and scanner.backend is not Backend.BINNING:
         info["prepare_seconds"] = round(scanner.prepare_seconds, 6)
     return replace(scan, seconds=time.perf_counter() - t0, info=info)
 

@@ -10,14 +10,26 @@ command line, and an unknown option is an error that lists the known ones.
 from __future__ import annotations
 
 import dataclasses
+import inspect
 from abc import ABC, abstractmethod
+from enum import Enum
 
 import numpy as np
 
 from ..errors import InputValueError
 from ..scan import Scan
 
-__all__ = ["Scanner", "BackendOptions"]
+__all__ = ["Backend", "Scanner", "BackendOptions"]
+
+
+class Backend(str, Enum):
+    """Names of the subsampling backends: a scanner's identity (:attr:`Scanner.backend`)."""
+
+    BINNING = "binning"
+    EMBREE = "embree"
+
+    def __str__(self) -> str:  # "binning" in f-strings and file names, as enum.StrEnum (Python 3.11+)
+        return self.value
 
 
 @dataclasses.dataclass(frozen=True)
@@ -45,8 +57,6 @@ class BackendOptions:
     def describe(cls) -> dict:
         """``{field: (type, description)}`` from the class docstring's Attributes
         section (numpydoc): the one description the command line's help shows."""
-        import inspect
-
         doc = inspect.getdoc(cls) or ""
         lines = doc.split("Attributes\n----------\n", 1)[-1].splitlines() if "Attributes" in doc else []
         out, name = {}, None
@@ -85,13 +95,13 @@ class Scanner(ABC):
     ----------
     points : (n, 3) float
         The cloud (held by reference, not copied).
-    backend : str
+    backend : Backend
     options : BackendOptions
     prepare_seconds : float
         Time spent preparing (neighbours, BVH...).
     """
 
-    backend: str = ""
+    backend: Backend
 
     def __init__(self, points: np.ndarray, options: BackendOptions, prepare_seconds: float = 0.0):
         self.points = points

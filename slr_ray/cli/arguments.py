@@ -11,7 +11,7 @@ import argparse
 import math
 
 from .. import paper
-from ..backends import Backend, BinningOptions, EmbreeOptions
+from ..backends import BACKENDS, Backend
 from ..errors import InputValueError
 from ..pattern import PRESETS, ScanPattern, preset
 from ..sensors import SENSORS, read_ouster_metadata, read_velodyne_calibration, sensor
@@ -142,7 +142,7 @@ def _option_type(name: str, typ: str):
     return str, None
 
 
-_OPTION_CLASSES = {Backend.BINNING.value: BinningOptions, Backend.EMBREE.value: EmbreeOptions}
+_OPTION_CLASSES = {b.value: entry.options for b, entry in BACKENDS.items()}
 
 
 def add_backend(p, default: str = Backend.BINNING.value) -> None:

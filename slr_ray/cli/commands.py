@@ -11,15 +11,27 @@ import json
 import math
 import sys
 import time
-from dataclasses import asdict
+from dataclasses import asdict, replace
 from pathlib import Path
 
 import numpy as np
 
 from ..augment import AugmentConfig
-from ..backends import options_for
+from ..augment import augment as run_augment
+from ..backends import Backend, options_for, prepare
+from ..compare import compare_backends
+from ..demo import run_demo
+from ..distances import distance_study, study_files
 from ..errors import InputValueError
+from ..io import PointCloud, atomic_path, check_format, read_cloud, write_cloud
+from ..meshscan import scan_mesh
 from ..outputs import OutputPlan
+from ..paper import Q1_SCENES, Q2_SCENES
+from ..plotting import cells_figure, comparison_figure, paper_figure, range_image_figure, save_figure, validation_figure
+from ..positions import AzimuthProfile, build_synthetic_profile, default_profile, ground_labels, select_positions
+from ..scenes import MESH_FORMATS, scene_from_spec
+from ..streaming import STREAMED_FORMATS, scan_las
+from ..validation import load_config, load_rows, paper_report, paper_report_markdown, run_validation, stage_summary
 from .arguments import backend_from, ground_from, pattern_from
 
 __all__ = ["emit", "COMMANDS"]
@@ -56,11 +68,6 @@ def _plan(args, *, inputs=(), outputs=(), fmt=None) -> OutputPlan:
 
 
 def scan(args):
-    from ..backends import prepare
-    from ..io import check_format, read_cloud, write_cloud
-    from ..pattern import ScanPattern
-    from ..streaming import STREAMED_FORMATS, scan_las
-
     check_format(args.output, args.format)  # refuse an unknown output format before any work
     plan = _plan(args, inputs=[args.input], outputs=[args.output, args.range_image, args.png], fmt=args.format)
     pattern = pattern_from(args)
@@ -70,7 +77,7 @@ def scan(args):
               "pattern": pattern.to_dict(), "backend": args.backend, "options": options.to_dict()})
         return
     # LAS/LAZ stream through the uniform binning reduction; beam tables read the file whole
-    streamed = (args.backend == "binning" and isinstance(pattern, ScanPattern)
+    streamed = (Backend(args.backend) is Backend.BINNING and pattern.streamable
                 and check_format(args.input, args.input_format) in STREAMED_FORMATS)
     with plan:
         if streamed:
@@ -120,8 +127,6 @@ def _keep(args, sub, result) -> None:
 
 def _range_image(sub, result) -> dict:
     """The scan's range image with every 1-D attribute of ``sub`` (the scanned subset, in index order)."""
-    from dataclasses import replace
-
     local = replace(result, indices=np.arange(len(result)))  # images of the subset's own rows
     attrs = {k: v for k, v in sub.attributes.items() if np.asarray(v).ndim == 1 and np.asarray(v).dtype.kind in "biuf"}
     image = local.range_image(attrs)
@@ -130,9 +135,6 @@ def _range_image(sub, result) -> dict:
 
 
 def _write_range_image(args, image, result):
-    from ..io import atomic_path
-    from ..plotting import range_image_figure, save_figure
-
     if args.range_image:
         with atomic_path(Path(args.range_image)) as tmp:
             with open(tmp, "wb") as f:
@@ -153,17 +155,11 @@ def _origin(args, cloud):
 
 
 def demo(args):
-    from ..demo import run_demo
-
     emit(run_demo(args.output, n_rectangles=args.rectangles, n_positions=args.positions, seed=args.seed,
                   quick=args.quick, backends=args.backends, force=args.force))
 
 
 def scene(args):
-    from ..io import PointCloud, atomic_path, check_format, write_cloud
-    from ..meshscan import scan_mesh
-    from ..scenes import MESH_FORMATS, scene_from_spec
-
     spec_file = args.spec if Path(args.spec).suffix.lower() == ".toml" else None
     if args.scene_cmd == "info":
         emit({"spec": args.spec, **scene_from_spec(args.spec).info()})
@@ -194,10 +190,6 @@ def scene(args):
 
 
 def compare(args):
-    from ..compare import compare_backends
-    from ..io import read_cloud
-    from ..plotting import comparison_figure, save_figure
-
     plan = _plan(args, inputs=[args.input], outputs=[args.png])
     pattern = pattern_from(args)
     embree_options = backend_from(args, "embree")
@@ -212,10 +204,6 @@ def compare(args):
 
 
 def positions(args):
-    from ..io import atomic_path, read_cloud
-    from ..plotting import cells_figure, save_figure
-    from ..positions import AzimuthProfile, default_profile, ground_labels, select_positions
-
     args.profile_file = None if args.profile in ("none", "default") else args.profile
     plan = _plan(args, inputs=[args.input], outputs=[args.output, args.png])
     ground = ground_from(args)
@@ -239,9 +227,6 @@ def positions(args):
 
 
 def profile(args):
-    from ..io import atomic_path
-    from ..positions import build_synthetic_profile
-
     plan = _plan(args, outputs=[args.output])
     with plan:
         prof = build_synthetic_profile(tuple(args.scenes.split(",")), args.positions_per_scene, args.seed)
@@ -252,12 +237,6 @@ def profile(args):
 
 
 def validate(args):
-    from ..io import atomic_path
-    from ..paper import Q1_SCENES, Q2_SCENES
-    from ..plotting import paper_figure, save_figure, validation_figure
-    from ..validation import (load_config, load_rows, paper_report, paper_report_markdown, run_validation,
-                              stage_summary)
-
     config = load_config(args.config)
     if args.positions is not None:
         config.positions = args.positions
@@ -286,8 +265,6 @@ def validate(args):
 
 
 def distances(args):
-    from ..distances import distance_study, study_files
-
     plan = OutputPlan(force=args.force)
     for path in args.input:
         plan.read(path)
@@ -305,8 +282,6 @@ def distances(args):
 
 
 def augment(args):
-    from ..augment import augment as run
-
     ground = ground_from(args)
     # the pattern and the backend's options are built once, by config.check() in augment()
     config = AugmentConfig(n=args.n, resolution=args.resolution, sensor=args.sensor,
@@ -315,7 +290,7 @@ def augment(args):
                            backend_options=backend_from(args), fmt=args.format, seed=args.seed,
                            min_ground_points=args.min_ground_points, workers=args.workers,
                            scheduler=args.scheduler, chunk_size=args.chunk_size, per_pass=args.per_pass)
-    res = run(args.input, args.output, config, ground=ground if args.csf or args.ground_attribute else None,
+    res = run_augment(args.input, args.output, config, ground=ground if args.csf or args.ground_attribute else None,
               progress=not args.quiet)
     emit({k: res[k] for k in ("input", "n_requested", "new_scans", "seconds", "software")}
          | {"scans": len(res["scans"]), "positions": len(res["positions"]),

@@ -9,15 +9,14 @@ from pathlib import Path
 import numpy as np
 
 from ..errors import InputValueError
+from ..evaluate import evaluate_pair, evaluation_table, write_evaluation
+from ..io import read_cloud
 from .commands import emit
 
 __all__ = ["evaluate"]
 
 
 def evaluate(args):
-    from ..evaluate import evaluate_pair, evaluation_table, write_evaluation
-    from ..io import read_cloud
-
     out = Path(args.output)
     for i in (args.a, args.b):
         if out.exists() and Path(i).exists() and out.resolve() == Path(i).resolve():

@@ -5,9 +5,10 @@ from __future__ import annotations
 from dataclasses import dataclass, field, fields
 
 from .. import paper
-from ..backends import Backend
+from ..backends import Backend, options_for
 from ..errors import InputValueError
 from ..meshscan import MESH_MODES
+from ..scenes import load_toml_spec
 
 __all__ = ["ValidationConfig", "load_config", "TRUTHS", "PRIMARY_SEMANTICS"]
 
@@ -64,8 +65,6 @@ class ValidationConfig:
 
     def check(self) -> "ValidationConfig":
         """Raise :class:`~slr_ray.errors.InputValueError` on any bad field; return self."""
-        from ..backends import options_for
-
         if self.primary_semantics not in PRIMARY_SEMANTICS:
             raise InputValueError(f"primary_semantics must be one of {PRIMARY_SEMANTICS}, "
                                   f"got {self.primary_semantics!r}")
@@ -81,8 +80,8 @@ class ValidationConfig:
             raise InputValueError("nearest_every and embree_every must be >= 1")
         # unknown keys named here, not after the primaries; the runner gives the discs
         # the primary's origin and resolution, so options that need them are valid
-        options_for("embree", {"primary_origin": [0.0, 0.0, 0.0], "primary_resolution": self.primary_resolutions[0],
-                               **self.embree_options})
+        options_for(Backend.EMBREE, {"primary_origin": [0.0, 0.0, 0.0],
+                                     "primary_resolution": self.primary_resolutions[0], **self.embree_options})
         for entry in self.scenes:
             spec, res = self.scene_entry(entry)
             for b in self.scene_backends(entry):
@@ -116,14 +115,12 @@ class ValidationConfig:
         emb_res = self.embree_primary_resolutions
         return [(b, t) for b in (self.backends if backends is None else backends) for t in self.truths
                 if (t != "nearest" or position % self.nearest_every == 0)
-                and (b != "embree" or (position % self.embree_every == 0
+                and (b != Backend.EMBREE or (position % self.embree_every == 0
                                        and (emb_res is None or float(resolution) in map(float, emb_res))))]
 
 
 def load_config(spec) -> ValidationConfig:
     """A config by path or by shipped name (``validate-<name>.toml``)."""
-    from ..scenes import load_toml_spec
-
     data, path = load_toml_spec(spec, "validate", "validation config", prefix="validate-")
     table = data["validate"]
     unknown = sorted(set(table) - {f.name for f in fields(ValidationConfig)})

@@ -17,6 +17,7 @@ import json
 import resource
 from pathlib import Path
 
+from ..backends.embree import EmbreeOptions
 from ..errors import FormatError, InputValueError
 from ..io import atomic_path
 
@@ -108,8 +109,6 @@ def check_settings(outdir, config) -> dict:
 def _embree_resolved(config) -> dict:
     """The embree options of the config's first primary as this version resolves them
     (defaults filled in), without the primary's origin and resolution."""
-    from ..backends.embree import EmbreeOptions
-
     res = config.scene_entry(config.scenes[0])[1][0] if config.scenes else config.primary_resolutions[0]
     opts = EmbreeOptions(**{"primary_origin": [0.0, 0.0, 0.0], "primary_resolution": res,
                             **config.embree_options}).to_dict()

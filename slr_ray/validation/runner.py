@@ -17,8 +17,9 @@ from dataclasses import asdict
 from pathlib import Path
 
 import numpy as np
+from tqdm import tqdm
 
-from ..backends import prepare
+from ..backends import Backend, prepare
 from ..io import atomic_path
 from ..meshscan import scan_mesh
 from ..outputs import OutputPlan
@@ -35,7 +36,7 @@ from .truths import TruthCache
 __all__ = ["run_validation", "PAPER_BACKEND", "PAPER_TRUTH", "spill_primary", "available_memory"]
 
 #: the paper's own rows: its subsampling (binning) against its truth (the pulse-centre scan)
-PAPER_BACKEND = "binning"
+PAPER_BACKEND = Backend.BINNING
 PAPER_TRUTH = "center"
 
 #: bytes a point the embree backend holds beyond the float64 points (16 vertex + 12 normal
@@ -119,8 +120,6 @@ def _run_validation(config: ValidationConfig, out: Path, progress: bool) -> dict
     t_all = time.perf_counter()
     bar = None
     if progress:
-        from tqdm import tqdm
-
         bar = tqdm(total=sum(len(p.resolutions) for p in plans) * config.positions, unit="position",
                    desc=config.name, file=sys.stderr)
     n_new = 0
@@ -180,7 +179,7 @@ def _run_scene(config, p: ScenePlan, out: Path, done, results, stages, bar) -> i
             stages.add(p.spec, res, "positions", time.perf_counter() - t0, len(positions))
         if wanted_here:
             # only when embree rows remain to be made (a resumed run whose discs are done does not spill)
-            if any(b == "embree" and row_key(p.spec, res, i, b, t) not in done
+            if any(b == Backend.EMBREE and row_key(p.spec, res, i, b, t) not in done
                    for i in range(len(positions)) for b, t in config.wanted(res, i, p.backends)):
                 t0 = time.perf_counter()
                 spilled = spill_primary(primary, out, EMBREE_BYTES_PER_POINT)
@@ -216,13 +215,13 @@ def _pairs(config, p: ScenePlan, scene, res, primary, positions, secondary, trut
         if backend not in scanners:
             t0 = time.perf_counter()
             options = None
-            if backend == "embree":
+            if backend == Backend.EMBREE:
                 # the primary was scanned from the origin at ``res``: footprint radii,
                 # pulse-grid neighbours and degenerate normals use that
                 options = {"primary_origin": [0.0, 0.0, 0.0], "primary_resolution": res,
                            **config.embree_options}
             scanners[backend] = prepare(primary, backend, options)
-            if backend == "embree":
+            if backend == Backend.EMBREE:
                 stages.add(p.spec, res, "embree discs", time.perf_counter() - t0, len(primary))
             else:
                 spent[part(backend)] += time.perf_counter() - t0

@@ -1,71 +1,12 @@
-"""Ray casting with Embree: the one module of slr_ray that talks to Embree.
+"""Embree scenes of triangles or discs and the compiled cast loop (:class:`RayScene`).
 
-Everything that casts rays (ground-truth scans of meshes, the embree backend's
-discs, the occlusion diagnostics of the validation) goes through
-:class:`RayScene`. It owns
-
-* the lookup of the Embree 4 shared library (:func:`embree_library`): the
-  ``libembree4`` that the ``embreex`` wheel ships, or one named by the
-  environment variable ``SLR_RAY_EMBREE``; a clear
-  :class:`~slr_ray.errors.MissingDependencyError` when there is none;
-* the float32 boundary: geometry is recentred on a float64 ``centre`` before it
-  becomes float32, and rays start from the scanner recentred the same way;
-* the cast loop: compiled (numba, ``nogil``), calling ``rtcIntersect1`` through
-  its C function pointer, one ``RTCRayHit`` per thread, rays split into tasks
-  of 32,768 that the threads take in turn (a signal stops a cast after the
-  running tasks, not after all of it); a ray that misses the scene's padded bounding box is
-  answered without the call (a float64 slab test: most rays of a scan from
-  outside a cloud's bounds miss it, and a call costs as much as a short
-  traversal; from inside the bounds nothing is saved);
-* two refinements that make results independent of float32 noise: for
-  triangles, the hit distance recomputed in float64 on the hit triangle's plane
-  (``exact=True``); for discs, the deterministic tie rule (``ties``, below).
-
-Geometry kinds
---------------
-``RayScene.triangles(vertices, faces)``
-    A triangle mesh (``RTC_GEOMETRY_TYPE_TRIANGLE``).
-``RayScene.discs(centres, radii, normals)``
-    Embree's own disc primitives: with normals, ``ORIENTED_DISC_POINT`` (a
-    disc in the plane normal to each normal); without, ``DISC_POINT`` (each
-    disc faces the ray that meets it: billboards without a BVH per position).
-    The exact disc, not a polygon: no tessellation, 28 bytes a point handed to
-    Embree (float4 centre and radius, float3 normal).
-
-Ties (discs)
-------------
-Overlapping discs of one surface are hit at nearly the same distance, and which
-comes first is decided by float32 rounding: the same cloud moved by 10^6 m
-could return a neighbouring point. With ``ties = w > 0`` a second, short query
-collects every disc hit within ``w`` times the depth the first disc spans along
-the ray (its radius over the cosine of the incidence, at most 20 radii) beyond
-the first hit (an Embree filter callback that rejects and records each candidate)
-and returns the one whose centre lies nearest the ray, computed in float64 from
-the input coordinates, then the lowest index. On a sampled surface that is the
-point in the ray's own pulse, whichever larger neighbouring disc happens to be
-met first.
-
-Discs holding the scanner
--------------------------
-A disc whose centre lies within its own reach of the ray origin would be hit
-by half of all rays at a tiny distance and hide the scene. ``skip_containing``
-rejects hits on such discs (the same filter callback), so a scanner standing
-among the points needs no rebuilt BVH.
-
-Struct layouts and enum values are those of the Embree 4 headers
-(``rtcore_ray.h``, ``rtcore_common.h``, ``rtcore_scene.h``,
-``rtcore_geometry.h``, ``rtcore_buffer.h``); tests check hits against
-brute-force ray-disc and ray-triangle intersection.
+The package docstring (:mod:`slr_ray.raycast`) describes the float32
+boundary, the tie rule and the discs that hold the scanner.
 """
 
 from __future__ import annotations
 
-import ctypes
-import ctypes.util
-import glob
 import math
-import os
-import threading
 import time
 from concurrent.futures import ThreadPoolExecutor
 from dataclasses import dataclass
@@ -76,27 +17,16 @@ from numba import carray, cfunc, njit, prange, types
 from numba.core import cgutils
 from numba.extending import intrinsic
 
-from .arrays import as_origin, bounds
-from .errors import InputValueError, MissingDependencyError
-from .threads import default_threads
+from ..arrays import as_origin, bounds
+from ..errors import InputValueError
+from ..threads import default_threads
+from .library import (BUFFER_INDEX, BUFFER_NORMAL, BUFFER_VERTEX, FEATURE_FLAGS_ALL, FORMAT_FLOAT3, FORMAT_FLOAT4,
+                      FORMAT_UINT3, GEOMETRY_DISC_POINT, GEOMETRY_ORIENTED_DISC_POINT, GEOMETRY_TRIANGLE, INVALID_ID,
+                      RAY_QUERY_FLAG_INVOKE_ARGUMENT_FILTER, SCENE_FLAG_COMPACT,
+                      SCENE_FLAG_FILTER_FUNCTION_IN_ARGUMENTS, embree_library)
 
-__all__ = ["RayScene", "RayHits", "embree_library", "embree_available", "padded_rows"]
+__all__ = ["RayScene", "RayHits", "padded_rows"]
 
-# --- Embree 4 constants (rtcore_geometry.h, rtcore_buffer.h, rtcore_common.h, rtcore_scene.h)
-GEOMETRY_TRIANGLE = 0
-GEOMETRY_DISC_POINT = 51
-GEOMETRY_ORIENTED_DISC_POINT = 52
-BUFFER_INDEX = 0
-BUFFER_VERTEX = 1
-BUFFER_NORMAL = 3
-FORMAT_UINT3 = 0x5003
-FORMAT_FLOAT3 = 0x9003
-FORMAT_FLOAT4 = 0x9004
-SCENE_FLAG_COMPACT = 1 << 1  # compact acceleration structures (less memory, a slower build)
-SCENE_FLAG_FILTER_FUNCTION_IN_ARGUMENTS = 1 << 3
-RAY_QUERY_FLAG_INVOKE_ARGUMENT_FILTER = 1 << 1
-FEATURE_FLAGS_ALL = 0xFFFFFFFF
-INVALID_ID = 0xFFFFFFFF
 #: RTCRayHit: RTCRay (48 bytes) + RTCHit (48 bytes with instID[1], instPrimID[1]),
 #: each 16-byte aligned; in float32 slots: ray 0-11, hit 12-23
 _RAYHIT_FLOATS = 24
@@ -104,101 +34,6 @@ _TFAR, _MASK, _PRIM, _GEOM, _INST = 8, 9, 17, 18, 19
 
 #: rays of one task handed to a thread: small enough that a stopped scan stops soon
 _TASK_RAYS = 32768
-
-_lock = threading.Lock()
-_lib = None
-
-
-class _Embree:
-    """The Embree 4 C functions slr_ray uses, through ctypes (handles as integers)."""
-
-    def __init__(self, path: str):
-        lib = ctypes.CDLL(path)
-        P, U, I = ctypes.c_size_t, ctypes.c_uint, ctypes.c_int
-
-        def fn(name, res, *args):
-            f = getattr(lib, name)
-            f.restype, f.argtypes = res, list(args)
-            return f
-
-        self.path = path
-        self.new_device = fn("rtcNewDevice", P, ctypes.c_char_p)
-        self.release_device = fn("rtcReleaseDevice", None, P)
-        self.device_error = fn("rtcGetDeviceError", I, P)
-        self.new_scene = fn("rtcNewScene", P, P)
-        self.release_scene = fn("rtcReleaseScene", None, P)
-        self.set_scene_flags = fn("rtcSetSceneFlags", None, P, I)
-        self.commit_scene = fn("rtcCommitScene", None, P)
-        self.new_geometry = fn("rtcNewGeometry", P, P, I)
-        self.set_shared_buffer = fn("rtcSetSharedGeometryBuffer", None, P, I, U, I, P, P, P, P)
-        self.commit_geometry = fn("rtcCommitGeometry", None, P)
-        self.attach_geometry = fn("rtcAttachGeometry", U, P, P)
-        self.release_geometry = fn("rtcReleaseGeometry", None, P)
-        self.intersect1 = ctypes.cast(lib.rtcIntersect1, ctypes.c_void_p).value
-        self.device = self.new_device(None)
-        if not self.device:
-            raise MissingDependencyError(f"Embree at {path} could not create a device")
-
-    def check(self, what: str):
-        code = self.device_error(self.device)
-        if code:
-            raise RuntimeError(f"Embree error {code} in {what}")
-
-
-def _candidates():
-    env = os.environ.get("SLR_RAY_EMBREE")
-    if env:
-        yield env
-    try:
-        import embreex
-    except ImportError:
-        embreex = None
-    if embreex is not None:
-        libs = os.path.join(os.path.dirname(os.path.dirname(embreex.__file__)), "embreex.libs")
-        yield from sorted(glob.glob(os.path.join(libs, "libembree4*.so*")))
-        yield from sorted(glob.glob(os.path.join(os.path.dirname(embreex.__file__), "libembree4*")))
-    found = ctypes.util.find_library("embree4")
-    if found:
-        yield found
-
-
-def embree_library() -> _Embree:
-    """The Embree 4 library, loaded once per process.
-
-    Looked up in order: ``$SLR_RAY_EMBREE``; the ``libembree4`` shipped in the
-    ``embreex`` wheel; the system's ``embree4``.
-
-    Raises
-    ------
-    MissingDependencyError
-        when none loads (with the install command).
-    """
-    global _lib
-    with _lock:
-        if _lib is None:
-            tried = []
-            for path in _candidates():
-                try:
-                    _lib = _Embree(path)
-                    break
-                except (OSError, AttributeError) as exc:
-                    tried.append(f"{path}: {exc}")
-            else:
-                raise MissingDependencyError(
-                    "ray casting needs the Embree 4 library: pip install embreex "
-                    "(its wheel ships libembree4), or set SLR_RAY_EMBREE to a libembree4.so"
-                    + (f"; tried {'; '.join(tried)}" if tried else ""))
-        return _lib
-
-
-def embree_available() -> bool:
-    """Whether :func:`embree_library` finds a library (never raises)."""
-    try:
-        embree_library()
-    except MissingDependencyError:
-        return False
-    return True
-
 
 # --- compiled part --------------------------------------------------------------------------
 
@@ -478,7 +313,7 @@ class RayScene:
         # vertex rows (a triangle buffer's spare row excluded): the bounds rays are tested against first
         self._box = _padded_bounds(buffers[0][4], buffers[0][5] if self.n_primitives else 0,
                                    geometry_type != GEOMETRY_TRIANGLE)
-        lib = embree_library()
+        lib = self._lib = embree_library()
         t0 = time.perf_counter()
         self._scene = lib.new_scene(lib.device)
         lib.set_scene_flags(self._scene, SCENE_FLAG_FILTER_FUNCTION_IN_ARGUMENTS
@@ -703,9 +538,9 @@ class RayScene:
 
     def __del__(self):
         scene = getattr(self, "_scene", None)
-        if scene and _lib is not None:
+        if scene:
             try:
-                _lib.release_scene(scene)
+                self._lib.release_scene(scene)
             except Exception:  # pragma: no cover - interpreter shutdown
                 pass
             self._scene = None

@@ -1,0 +1,402 @@
+"""Neighbours from the primary scan's own pulse grid (``neighbours='pulse-grid'``).
+
+A point's neighbours are the points of the 8 pulses adjacent to its own in
+the primary's pattern (the exact pulse keys of :mod:`slr_ray.core`),
+range-gated; one sort and one linear pass, no kd-tree
+(:func:`grid_neighbourhoods`), or spacing and normals fused into that pass
+with no neighbour arrays (:func:`pulse_grid_spacing_normals`).
+"""
+
+from __future__ import annotations
+
+import math
+
+import numpy as np
+from numba import njit, prange
+
+from ...arrays import as_origin
+from ...errors import InputValueError
+from ...pattern import as_pattern
+from ...raycast import padded_rows
+from ...threads import default_threads
+from .discs import fallback_directions, pca_normal, primary_steps, turned
+
+__all__ = ["grid_neighbourhoods", "pulse_grid_spacing_normals", "grid_gate", "sorted_pulse_grid"]
+
+
+def grid_neighbourhoods(points, primary_origin, primary_resolution, gate: float | None = None, chunk: int = 1 << 20,
+                        layout: str = "auto", beams=None):
+    """Neighbours of every point of a primary scan from its own pulse grid.
+
+    The points are binned into the pulses of a ``primary_resolution`` pattern
+    (degrees, or the primary's own pattern: anything
+    :func:`~slr_ray.pattern.as_pattern` takes, a beam table included) at
+    ``primary_origin`` (the binning backend's exact bins); a point's
+    neighbours are the points of the 8 adjacent pulses (azimuth wrapping)
+    whose primary range is within ``gate`` times its own (default
+    :func:`grid_gate`), at most one per
+    pulse (the nearest to the scanner, then the lowest index). No kd-tree: one
+    sort of the pulse keys, then a linear walk along each zenith row with a
+    pointer into the rows above and below (O(n) after the sort); for a cloud
+    stored column by column (as TLS scanners record), along each azimuth
+    column instead (``layout``: ``"auto"``, ``"rows"``, ``"columns"``; the
+    neighbours do not depend on it). ``beams`` (optional, a beam table's
+    primary): the beam that fired each point (-1 unknown), which sets its row
+    instead of its elevation.
+
+    Yields ``(members (c,), distances (c, 8), indices (c, 8), counts (c,))``
+    chunk by chunk: ``members`` are the indices of the chunk's points (whole
+    rows or columns, about ``chunk`` points, in pulse order; points outside
+    the pattern come first, with no neighbours). Missing neighbours are the point
+    itself at distance 0 (``counts`` says how many are real). Memory: three
+    ``(n,)`` arrays and one chunk's ``(c, 8)`` arrays.
+    """
+    pts = np.asarray(points)
+    n = len(pts)
+    if n == 0:
+        return
+    ranges, sorted_keys, order, row_start, line_len, transposed = sorted_pulse_grid(
+        pts, as_origin(primary_origin, "primary_origin"), primary_resolution, layout, beams)
+    nv = len(row_start) - 1  # lines: zenith rows, or azimuth columns for a column-ordered cloud
+    unseen = int(row_start[0])
+    if unseen:
+        members = order[:unseen]
+        yield (members, np.zeros((unseen, 8)), np.repeat(members[:, None], 8, axis=1),
+               np.zeros(unseen, np.int64))
+    v0 = 0
+    while v0 < nv:
+        # whole rows, at least one, about `chunk` points
+        v1 = max(v0 + 1, int(np.searchsorted(row_start, row_start[v0] + chunk, side="right")) - 1)
+        v1 = min(v1, nv)
+        a, b = int(row_start[v0]), int(row_start[v1])
+        if b > a:
+            idx = np.empty((b - a, 8), np.int64)
+            dist = np.empty((b - a, 8))
+            counts = np.empty(b - a, np.int64)
+            _grid_rows(pts, ranges, sorted_keys, order, row_start, _row_tasks(row_start, v0, v1), line_len,
+                       transposed, grid_gate(primary_resolution, gate), idx, dist, counts)
+            yield order[a:b], dist, idx, counts
+        v0 = v1
+
+
+#: incidence beyond which a surface's range steps count as an edge (the default range gate)
+_GATE_INCIDENCE_DEG = 89.0
+
+
+def grid_gate(primary, gate: float | None = None) -> float:
+    """The pulse grid's range gate: ``gate`` if given, else the relative range
+    step between adjacent pulses of a surface seen at 89 deg incidence
+    (``tan(89 deg)`` times the primary's larger pulse step, radians), at most
+    0.1. ``primary``: degrees or a pattern."""
+    if gate is not None:
+        return float(gate)
+    return min(0.1, math.tan(math.radians(_GATE_INCIDENCE_DEG)) * max(primary_steps(primary)))
+
+
+def sorted_pulse_grid(pts, origin, primary_resolution, layout: str = "auto", beams=None):
+    """The pulse keys of a primary's points, sorted line by line.
+
+    Lines are zenith rows (key ``v * n_azimuth + h``), or azimuth columns
+    (key ``h * n_zenith + v``) when the cloud is stored column by column, as
+    a TLS scanner records it: the sort is then nearly free and the walk reads
+    memory in order (``layout``: ``"auto"`` picks the order in which more
+    consecutive points have non-decreasing keys; ``"rows"``, ``"columns"``).
+    Returns ``(ranges, sorted_keys, order, line_start (lines + 1,),
+    line_len, transposed)``; points outside the pattern sort first.
+
+    A beam table's columns are taken in absolute azimuth (its per-beam
+    azimuth offsets set to 0): a beam fires ``offset`` degrees off the
+    column's azimuth, so column ``h`` of two adjacent beams can lie degrees
+    apart (up to 8 deg between an HDL-64E's beams), and the pulses adjacent
+    in space are the ones adjacent in absolute azimuth. ``beams`` (a beam
+    table's primary only): each point's beam, which then sets its row
+    (:meth:`~slr_ray.sensors.BeamPattern.pulse_ids`).
+    """
+    pattern = _grid_pattern(primary_resolution)
+    if beams is None:
+        keys, ranges = pattern.pulse_ids(pts, origin)
+    elif not pattern.has_beams:
+        raise InputValueError("beams (a point's beam id) need a beam-table primary (primary_pattern), "
+                              "not degrees")
+    else:
+        keys, ranges = pattern.pulse_ids(pts, origin, beams)
+    nv, nh = pattern.n_zenith, pattern.n_azimuth
+    if layout == "auto":
+        rows_up, cols_up = _runs(keys, nv, nh)
+        transposed = cols_up > rows_up
+    elif layout in ("rows", "columns"):
+        transposed = layout == "columns"
+    else:
+        raise InputValueError(f"layout must be 'auto', 'rows' or 'columns', got {layout!r}")
+    if transposed:
+        _transpose_keys(keys, nv, nh)
+    lines, line_len = (nh, nv) if transposed else (nv, nh)
+    # a counting sort by line, then each line sorted on its own (in parallel): the order
+    # of a stable argsort of the keys, 3-4x faster on a 58 M-point primary
+    order, sorted_keys, line_start = _line_sort(keys, line_len, lines)
+    del keys
+    return ranges, sorted_keys, order, line_start, line_len, transposed
+
+
+def _grid_pattern(primary):
+    """The pattern whose pulses make the pulse grid: ``primary`` (degrees or a
+    pattern) as a pattern, a beam table's per-beam azimuth offsets set to 0."""
+    return as_pattern(primary).aligned()
+
+
+@njit(cache=True)
+def _line_counting_sort(keys, line_len, lines, order, bucket):
+    """Indices of ``keys`` grouped by line (``key // line_len``; negative keys first),
+    each group in index order; returns ``line_start`` (lines + 1,) past the unseen."""
+    counts = np.zeros(lines + 2, np.int64)
+    for i in range(keys.shape[0]):
+        k = keys[i]
+        b = 0 if k < 0 else k // line_len + 1
+        bucket[i] = b
+        counts[b + 1] += 1
+    for b in range(lines + 1):
+        counts[b + 1] += counts[b]
+    start = counts[1:].copy()  # line_start: where line 0 begins is after the unseen points
+    fill = counts[:-1].copy()
+    for i in range(keys.shape[0]):
+        b = bucket[i]
+        order[fill[b]] = i
+        fill[b] += 1
+    return start
+
+
+@njit(cache=True, parallel=True)
+def _sort_lines(keys, order, line_start, sorted_keys):
+    """Within each line, order by key (stable: equal keys keep index order)."""
+    n0 = line_start[0]
+    for j in range(n0):
+        sorted_keys[j] = keys[order[j]]
+    for v in prange(line_start.shape[0] - 1):
+        a, b = line_start[v], line_start[v + 1]
+        if b - a == 0:
+            continue
+        seg = np.empty(b - a, np.int64)
+        ordered = True
+        for j in range(a, b):
+            seg[j - a] = keys[order[j]]
+            if j > a and seg[j - a] < seg[j - a - 1]:
+                ordered = False
+        if not ordered:
+            perm = np.argsort(seg, kind="mergesort")
+            idx = order[a:b].copy()
+            for j in range(b - a):
+                order[a + j] = idx[perm[j]]
+                sorted_keys[a + j] = seg[perm[j]]
+        else:
+            for j in range(b - a):
+                sorted_keys[a + j] = seg[j]
+
+
+def _line_sort(keys, line_len, lines):
+    n = len(keys)
+    order = np.empty(n, np.int64)
+    bucket = np.empty(n, np.int32 if lines < 2**31 - 2 else np.int64)
+    line_start = _line_counting_sort(keys, line_len, lines, order, bucket)
+    del bucket
+    sorted_keys = np.empty(n, np.int64)
+    _sort_lines(keys, order, line_start, sorted_keys)
+    return order, sorted_keys, line_start
+
+
+@njit(cache=True)
+def _runs(keys, nv, nh):
+    """How many consecutive pairs of seen points have non-decreasing row-major
+    keys, and how many non-decreasing column-major keys."""
+    rows = cols = 0
+    prev = -1
+    for i in range(keys.shape[0]):
+        k = keys[i]
+        if k < 0:
+            continue
+        if prev >= 0:
+            rows += k >= prev
+            cols += (k % nh) * nv + k // nh >= (prev % nh) * nv + prev // nh
+        prev = k
+    return rows, cols
+
+
+@njit(cache=True, parallel=True)
+def _transpose_keys(keys, nv, nh):
+    for i in prange(keys.shape[0]):
+        k = keys[i]
+        if k >= 0:
+            keys[i] = (k % nh) * nv + k // nh
+
+
+@njit(cache=True, inline="always")
+def _offer(slot, q, ranges, ri, gate, best):
+    """Keep ``q`` in ``best[slot]`` if within the range gate and nearer the scanner
+    (candidates come in index order within a pulse: ties keep the lowest index)."""
+    if abs(ranges[q] - ri) <= gate * ri and (best[slot] < 0 or ranges[q] < ranges[best[slot]]):
+        best[slot] = q
+
+
+@njit(cache=True, inline="always")
+def _line(row_start, line, off, transposed):
+    """Line ``line + off``, or -1 where there is none (columns wrap in azimuth)."""
+    n = row_start.shape[0] - 1
+    rr = line + off
+    if transposed and n >= 3:
+        return (rr + n) % n
+    return rr if 0 <= rr < n else -1
+
+
+@njit(cache=True, inline="always")
+def _pulse_neighbours(sk, order, ranges, row_start, ptr, line, pos, ri, gate, line_len, transposed, best):
+    """Fill ``best[slot]`` (-1: none) with the neighbour in each of the 8 pulses
+    around the pulse at ``pos`` of line ``line``; slot ``(dv + 1) * 3 + dh + 1``
+    (4 is the pulse itself), the output order of a (dv, dh) double loop,
+    whichever way the lines run. Lines are zenith rows (azimuth wraps within
+    a line) or, ``transposed``, azimuth columns (the lines wrap). ``ptr[t]``:
+    a position in line ``line + t - 1`` at or before ``pos - 1``; called with
+    non-decreasing ``pos`` along a line, the pointers only move forward."""
+    best[:] = -1
+    for t in range(3):
+        rr = _line(row_start, line, t - 1, transposed)
+        if rr < 0:
+            continue
+        end = row_start[rr + 1]
+        row0 = rr * line_len
+        while ptr[t] < end and sk[ptr[t]] < row0 + pos - 1:
+            ptr[t] += 1
+        q = ptr[t]
+        while q < end and sk[q] <= row0 + pos + 1:
+            dw = sk[q] - row0 - pos
+            if not (t == 1 and dw == 0):
+                _offer((dw + 1) * 3 + t if transposed else t * 3 + dw + 1, order[q], ranges, ri, gate, best)
+            q += 1
+        if not transposed and line_len >= 3 and pos == 0:  # azimuth wrap: the row's last pulse is h - 1
+            q = end - 1
+            while q >= row_start[rr] and sk[q] == row0 + line_len - 1:
+                q -= 1
+            for q2 in range(q + 1, end):  # forward, so ties keep the lowest index
+                _offer(t * 3, order[q2], ranges, ri, gate, best)
+        if not transposed and line_len >= 3 and pos == line_len - 1:  # and its first pulse is h + 1
+            q = row_start[rr]
+            while q < end and sk[q] == row0:
+                _offer(t * 3 + 2, order[q], ranges, ri, gate, best)
+                q += 1
+
+
+def _row_tasks(row_start, v0, v1, tasks_per_thread: int = 8):
+    """Split rows ``v0 .. v1`` into runs of about equal point counts, a few per
+    thread (a prange over the rows themselves would give one thread every
+    occupied row when the cloud covers part of the zenith range)."""
+    a, b = int(row_start[v0]), int(row_start[v1])
+    k = max(1, min(v1 - v0, default_threads() * tasks_per_thread))
+    cuts = np.searchsorted(row_start[v0:v1 + 1], np.linspace(a, b, k + 1)[1:-1]) + v0
+    return np.unique(np.concatenate([[v0], cuts, [v1]])).astype(np.int64)
+
+
+@njit(cache=True, inline="always")
+def _row_pointers(row_start, line, transposed):
+    ptr = np.empty(3, np.int64)
+    for t in range(3):
+        rr = _line(row_start, line, t - 1, transposed)
+        ptr[t] = row_start[rr] if rr >= 0 else 0
+    return ptr
+
+
+@njit(cache=True, inline="always")
+def _point_neighbours(pts, sk, order, ranges, row_start, ptr, v, j, gate, line_len, transposed, best, nbr, dist):
+    """The neighbours of the point at sorted position ``j`` of line ``v``:
+    their indices and distances in ``nbr[:m]``, ``dist[:m]`` (slot order),
+    the rest of the 8 padded with the point itself at distance 0; returns ``m``."""
+    i = order[j]
+    _pulse_neighbours(sk, order, ranges, row_start, ptr, v, sk[j] - v * line_len, ranges[i], gate, line_len,
+                      transposed, best)
+    m = 0
+    for slot in range(9):
+        q = best[slot]
+        if q >= 0:
+            nbr[m] = q
+            dx = pts[q, 0] - pts[i, 0]
+            dy = pts[q, 1] - pts[i, 1]
+            dz = pts[q, 2] - pts[i, 2]
+            dist[m] = math.sqrt(dx * dx + dy * dy + dz * dz)
+            m += 1
+    for t in range(m, 8):
+        nbr[t] = i
+        dist[t] = 0.0
+    return m
+
+
+@njit(cache=True, parallel=True)
+def _grid_rows(pts, ranges, sk, order, row_start, tasks, line_len, transposed, gate, idx, dist, counts):
+    """Pulse-grid neighbours of the points of rows ``tasks[0] .. tasks[-1]``
+    (see :func:`grid_neighbourhoods`): each task walks its rows linearly."""
+    base = row_start[tasks[0]]
+    for task in prange(len(tasks) - 1):
+        best = np.empty(9, np.int64)
+        for v in range(tasks[task], tasks[task + 1]):
+            ptr = _row_pointers(row_start, v, transposed)
+            for j in range(row_start[v], row_start[v + 1]):
+                c = j - base
+                counts[c] = _point_neighbours(pts, sk, order, ranges, row_start, ptr, v, j, gate, line_len,
+                                              transposed, best, idx[c], dist[c])
+
+
+def pulse_grid_spacing_normals(points, primary_origin, primary_resolution, gate: float | None = None,
+                               spacing: bool = True, normals: bool = True, dtype=np.float64,
+                               layout: str = "auto", max_incidence: float = 90.0, beams=None):
+    """Mean neighbour spacing ``(n,)`` and PCA normals ``(n, 3)`` of a primary
+    scan from its pulse grid, in one pass and without neighbour arrays.
+
+    The same neighbours as :func:`grid_neighbourhoods` and the same normals as
+    :func:`estimate_normals` would compute from them (missing neighbours count
+    as the point itself); memory is the outputs and three ``(n,)`` arrays.
+    Points outside the pattern, or with no neighbour, get spacing 0 (the disc
+    radius floor applies) and the direction to the primary scanner.
+    ``primary_resolution``: degrees, or the primary's own pattern (as in
+    :func:`grid_neighbourhoods`). Either
+    output is ``None`` when not asked for; ``dtype`` is the normals' (float32
+    for Embree halves their memory); ``layout``: see :func:`sorted_pulse_grid`
+    (the answer does not depend on it, only the speed); ``max_incidence``
+    (degrees): normals turned as they are made to meet the line of sight to
+    the primary at no more than this (:class:`EmbreeOptions`; 90: not turned);
+    ``beams``: each point's beam, as in :func:`grid_neighbourhoods`.
+    """
+    pts = np.ascontiguousarray(points, np.float64)
+    n = len(pts)
+    o = as_origin(primary_origin, "primary_origin")
+    sp = np.zeros(n) if spacing else np.empty(0)
+    # spare rows after the normals: Embree shares float32 ones instead of copying them
+    nr = padded_rows(n, dtype) if normals else np.empty((0, 3), dtype)
+    if n:
+        ranges, sorted_keys, order, line_start, line_len, transposed = sorted_pulse_grid(
+            pts, o, primary_resolution, layout, beams)
+        if normals and line_start[0]:  # points outside the pattern: the direction to the scanner
+            unseen = order[:line_start[0]]
+            nr[unseen] = fallback_directions(pts[unseen], o, dtype)
+        _grid_fused(pts, ranges, sorted_keys, order, line_start, _row_tasks(line_start, 0, len(line_start) - 1),
+                    line_len, transposed, grid_gate(primary_resolution, gate), o, spacing, normals, sp, nr,
+                    math.cos(math.radians(max_incidence)) if max_incidence < 90 else 0.0)
+    return (sp if spacing else None), (nr if normals else None)
+
+
+@njit(cache=True, parallel=True)
+def _grid_fused(pts, ranges, sk, order, row_start, tasks, line_len, transposed, gate, po, want_spacing, want_normals,
+                sp, nr, cos_min):
+    sin_min = math.sqrt(max(0.0, 1.0 - cos_min * cos_min))
+    for task in prange(len(tasks) - 1):
+        best = np.empty(9, np.int64)
+        nbr = np.empty(8, np.int64)
+        dist = np.empty(8)
+        for v in range(tasks[task], tasks[task + 1]):
+            ptr = _row_pointers(row_start, v, transposed)
+            for j in range(row_start[v], row_start[v + 1]):
+                i = order[j]
+                m = _point_neighbours(pts, sk, order, ranges, row_start, ptr, v, j, gate, line_len, transposed,
+                                      best, nbr, dist)
+                if want_spacing and m:
+                    sp[i] = dist[:m].sum() / m
+                if want_normals:
+                    nx, ny, nz = pca_normal(pts, i, nbr, 8, True, po)
+                    if cos_min > 0.0:
+                        nx, ny, nz = turned(pts[i, 0], pts[i, 1], pts[i, 2], nx, ny, nz, po, cos_min, sin_min)
+                    nr[i, 0], nr[i, 1], nr[i, 2] = nx, ny, nz

@@ -1,0 +1,262 @@
+"""The embree backend's scanner: a cloud as discs in one BVH, one ray per pulse
+(:class:`DiscScanner`; the package docstring describes the options)."""
+
+from __future__ import annotations
+
+import math
+import time
+
+import numpy as np
+from numba import njit
+
+from ...arrays import as_origin, as_points, bounds
+from ...core import ranges_of
+from ...errors import InputValueError, refuse_memory
+from ...pattern import as_pattern, pulse_rays
+from ...raycast import Open3DScene, RayScene, padded_rows
+from ...scan import Scan
+from ..base import Backend, Scanner
+from .discs import chunk_normals, disc_radii, fallback_directions, fan_polygons, limit_incidence, neighbourhoods
+from .options import EmbreeOptions
+from .pulsegrid import pulse_grid_spacing_normals
+
+__all__ = ["DiscScanner"]
+
+
+class DiscScanner(Scanner):
+    """A cloud as discs in one Embree BVH, ready to scan from many positions.
+
+    Made by ``slr_ray.prepare(points, backend="embree", **options)``; options
+    are those of :class:`EmbreeOptions`. Neighbours, radii, normals and the
+    BVH are computed here, once; :meth:`scan` only casts rays.
+
+    Attributes
+    ----------
+    radii : (n,) float32
+        The disc radii as Embree uses them (for the ``embree`` engine, a
+        read-only view of its vertex buffer).
+    normals : (n, 3) float64 or None
+        None for ray-facing discs (``orientation='billboard'``) and for discs
+        facing the primary scanner (``orientation='primary'``: the direction
+        to ``primary_origin``, not kept to save 24 bytes a point).
+    build_seconds : float
+        Time to build the BVH.
+    neighbour_seconds : float
+        Time for neighbours, radii and normals.
+    nbytes : int
+        Bytes of the arrays shared with the ray engine (the BVH comes on top).
+    """
+
+    backend = Backend.EMBREE
+
+    def __init__(self, points, options: EmbreeOptions | None = None):
+        t0 = time.perf_counter()
+        options = options or EmbreeOptions()
+        pts = as_points(points).astype(np.float64, copy=False)
+        super().__init__(pts, options)
+        o = options
+        n = len(pts)
+        need_spacing = isinstance(o.radius, str) and o.radius == "spacing"
+        need_normals = o.orientation == "normal" and o.normals is None
+        spacing = np.zeros(n) if need_spacing else None
+        normals = None
+        # estimated normals in float32 for Embree (its precision; 12 B a point less at the peak)
+        ndtype = np.float32 if o.engine == "embree" else np.float64
+        grid = (need_spacing or need_normals) and o.neighbours == "pulse-grid"
+        if o.primary_beams is not None:
+            o.primary_grid.rows_of_beams(o.primary_beams, n)  # a bad length or beam id fails here, used or not
+        if o.engine != "embree":  # polygon fans: vertices (24 B) and faces (24 B) per segment, before any work
+            refuse_memory(48.0 * n * o.segments, f"discs as fans of {o.segments:,} segments for {n:,} points",
+                          "use fewer segments (3 to 16 is plenty) or engine='embree'")
+        if o.orientation == "normal":
+            # kNN normals are filled chunk by chunk below, pulse-grid ones come whole; fewer than two
+            # points have no neighbours and keep the fallback direction
+            if not need_normals:
+                normals = np.asarray(as_points(o.normals, "normals"), np.float64)
+            elif n < 2:
+                normals = np.array(fallback_directions(pts, o.primary_origin, ndtype))
+            elif not grid:
+                normals = padded_rows(n, ndtype)  # shared with Embree, not copied
+            if normals is not None and len(normals) != n:
+                raise InputValueError(f"normals has {len(normals)} rows for {n} points")
+        elif o.orientation == "primary":
+            # float32: what Embree holds anyway (a float64 copy would be 24 B a point of peak memory)
+            normals = fallback_directions(pts, o.primary_origin, np.float32)
+        if grid and n >= 2:
+            # one fused pass: no neighbour arrays (spacing 0 where none: the floor applies)
+            spacing, grid_normals = pulse_grid_spacing_normals(pts, o.primary_origin, o.primary_grid,
+                                                               o.grid_gate, need_spacing, need_normals, ndtype,
+                                                               max_incidence=o.max_incidence,
+                                                               beams=o.primary_beams)
+            if need_normals:
+                normals = grid_normals
+        elif need_spacing or need_normals:
+            # one neighbour query per chunk serves radii and normals
+            for s, d, idx in neighbourhoods(pts, o.k, o.chunk):
+                if need_spacing:
+                    spacing[s:s + len(d)] = d.mean(axis=1)
+                if need_normals:
+                    normals[s:s + len(idx)] = chunk_normals(pts, np.arange(s, s + len(idx)), idx,
+                                                             o.primary_origin)
+        if need_normals and n >= 2 and o.max_incidence < 90 and not grid:  # the grid pass turns its own
+            limit_incidence(pts, normals, as_origin(o.primary_origin, "primary_origin"),
+                             math.cos(math.radians(o.max_incidence)))
+        # float32, Embree's precision (4 B a point instead of 8: 0.8 GB on a 209 M-point primary)
+        self.radii = disc_radii(pts, o.radius, k=o.k, radius_scale=o.radius_scale,
+                                primary_origin=o.primary_origin, primary_resolution=o.primary_grid,
+                                min_radius=o.min_radius, fallback_radius=o.fallback_radius,
+                                spacing=spacing).astype(np.float32)
+        del spacing
+        self.normals = normals
+        self.neighbour_seconds = time.perf_counter() - t0
+        t1 = time.perf_counter()
+        self._centre = 0.5 * np.add(*bounds(pts)) if n else np.zeros(3)
+        self._scene = None
+        if o.engine == "embree":
+            self._scene = RayScene.discs(pts, self.radii, normals, centre=self._centre)
+            self.radii = self._scene.owner_radii  # a view of Embree's buffer: no second copy
+            self._per_point = 1
+        else:
+            self._per_point = o.segments - 2
+            verts, faces = fan_polygons(pts, normals, self.radii, o.segments)
+            if o.engine == "fan":
+                self._scene = RayScene.triangles(verts, faces, centre=self._centre,
+                                                 owners=(pts, self.radii, self._per_point, o.reach, normals))
+            else:
+                self._scene = Open3DScene(verts, faces, pts, self.radii, self._per_point, o.reach,
+                                          centre=self._centre)
+            del verts, faces
+        if o.engine == "embree" and normals is not None:
+            # Embree and the tie rule hold their own float32 copy: the float64 one (24 B a point, 5 GB on
+            # a 209 M-point primary) is not kept; ``normals`` is a read-only view of Embree's
+            self.normals = normals = self._scene.owner_normals
+        self._max_radius = float(self.radii.max(initial=0.0))  # read by every scan: computed once
+        self.nbytes = self._scene.nbytes
+        self.build_seconds = time.perf_counter() - t1
+        self.prepare_seconds = time.perf_counter() - t0
+
+    def _cast(self, origin, dirs, tfar, aspect=None):
+        o = self.options
+        if o.engine == "open3d":  # no tie rule in Open3D (slr_ray.raycast.open3d_scene)
+            hits = self._scene.intersect(origin, dirs, tfar=tfar, skip_containing=True, n_threads=o.n_threads)
+        else:
+            hits = self._scene.intersect(origin, dirs, tfar=tfar, ties=o.ties, skip_containing=True,
+                                         n_threads=o.n_threads, pulse_aspect=aspect)
+        return hits.owners, hits.distances
+
+    def _hits(self, origin, pattern, rays_per_batch=1 << 21):
+        """Every ray that hits a disc: (point index, t, v, h) arrays."""
+        rmin, rmax = pattern.range_limits
+        reach = self._max_radius * self.options.reach
+        tfar = min(rmax + 2 * reach, 3e37)
+        nv, nh = pattern.shape
+        # a batch holds whole rows (directions, pulse ids, answers: about 100 B a ray)
+        refuse_memory(100.0 * max(nh, min(rays_per_batch, nv * nh)),
+                      f"a row of {nh:,} rays ({pattern.n_pulses:.3g} pulses in all)", "choose a coarser pattern")
+        aspect = _pulse_aspect(pattern)
+        rows_per = max(1, rays_per_batch // nh)
+        parts = []
+        for r0 in range(0, nv, rows_per):
+            dirs, vv, hh = pulse_rays(pattern, slice(r0, min(nv, r0 + rows_per)))
+            pt, t = self._cast(origin, dirs, tfar, aspect)
+            hit = pt >= 0
+            parts.append((pt[hit], t[hit], vv[hit], hh[hit]))
+        if not parts:
+            return np.empty(0, np.int64), np.empty(0), np.empty(0, np.int64), np.empty(0, np.int64)
+        return tuple(np.concatenate([p[j] for p in parts]) for j in range(4))
+
+    def ray_hits(self, origin, pattern):
+        """Per-ray answer: for every pulse whose centre ray hits a disc, the point.
+
+        Returns
+        -------
+        pulses : (k, 2) int64
+            ``(v, h)`` of each ray that hit.
+        indices : (k,) intp
+            The point whose disc it hit (a point may appear for several pulses).
+        distances : (k,) float64
+            Distance along the ray to the disc.
+        """
+        pt, t, v, h = self._hits(as_origin(origin), as_pattern(pattern))
+        return np.column_stack([v, h]), pt.astype(np.intp), t
+
+    # --- hook for slr_ray.effects (sub-rays of a diverging beam, rays from moving poses) ---------------
+    def cast(self, origin, directions, max_range: float = math.inf):
+        """First disc met by each ray from ``origin`` along ``directions``.
+
+        The tie rule (``ties``) ranks candidates by their distance from the ray
+        (no pulse grid: the rays are anyone's), and discs holding ``origin``
+        are skipped, as in :meth:`scan`.
+
+        Parameters
+        ----------
+        origin : (3,) float
+        directions : (m, 3) float
+            Unit vectors.
+        max_range : float
+            Metres; discs beyond are not met.
+
+        Returns
+        -------
+        indices : (m,) int64
+            The point whose disc each ray meets, -1 on a miss.
+        distances : (m,) float64
+            Distance along the ray to the disc, ``inf`` on a miss.
+        """
+        if self.options.engine == "open3d":
+            raise InputValueError("cast needs engine 'embree' or 'fan' (Open3D's scene has no tie rule)")
+        d = np.ascontiguousarray(directions, np.float64).reshape(-1, 3)
+        pt, t = self._cast(as_origin(origin), d, min(float(max_range), 3e37))
+        return pt, np.where(pt >= 0, t, np.inf)
+
+    def scan(self, origin, pattern, rays_per_batch: int = 1 << 21) -> Scan:
+        """Scan the discs from ``origin`` with ``pattern``.
+
+        A point hit by several rays appears once, with the pulse of its
+        nearest ray. ``info`` of the result holds ``cast_seconds``, ``rays``
+        and ``ray_hits`` (rays that hit a disc) and the options.
+        """
+        return self.scan_and_rays(origin, pattern, rays_per_batch)[0]
+
+    def scan_and_rays(self, origin, pattern, rays_per_batch: int = 1 << 21):
+        """:meth:`scan` and :meth:`ray_hits` from one cast: ``(scan, (pulses, indices, distances))``."""
+        pattern = as_pattern(pattern)
+        origin = as_origin(origin)
+        t_start = time.perf_counter()
+        pt, tt, v, h = self._hits(origin, pattern, rays_per_batch)
+        cast = time.perf_counter() - t_start
+        rays = (np.column_stack([v, h]), pt.astype(np.intp), tt)
+        n_ray_hits = len(pt)
+        # points the pattern itself would not see (range limits, field of view) are not returned
+        uniq, inverse = np.unique(pt, return_inverse=True)
+        keys, _ = pattern.pulse_ids(self.points[uniq], origin)
+        nearest = _nearest_ray(inverse, tt, len(uniq))  # per point, its nearest ray (the first of equals)
+        seen = keys >= 0
+        idx = uniq[seen].astype(np.intp)
+        nearest = nearest[seen]
+        scan = Scan(indices=idx, ranges=ranges_of(self.points, idx, origin),
+                    pulses=np.column_stack([v[nearest], h[nearest]]).astype(np.int64),
+                    origin=origin, pattern=pattern, backend=self.backend, n_input=len(self.points),
+                    seconds=time.perf_counter() - t_start,
+                    info={"cast_seconds": round(cast, 6), "rays": int(pattern.n_pulses),
+                          "ray_hits": int(n_ray_hits), **self.options.to_dict()})
+        return scan, rays
+
+
+@njit(cache=True)
+def _nearest_ray(group, t, n_groups):
+    """Per group (a point), the index of its ray of least ``t``, the first of equals."""
+    best = np.full(n_groups, -1, np.int64)
+    for i in range(len(group)):
+        g = group[i]
+        b = best[g]
+        if b < 0 or t[i] < t[b]:
+            best[g] = i
+    return best
+
+
+def _pulse_aspect(pattern) -> float:
+    """Zenith step over azimuth step of a pattern's pulses, the scale of the
+    tie rule's pulse units."""
+    d_theta, d_phi = pattern.pulse_steps
+    return d_theta / d_phi

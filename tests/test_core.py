@@ -1,0 +1,271 @@
+"""The pulse geometry of slr_ray.core: the fast angle path against libm, and the
+three table kinds against each other and a brute-force reference."""
+
+import numpy as np
+import pytest
+from hypothesis import given, settings
+from hypothesis import strategies as st
+
+from slr_ray import ScanAccumulator, ScanPattern
+from slr_ray.core import BinTables, grid, pulse_ids, tables
+from slr_ray.core.grid import block_keys_range, kernel_params, keys_exact
+from slr_ray.errors import StateError
+from slr_ray.errors import InputValueError
+from slr_ray.threads import default_threads
+
+from conftest import brute_force_scan
+
+
+def exact_keys(points, origin, pattern):
+    params = kernel_params(origin, pattern)
+    keys = np.empty(len(points), np.int64)
+    keys_exact(np.ascontiguousarray(points, np.float64), *params[:9], keys)
+    return keys
+
+
+def near_edge_points(pattern, n=20000, seed=0, eps=(0.0, 1e-15, 1e-12, 1e-9, 1e-7)):
+    """Directions within eps radians of pulse edges, at many ranges."""
+    rng = np.random.default_rng(seed)
+    d_theta, d_phi, th0, th1 = pattern.radians
+    nv, nh = pattern.shape
+    v = rng.integers(0, nv + 1, n)
+    h = rng.integers(0, nh + 1, n)
+    e = rng.choice(eps, size=(n, 2)) * rng.choice([-1, 1], size=(n, 2))
+    theta = np.clip(th0 + v * d_theta + e[:, 0], 0, np.pi)
+    phi = h * d_phi + e[:, 1]
+    r = 10 ** rng.uniform(-3, 4, n)
+    return np.column_stack([r * np.sin(theta) * np.cos(phi), r * np.sin(theta) * np.sin(phi),
+                            r * np.cos(theta)])
+
+
+@pytest.mark.parametrize("pattern", [
+    ScanPattern(0.144), ScanPattern(0.036, zenith_range=(0, 135)), ScanPattern(0.00576),
+    ScanPattern(azimuth_resolution=0.622, zenith_resolution=0.048, zenith_range=(30, 130)),
+    ScanPattern(7.0), ScanPattern(90.0), ScanPattern(0.001),
+])
+def test_fast_path_equals_libm_near_edges(pattern):
+    pts = near_edge_points(pattern)
+    keys, _ = pulse_ids(pts, np.zeros(3), pattern)
+    np.testing.assert_array_equal(keys, exact_keys(pts, np.zeros(3), pattern))
+
+
+@settings(max_examples=200, deadline=None)
+@given(xyz=st.tuples(*[st.floats(-1e4, 1e4, allow_nan=False)] * 3),
+       res=st.sampled_from([0.001, 0.0144, 0.144, 1.0, 33.3]))
+def test_fast_path_equals_libm_anywhere(xyz, res):
+    pattern = ScanPattern(res)
+    pts = np.array([xyz])
+    keys, ranges = pulse_ids(pts, np.zeros(3), pattern)
+    if ranges[0] > 0:  # below ~1e-154 m the squared range underflows: "at the origin"
+        assert keys[0] == exact_keys(pts, np.zeros(3), pattern)[0]
+    else:
+        assert keys[0] == -1
+
+
+def test_axes_and_signed_zeros_take_the_exact_path():
+    pts = np.array([[0.0, 0, 1], [0, 0, -1], [-0.0, 0, 1], [1, 0, 0], [-1, 0, 0], [-1, -0.0, 0],
+                    [0, 1, 0], [0, -1, 0], [1e-300, 1e-300, 1], [1, 1, 0.0]])
+    pattern = ScanPattern(1.0)
+    keys, _ = pulse_ids(pts, np.zeros(3), pattern)
+    np.testing.assert_array_equal(keys, exact_keys(pts, np.zeros(3), pattern))
+
+
+def _tables(kind, origin, pattern, n_threads, monkeypatch):
+    monkeypatch.setattr(BinTables, "dense_bytes", 2**62 if kind == "dense" else 0)
+    monkeypatch.setattr(BinTables, "slot_bytes", 2**62 if kind == "slots" else 0)
+    t = BinTables(origin, pattern, n_threads)
+    assert t.kind == kind
+    return t
+
+
+def test_dense_slot_and_hash_tables_agree(monkeypatch):
+    rng = np.random.default_rng(3)
+    pts = rng.normal(size=(50000, 3)) * 10
+    pts[1000:1100] = pts[:100]  # exact ties: the lower index must win in every kind
+    pattern = ScanPattern(0.5)
+    results = {}
+    for kind in ("dense", "slots", "hash"):
+        t = _tables(kind, np.zeros(3), pattern, 3, monkeypatch)
+        t.add(pts)
+        results[kind] = t.winners()
+        for a, b in zip(t.winners(pts), results[kind]):  # ranges recomputed or carried: the same
+            np.testing.assert_array_equal(a, b)
+    np.testing.assert_array_equal(results["dense"][2], brute_force_scan(pts, np.zeros(3), pattern))
+    for kind in ("slots", "hash"):
+        for a, b in zip(results["dense"], results[kind]):
+            np.testing.assert_array_equal(a, b)
+
+
+@pytest.mark.parametrize("kind", ["dense", "slots", "hash"])
+def test_reset_tables_forget_the_last_position(kind, monkeypatch):
+    # a reused table must give what a fresh one gives, whether or not the last
+    # scan was read out (winners) before the reset
+    rng = np.random.default_rng(5)
+    pts = rng.normal(size=(30000, 3)) * 10
+    pattern = ScanPattern(1.0)
+    t = _tables(kind, np.zeros(3), pattern, 2, monkeypatch)
+    for i, origin in enumerate(rng.normal(size=(4, 3)) * 5):
+        t.reset(origin)
+        t.add(pts[i * 1000:])
+        if i % 2:
+            t.add(pts[:1000])
+        else:  # interrupted: never read out
+            t.winners(pts[i * 1000:])
+            t.reset(origin)
+            t.add(pts)
+        expected = brute_force_scan(pts, origin, pattern) if i % 2 == 0 else None
+        got = t.winners()[2]
+        if expected is not None:
+            np.testing.assert_array_equal(got, expected)
+        else:
+            ref = _tables(kind, origin, pattern, 1, monkeypatch)
+            ref.add(np.vstack([pts[i * 1000:], pts[:1000]]))
+            np.testing.assert_array_equal(got, ref.winners()[2])
+
+
+def test_accumulator_adds_after_reading_out(monkeypatch):
+    # winners() then more points: the merged dense tables must still take them
+    rng = np.random.default_rng(6)
+    pts = rng.normal(size=(20000, 3))
+    acc = ScanAccumulator(np.zeros(3), 2.0, n_threads=2)
+    acc.add(pts[:10000])
+    acc.result()
+    acc.add(pts[10000:])
+    np.testing.assert_array_equal(acc.result().indices, brute_force_scan(pts, np.zeros(3), ScanPattern(2.0)))
+
+
+def test_polynomial_atan2_is_within_its_bound():
+    # the fast path's correctness rests on |fast - libm| < _FAST_TOL; the
+    # polynomial's own error is ~1e-11, checked here with a wide margin
+    import math
+
+    rng = np.random.default_rng(9)
+    ang = np.concatenate([rng.uniform(-np.pi, np.pi, 200000),
+                          (np.arange(-8, 9) * np.pi / 8 + rng.normal(scale=1e-9, size=(50, 17))).ravel()])
+    r = 10 ** rng.uniform(-6, 6, len(ang))
+    y, x = r * np.sin(ang), r * np.cos(ang)
+    theta, fast = np.empty(len(x)), np.empty(len(x))
+    grid._approx_angles(x, y, np.ones(len(x)), theta, fast, len(x))  # fast = atan2(y, x)
+    exact = np.array([math.atan2(a, b) for a, b in zip(y, x)])
+    assert np.abs(fast - exact).max() < 1e-10 < grid._FAST_TOL
+
+
+@pytest.mark.parametrize("pattern", [
+    ScanPattern(0.5, zenith_range=(40, 100), min_range=2.0, max_range=20.0),
+    ScanPattern(2.0, zenith_range=(0, 135), max_range=5.0),
+])
+def test_fast_path_outside_the_view_and_range_limits(pattern):
+    # points just inside and outside the zenith limits and the range limits
+    rng = np.random.default_rng(10)
+    d_theta, d_phi, th0, th1 = pattern.radians
+    rmin, rmax = pattern.range_limits
+    n = 20000
+    theta = rng.choice([th0, th1], n) + rng.choice([-1e-7, -1e-9, 0.0, 1e-9, 1e-7, 0.3, -0.3], n)
+    theta = np.clip(theta, 0, np.pi)
+    phi = rng.uniform(0, 2 * np.pi, n)
+    r = np.where(rng.random(n) < 0.5, rng.uniform(0.5 * rmin, 1.5 * rmin + 1, n),
+                 rmax * (1 + rng.choice([-1e-15, 0.0, 1e-15, -0.1, 0.1], n)))
+    pts = np.column_stack([r * np.sin(theta) * np.cos(phi), r * np.sin(theta) * np.sin(phi), r * np.cos(theta)])
+    keys, ranges = pulse_ids(pts, np.zeros(3), pattern)
+    ref = exact_keys(pts, np.zeros(3), pattern)
+    ref[(ranges < rmin) | (ranges > rmax) | (ranges == 0)] = -1
+    np.testing.assert_array_equal(keys, ref)
+    assert (keys == -1).any() and (keys >= 0).any()
+
+
+def test_hash_tables_grow_through_many_bins(monkeypatch):
+    # forces many growth steps from the 4096-slot start, across superblocks
+    monkeypatch.setattr(BinTables, "superblock", 1000)
+    rng = np.random.default_rng(4)
+    pts = rng.normal(size=(40000, 3))
+    acc = ScanAccumulator(np.zeros(3), 0.01, n_threads=3)
+    acc.add(pts)
+    expected = brute_force_scan(pts, np.zeros(3), ScanPattern(0.01))
+    assert acc.n_bins == len(expected) > 39990
+    np.testing.assert_array_equal(acc.result().indices, expected)
+
+
+def test_default_threads_is_positive():
+    assert default_threads() >= 1
+    with pytest.raises(InputValueError, match="n_threads"):
+        BinTables(np.zeros(3), ScanPattern(1.0), n_threads=-1)
+    with pytest.raises(InputValueError, match="n_threads"):
+        BinTables(np.zeros(3), ScanPattern(1.0), n_threads=257)
+
+
+@pytest.mark.parametrize("kind", ["slots", "hash"])
+def test_released_tables_give_the_same_winners_and_refuse_more(kind, monkeypatch):
+    rng = np.random.default_rng(11)
+    pts = rng.normal(size=(30000, 3)) * 10
+    pattern = ScanPattern(0.5)
+    a = _tables(kind, np.zeros(3), pattern, 2, monkeypatch)
+    b = _tables(kind, np.zeros(3), pattern, 2, monkeypatch)
+    a.add(pts)
+    b.add(pts)
+    keep = a.winners(with_ranges=False)
+    gone = b.winners(with_ranges=False, release=True)
+    for x, y in zip(keep, gone):
+        np.testing.assert_array_equal(x, y) if x is not None else None
+    with pytest.raises(StateError, match="released"):
+        b.add(pts)
+    with pytest.raises(StateError, match="released"):
+        b.winners()
+
+
+def test_compact_and_wide_hash_records_agree_and_widen_when_indices_outgrow_them(monkeypatch):
+    # 16-byte records (int32 key, uint32 index) must give exactly the 24-byte ones'
+    # winners, ties included, also when a stream passes their index limit midway
+    rng = np.random.default_rng(5)
+    pts = rng.normal(size=(40000, 3)) * 10
+    pts[20000:20100] = pts[:100]  # exact ties: the lower index wins
+    pattern = ScanPattern(0.5)
+    compact = _tables("hash", np.zeros(3), pattern, 2, monkeypatch)
+    assert compact.tables[0].compact and compact.tables[0].tab.itemsize == 16
+    for s in range(0, len(pts), 7001):
+        compact.add(pts[s:s + 7001])
+    monkeypatch.setattr(tables, "_COMPACT_MAX_PULSES", 0)  # 24-byte records from the start
+    wide = _tables("hash", np.zeros(3), pattern, 2, monkeypatch)
+    assert not wide.tables[0].compact
+    wide.add(pts)
+    monkeypatch.setattr(tables, "_COMPACT_MAX_PULSES", 2**31 - 1)
+    monkeypatch.setattr(tables, "_COMPACT_MAX_POINTS", 25000)  # widened at the chunk that passes it
+    widened = _tables("hash", np.zeros(3), pattern, 2, monkeypatch)
+    for s in range(0, len(pts), 7001):
+        widened.add(pts[s:s + 7001])
+        assert widened.tables[0].compact == (s + 7001 - 1 <= 25000)
+    expected = brute_force_scan(pts, np.zeros(3), pattern)
+    for t in (compact, wide, widened):
+        keys, ranges, idx = t.winners(pts)
+        np.testing.assert_array_equal(idx, expected)
+        np.testing.assert_array_equal(keys, pulse_ids(pts[idx], np.zeros(3), pattern)[0])
+
+
+def test_pulse_keys_split_over_threads_equal_one_pass():
+    # inputs above 2**20 points are keyed by several threads: the same keys and ranges
+    rng = np.random.default_rng(3)
+    pts = rng.normal(size=(3 * 2**20 + 7, 3)) * 30 + [4e5, -3e6, 20]
+    origin = np.array([4e5 + 1, -3e6 - 2, 21.5])
+    p = ScanPattern(0.2, max_range=80)
+    keys, ranges = pulse_ids(pts, origin, p)
+    k1, r1 = np.empty(len(pts), np.int64), np.empty(len(pts))
+    block_keys_range(pts, *kernel_params(origin, p), k1, r1, 0, len(pts))
+    np.testing.assert_array_equal(keys, k1)
+    np.testing.assert_array_equal(ranges, r1)
+    assert (keys == -1).any() and (keys >= 0).any()
+
+
+def test_every_compiled_kernel_is_cached_to_disk():
+    # compile once, load afterwards: the CLI and the tests must not recompile (a kernel
+    # declared without cache=True has numba's NullCache)
+    import importlib
+
+    from numba.core.registry import CPUDispatcher
+
+    kernels = []
+    for name in ("slr_ray.core.grid", "slr_ray.core.tables", "slr_ray.core.beams"):
+        mod = importlib.import_module(name)
+        kernels += [(name, k) for k, v in vars(mod).items() if isinstance(v, CPUDispatcher)]
+        uncached = [k for k, v in vars(mod).items() if isinstance(v, CPUDispatcher)
+                    and type(v._cache).__name__ == "NullCache"]
+        assert not uncached, (name, uncached)
+    assert len(kernels) > 20
