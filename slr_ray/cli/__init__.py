@@ -176,6 +176,8 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("--transform", help="B's pose in A's frame, a 4 x 4 text matrix, instead of registering")
     p.add_argument("--seen-threshold", type=A.positive_float, default=paper.SIMILARITY_THRESHOLD,
                    help="a point of B is seen from A when an A point is closer than this (m, default 0.1)")
+    p.add_argument("--min-fitness", type=float, default=0.3, help="refuse a registration whose fitness is below "
+                   "this (default 0.3; 0 accepts any)")
     A.add_input_format(p)
     p.add_argument("--quiet", action="store_true", help="no progress bar")
     p.add_argument("--force", action="store_true", help="replace the evaluation files of an existing directory")
