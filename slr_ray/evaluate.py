@@ -78,7 +78,8 @@ from .scan import Scan
 from .sensors import BeamPattern, sensor
 
 __all__ = ["METHODS", "LABELS", "Registration", "register", "scan_order_beams", "fitted_pattern", "zbuffer",
-           "evaluate_pair", "evaluation_table", "markdown_table", "write_evaluation"]
+           "evaluate_pair", "evaluation_table", "markdown_table", "splits_table", "compact_json",
+           "write_evaluation"]
 
 #: the methods scored, in table order, and their names in tables and figures
 METHODS = ("zbuffer", "binning", "embree-knn", "embree-grid", "embree-beams")
@@ -518,12 +519,56 @@ def _plain(obj):
     return obj
 
 
+def compact_json(obj, indent: int = 1, width: int = 1000, _level: int = 0) -> str:
+    """JSON with every block that fits in ``width`` characters (a split's figures, a list of numbers)
+    on one line: a file people read and diff, not one number a line."""
+    flat = json.dumps(obj, allow_nan=False)
+    scalars = isinstance(obj, list) and not any(isinstance(v, (dict, list)) for v in obj)
+    if not isinstance(obj, (dict, list)) or scalars or len(flat) <= width or not obj:
+        return flat
+    pad, inner = " " * (indent * _level), " " * (indent * (_level + 1))
+    if isinstance(obj, dict):
+        items = [f"{inner}{json.dumps(str(k))}: {compact_json(v, indent, width, _level + 1)}" for k, v in obj.items()]
+        return "{\n" + ",\n".join(items) + "\n" + pad + "}"
+    items = [inner + compact_json(v, indent, width, _level + 1) for v in obj]
+    return "[\n" + ",\n".join(items) + "\n" + pad + "]"
+
+
+def splits_table(result: dict) -> list[dict]:
+    """Every split of every method as one flat row (method, part, split, label, then the figures;
+    F-scores as ``P@5cm``, ``R@5cm``, ``F@5cm``...): the JSON's ``groups`` as a long table."""
+    out = []
+    for r in result["rows"]:
+        for part in ("points", "image"):
+            for split, labels in r[part]["groups"].items():
+                for label, block in labels.items():
+                    row = {"method": r["method"], "part": part, "split": split, "label": label}
+                    for k, v in block.items():
+                        if k == "fscore":
+                            for tau, f in v.items():
+                                row |= {f"P@{tau}": f["precision"], f"R@{tau}": f["recall"], f"F@{tau}": f["fscore"]}
+                        else:
+                            row[k] = v
+                    out.append(row)
+    return out
+
+
+def _csv_text(rows: list[dict]) -> str:
+    buf = io.StringIO()
+    fields = list(dict.fromkeys(k for r in rows for k in r))
+    w = csv.DictWriter(buf, fieldnames=fields, lineterminator="\n")
+    w.writeheader()
+    w.writerows(rows)
+    return buf.getvalue()
+
+
 def write_evaluation(result: dict, directory, force: bool = False, inputs: dict | None = None) -> dict:
-    """Write ``evaluation.json`` (everything, splits included), ``table.md``,
-    ``table.csv`` and ``evaluation.png`` into a new ``directory``.
+    """Write ``evaluation.json`` (everything, splits included; one line per figure block),
+    ``table.md``, ``table.csv``, ``splits.csv`` (every split, one row each) and
+    ``evaluation.png`` into a new ``directory``.
 
     Refuses an existing non-empty directory unless ``force`` (then only these
-    four files are replaced). Returns the paths written.
+    five files are replaced). Returns the paths written.
     """
     from .io import atomic_path
     from .plotting import evaluation_figure, save_figure
@@ -537,16 +582,14 @@ def write_evaluation(result: dict, directory, force: bool = False, inputs: dict 
     table = evaluation_table(result)
     doc = {k: v for k, v in result.items() if k != "images"} | {"table": table, "inputs": inputs or {}}
     paths = {"json": d / "evaluation.json", "markdown": d / "table.md", "csv": d / "table.csv",
-             "figure": d / "evaluation.png"}
+             "splits": d / "splits.csv", "figure": d / "evaluation.png"}
     with atomic_path(paths["json"]) as tmp:
-        tmp.write_text(json.dumps(_plain(doc), indent=1, allow_nan=False) + "\n")
+        tmp.write_text(compact_json(_plain(doc)) + "\n")
     with atomic_path(paths["markdown"]) as tmp:
         tmp.write_text(markdown_table(table) + "\n")
-    buf = io.StringIO()
-    w = csv.DictWriter(buf, fieldnames=list(table[0]))
-    w.writeheader()
-    w.writerows(table)
     with atomic_path(paths["csv"]) as tmp:
-        tmp.write_text(buf.getvalue())
+        tmp.write_text(_csv_text(table))
+    with atomic_path(paths["splits"]) as tmp:
+        tmp.write_text(_csv_text(splits_table(result)))
     save_figure(evaluation_figure(result), paths["figure"])
     return {k: str(v) for k, v in paths.items()}

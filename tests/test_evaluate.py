@@ -1,3 +1,4 @@
+import csv
 import json
 import math
 
@@ -143,7 +144,20 @@ def test_write_evaluation_refuses_a_non_empty_directory(pair, tmp_path):
     assert len(doc["table"]) == len(METHODS) and "images" not in doc
     assert (out / "table.csv").read_text().count("\n") == len(METHODS) + 1
     assert (out / "table.md").read_text().startswith("| method |")
-    assert set(paths) == {"json", "markdown", "csv", "figure"}
+    assert set(paths) == {"json", "markdown", "csv", "splits", "figure"}
+    # compact: one line per figure block (a split's figures), not one per number
+    lines = (out / "evaluation.json").read_text().splitlines()
+    blocks = sum(len(g) for r in res["rows"] for part in ("points", "image") for g in r[part]["groups"].values())
+    assert len(lines) < 3 * blocks
+    # the splits as a long table: one row per method, part, split and label; the same figures as the JSON
+    with open(out / "splits.csv", newline="") as f:
+        rows = list(csv.DictReader(f))
+    assert len(rows) == blocks
+    row = next(r for r in rows if r["method"] == "binning" and r["part"] == "points" and r["split"] == "seen"
+               and r["label"] == "seen")
+    want = doc["rows"][1]["points"]["groups"]["seen"]["seen"]
+    assert float(row["P@5cm"]) == want["fscore"]["5cm"]["precision"]
+    assert int(row["target_points"]) == want["target_points"]
     with pytest.raises(FileExistsError):
         write_evaluation(res, out)
     write_evaluation(res, out, force=True)
