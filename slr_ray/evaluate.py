@@ -344,6 +344,8 @@ def evaluate_pair(a_points, b_points, a_beams="scan-order", b_beams="scan-order"
     from tqdm import tqdm
 
     t_all = time.perf_counter()
+    if not (isinstance(min_fitness, (int, float)) and 0 <= min_fitness <= 1):
+        raise InputValueError(f"min_fitness must be a number in [0, 1] (a share of B's points), got {min_fitness!r}")
     unknown = [m for m in methods if m not in METHODS]
     if unknown:
         raise InputValueError(f"unknown method(s) {unknown}; choose from {list(METHODS)}")

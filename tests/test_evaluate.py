@@ -247,6 +247,9 @@ def test_a_failed_registration_is_refused_unless_accepted():
         evaluate_pair(a, b, a_beams=None, b_beams=None, sensor=SMALL, methods=("zbuffer",))
     res = evaluate_pair(a, b, a_beams=None, b_beams=None, sensor=SMALL, methods=("zbuffer",), min_fitness=0.0)
     assert res["registration"]["fitness"] < 0.3
+    for bad in (math.nan, -0.1, 1.5):
+        with pytest.raises(InputValueError, match="min_fitness must"):
+            evaluate_pair(a, b, a_beams=None, b_beams=None, sensor=SMALL, methods=("zbuffer",), min_fitness=bad)
 
 
 def test_cli_evaluate_moves_frames_with_a_recorded_origin_to_their_sensor(tmp_path, capsys):
@@ -283,3 +286,8 @@ def test_cli_evaluate_refuses_to_write_over_its_inputs(tmp_path, capsys):
     before = p.read_bytes()
     assert main(["evaluate", str(p), str(p), "-o", str(p), "--quiet", "--force"]) == 2
     assert p.read_bytes() == before and "input" in capsys.readouterr().err
+    other = tmp_path / "notes.txt"  # an existing file as the output directory: said as such
+    other.write_text("mine")
+    for force in ([], ["--force"]):
+        assert main(["evaluate", str(p), str(p), "-o", str(other), "--quiet", *force]) == 2
+        assert "not a directory" in capsys.readouterr().err and other.read_text() == "mine"

@@ -164,8 +164,8 @@ def build_parser() -> argparse.ArgumentParser:
     p.set_defaults(func=evaluate_command)
     p.add_argument("a", help=f"frame A, the primary, in its sensor's frame ({_FORMATS})")
     p.add_argument("b", help="frame B, the real scan to re-simulate, in its sensor's frame")
-    p.add_argument("-o", "--output", required=True, help="output directory (table.md, table.csv, splits.csv, evaluation.json, "
-                   "evaluation.png); refused if it exists and is not empty, unless --force")
+    p.add_argument("-o", "--output", required=True, help="output directory (table.md, table.csv, splits.csv, "
+                   "evaluation.json, evaluation.png); refused if it exists and is not empty, unless --force")
     p.add_argument("--sensor", default="velodyne_hdl64e_s2", choices=list(SENSORS),
                    help="the sensor's shipped beam table (default velodyne_hdl64e_s2, KITTI's)")
     p.add_argument("--beams", default="auto", choices=["auto", "scan-order", "none"],

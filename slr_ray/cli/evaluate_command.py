@@ -22,7 +22,9 @@ def evaluate(args):
     for i in (args.a, args.b):
         if out.exists() and Path(i).exists() and out.resolve() == Path(i).resolve():
             raise FileExistsError(f"{out} is an input of this command: refusing to write over it")
-    if out.exists() and (not out.is_dir() or any(out.iterdir())) and not args.force:
+    if out.exists() and not out.is_dir():
+        raise FileExistsError(f"{out} exists and is not a directory: -o names the directory the files go into")
+    if out.exists() and any(out.iterdir()) and not args.force:
         raise FileExistsError(f"{out} exists and is not empty (use --force to replace its evaluation files)")
     transform = None
     if args.transform:
