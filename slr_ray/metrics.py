@@ -36,9 +36,10 @@ F-score at a threshold ``tau``
 Range-image depth errors (:func:`range_image_metrics`)
     Over the pulses where **both** images return: ``rmse = sqrt(mean(e²))``,
     ``medae = median(|e|)`` and ``mae = mean(|e|)``, ``e = simulated - real``
-    (metres). LiDAR4D computes them over the whole image with dropped pixels
-    clamped to a tiny range, which mixes ray drop into depth; here ray drop
-    is scored apart.
+    (metres). LiDAR4D and LiDAR-NeRF compute them over the whole image with
+    ranges clamped to [1e-6 or 1e-3 m, 80 m] (a dropped pixel counts as a tiny
+    range), which mixes ray drop into depth; here ray drop is scored apart and
+    nothing is clamped.
 Ray-drop confusion
     Per pulse: returned or dropped, in the real and the simulated image.
     ``accuracy`` = share of pulses where the two agree (all pulses, as LiDAR4D's
