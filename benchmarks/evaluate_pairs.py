@@ -1,7 +1,8 @@
 """Real-pair evaluation (issue #28): KITTI frame 1 re-simulated from frame 0, and a synthetic pair with truth.
 
 1. KITTI: ``slr-ray evaluate kitti_hdl64_000000.bin kitti_hdl64_000001.bin -o docs/evaluate_kitti --force``
-   (the command a user runs; beams from the files' scan order).
+   (the command a user runs; beams from the files' scan order); frame 000000 against itself beside it
+   (``table_self.md``: each method's floor).
 2. Synthetic: a rectangle scene (500 rectangles within 40 m, ground 1.73 m below the sensor, as KITTI's),
    scanned as one real HDL-64E unit from two poses 0.65 m apart: the beams off the nominal table
    (``sensors.miscalibrated``: 0.1 deg per beam), the unit's per-beam range offsets (3 cm, the same for
@@ -34,6 +35,7 @@ from common import machine, save  # noqa: E402
 from slr_ray import scan_mesh, sensor  # noqa: E402
 from slr_ray.cli import main as cli  # noqa: E402
 from slr_ray.evaluate import evaluate_pair, evaluation_table, markdown_table, write_evaluation  # noqa: E402
+from slr_ray.io import read_cloud  # noqa: E402
 from slr_ray.scenes import rectangle_scene  # noqa: E402
 from slr_ray.sensors import miscalibrated, sensor_noise  # noqa: E402
 
@@ -82,6 +84,14 @@ def main():
                     "seconds_median_warm": statistics.median(times[1:]), "stages": res["seconds"],
                     "registration": res["registration"], "unseen_share": res["unseen_share"], "table": res["table"]}
     print(markdown_table(res["table"]), flush=True)
+
+    # 1b. frame 000000 against itself (B = A, the identity given): what each method scores against the
+    # frame it is made from, the floor under the pair's figures (the baseline must be perfect)
+    a0 = read_cloud(KITTI[0]).points
+    own = evaluate_pair(a0, a0, transform=np.eye(4))
+    (ROOT / "docs" / "evaluate_kitti" / "table_self.md").write_text(markdown_table(evaluation_table(own)) + "\n")
+    out["kitti_self"] = {"frame": str(KITTI[0]), "table": evaluation_table(own), "frames": own["frames"]}
+    print("frame 000000 against itself:\n" + markdown_table(evaluation_table(own)), flush=True)
 
     # 2. the synthetic pair with truth
     t0 = time.perf_counter()

@@ -84,10 +84,10 @@ class CellGrid:
         # one cell of slack on each side: a query's neighbour cells stay inside the key space
         lo, hi = bounds(pts)
         self.lo = lo - self.cell
-        dims = np.floor((hi - self.lo) / self.cell).astype(np.int64) + 2
-        if np.any(dims >= (1 << _AXIS_BITS) - 1):
-            raise GridUnsuitable(f"the cloud spans {dims.tolist()} cells of {self.cell:.3g}")
-        self.dims = dims
+        span = np.floor((hi - self.lo) / self.cell) + 2  # float first: a tiny radius overflows int64
+        if not np.all(span < (1 << _AXIS_BITS) - 1):
+            raise GridUnsuitable(f"the cloud spans {span.tolist()} cells of {self.cell:.3g}")
+        self.dims = span.astype(np.int64)
         cap = 1 << max(4, int(2 * self.n - 1).bit_length())
         self._keys = np.full(cap, -1, np.int64)
         self._start = np.zeros(cap, np.int64)

@@ -36,9 +36,10 @@ F-score at a threshold ``tau``
 Range-image depth errors (:func:`range_image_metrics`)
     Over the pulses where **both** images return: ``rmse = sqrt(mean(e²))``,
     ``medae = median(|e|)`` and ``mae = mean(|e|)``, ``e = simulated - real``
-    (metres). LiDAR4D computes them over the whole image with dropped pixels
-    clamped to a tiny range, which mixes ray drop into depth; here ray drop
-    is scored apart.
+    (metres). LiDAR4D and LiDAR-NeRF compute them over the whole image with
+    ranges clamped to [1e-6 or 1e-3 m, 80 m] (a dropped pixel counts as a tiny
+    range), which mixes ray drop into depth; here ray drop is scored apart and
+    nothing is clamped.
 Ray-drop confusion
     Per pulse: returned or dropped, in the real and the simulated image.
     ``accuracy`` = share of pulses where the two agree (all pulses, as LiDAR4D's
@@ -53,10 +54,21 @@ Seen from the primary (:func:`seen_from`)
     reach. A pulse of the range image is seen when its real point is; pulses
     with no real return are ``"no return"``.
 
+Empty sets
+    One side empty (an empty simulation, or an empty part of the target): its
+    share is ``nan`` (no points to count), the other's is 0, ``F = 0`` (as
+    LiDAR-NeRF's and LiDAR4D's ``fscore``, which turn that 0/0 into 0), the
+    Chamfer terms measured from the non-empty side are ``inf`` and so are
+    ``chamfer_sum`` and ``chamfer_mean``. Both empty: every figure ``nan``.
+    Range images: depth errors over no pulse where both return are ``nan``;
+    ``drop_recall`` with no real drop and ``drop_precision`` with no
+    simulated drop are ``nan``. Ranges must be > 0 where finite: NaN or inf
+    is "no return" (not 0, LiDAR-NeRF's convention: refused).
+
 Splits
 ------
 ``groups`` are name -> ``(n_target,)`` labels of the target points (range
-band, beam, seen...). A target point counts in its own group; a simulated
+band, beam, seen...; NaN labels form one group). A target point counts in its own group; a simulated
 point counts in the group of its nearest target point (so each group's
 precision and recall describe one part of the real scan). For range images
 the labels are per pulse. The totals do not depend on the splits.
@@ -144,8 +156,13 @@ def range_bands(ranges, edges=RANGE_BANDS) -> np.ndarray:
 
 
 def _fscore(p: float, r: float) -> float:
-    if math.isnan(p) or math.isnan(r):
+    """``2PR / (P + R)``; 0 when both are 0, and when one side is empty (``nan``) and the other's
+    share is 0 (an empty simulation recovered nothing: LiDAR-NeRF's and LiDAR4D's ``fscore`` turn
+    that 0/0 into 0 too); ``nan`` only when both sides are empty."""
+    if math.isnan(p) and math.isnan(r):
         return float("nan")
+    if math.isnan(p) or math.isnan(r):
+        return 0.0
     return 0.0 if p + r == 0 else 2 * p * r / (p + r)
 
 
@@ -168,8 +185,10 @@ def _point_block(d_t, d_s, hits) -> dict:
     simulated-side (``d_s``: simulated to target) nearest distances; ``hits``:
     threshold -> (target within, simulated within) booleans."""
     to_t, to_s = _mean(np.square(d_s)), _mean(np.square(d_t))
+    # one side empty: the other side's term is inf and this side's nan; the sum is inf, not nan
+    cd = math.inf if (len(d_t) == 0) != (len(d_s) == 0) else to_t + to_s
     out = {"target_points": int(len(d_t)), "simulated_points": int(len(d_s)),
-           "to_target": to_t, "to_simulated": to_s, "chamfer_sum": to_t + to_s, "chamfer_mean": 0.5 * (to_t + to_s),
+           "to_target": to_t, "to_simulated": to_s, "chamfer_sum": cd, "chamfer_mean": 0.5 * cd,
            "to_target_distance": _mean(d_s), "to_simulated_distance": _mean(d_t), "fscore": {}}
     for tau, (h_t, h_s) in hits.items():
         p = float(np.count_nonzero(h_s) / len(h_s)) if len(h_s) else float("nan")
@@ -232,8 +251,35 @@ def _labels(groups, n, what) -> dict:
         lab = np.asarray(lab)
         if lab.shape != (n,):
             raise InputValueError(f"groups[{name!r}] must hold one label per {what} ({n}), got shape {lab.shape}")
-        out[name] = lab
+        out[name] = _unique(lab, name)
     return out
+
+
+def _unique(lab, name):
+    """``(labels, inverse)``: each distinct label once (NaN labels one group) and each item's position in it."""
+    try:
+        u, inv = np.unique(lab, return_inverse=True)
+    except TypeError as exc:  # None beside strings and the like: numpy cannot order them
+        raise InputValueError(f"groups[{name!r}]: labels must be of one orderable kind "
+                              f"(numbers or strings): {exc}") from None
+    return u, inv.reshape(-1)
+
+
+def _thresholds(thresholds) -> list[float]:
+    """One threshold or a sequence of them, each a finite number > 0 (metres)."""
+    items = [thresholds] if np.ndim(thresholds) == 0 and not isinstance(thresholds, str) else thresholds
+    try:
+        if isinstance(items, str):
+            raise TypeError("a string")
+        th = [float(x) for x in items]
+        if any(isinstance(x, (str, bytes)) or x is None for x in items):
+            raise TypeError("not numbers")
+    except (TypeError, ValueError):
+        raise InputValueError(f"thresholds must be a number or a sequence of numbers (metres), got {thresholds!r}") \
+            from None
+    if not all(math.isfinite(x) and x > 0 for x in th):
+        raise InputValueError(f"thresholds must be finite numbers > 0, got {thresholds!r}")
+    return th
 
 
 def point_metrics(target, simulated, thresholds=(FIELD_THRESHOLD, PAPER_THRESHOLD), groups: dict | None = None,
@@ -258,20 +304,19 @@ def point_metrics(target, simulated, thresholds=(FIELD_THRESHOLD, PAPER_THRESHOL
     """
     t = as_points(target, "target")
     s = as_points(simulated, "simulated")
-    th = [float(x) for x in thresholds]
-    if not all(math.isfinite(x) and x > 0 for x in th):
-        raise InputValueError(f"thresholds must be finite numbers > 0, got {thresholds!r}")
+    th = _thresholds(thresholds)
     labs = _labels(groups, len(t), "target point")
     d_t, _ = nearest(t, s, workers)
     d_s, j = nearest(s, t, workers)
     hits = {tau: (_within(t, s, tau, d_t), _within(s, t, tau, d_s)) for tau in th}
     top = _point_block(d_t, d_s, hits)
     out = {}
-    for name, lab in labs.items():
-        s_lab = lab[j] if len(t) else np.empty(0, lab.dtype)
-        out[name] = {u.item(): _point_block(d_t[lab == u], d_s[s_lab == u],
-                                            {k: (a[lab == u], b[s_lab == u]) for k, (a, b) in hits.items()})
-                     for u in np.unique(lab)}
+    for name, (uniq, inv) in labs.items():
+        s_inv = inv[j] if len(t) else np.empty(0, np.intp)  # a simulated point: its nearest target's label
+        out[name] = {}
+        for k, u in enumerate(uniq):
+            mt, ms = inv == k, s_inv == k
+            out[name][u.item()] = _point_block(d_t[mt], d_s[ms], {tau: (a[mt], b[ms]) for tau, (a, b) in hits.items()})
     return PointMetrics(groups=out, **top)
 
 
@@ -291,8 +336,8 @@ def _image_block(real, sim) -> dict:
             "sse": float(np.sum(e * e)),
             "real_returns": int(n - n_rd), "simulated_returns": int(n - n_sd),
             "accuracy": float(np.count_nonzero(r_ret == s_ret) / n) if n else float("nan"),
-            "drop_recall": hit / n_rd if n_rd else float("nan"),
-            "drop_precision": hit / n_sd if n_sd else float("nan")}
+            "drop_recall": float(hit / n_rd) if n_rd else float("nan"),
+            "drop_precision": float(hit / n_sd) if n_sd else float("nan")}
 
 
 @dataclass(frozen=True)
@@ -346,8 +391,17 @@ def range_image_metrics(real, simulated, groups: dict | None = None) -> RangeIma
     -------
     RangeImageMetrics
     """
-    a = np.asarray(real, dtype=np.float64)
-    b = np.asarray(simulated, dtype=np.float64)
+    try:
+        a = np.asarray(real, dtype=np.float64)
+        b = np.asarray(simulated, dtype=np.float64)
+    except (TypeError, ValueError) as exc:
+        raise InputValueError(f"real and simulated must be range images of numbers: {exc}") from None
+    for name, img in (("real", a), ("simulated", b)):
+        bad = np.isfinite(img) & (img <= 0)
+        if bad.any():
+            raise InputValueError(f"{name} holds {np.count_nonzero(bad)} range(s) <= 0; a pulse with no return is NaN "
+                                  "(or inf) here, not 0 as in LiDAR-NeRF's panoramas: "
+                                  "np.where(img > 0, img, np.nan) converts one")
     if a.ndim != 2 or a.shape != b.shape:
         raise InputValueError(f"real and simulated must be range images of one shape, got {a.shape} and {b.shape}")
     shape = a.shape
@@ -363,8 +417,8 @@ def range_image_metrics(real, simulated, groups: dict | None = None) -> RangeIma
         else:
             raise InputValueError(f"groups[{name!r}] must be one label per pulse {shape} or per row, "
                                   f"got shape {lab.shape}")
-        labs[name] = lab
+        labs[name] = _unique(lab, name)
     top = _image_block(a, b)
-    out = {name: {u.item(): _image_block(a[lab == u], b[lab == u]) for u in np.unique(lab)}
-           for name, lab in labs.items()}
+    out = {name: {u.item(): _image_block(a[inv == k], b[inv == k]) for k, u in enumerate(uniq)}
+           for name, (uniq, inv) in labs.items()}
     return RangeImageMetrics(groups=out, **top)

@@ -258,10 +258,10 @@ class OutputPlan:
             except OSError:
                 pass  # a missing input is the reader's error
         for r, named in self.directories.items():
-            if r.exists() and not r.is_dir():
-                raise OutputError(f"{named} exists and is not a directory")
             if r in self.inputs:
                 raise OutputError(f"{named} is an input of this command")
+            if r.exists() and not r.is_dir():
+                raise OutputError(f"{named} exists and is not a directory")
         for r, named in [*self.outputs.items(), *self.resumed.items()]:
             resumed = r in self.resumed
             if r in self.inputs:

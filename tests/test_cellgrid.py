@@ -61,6 +61,15 @@ def test_clouds_the_grid_cannot_hold_are_refused():
         CellGrid(np.array([[0.0, 0, 0], [1e6, 0, 0]]), 0.1)
 
 
+def test_a_radius_too_small_for_int64_cell_counts_is_refused_not_wrapped():
+    """20 m of cloud at a 1e-30 m radius is 2e31 cells: more than int64 holds. The count once
+    wrapped to a negative number, passed the size check, and every query found nothing."""
+    r = np.random.default_rng(0).uniform(-10, 10, (50, 3))
+    for radius in (1e-30, 1e-300):
+        with pytest.raises(GridUnsuitable, match="spans"):
+            CellGrid(r, radius)
+
+
 def test_far_coordinates_and_tiny_radii_are_gridded_exactly():
     # the case a CI run once found refused: UTM-size coordinates, 3 cm cells
     rng = np.random.default_rng(1)

@@ -1,3 +1,4 @@
+import csv
 import json
 import math
 
@@ -7,6 +8,7 @@ import pytest
 from slr_ray import prepare
 from slr_ray.evaluate import (METHODS, evaluate_pair, evaluation_table, fitted_pattern, register, scan_order_beams,
                               write_evaluation, zbuffer)
+from slr_ray.errors import InputValueError, OutputError
 from slr_ray.sensors import BeamPattern, sensor
 from slr_ray.similarity import nearest_distances
 
@@ -142,8 +144,21 @@ def test_write_evaluation_refuses_a_non_empty_directory(pair, tmp_path):
     assert len(doc["table"]) == len(METHODS) and "images" not in doc
     assert (out / "table.csv").read_text().count("\n") == len(METHODS) + 1
     assert (out / "table.md").read_text().startswith("| method |")
-    assert set(paths) == {"json", "markdown", "csv", "figure"}
-    with pytest.raises(FileExistsError):
+    assert set(paths) == {"json", "markdown", "csv", "splits", "figure"}
+    # compact: one line per figure block (a split's figures), not one per number
+    lines = (out / "evaluation.json").read_text().splitlines()
+    blocks = sum(len(g) for r in res["rows"] for part in ("points", "image") for g in r[part]["groups"].values())
+    assert len(lines) < 3 * blocks
+    # the splits as a long table: one row per method, part, split and label; the same figures as the JSON
+    with open(out / "splits.csv", newline="") as f:
+        rows = list(csv.DictReader(f))
+    assert len(rows) == blocks
+    row = next(r for r in rows if r["method"] == "binning" and r["part"] == "points" and r["split"] == "seen"
+               and r["label"] == "seen")
+    want = doc["rows"][1]["points"]["groups"]["seen"]["seen"]
+    assert float(row["P@5cm"]) == want["fscore"]["5cm"]["precision"]
+    assert int(row["target_points"]) == want["target_points"]
+    with pytest.raises(OutputError):
         write_evaluation(res, out)
     write_evaluation(res, out, force=True)
 
@@ -169,5 +184,110 @@ def test_cli_evaluate(tmp_path, capsys):
     assert res["registration"]["fitness"] > 0.5
     assert abs(res["registration"]["translation_m"][0] - 0.5) < 0.05
     assert [r["method"] for r in res["table"]] == ["no SLR (z-buffer)", "binning"]
-    assert main(argv) == 2 and "not empty" in capsys.readouterr().err
+    assert main(argv) == 2 and "exists (use --force" in capsys.readouterr().err
     assert main(argv + ["--force"]) == 0
+
+
+def offset_beams_frame(seed=5):
+    """A room scanned with SMALL, each beam's points lifted by that beam's own laser height
+    (0-0.3 m, as a real unit's): at short range a beam's points leave its elevation band, so
+    rows by beam and rows by band differ, as on KITTI's frames."""
+    from slr_ray import scan_mesh
+
+    s = scan_mesh(room(), [0.0, 0, 0], SMALL)
+    beams = SMALL.beam_of_row[s.pulses[:, 0]]
+    lift = np.random.default_rng(seed).uniform(0.0, 0.3, SMALL.n_beams)
+    pts = s.points + np.c_[np.zeros((len(s), 2)), lift[beams]]
+    return pts, beams
+
+
+def perfect(row):
+    return (row["cd_sum_m2"] == 0.0 and all(row[f"{k}@{t}"] == 1.0 for k in "PRF" for t in ("5cm", "10cm"))
+            and row["depth_rmse_m"] == 0.0 and row["drop_accuracy"] == 1.0)
+
+
+def test_a_frame_against_itself_scores_perfectly_moved_or_not():
+    """B = A (or A seen from a known pose: B = R^T (A - t), the pose given): the baseline, A's
+    points as they are, must score a perfect Chamfer, F-score, depth and ray drop, and binning a
+    perfect image (its points are one per pulse: recall below 1 is SLR's resampling). The real
+    image was once made by beam rows and the simulated ones by elevation bands, which scored
+    a frame against itself at metres of depth RMSE."""
+    a, beams = offset_beams_frame()
+    ang = math.radians(7.0)
+    R = np.array([[math.cos(ang), -math.sin(ang), 0], [math.sin(ang), math.cos(ang), 0], [0, 0, 1]])
+    t = np.array([0.4, -0.2, 0.05])
+    for T in (np.eye(4), np.r_[np.c_[R, t], [[0, 0, 0, 1]]]):
+        b = (a - T[:3, 3]) @ T[:3, :3]  # A's points in B's frame, as evaluate_pair moves them
+        res = evaluate_pair(a, b, a_beams=beams, b_beams=beams, sensor=SMALL, transform=T,
+                            methods=("zbuffer", "binning"))
+        base, binning = evaluation_table(res)
+        assert perfect(base), base
+        assert res["unseen_share"] == 0.0
+        assert (binning["depth_rmse_m"], binning["drop_accuracy"], binning["P@5cm"]) == (0.0, 1.0, 1.0)
+
+
+def test_frames_not_in_their_sensor_frame_are_refused():
+    """A frame whose points are not around its sensor (UTM coordinates, or an offset) leaves
+    nothing in the table's view: refused by name, not scored as a perfect empty match."""
+    a, beams = offset_beams_frame()
+    for b in (a + [4.5e5, 5.4e6, 100.0], np.empty((0, 3))):
+        with pytest.raises(InputValueError, match="b_points.*sensor"):
+            evaluate_pair(a, b, a_beams=None, b_beams=None, sensor=SMALL, transform=np.eye(4))
+        with pytest.raises(InputValueError, match="a_points.*sensor"):  # before any registration
+            evaluate_pair(b, a, a_beams=None, b_beams=None, sensor=SMALL)
+
+
+def test_a_failed_registration_is_refused_unless_accepted():
+    """Two tiny frames that do not overlap: ICP finds nothing (fitness 0) and the pose is
+    garbage; the evaluation says so instead of scoring at that pose."""
+    rng = np.random.default_rng(0)
+    a = rng.uniform(-20, 20, (40, 3))
+    b = rng.uniform(-20, 20, (40, 3))
+    with pytest.raises(InputValueError, match="fitness"):
+        evaluate_pair(a, b, a_beams=None, b_beams=None, sensor=SMALL, methods=("zbuffer",))
+    res = evaluate_pair(a, b, a_beams=None, b_beams=None, sensor=SMALL, methods=("zbuffer",), min_fitness=0.0)
+    assert res["registration"]["fitness"] < 0.3
+    for bad in (math.nan, -0.1, 1.5):
+        with pytest.raises(InputValueError, match="min_fitness must"):
+            evaluate_pair(a, b, a_beams=None, b_beams=None, sensor=SMALL, methods=("zbuffer",), min_fitness=bad)
+
+
+def test_cli_evaluate_moves_frames_with_a_recorded_origin_to_their_sensor(tmp_path, capsys):
+    """.npz/.pcd/.e57 record the scanner's position: frames stored in world (UTM) coordinates
+    are evaluated about their origins, as the same frames in their sensor's frame."""
+    from slr_ray.cli import main
+    from slr_ray.io import PointCloud, write_cloud
+
+    a, beams = offset_beams_frame()
+    utm = np.array([4.5e5, 5.4e6, 120.0])
+    out = {}
+    for kind, shift in (("local", None), ("utm", utm)):
+        files = []
+        for name in "ab":
+            p = tmp_path / f"{kind}_{name}.npz"
+            write_cloud(p, PointCloud(a if shift is None else a + shift, {"ring": beams.astype(np.int32)},
+                                      None if shift is None else shift))
+            files.append(str(p))
+        eye = tmp_path / "eye.txt"
+        np.savetxt(eye, np.eye(4))
+        assert main(["evaluate", *files, "-o", str(tmp_path / kind), "--sensor", "velodyne_vlp16", "--quiet",
+                     "--methods", "zbuffer", "--transform", str(eye)]) == 0
+        out[kind] = json.loads(capsys.readouterr().out)["table"][0]
+    assert perfect(out["local"]) and perfect(out["utm"])
+
+
+def test_cli_evaluate_refuses_to_write_over_its_inputs(tmp_path, capsys):
+    from slr_ray.cli import main
+    from slr_ray.io import PointCloud, write_cloud
+
+    a, beams = offset_beams_frame()
+    p = tmp_path / "a.npz"
+    write_cloud(p, PointCloud(a, {"ring": beams.astype(np.int32)}))
+    before = p.read_bytes()
+    assert main(["evaluate", str(p), str(p), "-o", str(p), "--quiet", "--force"]) == 2
+    assert p.read_bytes() == before and "input" in capsys.readouterr().err
+    other = tmp_path / "notes.txt"  # an existing file as the output directory: said as such
+    other.write_text("mine")
+    for force in ([], ["--force"]):
+        assert main(["evaluate", str(p), str(p), "-o", str(other), "--quiet", *force]) == 2
+        assert "not a directory" in capsys.readouterr().err and other.read_text() == "mine"

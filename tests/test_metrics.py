@@ -23,7 +23,9 @@ def brute_point_metrics(t, s, taus):
     for tau in taus:
         p = sum(x < tau for x in d_s) / len(s) if len(s) else math.nan
         r = sum(x < tau for x in d_t) / len(t) if len(t) else math.nan
-        f = math.nan if math.isnan(p) or math.isnan(r) else (0.0 if p + r == 0 else 2 * p * r / (p + r))
+        # one side empty: it recovered (or holds) nothing, F = 0; both empty: nothing to score
+        f = (math.nan if math.isnan(p) and math.isnan(r) else 0.0 if math.isnan(p) or math.isnan(r) or p + r == 0
+             else 2 * p * r / (p + r))
         out[tau] = (p, r, f)
     return out, d
 
@@ -51,8 +53,8 @@ def test_point_metrics_equal_brute_force(t, s, offset):
     m = point_metrics(t, s, thresholds=taus)
     assert same(m.to_target, ref["to_target"]) and same(m.to_simulated, ref["to_simulated"])
     assert same(m.to_target_distance, ref["to_target_distance"])
-    assert same(m.chamfer_sum, ref["to_target"] + ref["to_simulated"])
-    assert same(m.chamfer_mean, 0.5 * (ref["to_target"] + ref["to_simulated"]))
+    cd = math.inf if (len(t) == 0) != (len(s) == 0) else ref["to_target"] + ref["to_simulated"]
+    assert same(m.chamfer_sum, cd) and same(m.chamfer_mean, 0.5 * cd)
     for tau in taus:
         f = m.fscore[tau]
         for got, want in zip((f["precision"], f["recall"], f["fscore"]), ref[tau]):
@@ -96,7 +98,7 @@ def test_known_values_and_empty():
     assert m.fscore[0.05] == {"precision": 0.5, "recall": 0.5, "fscore": 0.5}
     e = point_metrics(t, np.empty((0, 3)))
     assert math.isinf(e.to_simulated) and math.isnan(e.to_target) and e.fscore[0.05]["recall"] == 0.0
-    assert math.isnan(e.fscore[0.05]["fscore"])
+    assert e.fscore[0.05]["fscore"] == 0.0 and math.isinf(e.chamfer_sum)
     z = point_metrics(np.empty((0, 3)), np.empty((0, 3)))
     assert math.isnan(z.chamfer_sum) and z.target_points == 0
     d, i = nearest(t, np.empty((0, 3)))
@@ -183,3 +185,70 @@ def test_range_bands():
     assert lab.tolist() == ["0-10 m", "0-10 m", "10-80 m", "80-inf m", "none", "none"]
     with pytest.raises(InputValueError):
         range_bands([1.0], edges=(0, 0))
+
+
+@settings(max_examples=60, deadline=None)
+@given(clouds(12).filter(len), st.floats(1e-300, 1e3), st.sampled_from([0.0, 4.5e5, 5.4e6, 1e7]))
+def test_identical_clouds_score_perfectly_at_any_threshold(t, tau, offset):
+    """A cloud against a copy of itself: Chamfer 0 and P = R = F = 1 at every threshold > 0, at UTM
+    offsets too (a 1e-30 m threshold once overflowed the cell grid's cell count and scored 0)."""
+    t = t + offset
+    m = point_metrics(t, t.copy(), thresholds=(tau,))
+    assert m.chamfer_sum == 0.0 and m.to_target_distance == 0.0
+    assert m.fscore[tau] == {"precision": 1.0, "recall": 1.0, "fscore": 1.0}
+    assert seen_from(t, t.copy(), tau).all()
+    img = np.where(np.arange(12).reshape(3, 4) % 5 == 0, np.nan, np.arange(12.0).reshape(3, 4) + 1)
+    r = range_image_metrics(img, img.copy())
+    assert (r.rmse, r.medae, r.accuracy, r.drop_recall, r.drop_precision) == (0.0, 0.0, 1.0, 1.0, 1.0)
+
+
+def test_thresholds_may_be_one_number_and_are_checked():
+    t = np.array([[0.0, 0, 0], [1, 0, 0]])
+    s = np.array([[0.0, 0, 0.03], [3, 0, 0]])
+    assert point_metrics(t, s, thresholds=0.05).fscore == point_metrics(t, s, thresholds=(0.05,)).fscore
+    for bad in ("0.05", ["a"], [None], (0.05, -1.0), (0.0,), (math.nan,), (math.inf,)):
+        with pytest.raises(InputValueError, match="thresholds"):
+            point_metrics(t, s, thresholds=bad)
+
+
+def test_group_labels_nan_and_unsortable():
+    """NaN labels form one group (not one per NaN, nor none: every point is counted once);
+    labels numpy cannot order are refused by name."""
+    t = np.array([[0.0, 0, 0], [1, 0, 0], [2, 0, 0]])
+    m = point_metrics(t, t, groups={"g": np.array([np.nan, 1.0, np.nan])})
+    assert sum(b["target_points"] for b in m.groups["g"].values()) == 3
+    assert sum(b["simulated_points"] for b in m.groups["g"].values()) == 3
+    assert len(m.groups["g"]) == 2
+    r = range_image_metrics(np.ones((1, 3)), np.ones((1, 3)), groups={"g": np.array([[np.nan, 1.0, np.nan]])})
+    assert sorted(b["pulses"] for b in r.groups["g"].values()) == [1, 2]
+    with pytest.raises(InputValueError, match="groups"):
+        point_metrics(t, t, groups={"g": np.array(["a", None, "b"], dtype=object)})
+
+
+def test_range_images_refuse_non_positive_ranges_and_non_numbers():
+    """0 is 'no return' in LiDAR-NeRF's panoramas: read as a range it would score 0 m returns;
+    a negative range is garbage. Both are refused (NaN or inf is 'no return' here)."""
+    ok = np.array([[1.0, np.nan]])
+    for bad in (np.array([[0.0, np.nan]]), np.array([[-1.0, 2.0]])):
+        with pytest.raises(InputValueError, match="NaN"):
+            range_image_metrics(bad, ok)
+        with pytest.raises(InputValueError, match="NaN"):
+            range_image_metrics(ok, bad)
+    with pytest.raises(InputValueError):
+        range_image_metrics(np.array([["a", "b"]]), ok)
+
+
+def test_one_empty_side_scores_zero_f_and_infinite_chamfer():
+    """An empty simulation against a real scan recovered nothing: F = 0 and CD = inf (as
+    LiDAR-NeRF's and LiDAR4D's fscore turn their 0/0 into 0), precision undefined (nan); the
+    reverse alike; both empty: nothing to compare, all nan."""
+    t = np.array([[0.0, 0, 0], [1, 0, 0]])
+    e = np.empty((0, 3))
+    for m, side in ((point_metrics(t, e), "precision"), (point_metrics(e, t), "recall")):
+        f = m.fscore[0.05]
+        assert f["fscore"] == 0.0 and math.isnan(f[side])
+        assert math.isinf(m.chamfer_sum) and math.isinf(m.chamfer_mean)
+    z = point_metrics(e, e)
+    assert math.isnan(z.chamfer_sum) and math.isnan(z.fscore[0.05]["fscore"])
+    g = point_metrics(t, e, groups={"g": np.array([0, 1])}).groups["g"]
+    assert all(b["fscore"][0.05]["fscore"] == 0.0 for b in g.values())

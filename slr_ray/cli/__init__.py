@@ -168,8 +168,8 @@ def build_parser() -> argparse.ArgumentParser:
     p.set_defaults(func=evaluate_command)
     p.add_argument("a", help=f"frame A, the primary, in its sensor's frame ({_FORMATS})")
     p.add_argument("b", help="frame B, the real scan to re-simulate, in its sensor's frame")
-    p.add_argument("-o", "--output", required=True, help="output directory (table.md, table.csv, evaluation.json, "
-                   "evaluation.png); refused if it exists and is not empty, unless --force")
+    p.add_argument("-o", "--output", required=True, help="output directory (table.md, table.csv, splits.csv, "
+                   "evaluation.json, evaluation.png); refused if it exists and is not empty, unless --force")
     p.add_argument("--sensor", default="velodyne_hdl64e_s2", choices=list(SENSORS),
                    help="the sensor's shipped beam table (default velodyne_hdl64e_s2, KITTI's)")
     p.add_argument("--beams", default="auto", choices=["auto", "scan-order", "none"],
@@ -180,6 +180,8 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("--transform", help="B's pose in A's frame, a 4 x 4 text matrix, instead of registering")
     p.add_argument("--seen-threshold", type=A.positive_float, default=paper.SIMILARITY_THRESHOLD,
                    help="a point of B is seen from A when an A point is closer than this (m, default 0.1)")
+    p.add_argument("--min-fitness", type=float, default=0.3, help="refuse a registration whose fitness is below "
+                   "this (default 0.3; 0 accepts any)")
     A.add_input_format(p)
     p.add_argument("--quiet", action="store_true", help="no progress bar")
     p.add_argument("--force", action="store_true", help="replace the evaluation files of an existing directory")

@@ -4,41 +4,51 @@ subcommand stands alone: flags in, library call, files and one JSON line out."""
 
 from __future__ import annotations
 
-from pathlib import Path
 
 import numpy as np
 
 from ..errors import InputValueError
-from ..evaluate import evaluate_pair, evaluation_table, write_evaluation
+from ..evaluate import EVALUATION_FILES, evaluate_pair, evaluation_table, write_evaluation
 from ..io import read_cloud
+from ..outputs import OutputPlan
 from .commands import emit
 
 __all__ = ["evaluate"]
 
 
 def evaluate(args):
-    out = Path(args.output)
-    for i in (args.a, args.b):
-        if out.exists() and Path(i).exists() and out.resolve() == Path(i).resolve():
-            raise FileExistsError(f"{out} is an input of this command: refusing to write over it")
-    if out.exists() and (not out.is_dir() or any(out.iterdir())) and not args.force:
-        raise FileExistsError(f"{out} exists and is not empty (use --force to replace its evaluation files)")
+    plan = OutputPlan(force=args.force)
+    for path in (args.a, args.b, args.transform):
+        plan.read(path)
+    out = plan.directory(args.output)
+    for name in EVALUATION_FILES.values():
+        plan.write(out / name)
+    with plan:
+        _evaluate(args, out)
+
+
+def _evaluate(args, out):
     transform = None
     if args.transform:
         transform = np.loadtxt(args.transform, dtype=np.float64, ndmin=2)
         if transform.shape != (4, 4):
             raise InputValueError(f"--transform {args.transform}: expected a 4 x 4 matrix, got {transform.shape}")
     clouds = [read_cloud(p, args.input_format) for p in (args.a, args.b)]
+    frames = []  # each in its sensor's frame: a file that records its scanner's position (.npz, .pcd, .e57)
+    for c in clouds:  # holds world coordinates, moved to that position in float64
+        frames.append(c.points - np.asarray(c.origin, np.float64) if c.origin is not None else c.points)
     beams = []
     for c in clouds:  # a 'ring' field where the file has one, else the scan order (KITTI .bin), or none
         ring = c.attributes.get("ring")
         beams.append(np.asarray(ring, np.int64) if ring is not None and args.beams == "auto" else
                      ("scan-order" if args.beams in ("auto", "scan-order") else None))
-    res = evaluate_pair(clouds[0].points, clouds[1].points, a_beams=beams[0], b_beams=beams[1], sensor=args.sensor,
+    res = evaluate_pair(frames[0], frames[1], a_beams=beams[0], b_beams=beams[1], sensor=args.sensor,
                         methods=args.methods, transform=transform, seen_threshold=args.seen_threshold,
-                        progress=not args.quiet)
-    paths = write_evaluation(res, out, force=args.force,
-                             inputs={"a": str(args.a), "b": str(args.b), "sensor": args.sensor, "beams": args.beams})
+                        min_fitness=args.min_fitness, progress=not args.quiet)
+    paths = write_evaluation(res, out, force=True,  # the plan checked --force file by file
+                             inputs={"a": str(args.a), "b": str(args.b), "sensor": args.sensor, "beams": args.beams,
+                                     "origins": [None if c.origin is None else np.asarray(c.origin).tolist()
+                                                 for c in clouds]})
     emit({"a": str(args.a), "b": str(args.b), "output_dir": str(out), "files": paths,
           "registration": res["registration"], "unseen_share": res["unseen_share"], "seconds": res["seconds"],
           "table": evaluation_table(res)})
