@@ -11,13 +11,15 @@ Modules: :mod:`.options` (:class:`Effects`), :mod:`.returns` (beam
 divergence, multiple returns), :mod:`.noise` (range noise, blind zone,
 maximum range by reflectivity), :mod:`.raydrop` (a drop model fitted from a
 real frame), :mod:`.intensity`, :mod:`.motion` (motion during a sweep) and
-:mod:`.simulate` (the stages in order).
+:mod:`.simulate` (the stages in order) and :mod:`.scoring` (a scan with effects
+as range and intensity images, scored against a real frame).
 """
 
-from .motion import pose
+from .motion import deskew, pose
 from .options import Effects
 from .raydrop import RayDropModel, fit_ray_drop, frame_pulses, rings_from_scan_order
+from .scoring import intensity_metrics, range_image
 from .simulate import EffectScan, simulate
 
 __all__ = ["Effects", "EffectScan", "simulate", "RayDropModel", "fit_ray_drop", "frame_pulses",
-           "rings_from_scan_order", "pose"]
+           "rings_from_scan_order", "pose", "deskew", "range_image", "intensity_metrics"]

@@ -13,8 +13,19 @@ translation linearly, rotation by spherical linear interpolation (slerp).
 columns): every column its own with the embree backend, a few with
 binning, which scans the whole cloud once per sector.
 
-The result is written in the sensor frame at the end of the sweep, as
-drivers write a frame: ``p_end = R_end^T (p_world - t_end)``.
+Where the sweep starts and which way it turns are options: Velodyne units
+turn clockwise seen from above (azimuth ``atan2(y, x)`` falling), and a
+KITTI frame starts and ends at the rear (``start_deg=180, clockwise=True``:
+the timing KISS-ICP gives KITTI's raw frames, ``t = (1 - atan2(y, x) / pi) /
+2``). With a start inside the column range, the sectors are also split at
+it, so no sector straddles the sweep's first and last columns.
+
+The result is written in the sensor frame at the end of the sweep, as a
+motion-compensating driver writes a frame: ``p_end = R_end^T (p_world -
+t_end)``; or, as a raw frame is written (KITTI raw; a driver that does not
+compensate), each return in the sensor frame of the pose its column fired
+from (:func:`to_firing_frames`). :func:`deskew` undoes the latter: a raw
+frame's points into the poses' (world) frame.
 """
 
 from __future__ import annotations
@@ -24,7 +35,8 @@ from scipy.spatial.transform import Rotation, Slerp
 
 from ..errors import InputValueError
 
-__all__ = ["pose", "as_poses", "interpolate_poses", "column_sectors", "to_frame"]
+__all__ = ["pose", "as_poses", "interpolate_poses", "column_sectors", "column_times", "azimuth_times", "to_frame",
+           "to_firing_frames", "deskew"]
 
 
 def pose(translation=(0.0, 0.0, 0.0), yaw_deg: float = 0.0, pitch_deg: float = 0.0,
@@ -70,14 +82,73 @@ def interpolate_poses(poses, times):
     return rot.reshape(-1, 3, 3), origin
 
 
-def column_sectors(n_columns: int, sectors: int):
+def azimuth_times(azimuth_deg, start_deg: float = 0.0, clockwise: bool = False) -> np.ndarray:
+    """Firing time, as a fraction of the sweep in [0, 1), of a return at ``azimuth_deg``
+    (``atan2(y, x)``, degrees) of a sweep that starts at ``start_deg`` and turns
+    counter-clockwise (azimuth rising) or ``clockwise``."""
+    az = np.asarray(azimuth_deg, np.float64)
+    d = (start_deg - az) if clockwise else (az - start_deg)
+    return np.mod(d, 360.0) / 360.0
+
+
+def column_times(n_columns: int, start_deg: float = 0.0, clockwise: bool = False) -> np.ndarray:
+    """``(n_columns,)`` firing time of each column (its centre azimuth ``(h + 1/2) 360 / n``),
+    fractions of the sweep; ``(h + 1/2) / n`` with the defaults."""
+    n = int(n_columns)
+    return azimuth_times((np.arange(n) + 0.5) * 360.0 / n, start_deg, clockwise)
+
+
+def column_sectors(n_columns: int, sectors: int, start_deg: float = 0.0, clockwise: bool = False):
     """``(starts, stops, times)`` of ``sectors`` groups of consecutive columns,
-    each with the mean firing time of its columns (fractions of the sweep)."""
-    sectors = max(1, min(int(sectors), int(n_columns)))
-    edges = np.linspace(0, n_columns, sectors + 1).round().astype(np.int64)
+    each with the mean firing time of its columns (fractions of the sweep).
+    A sweep that starts inside the column range is split there too (one
+    sector more), so no sector holds both the first and the last firings."""
+    n = int(n_columns)
+    sectors = max(1, min(int(sectors), n))
+    tc = column_times(n, start_deg, clockwise)
+    seam = np.flatnonzero(np.abs(np.diff(tc)) > 0.5) + 1  # where the time wraps from the end to the start
+    edges = np.unique(np.r_[np.linspace(0, n, sectors + 1).round().astype(np.int64), seam])
     starts, stops = edges[:-1], edges[1:]
-    times = 0.5 * (starts + stops) / n_columns  # mean of (h + 1/2) / n over the sector
+    times = np.add.reduceat(tc, starts) / (stops - starts)
     return starts, stops, times
+
+
+def to_firing_frames(points, columns, n_columns: int, poses, sectors: int | None = None, start_deg: float = 0.0,
+                     clockwise: bool = False) -> np.ndarray:
+    """``(m, 3)`` world points, each in the sensor frame of the pose its column fired from
+    (:func:`column_sectors` with the same arguments as the scan): a raw frame.
+
+    Parameters
+    ----------
+    points : (m, 3) float
+        In the poses' (world) frame.
+    columns : (m,) int
+        Each point's column.
+    n_columns : int
+    poses : (k, 4, 4) float
+    sectors : int, optional
+        Default: every column its own pose.
+    """
+    p = np.asarray(points, np.float64)
+    h = np.asarray(columns, np.int64)
+    starts, _, times = column_sectors(n_columns, sectors or n_columns, start_deg, clockwise)
+    rot, org = interpolate_poses(poses, times)
+    sec = np.searchsorted(starts, h, side="right") - 1
+    return np.einsum("mji,mj->mi", rot[sec], p - org[sec])
+
+
+def deskew(points, poses, start_deg: float = 0.0, clockwise: bool = False) -> np.ndarray:
+    """A raw frame (each point in the sensor frame of its firing pose) into the poses'
+    (world) frame: ``R(t) p + o(t)``, ``t`` from each point's azimuth (:func:`azimuth_times`).
+
+    To compensate a frame for a constant motion ``delta`` (the sensor's pose at the
+    sweep's end in the frame of its start), pass ``poses=[identity, delta]`` and
+    :func:`to_frame` the result into the pose of your reference time.
+    """
+    p = np.asarray(points, np.float64)
+    t = azimuth_times(np.degrees(np.arctan2(p[:, 1], p[:, 0])), start_deg, clockwise)
+    rot, org = interpolate_poses(poses, t)
+    return np.einsum("mij,mj->mi", rot, p) + org
 
 
 def to_frame(points, pose_matrix) -> np.ndarray:

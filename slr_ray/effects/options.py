@@ -19,12 +19,14 @@ from pathlib import Path
 from ..errors import InputValueError
 from .raydrop import RayDropModel
 
-__all__ = ["Effects", "RETURN_KINDS", "INTENSITY_MODES"]
+__all__ = ["Effects", "RETURN_KINDS", "INTENSITY_MODES", "MOTION_FRAMES"]
 
 #: Which returns of a pulse a multiple-return scan reports.
 RETURN_KINDS = ("first", "last", "strongest", "all")
 #: What happens to the primary point's intensity.
 INTENSITY_MODES = ("carry", "correct")
+#: The frame a scan with motion is written in: the end pose's (compensated), or each column's (raw).
+MOTION_FRAMES = ("sensor-end", "firing")
 
 
 def _positive(name, v, allow_zero=False):
@@ -81,6 +83,15 @@ class Effects:
     motion_sectors : int, optional
         Azimuth sectors with one pose each (default: every column with the
         embree backend, 72 with binning, which scans once per sector).
+    sweep_start_deg : float
+        Azimuth (``atan2(y, x)``, degrees) where the sweep starts (KITTI: 180).
+    sweep_clockwise : bool
+        The sweep turns clockwise seen from above (Velodyne units, KITTI);
+        default counter-clockwise (:mod:`slr_ray.effects.motion`).
+    motion_frame : {'sensor-end', 'firing'}
+        With motion: every return in the sensor frame at the sweep's end (a
+        motion-compensated frame) or in the frame of the pose its column fired
+        from (a raw frame, as KITTI raw's).
     seed : int
         Seed of every random draw (noise, drop); the same seed, the same scan.
     """
@@ -99,6 +110,9 @@ class Effects:
     intensity: str | None = None
     motion: bool = False
     motion_sectors: int | None = None
+    sweep_start_deg: float = 0.0
+    sweep_clockwise: bool = False
+    motion_frame: str = "sensor-end"
     seed: int = 0
 
     def __post_init__(self):
@@ -137,6 +151,13 @@ class Effects:
         if self.motion_sectors is not None and (int(self.motion_sectors) != self.motion_sectors
                                                 or self.motion_sectors < 1):
             raise InputValueError(f"motion_sectors must be an integer >= 1, got {self.motion_sectors!r}")
+        if not (isinstance(self.sweep_start_deg, (int, float)) and not isinstance(self.sweep_start_deg, bool)
+                and math.isfinite(self.sweep_start_deg)):
+            raise InputValueError(f"sweep_start_deg must be a finite angle in degrees, got {self.sweep_start_deg!r}")
+        if not isinstance(self.sweep_clockwise, bool):
+            raise InputValueError(f"sweep_clockwise must be true or false, got {self.sweep_clockwise!r}")
+        if self.motion_frame not in MOTION_FRAMES:
+            raise InputValueError(f"motion_frame must be one of {MOTION_FRAMES}, got {self.motion_frame!r}")
         if isinstance(self.ray_drop, (str, Path)):
             path = Path(self.ray_drop)
             if not path.is_file():

@@ -9,7 +9,9 @@ Order of the stages (each skipped when its effect is off):
    range, incidence and intensity; a dropped pulse loses all its returns;
 3. blind zone and the maximum range of each return's reflectivity (:mod:`.noise`);
 4. range noise along each return's ray (:mod:`.noise`);
-5. intensity, carried or corrected (:mod:`.intensity`).
+5. intensity, carried or corrected (:mod:`.intensity`);
+6. with motion, the frame: the sensor's at the sweep's end, or each column's
+   firing pose (``motion_frame='firing'``, a raw frame).
 
 With every effect off the result is the ideal scan: the same points, the
 same indices (``EffectScan.ideal`` holds it).
@@ -64,7 +66,7 @@ class EffectScan:
         Share of the pulse's footprint behind the return (1 without divergence).
     intensity : (m,) float64 or None
         None when the cloud has none or ``intensity`` is off.
-    frame : {'world', 'sensor-end'}
+    frame : {'world', 'sensor-end', 'firing'}
     ideal : Scan or None
         The ideal scan the effects start from (None when rays were cast here).
     info : dict
@@ -111,7 +113,8 @@ def _cast_returns(scanner, origin, pattern, eff: Effects, poses, intensity):
     if poses is None:
         starts, stops, rots, origins = [0], [nh], np.eye(3)[None], origin[None]
     else:
-        starts, stops, times = _motion.column_sectors(nh, eff.motion_sectors or nh)
+        starts, stops, times = _motion.column_sectors(nh, eff.motion_sectors or nh, eff.sweep_start_deg,
+                                                       eff.sweep_clockwise)
         rots, origins = _motion.interpolate_poses(poses, times)
     dirs_all, vv, hh = pulse_rays(pattern)
     dirs_all = dirs_all.reshape(nv, nh, 3)
@@ -140,7 +143,8 @@ def _cast_returns(scanner, origin, pattern, eff: Effects, poses, intensity):
 def _binning_motion(scanner, pattern, eff: Effects, poses):
     """Binning with motion: the cloud seen from each sector's pose, one binning scan per sector."""
     nh = pattern.shape[1]
-    starts, stops, times = _motion.column_sectors(nh, eff.motion_sectors or 72)
+    starts, stops, times = _motion.column_sectors(nh, eff.motion_sectors or 72, eff.sweep_start_deg,
+                                                   eff.sweep_clockwise)
     rots, origins = _motion.interpolate_poses(poses, times)
     parts = []
     for a, b, rot, o in zip(starts, stops, rots, origins):
@@ -297,7 +301,12 @@ def simulate(scanner, origin, pattern, effects=None, *, intensity=None, normals=
         secs["intensity"] = time.perf_counter() - t0
     pts = g["fire"] + g["dir"] * g["range"][:, None]
     frame = "world"
-    if poses is not None:
+    if poses is not None and eff.motion_frame == "firing":
+        sectors = eff.motion_sectors or (pattern.shape[1] if embree else 72)
+        pts = _motion.to_firing_frames(pts, g["h"], pattern.shape[1], poses, sectors, eff.sweep_start_deg,
+                                       eff.sweep_clockwise)
+        frame = "firing"
+    elif poses is not None:
         pts = _motion.to_frame(pts, poses[-1])
         frame = "sensor-end"
     if ideal is not None and len(g["v"]) == len(ideal.indices) and not eff.range_noise:
