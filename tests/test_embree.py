@@ -634,10 +634,15 @@ def test_discs_at_an_edge_do_not_reach_the_surface_behind():
     pts = scan_mesh(trimesh.util.concatenate([plate, wall]), [0, 0, 0], ScanPattern(0.02)).points
     on_plate = pts[:, 0] < 20.5
     spacing = 20 * np.radians(0.02)  # 7 mm
-    auto = prepare(pts, "embree", primary_origin=[0, 0, 0], primary_resolution=0.02)
-    loose = prepare(pts, "embree", primary_origin=[0, 0, 0], primary_resolution=0.02, grid_gate=0.1)
+    kw = dict(primary_origin=[0, 0, 0], primary_resolution=0.02)
+    auto = prepare(pts, "embree", grid_spacing="mean", **kw)
+    loose = prepare(pts, "embree", grid_spacing="mean", grid_gate=0.1, **kw)
     assert auto.radii[on_plate].max() < 3 * spacing
     assert loose.radii[on_plate].max() > 20 * spacing  # what the fixed gate did
+    # step spacing (the default) takes the nearer neighbour along each axis: the
+    # plate's own, whatever the gate lets in from behind
+    step = prepare(pts, "embree", grid_gate=0.1, **kw)
+    assert step.radii[on_plate].max() < 3 * spacing
 
 
 @pytest.mark.parametrize("seed", [0, 1, 2])
@@ -681,7 +686,9 @@ def test_max_incidence_and_ties_defaults_and_errors():
     # kNN normals are not turned by default (exact on noiseless ground: turned, they stand up)
     assert discs(pts, primary_origin=[0, 0, 0]).options.max_incidence == 90.0
     grid = {"primary_origin": [0, 0, 0], "primary_resolution": 0.5}
-    sc = discs(pts, **grid)
+    # step-spaced grid discs (the default for a uniform primary) are kNN's size on grazing ground: not turned
+    assert discs(pts, **grid).options.max_incidence == 90.0
+    sc = discs(pts, grid_spacing="mean", **grid)
     assert sc.options.max_incidence == 80.0 and sc.options.ties == 1.0
     cos = np.abs((sc.normals.astype(float) * -pts).sum(1)) / np.linalg.norm(pts, axis=1)
     assert cos.min() >= np.cos(np.radians(80.0)) - 1e-6
