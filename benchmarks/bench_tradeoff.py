@@ -41,13 +41,13 @@ def configs(quick: bool, primary_res: float):
     out = [{"name": "binning", "backend": "binning"}]
 
     def embree(orientation="normal", radius="spacing", scale=1.0, ties=1.0, engine="embree", segments=3, k=6,
-               neighbours="knn"):
+               neighbours="knn", grid_spacing=None):
         name = f"embree {orientation} r={radius}x{scale} ties={ties} {engine}" + (
             f" s{segments}" if engine != "embree" else "") + (f" k={k}" if k != 6 else "") + (
-            " grid" if neighbours != "knn" else "")
+            " grid" if neighbours != "knn" else "") + (f" {grid_spacing}" if grid_spacing else "")
         out.append({"name": name, "backend": "embree", "orientation": orientation, "radius": radius,
                      "radius_scale": scale, "ties": ties, "engine": engine, "segments": segments, "k": k,
-                     "neighbours": neighbours})
+                     "neighbours": neighbours, **({"grid_spacing": grid_spacing} if grid_spacing else {})})
 
     for radius in ("spacing", "footprint", 0.02):
         embree("normal", radius)
@@ -58,7 +58,8 @@ def configs(quick: bool, primary_res: float):
     # normals from the primary's own pulse grid (no kd-tree)
     embree("normal", "footprint", neighbours="pulse-grid")
     embree("normal", "footprint", 0.75, neighbours="pulse-grid")
-    embree("normal", "spacing", neighbours="pulse-grid")
+    embree("normal", "spacing", neighbours="pulse-grid")  # the default: grid_spacing='step'
+    embree("normal", "spacing", neighbours="pulse-grid", grid_spacing="mean")  # the default before it
     embree("normal", ties=0.0)
     embree("normal", engine="fan")
     if not quick:
@@ -84,6 +85,8 @@ def main(argv=None):
     ap.add_argument("--seed", type=int, default=0)
     ap.add_argument("--quick", action="store_true")
     ap.add_argument("--only", nargs="+", help="run only the settings whose name contains one of these")
+    ap.add_argument("--name", default="bench_tradeoff",
+                    help="results/<name>.json and results/<name>.png (a partial run keeps the full one)")
     args = ap.parse_args(argv)
 
     secondary = ScanPattern(args.resolution, max_range=args.max_range)
@@ -128,9 +131,9 @@ def main(argv=None):
                   f"precision centre {np.mean([x['precision_center'] for x in r]):.3f}", file=sys.stderr, flush=True)
     summary = summarise(rows)
     print_table(summary)
-    plot(summary, RESULTS / "tradeoff.png")
-    save("bench_tradeoff", {"machine": machine(), "inputs": {
-        "scenes": args.scenes, "positions": positions.tolist(), "primary_resolution": args.primary_resolution,
+    plot(summary, RESULTS / ("tradeoff.png" if args.name == "bench_tradeoff" else f"{args.name}.png"))
+    save(args.name, {"machine": machine(), "inputs": {
+        "scenes": args.scenes, "only": args.only, "positions": positions.tolist(), "primary_resolution": args.primary_resolution,
         "secondary": secondary.to_dict(), "similarity_threshold_m": 0.10,
         "truth": {"center": "one ray per pulse centre", "nearest": "3 x 3 sub-rays per pulse + centre"}},
         "summary": summary, "rows": rows})

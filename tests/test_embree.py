@@ -218,10 +218,13 @@ def test_a_scan_rescanned_from_its_own_origin_keeps_what_binning_keeps(res):
     assert len(e) >= 0.95 * len(b)
 
 
+@pytest.mark.parametrize("grid_spacing, share", [("mean", 0.99), ("step", 0.94)])
 @pytest.mark.parametrize("res", [0.5, 1.0, 2.0])
-def test_a_scan_rescanned_coarser_with_pulse_grid_discs_returns_all_binning_returns(res):
+def test_a_scan_rescanned_coarser_with_pulse_grid_discs_returns_all_binning_returns(res, grid_spacing, share):
     # neighbours from the primary's own pulse grid close the holes between rings
-    # that kNN radii leave (85 % at 1 deg above), and the tie rule in pulse units
+    # that kNN radii leave (85 % at 1 deg above); discs of 'step' spacing (the
+    # default for a uniform primary: kNN's size on grazing ground) leave some
+    # on the room's grazing walls (95.2 % at 1 deg), and the tie rule in pulse units
     # gives each ray the point of its own pulse, also near the poles where the
     # columns converge (94.7 % at 1 deg with the nearest-to-the-ray rule): all
     # rays hit, and precision against the true coarser scan is no lower than binning's
@@ -235,9 +238,9 @@ def test_a_scan_rescanned_coarser_with_pulse_grid_discs_returns_all_binning_retu
     cloud = cloud + np.random.default_rng(0).normal(scale=0.003, size=cloud.shape)
     truth = scan_mesh(room, o, ScanPattern(res)).points
     b = simulate_scan(cloud, o, ScanPattern(res))
-    e = prepare(cloud, "embree", neighbours="pulse-grid", primary_origin=o,
-                primary_resolution=0.5).scan(o, ScanPattern(res))
-    assert len(e) >= 0.99 * len(b)
+    e = prepare(cloud, "embree", neighbours="pulse-grid", primary_origin=o, primary_resolution=0.5,
+                grid_spacing=grid_spacing).scan(o, ScanPattern(res))
+    assert len(e) >= share * len(b)
     assert agreement(truth, cloud[e.indices]).precision >= agreement(truth, cloud[b.indices]).precision
 
 
@@ -631,10 +634,15 @@ def test_discs_at_an_edge_do_not_reach_the_surface_behind():
     pts = scan_mesh(trimesh.util.concatenate([plate, wall]), [0, 0, 0], ScanPattern(0.02)).points
     on_plate = pts[:, 0] < 20.5
     spacing = 20 * np.radians(0.02)  # 7 mm
-    auto = prepare(pts, "embree", primary_origin=[0, 0, 0], primary_resolution=0.02)
-    loose = prepare(pts, "embree", primary_origin=[0, 0, 0], primary_resolution=0.02, grid_gate=0.1)
+    kw = dict(primary_origin=[0, 0, 0], primary_resolution=0.02)
+    auto = prepare(pts, "embree", grid_spacing="mean", **kw)
+    loose = prepare(pts, "embree", grid_spacing="mean", grid_gate=0.1, **kw)
     assert auto.radii[on_plate].max() < 3 * spacing
     assert loose.radii[on_plate].max() > 20 * spacing  # what the fixed gate did
+    # step spacing (the default) takes the nearer neighbour along each axis: the
+    # plate's own, whatever the gate lets in from behind
+    step = prepare(pts, "embree", grid_gate=0.1, **kw)
+    assert step.radii[on_plate].max() < 3 * spacing
 
 
 @pytest.mark.parametrize("seed", [0, 1, 2])
@@ -678,7 +686,9 @@ def test_max_incidence_and_ties_defaults_and_errors():
     # kNN normals are not turned by default (exact on noiseless ground: turned, they stand up)
     assert discs(pts, primary_origin=[0, 0, 0]).options.max_incidence == 90.0
     grid = {"primary_origin": [0, 0, 0], "primary_resolution": 0.5}
-    sc = discs(pts, **grid)
+    # step-spaced grid discs (the default for a uniform primary) are kNN's size on grazing ground: not turned
+    assert discs(pts, **grid).options.max_incidence == 90.0
+    sc = discs(pts, grid_spacing="mean", **grid)
     assert sc.options.max_incidence == 80.0 and sc.options.ties == 1.0
     cos = np.abs((sc.normals.astype(float) * -pts).sum(1)) / np.linalg.norm(pts, axis=1)
     assert cos.min() >= np.cos(np.radians(80.0)) - 1e-6

@@ -10,12 +10,14 @@ from ...errors import InputValueError
 from ...pattern import as_pattern
 from ..base import BackendOptions
 
-__all__ = ["EmbreeOptions", "RADIUS_MODES", "ORIENTATIONS", "ENGINES", "NEIGHBOURS", "DEFAULT_MAX_INCIDENCE"]
+__all__ = ["EmbreeOptions", "RADIUS_MODES", "ORIENTATIONS", "ENGINES", "NEIGHBOURS", "GRID_SPACINGS",
+           "DEFAULT_MAX_INCIDENCE"]
 
 RADIUS_MODES = ("spacing", "footprint")
 ORIENTATIONS = ("normal", "billboard", "primary")
 ENGINES = ("embree", "fan", "open3d")
 NEIGHBOURS = ("knn", "pulse-grid")
+GRID_SPACINGS = ("mean", "step")
 #: estimated disc normals are turned to meet the primary's line of sight at no more than this (degrees)
 DEFAULT_MAX_INCIDENCE = 80.0
 
@@ -82,11 +84,9 @@ class EmbreeOptions(BackendOptions):
         (kd-tree), or the 8 adjacent pulses of the primary's own pulse grid
         (needs primary_origin and primary_resolution or primary_pattern; no
         kd-tree). Default: 'pulse-grid' when the primary's origin and pattern
-        are given (3.6x faster to prepare on 5 M
-        points, and no holes between rings when re-scanned coarser: 100 % of
-        binning's points against 85 % with kNN; but larger discs on grazing
-        ground: precision 70 % against kNN's 97 % on bare ground, 92 against
-        96.5 % on rect-1000, README "Speed and accuracy"), else 'knn'.
+        are given (3.6x faster to prepare on 5 M points, and no holes between
+        rings when re-scanned coarser: 100 % of binning's points against 85 %
+        with kNN), else 'knn'. How the grid spaces its discs: ``grid_spacing``.
     max_incidence : float, optional
         Degrees. With estimated normals (``orientation='normal'``) and a known
         ``primary_origin``: a disc whose normal makes more than this angle
@@ -95,10 +95,11 @@ class EmbreeOptions(BackendOptions):
         point, so its pulse met a surface that faced it; a disc edge-on to the
         primary comes from a noisy normal (range noise and beam-to-beam range
         offsets of real sensors, on grazing ground), and a ray passing its
-        centre misses it. Default 80 with pulse-grid neighbours (the KITTI
+        centre misses it. Default 80 with pulse-grid neighbours and
+        ``grid_spacing='mean'`` (a beam-table primary; the KITTI
         re-scans of ``ties``, with ``ties=3``: 91-98 % of binning's points
         against 89-97 % without; the same precision on the synthetic
-        scenes), 90 (off) otherwise: kNN normals of noiseless
+        scenes with mean-spacing discs), 90 (off) otherwise: kNN normals of noiseless
         ground are exact, and turned they stand up in the way of other
         positions' rays (precision 96.9 -> 76.7 % on bare ground). Normals
         given by the user are never turned. README "Returned points on
@@ -111,6 +112,21 @@ class EmbreeOptions(BackendOptions):
         primary's pulse step, at most 0.1 (0.1 for pulses of 0.1 deg and
         coarser; 0.014 at 0.0144 deg, where 0.1 let discs at object edges take
         neighbours metres behind them and grow to 7 m).
+    grid_spacing : {'mean', 'step'}, optional
+        With 'pulse-grid' and 'spacing' radii: a point's spacing is the mean
+        distance to its neighbours ('mean'), or twice the smaller of its two
+        axis steps, the distance to the nearer point of the pulses above and
+        below and of those left and right ('step'). On grazing ground the
+        range step between rows is long (``R dtheta / cos(incidence)``) and
+        the azimuth step short; mean-spacing discs span the long step, and
+        a disc's centre then stands in for true points up to a range step
+        away (precision at 10 cm against truth on bare ground, 6 positions:
+        70 % against kNN's 97 %); step discs are kNN's size there (97 %,
+        the same coverage as kNN, 0.3 points below mean-spacing discs).
+        Default: 'step', and 'mean' when the primary is a beam table
+        (``primary_pattern`` a sensor: its rings are far apart, and mean
+        discs close the holes between them). docs/backends.md "Grazing
+        ground".
     """
 
     radius: object = "spacing"
@@ -132,10 +148,12 @@ class EmbreeOptions(BackendOptions):
     neighbours: str | None = None
     grid_gate: float | None = None
     max_incidence: float | None = None
+    grid_spacing: str | None = None
 
     @classmethod
     def choices(cls) -> dict:
-        return {"orientation": ORIENTATIONS, "engine": ENGINES, "neighbours": NEIGHBOURS}
+        return {"orientation": ORIENTATIONS, "engine": ENGINES, "neighbours": NEIGHBOURS,
+                "grid_spacing": GRID_SPACINGS}
 
     def __post_init__(self):
         if isinstance(self.radius, str) and self.radius not in RADIUS_MODES:
@@ -177,8 +195,14 @@ class EmbreeOptions(BackendOptions):
         if self.neighbours == "pulse-grid" and (self.primary_origin is None or self.primary_grid is None):
             raise InputValueError("neighbours='pulse-grid' needs primary_origin and primary_resolution "
                                   "(or primary_pattern)")
+        if self.grid_spacing is None:  # frozen: set through object.__setattr__
+            beams = self.primary_pattern is not None and as_pattern(self.primary_pattern).has_beams
+            object.__setattr__(self, "grid_spacing", "mean" if beams else "step")
+        if self.grid_spacing not in GRID_SPACINGS:
+            raise InputValueError(f"grid_spacing must be one of {GRID_SPACINGS}, got {self.grid_spacing!r}")
         if self.max_incidence is None:  # frozen: set through object.__setattr__
-            grid_normals = self.neighbours == "pulse-grid" and self.orientation == "normal"
+            grid_normals = (self.neighbours == "pulse-grid" and self.orientation == "normal"
+                            and self.grid_spacing == "mean")
             object.__setattr__(self, "max_incidence", DEFAULT_MAX_INCIDENCE if grid_normals else 90.0)
         if not (isinstance(self.max_incidence, (int, float)) and 0 < self.max_incidence <= 90):
             raise InputValueError(f"max_incidence must be degrees in (0, 90], got {self.max_incidence!r}")

@@ -20,6 +20,7 @@ from ...pattern import as_pattern
 from ...raycast import padded_rows
 from ...threads import default_threads
 from .discs import fallback_directions, pca_normal, primary_steps, turned
+from .options import GRID_SPACINGS
 
 __all__ = ["grid_neighbourhoods", "pulse_grid_spacing_normals", "grid_gate", "sorted_pulse_grid"]
 
@@ -343,7 +344,7 @@ def _grid_rows(pts, ranges, sk, order, row_start, tasks, line_len, transposed, g
 
 def pulse_grid_spacing_normals(points, primary_origin, primary_resolution, gate: float | None = None,
                                spacing: bool = True, normals: bool = True, dtype=np.float64,
-                               layout: str = "auto", max_incidence: float = 90.0, beams=None):
+                               layout: str = "auto", max_incidence: float = 90.0, beams=None, spacing_kind: str = "mean"):
     """Mean neighbour spacing ``(n,)`` and PCA normals ``(n, 3)`` of a primary
     scan from its pulse grid, in one pass and without neighbour arrays.
 
@@ -359,11 +360,18 @@ def pulse_grid_spacing_normals(points, primary_origin, primary_resolution, gate:
     (the answer does not depend on it, only the speed); ``max_incidence``
     (degrees): normals turned as they are made to meet the line of sight to
     the primary at no more than this (:class:`EmbreeOptions`; 90: not turned);
-    ``beams``: each point's beam, as in :func:`grid_neighbourhoods`.
+    ``beams``: each point's beam, as in :func:`grid_neighbourhoods`;
+    ``spacing_kind``: ``"mean"`` (the mean distance to the neighbours) or
+    ``"step"`` (twice the smaller of the distances to the nearer neighbour
+    along the grid's two axes: the nearer of the points of the pulses above
+    and below, the nearer of those left and right; grazing ground is spaced
+    by its small azimuth step, not its long range step; :class:`EmbreeOptions`
+    ``grid_spacing``).
     """
     pts = np.ascontiguousarray(points, np.float64)
     n = len(pts)
     o = as_origin(primary_origin, "primary_origin")
+    code = _spacing_code(spacing_kind)
     sp = np.zeros(n) if spacing else np.empty(0)
     # spare rows after the normals: Embree shares float32 ones instead of copying them
     nr = padded_rows(n, dtype) if normals else np.empty((0, 3), dtype)
@@ -375,13 +383,13 @@ def pulse_grid_spacing_normals(points, primary_origin, primary_resolution, gate:
             nr[unseen] = fallback_directions(pts[unseen], o, dtype)
         _grid_fused(pts, ranges, sorted_keys, order, line_start, _row_tasks(line_start, 0, len(line_start) - 1),
                     line_len, transposed, grid_gate(primary_resolution, gate), o, spacing, normals, sp, nr,
-                    math.cos(math.radians(max_incidence)) if max_incidence < 90 else 0.0)
+                    math.cos(math.radians(max_incidence)) if max_incidence < 90 else 0.0, code)
     return (sp if spacing else None), (nr if normals else None)
 
 
 @njit(cache=True, parallel=True)
 def _grid_fused(pts, ranges, sk, order, row_start, tasks, line_len, transposed, gate, po, want_spacing, want_normals,
-                sp, nr, cos_min):
+                sp, nr, cos_min, step):
     sin_min = math.sqrt(max(0.0, 1.0 - cos_min * cos_min))
     for task in prange(len(tasks) - 1):
         best = np.empty(9, np.int64)
@@ -394,9 +402,47 @@ def _grid_fused(pts, ranges, sk, order, row_start, tasks, line_len, transposed, 
                 m = _point_neighbours(pts, sk, order, ranges, row_start, ptr, v, j, gate, line_len, transposed,
                                       best, nbr, dist)
                 if want_spacing and m:
-                    sp[i] = dist[:m].sum() / m
+                    sp[i] = dist[:m].sum() / m if step == 0 else _grid_step(pts, i, best, dist[:m].sum() / m)
                 if want_normals:
                     nx, ny, nz = pca_normal(pts, i, nbr, 8, True, po)
                     if cos_min > 0.0:
                         nx, ny, nz = turned(pts[i, 0], pts[i, 1], pts[i, 2], nx, ny, nz, po, cos_min, sin_min)
                     nr[i, 0], nr[i, 1], nr[i, 2] = nx, ny, nz
+
+
+
+def _spacing_code(kind: str) -> int:
+    if kind not in GRID_SPACINGS:
+        raise InputValueError(f"grid_spacing must be one of {GRID_SPACINGS}, got {kind!r}")
+    return GRID_SPACINGS.index(kind)
+
+
+@njit(cache=True, inline="always")
+def _axis_step(pts, i, a, b):
+    """Distance from point ``i`` to the nearer of the points ``a``, ``b`` (-1: none); 0 when neither."""
+    out = 0.0
+    for q in (a, b):
+        if q >= 0:
+            dx = pts[q, 0] - pts[i, 0]
+            dy = pts[q, 1] - pts[i, 1]
+            dz = pts[q, 2] - pts[i, 2]
+            d = math.sqrt(dx * dx + dy * dy + dz * dz)
+            if out == 0.0 or d < out:
+                out = d
+    return out
+
+
+@njit(cache=True, inline="always")
+def _grid_step(pts, i, best, mean):
+    """``grid_spacing='step'``: twice the smaller of the point's two axis steps
+    (the distance to the nearer neighbour in the adjacent pulses of its own
+    column, slots 1 and 7 of ``best``, and of its own row, slots 3 and 5);
+    the one axis that has neighbours when the other has none, and ``mean``
+    (the mean-distance spacing) when only diagonal pulses have one."""
+    sv = _axis_step(pts, i, best[1], best[7])
+    sh = _axis_step(pts, i, best[3], best[5])
+    if sv == 0.0 and sh == 0.0:
+        return mean
+    if sv == 0.0 or sh == 0.0:
+        return 2.0 * max(sv, sh)
+    return 2.0 * min(sv, sh)

@@ -87,7 +87,8 @@ class DiscScanner(Scanner):
             spacing, grid_normals = pulse_grid_spacing_normals(pts, o.primary_origin, o.primary_grid,
                                                                o.grid_gate, need_spacing, need_normals, ndtype,
                                                                max_incidence=o.max_incidence,
-                                                               beams=o.primary_beams)
+                                                               beams=o.primary_beams,
+                                                               spacing_kind=o.grid_spacing)
             if need_normals:
                 normals = grid_normals
         elif need_spacing or need_normals:
