@@ -297,6 +297,7 @@ def test_one_pass_ties_match_the_brute_force_rule_and_the_two_query_rule(oriente
     two = scene.intersect(o, dirs, ties=ties, one_pass=False)
     for field in ("primitives", "owners", "distances"):
         np.testing.assert_array_equal(getattr(one, field), getattr(two, field))
+    np.testing.assert_array_equal(one.primitives, one.owners)  # discs: the answer's own primitive
     owner, stable = brute_ties(o, dirs, c, r, nrm, ties)
     assert stable.mean() > 0.8 and np.count_nonzero(stable & (owner >= 0)) > 100
     np.testing.assert_array_equal(one.owners[stable], owner[stable])

@@ -71,7 +71,7 @@ _C_SCORE, _C_ORG, _C_DIR, _C_REACH, _C_BEST_T, _C_RSTRIDE, _C_ASPECT = 9, 10, 13
 # one-pass ties: the normals (address, 4 or 8 bytes a value, 0: none), the tie factor, the
 # nearest hit so far (t, owner, primitive), the far end of its window, the candidates
 _C_NORMALS, _C_NBYTES, _C_TIES, _C_FIRST_T, _C_FIRST_OWNER, _C_FIRST_PRIM = 20, 21, 22, 23, 24, 25
-_C_CULL, _C_NCAND, _C_INCOMPLETE, _C_CAND = 26, 27, 28, 29
+_C_CULL, _C_NCAND, _C_INCOMPLETE, _C_BEST_PRIM, _C_CAND = 26, 27, 28, 29, 30
 #: candidates a ray can hold in one pass (t, owner, primitive, score each); beyond, a second query
 _MAX_CANDIDATES = 64
 _CTX_WORDS = _C_CAND + 4 * _MAX_CANDIDATES
@@ -145,6 +145,7 @@ def _filter(fargs):
             if s < ctxf[_C_SCORE] or (s == ctxf[_C_SCORE] and owner < ctx[_C_BEST]):
                 ctxf[_C_SCORE] = s
                 ctx[_C_BEST] = owner
+                ctx[_C_BEST_PRIM] = prim
                 ctxf[_C_BEST_T] = ray[_TFAR]
             valid[0] = 0
             return
@@ -323,7 +324,7 @@ def _cast_rays(isect, scene, filt, org32, org64, dirs, tnear, tfar, mode_first, 
             window = _tie_window(ties, np.float64(radii[owner]), has_normals, nx, ny, nz, dx, dy, dz)
             lo = np.float32(max(np.float64(tnear), t0 - window))
             hi = np.float32(t0 + window)
-            best = np.int64(-1)
+            best = best_prim = np.int64(-1)
             best_t = 0.0
             if one and not ctx[_C_INCOMPLETE]:
                 # the candidates within [lo, hi]: those a second query over the window would meet
@@ -334,7 +335,7 @@ def _cast_rays(isect, scene, filt, org32, org64, dirs, tnear, tfar, mode_first, 
                     if lo <= tc <= hi:
                         s, oc = ctxf[k + 3], ctx[k + 1]
                         if s < score or (s == score and oc < best):
-                            score, best, best_t = s, oc, tc
+                            score, best, best_t, best_prim = s, oc, tc, ctx[k + 2]
             else:
                 rh[3] = lo
                 rh[_TFAR] = hi
@@ -344,10 +345,10 @@ def _cast_rays(isect, scene, filt, org32, org64, dirs, tnear, tfar, mode_first, 
                 ctx[_C_BEST] = -1
                 ctxf[_C_SCORE] = np.inf
                 _call3(isect, scene, rh_ptr, args_ptr)
-                best, best_t = ctx[_C_BEST], ctxf[_C_BEST_T]
+                best, best_t, best_prim = ctx[_C_BEST], ctxf[_C_BEST_T], ctx[_C_BEST_PRIM]
             if best >= 0 and best != owner:
                 owner = best
-                prim = -1  # the owner, not one primitive of it, is the answer
+                prim = best_prim
                 t_hit = best_t
         prim_out[i] = prim
         owner_out[i] = owner
@@ -361,8 +362,8 @@ class RayHits:
     Attributes
     ----------
     primitives : (m,) int64
-        Primitive hit (triangle or disc index), -1 on a miss (and -1 where the
-        tie rule moved the answer to another disc's owner).
+        Primitive hit (triangle or disc index), -1 on a miss; with ``ties``,
+        the primitive of the answer (``owners == primitives // prims_per_owner``).
     owners : (m,) int64
         The primitive's owner: for discs the disc (point) index; for triangles
         the triangle index divided by ``prims_per_owner``. -1 on a miss.
