@@ -329,3 +329,21 @@ def test_one_pass_ties_with_more_candidates_than_one_pass_holds():
     few, stable = brute_ties(o, dirs, c, r, nrm, 0.019)
     assert stable.all()
     np.testing.assert_array_equal(scene.intersect(o, dirs, ties=0.019).owners, few)
+
+
+def test_radii_in_a_vertex_column_are_shared_not_copied():
+    from slr_ray.raycast import disc_vertices
+
+    rng = np.random.default_rng(2)
+    c = rng.uniform(-2, 2, (400, 3))
+    r = disc_vertices(len(c))
+    r[:] = rng.uniform(0.05, 0.3, len(c))
+    nrm = _unit(rng, len(c))
+    shared = RayScene.discs(c, r, nrm)
+    copied = RayScene.discs(c, np.array(r), nrm)
+    assert np.shares_memory(shared.owner_radii, r) and not np.shares_memory(copied.owner_radii, r)
+    assert shared.nbytes == copied.nbytes
+    dirs = _unit(rng, 2000)
+    a, b = shared.intersect([0, 0, 5.0], dirs, ties=1.0), copied.intersect([0, 0, 5.0], dirs, ties=1.0)
+    np.testing.assert_array_equal(a.owners, b.owners)
+    np.testing.assert_array_equal(a.distances, b.distances)

@@ -63,6 +63,7 @@ brute-force ray-disc and ray-triangle intersection.
 
 from .library import embree_available, embree_library
 from .open3d_scene import Open3DScene
-from .scene import RayHits, RayScene, padded_rows
+from .scene import RayHits, RayScene, disc_vertices, padded_rows
 
-__all__ = ["RayScene", "RayHits", "Open3DScene", "embree_library", "embree_available", "padded_rows"]
+__all__ = ["RayScene", "RayHits", "Open3DScene", "embree_library", "embree_available", "padded_rows",
+           "disc_vertices"]

@@ -25,7 +25,7 @@ from .library import (BUFFER_INDEX, BUFFER_NORMAL, BUFFER_VERTEX, FEATURE_FLAGS_
                       RAY_QUERY_FLAG_INVOKE_ARGUMENT_FILTER, SCENE_FLAG_COMPACT,
                       SCENE_FLAG_FILTER_FUNCTION_IN_ARGUMENTS, embree_library)
 
-__all__ = ["RayScene", "RayHits", "padded_rows"]
+__all__ = ["RayScene", "RayHits", "padded_rows", "disc_vertices"]
 
 #: RTCRayHit: RTCRay (48 bytes) + RTCHit (48 bytes with instID[1], instPrimID[1]),
 #: each 16-byte aligned; in float32 slots: ray 0-11, hit 12-23
@@ -489,7 +489,8 @@ class RayScene:
         centres : (n, 3) float64
             Disc centres (kept by reference for the float64 tie rule).
         radii : (n,) float
-            Radii in metres, > 0.
+            Radii in metres, > 0. The radius column of :func:`disc_vertices`
+            becomes Embree's vertex buffer (filled in place, not copied).
         normals : (n, 3) float, optional
             Disc normals (any length > 0): ``ORIENTED_DISC_POINT``. Without,
             ``DISC_POINT``: every disc faces the ray that meets it. A float32
@@ -507,12 +508,13 @@ class RayScene:
         r = np.asarray(radii)
         if c.ndim != 2 or c.shape[1] != 3 or r.shape != (len(c),):
             raise InputValueError(f"centres must be (n, 3) and radii (n,), got {c.shape} and {r.shape}")
+        shared = _vertex_column(r, len(c))  # the radius column of disc_vertices(n): filled in place
         r = r.astype(np.float32, copy=False)  # Embree's precision; a float32 input is not copied
         if len(r) and not (np.all(np.isfinite(r)) and r.min() > 0):
             bad = np.count_nonzero(~(np.isfinite(r) & (r > 0)))
             raise InputValueError(f"disc radii must be finite and > 0 in float32 ({bad} are not)")
         centre = _centre_of(c) if centre is None else as_origin(centre, "centre")
-        vbuf = np.empty((len(c), 4), np.float32)
+        vbuf = shared if shared is not None else np.empty((len(c), 4), np.float32)
         _fill_vertices(c, centre, r, vbuf)  # one parallel pass, no float64 temporaries
         buffers = [(BUFFER_VERTEX, 0, FORMAT_FLOAT4, 16, vbuf, len(c))]
         if normals is not None:
@@ -663,6 +665,23 @@ class RayScene:
             except Exception:  # pragma: no cover - interpreter shutdown
                 pass
             self._scene = None
+
+
+def disc_vertices(n: int) -> np.ndarray:
+    """An uninitialised ``(n,) float32`` radius column of an ``(n, 4)`` vertex buffer:
+    radii written here and handed to :meth:`RayScene.discs` are shared with Embree,
+    not copied (4 bytes a point less at the peak of a build)."""
+    return np.empty((n, 4), np.float32)[:, 3]
+
+
+def _vertex_column(r, n):
+    """The ``(n, 4)`` float32 buffer whose radius column ``r`` is (:func:`disc_vertices`), else None."""
+    base = r.base if isinstance(r, np.ndarray) else None
+    if (base is None or r.dtype != np.float32 or base.dtype != np.float32 or base.shape != (n, 4)
+            or not base.flags.c_contiguous or r.shape != (n,) or r.strides != (16,)
+            or r.ctypes.data != base.ctypes.data + 12):
+        return None
+    return base
 
 
 def padded_rows(n: int, dtype=np.float32) -> np.ndarray:
