@@ -71,8 +71,10 @@ _C_SCORE, _C_ORG, _C_DIR, _C_REACH, _C_BEST_T, _C_RSTRIDE, _C_ASPECT = 9, 10, 13
 # one-pass ties: the normals (address, 4 or 8 bytes a value, 0: none), the tie factor, the
 # nearest hit so far (t, owner, primitive), the far end of its window, the candidates
 _C_NORMALS, _C_NBYTES, _C_TIES, _C_FIRST_T, _C_FIRST_OWNER, _C_FIRST_PRIM = 20, 21, 22, 23, 24, 25
-_C_CULL, _C_NCAND, _C_INCOMPLETE, _C_BEST_PRIM, _C_CAND = 26, 27, 28, 29, 30
-#: candidates a ray can hold in one pass (t, owner, primitive, score each); beyond, a second query
+_C_CULL, _C_NCAND, _C_INCOMPLETE, _C_BEST_PRIM = 26, 27, 28, 29
+# discs: the float32 vertex buffer (0: none) and the ray origin in its frame (float64)
+_C_VERTICES, _C_LOCAL, _C_CAND = 30, 31, 34
+#: candidates a ray can hold in one pass (t, owner, primitive and a spare word each); beyond, a second query
 _MAX_CANDIDATES = 64
 _CTX_WORDS = _C_CAND + 4 * _MAX_CANDIDATES
 #: sin(zenith) below which a ray counts as polar in the pulse-unit tie score
@@ -126,22 +128,36 @@ def _filter(fargs):
     hit = carray(_as_pointer(a[4]), 8, dtype=np.uint32)
     prim = np.int64(hit[5])
     owner = prim // ctx[_C_DIV]
-    cen = carray(_as_pointer(ctx[_C_CENTRES] + owner * 24), 3, dtype=np.float64)
     # float32 radii with a stride: for discs, the radius column of Embree's own vertex buffer
     rad = carray(_as_pointer(ctx[_C_RADII] + owner * ctx[_C_RSTRIDE]), 1, dtype=np.float32)
-    cx = cen[0] - ctxf[_C_ORG]
-    cy = cen[1] - ctxf[_C_ORG + 1]
-    cz = cen[2] - ctxf[_C_ORG + 2]
     mode = ctx[_C_MODE]
     if mode & _MODE_SKIP:
         reach = np.float64(rad[0]) * ctxf[_C_REACH]
-        if cx * cx + cy * cy + cz * cz <= reach * reach:
-            valid[0] = 0
-            return
+        far = False
+        if ctx[_C_VERTICES]:
+            # the float32 centre Embree has just read (in cache) settles all but a thin band
+            # around the reach; the float64 one (a read from memory) decides within it
+            v = carray(_as_pointer(ctx[_C_VERTICES] + owner * 16), 3, dtype=np.float32)
+            vx = np.float64(v[0]) - ctxf[_C_LOCAL]
+            vy = np.float64(v[1]) - ctxf[_C_LOCAL + 1]
+            vz = np.float64(v[2]) - ctxf[_C_LOCAL + 2]
+            margin = 1e-6 * (abs(np.float64(v[0])) + abs(np.float64(v[1])) + abs(np.float64(v[2]))
+                             + abs(ctxf[_C_LOCAL]) + abs(ctxf[_C_LOCAL + 1]) + abs(ctxf[_C_LOCAL + 2])) + 1e-9
+            far = math.sqrt(vx * vx + vy * vy + vz * vz) > reach + margin
+        if not far:
+            cen = carray(_as_pointer(ctx[_C_CENTRES] + owner * 24), 3, dtype=np.float64)
+            cx = cen[0] - ctxf[_C_ORG]
+            cy = cen[1] - ctxf[_C_ORG + 1]
+            cz = cen[2] - ctxf[_C_ORG + 2]
+            if cx * cx + cy * cy + cz * cz <= reach * reach:
+                valid[0] = 0
+                return
     if mode & (_MODE_TIES | _MODE_ONE_PASS):
         dx, dy, dz = ctxf[_C_DIR], ctxf[_C_DIR + 1], ctxf[_C_DIR + 2]
-        s = _tie_score(cx, cy, cz, dx, dy, dz, ctxf[_C_ASPECT])
         if mode & _MODE_TIES:
+            cen = carray(_as_pointer(ctx[_C_CENTRES] + owner * 24), 3, dtype=np.float64)
+            s = _tie_score(cen[0] - ctxf[_C_ORG], cen[1] - ctxf[_C_ORG + 1], cen[2] - ctxf[_C_ORG + 2],
+                           dx, dy, dz, ctxf[_C_ASPECT])
             if s < ctxf[_C_SCORE] or (s == ctxf[_C_SCORE] and owner < ctx[_C_BEST]):
                 ctxf[_C_SCORE] = s
                 ctx[_C_BEST] = owner
@@ -193,8 +209,7 @@ def _filter(fargs):
         k = _C_CAND + 4 * n
         ctxf[k] = t
         ctx[k + 1] = owner
-        ctx[k + 2] = prim
-        ctxf[k + 3] = s
+        ctx[k + 2] = prim  # its score only if it is in the final window (_cast_rays)
         ctx[_C_NCAND] = n + 1
         ray[_TFAR] = np.float32(ctxf[_C_CULL])
 
@@ -237,7 +252,7 @@ def _misses_box(ox, oy, oz, dx, dy, dz, box, tnear, tfar):
 
 @njit(cache=True, nogil=True)
 def _cast_rays(isect, scene, filt, org32, org64, dirs, tnear, tfar, mode_first, ties, one_pass, aspect,
-               centres, radii, normals, div, reach, box, prim_out, owner_out, t_out):
+               centres, radii, normals, div, reach, box, prim_out, owner_out, t_out, vertices, local):
     """Cast rays ``dirs`` from ``org32`` (scene frame) into ``*_out``.
 
     Rays that miss ``box`` (the scene's padded bounds, scene frame) are answered
@@ -261,6 +276,9 @@ def _cast_rays(isect, scene, filt, org32, org64, dirs, tnear, tfar, mode_first, 
     ctxf[_C_ORG + 2] = org64[2]
     ctxf[_C_REACH] = reach
     ctxf[_C_ASPECT] = aspect
+    ctx[_C_VERTICES] = vertices
+    if vertices:
+        ctxf[_C_LOCAL], ctxf[_C_LOCAL + 1], ctxf[_C_LOCAL + 2] = local[0], local[1], local[2]
     ctxf[_C_TIES] = ties
     has_normals = normals.shape[0] > 0
     if has_normals:
@@ -329,11 +347,18 @@ def _cast_rays(isect, scene, filt, org32, org64, dirs, tnear, tfar, mode_first, 
             if one and not ctx[_C_INCOMPLETE]:
                 # the candidates within [lo, hi]: those a second query over the window would meet
                 score = np.inf
+                inside = 0
                 for j in range(ctx[_C_NCAND]):
+                    if lo <= ctxf[_C_CAND + 4 * j] <= hi:
+                        inside += 1
+                # one candidate: the nearest hit itself (no float64 centre to read)
+                for j in range(ctx[_C_NCAND] if inside > 1 else 0):
                     k = _C_CAND + 4 * j
                     tc = ctxf[k]
                     if lo <= tc <= hi:
-                        s, oc = ctxf[k + 3], ctx[k + 1]
+                        oc = ctx[k + 1]
+                        s = _tie_score(centres[oc, 0] - org64[0], centres[oc, 1] - org64[1],
+                                       centres[oc, 2] - org64[2], dx, dy, dz, aspect)
                         if s < score or (s == score and oc < best):
                             score, best, best_t, best_prim = s, oc, tc, ctx[k + 2]
             else:
@@ -422,6 +447,8 @@ class RayScene:
         self.reach = float(reach)
         self.nbytes = int(sum(b[4].nbytes for b in buffers))
         self._has_owners = bool(has_owners)
+        # discs: the float32 centres of Embree's vertex buffer (the filter's quick test before the float64 one)
+        self._vertex_centres = int(buffers[0][4].ctypes.data) if geometry_type != GEOMETRY_TRIANGLE else 0
         # vertex rows (a triangle buffer's spare row excluded): the bounds rays are tested against first
         self._box = _padded_bounds(buffers[0][4], buffers[0][5] if self.n_primitives else 0,
                                    geometry_type != GEOMETRY_TRIANGLE)
@@ -631,7 +658,7 @@ class RayScene:
                          np.float32(tnear), np.float32(tf), mode, float(ties), bool(one_pass),
                          float(pulse_aspect or 0.0),
                          self._owner_centres, self._owner_radii, self._owner_normals, self.prims_per_owner,
-                         self.reach, self._box, prim[a:e], owner[a:e], t[a:e])
+                         self.reach, self._box, prim[a:e], owner[a:e], t[a:e], self._vertex_centres, local)
 
         starts = range(0, m, _TASK_RAYS)
         if n_threads == 1:
