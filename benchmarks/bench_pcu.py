@@ -137,11 +137,48 @@ def run(engine, n):
                       "memory_method": "VmHWM reset after the inputs" if reset else "peak RSS of the process"}))
 
 
+def interleaved(n):
+    """Both libraries in one process, their casts taken in turn (REPEAT rounds): on a
+    shared machine whose speed drifts within a run, the ratios of these medians hold
+    where those of separate processes do not."""
+    import point_cloud_utils as pcu
+
+    from slr_ray import ScanPattern
+    from slr_ray.pattern import pulse_rays
+    from slr_ray.raycast import RayScene
+
+    pts, radii, normals = inputs(n)
+    dirs, _, _ = pulse_rays(ScanPattern(0.144))
+    centre = 0.5 * (pts.min(axis=0) + pts.max(axis=0))
+    scene = RayScene.discs(pts, radii, normals, centre=centre)
+    isect = pcu.RaySurfelIntersector((pts - centre).astype(np.float32), normals.astype(np.float32),
+                                     r=radii.astype(np.float32))
+    o = np.repeat((ORIGIN - centre).astype(np.float32)[None], len(dirs), axis=0)
+    d32 = dirs.astype(np.float32)
+    casts = {"slr_ray discs": lambda: scene.intersect(ORIGIN, dirs),
+             "slr_ray discs, ties": lambda: scene.intersect(ORIGIN, dirs, ties=1.0),
+             "slr_ray discs, ties, two queries": lambda: scene.intersect(ORIGIN, dirs, ties=1.0, one_pass=False),
+             "pcu": lambda: isect.intersect_rays(o, d32)}
+    for f in casts.values():
+        f()
+    times = {k: [] for k in casts}
+    for _ in range(REPEAT):
+        for k, f in casts.items():
+            t0 = time.perf_counter()
+            f()
+            times[k].append(time.perf_counter() - t0)
+    print(json.dumps({"engine": "interleaved", "points": n, "rays": len(dirs),
+                      "cast_seconds": {k: float(np.median(v)) for k, v in times.items()},
+                      "cast_seconds_all": times}))
+
+
 def main(argv=None):
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     ap.add_argument("--points", type=int, default=5_000_000)
     ap.add_argument("--engine", help=argparse.SUPPRESS)
     args = ap.parse_args(argv)
+    if args.engine == "interleaved":
+        return interleaved(args.points)
     if args.engine:
         return run(args.engine, args.points)
     inputs(args.points)  # radii and normals once, outside the timed processes
@@ -150,6 +187,8 @@ def main(argv=None):
         r = run_isolated(__file__, ["--points", str(args.points), "--engine", engine], "engine", engine)
         rows.append(r)
         print(json.dumps(r), file=sys.stderr, flush=True)
+    inter = run_isolated(__file__, ["--points", str(args.points), "--engine", "interleaved"], "engine", "interleaved")
+    print(json.dumps(inter), file=sys.stderr, flush=True)
     ok = {r["engine"]: r for r in rows if "error" not in r}
     if "pcu" in ok and "slr_ray discs, ties" in ok:
         # slr_ray's default (ties, one query) against pcu; medians
@@ -159,6 +198,12 @@ def main(argv=None):
                   "cast_x_faster_without_ties": b["cast_seconds"] / ok.get("slr_ray discs", a)["cast_seconds"],
                   "one_pass_x_faster_than_two_queries": a["two_queries_cast_seconds"] / a["cast_seconds"],
                   "memory_fraction": a["peak_above_inputs_gib"] / max(b["peak_above_inputs_gib"], 1e-9)}
+        if "error" not in inter:  # the same ratios from casts taken in turn in one process
+            c = inter["cast_seconds"]
+            ratios["interleaved"] = {
+                "cast_x_faster": c["pcu"] / c["slr_ray discs, ties"],
+                "cast_x_faster_without_ties": c["pcu"] / c["slr_ray discs"],
+                "one_pass_x_faster_than_two_queries": c["slr_ray discs, ties, two queries"] / c["slr_ray discs, ties"]}
     else:
         ratios = None
     print(f"{'engine':<33} {'build s':>8} {'cast s':>7} {'peak+ GiB':>10} {'rays hit':>10} {'points hit':>11}")
@@ -174,7 +219,14 @@ def main(argv=None):
               f"memory {ratios['memory_fraction']:.2f} of pcu's; one query "
               f"{ratios['one_pass_x_faster_than_two_queries']:.2f}x faster than two, same answers: "
               f"{ok['slr_ray discs, ties']['same_as_two_queries']}")
-    save("bench_pcu", {"machine": machine(), "inputs": vars(args), "rows": rows, "ratios": ratios})
+        if "interleaved" in ratios:
+            q = ratios["interleaved"]
+            print("casts taken in turn in one process (medians): "
+                  + ", ".join(f"{k} {v:.3f} s" for k, v in inter["cast_seconds"].items())
+                  + f"; ties {q['cast_x_faster']:.2f}x pcu, no ties {q['cast_x_faster_without_ties']:.2f}x, "
+                    f"one query {q['one_pass_x_faster_than_two_queries']:.2f}x two")
+    save("bench_pcu", {"machine": machine(), "inputs": vars(args), "rows": rows, "interleaved": inter,
+                       "ratios": ratios})
 
 
 if __name__ == "__main__":
