@@ -347,3 +347,21 @@ def test_radii_in_a_vertex_column_are_shared_not_copied():
     a, b = shared.intersect([0, 0, 5.0], dirs, ties=1.0), copied.intersect([0, 0, 5.0], dirs, ties=1.0)
     np.testing.assert_array_equal(a.owners, b.owners)
     np.testing.assert_array_equal(a.distances, b.distances)
+
+
+@pytest.mark.parametrize("offset", [0.0, 1e5])
+def test_discs_skipped_exactly_at_the_reach(offset):
+    # a disc just inside or just outside its own radius from the ray origin, far from
+    # the scene's centre: the filter's float32 quick test must leave it to float64
+    rng = np.random.default_rng(4)
+    o = np.array([offset, -offset, 3.0])
+    far = o + [40.0, 40.0, 40.0]  # a second disc: the scene's centre is not near the origin
+    for k in range(60):
+        d = _unit(rng, 1)[0]
+        r = float(np.float32(rng.uniform(0.01, 0.5)))  # Embree's radii are float32
+        inside = k % 2 == 0
+        c = o + d * r * (1 - 1e-9 if inside else 1 + 1e-9)
+        assert (np.linalg.norm(c - o) <= r) == inside  # the float64 rule
+        scene = RayScene.discs(np.array([c, far]), np.array([r, 0.1]), np.array([d, [1.0, 0, 0]]))
+        hits = scene.intersect(o, d[None], skip_containing=True)
+        assert hits.owners.tolist() == ([-1] if inside else [0])
