@@ -39,12 +39,18 @@ Ties (discs)
 ------------
 Overlapping discs of one surface are hit at nearly the same distance, and which
 comes first is decided by float32 rounding: the same cloud moved by 10^6 m
-could return a neighbouring point. With ``ties = w > 0`` a second, short query
-collects every disc hit within ``w`` times the depth the first disc spans along
-the ray (its radius over the cosine of the incidence, at most 20 radii) beyond
-the first hit (an Embree filter callback that rejects and records each candidate)
-and returns the one whose centre lies nearest the ray, computed in float64 from
-the input coordinates, then the lowest index. On a sampled surface that is the
+could return a neighbouring point. With ``ties = w > 0`` every disc hit within
+``w`` times the depth the first disc spans along the ray (its radius over the
+cosine of the incidence, at most 20 radii) beyond the first hit is a
+candidate, and the answer is the one whose centre lies nearest the ray,
+computed in float64 from the input coordinates, then the lowest index. One
+query collects them: an Embree filter callback keeps each candidate within
+the window of the nearest hit met so far and accepts it with the ray's end
+moved to that window's far end (Embree keeps a filter's tfar for an accepted
+hit), so traversal culls nothing the rule needs. A ray whose nearer hit
+widens the window past what was already culled, or with more than 64
+candidates, is queried again over its window; ``one_pass=False`` does that
+for every ray (the rule of earlier versions, the same answers). On a sampled surface that is the
 point in the ray's own pulse, whichever larger neighbouring disc happens to be
 met first.
 
@@ -63,6 +69,7 @@ brute-force ray-disc and ray-triangle intersection.
 
 from .library import embree_available, embree_library
 from .open3d_scene import Open3DScene
-from .scene import RayHits, RayScene, padded_rows
+from .scene import RayHits, RayScene, disc_vertices, padded_rows
 
-__all__ = ["RayScene", "RayHits", "Open3DScene", "embree_library", "embree_available", "padded_rows"]
+__all__ = ["RayScene", "RayHits", "Open3DScene", "embree_library", "embree_available", "padded_rows",
+           "disc_vertices"]
