@@ -14,6 +14,12 @@ import numpy as np
 
 RESULTS = Path(__file__).resolve().parent / "results"
 
+# Measure the checkout this script belongs to, not whichever copy of slr_ray is
+# installed (an editable install of another worktree would otherwise be timed).
+_CHECKOUT = str(Path(__file__).resolve().parents[1])
+if _CHECKOUT not in sys.path[:1]:
+    sys.path.insert(0, _CHECKOUT)
+
 
 def machine() -> dict:
     cpu = "unknown"
@@ -35,7 +41,7 @@ def machine() -> dict:
     return {"cpu": cpu, "cores": len(os.sched_getaffinity(0)), "memory_gib": mem and round(mem, 1),
             "python": sys.version.split()[0], "platform": platform.platform(),
             "numpy": np.__version__, "numba": numba.__version__, "scipy": scipy.__version__,
-            "date": time.strftime("%Y-%m-%d %H:%M:%S")}
+            "date": time.strftime("%Y-%m-%d %H:%M:%S"), "checkout": _CHECKOUT}
 
 
 def save(name: str, payload: dict) -> Path:
