@@ -139,8 +139,8 @@ def _scan_one(job, cloud=None):
 
 
 def _run_streamed(jobs, path, pattern, chunk, per_pass, done, progress=False) -> None:
-    """The jobs on a LAS/LAZ file read in chunks, ``per_pass`` positions per two
-    passes over it; ``done(entry)`` in job order."""
+    """The jobs on a LAS/LAZ file read in chunks, ``per_pass`` positions per
+    pass over it; ``done(entry)`` in job order."""
     for b in range(0, len(jobs), per_pass):
         batch = jobs[b:b + per_pass]
         t0 = time.perf_counter()
@@ -227,8 +227,9 @@ class AugmentConfig:
         Stream a LAS/LAZ input ``chunk_size`` points at a time instead of
         reading it whole (clouds larger than memory; binning, uniform
         patterns): positions from the ground points and one point per cell
-        (:func:`slr_ray.streaming.las_positions`), then ``per_pass`` scans per
-        two passes over the file (:func:`slr_ray.streaming.scan_las_many`).
+        (:func:`slr_ray.streaming.las_positions`, two passes), then
+        ``per_pass`` scans per pass over the file
+        (:func:`slr_ray.streaming.scan_las_many`).
         The same positions and files as a whole read, in memory of a chunk,
         the ground points and ``per_pass`` scans; runs in this process
         (``workers`` is not used, ``scheduler`` is refused).

@@ -1,13 +1,17 @@
-"""Scanning LAS/LAZ files larger than memory: two passes over the file in chunks.
+"""Scanning LAS/LAZ files larger than memory: one pass over the file in chunks.
 
-Pass 1 reads coordinates chunk by chunk into a
-:class:`~slr_ray.accumulator.ScanAccumulator` (the exact binning reduction:
-memory is the occupied pulses, not the points); pass 2 reads the file again
-and keeps the raw records of the points the scan selected. The result is the
-same :class:`~slr_ray.io.PointCloud` a whole-file read and
-:func:`~slr_ray.backends.simulate_scan` give (same indices, same records,
-same header, VLRs and EVLRs), with peak memory bounded by one chunk, the
-reduction's state and the scan itself.
+Each chunk's coordinates go into one
+:class:`~slr_ray.accumulator.ScanAccumulator` per scanner position (the exact
+binning reduction: memory is the occupied pulses, not the points); after the
+chunk, the raw records of the chunk's points that are now the nearest in
+their pulse are kept, and kept records that a later chunk beat are dropped
+(:class:`_Candidates`). A point that is the nearest at the end was the
+nearest when its chunk was read, so the records kept at the end are exactly
+the scan's. The result is the same :class:`~slr_ray.io.PointCloud` a
+whole-file read and :func:`~slr_ray.backends.simulate_scan` give (same
+indices, same records, same header, VLRs and EVLRs), with peak memory
+bounded by one chunk, the reduction's state and about twice the scan's
+records, and every chunk decompressed once for all the positions of a batch.
 """
 
 from __future__ import annotations
@@ -83,31 +87,7 @@ def scan_las(path, origin, pattern, chunk: int = DEFAULT_CHUNK, progress: bool =
         raise FormatError(f"{path}: streamed scans read {STREAMED_FORMATS}, not {path.suffix!r}")
     if not path.is_file():
         raise FileNotFoundError(f"no such file: {path}")
-    acc = ScanAccumulator(origin, pattern)
-    bar = _bar(path, "pass 1: scan", progress)
-    for _, _, pts in _chunks(path, chunk):
-        acc.add(np.column_stack([np.asarray(pts.x), np.asarray(pts.y), np.asarray(pts.z)]))
-        if bar is not None:
-            bar.update(len(pts))
-    if bar is not None:
-        bar.close()
-    scan = acc.result()
-    keep = scan.indices  # ascending
-    parts, start, header, evlrs = [], 0, None, []
-    bar = _bar(path, "pass 2: records", progress)
-    for header, evlrs, pts in _chunks(path, chunk):
-        lo, hi = np.searchsorted(keep, [start, start + len(pts)])
-        if hi > lo:
-            parts.append(pts.array[keep[lo:hi] - start])
-        start += len(pts)
-        if bar is not None:
-            bar.update(len(pts))
-    if bar is not None:
-        bar.close()
-    if header is None:
-        raise FormatError(f"{path}: no points")
-    array = np.concatenate(parts) if parts else np.zeros(0, header.point_format.dtype())
-    return _cloud(header, evlrs, array), scan
+    return next(scan_las_many(path, [origin], pattern, chunk=chunk, progress=progress))
 
 
 def _xyz(pts) -> np.ndarray:
@@ -235,47 +215,85 @@ def las_positions(path, n: int, *, seed=0, ground=None, chunk: int = DEFAULT_CHU
 
 def scan_las_many(path, origins, pattern, *, chunk: int = DEFAULT_CHUNK, n_threads: int | None = None,
                   progress: bool = False):
-    """Binning scans of a LAS/LAZ file from several origins: one pass over the
-    file reduces all of them, a second keeps the raw records of each.
+    """Binning scans of a LAS/LAZ file from several origins, in one pass over
+    the file: each chunk is read once and reduced for every origin, and the
+    raw records each scan may keep are kept as the chunks go by.
 
     Yields ``(cloud, scan)`` per origin, in order, as :func:`scan_las` returns
     them (the same clouds, records and indices). Memory: one chunk, one
-    single-thread reduction state per origin (a 0.144 deg pattern: 50 MB;
-    ``n_threads`` of them run at once) and the kept records.
+    reduction state per origin (a 0.144 deg pattern: 50 MB a thread) and up
+    to about twice the kept records of each scan. ``n_threads`` (default all
+    cores) are shared out: the reductions run side by side, one thread each,
+    or a single origin's reduction on all of them.
     """
     path = Path(path)
-    # one thread per reduction, the reductions side by side: the tables of one
-    # thread each (a 0.144 deg pattern: 50 MB a scan) instead of n_threads each
-    accs = [ScanAccumulator(o, pattern, n_threads=1) for o in origins]
-    bar = _bar(path, f"{len(accs)} scans: pass 1", progress)
-    with ThreadPoolExecutor(min(len(accs), n_threads or default_threads())) as pool:
-        for _, _, pts in _chunks(path, chunk):
-            xyz = _xyz(pts)
-            list(pool.map(lambda acc: acc.add(xyz), accs))  # noqa: B023 - run before xyz changes
+    threads = n_threads or default_threads()
+    per = max(1, threads // max(1, len(origins)))
+    accs = [ScanAccumulator(o, pattern, n_threads=per) for o in origins]
+    kept = [_Candidates() for _ in accs]
+    start, header, evlrs = 0, None, []
+
+    def step(acc, cand, xyz, records, start):
+        acc.add(xyz)
+        cand.update(acc.indices(), start, records)
+
+    bar = _bar(path, f"{len(accs)} scan{'s' if len(accs) > 1 else ''}", progress)
+    with ThreadPoolExecutor(max(1, min(len(accs), threads))) as pool:
+        for header, evlrs, pts in _chunks(path, chunk):
+            xyz, records = _xyz(pts), pts.array
+            if len(accs) == 1:
+                step(accs[0], kept[0], xyz, records, start)
+            else:
+                list(pool.map(lambda ac: step(*ac, xyz, records, start), zip(accs, kept)))  # noqa: B023
+            start += len(pts)
             if bar is not None:
                 bar.update(len(pts))
     if bar is not None:
         bar.close()
-    scans = [acc.result() for acc in accs]
-    del accs
-    parts = [[] for _ in scans]
-    start, header, evlrs = 0, None, []
-    bar = _bar(path, f"{len(scans)} scans: pass 2", progress)
-    for header, evlrs, pts in _chunks(path, chunk):
-        if bar is not None:
-            bar.update(len(pts))
-        for scan, part in zip(scans, parts):
-            lo, hi = np.searchsorted(scan.indices, [start, start + len(pts)])
-            if hi > lo:
-                part.append(pts.array[scan.indices[lo:hi] - start])
-        start += len(pts)
-    if bar is not None:
-        bar.close()
     if header is None:
         raise FormatError(f"{path}: no points")
-    for scan, part in zip(scans, parts):
-        array = np.concatenate(part) if part else np.zeros(0, header.point_format.dtype())
-        yield _cloud(header, evlrs, array), scan
+    for i, (acc, cand) in enumerate(zip(accs, kept)):
+        scan = acc.result()
+        accs[i] = kept[i] = None  # each reduction's state and candidates freed once its scan is out
+        yield _cloud(header, evlrs, cand.records(scan.indices, header.point_format.dtype())), scan
+
+
+class _Candidates:
+    """The raw records a streamed scan may still keep: those of points that
+    were the nearest in their pulse when their chunk was reduced, minus those
+    a later chunk has beaten (pruned once they are half of what is held, so
+    the work is linear in the records kept)."""
+
+    def __init__(self):
+        self.parts = []  # (indices, records) per chunk, indices ascending
+        self.held = 0
+
+    def update(self, winners, start, records) -> None:
+        """After the chunk of ``records`` (file indices from ``start``) was reduced:
+        ``winners`` are the indices of the current nearest points, ascending."""
+        lo, hi = np.searchsorted(winners, [start, start + len(records)])
+        if hi > lo:
+            new = winners[lo:hi]
+            self.parts.append((new, records[new - start]))
+            self.held += hi - lo
+        if self.held > 2 * len(winners):
+            self.parts = [self._pruned(idx, rec, winners) for idx, rec in self.parts]
+            self.held = sum(len(idx) for idx, _ in self.parts)
+
+    @staticmethod
+    def _pruned(idx, rec, winners):
+        at = np.searchsorted(winners, idx).clip(max=len(winners) - 1)
+        keep = winners[at] == idx
+        return idx[keep], rec[keep]
+
+    def records(self, indices, dtype) -> np.ndarray:
+        """The records of the scan's ``indices`` (ascending), in that order."""
+        parts = [self._pruned(idx, rec, indices)[1] for idx, rec in self.parts] if len(indices) else []
+        self.parts = []
+        out = np.concatenate(parts) if parts else np.zeros(0, dtype)
+        if len(out) != len(indices):  # pragma: no cover - a winner whose chunk did not keep it
+            raise RuntimeError(f"streamed scan kept {len(out)} records for {len(indices)} points")
+        return out
 
 
 def _cloud(header, evlrs, array) -> PointCloud:

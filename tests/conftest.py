@@ -48,3 +48,36 @@ def scene_cloud(n=20000, seed=0, origin=(0.0, 0.0, 0.0)):
     ])
     rest = rng.normal(scale=8, size=(n - len(ground) - len(walls), 3))
     return np.vstack([ground, walls, rest]) + np.asarray(origin)
+
+
+@pytest.fixture
+def las_reads(monkeypatch):
+    """Points read through each ``laspy.open(...).chunk_iterator`` while a test
+    runs, one entry per pass over a file: ``len(las_reads)`` counts the passes."""
+    import laspy
+
+    opened = laspy.open
+    reads = []
+
+    class Counting:
+        def __init__(self, reader):
+            self.reader = reader
+
+        def __enter__(self):
+            self.reader.__enter__()
+            return self
+
+        def __exit__(self, *exc):
+            return self.reader.__exit__(*exc)
+
+        def __getattr__(self, name):
+            return getattr(self.reader, name)
+
+        def chunk_iterator(self, n):
+            reads.append(0)
+            for pts in self.reader.chunk_iterator(n):
+                reads[-1] += len(pts)
+                yield pts
+
+    monkeypatch.setattr(laspy, "open", lambda *a, **k: Counting(opened(*a, **k)))
+    return reads

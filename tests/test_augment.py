@@ -201,13 +201,16 @@ def test_scans_in_the_journal_are_not_redone(laz, tmp_path):
     assert not (out / JOURNAL).exists()
 
 
-def test_streamed_augment_writes_the_same_files_as_a_whole_read(laz, tmp_path):
+def test_streamed_augment_writes_the_same_files_as_a_whole_read(laz, tmp_path, las_reads):
     # chunks of 7,001 points, 2 positions per pass: same positions, byte-identical LAZ files
     whole = _run(laz, tmp_path / "whole", 3, heights=(1.0, 2.0), min_ground_points=1000, workers=1,
                     progress=False)
+    las_reads.clear()
     streamed = _run(laz, tmp_path / "streamed", 3, heights=(1.0, 2.0), min_ground_points=1000,
                        progress=False, chunk_size=7001, per_pass=2)
     assert whole["positions"] == streamed["positions"] and len(streamed["scans"]) == 6
+    # two passes for the positions, then one per batch of 2 scans (6 scans: 3 batches)
+    assert las_reads == [180_000] * (2 + 3)
     for entry in whole["scans"]:
         a = (tmp_path / "whole" / entry["file"]).read_bytes()
         assert a == (tmp_path / "streamed" / entry["file"]).read_bytes()

@@ -6,7 +6,7 @@ import pytest
 from slr_ray import simulate_scan
 from slr_ray.errors import FormatError
 from slr_ray.io import PointCloud, read_cloud, write_cloud
-from slr_ray.streaming import scan_las
+from slr_ray.streaming import scan_las, scan_las_many
 
 
 @pytest.fixture(scope="module")
@@ -40,6 +40,31 @@ def test_streamed_scan_equals_the_whole_file_scan(las_file, tmp_path, chunk):
     a, b = laspy.read(str(tmp_path / "a.laz")), laspy.read(str(tmp_path / "b.laz"))
     np.testing.assert_array_equal(a.points.array, b.points.array)
     assert str(a.header.version) == str(b.header.version)
+
+
+def test_streamed_scans_of_several_origins_read_the_file_once(las_file, las_reads, table_kind):
+    # one pass of 997-point chunks feeds every origin's reduction; each scan equals the
+    # whole-file scan (indices, ranges, coordinates, attributes, raw records)
+    origins = [[6e5 + 1.5, 5e6 - 2.0, 101.7], [6e5 - 10, 5e6 + 3.0, 100.5], [6e5 + 25, 5e6 + 25, 102.0],
+               [6e5, 5e6, 100.01]]
+    whole = read_cloud(las_file)
+    got = list(scan_las_many(las_file, origins, 0.5, chunk=997, n_threads=2))
+    assert las_reads == [len(whole)]
+    assert len(got) == len(origins)
+    for (cloud, scan), origin in zip(got, origins):
+        want = simulate_scan(whole.points, origin, 0.5)
+        assert len(want) > 1000
+        np.testing.assert_array_equal(scan.indices, want.indices)
+        np.testing.assert_array_equal(scan.ranges, want.ranges)
+        np.testing.assert_array_equal(cloud.points, whole.points[want.indices])
+        for k, v in whole.attributes.items():
+            np.testing.assert_array_equal(cloud.attributes[k], v[want.indices])
+        np.testing.assert_array_equal(cloud.meta["las"].array, whole.meta["las"].array[want.indices])
+
+
+def test_streamed_scan_reads_the_file_once(las_file, las_reads):
+    cloud, scan = scan_las(las_file, [6e5, 5e6, 101.0], 0.5, chunk=4999)
+    assert las_reads == [len(read_cloud(las_file))] and len(scan) > 1000
 
 
 def test_streamed_scan_refuses_other_formats_and_bad_files(tmp_path):

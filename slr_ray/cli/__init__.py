@@ -71,7 +71,7 @@ def build_parser() -> argparse.ArgumentParser:
                    help="also write the scan as a range image (.npz: range, index, ring, every attribute)")
     p.add_argument("--png", help="also draw the range image (PNG)")
     p.add_argument("--chunk-size", type=A.positive_int, default=2_000_000,
-                   help="points read at a time from LAS/LAZ (binning reads them in two passes; default 2,000,000)")
+                   help="points read at a time from LAS/LAZ (binning reads them in one pass; default 2,000,000)")
     p.add_argument("--quiet", action="store_true", help="no progress bars")
     p.add_argument("--force", action="store_true", help="overwrite the output")
     p.add_argument("--print-config", action="store_true", help="print the resolved configuration as JSON and stop")

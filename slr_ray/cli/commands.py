@@ -81,7 +81,7 @@ def scan(args):
                 and check_format(args.input, args.input_format) in STREAMED_FORMATS)
     with plan:
         if streamed:
-            # LAS/LAZ: two passes in chunks, memory bounded by a chunk and the scan, not the file
+            # LAS/LAZ: one pass in chunks, memory bounded by a chunk and the scan, not the file
             if args.origin is None:
                 raise InputValueError(f"{args.input} records no scanner origin: give --origin X Y Z")
             t0 = time.perf_counter()
