@@ -519,3 +519,38 @@ def test_int64_attributes_stay_int64(tmp_path, ext):
     back = read_cloud(tmp_path / f"a{ext}")
     assert back.attributes["gps_id"].dtype == np.int64
     np.testing.assert_array_equal(back.attributes["gps_id"], big)
+
+
+def test_subset_follows_indices_masks_and_slices_alike():
+    rng = np.random.default_rng(3)
+    pts = rng.normal(size=(50, 3))
+    attrs = {"i": np.arange(50), "rgb": rng.integers(0, 255, (50, 3)).astype(np.uint8), "f": rng.random(50)}
+    cloud = PointCloud(pts, attrs)
+    idx = np.array([0, 7, 7, 49, 3, -1])
+    for sel, want in ((idx, idx), ((idx % 50).astype(np.uint32), idx % 50), (np.arange(50) % 3 == 0, np.arange(0, 50, 3)),
+                      (slice(5, 20, 2), np.arange(5, 20, 2)), ([1, 2], np.array([1, 2])),
+                      (np.empty(0, np.intp), np.empty(0, np.intp))):
+        sub = cloud.subset(sel)
+        np.testing.assert_array_equal(sub.points, pts[want])
+        assert sub.points.flags.c_contiguous and sub.points.shape == (len(want), 3)
+        for k, v in attrs.items():
+            np.testing.assert_array_equal(sub.attributes[k], v[want])
+    with pytest.raises(IndexError):
+        cloud.subset(np.array([50]))
+
+
+def test_writing_a_las_subset_leaves_the_callers_records_as_they_were(tmp_path):
+    rng = np.random.default_rng(4)
+    pts = rng.uniform(0, 100, (2000, 3)) + [5e5, 4e6, 0]
+    write_cloud(tmp_path / "in.laz", PointCloud(pts, {"intensity": rng.integers(0, 999, 2000).astype(np.uint16)}))
+    src = read_cloud(tmp_path / "in.laz").subset(np.arange(0, 2000, 2))
+    records = src.meta["las"].array.copy()
+    moved = PointCloud(src.points + 1.0, {**src.attributes, "intensity": src.attributes["intensity"] + 1}, None,
+                       src.meta)
+    write_cloud(tmp_path / "moved.laz", moved)
+    np.testing.assert_array_equal(src.meta["las"].array, records)  # written from a copy
+    back = read_cloud(tmp_path / "moved.laz")
+    np.testing.assert_allclose(back.points, src.points + 1.0, atol=1e-3)
+    np.testing.assert_array_equal(back.attributes["intensity"], src.attributes["intensity"] + 1)
+    write_cloud(tmp_path / "same.laz", src)  # nothing to change: the records are written as they are
+    np.testing.assert_array_equal(read_cloud(tmp_path / "same.laz").meta["las"].array, records)
