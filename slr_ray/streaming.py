@@ -273,7 +273,7 @@ class _Candidates:
         ``winners`` are the indices of the current nearest points, ascending."""
         lo, hi = np.searchsorted(winners, [start, start + len(records)])
         if hi > lo:
-            new = winners[lo:hi]
+            new = winners[lo:hi].copy()  # not a view: it would hold all of this chunk's winners
             self.parts.append((new, records[new - start]))
             self.held += hi - lo
         if self.held > 2 * len(winners):
