@@ -71,7 +71,7 @@ def scan_las(path, origin, pattern, chunk: int = DEFAULT_CHUNK, progress: bool =
     chunk : int
         Points read at a time.
     progress : bool
-        A progress bar per pass (stderr).
+        A progress bar (stderr).
 
     Returns
     -------
