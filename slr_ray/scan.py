@@ -120,10 +120,6 @@ class Scan:
             out[name] = img
         return out
 
-    def select(self, array):
-        """``array[self.indices]``: the scanned points, or any per-point attribute."""
-        return np.asarray(array)[self.indices]
-
     def summary(self) -> dict:
         """Plain-JSON summary (counts, pattern, timing)."""
         return {
