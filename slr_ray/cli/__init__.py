@@ -154,6 +154,7 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("--per-pass", type=A.positive_int, default=8,
                    help="positions reduced in one pass over a streamed input (default 8)")
     p.add_argument("--quiet", action="store_true")
+    A.add_effects(p)
 
     p = command("demo", "the main job on a built-in scene: scene, primary scan, SLR scans by both backends, report")
     p.add_argument("-o", "--output", default="slr_ray_demo", help="output directory (default slr_ray_demo)")
@@ -222,7 +223,7 @@ def build_parser() -> argparse.ArgumentParser:
     q.add_argument("spec")
     q.add_argument("-o", "--output", required=True)
     q.add_argument("--force", action="store_true", help="overwrite an existing output")
-    q = ssub.add_parser("scan", help="ground-truth scan of a scene")
+    q = ssub.add_parser("scan", help="ground-truth scan of a scene (with the effects its [effects] table requires)")
     q.add_argument("spec")
     A.add_pattern(q, origin="required")
     q.add_argument("--mode", default="center", choices=list(MESH_MODES))
@@ -230,6 +231,8 @@ def build_parser() -> argparse.ArgumentParser:
     q.add_argument("--spacing", type=A.positive_float, default=paper.DENSE_SPACING,
                    help=f"grid spacing for --mode dense (m, default {paper.DENSE_SPACING})")
     q.add_argument("--quiet", action="store_true", help="no progress bar")
+    q.add_argument("--no-effects", action="store_true",
+                   help="the ideal scan, without the sensor effects the scene's [effects] table requires")
     q.add_argument("-o", "--output", required=True)
     q.add_argument("--force", action="store_true", help="overwrite an existing output")
     return ap

@@ -22,7 +22,7 @@ from ..backends import Backend, options_for, prepare
 from ..compare import compare_backends
 from ..demo import run_demo
 from ..distances import distance_study, study_files
-from ..effects import effect_cloud, simulate
+from ..effects import effect_cloud, simulate, simulate_given
 from ..errors import InputValueError
 from ..io import PointCloud, atomic_path, check_format, read_cloud, write_cloud
 from ..meshscan import scan_mesh
@@ -31,7 +31,7 @@ from ..paper import Q1_SCENES, Q2_SCENES
 from ..plotting import cells_figure, comparison_figure, paper_figure, range_image_figure, save_figure, validation_figure
 from ..positions import AzimuthProfile, build_synthetic_profile, default_profile, ground_labels, select_positions
 from ..scan import Scan
-from ..scenes import MESH_FORMATS, scene_from_spec
+from ..scenes import MESH_FORMATS, scene_effects, scene_from_spec
 from ..streaming import STREAMED_FORMATS, scan_las
 from ..validation import load_config, load_rows, paper_report, paper_report_markdown, run_validation, stage_summary
 from .arguments import backend_from, check_effects, effects_from, ground_from, pattern_from
@@ -207,15 +207,31 @@ def scene(args):
     check_format(args.output)  # refuse an unknown output format before the scan
     plan = _plan(args, inputs=[spec_file] if spec_file else [], outputs=[args.output])
     pattern = pattern_from(args)
+    effects = None if args.no_effects else scene_effects(args.spec)  # the effects the scene requires
+    if effects is not None and not effects.any:
+        effects = None
+    if effects is not None:
+        effects = effects.resolve(pattern)
+        if effects.divergence_mrad or effects.motion:
+            raise InputValueError(f"{args.spec}: [effects] asks for beam divergence or motion, which a mesh scan "
+                                  "does not model (it takes ray drop, range limits, noise): drop them there, "
+                                  "or give --no-effects")
     sc = scene_from_spec(args.spec)
     with plan:
         ms = scan_mesh(sc, args.origin, pattern, mode=args.mode, supersample=args.supersample,
                        spacing=args.spacing, progress=not args.quiet)
-        cloud = PointCloud(ms.points, {"label": ms.labels.astype(np.int32), "range": ms.ranges,
-                                       "v": ms.pulses[:, 0].astype(np.int32), "h": ms.pulses[:, 1].astype(np.int32)},
+        points, labels, ranges, pulses, info = ms.points, ms.labels, ms.ranges, ms.pulses, {}
+        if effects is not None:
+            given = Scan(np.arange(len(ms.points)), ms.ranges, ms.pulses, ms.origin, ms.pattern, backend="mesh")
+            es = simulate_given(given, ms.points, effects)
+            points, labels, ranges, pulses = es.points, ms.labels[es.indices], es.ranges, es.pulses
+            info = {"effects": effects.to_dict(), "points_before_effects": len(ms.points),
+                    **{k: v for k, v in es.info.items() if k.startswith("removed_")}}
+        cloud = PointCloud(points, {"label": labels.astype(np.int32), "range": ranges,
+                                    "v": pulses[:, 0].astype(np.int32), "h": pulses[:, 1].astype(np.int32)},
                            origin=ms.origin)
         write_cloud(args.output, cloud)
-    emit({"spec": args.spec, "output": str(args.output), **ms.summary()})
+    emit({"spec": args.spec, "output": str(args.output), **ms.summary(), "points_out": len(points), **info})
 
 
 def compare(args):
@@ -318,7 +334,8 @@ def augment(args):
                            scanner_height=args.scanner_height, backend=args.backend,
                            backend_options=backend_from(args), fmt=args.format, seed=args.seed,
                            min_ground_points=args.min_ground_points, workers=args.workers,
-                           scheduler=args.scheduler, chunk_size=args.chunk_size, per_pass=args.per_pass)
+                           scheduler=args.scheduler, chunk_size=args.chunk_size, per_pass=args.per_pass,
+                           effects=effects_from(args))
     res = run_augment(args.input, args.output, config, ground=ground if args.csf or args.ground_attribute else None,
               progress=not args.quiet)
     emit({k: res[k] for k in ("input", "n_requested", "new_scans", "seconds", "software")}

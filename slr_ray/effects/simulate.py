@@ -37,7 +37,7 @@ from .noise import add_range_noise, reflectivity_max_range
 from .options import Effects
 from .returns import footprint_samples, group_returns, select_returns, subray_directions
 
-__all__ = ["EffectScan", "simulate", "effect_cloud"]
+__all__ = ["EffectScan", "simulate", "simulate_given", "effect_cloud"]
 
 #: rays cast per call (bounds memory: about 100 bytes a ray)
 RAYS_PER_BATCH = 1 << 21
@@ -341,3 +341,47 @@ def simulate(scanner, origin, pattern, effects=None, *, intensity=None, normals=
                       return_number=g["return_number"].astype(np.int64),
                       number_of_returns=g["number_of_returns"].astype(np.int64), share=g["share"],
                       intensity=out_intensity, origin=origin, pattern=pattern, frame=frame, ideal=ideal, info=info)
+
+
+class _GivenScan:
+    """A scan made elsewhere, as the scanner :func:`simulate` starts from."""
+
+    backend = "given"
+    normals = None
+
+    def __init__(self, points, scan: Scan):
+        self.points = points
+        self._scan = scan
+
+    def scan(self, origin, pattern) -> Scan:
+        return self._scan
+
+
+def simulate_given(scan: Scan, points, effects=None, *, intensity=None, normals=None,
+                   primary_origin=None) -> EffectScan:
+    """The effects that follow the geometry (ray drop, blind zone and
+    reflectivity range, range noise, intensity) on a scan made elsewhere,
+    e.g. the hits of a mesh scan (:func:`slr_ray.meshscan.scan_mesh`).
+
+    Parameters
+    ----------
+    scan : Scan
+        Its ``indices`` index ``points``; its ``origin`` and ``pattern`` are the scan's.
+    points : (n, 3) float
+    effects : Effects or dict, optional
+    intensity, normals : (n,) float, (n, 3) float, optional
+        Per point of ``points`` (default normals: PCA of the points' neighbours).
+    primary_origin : (3,) float, optional
+
+    Raises
+    ------
+    InputValueError
+        effects that need rays cast here: beam divergence, motion.
+    """
+    eff = effects if isinstance(effects, Effects) else Effects.from_dict(effects)
+    if eff.divergence_mrad or eff.motion:
+        raise InputValueError("beam divergence and motion cast their own rays: they apply to a prepared cloud "
+                              "(simulate), not to a scan made elsewhere")
+    pts = np.asarray(points, np.float64)
+    return simulate(_GivenScan(pts, scan), scan.origin, scan.pattern, eff, intensity=intensity, normals=normals,
+                    primary_origin=primary_origin)
