@@ -57,9 +57,25 @@ MANIFEST_EVERY = 10.0
 
 
 def _short(value, limit: int = 200) -> str:
-    """``repr(value)``, cut to ``limit`` characters (an effects table with a drop model is long)."""
+    """``repr(value)``, cut to ``limit`` characters (a drop model's table is long)."""
     text = repr(value)
     return text if len(text) <= limit else text[:limit - 3] + "..."
+
+
+def _differences(before: dict, now: dict, prefix: str = "") -> list:
+    """``'key: old -> new'`` for every key of either mapping whose values differ
+    (a setting only one run has differs too); within two mappings
+    (``effects``), the keys that differ, as ``effects.range_noise``."""
+    out = []
+    for k in [*now, *(k for k in before if k not in now)]:
+        old, new = before.get(k), now.get(k)
+        if old == new:
+            continue
+        if isinstance(old, dict) and isinstance(new, dict):
+            out += _differences(old, new, f"{prefix}{k}.")
+        else:
+            out.append(f"{prefix}{k}: {_short(old)} -> {_short(new)}")
+    return out
 
 
 def _resumable(manifest_path: Path, settings: dict, positions, out: Path) -> dict:
@@ -79,10 +95,7 @@ def _resumable(manifest_path: Path, settings: dict, positions, out: Path) -> dic
     if before is None:
         raise InputValueError(f"{manifest_path} was written by an older slr_ray without its settings: "
                               "write elsewhere (or remove the directory)")
-    # every key of either run: a setting only one of them has (effects) differs too
-    keys = [*settings, *(k for k in before if k not in settings)]
-    diff = [f"{k}: {_short(before.get(k))} -> {_short(settings.get(k))}" for k in keys
-            if before.get(k) != settings.get(k)]
+    diff = _differences(before, settings)
     k = min(len(positions), len(old.get("positions", [])))
     if not np.array_equal(np.asarray(old.get("positions", []))[:k].reshape(-1, 3), positions[:k]):
         diff.append("positions differ")

@@ -276,8 +276,9 @@ def effects_from(args) -> Effects | None:
 
 
 def check_effects(eff: Effects | None, backend: str, pattern) -> Effects | None:
-    """``eff`` with its 'sensor' values read from ``pattern``, checked against the backend."""
-    if eff is None:
+    """``eff`` with its 'sensor' values read from ``pattern``, checked against the
+    backend; None when no effect is on (a seed alone: the ideal scan)."""
+    if eff is None or not eff.any:
         return None
     if eff.divergence_mrad and Backend(backend) is not Backend.EMBREE:
         raise InputValueError("--divergence-mrad (divergence_mrad) needs --backend embree: binning keeps one "
