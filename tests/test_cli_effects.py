@@ -257,7 +257,8 @@ def test_augment_records_its_effects_and_refuses_a_resume_with_others(small_laz,
 
 def test_augment_config_refuses_effects_it_cannot_make(small_laz, tmp_path):
     for effects, chunk, says in (({"divergence_mrad": 3.0}, None, "embree"), ({"range_noise": 0.1}, 10_000, "stream"),
-                                 ({"motion": True}, None, "poses"), ({"noise": 1}, None, "unknown")):
+                                 ({"motion": True}, None, "poses"), ({"noise": 1}, None, "unknown"),
+                                 ({"intensity": "correct"}, None, "no scanner origin")):
         with pytest.raises(InputValueError, match=says):
             augment(small_laz, tmp_path / "a", AugmentConfig(n=1, effects=effects, chunk_size=chunk,
                                                              min_ground_points=500), progress=False)
