@@ -282,12 +282,13 @@ def scene_from_spec(spec) -> RectangleScene:
 def scene_effects(spec) -> Effects | None:
     """The sensor effects a scene requires: its ``[effects]`` table
     (:class:`~slr_ray.effects.Effects` keys, e.g. ``range_noise = 0.02``), or
-    None when it has none. Unknown keys are an error naming the file."""
+    None when it has none. Unknown keys are an error naming the file; a
+    relative ``ray_drop`` path is read from the file's directory."""
     data, path = load_toml_spec(spec, "scene", "scene spec")
     if "effects" not in data:
         return None
     try:
-        return Effects.from_dict(data["effects"])
+        return Effects.from_dict(data["effects"], relative_to=path.parent)
     except InputValueError as exc:
         raise InputValueError(f"{path}: [effects]: {exc}") from None
 
