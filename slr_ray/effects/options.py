@@ -17,7 +17,7 @@ import tomllib
 from dataclasses import dataclass
 from pathlib import Path
 
-from ..errors import InputValueError
+from ..errors import InputValueError, dataclass_from_mapping
 from .raydrop import RayDropModel
 
 __all__ = ["Effects", "RETURN_KINDS", "INTENSITY_MODES", "MOTION_FRAMES"]
@@ -195,12 +195,7 @@ class Effects:
         drop = options.get("ray_drop")
         if relative_to is not None and isinstance(drop, str) and not Path(drop).is_absolute():
             options["ray_drop"] = str(Path(relative_to) / drop)
-        merged = {**options, **more}
-        known = {f.name for f in dataclasses.fields(cls)}
-        unknown = sorted(set(merged) - known)
-        if unknown:
-            raise InputValueError(f"unknown effect option(s) {unknown}; known: {sorted(known)}")
-        return cls(**merged)
+        return dataclass_from_mapping(cls, options, more, "effect option(s)")
 
     @classmethod
     def load(cls, path) -> "Effects":
