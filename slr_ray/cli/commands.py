@@ -27,7 +27,7 @@ from ..io import PointCloud, atomic_path, check_format, read_cloud, write_cloud
 from ..meshscan import scan_mesh
 from ..outputs import OutputPlan
 from ..paper import Q1_SCENES, Q2_SCENES
-from ..plotting import cells_figure, comparison_figure, paper_figure, range_image_figure, save_figure, validation_figure
+from ..plotting import check_figure_path, cells_figure, comparison_figure, paper_figure, range_image_figure, save_figure, validation_figure
 from ..positions import AzimuthProfile, build_synthetic_profile, default_profile, ground_labels, select_positions
 from ..scenes import MESH_FORMATS, scene_from_spec
 from ..streaming import STREAMED_FORMATS, scan_las
@@ -54,9 +54,10 @@ def emit(obj) -> None:
     sys.stdout.flush()
 
 
-def _plan(args, *, inputs=(), outputs=(), fmt=None) -> OutputPlan:
+def _plan(args, *, inputs=(), outputs=(), fmt=None, figures=()) -> OutputPlan:
     """The command's :class:`~slr_ray.outputs.OutputPlan`: its inputs (with their
-    sidecars and the secondary inputs its flags name) and its outputs, checked."""
+    sidecars and the secondary inputs its flags name), its outputs and its
+    figures (whose format is checked with the rest), checked."""
     plan = OutputPlan(force=getattr(args, "force", False))
     for path in inputs:
         plan.read(path)
@@ -64,12 +65,15 @@ def _plan(args, *, inputs=(), outputs=(), fmt=None) -> OutputPlan:
         plan.read(getattr(args, flag, None), sidecars=False)
     for i, path in enumerate(outputs):
         plan.write(path, fmt=fmt if i == 0 else None)
+    for path in figures:
+        plan.write(path, check=check_figure_path)
     return plan.check()
 
 
 def scan(args):
     check_format(args.output, args.format)  # refuse an unknown output format before any work
-    plan = _plan(args, inputs=[args.input], outputs=[args.output, args.range_image, args.png], fmt=args.format)
+    plan = _plan(args, inputs=[args.input], outputs=[args.output, args.range_image], fmt=args.format,
+                 figures=[args.png])
     pattern = pattern_from(args)
     options = options_for(args.backend, backend_from(args))  # built once, used below
     if args.print_config:
@@ -160,7 +164,7 @@ def demo(args):
 
 
 def scene(args):
-    spec_file = args.spec if Path(args.spec).suffix.lower() == ".toml" else None
+    spec_file = args.spec if Path(args.spec).suffix else None  # a path (any extension), not a shipped name
     if args.scene_cmd == "info":
         emit({"spec": args.spec, **scene_from_spec(args.spec).info()})
         return
@@ -190,7 +194,7 @@ def scene(args):
 
 
 def compare(args):
-    plan = _plan(args, inputs=[args.input], outputs=[args.png])
+    plan = _plan(args, inputs=[args.input], figures=[args.png])
     pattern = pattern_from(args)
     embree_options = backend_from(args, "embree")
     with plan:
@@ -205,7 +209,7 @@ def compare(args):
 
 def positions(args):
     args.profile_file = None if args.profile in ("none", "default") else args.profile
-    plan = _plan(args, inputs=[args.input], outputs=[args.output, args.png])
+    plan = _plan(args, inputs=[args.input], outputs=[args.output], figures=[args.png])
     ground = ground_from(args)
     with plan:
         cloud = read_cloud(args.input, args.input_format)
@@ -244,6 +248,17 @@ def validate(args):
         emit(asdict(config))
         return
     out = Path(args.output or f"slr_ray_validate_{config.name}")
+    # what the command writes after the run (which locks `out` and plans its own files), checked before it:
+    # never over the config or a scene spec, never through a directory or a link to an input
+    plan = OutputPlan()
+    plan.read(args.config if Path(args.config).suffix else None, sidecars=False)
+    for entry in config.scenes:
+        spec = config.scene_entry(entry)[0]
+        plan.read(spec if Path(spec).suffix else None, sidecars=False)
+    plan.directory(out)
+    for name in ("figure3.png", "report.json", "report.md", *(f"paper_figure_{b}.png" for b in config.backends)):
+        plan.write(out / name, resumed=True)
+    plan.check()
     res = run_validation(config, out, progress=not args.quiet)  # locks `out` while it runs
     rows = load_rows(out / "results.csv")
     save_figure(validation_figure(rows), out / "figure3.png")

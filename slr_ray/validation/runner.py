@@ -106,7 +106,7 @@ def run_validation(config: ValidationConfig, outdir, progress: bool = True) -> d
         plan.write(out / name, resumed=True)
     for entry in config.scenes:
         spec = config.scene_entry(entry)[0]
-        if Path(spec).suffix.lower() == ".toml":
+        if Path(spec).suffix:  # a path (any extension), not a shipped name
             plan.read(spec, sidecars=False)
     with plan:
         return _run_validation(config, out, progress)
