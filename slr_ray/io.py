@@ -47,7 +47,7 @@ from .errors import FormatError, OutputError
 from .outputs import label_path, part_prefix, resolve
 
 __all__ = ["PointCloud", "LasRecords", "read_cloud", "write_cloud", "read_e57_scans", "check_format",
-           "label_path", "FORMATS"]
+           "check_las_size", "label_path", "FORMATS"]
 
 FORMATS = (".npy", ".npz", ".ply", ".las", ".laz", ".bin", ".xyz", ".txt", ".e57", ".pcd")
 
@@ -118,22 +118,34 @@ def check_format(path, fmt=None) -> str:
     return ext
 
 
-def read_cloud(path, format: str | None = None) -> PointCloud:
+def read_cloud(path, format: str | None = None, check_finite: bool = True) -> PointCloud:
     """Read a point cloud; the format comes from the extension unless given.
+
+    Parameters
+    ----------
+    check_finite : bool
+        Refuse coordinates that are NaN or infinite (default), naming the file
+        and how many; False reads them as they are (an organised PCD's
+        no-return points, to be removed by the caller).
 
     Raises
     ------
     FileNotFoundError
         no such file.
     FormatError
-        unknown extension, or a file that cannot be parsed (truncated, corrupt).
+        unknown extension, or a file that cannot be parsed (truncated, corrupt,
+        a declared count that is not what the file holds), non-finite
+        coordinates (unless ``check_finite=False``), a recorded scanner origin
+        that is not three finite numbers.
     """
     path = Path(path)
     ext = check_format(path, format)
     if path.is_dir():
         raise IsADirectoryError(f"{path} is a directory, not a point cloud file")
-    if not path.is_file():
+    if not path.exists():
         raise FileNotFoundError(f"no such file: {path}")
+    if not path.is_file():
+        raise FormatError(f"{path} is not a regular file (a FIFO, a device...): slr_ray reads clouds from files")
     try:
         cloud = _READERS[ext](path)
     except FormatError:
@@ -146,25 +158,46 @@ def read_cloud(path, format: str | None = None) -> PointCloud:
     if pts.dtype.kind not in "fiu":
         raise FormatError(f"{path}: coordinates must be real numbers, got dtype {pts.dtype}")
     cloud.points = np.ascontiguousarray(pts, dtype=np.float64)
+    if check_finite:
+        bad = ~np.isfinite(cloud.points).all(axis=1)
+        if bad.any():
+            rows = np.flatnonzero(bad)
+            raise FormatError(f"{path}: {len(rows):,} of {len(pts):,} points have NaN or infinite coordinates "
+                              f"(rows {', '.join(map(str, rows[:5]))}{', ...' if len(rows) > 5 else ''}): "
+                              "remove them first (nothing is dropped silently)")
     for k, v in cloud.attributes.items():
+        if np.ndim(v) == 0:
+            raise FormatError(f"{path}: attribute {k!r} is a single value, not one a point ({len(pts)} points)")
         if len(v) != len(pts):
             raise FormatError(f"{path}: attribute {k!r} has {len(v)} values for {len(pts)} points")
+    if cloud.origin is not None:
+        o = np.asarray(cloud.origin)
+        if o.shape != (3,) or o.dtype.kind not in "fiu" or not np.isfinite(o.astype(np.float64)).all():
+            raise FormatError(f"{path}: the recorded scanner origin is not three finite numbers "
+                              f"({o.tolist() if o.size <= 9 else f'shape {o.shape}'})")
+        cloud.origin = o.astype(np.float64)
     return cloud
 
 
 def _read_npy(path):
+    with open(path, "rb") as f:
+        if f.read(6) != b"\x93NUMPY":
+            raise FormatError(f"{path}: not a .npy file (no NumPy header)")
     a = np.load(path, allow_pickle=False)
     if a.dtype.names:
         if not {"x", "y", "z"} <= set(a.dtype.names):
             raise FormatError(f"{path}: structured array without x, y, z fields")
         pts = np.column_stack([a["x"], a["y"], a["z"]])
-        return PointCloud(pts, {n: a[n] for n in a.dtype.names if n not in "xyz"})
+        return PointCloud(pts, {n: a[n] for n in a.dtype.names if n not in ("x", "y", "z")})
     if a.ndim != 2 or a.shape[1] < 3:
         raise FormatError(f"{path}: expected an (n, 3) or wider array, got shape {a.shape}")
     return PointCloud(a[:, :3], {f"column_{j}": a[:, j] for j in range(3, a.shape[1])})
 
 
 def _read_npz(path):
+    with open(path, "rb") as f:
+        if f.read(2) != b"PK":
+            raise FormatError(f"{path}: not a .npz file (not a zip archive)")
     with np.load(path, allow_pickle=False) as z:
         if "points" not in z.files:
             raise FormatError(f"{path}: no 'points' array (has {z.files})")
@@ -175,9 +208,20 @@ def _read_npz(path):
 
 
 def _read_ply(path):
-    ply = PlyData.read(str(path))
+    with open(path, "rb") as f:
+        ply = PlyData.read(f)
+        if not ply.text:  # binary: the declared elements end where the file does
+            extra = os.fstat(f.fileno()).st_size - f.tell()
+    if ply.text:
+        extra = _ply_text_rows(path) - sum(e.count for e in ply.elements)
     if "vertex" not in ply:
         raise FormatError(f"{path}: no vertex element")
+    if extra > 0 and (ply.text or all(not hasattr(p, "len_dtype") for e in ply.elements for p in e.properties)):
+        size = ply["vertex"].data.dtype.itemsize
+        if ply.text or extra >= size:  # a partial record of padding is tolerated, whole ones are not
+            raise FormatError(f"{path}: the header declares {ply['vertex'].count:,} vertices, the file holds "
+                              f"{'%d more rows' % extra if ply.text else '%d more bytes' % extra} after its "
+                              "declared elements (a header that lies, or a corrupt file)")
     v = ply["vertex"].data
     names = v.dtype.names
     if not {"x", "y", "z"} <= set(names):
@@ -186,7 +230,36 @@ def _read_ply(path):
     return PointCloud(pts, {n: np.asarray(v[n]) for n in names if n not in ("x", "y", "z")})
 
 
+def _ply_text_rows(path) -> int:
+    """Non-blank lines after an ASCII PLY's ``end_header``."""
+    with open(path, "rb") as f:
+        for line in f:
+            if line.strip() == b"end_header":
+                break
+        return sum(1 for line in f if line.strip())
+
+
+def check_las_size(path, header) -> None:
+    """Refuse an uncompressed LAS whose header declares fewer points than its
+    point data holds (whole records left over before the EVLRs or the end of
+    the file: a header that lies). A declared count *larger* than the file
+    holds is found by the readers, which stop where the records run out; a
+    LAZ file's chunks are not checked here."""
+    if header.are_points_compressed:
+        return
+    end = os.path.getsize(path)
+    start_evlr = int(getattr(header, "start_of_first_evlr", 0) or 0)
+    if getattr(header, "number_of_evlrs", 0) and header.offset_to_point_data < start_evlr <= end:
+        end = start_evlr
+    room = (end - int(header.offset_to_point_data)) // header.point_format.size
+    if room > header.point_count:
+        raise FormatError(f"{path}: the header declares {header.point_count:,} points, the file holds "
+                          f"{room:,} (a header that lies, or a corrupt file)")
+
+
 def _read_las(path):
+    with laspy.open(str(path)) as reader:
+        check_las_size(path, reader.header)
     las = laspy.read(str(path))
     if len(las.points) != las.header.point_count:  # laspy stops quietly where a lying header's points run out
         raise FormatError(f"{path}: the header declares {las.header.point_count:,} points, the file holds "
@@ -287,9 +360,12 @@ def _read_pcd(path):
             data[name] = flat[:, col] if c == 1 else flat[:, col:col + c]
             col += c
     elif kind == "binary":
-        if len(body) < n * dtype.itemsize:  # bytes after the points are tolerated, as PCL does
+        if len(body) < n * dtype.itemsize:
             raise FormatError(f"{path}: truncated ({len(body)} bytes of data for POINTS {n} of "
                               f"{dtype.itemsize} bytes)")
+        if len(body) - n * dtype.itemsize >= dtype.itemsize:  # padding shorter than a point is tolerated
+            raise FormatError(f"{path}: POINTS {n} declared, the data holds {len(body) // dtype.itemsize} points "
+                              "(a header that lies, or a corrupt file)")
         data = np.frombuffer(body[: n * dtype.itemsize], dtype)
     else:
         raise FormatError(f"{path}: PCD DATA {kind} is not supported (ascii and binary are)")
@@ -449,6 +525,7 @@ KITTI_TOLERANCE = 1e-3
 def _warn_kitti_precision(path, cloud) -> None:
     """Warn when float32 storage moves a coordinate by more than :data:`KITTI_TOLERANCE`."""
     pts = np.asarray(cloud.points, np.float64)
+    pts = pts[np.isfinite(pts).all(axis=1)]
     if not len(pts):
         return
     err = float(np.abs(pts.astype(np.float32).astype(np.float64) - pts).max())
