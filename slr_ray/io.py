@@ -29,10 +29,10 @@ Writes are atomic: the file appears under its name complete, or not at all.
 from __future__ import annotations
 
 import copy
-import io
 import os
 import tempfile
 import warnings
+import zipfile
 from contextlib import contextmanager
 from dataclasses import dataclass, field
 from pathlib import Path
@@ -42,7 +42,7 @@ import numpy as np
 from laspy.vlrs.vlrlist import VLRList
 from plyfile import PlyData, PlyElement
 
-from . import e57
+from . import e57, pcd
 from .errors import FormatError, OutputError
 from .outputs import label_path, part_prefix, resolve
 
@@ -265,8 +265,8 @@ def _read_las(path):
         raise FormatError(f"{path}: the header declares {las.header.point_count:,} points, the file holds "
                           f"{len(las.points):,} (truncated or corrupt)")
     pts = np.column_stack([np.asarray(las.x), np.asarray(las.y), np.asarray(las.z)])
-    attrs = {name: np.asarray(las[name]) for name in las.point_format.dimension_names
-             if name not in ("X", "Y", "Z")}
+    attrs = {name: np.asarray(las.points[name]) for name in las.point_format.dimension_names  # not las[name]:
+             if name not in ("X", "Y", "Z")}  # an extra dimension 'header' is a field, not LasData's header
     meta = {"las_point_format": int(las.header.point_format.id),
             "las_scales": las.header.scales.tolist(), "las_offsets": las.header.offsets.tolist(),
             "las": LasRecords(las.header, list(las.evlrs or []), las.points.array)}
@@ -311,107 +311,16 @@ def _read_xyz(path):
     return PointCloud(a[:, :3], {n: a[:, 3 + j] for j, n in enumerate(names)})
 
 
-_PCD_TYPES = {("F", 4): "f4", ("F", 8): "f8", ("I", 1): "i1", ("I", 2): "i2", ("I", 4): "i4", ("I", 8): "i8",
-              ("U", 1): "u1", ("U", 2): "u2", ("U", 4): "u4", ("U", 8): "u8"}
-
-
-def _read_pcd(path):
-    with open(path, "rb") as f:
-        header = {}
-        while True:
-            line = f.readline()
-            if not line:
-                raise FormatError(f"{path}: PCD header ends before DATA")
-            words = line.decode("ascii", "replace").strip().split()
-            if not words or words[0].startswith("#"):
-                continue
-            header[words[0].upper()] = words[1:]
-            if words[0].upper() == "DATA":
-                break
-        body = f.read()
-    try:
-        fields = header["FIELDS"]
-        sizes = [int(x) for x in header["SIZE"]]
-        types = header["TYPE"]
-        counts = [int(x) for x in header.get("COUNT", ["1"] * len(fields))]
-        n = int(header["POINTS"][0])
-        if n < 0 or any(c < 1 for c in counts) or any(sz < 1 for sz in sizes):
-            raise ValueError(f"POINTS {n}, SIZE {sizes}, COUNT {counts}: counts must be >= 0 and sizes >= 1")
-        if not len(fields) == len(sizes) == len(types) == len(counts):
-            raise ValueError(f"{len(fields)} FIELDS, {len(sizes)} SIZE, {len(types)} TYPE, {len(counts)} COUNT")
-        if "WIDTH" in header and "HEIGHT" in header and int(header["WIDTH"][0]) * int(header["HEIGHT"][0]) != n:
-            raise ValueError(f"WIDTH x HEIGHT = {header['WIDTH'][0]} x {header['HEIGHT'][0]} is not POINTS {n}")
-        dtype = np.dtype([(name if c == 1 else name, _PCD_TYPES[(t, sz)], () if c == 1 else (c,))
-                          for name, sz, t, c in zip(fields, sizes, types, counts)])
-    except (KeyError, ValueError, IndexError) as exc:
-        raise FormatError(f"{path}: bad PCD header ({exc})") from None
-    kind = header["DATA"][0].lower()
-    if kind == "ascii":
-        with warnings.catch_warnings():
-            warnings.simplefilter("ignore", UserWarning)  # numpy's "input contained no data"
-            flat = np.loadtxt(io.BytesIO(body), ndmin=2)
-        if flat.size == 0:
-            flat = np.empty((0, sum(counts)))
-        if len(flat) != n:
-            raise FormatError(f"{path}: {len(flat)} rows for POINTS {n}")
-        data = np.empty(n, dtype)
-        col = 0
-        for name, c in zip(fields, counts):
-            data[name] = flat[:, col] if c == 1 else flat[:, col:col + c]
-            col += c
-    elif kind == "binary":
-        if len(body) < n * dtype.itemsize:
-            raise FormatError(f"{path}: truncated ({len(body)} bytes of data for POINTS {n} of "
-                              f"{dtype.itemsize} bytes)")
-        if len(body) - n * dtype.itemsize >= dtype.itemsize:  # padding shorter than a point is tolerated
-            raise FormatError(f"{path}: POINTS {n} declared, the data holds {len(body) // dtype.itemsize} points "
-                              "(a header that lies, or a corrupt file)")
-        data = np.frombuffer(body[: n * dtype.itemsize], dtype)
-    else:
-        raise FormatError(f"{path}: PCD DATA {kind} is not supported (ascii and binary are)")
-    if not {"x", "y", "z"} <= set(fields):
-        raise FormatError(f"{path}: no x, y, z fields")
-    pts = np.column_stack([data["x"], data["y"], data["z"]]).astype(np.float64)
-    attrs = {name: np.array(data[name]) for name in fields if name not in ("x", "y", "z") and name != "_"}
-    vp = header.get("VIEWPOINT")
-    origin = np.array([float(v) for v in vp[:3]]) if vp and len(vp) >= 3 else None
-    return PointCloud(pts, attrs, origin)
-
-
-def _write_pcd(path, cloud, binary):
-    names, arrays = ["x", "y", "z"], [cloud.points[:, 0], cloud.points[:, 1], cloud.points[:, 2]]
-    for k, v in cloud.attributes.items():
-        v = np.asarray(v)
-        if v.ndim != 1 or v.dtype.kind not in "iufb":
-            raise FormatError(f"PCD cannot store attribute {k!r} of dtype {v.dtype} and shape {v.shape}")
-        names.append(k)
-        arrays.append(v.astype(np.uint8) if v.dtype == bool else v)
-    dtype = np.dtype([(nm, a.dtype) for nm, a in zip(names, arrays)])
-    data = np.empty(len(cloud), dtype)
-    for nm, a in zip(names, arrays):
-        data[nm] = a
-    kind = {"f": "F", "i": "I", "u": "U"}
-    o = cloud.origin if cloud.origin is not None else np.zeros(3)
-    header = "\n".join([
-        "# .PCD v0.7 - Point Cloud Data file format (slr_ray)", "VERSION 0.7",
-        "FIELDS " + " ".join(names), "SIZE " + " ".join(str(a.dtype.itemsize) for a in arrays),
-        "TYPE " + " ".join(kind[a.dtype.kind] for a in arrays), "COUNT " + " ".join("1" for _ in arrays),
-        f"WIDTH {len(cloud)}", "HEIGHT 1", "VIEWPOINT " + " ".join(repr(float(x)) for x in o) + " 1 0 0 0",
-        f"POINTS {len(cloud)}", "DATA " + ("binary" if binary else "ascii")]) + "\n"
-    with open(path, "wb") as f:
-        f.write(header.encode("ascii"))
-        if binary:
-            f.write(data.astype(data.dtype.newbyteorder("<")).tobytes())
-        else:
-            np.savetxt(f, np.column_stack([a.astype(np.float64) for a in arrays]), fmt="%.10g")
-
-
 def read_e57_scans(path) -> list:
     """Every scan of an E57 file as a :class:`PointCloud` (global frame; origin =
     the scan's pose translation, None for a scan without a pose: the caller
     decides, e.g. ``--origin 0 0 0``); points flagged invalid are left out,
     their number in ``meta['e57_invalid']`` (:func:`slr_ray.e57.read_scans`)."""
     return [PointCloud(*scan) for scan in e57.read_scans(path)]
+
+
+def _read_pcd(path):
+    return PointCloud(*pcd.read(path))
 
 
 def _read_e57(path):
@@ -481,6 +390,7 @@ def write_cloud(path, cloud: PointCloud, format: str | None = None, binary: bool
     ext = check_format(path, format)
     if not path.parent.exists():
         raise FormatError(f"cannot write {path}: directory {path.parent} does not exist")
+    cloud = _storable(path, ext, cloud)  # names the format keeps for itself moved aside, before any file
     words = None
     if ext == ".bin":
         _warn_kitti_precision(path, cloud)
@@ -506,6 +416,46 @@ def write_cloud(path, cloud: PointCloud, format: str | None = None, binary: bool
         elif label.is_file():  # an older file's labels: every reader would pair them with this .bin
             label.unlink()
     return path
+
+
+#: attribute names a format keeps for itself: written as ``NAME_value`` (LAS: its coordinate fields, and
+#: names laspy's LasData answers itself; .npz: the reader's 'points' and 'origin')
+_RESERVED = {".las": {"x", "y", "z", "X", "Y", "Z", "points", "header", "point_format"},
+             ".npz": {"points", "origin"}, ".ply": {"x", "y", "z"}, ".pcd": {"x", "y", "z"}, ".npy": {"x", "y", "z"}}
+_RESERVED[".laz"] = _RESERVED[".las"]
+
+
+def _spellable(ext, name) -> bool:
+    """Whether format ``ext`` can name an attribute ``name`` (PLY, PCD: ASCII without blanks; LAS: 32 bytes)."""
+    if ext in (".ply", ".pcd"):
+        return name.isascii() and name.isprintable() and len(name.split()) == 1 and name == name.strip()
+    if ext in (".las", ".laz"):
+        return 0 < len(name.encode()) <= 32
+    return True
+
+
+def _storable(path, ext, cloud) -> PointCloud:
+    """``cloud`` with each attribute under a name format ``ext`` can store: a name
+    it reserves becomes ``NAME_value`` (said in a warning); a name it cannot
+    spell is a :class:`~slr_ray.errors.FormatError`, raised before any file."""
+    bad = [k for k in cloud.attributes if not _spellable(ext, k)]
+    if bad:
+        raise FormatError(f"{path}: {ext} cannot name attribute(s) {bad} "
+                          f"({'32 bytes at most' if ext in ('.las', '.laz') else 'ASCII without blanks'}): "
+                          "rename them, or write .npz")
+    reserved = _RESERVED.get(ext, set())
+    if not reserved & set(cloud.attributes):
+        return cloud
+    attrs, moved = {}, []
+    for k, v in cloud.attributes.items():
+        name = k
+        while name in reserved or name in attrs or (name != k and name in cloud.attributes):
+            name += "_value"
+        attrs[name] = v
+        if name != k:
+            moved.append(f"{k!r} as {name!r}")
+    warnings.warn(f"{path}: {ext} keeps these names for itself; written {', '.join(moved)}", stacklevel=3)
+    return PointCloud(cloud.points, attrs, cloud.origin, cloud.meta)
 
 
 def _label_words(path, cloud) -> np.ndarray:
@@ -559,6 +509,10 @@ def _write_npy(path, cloud, binary):
     if all(_exact_in_float64(v) for v in attrs.values()):
         cols = _columns(cloud)
         data = np.hstack(cols) if len(cols) > 1 else cloud.points
+        lost = [k for j, (k, v) in enumerate(attrs.items()) if k != f"column_{3 + j}" or v.ndim > 1]
+        if lost:  # plain columns keep every value, not the names
+            warnings.warn(f"{path}: .npy columns keep values, not names: {lost} read back as column_3... "
+                          "(write .npz to keep the names)", stacklevel=3)
     else:
         bad = [k for k, v in attrs.items() if v.dtype.kind not in "biuf" or k in ("x", "y", "z")]
         if bad:
@@ -573,9 +527,15 @@ def _write_npy(path, cloud, binary):
 
 
 def _write_npz(path, cloud, binary):
-    extra = {"origin": cloud.origin} if cloud.origin is not None else {}
-    with open(path, "wb") as f:
-        np.savez_compressed(f, points=cloud.points, **cloud.attributes, **extra)
+    """``np.savez_compressed``'s layout, each array written by name: an attribute
+    called ``file`` or ``allow_pickle`` is an array like any other, not a keyword."""
+    arrays = {"points": cloud.points, **cloud.attributes}
+    if cloud.origin is not None:
+        arrays["origin"] = cloud.origin
+    with zipfile.ZipFile(path, "w", compression=zipfile.ZIP_DEFLATED, allowZip64=True) as z:
+        for name, a in arrays.items():
+            with z.open(name + ".npy", "w", force_zip64=True) as f:
+                np.lib.format.write_array(f, np.asanyarray(a), allow_pickle=False)
 
 
 def _write_ply(path, cloud, binary):
@@ -740,9 +700,36 @@ def _write_kitti(path, cloud, binary):
 
 
 def _write_xyz(path, cloud, binary):
-    np.savetxt(path, np.hstack(_columns(cloud)), fmt="%.6f")
+    """Text columns: coordinates to 1 micrometre, integer attributes exactly, float
+    attributes to the digits of their dtype. Column names are not stored: a warning
+    says which names a reader will not get back (it names columns by their count)."""
+    n, cols, fmts, names = len(cloud), [np.asarray(cloud.points, np.float64)], ["%.6f"] * 3, []
+    for k, v in cloud.attributes.items():
+        v = np.asarray(v)
+        v = v.reshape(n, int(np.prod(v.shape[1:], dtype=np.int64)))
+        if v.dtype.kind not in "biuf":
+            raise FormatError(f"{path}: .xyz holds numbers; attribute {k!r} is {v.dtype}")
+        integer = v.dtype.kind in "biu"
+        cols.append(v.astype(np.int64 if integer and v.dtype != np.uint64 else v.dtype if integer else np.float64))
+        fmts += ["%d" if integer else "%.9g" if v.dtype.itemsize <= 4 else "%.17g"] * v.shape[1]
+        names += [k] if v.shape[1] == 1 else [f"{k}[{j}]" for j in range(v.shape[1])]
+        if integer and len(v) and np.abs(v.astype(np.float64)).max() > 2**53:
+            warnings.warn(f"{path}: {k!r} holds integers beyond 2**53, written exactly but read back as float64 "
+                          "(digits lost): write .npz or .npy to keep them", stacklevel=3)
+    back = list(_SEMANTIC3D) if len(names) == 4 else ["intensity"] if len(names) == 1 else \
+        [f"column_{j}" for j in range(3, 3 + len(names))]
+    if names != back:
+        warnings.warn(f"{path}: .xyz stores columns, not names: {names} will read back as {back}", stacklevel=3)
+    data = np.empty((n, len(fmts)), object) if len(cols) > 1 else cols[0]
+    if len(cols) > 1:
+        j = 0
+        for c in cols:
+            c = c.reshape(n, int(np.prod(c.shape[1:], dtype=np.int64)))
+            data[:, j:j + c.shape[1]] = c
+            j += c.shape[1]
+    np.savetxt(path, data, fmt=fmts)
 
 
 _WRITERS = {".npy": _write_npy, ".npz": _write_npz, ".ply": _write_ply, ".las": _write_las, ".laz": _write_las,
             ".bin": _write_kitti, ".xyz": _write_xyz, ".txt": _write_xyz, ".e57": e57.write,
-            ".pcd": _write_pcd}
+            ".pcd": pcd.write}

@@ -588,3 +588,64 @@ def test_a_structured_npy_keeps_fields_whose_names_are_parts_of_xyz(tmp_path):
     np.save(tmp_path / "a.npy", a)
     attrs = read_cloud(tmp_path / "a.npy").attributes
     assert set(attrs) == {"xy", "yz"} and (attrs["yz"] == 7).all()  # were dropped: `name not in "xyz"`
+
+
+# --- writers keep every attribute, or say what they do with it -------------------------------------------------
+
+@pytest.mark.parametrize("name", ["X", "x", "points", "header", "point_format"])
+def test_an_attribute_named_like_a_las_field_never_replaces_the_coordinates(tmp_path, name):
+    pts = np.arange(12, dtype=float).reshape(4, 3) + 0.5
+    with pytest.warns(UserWarning, match=f"written '{name}' as '{name}_value'"):
+        write_cloud(tmp_path / "a.las", PointCloud(pts, {name: np.full(4, 9.0)}))  # 'X': was the raw X
+    back = read_cloud(tmp_path / "a.las")
+    np.testing.assert_array_equal(back.points, pts)
+    np.testing.assert_array_equal(back.attributes[f"{name}_value"], np.full(4, 9.0))
+
+
+@pytest.mark.parametrize("name", ["points", "origin", "file", "allow_pickle"])
+def test_npz_stores_any_attribute_name(tmp_path, name):
+    pts = np.ones((4, 3))
+    c = PointCloud(pts, {name: np.arange(4.0)}, origin=np.array([1.0, 2.0, 3.0]))
+    if name in ("points", "origin"):  # the reader's own names: moved aside, said
+        with pytest.warns(UserWarning, match=f"'{name}' as '{name}_value'"):
+            write_cloud(tmp_path / "a.npz", c)
+        name += "_value"
+    else:  # were a TypeError traceback ('file') and an attribute silently dropped ('allow_pickle')
+        write_cloud(tmp_path / "a.npz", c)
+    back = read_cloud(tmp_path / "a.npz")
+    np.testing.assert_array_equal(back.attributes[name], np.arange(4.0))
+    np.testing.assert_array_equal(back.origin, [1.0, 2.0, 3.0])
+    np.testing.assert_array_equal(back.points, pts)
+
+
+@pytest.mark.parametrize("ext", [".ply", ".pcd"])
+def test_ply_and_pcd_move_x_aside_and_refuse_names_they_cannot_spell(tmp_path, ext):
+    pts = np.arange(12, dtype=float).reshape(4, 3)
+    with pytest.warns(UserWarning, match="'x' as 'x_value'"):
+        write_cloud(tmp_path / ("a" + ext), PointCloud(pts, {"x": np.full(4, 9.0)}))  # was a ValueError traceback
+    back = read_cloud(tmp_path / ("a" + ext))
+    np.testing.assert_array_equal(back.points, pts)
+    np.testing.assert_array_equal(back.attributes["x_value"], np.full(4, 9.0))
+    for bad in ("a b", "höhe"):  # PCD: was a file its own reader refused, or a UnicodeEncodeError
+        with pytest.raises(FormatError, match="cannot name"):
+            write_cloud(tmp_path / ("b" + ext), PointCloud(pts, {bad: np.zeros(4)}))
+        assert not list(tmp_path.glob("*b" + ext + "*"))
+
+
+def test_las_refuses_a_name_longer_than_its_32_bytes(tmp_path):
+    with pytest.raises(FormatError, match="32 bytes"):  # was a ValueError traceback from laspy
+        write_cloud(tmp_path / "a.las", PointCloud(np.zeros((2, 3)), {"a" * 40: np.zeros(2)}))
+
+
+def test_text_and_npy_columns_say_which_names_they_drop_and_keep_integers_exact(tmp_path):
+    big = np.array([2**40 + 1, -3], np.int64)
+    c = PointCloud(np.zeros((2, 3)), {"gps_id": big, "flag": np.array([True, False])})
+    with pytest.warns(UserWarning, match=r"\['gps_id', 'flag'\] will read back as \['column_3', 'column_4'\]"):
+        write_cloud(tmp_path / "a.xyz", c)
+    assert (tmp_path / "a.xyz").read_text().split("\n")[0].split()[3:] == ["1099511627777", "1"]  # was 1.0995e12
+    with pytest.warns(UserWarning, match="integers beyond 2\\*\\*53"):
+        write_cloud(tmp_path / "b.xyz", PointCloud(np.zeros((1, 3)), {"id": np.array([2**62 + 1])}))
+    with pytest.warns(UserWarning, match="keep values, not names"):
+        write_cloud(tmp_path / "a.npy", PointCloud(np.zeros((2, 3)), {"intensity": np.ones(2)}))
+    with pytest.raises(FormatError, match="holds numbers"):
+        write_cloud(tmp_path / "c.xyz", PointCloud(np.zeros((2, 3)), {"name": np.array(["a", "b"])}))
