@@ -244,13 +244,17 @@ def check_las_size(path, header) -> None:
     point data holds (whole records left over before the EVLRs or the end of
     the file: a header that lies). A declared count *larger* than the file
     holds is found by the readers, which stop where the records run out; a
-    LAZ file's chunks are not checked here."""
+    LAZ file's chunks are not checked here. Point data ends at the first EVLR
+    or at LAS 1.3's internal waveform packets, where a file has them."""
     if header.are_points_compressed:
         return
     end = os.path.getsize(path)
     start_evlr = int(getattr(header, "start_of_first_evlr", 0) or 0)
     if getattr(header, "number_of_evlrs", 0) and header.offset_to_point_data < start_evlr <= end:
         end = start_evlr
+    waveforms = int(getattr(header, "start_of_waveform_data_packet_record", 0) or 0)  # LAS 1.3+, internal
+    if header.offset_to_point_data < waveforms <= end:
+        end = waveforms
     room = (end - int(header.offset_to_point_data)) // header.point_format.size
     if room > header.point_count:
         raise FormatError(f"{path}: the header declares {header.point_count:,} points, the file holds "
