@@ -295,3 +295,8 @@ def test_validate_never_writes_its_reports_over_its_config(tmp_path):
     assert main(["validate", str(config), "-o", str(out), "--quiet"]) == 2
     assert main(["validate", str(config), "-o", str(config), "--quiet"]) == 2
     assert _tree(tmp_path) == before
+
+
+def test_a_demo_whose_file_plan_would_exhaust_memory_is_refused_first(tmp_path, capsys):
+    assert main(["demo", "-o", str(tmp_path / "d"), "--quick", "--positions", str(10**12)]) == 2  # was: OOM
+    assert "would need about" in capsys.readouterr().err and not (tmp_path / "d").exists()
