@@ -44,7 +44,7 @@ from plyfile import PlyData, PlyElement
 
 from . import e57, pcd
 from .errors import FormatError, OutputError
-from .outputs import label_path, part_prefix, resolve
+from .outputs import label_path, label_targets, part_prefix, resolve
 
 __all__ = ["PointCloud", "LasRecords", "read_cloud", "write_cloud", "read_e57_scans", "check_format",
            "check_las_size", "label_path", "FORMATS"]
@@ -399,7 +399,7 @@ def write_cloud(path, cloud: PointCloud, format: str | None = None, binary: bool
     if ext == ".bin":
         _warn_kitti_precision(path, cloud)
         if "semantic" in cloud.attributes:  # checked before anything is written
-            words = _label_words(path.with_suffix(".label"), cloud)
+            words = _label_words(label_targets(path)[0], cloud)
     with atomic_path(path) as tmp:
         try:
             with warnings.catch_warnings(record=True) as said:
@@ -413,12 +413,13 @@ def write_cloud(path, cloud: PointCloud, format: str | None = None, binary: bool
             # the user named `path`, not our temporary file: say it in their terms
             raise FormatError(str(exc).replace(str(tmp), str(path))) from exc
     if ext == ".bin":
-        label = path.with_suffix(".label")
+        targets = label_targets(path)
         if words is not None:
-            with atomic_path(label) as tmp:
+            with atomic_path(targets[0]) as tmp:
                 words.tofile(tmp)
-        elif label.is_file():  # an older file's labels: every reader would pair them with this .bin
-            label.unlink()
+        for stale in targets[words is not None:]:  # an older file's labels: a reader would pair them with this .bin
+            if stale.is_file():
+                stale.unlink()
     return path
 
 

@@ -42,7 +42,7 @@ from pathlib import Path
 
 from .errors import OutputError
 
-__all__ = ["OutputPlan", "resolve", "output_sidecars", "input_sidecars", "content_digest",
+__all__ = ["OutputPlan", "resolve", "output_sidecars", "input_sidecars", "label_targets", "content_digest",
            "clean_stale_parts", "part_prefix", "label_path", "LOCK_NAME"]
 
 #: The lock file in an output directory while a command writes there.
@@ -57,18 +57,37 @@ def resolve(path) -> Path:
 
 def output_sidecars(path, fmt: str | None = None) -> list:
     """The files :func:`slr_ray.io.write_cloud` writes (or removes) beside ``path``
-    written as ``fmt`` (default: its extension): a KITTI ``.bin``'s SemanticKITTI ``.label``."""
+    written as ``fmt`` (default: its extension): a KITTI ``.bin``'s SemanticKITTI
+    ``.label`` (:func:`label_targets`)."""
     p = Path(path)
     ext = (fmt or p.suffix).lower()
-    return [p.with_suffix(".label")] if ext in (".bin", "bin") else []
+    return label_targets(p) if ext in (".bin", "bin") else []
+
+
+def _layout_label(p: Path) -> Path | None:
+    """``SEQ/labels/NAME.label`` for ``SEQ/velodyne/NAME.bin`` (the SemanticKITTI layout), else None."""
+    return p.parent.parent / "labels" / (p.stem + ".label") if p.parent.name == "velodyne" else None
+
+
+def label_targets(bin_path) -> list:
+    """Where :func:`slr_ray.io.write_cloud` puts the labels of a KITTI ``.bin`` (first),
+    and every other place a reader would look for them: a stale file there is
+    removed (it would be paired with the new points). In the SemanticKITTI layout
+    (``velodyne/`` beside an existing ``labels/``) the labels go to ``labels/``."""
+    p = Path(bin_path)
+    beside, layout = p.with_suffix(".label"), _layout_label(p)
+    if layout is not None and layout.parent.is_dir():
+        return [layout, beside]
+    return [beside]
 
 
 def label_path(bin_path) -> Path | None:
     """The SemanticKITTI ``.label`` file of a KITTI ``.bin``, if there is one: next
-    to it (``000000.label``), or in the sequence's ``labels/`` beside ``velodyne/``."""
+    to it (``000000.label``), or, for a ``.bin`` in ``velodyne/``, in the
+    sequence's ``labels/`` beside it."""
     p = Path(bin_path)
-    for cand in (p.with_suffix(".label"), p.parent.parent / "labels" / (p.stem + ".label")):
-        if cand.is_file():
+    for cand in (p.with_suffix(".label"), _layout_label(p)):
+        if cand is not None and cand.is_file():
             return cand
     return None
 

@@ -11,7 +11,7 @@ import pytest
 
 from slr_ray.cli import main
 from slr_ray.errors import OutputError
-from slr_ray.io import PointCloud, atomic_path, write_cloud
+from slr_ray.io import PointCloud, atomic_path, read_cloud, write_cloud
 from slr_ray.outputs import LOCK_NAME, OutputPlan, clean_stale_parts, content_digest, part_prefix
 
 
@@ -300,3 +300,29 @@ def test_validate_never_writes_its_reports_over_its_config(tmp_path):
 def test_a_demo_whose_file_plan_would_exhaust_memory_is_refused_first(tmp_path, capsys):
     assert main(["demo", "-o", str(tmp_path / "d"), "--quick", "--positions", str(10**12)]) == 2  # was: OOM
     assert "would need about" in capsys.readouterr().err and not (tmp_path / "d").exists()
+
+
+def test_a_bin_written_into_the_semantickitti_layout_never_leaves_another_frames_labels_paired(tmp_path, capsys):
+    seq = tmp_path / "seq"
+    (seq / "velodyne").mkdir(parents=True)
+    (seq / "labels").mkdir()
+    src = _kitti(tmp_path / "k.bin")  # with labels beside it
+    old = seq / "labels" / "000001.label"  # the labels of a frame this scan will replace
+    np.full(7, 9, "<u4").tofile(old)
+    out = seq / "velodyne" / "000001.bin"
+    assert main(_scan(src, out)) == 2  # its labels exist: --force, as for the .bin itself
+    assert "000001.label exists" in capsys.readouterr().err and old.read_bytes() == np.full(7, 9, "<u4").tobytes()
+    assert main(_scan(src, out, "--force")) == 0
+    back = read_cloud(out)  # the new labels, in labels/ where SemanticKITTI's tools look (were: the old frame's)
+    assert len(back.attributes["semantic"]) == len(back) and old.stat().st_size == 4 * len(back)
+    assert not (seq / "velodyne" / "000001.label").exists()
+    write_cloud(out, PointCloud(np.zeros((3, 3))), "bin")  # without labels: the stale ones go
+    assert not old.exists() and "semantic" not in read_cloud(out).attributes
+    # a .bin outside velodyne/ never reads or removes a labels/ file of the directory above
+    (tmp_path / "other").mkdir()
+    np.zeros(3, "<u4").tofile(tmp_path / "labels.label")
+    (tmp_path / "labels").mkdir()
+    np.zeros(3, "<u4").tofile(tmp_path / "labels" / "f.label")
+    write_cloud(tmp_path / "other" / "f.bin", PointCloud(np.zeros((3, 3))))
+    assert (tmp_path / "labels" / "f.label").exists()
+    assert "semantic" not in read_cloud(tmp_path / "other" / "f.bin").attributes
