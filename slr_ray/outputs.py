@@ -311,8 +311,6 @@ class OutputPlan:
                 inodes[(st.st_dev, st.st_ino)] = named
             except OSError:
                 pass  # a missing input is the reader's error
-        for check, path in self.checks:
-            check(path)
         for r, named in self.directories.items():
             if r in self.inputs:
                 raise OutputError(f"{named} is an input of this command")
@@ -343,6 +341,8 @@ class OutputPlan:
                 raise OutputError(f"no directory {parent} for {named}")
             if not planned:
                 _check_writable(parent, named)
+        for check, path in self.checks:  # after the collisions: an input named as an output is said first
+            check(path)
         return self
 
     # -- entering --
