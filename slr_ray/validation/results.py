@@ -118,7 +118,10 @@ def _spec_digests(config) -> dict:
     out = {}
     for entry in config.scenes:
         spec = config.scene_entry(entry)[0]
-        data = load_toml_spec(spec, "scene", "scene spec")[0]
+        try:
+            data = load_toml_spec(spec, "scene", "scene spec")[0]
+        except InputValueError:  # not found or not TOML: the run says so where it reads the spec
+            continue
         out[spec] = hashlib.blake2b(json.dumps(data, sort_keys=True, default=str).encode(), digest_size=8).hexdigest()
     return out
 
