@@ -67,6 +67,8 @@ def _resumable(manifest_path: Path, settings: dict, positions, out: Path) -> dic
     try:
         old = json.loads(manifest_path.read_text())
     except ValueError:
+        old = None
+    if not isinstance(old, dict) or not isinstance(old.get("settings", {}), dict):  # valid JSON of another shape
         raise InputValueError(f"{manifest_path} is not a manifest slr_ray can read: write elsewhere") from None
     before = old.get("settings")
     if before is None:

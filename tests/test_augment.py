@@ -319,3 +319,13 @@ def test_a_number_of_scans_whose_plan_would_exhaust_memory_is_refused_first(laz,
     with pytest.raises(InputValueError, match="would need about .* GiB"):  # was: a list of 10**12 names
         _run(laz, tmp_path / "o", 10**12)
     assert not (tmp_path / "o").exists()
+
+
+@pytest.mark.parametrize("content", ["[]", '{"settings": 5}', "null"])
+def test_a_manifest_of_another_shape_is_a_one_line_error(laz, tmp_path, content):
+    out = tmp_path / "o"
+    out.mkdir()
+    (out / "manifest.json").write_text(content)  # valid JSON, not ours: was an AttributeError traceback
+    with pytest.raises(InputValueError, match="not a manifest slr_ray can read"):
+        _run(laz, out, 1, min_ground_points=1000)
+    assert (out / "manifest.json").read_text() == content

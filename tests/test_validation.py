@@ -473,3 +473,14 @@ def test_a_validation_that_fails_before_its_first_row_leaves_nothing(tmp_path, c
     assert main(["validate", str(config), "-o", str(tmp_path / "out"), "--quiet"]) == 2
     assert "no_such_argument" in capsys.readouterr().err
     assert not (tmp_path / "out").exists()  # was: results.csv, stages.csv and settings.json left behind
+
+
+@pytest.mark.parametrize("content", ["{bad", "[1]"])
+def test_a_settings_json_of_another_program_is_a_one_line_error(tmp_path, content):
+    from slr_ray.errors import FormatError
+    from slr_ray.validation.results import check_settings
+
+    (tmp_path / "settings.json").write_text(content)  # was a JSONDecodeError / AttributeError traceback
+    with pytest.raises(FormatError, match="not a settings.json of slr_ray"):
+        check_settings(tmp_path, load_config("quick"))
+    assert (tmp_path / "settings.json").read_text() == content

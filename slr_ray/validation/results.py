@@ -93,7 +93,12 @@ def check_settings(outdir, config) -> dict:
                                  "embree_resolved": _embree_resolved(config),
                                  "scene_specs": _spec_digests(config)}))  # tuples -> lists
     if path.exists():
-        then = json.loads(path.read_text())
+        try:
+            then = json.loads(path.read_text())
+        except ValueError:
+            then = None
+        if not isinstance(then, dict):
+            raise FormatError(f"{path} is not a settings.json of slr_ray: write the validation elsewhere")
         differ = {k: (then.get(k), now[k]) for k in ROW_SETTINGS if then.get(k, now[k]) != now[k]}
         old_opts, new_opts = then.get("embree_resolved", {}), now["embree_resolved"]
         differ.update({f"embree option {k}": (old_opts[k], new_opts[k]) for k in old_opts
