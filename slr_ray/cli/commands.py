@@ -29,6 +29,7 @@ from ..outputs import OutputPlan
 from ..paper import Q1_SCENES, Q2_SCENES
 from ..plotting import check_figure_path, cells_figure, comparison_figure, paper_figure, range_image_figure, save_figure, validation_figure
 from ..positions import AzimuthProfile, build_synthetic_profile, default_profile, ground_labels, select_positions
+from ..scan import check_range_image
 from ..scenes import MESH_FORMATS, scene_from_spec
 from ..streaming import STREAMED_FORMATS, scan_las
 from ..validation import load_config, load_rows, paper_report, paper_report_markdown, run_validation, stage_summary
@@ -75,6 +76,8 @@ def scan(args):
     plan = _plan(args, inputs=[args.input], outputs=[args.output, args.range_image], fmt=args.format,
                  figures=[args.png])
     pattern = pattern_from(args)
+    if args.range_image or args.png:
+        check_range_image(pattern)  # before the scan, not after it
     options = options_for(args.backend, backend_from(args))  # built once, used below
     if args.print_config:
         emit({"input": str(args.input), "output": str(args.output), "origin": args.origin,
