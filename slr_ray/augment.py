@@ -35,7 +35,7 @@ from tqdm import tqdm
 from . import __version__
 from .backends import Backend, options_for, prepare
 from .effects import Effects, effect_cloud, simulate
-from .errors import InputValueError, MissingDependencyError, OutputError
+from .errors import InputValueError, MissingDependencyError, OutputError, refuse_memory
 from .io import PointCloud, atomic_path, check_format, read_cloud, write_cloud
 from .outputs import OutputPlan, content_digest, output_sidecars
 from .paper import MIN_GROUND_POINTS, SCANNER_HEIGHT, SECONDARY_RESOLUTION
@@ -90,6 +90,8 @@ def _resumable(manifest_path: Path, settings: dict, positions, out: Path) -> dic
     try:
         old = json.loads(manifest_path.read_text())
     except ValueError:
+        old = None
+    if not isinstance(old, dict) or not isinstance(old.get("settings", {}), dict):  # valid JSON of another shape
         raise InputValueError(f"{manifest_path} is not a manifest slr_ray can read: write elsewhere") from None
     before = old.get("settings")
     if before is None:
@@ -396,6 +398,8 @@ def augment(input_path, outdir, config: AugmentConfig, *, ground=None, progress:
     plan = OutputPlan()
     plan.read(input_path)
     out = plan.directory(outdir)  # absolute before any path is sent to a worker or a cluster
+    refuse_memory(1024.0 * config.n * len(heights), f"an augment of {config.n:,} x {len(heights)} scans "
+                  "(about 1 KB a scan: its file plan and manifest)", "ask for fewer scans a run")
     names = [_scan_name(i, h, ext) for i in range(config.n) for h in heights]
     for name in names:
         plan.write(out / name, fmt=ext, resumed=True)
@@ -426,6 +430,10 @@ def _augment(input_path, out, config, pattern, options, ext, names, ground, prog
                                             min_ground_points=config.min_ground_points,
                                             scanner_height=config.scanner_height,
                                             allow_fewer=config.allow_fewer, return_cells=True)
+    if config.n and not len(positions):  # allow_fewer is fewer, not none: nothing to write, an error
+        raise InputValueError(f"{input_path}: no scanner position found ("
+                              + ", ".join(f"{s['stage']} removed {s['removed']}" for s in cells.stages
+                                          if not s.get("skipped")) + "): lower min_ground_points, or check the ground")
     settings = {"input": str(input_path.resolve()), "input_bytes": input_path.stat().st_size,
                 "input_digest": content_digest(input_path), "seed": config.seed,
                 "pattern": pattern.to_dict(), "backend": backend, "backend_options": options.to_dict(),

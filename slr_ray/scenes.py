@@ -391,6 +391,8 @@ def dense_samples(scene: RectangleScene, spacing: float = 0.005, chunk: int = 1 
     nx = max(0, int(math.ceil((2 * radius - spacing / 2) / spacing)))
     frames = [_polygon_frame(poly, spacing) for poly in scene.polygons]
     cap = max(int(chunk), nx + 3, max((f[8] for f in frames), default=0))
+    refuse_memory(32.0 * cap, f"dense samples {spacing:g} m apart (rows of {cap:,} points in one buffer)",
+                  "use a coarser spacing")
     buf = np.empty((cap, 3))
     labels = np.empty(cap, np.int64)
     out = (lambda n: (buf[:n].copy(), labels[:n].copy())) if copy else (lambda n: (buf[:n], labels[:n]))

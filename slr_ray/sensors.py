@@ -394,8 +394,12 @@ def _sensor_file(what: str):
         def read(path, *args, **kwargs):
             try:
                 return reader(path, *args, **kwargs)
-            except (SlrError, OSError):
+            except OSError:
                 raise
+            except SlrError as exc:  # the content's values (angles, columns): said with the file's name
+                if str(path) in str(exc):
+                    raise
+                raise type(exc)(f"{path}: {exc}") from exc
             except Exception as exc:  # json/yaml errors, KeyError, TypeError, AttributeError of odd content
                 msg = str(exc).splitlines()[0] if str(exc) else ""
                 raise FormatError(f"{path}: not a readable {what} ({type(exc).__name__}: {msg})") from exc

@@ -28,9 +28,9 @@ from ..io import PointCloud, atomic_path, check_format, read_cloud, write_cloud
 from ..meshscan import scan_mesh
 from ..outputs import OutputPlan
 from ..paper import Q1_SCENES, Q2_SCENES
-from ..plotting import cells_figure, comparison_figure, paper_figure, range_image_figure, save_figure, validation_figure
+from ..plotting import check_figure_path, cells_figure, comparison_figure, paper_figure, range_image_figure, save_figure, validation_figure
 from ..positions import AzimuthProfile, build_synthetic_profile, default_profile, ground_labels, select_positions
-from ..scan import Scan
+from ..scan import Scan, check_range_image
 from ..scenes import MESH_FORMATS, scene_effects, scene_from_spec
 from ..streaming import STREAMED_FORMATS, scan_las
 from ..validation import load_config, load_rows, paper_report, paper_report_markdown, run_validation, stage_summary
@@ -56,9 +56,10 @@ def emit(obj) -> None:
     sys.stdout.flush()
 
 
-def _plan(args, *, inputs=(), outputs=(), fmt=None) -> OutputPlan:
+def _plan(args, *, inputs=(), outputs=(), fmt=None, figures=()) -> OutputPlan:
     """The command's :class:`~slr_ray.outputs.OutputPlan`: its inputs (with their
-    sidecars and the secondary inputs its flags name) and its outputs, checked."""
+    sidecars and the secondary inputs its flags name), its outputs and its
+    figures (whose format is checked with the rest), checked."""
     plan = OutputPlan(force=getattr(args, "force", False))
     for path in inputs:
         plan.read(path)
@@ -66,13 +67,18 @@ def _plan(args, *, inputs=(), outputs=(), fmt=None) -> OutputPlan:
         plan.read(getattr(args, flag, None), sidecars=False)
     for i, path in enumerate(outputs):
         plan.write(path, fmt=fmt if i == 0 else None)
+    for path in figures:
+        plan.write(path, check=check_figure_path)
     return plan.check()
 
 
 def scan(args):
     check_format(args.output, args.format)  # refuse an unknown output format before any work
-    plan = _plan(args, inputs=[args.input], outputs=[args.output, args.range_image, args.png], fmt=args.format)
+    plan = _plan(args, inputs=[args.input], outputs=[args.output, args.range_image], fmt=args.format,
+                 figures=[args.png])
     pattern = pattern_from(args)
+    if args.range_image or args.png:
+        check_range_image(pattern)  # before the scan, not after it
     options = options_for(args.backend, backend_from(args))  # built once, used below
     effects = check_effects(effects_from(args), args.backend, pattern)
     if effects is not None and (args.range_image or args.png):
@@ -189,7 +195,7 @@ def demo(args):
 
 
 def scene(args):
-    spec_file = args.spec if Path(args.spec).suffix.lower() == ".toml" else None
+    spec_file = args.spec if Path(args.spec).suffix else None  # a path (any extension), not a shipped name
     if args.scene_cmd == "info":
         emit({"spec": args.spec, **scene_from_spec(args.spec).info()})
         return
@@ -235,7 +241,7 @@ def scene(args):
 
 
 def compare(args):
-    plan = _plan(args, inputs=[args.input], outputs=[args.png])
+    plan = _plan(args, inputs=[args.input], figures=[args.png])
     pattern = pattern_from(args)
     embree_options = backend_from(args, "embree")
     with plan:
@@ -250,7 +256,7 @@ def compare(args):
 
 def positions(args):
     args.profile_file = None if args.profile in ("none", "default") else args.profile
-    plan = _plan(args, inputs=[args.input], outputs=[args.output, args.png])
+    plan = _plan(args, inputs=[args.input], outputs=[args.output], figures=[args.png])
     ground = ground_from(args)
     with plan:
         cloud = read_cloud(args.input, args.input_format)
@@ -289,6 +295,17 @@ def validate(args):
         emit(asdict(config))
         return
     out = Path(args.output or f"slr_ray_validate_{config.name}")
+    # what the command writes after the run (which locks `out` and plans its own files), checked before it:
+    # never over the config or a scene spec, never through a directory or a link to an input
+    plan = OutputPlan()
+    plan.read(args.config if Path(args.config).suffix else None, sidecars=False)
+    for entry in config.scenes:
+        spec = config.scene_entry(entry)[0]
+        plan.read(spec if Path(spec).suffix else None, sidecars=False)
+    plan.directory(out)
+    for name in ("figure3.png", "report.json", "report.md", *(f"paper_figure_{b}.png" for b in config.backends)):
+        plan.write(out / name, resumed=True)
+    plan.check()
     res = run_validation(config, out, progress=not args.quiet)  # locks `out` while it runs
     rows = load_rows(out / "results.csv")
     save_figure(validation_figure(rows), out / "figure3.png")
