@@ -269,3 +269,25 @@ def test_every_compiled_kernel_is_cached_to_disk():
                     and type(v._cache).__name__ == "NullCache"]
         assert not uncached, (name, uncached)
     assert len(kernels) > 20
+
+
+@pytest.mark.parametrize("kind", ["dense", "slots", "hash"])
+@pytest.mark.parametrize("n", [0, 1, 2, 63, 64, 65, 127, 128, 129, 4097])
+def test_winners_in_index_order_at_word_boundaries(kind, n, monkeypatch):
+    # the winners are put in index order by one bit a point and a count per 64-bit
+    # word: indices 0, 63, 64, the last one, every point a winner or a few, empty
+    rng = np.random.default_rng(n)
+    pattern = ScanPattern(2.0)
+    for spread in (1000.0, 0.01):  # nearly every point its own pulse / a few pulses
+        pts = rng.normal(size=(n, 3)) * spread
+        for n_threads in (1, 3):
+            t = _tables(kind, np.zeros(3), pattern, n_threads, monkeypatch)
+            t.add(pts[: n // 2])
+            t.add(pts[n // 2:])
+            keys, ranges, idx = t.winners()
+            expected = brute_force_scan(pts, np.zeros(3), pattern)
+            np.testing.assert_array_equal(idx, expected)
+            k, r = pulse_ids(pts, np.zeros(3), pattern)
+            np.testing.assert_array_equal(keys, k[expected])
+            np.testing.assert_array_equal(ranges, r[expected])
+            assert keys.dtype == idx.dtype == np.int64 and ranges.dtype == np.float64

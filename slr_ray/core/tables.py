@@ -219,6 +219,101 @@ def _merge_hash(src, dst):
     return new
 
 
+# --- winners in index order without a sort ---------------------------------------
+#
+# A bin's winner is a point index, unique and below the number of points: one
+# bit per point marks the winners, a running count of the marked bits per
+# 64-bit word gives each winner its place in index order, and a second pass
+# writes key, range and index there. O(m + points / 64) for m winners, and
+# the writes follow the records' (nearly ascending) order: no O(m log m) sort
+# of packed keys, no gather of the ranges from the cloud.
+
+_ONE = np.uint64(1)
+_M1 = np.uint64(0x5555555555555555)
+_M2 = np.uint64(0x3333333333333333)
+_M4 = np.uint64(0x0F0F0F0F0F0F0F0F)
+_H01 = np.uint64(0x0101010101010101)
+
+
+@njit(cache=True, inline="always", error_model="numpy")
+def _popcount(x):
+    x = x - ((x >> _ONE) & _M1)
+    x = (x & _M2) + ((x >> np.uint64(2)) & _M2)
+    x = (x + (x >> np.uint64(4))) & _M4
+    return np.int64((x * _H01) >> np.uint64(56))
+
+
+@njit(cache=True, inline="always", error_model="numpy")
+def _mark(bits, i):
+    bits[i >> 6] |= _ONE << np.uint64(i & 63)
+
+
+@njit(cache=True, inline="always", error_model="numpy")
+def _place(bits, rank, i):
+    """Position of marked index ``i`` among all marked indices, in index order."""
+    return rank[i >> 6] + _popcount(bits[i >> 6] & ((_ONE << np.uint64(i & 63)) - _ONE))
+
+
+@njit(cache=True, nogil=True, error_model="numpy")
+def _ranks(bits, rank):
+    """rank[w]: marked bits in the words before w."""
+    c = np.int64(0)
+    for w in range(bits.shape[0]):
+        rank[w] = c
+        c += _popcount(bits[w])
+
+
+@njit(cache=True, nogil=True, error_model="numpy")
+def _mark_records(tab, bits):
+    for j in range(tab.shape[0]):
+        if tab[j].key != -1:
+            _mark(bits, np.int64(tab[j].idx))
+
+
+@njit(cache=True, nogil=True, error_model="numpy")
+def _place_records(tab, bits, rank, keys, ranges, idx):
+    for j in range(tab.shape[0]):
+        if tab[j].key != -1:
+            i = np.int64(tab[j].idx)
+            p = _place(bits, rank, i)
+            keys[p] = tab[j].key
+            ranges[p] = tab[j].r
+            idx[p] = i
+
+
+@njit(cache=True, nogil=True, error_model="numpy")
+def _mark_dense(bidx, bits):
+    for k in range(bidx.shape[0]):
+        if bidx[k] >= 0:
+            _mark(bits, bidx[k])
+
+
+@njit(cache=True, nogil=True, error_model="numpy")
+def _place_dense(bidx, branges, bits, rank, keys, ranges, idx):
+    for k in range(bidx.shape[0]):
+        i = bidx[k]
+        if i >= 0:
+            p = _place(bits, rank, i)
+            keys[p] = k
+            ranges[p] = branges[k]
+            idx[p] = i
+
+
+def _in_index_order(n_points: int, m: int, mark, place):
+    """``(keys, ranges, indices)`` of ``m`` winners in index order: ``mark(bits)``
+    and ``place(bits, rank, keys, ranges, idx)`` visit every source of winners."""
+    words = (max(n_points, 1) + 63) >> 6
+    bits = np.zeros(words, np.uint64)
+    mark(bits)
+    rank = np.empty(words, np.int64)
+    _ranks(bits, rank)
+    keys = np.empty(m, np.int64)
+    ranges = np.empty(m, np.float64)
+    idx = np.empty(m, np.int64)
+    place(bits, rank, keys, ranges, idx)
+    return keys, ranges, idx
+
+
 class _DenseTable:
     """Per-pulse arrays (range, index): used when the pattern has few pulses."""
 
@@ -256,20 +351,10 @@ class _DenseTable:
             self.idx[keys] = -1
         self.count = 0
 
-    def extract(self):
-        """Occupied bins ``(keys, ranges, indices)`` sorted by index."""
-        keys = np.flatnonzero(self.idx >= 0).astype(np.int64)
-        idx = self.idx[keys]
-        bits = max(1, int(len(self.idx) - 1).bit_length())
-        if len(keys) and int(idx.max()) < 1 << (63 - bits):
-            # one sort of (index, key) packed in an int64 is faster than an argsort
-            packed = np.sort((idx << bits) | keys)
-            keys = packed & ((1 << bits) - 1)
-            idx = packed >> bits
-        else:  # pragma: no cover - more than 2**40 points
-            order = np.argsort(idx)
-            keys, idx = keys[order], idx[order]
-        return keys, self.ranges[keys], idx
+    def extract(self, n_points: int):
+        """Occupied bins ``(keys, ranges, indices)`` sorted by index (every index below ``n_points``)."""
+        return _in_index_order(n_points, self.count, lambda bits: _mark_dense(self.idx, bits),
+                               lambda *out: _place_dense(self.idx, self.ranges, *out))
 
     @property
     def nbytes(self) -> int:
@@ -615,9 +700,12 @@ class BinTables:
     def winners(self, points=None, with_ranges: bool = True, release: bool = False):
         """Occupied bins as ``(keys, ranges, indices)``, sorted by index.
 
-        ``points``: the cloud, when the caller still has it (one-shot scans):
-        ranges are then recomputed from it, which is faster than carrying
-        them through the sort. ``with_ranges=False`` returns ``None`` for the
+        Winners are put in index order without a sort (one bit a point, then
+        each bin's record written at its rank), carrying key and range along.
+        ``points``: the cloud, when the caller still has it: with
+        ``release=True`` ranges are recomputed from it (that path packs and
+        sorts, to hold no more than the tables while they are freed one by
+        one). ``with_ranges=False`` returns ``None`` for the
         ranges and needs the least memory (the dense-scene path recomputes
         them from the regenerated samples). ``release=True`` frees each
         thread's table as soon as it is read out, so the result never sits
@@ -627,10 +715,24 @@ class BinTables:
         if self.tables is None:
             raise StateError("these tables were released by winners(release=True)")
         if self.dense:
-            keys, ranges, idx = self._merged().extract()
+            keys, ranges, idx = self._merged().extract(self.n_points)
             self._touched = keys
             return keys, (ranges if with_ranges else None), idx
         m = self.n_bins
+        if not release:
+            # every bin's record carries its range: no sort, no gather from the cloud
+            tabs = [t.tab for t in self.tables]
+
+            def mark(bits):
+                for tab in tabs:
+                    _mark_records(tab, bits)
+
+            def place(*out):
+                for tab in tabs:
+                    _place_records(tab, *out)
+
+            keys, ranges, idx = _in_index_order(self.n_points, m, mark, place)
+            return keys, (ranges if with_ranges else None), idx
         n_pulse_bits = max(1, int(self.pattern.n_pulses - 1).bit_length())
         fits = int(max(self.n_points - 1, 1)).bit_length() + n_pulse_bits <= 63
         if m and fits and (points is not None or not with_ranges):
