@@ -71,10 +71,12 @@ def test_axes_and_signed_zeros_take_the_exact_path():
 
 
 def _tables(kind, origin, pattern, n_threads, monkeypatch):
+    """Tables of one kind; "slots": a slot array per thread, "shared-slots": one for all."""
     monkeypatch.setattr(BinTables, "dense_bytes", 2**62 if kind == "dense" else 0)
-    monkeypatch.setattr(BinTables, "slot_bytes", 2**62 if kind == "slots" else 0)
+    monkeypatch.setattr(BinTables, "slot_bytes", 2**62 if kind.endswith("slots") else 0)
+    monkeypatch.setattr(BinTables, "own_slots", kind == "slots")
     t = BinTables(origin, pattern, n_threads)
-    assert t.kind == kind
+    assert t.kind == kind.split("-")[-1]
     return t
 
 
@@ -84,19 +86,19 @@ def test_dense_slot_and_hash_tables_agree(monkeypatch):
     pts[1000:1100] = pts[:100]  # exact ties: the lower index must win in every kind
     pattern = ScanPattern(0.5)
     results = {}
-    for kind in ("dense", "slots", "hash"):
+    for kind in ("dense", "slots", "shared-slots", "hash"):
         t = _tables(kind, np.zeros(3), pattern, 3, monkeypatch)
         t.add(pts)
         results[kind] = t.winners()
         for a, b in zip(t.winners(pts), results[kind]):  # ranges recomputed or carried: the same
             np.testing.assert_array_equal(a, b)
     np.testing.assert_array_equal(results["dense"][2], brute_force_scan(pts, np.zeros(3), pattern))
-    for kind in ("slots", "hash"):
+    for kind in ("slots", "shared-slots", "hash"):
         for a, b in zip(results["dense"], results[kind]):
             np.testing.assert_array_equal(a, b)
 
 
-@pytest.mark.parametrize("kind", ["dense", "slots", "hash"])
+@pytest.mark.parametrize("kind", ["dense", "slots", "shared-slots", "hash"])
 def test_reset_tables_forget_the_last_position(kind, monkeypatch):
     # a reused table must give what a fresh one gives, whether or not the last
     # scan was read out (winners) before the reset
@@ -193,7 +195,7 @@ def test_default_threads_is_positive():
         BinTables(np.zeros(3), ScanPattern(1.0), n_threads=257)
 
 
-@pytest.mark.parametrize("kind", ["slots", "hash"])
+@pytest.mark.parametrize("kind", ["slots", "shared-slots", "hash"])
 def test_released_tables_give_the_same_winners_and_refuse_more(kind, monkeypatch):
     rng = np.random.default_rng(11)
     pts = rng.normal(size=(30000, 3)) * 10
@@ -271,7 +273,7 @@ def test_every_compiled_kernel_is_cached_to_disk():
     assert len(kernels) > 20
 
 
-@pytest.mark.parametrize("kind", ["dense", "slots", "hash"])
+@pytest.mark.parametrize("kind", ["dense", "slots", "shared-slots", "hash"])
 @pytest.mark.parametrize("n", [0, 1, 2, 63, 64, 65, 127, 128, 129, 4097])
 def test_winners_in_index_order_at_word_boundaries(kind, n, monkeypatch):
     # the winners are put in index order by one bit a point and a count per 64-bit

@@ -116,8 +116,9 @@ class BinningScanner(Scanner):
         tables = self._tables_for(origin, pattern)
         try:
             tables.add(self.points, finite=True)  # checked when prepared
-            keys, ranges, idx = tables.winners(self.points)
+            pulses, ranges, idx = tables.winners(self.points, as_pulses=True)
         finally:
             self._release(tables)
-        return Scan.from_keys(keys, ranges, idx, origin, pattern, self.backend, len(self.points),
-                              time.perf_counter() - t0)
+        return Scan(indices=idx.astype(np.intp, copy=False), ranges=ranges, pulses=pulses, origin=origin,
+                    pattern=pattern, backend=self.backend, n_input=len(self.points),
+                    seconds=time.perf_counter() - t0)
