@@ -2,8 +2,11 @@
 up to tens of millions of pulses (SYNS's 0.036 deg: 37.5 M), used by
 :class:`slr_ray.core.BinTables` (module docstring of :mod:`slr_ray.core.tables`).
 
-A per-pulse int32 slot points into compact records ``(key, range, index)``:
-no hashing, no probing, and clearing for the next scan costs O(occupied bins).
+A per-pulse int32 slot points into compact records ``(key, range, index)``
+(it holds the record's position plus one: 0 is empty, so a fresh slot array
+is ``np.zeros``, whose pages the system maps as they are first touched, with
+no pass filling it): no hashing, no probing, and clearing for the next scan
+costs O(occupied bins).
 """
 
 from __future__ import annotations
@@ -34,7 +37,7 @@ def owner(key, n_parts):
 @njit(cache=True, nogil=True, error_model="numpy")
 def _insert_slots(slots, rec, count, keys, ranges, offset, part, n_parts, start):
     """Insert the keys of one share (``owner(key, n_parts) == part``) into a
-    slot table: ``slots[key]`` is the bin's record in ``rec`` or -1.
+    slot table: ``slots[key]`` is one more than the bin's record in ``rec``, 0 for none.
 
     Each key has one owner, which sees its points in index order, so a strict
     ``<`` keeps ties on the lowest index. Stops when ``rec`` is full; returns
@@ -50,12 +53,12 @@ def _insert_slots(slots, rec, count, keys, ranges, offset, part, n_parts, start)
             continue
         r = ranges[i]
         if key != last_key:
-            j = np.int64(slots[key])
+            j = np.int64(slots[key]) - 1
             if j < 0:
                 if count >= cap:
                     return count, i
                 j = count
-                slots[key] = j
+                slots[key] = j + 1
                 rec[j].key = key
                 rec[j].r = r
                 rec[j].idx = offset + i
@@ -74,7 +77,7 @@ def _insert_slots(slots, rec, count, keys, ranges, offset, part, n_parts, start)
 @njit(cache=True, nogil=True, error_model="numpy")
 def _clear_slots(slots, rec, count):
     for j in range(count):
-        slots[rec[j].key] = -1
+        slots[rec[j].key] = 0
 
 
 @njit(cache=True, nogil=True, error_model="numpy")
@@ -101,9 +104,9 @@ def _reduce_slots(points, ox, oy, oz, d_theta, d_phi, th0, th1, nv, nh, rmin, rm
             r = ranges[i]
             if key != last_key:  # scans are ordered: neighbours often share a pulse
                 last_key = key
-                j = np.int64(slots[key])
+                j = np.int64(slots[key]) - 1
                 if j < 0:
-                    slots[key] = count
+                    slots[key] = count + 1
                     rec[count].key = key
                     rec[count].r = r
                     rec[count].idx = offset + s + i
@@ -127,11 +130,11 @@ def _merge_slots(slots, rec, count, other, start):
         key = other[j].key
         r = other[j].r
         i = other[j].idx
-        s = np.int64(slots[key])
+        s = np.int64(slots[key]) - 1
         if s < 0:
             if count >= cap:
                 return count, j
-            slots[key] = count
+            slots[key] = count + 1
             rec[count].key = key
             rec[count].r = r
             rec[count].idx = i
@@ -145,7 +148,7 @@ def _merge_slots(slots, rec, count, other, start):
 class SlotTable:
     """One thread's bins in a table indexed directly by pulse key.
 
-    ``slots`` (int32 per pulse) holds the position of a bin's ``(key, range,
+    ``slots`` (int32 per pulse) holds one more than the position of a bin's ``(key, range,
     index)`` record in this thread's compact record array. Either each thread
     has its own ``slots`` (while they all fit :attr:`BinTables.slot_bytes`):
     threads split the points, key and insert them in one pass, and the tables

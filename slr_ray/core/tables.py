@@ -376,7 +376,7 @@ class BinTables:
         #: slot tables of their own per thread (threads split the points, one pass) while they fit
         self._private = (self.kind == "slots" and self.own_slots
                          and pattern.n_pulses * 4 * self.n_threads <= allowance)
-        self._slots = np.full(pattern.n_pulses, -1, np.int32) if self.kind == "slots" and not self._private \
+        self._slots = np.zeros(pattern.n_pulses, np.int32) if self.kind == "slots" and not self._private \
             else None
         self._compact = self.kind == "hash" and pattern.n_pulses <= _COMPACT_MAX_PULSES
         self.tables = [self._new_table() for _ in range(self.n_threads)]
@@ -416,7 +416,7 @@ class BinTables:
         if self.kind == "dense":
             return _DenseTable(self.pattern.n_pulses)
         if self.kind == "slots":
-            return SlotTable(np.full(self.pattern.n_pulses, -1, np.int32) if self._private else self._slots)
+            return SlotTable(np.zeros(self.pattern.n_pulses, np.int32) if self._private else self._slots)
         return _HashTable(compact=self._compact)
 
     #: points whose keys are computed before the threads insert them (slot and hash tables)
