@@ -599,18 +599,21 @@ class BinTables:
                     mark_records(tab, bits)
 
             def place(*out):
-                # every record has its own place: the tables are written out in parallel
-                # (and the fresh output pages are faulted in by all threads)
+                # every record has its own place: shares of the records are written out in
+                # parallel (and the fresh output pages are faulted in by all threads)
                 if as_pulses:
                     run = lambda tab: place_records_pulses(tab, out[0], out[1], nh, *out[2:])  # noqa: E731
                 else:
                     run = lambda tab: place_records(tab, *out)  # noqa: E731
-                if len(tabs) > 1 and m > 1 << 16:
-                    with ThreadPoolExecutor(len(tabs)) as pool:
-                        list(pool.map(run, tabs))
+                parts = max(1, min(self.n_threads, m >> 16))
+                shares = [tab[len(tab) * i // parts: len(tab) * (i + 1) // parts] for tab in tabs
+                          for i in range(parts)]
+                if parts > 1:
+                    with ThreadPoolExecutor(parts) as pool:
+                        list(pool.map(run, shares))
                 else:
-                    for tab in tabs:
-                        run(tab)
+                    for share in shares:
+                        run(share)
 
             keys, ranges, idx = in_index_order(self.n_points, m, mark, place, (2,) if as_pulses else ())
             return keys, (ranges if with_ranges else None), idx
