@@ -293,3 +293,40 @@ def test_winners_in_index_order_at_word_boundaries(kind, n, monkeypatch):
             np.testing.assert_array_equal(keys, k[expected])
             np.testing.assert_array_equal(ranges, r[expected])
             assert keys.dtype == idx.dtype == np.int64 and ranges.dtype == np.float64
+
+
+@pytest.mark.parametrize("kind", ["slots", "shared-slots"])
+def test_slot_tables_fold_ties_across_threads_and_chunks(kind, monkeypatch):
+    # own slot tables split each chunk's points between threads and are folded at the
+    # end: copies of a point in another thread's share, in a later chunk, or read out
+    # midway (a fold, then more points) must still leave the lowest index
+    rng = np.random.default_rng(21)
+    pts = rng.normal(size=(60000, 3)) * 10
+    pts[40000:40500] = pts[:500]  # the last thread's share of the first chunk
+    pts[45000:45500] = pts[20000:20500]  # the first thread's share of a later chunk: its copy folds in
+    pts[55000:55500] = pts[100:600]  # a later chunk
+    pts[59990:] = pts[20000:20010]
+    pattern = ScanPattern(0.5)
+    expected = brute_force_scan(pts, np.zeros(3), pattern)
+    t = _tables(kind, np.zeros(3), pattern, 3, monkeypatch)
+    for s in range(0, len(pts), 15000):  # never read out midway
+        t.add(pts[s:s + 15000])
+    np.testing.assert_array_equal(t.winners()[2], expected)
+    t = _tables(kind, np.zeros(3), pattern, 3, monkeypatch)
+    assert t._private == (kind == "slots")
+    t.add(pts[:45000])
+    np.testing.assert_array_equal(t.winners()[2], brute_force_scan(pts[:45000], np.zeros(3), pattern))
+    assert t.n_bins == len(t.winners()[2])  # a second read-out folds nothing twice
+    t.add(pts[45000:52000])
+    t.add(pts[52000:])
+    keys, ranges, idx = t.winners()
+    np.testing.assert_array_equal(idx, expected)
+    k, r = pulse_ids(pts, np.zeros(3), pattern)
+    np.testing.assert_array_equal(keys, k[expected])
+    np.testing.assert_array_equal(ranges, r[expected])
+    pulses, _, idx2 = t.winners(as_pulses=True)
+    np.testing.assert_array_equal(idx2, expected)
+    np.testing.assert_array_equal(pulses, pattern.unravel(k[expected]))
+    t.reset(np.ones(3))  # cleared at the occupied bins only: a fresh table's answer
+    t.add(pts)
+    np.testing.assert_array_equal(t.winners()[2], brute_force_scan(pts, np.ones(3), pattern))
