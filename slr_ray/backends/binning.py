@@ -25,6 +25,7 @@ import numpy as np
 
 from .. import core, threads
 from ..arrays import as_origin
+from ..core.order import OutputPool
 from ..errors import InputValueError
 from ..pattern import as_pattern
 from ..scan import Scan
@@ -91,6 +92,8 @@ class BinningScanner(Scanner):
         # (a scan from another thread meanwhile gets its own)
         self._cache = None
         self._lock = threading.Lock()
+        #: output arrays of fine patterns' scans, reused once the scans are dropped
+        self._outputs = OutputPool()
 
     def _tables_for(self, origin, pattern) -> "core.BinTables":
         if self._lock.acquire(blocking=False):
@@ -116,7 +119,7 @@ class BinningScanner(Scanner):
         tables = self._tables_for(origin, pattern)
         try:
             tables.add(self.points, finite=True)  # checked when prepared
-            pulses, ranges, idx = tables.winners(self.points, as_pulses=True)
+            pulses, ranges, idx = tables.winners(self.points, as_pulses=True, pool=self._outputs)
         finally:
             self._release(tables)
         return Scan(indices=idx.astype(np.intp, copy=False), ranges=ranges, pulses=pulses, origin=origin,

@@ -562,12 +562,15 @@ class BinTables:
         own = sum(t.slots.nbytes for t in self.tables) if self._private else 0
         return sum(t.nbytes for t in self.tables) + own + (0 if self._slots is None else self._slots.nbytes)
 
-    def winners(self, points=None, with_ranges: bool = True, release: bool = False, as_pulses: bool = False):
+    def winners(self, points=None, with_ranges: bool = True, release: bool = False, as_pulses: bool = False,
+                pool=None):
         """Occupied bins as ``(keys, ranges, indices)``, sorted by index.
 
         ``as_pulses=True``: ``(m, 2) int64`` pulses ``(row, column)`` in place
         of the flat keys (what :class:`~slr_ray.Scan` holds: written once,
-        with no flat keys in between).
+        with no flat keys in between). ``pool``: an
+        :class:`~slr_ray.core.order.OutputPool` those arrays come from (slot
+        and hash tables, ``as_pulses=True``).
 
         Winners are put in index order without a sort (one bit a point, then
         each bin's record written at its rank), carrying key and range along.
@@ -615,7 +618,8 @@ class BinTables:
                     for share in shares:
                         run(share)
 
-            keys, ranges, idx = in_index_order(self.n_points, m, mark, place, (2,) if as_pulses else ())
+            keys, ranges, idx = in_index_order(self.n_points, m, mark, place, (2,) if as_pulses else (),
+                                               pool.take if pool is not None and as_pulses else None)
             return keys, (ranges if with_ranges else None), idx
         n_pulse_bits = max(1, int(self.pattern.n_pulses - 1).bit_length())
         fits = int(max(self.n_points - 1, 1)).bit_length() + n_pulse_bits <= 63
