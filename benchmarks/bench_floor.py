@@ -13,8 +13,9 @@ the ratios of one run), with ``--threads`` threads:
 - **scans**: a prepared binning scanner's 0.144 deg scan, SYNS (0.036 deg),
   an HDL-64E S2 and a VLP-16 frame, from a position 14 m away;
 - **SYNS stages**: ``BinTables.add`` (keys and the per-pulse minimum, fused),
-  ``winners`` (folding the threads' tables, the winners in index order) and
-  the rest of the scan.
+  ``winners`` (folding the threads' tables, the winners in index order) into
+  pooled output arrays, as a prepared scan does, and into fresh ones (the
+  difference: faulting in 177 MB of new pages).
 
 Saves results/bench_floor.json.
 """
@@ -38,6 +39,7 @@ import slr_ray  # noqa: E402
 from slr_ray import ScanPattern, prepare  # noqa: E402
 from slr_ray.core import BinTables  # noqa: E402
 from slr_ray.core.grid import BLOCK, block_keys, kernel_params, scratch  # noqa: E402
+from slr_ray.core.order import OutputPool  # noqa: E402
 
 ORIGIN = np.array([12.3, -7.1, 0.0])
 
@@ -85,13 +87,17 @@ def main(argv=None):
     params = kernel_params(ORIGIN, patterns["0.144"])
     tables = BinTables(ORIGIN, syns, n_threads=T)
 
+    pool = OutputPool()
+
     def syns_stages():
         t0 = time.perf_counter()
         tables.reset(ORIGIN)
         tables.add(pts, finite=True)
         t1 = time.perf_counter()
+        tables.winners(pts, as_pulses=True, pool=pool)
+        t2 = time.perf_counter()
         tables.winners(pts, as_pulses=True)
-        return t1 - t0, time.perf_counter() - t1
+        return t1 - t0, t2 - t1, time.perf_counter() - t2
 
     jobs = {"read": lambda: _split(_read, pts, T), "angles": lambda: _split(_angles, pts, T, *params)}
     jobs |= {f"scan {k}": (lambda p=p: scanner.scan(ORIGIN, p)) for k, p in patterns.items()}
@@ -99,15 +105,15 @@ def main(argv=None):
         f()
     syns_stages()
     times = {k: [] for k in jobs}
-    stages = {"add (keys + minimum)": [], "winners (fold + index order)": []}
+    stages = {"add (keys + minimum)": [], "winners (fold + index order)": [],
+              "winners into fresh arrays": []}
     for _ in range(args.rounds):
         for k, f in jobs.items():
             t0 = time.perf_counter()
             f()
             times[k].append(time.perf_counter() - t0)
-        a, w = syns_stages()
-        stages["add (keys + minimum)"].append(a)
-        stages["winners (fold + index order)"].append(w)
+        for k, v in zip(stages, syns_stages()):
+            stages[k].append(v)
     med = {k: float(np.median(v)) for k, v in times.items()}
     rows = [{"what": k, "median_seconds": med[k], "all_seconds": v, "x_read": med[k] / med["read"],
              "x_angles": med[k] / med["angles"]} for k, v in times.items()]
