@@ -3,7 +3,9 @@
     python benchmarks/bench_floor.py [--rounds 7] [--threads 2]
 
 Times, in rounds taken in turn (medians; the machine may be shared, so read
-the ratios of one run), with ``--threads`` threads:
+the ratios of one run), with ``--threads`` threads, wall and CPU time of the
+process (with ``--threads 1`` on a shared machine the CPU time is the
+steadier figure: it does not count the time other jobs hold the core):
 
 - **read**: one parallel pass summing the coordinates (0.7 GB of float64):
   the memory-bandwidth floor of anything that looks at every point;
@@ -17,7 +19,7 @@ the ratios of one run), with ``--threads`` threads:
   pooled output arrays, as a prepared scan does, and into fresh ones (the
   difference: faulting in 177 MB of new pages).
 
-Saves results/bench_floor.json.
+Saves results/bench_floor.json (bench_floor_<n>threads.json for other thread counts).
 """
 
 from __future__ import annotations
@@ -105,28 +107,33 @@ def main(argv=None):
         f()
     syns_stages()
     times = {k: [] for k in jobs}
+    cpu = {k: [] for k in jobs}
     stages = {"add (keys + minimum)": [], "winners (fold + index order)": [],
               "winners into fresh arrays": []}
     for _ in range(args.rounds):
         for k, f in jobs.items():
-            t0 = time.perf_counter()
+            c0, t0 = time.process_time(), time.perf_counter()
             f()
             times[k].append(time.perf_counter() - t0)
+            cpu[k].append(time.process_time() - c0)
         for k, v in zip(stages, syns_stages()):
             stages[k].append(v)
     med = {k: float(np.median(v)) for k, v in times.items()}
+    mcpu = {k: float(np.median(v)) for k, v in cpu.items()}
     rows = [{"what": k, "median_seconds": med[k], "all_seconds": v, "x_read": med[k] / med["read"],
-             "x_angles": med[k] / med["angles"]} for k, v in times.items()]
+             "x_angles": med[k] / med["angles"], "median_cpu_seconds": mcpu[k], "all_cpu_seconds": cpu[k],
+             "cpu_x_angles": mcpu[k] / mcpu["angles"]} for k, v in times.items()]
     rows += [{"what": f"syns stage: {k}", "median_seconds": float(np.median(v)), "all_seconds": v}
              for k, v in stages.items()]
     gbps = pts.nbytes / med["read"] / 1e9
     print(f"{len(pts):,} points, {T} threads, medians of {args.rounds} rounds taken in turn")
-    print(f"{'what':<42} {'seconds':>8} {'x read':>7} {'x angles':>9}")
+    print(f"{'what':<42} {'seconds':>8} {'x read':>7} {'x angles':>9} {'cpu s':>7} {'cpu x angles':>13}")
     for r in rows:
-        extra = f" {r['x_read']:>7.1f} {r['x_angles']:>9.2f}" if "x_read" in r else ""
+        extra = (f" {r['x_read']:>7.1f} {r['x_angles']:>9.2f} {r['median_cpu_seconds']:>7.3f}"
+                 f" {r['cpu_x_angles']:>13.2f}") if "x_read" in r else ""
         print(f"{r['what']:<42} {r['median_seconds']:>8.3f}{extra}")
     print(f"read: {pts.nbytes / 2**30:.2f} GiB at {gbps:.1f} GB/s")
-    save("bench_floor", {"machine": machine(), "inputs": {"points": len(pts), "threads": T, "rounds": args.rounds,
+    save("bench_floor" if T == 2 else f"bench_floor_{T}threads", {"machine": machine(), "inputs": {"points": len(pts), "threads": T, "rounds": args.rounds,
                                                          "origin": ORIGIN.tolist(), "bytes": pts.nbytes},
                          "read_gb_per_s": gbps, "rows": rows})
 
