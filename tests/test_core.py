@@ -330,3 +330,22 @@ def test_slot_tables_fold_ties_across_threads_and_chunks(kind, monkeypatch):
     t.reset(np.ones(3))  # cleared at the occupied bins only: a fresh table's answer
     t.add(pts)
     np.testing.assert_array_equal(t.winners()[2], brute_force_scan(pts, np.ones(3), pattern))
+
+
+def test_folding_own_slot_tables_keeps_the_lowest_index_on_ties():
+    # the fold meets a later point in the first table and its exact copy, earlier in
+    # the input, in another (threads take chunks as they come free): the lower index wins
+    from slr_ray.core.slots import SlotTable
+
+    rng = np.random.default_rng(22)
+    pts = rng.normal(size=(20000, 3)) * 10
+    pts = np.vstack([pts, pts])  # every point again, 20000 later
+    pattern = ScanPattern(0.5)
+    params = kernel_params(np.zeros(3), pattern)
+    band = (np.int64(0), np.int64(pattern.n_pulses))
+    late = SlotTable(np.zeros(pattern.n_pulses, np.int32))
+    late.reduce(pts, params, band, 0, 20000, 40000)
+    early = SlotTable(np.zeros(pattern.n_pulses, np.int32))
+    early.reduce(pts, params, band, 0, 0, 20000)
+    late.absorb(early)
+    assert sorted(late.tab["idx"].tolist()) == brute_force_scan(pts[:20000], np.zeros(3), pattern).tolist()
