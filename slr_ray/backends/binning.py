@@ -96,12 +96,17 @@ class BinningScanner(Scanner):
         self._outputs = OutputPool()
 
     def _tables_for(self, origin, pattern) -> "core.BinTables":
+        # a pattern's first scan shares one slot array between the threads (a one-shot
+        # scan allocates no more); its second builds tables with one per thread (one
+        # pass, no key arrays), which the later scans reuse
         if self._lock.acquire(blocking=False):
             cached, self._cache = self._cache, None
             self._lock.release()
             if cached is not None and cached.pattern == pattern:
-                return cached.reset(origin)
-        return core.BinTables(origin, pattern, n_threads=self.options.n_threads)
+                if not cached.could_own_slots:
+                    return cached.reset(origin)
+                return core.BinTables(origin, pattern, n_threads=self.options.n_threads)
+        return core.BinTables(origin, pattern, n_threads=self.options.n_threads, own_slots=False)
 
     def _release(self, tables: "core.BinTables") -> None:
         if tables.reusable and self._lock.acquire(blocking=False):

@@ -352,7 +352,7 @@ class BinTables:
         return self.kind in ("dense", "slots")
 
     def __init__(self, origin, pattern, n_threads: int | None = None, key_range: tuple | None = None,
-                 slot_bytes: int | None = None):
+                 slot_bytes: int | None = None, own_slots: bool | None = None):
         self.origin = origin
         self.pattern = pattern
         #: ``slot_bytes``: this call's allowance for slot tables instead of the class's
@@ -374,8 +374,12 @@ class BinTables:
             self.kind = "hash"  # a band of a coarse pattern: the tables follow the band, not the pattern
         allowance = self.slot_bytes if slot_bytes is None else slot_bytes
         #: slot tables of their own per thread (threads split the points, one pass) while they fit
-        self._private = (self.kind == "slots" and self.own_slots
+        #: ``own_slots``: this call's choice instead of the class's (a one-shot scan
+        #: allocates one shared slot array rather than one per thread)
+        self._private = (self.kind == "slots" and (self.own_slots if own_slots is None else own_slots)
                          and pattern.n_pulses * 4 * self.n_threads <= allowance)
+        self.could_own_slots = (self.kind == "slots" and self.own_slots and not self._private
+                                and pattern.n_pulses * 4 * self.n_threads <= allowance)
         self._slots = np.zeros(pattern.n_pulses, np.int32) if self.kind == "slots" and not self._private \
             else None
         self._compact = self.kind == "hash" and pattern.n_pulses <= _COMPACT_MAX_PULSES
