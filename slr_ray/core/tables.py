@@ -13,9 +13,13 @@ Tables are of three kinds, by the pattern's size:
   per-pulse arrays, one per thread; threads split the points and the tables
   merge, in parallel, in O(pulses) when the result is asked for;
 - **slots** (``4 * n_pulses`` within :attr:`BinTables.slot_bytes`, 512 MiB;
-  SYNS's 0.036 deg has 3.75e7 pulses): one shared int32 slot per pulse
-  pointing into compact per-thread records ``(key, range, index)``; threads
-  own whole 64-byte lines of slots, so nothing is merged or hashed;
+  SYNS's 0.036 deg has 3.75e7 pulses): int32 slots per pulse pointing into
+  compact records ``(key, range, index)`` (:mod:`slr_ray.core.slots`). While
+  a slot array per thread fits the allowance (:attr:`BinTables.own_slots`),
+  each thread has its own and keys and inserts chunks of the points in one
+  pass; the tables are folded into the first when the result is asked for.
+  Otherwise one shared array, whose whole 64-byte lines the threads own, so
+  nothing is merged or hashed;
 - **hash** (finer patterns: 0.001 deg would be 6.5e10 pulses): an
   open-addressing hash table of 24-byte records per thread that grows with
   the number of *occupied* bins (at most twice that while growing), never
@@ -23,9 +27,10 @@ Tables are of three kinds, by the pattern's size:
   to neighbouring slots in groups of 16, so scan-ordered clouds touch memory
   in order.
 
-With slot and hash tables the threads split the *keys*: keys are computed
-for a superblock of points in parallel, then each thread inserts the keys it
-owns. Dense and slot tables are cleared in O(occupied bins) and reused from
+With shared slot and hash tables the threads split the *keys*: keys are
+computed for a superblock of points in parallel, then each thread inserts the
+keys it owns. The winners come out in index order without a sort
+(:mod:`slr_ray.core.order`). Dense and slot tables are cleared in O(occupied bins) and reused from
 one scan to the next by a prepared binning scanner. The tables outlive a
 call, which is what :class:`slr_ray.ScanAccumulator` uses to reduce a cloud
 chunk by chunk to exactly the one-shot answer, and what the dense mesh scans
