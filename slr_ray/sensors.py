@@ -273,8 +273,11 @@ class BeamPattern(Pattern):
     def reduce(self, points, origin, n_threads: int | None = None):
         """The binning reduction: nearest point per (beam, column), ties to the lowest index.
 
-        Returns ``(keys, ranges, indices)`` of the occupied pulses, indices ascending."""
-        pts = np.ascontiguousarray(points, dtype=np.float64)
+        Returns ``(keys, ranges, indices)`` of the occupied pulses, indices ascending.
+        float32 points are widened point by point in the kernel (no float64 copy)."""
+        pts = np.ascontiguousarray(points)
+        if pts.dtype not in (np.float32, np.float64):
+            pts = pts.astype(np.float64)
         o = np.asarray(origin, dtype=np.float64)
         t = max(1, min(n_threads or default_threads(), max(1, len(pts) // 100_000)))
         best_r = np.full((t, self.n_pulses), np.inf)
