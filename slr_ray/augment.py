@@ -21,6 +21,7 @@ is written by a thread while the next scan runs.
 from __future__ import annotations
 
 import dataclasses
+import importlib.util
 import json
 import multiprocessing
 import os
@@ -386,10 +387,8 @@ def augment(input_path, outdir, config: AugmentConfig, *, ground=None, progress:
     """
     pattern, options = config.check()  # bad settings fail before any work or file
     if config.scheduler:
-        try:
-            import dask.distributed  # noqa: F401
-        except ImportError:
-            raise MissingDependencyError('augment on a scheduler needs dask: pip install "slr_ray[dask]"') from None
+        if importlib.util.find_spec("dask") is None or importlib.util.find_spec("dask.distributed") is None:
+            raise MissingDependencyError('augment on a scheduler needs dask: pip install "slr_ray[dask]"')
     input_path = Path(input_path)
     heights = config.scan_heights
     ext = check_format(input_path, config.fmt)
