@@ -1,11 +1,13 @@
 """Binning backend vs the paper's sort-based method, on the same 29 M-point cloud.
 
-    python benchmarks/bench_binning.py [--repeat 3] [--baseline-repeat 1]
+    python benchmarks/bench_binning.py [--repeat 3] [--baseline-repeat 1] [--resolution 0.029]
 
 The paper reports 18.64 s for 29 M points (one 2.3 GHz core) with a sort on
 (h, v, R). The baseline here is that method in numpy (benchmarks/sort_baseline.py),
 timed in the same run on the same machine, because this machine is noisy.
-Prints a table and saves results/bench_binning.json.
+``--resolution 0.055`` scans the same scene's 8 M-point cloud instead.
+Prints a table and saves results/bench_binning.json (bench_binning_<resolution>.json
+for another cloud).
 """
 
 from __future__ import annotations
@@ -61,7 +63,8 @@ def main(argv=None):
     for r in rows:
         sp = f"{r['speedup_vs_sort']:.1f}x" if "speedup_vs_sort" in r else "1.0x"
         print(f"{r['pattern']:<12} {r['method']:<30} {r['threads']:>3} {r['seconds']:>8.3f} {sp:>8} {r['points_out']:>11,}")
-    save("bench_binning", {"machine": machine(),
+    name = "bench_binning" if args.resolution == 0.029 else f"bench_binning_{args.resolution}"
+    save(name, {"machine": machine(),
                            "inputs": {"points": len(pts), "cloud": f"rect-1000 primary scan at {args.resolution} deg, "
                                       "zenith 0-135, 120 m, from (0, 0, 0)", "origin": origin.tolist(),
                                       "patterns": {k: v.to_dict() for k, v in patterns.items()}},

@@ -1,7 +1,7 @@
 """Sensor beam tables: time per frame against input size, the HDL-64E frame against a
 0.144 deg uniform scan of the same cloud, and the KITTI frame re-scanned as other sensors.
 
-    python benchmarks/bench_sensors.py [--repeat 3]
+    python benchmarks/bench_sensors.py [--repeat 3] [--frame-only]
 
 1. The 29 M-point benchmark cloud (bench_binning's), binning backend, from a
    position 14 m away: an HDL-64E S2 frame (64 x 2083 = 133 k pulses) and a
@@ -30,7 +30,9 @@ Each embree setting is run with the beam-table defaults (tie window 3, discs
 turned to at most 80 deg from the primary) and, beside them, with the
 previous ones (``ties=1, max_incidence=90``).
 
-Saves results/bench_sensors.json.
+Saves results/bench_sensors.json; ``--frame-only`` runs 1. and 2. (medians
+of ``--repeat`` rounds taken in turn beside the best) and saves
+results/bench_sensors_frame.json.
 """
 
 from __future__ import annotations
@@ -75,6 +77,7 @@ def best(fn, repeat):
 def main(argv=None):
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     ap.add_argument("--repeat", type=int, default=3)
+    ap.add_argument("--frame-only", action="store_true", help="only the 29 M-point frame timings (1. and 2.)")
     args = ap.parse_args(argv)
     hdl = sensor("velodyne_hdl64e_s2")
     cloud = np.ascontiguousarray(realistic_cloud())
@@ -85,8 +88,21 @@ def main(argv=None):
     t_uni, s_uni = best(lambda: scanner.scan(ORIGIN, ScanPattern(0.144)), args.repeat)
     frame = {"points": len(cloud), "hdl64e_seconds": t_hdl, "hdl64e_points_out": len(s_hdl),
              "uniform_0.144_seconds": t_uni, "uniform_points_out": len(s_uni), "ratio": t_hdl / t_uni}
+    # the same in rounds taken in turn (a shared machine's load drifts): medians and the median ratio
+    turns = {"hdl64e_s2": hdl, "vlp16": sensor("velodyne_vlp16"), "uniform": ScanPattern(0.144)}
+    scanner.scan(ORIGIN, turns["vlp16"])
+    took = {k: [] for k in turns}
+    for _ in range(args.repeat):
+        for k, p in turns.items():
+            t0 = time.perf_counter()
+            scanner.scan(ORIGIN, p)
+            took[k].append(time.perf_counter() - t0)
+    frame["in_turn"] = {k: {"median_seconds": float(np.median(v)), "all_seconds": v,
+                            "median_ratio_to_uniform": float(np.median(np.array(v) / np.array(took["uniform"])))}
+                        for k, v in took.items()}
     print(f"29 M cloud: HDL-64E frame {t_hdl:.3f} s ({len(s_hdl):,} points), 0.144 deg {t_uni:.3f} s "
-          f"({len(s_uni):,}): ratio {t_hdl / t_uni:.2f}", flush=True)
+          f"({len(s_uni):,}): ratio {t_hdl / t_uni:.2f}; in turn, median ratios: "
+          + ", ".join(f"{k} {v['median_ratio_to_uniform']:.2f}" for k, v in frame["in_turn"].items()), flush=True)
     sizes = []
     for n in (100_000, 1_000_000, 10_000_000, len(cloud)):
         step = max(1, len(cloud) // n)  # every k-th point: the same scene, thinner
@@ -95,6 +111,10 @@ def main(argv=None):
         t, s = best(lambda: sc.scan(ORIGIN, hdl), args.repeat)
         sizes.append({"points": n, "seconds": t, "points_out": len(s)})
         print(f"  {n:>12,} points: {t:.4f} s per HDL-64E frame, {len(s):,} out", flush=True)
+    if args.frame_only:
+        save("bench_sensors_frame", {"machine": machine(), "inputs": vars(args), "frame_vs_uniform": frame,
+                                     "sizes": sizes})
+        return
     kitti = []
     if KITTI.exists():
         from slr_ray.io import read_cloud

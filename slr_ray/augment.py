@@ -21,6 +21,7 @@ is written by a thread while the next scan runs.
 from __future__ import annotations
 
 import dataclasses
+import importlib.util
 import json
 import multiprocessing
 import os
@@ -34,7 +35,8 @@ from tqdm import tqdm
 
 from . import __version__
 from .backends import Backend, options_for, prepare
-from .errors import InputValueError, MissingDependencyError, OutputError
+from .effects import Effects, effect_cloud, simulate
+from .errors import InputValueError, MissingDependencyError, OutputError, refuse_memory
 from .io import PointCloud, atomic_path, check_format, read_cloud, write_cloud
 from .outputs import OutputPlan, content_digest, output_sidecars
 from .paper import MIN_GROUND_POINTS, SCANNER_HEIGHT, SECONDARY_RESOLUTION
@@ -55,11 +57,33 @@ JOURNAL = "manifest.scans.jsonl"
 MANIFEST_EVERY = 10.0
 
 
+def _short(value, limit: int = 200) -> str:
+    """``repr(value)``, cut to ``limit`` characters (a drop model's table is long)."""
+    text = repr(value)
+    return text if len(text) <= limit else text[:limit - 3] + "..."
+
+
+def _differences(before: dict, now: dict, prefix: str = "") -> list:
+    """``'key: old -> new'`` for every key of either mapping whose values differ
+    (a setting only one run has differs too); within two mappings
+    (``effects``), the keys that differ, as ``effects.range_noise``."""
+    out = []
+    for k in [*now, *(k for k in before if k not in now)]:
+        old, new = before.get(k), now.get(k)
+        if old == new:
+            continue
+        if isinstance(old, dict) and isinstance(new, dict):
+            out += _differences(old, new, f"{prefix}{k}.")
+        else:
+            out.append(f"{prefix}{k}: {_short(old)} -> {_short(new)}")
+    return out
+
+
 def _resumable(manifest_path: Path, settings: dict, positions, out: Path) -> dict:
     """The scans of an earlier run into ``out`` that this run may keep.
 
     A run resumes only one with the same settings (input, seed, pattern,
-    backend and options, ground threshold, format) whose positions agree with
+    backend and options, ground threshold, format, effects) whose positions agree with
     this run's as far as both go (a run for more positions extends one for
     fewer). Anything else is refused with the differences named: a rerun with
     other settings never mixes its scans with the old ones.
@@ -67,12 +91,14 @@ def _resumable(manifest_path: Path, settings: dict, positions, out: Path) -> dic
     try:
         old = json.loads(manifest_path.read_text())
     except ValueError:
+        old = None
+    if not isinstance(old, dict) or not isinstance(old.get("settings", {}), dict):  # valid JSON of another shape
         raise InputValueError(f"{manifest_path} is not a manifest slr_ray can read: write elsewhere") from None
     before = old.get("settings")
     if before is None:
         raise InputValueError(f"{manifest_path} was written by an older slr_ray without its settings: "
                               "write elsewhere (or remove the directory)")
-    diff = [f"{k}: {before.get(k)!r} -> {v!r}" for k, v in settings.items() if before.get(k) != v]
+    diff = _differences(before, settings)
     k = min(len(positions), len(old.get("positions", [])))
     if not np.array_equal(np.asarray(old.get("positions", []))[:k].reshape(-1, 3), positions[:k]):
         diff.append("positions differ")
@@ -119,8 +145,16 @@ def _scan_job(job, cloud):
     """The scan of one job: ``(subset cloud, manifest entry, start time)``."""
     t0 = time.perf_counter()
     pattern = as_pattern(job["sensor"]) if job.get("sensor") else ScanPattern.from_dict(job["pattern"])
-    scan = _scanner(cloud, job["backend"], job["options"]).scan(job["origin"], pattern)
-    sub = cloud.subset(scan.indices)
+    scanner = _scanner(cloud, job["backend"], job["options"])
+    if job.get("effects"):
+        intensity = cloud.attributes.get("intensity")
+        scan = simulate(scanner, job["origin"], pattern, Effects.from_dict(job["effects"]),
+                        intensity=intensity if intensity is not None and np.ndim(intensity) == 1 else None,
+                        primary_origin=cloud.origin)
+        sub = effect_cloud(scan, cloud)
+    else:
+        scan = scanner.scan(job["origin"], pattern)
+        sub = cloud.subset(scan.indices)
     sub.origin = np.asarray(job["origin"], float)
     entry = {"file": Path(job["path"]).name, "position": job["position"], "height": job["height"],
              "origin": list(job["origin"]), "points": len(scan)}
@@ -214,6 +248,11 @@ class AugmentConfig:
         0.036 deg scans).
     allow_fewer : bool
         Return fewer than ``n`` positions when cells run out (else an error).
+    effects : Effects or dict, optional
+        Sensor effects of every scan (:class:`~slr_ray.effects.Effects`;
+        default none, the ideal scans). Each scan draws from its own seed,
+        derived from ``effects.seed``, its position and its height, so a
+        resumed run makes the same files. Not with ``chunk_size``.
 
     How it runs (free to change between a run and its resume):
 
@@ -248,6 +287,7 @@ class AugmentConfig:
     seed: int = 0
     min_ground_points: int = MIN_GROUND_POINTS
     allow_fewer: bool = True
+    effects: object = None
     workers: int | None = None
     scheduler: str | None = None
     chunk_size: int | None = None
@@ -287,7 +327,31 @@ class AugmentConfig:
                 raise InputValueError("a streamed augment runs the binning backend with a uniform pattern")
             if self.scheduler:
                 raise InputValueError("a streamed augment runs in this process: chunk_size or scheduler, not both")
+        self.effects_for(pattern)
         return pattern, options
+
+    def effects_for(self, pattern) -> Effects | None:
+        """The scans' effects, their 'sensor' values read from ``pattern``; None
+        when none is on. Raises :class:`~slr_ray.errors.InputValueError` on
+        effects this run cannot make."""
+        if self.effects is None:
+            return None
+        eff = self.effects if isinstance(self.effects, Effects) else Effects.from_dict(self.effects)
+        if not eff.any:
+            return None
+        if eff.motion:
+            raise InputValueError("augment's scans stand still: effects with motion need poses "
+                                  "(slr_ray.effects.simulate)")
+        if eff.divergence_mrad and Backend(self.backend) is not Backend.EMBREE:
+            raise InputValueError("beam divergence (divergence_mrad) needs backend 'embree'")
+        if self.chunk_size is not None:
+            raise InputValueError("a streamed augment (chunk_size) makes ideal scans: no effects")
+        return eff.resolve(pattern)
+
+
+def _scan_seed(seed: int, position: int, height: int) -> int:
+    """The effects' seed of one scan: its own stream, the same on every run."""
+    return int(np.random.SeedSequence([int(seed) % 2**63, position, height]).generate_state(1, np.uint64)[0] >> 1)
 
 
 def _scan_name(i: int, h: float, ext: str) -> str:
@@ -324,10 +388,8 @@ def augment(input_path, outdir, config: AugmentConfig, *, ground=None, progress:
     """
     pattern, options = config.check()  # bad settings fail before any work or file
     if config.scheduler:
-        try:
-            import dask.distributed  # noqa: F401
-        except ImportError:
-            raise MissingDependencyError('augment on a scheduler needs dask: pip install "slr_ray[dask]"') from None
+        if importlib.util.find_spec("dask") is None or importlib.util.find_spec("dask.distributed") is None:
+            raise MissingDependencyError('augment on a scheduler needs dask: pip install "slr_ray[dask]"')
     input_path = Path(input_path)
     heights = config.scan_heights
     ext = check_format(input_path, config.fmt)
@@ -336,6 +398,8 @@ def augment(input_path, outdir, config: AugmentConfig, *, ground=None, progress:
     plan = OutputPlan()
     plan.read(input_path)
     out = plan.directory(outdir)  # absolute before any path is sent to a worker or a cluster
+    refuse_memory(1024.0 * config.n * len(heights), f"an augment of {config.n:,} x {len(heights)} scans "
+                  "(about 1 KB a scan: its file plan and manifest)", "ask for fewer scans a run")
     names = [_scan_name(i, h, ext) for i in range(config.n) for h in heights]
     for name in names:
         plan.write(out / name, fmt=ext, resumed=True)
@@ -366,11 +430,21 @@ def _augment(input_path, out, config, pattern, options, ext, names, ground, prog
                                             min_ground_points=config.min_ground_points,
                                             scanner_height=config.scanner_height,
                                             allow_fewer=config.allow_fewer, return_cells=True)
+    if config.n and not len(positions):  # allow_fewer is fewer, not none: nothing to write, an error
+        raise InputValueError(f"{input_path}: no scanner position found ("
+                              + ", ".join(f"{s['stage']} removed {s['removed']}" for s in cells.stages
+                                          if not s.get("skipped")) + "): lower min_ground_points, or check the ground")
     settings = {"input": str(input_path.resolve()), "input_bytes": input_path.stat().st_size,
                 "input_digest": content_digest(input_path), "seed": config.seed,
                 "pattern": pattern.to_dict(), "backend": backend, "backend_options": options.to_dict(),
                 "min_ground_points": config.min_ground_points, "format": ext, "heights": list(heights),
                 "ground": ground_setting}
+    effects = config.effects_for(pattern)
+    if effects is not None:  # only then: a manifest without effects resumes as before
+        settings["effects"] = effects.to_dict()
+        if effects.intensity == "correct" and cloud is not None and cloud.origin is None:
+            raise InputValueError(f"intensity='correct' needs where {input_path} was scanned from, and it records "
+                                  "no scanner origin (use intensity='carry')")
     manifest_path = out / MANIFEST
     done = {}
     fresh = not manifest_path.exists()
@@ -386,17 +460,19 @@ def _augment(input_path, out, config, pattern, options, ext, names, ground, prog
     jobs = []
     for i, p in enumerate(positions):
         ground_z = p[2] - config.scanner_height  # select_positions puts them scanner_height above ground
-        for h in heights:
+        for k, h in enumerate(heights):
             name = _scan_name(i, h, ext)
             if name in done:
                 continue
             jobs.append({"path": str(out / name), "position": i, "height": float(h),
                          "origin": [float(p[0]), float(p[1]), float(ground_z + h)],
                          "pattern": pattern.to_dict(), "sensor": config.sensor, "backend": backend,
-                         "options": backend_options})
+                         "options": backend_options,
+                         "effects": None if effects is None else {**effects.to_dict(),
+                                                                  "seed": _scan_seed(effects.seed, i, k)}})
     manifest = {"software": f"slr_ray {__version__}", "settings": settings, "input": str(input_path),
                 "n_requested": config.n, "seed": config.seed, "pattern": pattern.to_dict(), "backend": backend,
-                "heights": list(heights),
+                "heights": list(heights), "effects": settings.get("effects"),
                 "positions": positions.tolist(), "stages": cells.stages, "scans": list(done.values())}
 
     journal = out / JOURNAL

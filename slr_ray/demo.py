@@ -22,6 +22,7 @@ import numpy as np
 
 from . import paper
 from .backends import Backend, available_backends, prepare
+from .errors import refuse_memory
 from .io import PointCloud, atomic_path, write_cloud
 from .meshscan import scan_mesh
 from .outputs import OutputPlan
@@ -64,6 +65,8 @@ def run_demo(outdir="slr_ray_demo", n_rectangles: int = 200, n_positions: int = 
         existing one is an :class:`~slr_ray.errors.OutputError` before any work).
     """
     backends = [b.value for b in Backend] if backends is None else list(backends)
+    refuse_memory(1024.0 * n_positions * (1 + len(backends)), f"a demo of {n_positions:,} positions "
+                  "(about 1 KB a file: its file plan)", "ask for fewer positions")
     plan = OutputPlan(force=force)
     out = plan.directory(outdir)
     for name in demo_files(n_positions, backends):

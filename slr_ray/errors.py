@@ -9,6 +9,7 @@ value or shape, ``TypeError`` for the wrong kind of data), so both
 :class:`InputValueError` with the figure, before the work.
 """
 
+import dataclasses
 import os
 
 
@@ -59,3 +60,19 @@ class StateError(SlrError, RuntimeError):
 
 class EngineError(SlrError, RuntimeError):
     """The ray engine (the Embree library) reported an error."""
+
+
+def dataclass_from_mapping(cls, options: dict | None, more: dict, what: str):
+    """``cls(**options, **more)`` for a dataclass, refusing unknown keys.
+
+    Raises
+    ------
+    InputValueError
+        naming the unknown keys of ``what`` and listing the known ones.
+    """
+    merged = {**(options or {}), **more}
+    known = {f.name for f in dataclasses.fields(cls)}
+    unknown = sorted(set(merged) - known)
+    if unknown:
+        raise InputValueError(f"unknown {what} {unknown}; known: {sorted(known)}")
+    return cls(**merged)

@@ -29,10 +29,10 @@ Writes are atomic: the file appears under its name complete, or not at all.
 from __future__ import annotations
 
 import copy
-import io
 import os
 import tempfile
 import warnings
+import zipfile
 from contextlib import contextmanager
 from dataclasses import dataclass, field
 from pathlib import Path
@@ -42,12 +42,12 @@ import numpy as np
 from laspy.vlrs.vlrlist import VLRList
 from plyfile import PlyData, PlyElement
 
-from . import e57
+from . import e57, pcd
 from .errors import FormatError, OutputError
-from .outputs import label_path, part_prefix, resolve
+from .outputs import label_path, label_targets, part_prefix, resolve
 
 __all__ = ["PointCloud", "LasRecords", "read_cloud", "write_cloud", "read_e57_scans", "check_format",
-           "label_path", "FORMATS"]
+           "check_las_size", "label_path", "FORMATS"]
 
 FORMATS = (".npy", ".npz", ".ply", ".las", ".laz", ".bin", ".xyz", ".txt", ".e57", ".pcd")
 
@@ -128,22 +128,34 @@ def check_format(path, fmt=None) -> str:
     return ext
 
 
-def read_cloud(path, format: str | None = None) -> PointCloud:
+def read_cloud(path, format: str | None = None, check_finite: bool = True) -> PointCloud:
     """Read a point cloud; the format comes from the extension unless given.
+
+    Parameters
+    ----------
+    check_finite : bool
+        Refuse coordinates that are NaN or infinite (default), naming the file
+        and how many; False reads them as they are (an organised PCD's
+        no-return points, to be removed by the caller).
 
     Raises
     ------
     FileNotFoundError
         no such file.
     FormatError
-        unknown extension, or a file that cannot be parsed (truncated, corrupt).
+        unknown extension, or a file that cannot be parsed (truncated, corrupt,
+        a declared count that is not what the file holds), non-finite
+        coordinates (unless ``check_finite=False``), a recorded scanner origin
+        that is not three finite numbers.
     """
     path = Path(path)
     ext = check_format(path, format)
     if path.is_dir():
         raise IsADirectoryError(f"{path} is a directory, not a point cloud file")
-    if not path.is_file():
+    if not path.exists():
         raise FileNotFoundError(f"no such file: {path}")
+    if not path.is_file():
+        raise FormatError(f"{path} is not a regular file (a FIFO, a device...): slr_ray reads clouds from files")
     try:
         cloud = _READERS[ext](path)
     except FormatError:
@@ -156,25 +168,46 @@ def read_cloud(path, format: str | None = None) -> PointCloud:
     if pts.dtype.kind not in "fiu":
         raise FormatError(f"{path}: coordinates must be real numbers, got dtype {pts.dtype}")
     cloud.points = np.ascontiguousarray(pts, dtype=np.float64)
+    if check_finite:
+        bad = ~np.isfinite(cloud.points).all(axis=1)
+        if bad.any():
+            rows = np.flatnonzero(bad)
+            raise FormatError(f"{path}: {len(rows):,} of {len(pts):,} points have NaN or infinite coordinates "
+                              f"(rows {', '.join(map(str, rows[:5]))}{', ...' if len(rows) > 5 else ''}): "
+                              "remove them first (nothing is dropped silently)")
     for k, v in cloud.attributes.items():
+        if np.ndim(v) == 0:
+            raise FormatError(f"{path}: attribute {k!r} is a single value, not one a point ({len(pts)} points)")
         if len(v) != len(pts):
             raise FormatError(f"{path}: attribute {k!r} has {len(v)} values for {len(pts)} points")
+    if cloud.origin is not None:
+        o = np.asarray(cloud.origin)
+        if o.shape != (3,) or o.dtype.kind not in "fiu" or not np.isfinite(o.astype(np.float64)).all():
+            raise FormatError(f"{path}: the recorded scanner origin is not three finite numbers "
+                              f"({o.tolist() if o.size <= 9 else f'shape {o.shape}'})")
+        cloud.origin = o.astype(np.float64)
     return cloud
 
 
 def _read_npy(path):
+    with open(path, "rb") as f:
+        if f.read(6) != b"\x93NUMPY":
+            raise FormatError(f"{path}: not a .npy file (no NumPy header)")
     a = np.load(path, allow_pickle=False)
     if a.dtype.names:
         if not {"x", "y", "z"} <= set(a.dtype.names):
             raise FormatError(f"{path}: structured array without x, y, z fields")
         pts = np.column_stack([a["x"], a["y"], a["z"]])
-        return PointCloud(pts, {n: a[n] for n in a.dtype.names if n not in "xyz"})
+        return PointCloud(pts, {n: a[n] for n in a.dtype.names if n not in ("x", "y", "z")})
     if a.ndim != 2 or a.shape[1] < 3:
         raise FormatError(f"{path}: expected an (n, 3) or wider array, got shape {a.shape}")
     return PointCloud(a[:, :3], {f"column_{j}": a[:, j] for j in range(3, a.shape[1])})
 
 
 def _read_npz(path):
+    with open(path, "rb") as f:
+        if f.read(2) != b"PK":
+            raise FormatError(f"{path}: not a .npz file (not a zip archive)")
     with np.load(path, allow_pickle=False) as z:
         if "points" not in z.files:
             raise FormatError(f"{path}: no 'points' array (has {z.files})")
@@ -185,9 +218,20 @@ def _read_npz(path):
 
 
 def _read_ply(path):
-    ply = PlyData.read(str(path))
+    with open(path, "rb") as f:
+        ply = PlyData.read(f)
+        if not ply.text:  # binary: the declared elements end where the file does
+            extra = os.fstat(f.fileno()).st_size - f.tell()
+    if ply.text:
+        extra = _ply_text_rows(path) - sum(e.count for e in ply.elements)
     if "vertex" not in ply:
         raise FormatError(f"{path}: no vertex element")
+    if extra > 0 and (ply.text or all(not hasattr(p, "len_dtype") for e in ply.elements for p in e.properties)):
+        size = ply["vertex"].data.dtype.itemsize
+        if ply.text or extra >= size:  # a partial record of padding is tolerated, whole ones are not
+            raise FormatError(f"{path}: the header declares {ply['vertex'].count:,} vertices, the file holds "
+                              f"{'%d more rows' % extra if ply.text else '%d more bytes' % extra} after its "
+                              "declared elements (a header that lies, or a corrupt file)")
     v = ply["vertex"].data
     names = v.dtype.names
     if not {"x", "y", "z"} <= set(names):
@@ -196,14 +240,47 @@ def _read_ply(path):
     return PointCloud(pts, {n: np.asarray(v[n]) for n in names if n not in ("x", "y", "z")})
 
 
+def _ply_text_rows(path) -> int:
+    """Non-blank lines after an ASCII PLY's ``end_header``."""
+    with open(path, "rb") as f:
+        for line in f:
+            if line.strip() == b"end_header":
+                break
+        return sum(1 for line in f if line.strip())
+
+
+def check_las_size(path, header) -> None:
+    """Refuse an uncompressed LAS whose header declares fewer points than its
+    point data holds (whole records left over before the EVLRs or the end of
+    the file: a header that lies). A declared count *larger* than the file
+    holds is found by the readers, which stop where the records run out; a
+    LAZ file's chunks are not checked here. Point data ends at the first EVLR
+    or at LAS 1.3's internal waveform packets, where a file has them."""
+    if header.are_points_compressed:
+        return
+    end = os.path.getsize(path)
+    start_evlr = int(getattr(header, "start_of_first_evlr", 0) or 0)
+    if getattr(header, "number_of_evlrs", 0) and header.offset_to_point_data < start_evlr <= end:
+        end = start_evlr
+    waveforms = int(getattr(header, "start_of_waveform_data_packet_record", 0) or 0)  # LAS 1.3+, internal
+    if header.offset_to_point_data < waveforms <= end:
+        end = waveforms
+    room = (end - int(header.offset_to_point_data)) // header.point_format.size
+    if room > header.point_count:
+        raise FormatError(f"{path}: the header declares {header.point_count:,} points, the file holds "
+                          f"{room:,} (a header that lies, or a corrupt file)")
+
+
 def _read_las(path):
+    with laspy.open(str(path)) as reader:
+        check_las_size(path, reader.header)
     las = laspy.read(str(path))
     if len(las.points) != las.header.point_count:  # laspy stops quietly where a lying header's points run out
         raise FormatError(f"{path}: the header declares {las.header.point_count:,} points, the file holds "
                           f"{len(las.points):,} (truncated or corrupt)")
     pts = np.column_stack([np.asarray(las.x), np.asarray(las.y), np.asarray(las.z)])
-    attrs = {name: np.asarray(las[name]) for name in las.point_format.dimension_names
-             if name not in ("X", "Y", "Z")}
+    attrs = {name: np.asarray(las.points[name]) for name in las.point_format.dimension_names  # not las[name]:
+             if name not in ("X", "Y", "Z")}  # an extra dimension 'header' is a field, not LasData's header
     meta = {"las_point_format": int(las.header.point_format.id),
             "las_scales": las.header.scales.tolist(), "las_offsets": las.header.offsets.tolist(),
             "las": LasRecords(las.header, list(las.evlrs or []), las.points.array)}
@@ -248,104 +325,16 @@ def _read_xyz(path):
     return PointCloud(a[:, :3], {n: a[:, 3 + j] for j, n in enumerate(names)})
 
 
-_PCD_TYPES = {("F", 4): "f4", ("F", 8): "f8", ("I", 1): "i1", ("I", 2): "i2", ("I", 4): "i4", ("I", 8): "i8",
-              ("U", 1): "u1", ("U", 2): "u2", ("U", 4): "u4", ("U", 8): "u8"}
-
-
-def _read_pcd(path):
-    with open(path, "rb") as f:
-        header = {}
-        while True:
-            line = f.readline()
-            if not line:
-                raise FormatError(f"{path}: PCD header ends before DATA")
-            words = line.decode("ascii", "replace").strip().split()
-            if not words or words[0].startswith("#"):
-                continue
-            header[words[0].upper()] = words[1:]
-            if words[0].upper() == "DATA":
-                break
-        body = f.read()
-    try:
-        fields = header["FIELDS"]
-        sizes = [int(x) for x in header["SIZE"]]
-        types = header["TYPE"]
-        counts = [int(x) for x in header.get("COUNT", ["1"] * len(fields))]
-        n = int(header["POINTS"][0])
-        if n < 0 or any(c < 1 for c in counts) or any(sz < 1 for sz in sizes):
-            raise ValueError(f"POINTS {n}, SIZE {sizes}, COUNT {counts}: counts must be >= 0 and sizes >= 1")
-        if not len(fields) == len(sizes) == len(types) == len(counts):
-            raise ValueError(f"{len(fields)} FIELDS, {len(sizes)} SIZE, {len(types)} TYPE, {len(counts)} COUNT")
-        if "WIDTH" in header and "HEIGHT" in header and int(header["WIDTH"][0]) * int(header["HEIGHT"][0]) != n:
-            raise ValueError(f"WIDTH x HEIGHT = {header['WIDTH'][0]} x {header['HEIGHT'][0]} is not POINTS {n}")
-        dtype = np.dtype([(name if c == 1 else name, _PCD_TYPES[(t, sz)], () if c == 1 else (c,))
-                          for name, sz, t, c in zip(fields, sizes, types, counts)])
-    except (KeyError, ValueError, IndexError) as exc:
-        raise FormatError(f"{path}: bad PCD header ({exc})") from None
-    kind = header["DATA"][0].lower()
-    if kind == "ascii":
-        with warnings.catch_warnings():
-            warnings.simplefilter("ignore", UserWarning)  # numpy's "input contained no data"
-            flat = np.loadtxt(io.BytesIO(body), ndmin=2)
-        if flat.size == 0:
-            flat = np.empty((0, sum(counts)))
-        if len(flat) != n:
-            raise FormatError(f"{path}: {len(flat)} rows for POINTS {n}")
-        data = np.empty(n, dtype)
-        col = 0
-        for name, c in zip(fields, counts):
-            data[name] = flat[:, col] if c == 1 else flat[:, col:col + c]
-            col += c
-    elif kind == "binary":
-        if len(body) < n * dtype.itemsize:  # bytes after the points are tolerated, as PCL does
-            raise FormatError(f"{path}: truncated ({len(body)} bytes of data for POINTS {n} of "
-                              f"{dtype.itemsize} bytes)")
-        data = np.frombuffer(body[: n * dtype.itemsize], dtype)
-    else:
-        raise FormatError(f"{path}: PCD DATA {kind} is not supported (ascii and binary are)")
-    if not {"x", "y", "z"} <= set(fields):
-        raise FormatError(f"{path}: no x, y, z fields")
-    pts = np.column_stack([data["x"], data["y"], data["z"]]).astype(np.float64)
-    attrs = {name: np.array(data[name]) for name in fields if name not in ("x", "y", "z") and name != "_"}
-    vp = header.get("VIEWPOINT")
-    origin = np.array([float(v) for v in vp[:3]]) if vp and len(vp) >= 3 else None
-    return PointCloud(pts, attrs, origin)
-
-
-def _write_pcd(path, cloud, binary):
-    names, arrays = ["x", "y", "z"], [cloud.points[:, 0], cloud.points[:, 1], cloud.points[:, 2]]
-    for k, v in cloud.attributes.items():
-        v = np.asarray(v)
-        if v.ndim != 1 or v.dtype.kind not in "iufb":
-            raise FormatError(f"PCD cannot store attribute {k!r} of dtype {v.dtype} and shape {v.shape}")
-        names.append(k)
-        arrays.append(v.astype(np.uint8) if v.dtype == bool else v)
-    dtype = np.dtype([(nm, a.dtype) for nm, a in zip(names, arrays)])
-    data = np.empty(len(cloud), dtype)
-    for nm, a in zip(names, arrays):
-        data[nm] = a
-    kind = {"f": "F", "i": "I", "u": "U"}
-    o = cloud.origin if cloud.origin is not None else np.zeros(3)
-    header = "\n".join([
-        "# .PCD v0.7 - Point Cloud Data file format (slr_ray)", "VERSION 0.7",
-        "FIELDS " + " ".join(names), "SIZE " + " ".join(str(a.dtype.itemsize) for a in arrays),
-        "TYPE " + " ".join(kind[a.dtype.kind] for a in arrays), "COUNT " + " ".join("1" for _ in arrays),
-        f"WIDTH {len(cloud)}", "HEIGHT 1", "VIEWPOINT " + " ".join(repr(float(x)) for x in o) + " 1 0 0 0",
-        f"POINTS {len(cloud)}", "DATA " + ("binary" if binary else "ascii")]) + "\n"
-    with open(path, "wb") as f:
-        f.write(header.encode("ascii"))
-        if binary:
-            f.write(data.astype(data.dtype.newbyteorder("<")).tobytes())
-        else:
-            np.savetxt(f, np.column_stack([a.astype(np.float64) for a in arrays]), fmt="%.10g")
-
-
 def read_e57_scans(path) -> list:
     """Every scan of an E57 file as a :class:`PointCloud` (global frame; origin =
     the scan's pose translation, None for a scan without a pose: the caller
     decides, e.g. ``--origin 0 0 0``); points flagged invalid are left out,
     their number in ``meta['e57_invalid']`` (:func:`slr_ray.e57.read_scans`)."""
     return [PointCloud(*scan) for scan in e57.read_scans(path)]
+
+
+def _read_pcd(path):
+    return PointCloud(*pcd.read(path))
 
 
 def _read_e57(path):
@@ -415,11 +404,12 @@ def write_cloud(path, cloud: PointCloud, format: str | None = None, binary: bool
     ext = check_format(path, format)
     if not path.parent.exists():
         raise FormatError(f"cannot write {path}: directory {path.parent} does not exist")
+    cloud = _storable(path, ext, cloud)  # names the format keeps for itself moved aside, before any file
     words = None
     if ext == ".bin":
         _warn_kitti_precision(path, cloud)
         if "semantic" in cloud.attributes:  # checked before anything is written
-            words = _label_words(path.with_suffix(".label"), cloud)
+            words = _label_words(label_targets(path)[0], cloud)
     with atomic_path(path) as tmp:
         try:
             with warnings.catch_warnings(record=True) as said:
@@ -433,13 +423,54 @@ def write_cloud(path, cloud: PointCloud, format: str | None = None, binary: bool
             # the user named `path`, not our temporary file: say it in their terms
             raise FormatError(str(exc).replace(str(tmp), str(path))) from exc
     if ext == ".bin":
-        label = path.with_suffix(".label")
+        targets = label_targets(path)
         if words is not None:
-            with atomic_path(label) as tmp:
+            with atomic_path(targets[0]) as tmp:
                 words.tofile(tmp)
-        elif label.is_file():  # an older file's labels: every reader would pair them with this .bin
-            label.unlink()
+        for stale in targets[words is not None:]:  # an older file's labels: a reader would pair them with this .bin
+            if stale.is_file():
+                stale.unlink()
     return path
+
+
+#: attribute names a format keeps for itself: written as ``NAME_value`` (LAS: its coordinate fields, and
+#: names laspy's LasData answers itself; .npz: the reader's 'points' and 'origin')
+_RESERVED = {".las": {"x", "y", "z", "X", "Y", "Z", "points", "header", "point_format"},
+             ".npz": {"points", "origin"}, ".ply": {"x", "y", "z"}, ".pcd": {"x", "y", "z"}, ".npy": {"x", "y", "z"}}
+_RESERVED[".laz"] = _RESERVED[".las"]
+
+
+def _spellable(ext, name) -> bool:
+    """Whether format ``ext`` can name an attribute ``name`` (PLY, PCD: ASCII without blanks; LAS: 32 bytes)."""
+    if ext in (".ply", ".pcd"):
+        return name.isascii() and name.isprintable() and len(name.split()) == 1 and name == name.strip()
+    if ext in (".las", ".laz"):
+        return 0 < len(name.encode()) <= 32
+    return True
+
+
+def _storable(path, ext, cloud) -> PointCloud:
+    """``cloud`` with each attribute under a name format ``ext`` can store: a name
+    it reserves becomes ``NAME_value`` (said in a warning); a name it cannot
+    spell is a :class:`~slr_ray.errors.FormatError`, raised before any file."""
+    bad = [k for k in cloud.attributes if not _spellable(ext, k)]
+    if bad:
+        raise FormatError(f"{path}: {ext} cannot name attribute(s) {bad} "
+                          f"({'32 bytes at most' if ext in ('.las', '.laz') else 'ASCII without blanks'}): "
+                          "rename them, or write .npz")
+    reserved = _RESERVED.get(ext, set())
+    if not reserved & set(cloud.attributes):
+        return cloud
+    attrs, moved = {}, []
+    for k, v in cloud.attributes.items():
+        name = k
+        while name in reserved or name in attrs or (name != k and name in cloud.attributes):
+            name += "_value"
+        attrs[name] = v
+        if name != k:
+            moved.append(f"{k!r} as {name!r}")
+    warnings.warn(f"{path}: {ext} keeps these names for itself; written {', '.join(moved)}", stacklevel=3)
+    return PointCloud(cloud.points, attrs, cloud.origin, cloud.meta)
 
 
 def _label_words(path, cloud) -> np.ndarray:
@@ -459,6 +490,7 @@ KITTI_TOLERANCE = 1e-3
 def _warn_kitti_precision(path, cloud) -> None:
     """Warn when float32 storage moves a coordinate by more than :data:`KITTI_TOLERANCE`."""
     pts = np.asarray(cloud.points, np.float64)
+    pts = pts[np.isfinite(pts).all(axis=1)]
     if not len(pts):
         return
     err = float(np.abs(pts.astype(np.float32).astype(np.float64) - pts).max())
@@ -492,6 +524,10 @@ def _write_npy(path, cloud, binary):
     if all(_exact_in_float64(v) for v in attrs.values()):
         cols = _columns(cloud)
         data = np.hstack(cols) if len(cols) > 1 else cloud.points
+        lost = [k for j, (k, v) in enumerate(attrs.items()) if k != f"column_{3 + j}" or v.ndim > 1]
+        if lost:  # plain columns keep every value, not the names
+            warnings.warn(f"{path}: .npy columns keep values, not names: {lost} read back as column_3... "
+                          "(write .npz to keep the names)", stacklevel=3)
     else:
         bad = [k for k, v in attrs.items() if v.dtype.kind not in "biuf" or k in ("x", "y", "z")]
         if bad:
@@ -506,9 +542,15 @@ def _write_npy(path, cloud, binary):
 
 
 def _write_npz(path, cloud, binary):
-    extra = {"origin": cloud.origin} if cloud.origin is not None else {}
-    with open(path, "wb") as f:
-        np.savez_compressed(f, points=cloud.points, **cloud.attributes, **extra)
+    """``np.savez_compressed``'s layout, each array written by name: an attribute
+    called ``file`` or ``allow_pickle`` is an array like any other, not a keyword."""
+    arrays = {"points": cloud.points, **cloud.attributes}
+    if cloud.origin is not None:
+        arrays["origin"] = cloud.origin
+    with zipfile.ZipFile(path, "w", compression=zipfile.ZIP_DEFLATED, allowZip64=True) as z:
+        for name, a in arrays.items():
+            with z.open(name + ".npy", "w", force_zip64=True) as f:
+                np.lib.format.write_array(f, np.asanyarray(a), allow_pickle=False)
 
 
 def _write_ply(path, cloud, binary):
@@ -679,9 +721,36 @@ def _write_kitti(path, cloud, binary):
 
 
 def _write_xyz(path, cloud, binary):
-    np.savetxt(path, np.hstack(_columns(cloud)), fmt="%.6f")
+    """Text columns: coordinates to 1 micrometre, integer attributes exactly, float
+    attributes to the digits of their dtype. Column names are not stored: a warning
+    says which names a reader will not get back (it names columns by their count)."""
+    n, cols, fmts, names = len(cloud), [np.asarray(cloud.points, np.float64)], ["%.6f"] * 3, []
+    for k, v in cloud.attributes.items():
+        v = np.asarray(v)
+        v = v.reshape(n, int(np.prod(v.shape[1:], dtype=np.int64)))
+        if v.dtype.kind not in "biuf":
+            raise FormatError(f"{path}: .xyz holds numbers; attribute {k!r} is {v.dtype}")
+        integer = v.dtype.kind in "biu"
+        cols.append(v.astype(np.int64 if integer and v.dtype != np.uint64 else v.dtype if integer else np.float64))
+        fmts += ["%d" if integer else "%.9g" if v.dtype.itemsize <= 4 else "%.17g"] * v.shape[1]
+        names += [k] if v.shape[1] == 1 else [f"{k}[{j}]" for j in range(v.shape[1])]
+        if integer and len(v) and np.abs(v.astype(np.float64)).max() > 2**53:
+            warnings.warn(f"{path}: {k!r} holds integers beyond 2**53, written exactly but read back as float64 "
+                          "(digits lost): write .npz or .npy to keep them", stacklevel=3)
+    back = list(_SEMANTIC3D) if len(names) == 4 else ["intensity"] if len(names) == 1 else \
+        [f"column_{j}" for j in range(3, 3 + len(names))]
+    if names != back:
+        warnings.warn(f"{path}: .xyz stores columns, not names: {names} will read back as {back}", stacklevel=3)
+    data = np.empty((n, len(fmts)), object) if len(cols) > 1 else cols[0]
+    if len(cols) > 1:
+        j = 0
+        for c in cols:
+            c = c.reshape(n, int(np.prod(c.shape[1:], dtype=np.int64)))
+            data[:, j:j + c.shape[1]] = c
+            j += c.shape[1]
+    np.savetxt(path, data, fmt=fmts)
 
 
 _WRITERS = {".npy": _write_npy, ".npz": _write_npz, ".ply": _write_ply, ".las": _write_las, ".laz": _write_las,
             ".bin": _write_kitti, ".xyz": _write_xyz, ".txt": _write_xyz, ".e57": e57.write,
-            ".pcd": _write_pcd}
+            ".pcd": pcd.write}

@@ -36,7 +36,7 @@ from tqdm import tqdm
 
 from .arrays import as_origin, unravel_ids
 from .core import BinTables, ranges_of
-from .errors import InputValueError
+from .errors import InputValueError, refuse_memory
 from .io import atomic_path
 from .pattern import ScanPattern, as_pattern, pulse_rays
 from .raycast import RayScene
@@ -135,6 +135,10 @@ def _check_mesh_args(scene_or_mesh, origin, pattern, mode, supersample, face_lab
         raise InputValueError(f"face_labels has {len(labels)} values for {len(faces)} faces")
     if mode == "nearest" and (int(supersample) != supersample or supersample < 1):
         raise InputValueError(f"supersample must be an integer >= 1, got {supersample}")
+    if mode == "nearest":  # one row of pulses is the smallest batch: its k x k sub-rays, ~100 bytes each
+        refuse_memory(100.0 * pattern.shape[1] * (int(supersample) ** 2 + 1),
+                      f"a 'nearest' scan of {int(supersample)} x {int(supersample)} rays a pulse "
+                      f"({pattern.shape[1]:,} pulses a row)", "use a smaller supersample")
     if mode == "dense":
         if not isinstance(scene_or_mesh, RectangleScene):
             raise InputValueError("mode='dense' needs a RectangleScene (planar polygons to sample)")

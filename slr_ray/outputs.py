@@ -13,6 +13,11 @@ directories), then enters the plan. The plan
   (by resolved path, or by device and inode: a hard link), with ``--force``
   too;
 - refuses an existing output unless ``force``;
+- refuses an output whose directory (or the nearest existing parent of an
+  output directory to create) this process cannot write, and runs each
+  output's own check (its format: a figure format matplotlib cannot write,
+  a point-cloud format slr_ray cannot write), so that such a run stops
+  before the work, not after it;
 - locks every output directory (``.slr_ray.lock``, an advisory ``flock``,
   released by the kernel when the process dies, even by ``kill -9``), so two
   runs into one directory cannot both proceed;
@@ -37,7 +42,7 @@ from pathlib import Path
 
 from .errors import OutputError
 
-__all__ = ["OutputPlan", "resolve", "output_sidecars", "input_sidecars", "content_digest",
+__all__ = ["OutputPlan", "resolve", "output_sidecars", "input_sidecars", "label_targets", "content_digest",
            "clean_stale_parts", "part_prefix", "label_path", "LOCK_NAME"]
 
 #: The lock file in an output directory while a command writes there.
@@ -52,18 +57,37 @@ def resolve(path) -> Path:
 
 def output_sidecars(path, fmt: str | None = None) -> list:
     """The files :func:`slr_ray.io.write_cloud` writes (or removes) beside ``path``
-    written as ``fmt`` (default: its extension): a KITTI ``.bin``'s SemanticKITTI ``.label``."""
+    written as ``fmt`` (default: its extension): a KITTI ``.bin``'s SemanticKITTI
+    ``.label`` (:func:`label_targets`)."""
     p = Path(path)
     ext = (fmt or p.suffix).lower()
-    return [p.with_suffix(".label")] if ext in (".bin", "bin") else []
+    return label_targets(p) if ext in (".bin", "bin") else []
+
+
+def _layout_label(p: Path) -> Path | None:
+    """``SEQ/labels/NAME.label`` for ``SEQ/velodyne/NAME.bin`` (the SemanticKITTI layout), else None."""
+    return p.parent.parent / "labels" / (p.stem + ".label") if p.parent.name == "velodyne" else None
+
+
+def label_targets(bin_path) -> list:
+    """Where :func:`slr_ray.io.write_cloud` puts the labels of a KITTI ``.bin`` (first),
+    and every other place a reader would look for them: a stale file there is
+    removed (it would be paired with the new points). In the SemanticKITTI layout
+    (``velodyne/`` beside an existing ``labels/``) the labels go to ``labels/``."""
+    p = Path(bin_path)
+    beside, layout = p.with_suffix(".label"), _layout_label(p)
+    if layout is not None and layout.parent.is_dir():
+        return [layout, beside]
+    return [beside]
 
 
 def label_path(bin_path) -> Path | None:
     """The SemanticKITTI ``.label`` file of a KITTI ``.bin``, if there is one: next
-    to it (``000000.label``), or in the sequence's ``labels/`` beside ``velodyne/``."""
+    to it (``000000.label``), or, for a ``.bin`` in ``velodyne/``, in the
+    sequence's ``labels/`` beside it."""
     p = Path(bin_path)
-    for cand in (p.with_suffix(".label"), p.parent.parent / "labels" / (p.stem + ".label")):
-        if cand.is_file():
+    for cand in (p.with_suffix(".label"), _layout_label(p)):
+        if cand is not None and cand.is_file():
             return cand
     return None
 
@@ -139,6 +163,31 @@ def content_digest(path, block: int = 1 << 22) -> str:
 
 # --- the plan ------------------------------------------------------------------------------------------------
 
+def _check_writable(directory: Path, named: str) -> None:
+    """Refuse, before any work, an output in ``directory`` (or a directory to be
+    created there: its nearest existing parent) that this process may not write:
+    a read-only directory or file system, a directory of another user. A path
+    through a regular file (``file/x``) is refused too."""
+    d = directory
+    while not d.exists():
+        if d.is_symlink():  # a dangling link where a directory should be
+            raise OutputError(f"{named}: {d} is a link to nothing")
+        d = d.parent
+    if not d.is_dir():
+        raise OutputError(f"{named}: {d} is not a directory")
+    effective = os.access in os.supports_effective_ids
+    if not os.access(d, os.W_OK | os.X_OK, effective_ids=effective):
+        raise OutputError(f"cannot write {named}: no permission to write in {d}"
+                          f"{' (a read-only file system)' if _read_only_fs(d) else ''}")
+
+
+def _read_only_fs(d: Path) -> bool:
+    try:
+        return bool(os.statvfs(d).f_flag & os.ST_RDONLY)
+    except OSError:
+        return False
+
+
 class _Lock:
     """An exclusive advisory lock on ``directory/.slr_ray.lock`` (non-blocking)."""
 
@@ -211,6 +260,7 @@ class OutputPlan:
         self.outputs: dict = {}     # resolved -> as named
         self.resumed: dict = {}     # outputs a resumed run may replace without force
         self.directories: dict = {}
+        self.checks: list = []      # (callable, path): an output's own check, e.g. its format
         self._locks: list = []
         self._created: list = []
 
@@ -225,14 +275,18 @@ class OutputPlan:
                 self.inputs.setdefault(resolve(s), str(s))
         return Path(path)
 
-    def write(self, path, sidecars: bool = True, fmt: str | None = None, resumed: bool = False):
+    def write(self, path, sidecars: bool = True, fmt: str | None = None, resumed: bool = False, check=None):
         """An output file (and, with ``sidecars``, what the writer of format ``fmt``,
         default the extension's, writes beside it). ``resumed``: a file the command
         itself may find from an earlier run and replace (augment's scans), exempt
-        from the ``force`` check, never from the others. Returns the path to write:
-        through a link, the file it points to. None is skipped."""
+        from the ``force`` check, never from the others. ``check``: a callable run
+        on ``path`` with the plan's checks (it raises if the file cannot be written
+        as named, e.g. an unknown format). Returns the path to write: through a
+        link, the file it points to. None is skipped."""
         if path is None:
             return None
+        if check is not None:
+            self.checks.append((check, path))
         for p in [Path(path)] + (output_sidecars(path, fmt) if sidecars else []):
             r = resolve(p)
             if r in self.outputs or r in self.resumed:
@@ -262,6 +316,7 @@ class OutputPlan:
                 raise OutputError(f"{named} is an input of this command")
             if r.exists() and not r.is_dir():
                 raise OutputError(f"{named} exists and is not a directory")
+            _check_writable(r, named)
         for r, named in [*self.outputs.items(), *self.resumed.items()]:
             resumed = r in self.resumed
             if r in self.inputs:
@@ -281,8 +336,13 @@ class OutputPlan:
                 if not self.force and not resumed:
                     raise OutputError(f"{named} exists (use --force to overwrite)")
             parent = r.parent
-            if not parent.is_dir() and not any(parent == d or d in parent.parents for d in self.directories):
+            planned = any(parent == d or d in parent.parents for d in self.directories)
+            if not parent.is_dir() and not planned:
                 raise OutputError(f"no directory {parent} for {named}")
+            if not planned:
+                _check_writable(parent, named)
+        for check, path in self.checks:  # after the collisions: an input named as an output is said first
+            check(path)
         return self
 
     # -- entering --

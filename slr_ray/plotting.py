@@ -16,6 +16,7 @@ from pathlib import Path
 
 import matplotlib
 import numpy as np
+from matplotlib.backend_bases import FigureCanvasBase
 from matplotlib.figure import Figure
 from matplotlib.patches import Patch
 
@@ -24,7 +25,7 @@ from .io import atomic_path
 from .paper import NEAR_DISTANCE, PRIMARY_RESOLUTION, PRIMARY_RESOLUTION_FINE, Q1_SCENES, Q2_SCENES
 from .validation import full_pairs, load_rows, series
 
-__all__ = ["save_figure", "validation_figure", "paper_figure", "comparison_figure", "demo_figure",
+__all__ = ["save_figure", "check_figure_path", "validation_figure", "paper_figure", "comparison_figure", "demo_figure",
            "distances_figure", "cells_figure", "range_image_figure", "evaluation_figure"]
 
 DPI = 110
@@ -34,11 +35,28 @@ def _figure(**kw):
     return Figure(**kw)
 
 
+def check_figure_path(path) -> str:
+    """The figure format of ``path`` (its extension, default ``'png'``).
+
+    Raises
+    ------
+    InputValueError
+        for an extension matplotlib cannot write: checked before any work
+        (:class:`~slr_ray.outputs.OutputPlan` runs it), not after it.
+    """
+    fmt = Path(path).suffix[1:].lower() or "png"
+    known = FigureCanvasBase.get_supported_filetypes()
+    if fmt not in known:
+        raise InputValueError(f"{path}: cannot write a figure as {fmt!r}; formats: {', '.join(sorted(known))}")
+    return fmt
+
+
 def save_figure(fig, path, dpi: int = DPI) -> None:
     """Write ``fig`` to ``path`` atomically (format from the extension, default PNG)."""
     path = Path(path)
+    fmt = check_figure_path(path)
     with atomic_path(path) as tmp:
-        fig.savefig(tmp, dpi=dpi, format=path.suffix[1:].lower() or "png")
+        fig.savefig(tmp, dpi=dpi, format=fmt)
 
 
 def _binned_means(d, s, edges):

@@ -18,6 +18,7 @@ meant to catch (cells around a corner, behind large objects).
 
 from __future__ import annotations
 
+import importlib.util
 import json
 import math
 import multiprocessing
@@ -433,11 +434,9 @@ def label_ground(points, *, cloth_resolution: float = 0.5, rigidness: int = 2,
     -------
     is_ground : (n,) bool
     """
-    try:
-        import CSF  # noqa: F401
-    except ImportError as exc:
+    if importlib.util.find_spec("CSF") is None:
         raise MissingDependencyError(
-            'ground labelling needs cloth-simulation-filter: pip install "slr_ray[csf]"') from exc
+            'ground labelling needs cloth-simulation-filter: pip install "slr_ray[csf]"')
     for name, value, lo in (("cloth_resolution", cloth_resolution, 0.0), ("class_threshold", class_threshold, 0.0),
                             ("time_step", time_step, 0.0)):
         if not (isinstance(value, (int, float)) and math.isfinite(value) and value > lo):

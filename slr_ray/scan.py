@@ -13,7 +13,7 @@ import numpy as np
 from .errors import InputValueError
 from .pattern import ScanPattern
 
-__all__ = ["Scan"]
+__all__ = ["Scan", "check_range_image"]
 
 
 @dataclass(frozen=True, eq=False)
@@ -101,9 +101,8 @@ class Scan:
             ``ring`` (rows,) int64, the beam id of each row; one image per
             attribute (NaN, or -1 for integers, where empty).
         """
+        check_range_image(self.pattern, max_pixels)
         nv, nh = self.pattern.shape
-        if nv * nh > max_pixels:
-            raise InputValueError(f"a range image of {nv} x {nh} pulses is larger than max_pixels={max_pixels}")
         r, c = self.pulses[:, 0], self.pulses[:, 1]
         out = {"range": np.full((nv, nh), np.nan, np.float32), "index": np.full((nv, nh), -1, np.int64)}
         out["range"][r, c] = self.ranges
@@ -120,10 +119,6 @@ class Scan:
             out[name] = img
         return out
 
-    def select(self, array):
-        """``array[self.indices]``: the scanned points, or any per-point attribute."""
-        return np.asarray(array)[self.indices]
-
     def summary(self) -> dict:
         """Plain-JSON summary (counts, pattern, timing)."""
         return {
@@ -136,3 +131,12 @@ class Scan:
             "seconds": round(float(self.seconds), 6),
             **self.info,
         }
+
+
+def check_range_image(pattern, max_pixels: int = 2**28) -> None:
+    """Refuse a range image of ``pattern`` with more than ``max_pixels`` pulses
+    (:class:`~slr_ray.errors.InputValueError`): callers check before the scan."""
+    nv, nh = pattern.shape
+    if nv * nh > max_pixels:
+        raise InputValueError(f"a range image of {nv:,} x {nh:,} pulses is larger than max_pixels={max_pixels:,} "
+                              "(a coarser pattern, or no --range-image / --png)")

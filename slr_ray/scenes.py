@@ -282,12 +282,13 @@ def scene_from_spec(spec) -> RectangleScene:
 def scene_effects(spec) -> Effects | None:
     """The sensor effects a scene requires: its ``[effects]`` table
     (:class:`~slr_ray.effects.Effects` keys, e.g. ``range_noise = 0.02``), or
-    None when it has none. Unknown keys are an error naming the file."""
+    None when it has none. Unknown keys are an error naming the file; a
+    relative ``ray_drop`` path is read from the file's directory."""
     data, path = load_toml_spec(spec, "scene", "scene spec")
     if "effects" not in data:
         return None
     try:
-        return Effects.from_dict(data["effects"])
+        return Effects.from_dict(data["effects"], relative_to=path.parent)
     except InputValueError as exc:
         raise InputValueError(f"{path}: [effects]: {exc}") from None
 
@@ -390,6 +391,8 @@ def dense_samples(scene: RectangleScene, spacing: float = 0.005, chunk: int = 1 
     nx = max(0, int(math.ceil((2 * radius - spacing / 2) / spacing)))
     frames = [_polygon_frame(poly, spacing) for poly in scene.polygons]
     cap = max(int(chunk), nx + 3, max((f[8] for f in frames), default=0))
+    refuse_memory(32.0 * cap, f"dense samples {spacing:g} m apart (rows of {cap:,} points in one buffer)",
+                  "use a coarser spacing")
     buf = np.empty((cap, 3))
     labels = np.empty(cap, np.int64)
     out = (lambda n: (buf[:n].copy(), labels[:n].copy())) if copy else (lambda n: (buf[:n], labels[:n]))

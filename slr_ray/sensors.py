@@ -273,8 +273,11 @@ class BeamPattern(Pattern):
     def reduce(self, points, origin, n_threads: int | None = None):
         """The binning reduction: nearest point per (beam, column), ties to the lowest index.
 
-        Returns ``(keys, ranges, indices)`` of the occupied pulses, indices ascending."""
-        pts = np.ascontiguousarray(points, dtype=np.float64)
+        Returns ``(keys, ranges, indices)`` of the occupied pulses, indices ascending.
+        float32 points are widened point by point in the kernel (no float64 copy)."""
+        pts = np.ascontiguousarray(points)
+        if pts.dtype not in (np.float32, np.float64):
+            pts = pts.astype(np.float64)
         o = np.asarray(origin, dtype=np.float64)
         t = max(1, min(n_threads or default_threads(), max(1, len(pts) // 100_000)))
         best_r = np.full((t, self.n_pulses), np.inf)
@@ -394,8 +397,12 @@ def _sensor_file(what: str):
         def read(path, *args, **kwargs):
             try:
                 return reader(path, *args, **kwargs)
-            except (SlrError, OSError):
+            except OSError:
                 raise
+            except SlrError as exc:  # the content's values (angles, columns): said with the file's name
+                if str(path) in str(exc):
+                    raise
+                raise type(exc)(f"{path}: {exc}") from exc
             except Exception as exc:  # json/yaml errors, KeyError, TypeError, AttributeError of odd content
                 msg = str(exc).splitlines()[0] if str(exc) else ""
                 raise FormatError(f"{path}: not a readable {what} ({type(exc).__name__}: {msg})") from exc

@@ -26,7 +26,7 @@ from tqdm import tqdm
 
 from .accumulator import ScanAccumulator
 from .errors import FormatError, InputValueError
-from .io import LasRecords, PointCloud
+from .io import LasRecords, PointCloud, check_las_size
 from .paper import CELL_SIZE, MIN_GROUND_POINTS
 from .positions import select_positions
 from .threads import default_threads
@@ -44,6 +44,7 @@ def _chunks(path, chunk):
     try:
         with laspy.open(str(path)) as reader:
             header = reader.header
+            check_las_size(path, header)  # fewer points declared than the file holds: refused before any work
             evlrs = list(getattr(reader, "evlrs", None) or [])
             seen = 0
             for points in reader.chunk_iterator(chunk):

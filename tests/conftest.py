@@ -30,11 +30,13 @@ def brute_force_scan(points, origin, pattern):
     return np.array(sorted(i for _, i in best.values()), dtype=np.intp)
 
 
-@pytest.fixture(params=["dense", "slots", "hash"])
+@pytest.fixture(params=["dense", "slots", "shared-slots", "hash"])
 def table_kind(request, monkeypatch):
-    """Run a test with each kind of binning table."""
+    """Run a test with each kind of binning table ("slots": a slot array per
+    thread; "shared-slots": one for all threads)."""
     monkeypatch.setattr(BinTables, "dense_bytes", 2**62 if request.param == "dense" else 0)
-    monkeypatch.setattr(BinTables, "slot_bytes", 2**62 if request.param == "slots" else 0)
+    monkeypatch.setattr(BinTables, "slot_bytes", 2**62 if request.param.endswith("slots") else 0)
+    monkeypatch.setattr(BinTables, "own_slots", request.param == "slots")
     return request.param
 
 

@@ -308,3 +308,27 @@ def test_scanner_height_is_honoured(laz, tmp_path):
     assert main(["augment", str(laz), "--n", "1", "--min-ground-points", "1000", "--scanner-height", "2.5",
                  "--workers", "1", "--quiet", "-o", str(tmp_path / "c")]) == 0
     assert json.loads((tmp_path / "c" / "manifest.json").read_text())["heights"] == [2.5]
+
+
+@pytest.mark.parametrize("chunk_size", [None, 50_000])
+def test_no_position_found_is_an_error_that_leaves_nothing(laz, tmp_path, chunk_size):
+    out = tmp_path / "o"
+    with pytest.raises(InputValueError, match="no scanner position found"):  # was: exit 0, an empty manifest
+        _run(laz, out, 2, min_ground_points=10**9, chunk_size=chunk_size)
+    assert not out.exists()
+
+
+def test_a_number_of_scans_whose_plan_would_exhaust_memory_is_refused_first(laz, tmp_path):
+    with pytest.raises(InputValueError, match="would need about .* GiB"):  # was: a list of 10**12 names
+        _run(laz, tmp_path / "o", 10**12)
+    assert not (tmp_path / "o").exists()
+
+
+@pytest.mark.parametrize("content", ["[]", '{"settings": 5}', "null"])
+def test_a_manifest_of_another_shape_is_a_one_line_error(laz, tmp_path, content):
+    out = tmp_path / "o"
+    out.mkdir()
+    (out / "manifest.json").write_text(content)  # valid JSON, not ours: was an AttributeError traceback
+    with pytest.raises(InputValueError, match="not a manifest slr_ray can read"):
+        _run(laz, out, 1, min_ground_points=1000)
+    assert (out / "manifest.json").read_text() == content

@@ -71,3 +71,43 @@ def test_names_moved_to_the_core_still_import_with_a_warning():
         old = pattern.keys(pts, np.zeros(3))
     for a, b in zip(old, pattern.pulse_ids(pts, np.zeros(3))):
         np.testing.assert_array_equal(a, b)
+
+
+@pytest.mark.parametrize("kind", ["slots", "hash"])
+def test_scans_kept_by_the_caller_are_never_overwritten(kind, monkeypatch):
+    # fine patterns' scans take their arrays from a pool of the scanner's last
+    # outputs: a set is reused only once no scan (nor any array taken from one)
+    # refers to it
+    from slr_ray.core import BinTables
+
+    monkeypatch.setattr(BinTables, "dense_bytes", 0)
+    monkeypatch.setattr(BinTables, "slot_bytes", 2**62 if kind == "slots" else 0)
+    rng = np.random.default_rng(9)
+    pts = rng.normal(size=(30000, 3)) * 10
+    scanner = prepare(pts, n_threads=2)
+    origins = rng.normal(size=(6, 3))
+    want = [brute_force_scan(pts, o, ScanPattern(1.0)) for o in origins]
+    kept = [scanner.scan(o, 1.0) for o in origins]  # all held: every one its own arrays
+    held_indices = scanner.scan(origins[0], 1.0).indices  # only one array of a scan held
+    for o, w, got in zip(origins, want, kept):
+        np.testing.assert_array_equal(got.indices, w)
+        np.testing.assert_array_equal(got.ranges, np.linalg.norm(pts[w] - o, axis=1))
+        np.testing.assert_array_equal(got.pulses, ScanPattern(1.0).unravel(
+            ScanPattern(1.0).pulse_ids(pts[w], o)[0]))
+    for _ in range(3):
+        np.testing.assert_array_equal(scanner.scan(origins[1], 1.0).indices, want[1])  # dropped at once
+    np.testing.assert_array_equal(held_indices, want[0])
+    if kind == "slots":  # the dropped scans' arrays were reused
+        scanner.scan(origins[2], 1.0)  # dropped at once: its set is free again
+        b = scanner.scan(origins[3], 1.0)
+        c = scanner.scan(origins[4], 1.0)
+        np.testing.assert_array_equal(b.indices, want[3])
+        np.testing.assert_array_equal(c.indices, want[4])
+        assert not np.shares_memory(b.indices, c.indices)
+    del kept
+    from concurrent.futures import ThreadPoolExecutor
+
+    with ThreadPoolExecutor(4) as pool:
+        scans = list(pool.map(lambda o: scanner.scan(o, 1.0), np.repeat(origins, 3, axis=0)))
+    for o, got in zip(np.repeat(origins, 3, axis=0), scans):
+        np.testing.assert_array_equal(got.indices, brute_force_scan(pts, o, ScanPattern(1.0)))

@@ -308,3 +308,27 @@ def test_embree_settings_that_would_exhaust_memory_are_refused_with_the_figure(t
         err = capsys.readouterr().err
         assert rc == 2 and "GiB" in err and len(err.strip().splitlines()) == 1, err
         assert not (tmp_path / "o.npz").exists()
+
+
+@pytest.mark.parametrize("content", [b"a b c d\n", b"\xd7\x00\xff\xfe" * 20, b"1 0 0 0\n0 1 0 0\n0 0 1 nan\n0 0 0 1\n"])
+def test_a_transform_that_is_not_a_finite_matrix_is_a_one_line_error(tmp_path, capsys, content):
+    frame = tmp_path / "f.bin"
+    np.random.default_rng(0).normal(size=(100, 4)).astype(np.float32).tofile(frame)
+    (tmp_path / "t.txt").write_bytes(content)
+    assert main(["evaluate", str(frame), str(frame), "--transform", str(tmp_path / "t.txt"), "--quiet",
+                 "-o", str(tmp_path / "ev")]) == 2  # text and bytes were a ValueError traceback
+    err = capsys.readouterr().err
+    assert "Traceback" not in err and "t.txt" in err and not (tmp_path / "ev").exists()
+
+
+def test_a_range_image_too_large_is_refused_before_the_scan(tmp_path, capsys, monkeypatch):
+    import slr_ray.cli.commands as commands
+
+    src = tmp_path / "c.npz"
+    np.savez(src, points=np.random.default_rng(0).normal(size=(50, 3)), origin=np.zeros(3))
+    scanned = []
+    monkeypatch.setattr(commands, "prepare", lambda *a, **k: scanned.append(1))  # the scan must not start
+    assert main(["scan", str(src), "--resolution", "0.001", "-o", str(tmp_path / "o.npz"),
+                 "--range-image", str(tmp_path / "r.npz")]) == 2
+    assert "larger than max_pixels" in capsys.readouterr().err and not scanned
+    assert sorted(p.name for p in tmp_path.iterdir()) == ["c.npz"]

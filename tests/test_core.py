@@ -71,10 +71,12 @@ def test_axes_and_signed_zeros_take_the_exact_path():
 
 
 def _tables(kind, origin, pattern, n_threads, monkeypatch):
+    """Tables of one kind; "slots": a slot array per thread, "shared-slots": one for all."""
     monkeypatch.setattr(BinTables, "dense_bytes", 2**62 if kind == "dense" else 0)
-    monkeypatch.setattr(BinTables, "slot_bytes", 2**62 if kind == "slots" else 0)
+    monkeypatch.setattr(BinTables, "slot_bytes", 2**62 if kind.endswith("slots") else 0)
+    monkeypatch.setattr(BinTables, "own_slots", kind == "slots")
     t = BinTables(origin, pattern, n_threads)
-    assert t.kind == kind
+    assert t.kind == kind.split("-")[-1]
     return t
 
 
@@ -84,19 +86,19 @@ def test_dense_slot_and_hash_tables_agree(monkeypatch):
     pts[1000:1100] = pts[:100]  # exact ties: the lower index must win in every kind
     pattern = ScanPattern(0.5)
     results = {}
-    for kind in ("dense", "slots", "hash"):
+    for kind in ("dense", "slots", "shared-slots", "hash"):
         t = _tables(kind, np.zeros(3), pattern, 3, monkeypatch)
         t.add(pts)
         results[kind] = t.winners()
         for a, b in zip(t.winners(pts), results[kind]):  # ranges recomputed or carried: the same
             np.testing.assert_array_equal(a, b)
     np.testing.assert_array_equal(results["dense"][2], brute_force_scan(pts, np.zeros(3), pattern))
-    for kind in ("slots", "hash"):
+    for kind in ("slots", "shared-slots", "hash"):
         for a, b in zip(results["dense"], results[kind]):
             np.testing.assert_array_equal(a, b)
 
 
-@pytest.mark.parametrize("kind", ["dense", "slots", "hash"])
+@pytest.mark.parametrize("kind", ["dense", "slots", "shared-slots", "hash"])
 def test_reset_tables_forget_the_last_position(kind, monkeypatch):
     # a reused table must give what a fresh one gives, whether or not the last
     # scan was read out (winners) before the reset
@@ -193,7 +195,7 @@ def test_default_threads_is_positive():
         BinTables(np.zeros(3), ScanPattern(1.0), n_threads=257)
 
 
-@pytest.mark.parametrize("kind", ["slots", "hash"])
+@pytest.mark.parametrize("kind", ["slots", "shared-slots", "hash"])
 def test_released_tables_give_the_same_winners_and_refuse_more(kind, monkeypatch):
     rng = np.random.default_rng(11)
     pts = rng.normal(size=(30000, 3)) * 10
@@ -269,3 +271,81 @@ def test_every_compiled_kernel_is_cached_to_disk():
                     and type(v._cache).__name__ == "NullCache"]
         assert not uncached, (name, uncached)
     assert len(kernels) > 20
+
+
+@pytest.mark.parametrize("kind", ["dense", "slots", "shared-slots", "hash"])
+@pytest.mark.parametrize("n", [0, 1, 2, 63, 64, 65, 127, 128, 129, 4097])
+def test_winners_in_index_order_at_word_boundaries(kind, n, monkeypatch):
+    # the winners are put in index order by one bit a point and a count per 64-bit
+    # word: indices 0, 63, 64, the last one, every point a winner or a few, empty
+    rng = np.random.default_rng(n)
+    pattern = ScanPattern(2.0)
+    for spread in (1000.0, 0.01):  # nearly every point its own pulse / a few pulses
+        pts = rng.normal(size=(n, 3)) * spread
+        for n_threads in (1, 3):
+            t = _tables(kind, np.zeros(3), pattern, n_threads, monkeypatch)
+            t.add(pts[: n // 2])
+            t.add(pts[n // 2:])
+            keys, ranges, idx = t.winners()
+            expected = brute_force_scan(pts, np.zeros(3), pattern)
+            np.testing.assert_array_equal(idx, expected)
+            k, r = pulse_ids(pts, np.zeros(3), pattern)
+            np.testing.assert_array_equal(keys, k[expected])
+            np.testing.assert_array_equal(ranges, r[expected])
+            assert keys.dtype == idx.dtype == np.int64 and ranges.dtype == np.float64
+
+
+@pytest.mark.parametrize("kind", ["slots", "shared-slots"])
+def test_slot_tables_fold_ties_across_threads_and_chunks(kind, monkeypatch):
+    # own slot tables split each chunk's points between threads and are folded at the
+    # end: copies of a point in another thread's share, in a later chunk, or read out
+    # midway (a fold, then more points) must still leave the lowest index
+    rng = np.random.default_rng(21)
+    pts = rng.normal(size=(60000, 3)) * 10
+    pts[40000:40500] = pts[:500]  # the last thread's share of the first chunk
+    pts[45000:45500] = pts[20000:20500]  # the first thread's share of a later chunk: its copy folds in
+    pts[55000:55500] = pts[100:600]  # a later chunk
+    pts[59990:] = pts[20000:20010]
+    pattern = ScanPattern(0.5)
+    expected = brute_force_scan(pts, np.zeros(3), pattern)
+    t = _tables(kind, np.zeros(3), pattern, 3, monkeypatch)
+    for s in range(0, len(pts), 15000):  # never read out midway
+        t.add(pts[s:s + 15000])
+    np.testing.assert_array_equal(t.winners()[2], expected)
+    t = _tables(kind, np.zeros(3), pattern, 3, monkeypatch)
+    assert t._private == (kind == "slots")
+    t.add(pts[:45000])
+    np.testing.assert_array_equal(t.winners()[2], brute_force_scan(pts[:45000], np.zeros(3), pattern))
+    assert t.n_bins == len(t.winners()[2])  # a second read-out folds nothing twice
+    t.add(pts[45000:52000])
+    t.add(pts[52000:])
+    keys, ranges, idx = t.winners()
+    np.testing.assert_array_equal(idx, expected)
+    k, r = pulse_ids(pts, np.zeros(3), pattern)
+    np.testing.assert_array_equal(keys, k[expected])
+    np.testing.assert_array_equal(ranges, r[expected])
+    pulses, _, idx2 = t.winners(as_pulses=True)
+    np.testing.assert_array_equal(idx2, expected)
+    np.testing.assert_array_equal(pulses, pattern.unravel(k[expected]))
+    t.reset(np.ones(3))  # cleared at the occupied bins only: a fresh table's answer
+    t.add(pts)
+    np.testing.assert_array_equal(t.winners()[2], brute_force_scan(pts, np.ones(3), pattern))
+
+
+def test_folding_own_slot_tables_keeps_the_lowest_index_on_ties():
+    # the fold meets a later point in the first table and its exact copy, earlier in
+    # the input, in another (threads take chunks as they come free): the lower index wins
+    from slr_ray.core.slots import SlotTable
+
+    rng = np.random.default_rng(22)
+    pts = rng.normal(size=(20000, 3)) * 10
+    pts = np.vstack([pts, pts])  # every point again, 20000 later
+    pattern = ScanPattern(0.5)
+    params = kernel_params(np.zeros(3), pattern)
+    band = (np.int64(0), np.int64(pattern.n_pulses))
+    late = SlotTable(np.zeros(pattern.n_pulses, np.int32))
+    late.reduce(pts, params, band, 0, 20000, 40000)
+    early = SlotTable(np.zeros(pattern.n_pulses, np.int32))
+    early.reduce(pts, params, band, 0, 0, 20000)
+    late.absorb(early)
+    assert sorted(late.tab["idx"].tolist()) == brute_force_scan(pts[:20000], np.zeros(3), pattern).tolist()

@@ -1,3 +1,5 @@
+import os
+
 import numpy as np
 import pytest
 
@@ -554,3 +556,131 @@ def test_writing_a_las_subset_leaves_the_callers_records_as_they_were(tmp_path):
     np.testing.assert_array_equal(back.attributes["intensity"], src.attributes["intensity"] + 1)
     write_cloud(tmp_path / "same.laz", src)  # nothing to change: the records are written as they are
     np.testing.assert_array_equal(read_cloud(tmp_path / "same.laz").meta["las"].array, records)
+
+
+# --- readers that believe nothing: counts smaller than the content, non-finite values, odd files ---------------
+
+@pytest.mark.parametrize("streamed", [False, True])
+def test_a_las_header_that_claims_fewer_points_than_the_file_holds(tmp_path, streamed):
+    from slr_ray.io import read_cloud
+    from slr_ray.streaming import scan_las
+
+    path = _las(tmp_path)
+    _lie_about_count(path, 900)  # laspy reads 900 and says nothing of the 100 after them
+    with pytest.raises(FormatError, match="declares 900 points, the file holds 1,000"):
+        if streamed:
+            scan_las(path, [5, 5, 5], 5.0, chunk=300)
+        else:
+            read_cloud(path)
+
+
+@pytest.mark.parametrize("binary", [True, False])
+def test_ply_and_pcd_headers_that_claim_fewer_points_than_the_file_holds(tmp_path, binary):
+    cloud = PointCloud(np.arange(30, dtype=float).reshape(10, 3), {"i": np.arange(10, dtype=np.int32)})
+    for ext, old, new in ((".ply", b"element vertex 10", b"element vertex 7"),
+                          (".pcd", b"WIDTH 10\nHEIGHT 1", b"WIDTH 7\nHEIGHT 1")):
+        path = tmp_path / ("a" + ext)
+        write_cloud(path, cloud, binary=binary)
+        data = path.read_bytes().replace(old, new).replace(b"POINTS 10", b"POINTS 7")
+        path.write_bytes(data)
+        with pytest.raises(FormatError, match="a" + ext):
+            read_cloud(path)
+
+
+@pytest.mark.parametrize("ext", [".npy", ".npz", ".ply", ".pcd", ".xyz", ".bin"])
+def test_non_finite_coordinates_are_refused_naming_the_file(tmp_path, ext):
+    pts = np.arange(30, dtype=float).reshape(10, 3)
+    pts[3, 1], pts[7, 2] = np.nan, np.inf
+    path = tmp_path / ("a" + ext)
+    write_cloud(path, PointCloud(pts), binary=True)
+    with pytest.raises(FormatError, match=rf"a\{ext}: 2 of 10 points have NaN or infinite coordinates \(rows 3, 7\)"):
+        read_cloud(path)
+    assert np.isnan(read_cloud(path, check_finite=False).points[3, 1])  # for who removes them themselves
+
+
+@pytest.mark.parametrize("origin", [np.array([np.nan, 0.0, 0.0]), np.zeros(2), np.zeros((2, 3))])
+def test_a_recorded_origin_that_is_not_three_finite_numbers_names_the_file(tmp_path, origin):
+    np.savez(tmp_path / "a.npz", points=np.ones((4, 3)), origin=origin)
+    with pytest.raises(FormatError, match="a.npz: the recorded scanner origin"):
+        read_cloud(tmp_path / "a.npz")
+
+
+def test_odd_npy_and_npz_files_are_one_line_errors(tmp_path):
+    np.savez(tmp_path / "scalar.npz", points=np.ones((4, 3)), foo=np.float64(3.0))  # was: a TypeError traceback
+    (tmp_path / "garbage.npy").write_bytes(np.random.default_rng(0).bytes(500))  # was: "load it unsafely"
+    (tmp_path / "garbage.npz").write_bytes(np.random.default_rng(1).bytes(500))
+    for name, said in (("scalar.npz", "a single value"), ("garbage.npy", "not a .npy"), ("garbage.npz", "not a .npz")):
+        with pytest.raises(FormatError, match=said):
+            read_cloud(tmp_path / name)
+    os.mkfifo(tmp_path / "fifo.npz")
+    with pytest.raises(FormatError, match="not a regular file"):
+        read_cloud(tmp_path / "fifo.npz")
+
+
+def test_a_structured_npy_keeps_fields_whose_names_are_parts_of_xyz(tmp_path):
+    a = np.zeros(3, [("x", "f8"), ("y", "f8"), ("z", "f8"), ("xy", "f4"), ("yz", "i4")])
+    a["xy"], a["yz"] = 1.5, 7
+    np.save(tmp_path / "a.npy", a)
+    attrs = read_cloud(tmp_path / "a.npy").attributes
+    assert set(attrs) == {"xy", "yz"} and (attrs["yz"] == 7).all()  # were dropped: `name not in "xyz"`
+
+
+# --- writers keep every attribute, or say what they do with it -------------------------------------------------
+
+@pytest.mark.parametrize("name", ["X", "x", "points", "header", "point_format"])
+def test_an_attribute_named_like_a_las_field_never_replaces_the_coordinates(tmp_path, name):
+    pts = np.arange(12, dtype=float).reshape(4, 3) + 0.5
+    with pytest.warns(UserWarning, match=f"written '{name}' as '{name}_value'"):
+        write_cloud(tmp_path / "a.las", PointCloud(pts, {name: np.full(4, 9.0)}))  # 'X': was the raw X
+    back = read_cloud(tmp_path / "a.las")
+    np.testing.assert_array_equal(back.points, pts)
+    np.testing.assert_array_equal(back.attributes[f"{name}_value"], np.full(4, 9.0))
+
+
+@pytest.mark.parametrize("name", ["points", "origin", "file", "allow_pickle"])
+def test_npz_stores_any_attribute_name(tmp_path, name):
+    pts = np.ones((4, 3))
+    c = PointCloud(pts, {name: np.arange(4.0)}, origin=np.array([1.0, 2.0, 3.0]))
+    if name in ("points", "origin"):  # the reader's own names: moved aside, said
+        with pytest.warns(UserWarning, match=f"'{name}' as '{name}_value'"):
+            write_cloud(tmp_path / "a.npz", c)
+        name += "_value"
+    else:  # were a TypeError traceback ('file') and an attribute silently dropped ('allow_pickle')
+        write_cloud(tmp_path / "a.npz", c)
+    back = read_cloud(tmp_path / "a.npz")
+    np.testing.assert_array_equal(back.attributes[name], np.arange(4.0))
+    np.testing.assert_array_equal(back.origin, [1.0, 2.0, 3.0])
+    np.testing.assert_array_equal(back.points, pts)
+
+
+@pytest.mark.parametrize("ext", [".ply", ".pcd"])
+def test_ply_and_pcd_move_x_aside_and_refuse_names_they_cannot_spell(tmp_path, ext):
+    pts = np.arange(12, dtype=float).reshape(4, 3)
+    with pytest.warns(UserWarning, match="'x' as 'x_value'"):
+        write_cloud(tmp_path / ("a" + ext), PointCloud(pts, {"x": np.full(4, 9.0)}))  # was a ValueError traceback
+    back = read_cloud(tmp_path / ("a" + ext))
+    np.testing.assert_array_equal(back.points, pts)
+    np.testing.assert_array_equal(back.attributes["x_value"], np.full(4, 9.0))
+    for bad in ("a b", "höhe"):  # PCD: was a file its own reader refused, or a UnicodeEncodeError
+        with pytest.raises(FormatError, match="cannot name"):
+            write_cloud(tmp_path / ("b" + ext), PointCloud(pts, {bad: np.zeros(4)}))
+        assert not list(tmp_path.glob("*b" + ext + "*"))
+
+
+def test_las_refuses_a_name_longer_than_its_32_bytes(tmp_path):
+    with pytest.raises(FormatError, match="32 bytes"):  # was a ValueError traceback from laspy
+        write_cloud(tmp_path / "a.las", PointCloud(np.zeros((2, 3)), {"a" * 40: np.zeros(2)}))
+
+
+def test_text_and_npy_columns_say_which_names_they_drop_and_keep_integers_exact(tmp_path):
+    big = np.array([2**40 + 1, -3], np.int64)
+    c = PointCloud(np.zeros((2, 3)), {"gps_id": big, "flag": np.array([True, False])})
+    with pytest.warns(UserWarning, match=r"\['gps_id', 'flag'\] will read back as \['column_3', 'column_4'\]"):
+        write_cloud(tmp_path / "a.xyz", c)
+    assert (tmp_path / "a.xyz").read_text().split("\n")[0].split()[3:] == ["1099511627777", "1"]  # was 1.0995e12
+    with pytest.warns(UserWarning, match="integers beyond 2\\*\\*53"):
+        write_cloud(tmp_path / "b.xyz", PointCloud(np.zeros((1, 3)), {"id": np.array([2**62 + 1])}))
+    with pytest.warns(UserWarning, match="keep values, not names"):
+        write_cloud(tmp_path / "a.npy", PointCloud(np.zeros((2, 3)), {"intensity": np.ones(2)}))
+    with pytest.raises(FormatError, match="holds numbers"):
+        write_cloud(tmp_path / "c.xyz", PointCloud(np.zeros((2, 3)), {"name": np.array(["a", "b"])}))

@@ -212,3 +212,11 @@ def test_ray_cast_primaries_see_no_further_than_the_first_wall_where_a_5mm_grid_
     see_through = (q[:, 0] > 32) & (np.abs(q[:, 1] / q[:, 0]) < 0.5 / 30 - 4e-3) \
         & (np.abs(q[:, 2] / q[:, 0]) < 0.5 / 30 - 1e-4)
     assert see_through.sum() > 100
+
+
+def test_settings_that_would_exhaust_memory_are_refused_with_the_figure():
+    scene = rectangle_scene(3, seed=0)
+    with pytest.raises(InputValueError, match="would need about .* GiB"):  # was a MemoryError traceback
+        scan_mesh(scene, [0, 0, 0], 1.0, mode="nearest", supersample=1_000_000)
+    with pytest.raises(InputValueError, match="would need about .* GiB"):
+        next(dense_samples(scene, spacing=1e-9))

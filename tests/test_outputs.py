@@ -11,7 +11,7 @@ import pytest
 
 from slr_ray.cli import main
 from slr_ray.errors import OutputError
-from slr_ray.io import PointCloud, atomic_path, write_cloud
+from slr_ray.io import PointCloud, atomic_path, read_cloud, write_cloud
 from slr_ray.outputs import LOCK_NAME, OutputPlan, clean_stale_parts, content_digest, part_prefix
 
 
@@ -228,3 +228,101 @@ def test_content_digest_sees_an_edit_that_keeps_size_and_mtime(tmp_path):
     os.utime(p, ns=(st.st_atime_ns, st.st_mtime_ns))
     assert p.stat().st_size == st.st_size and p.stat().st_mtime_ns == st.st_mtime_ns
     assert content_digest(p) != d
+
+
+# --- refused before the work: what cannot be written at all ------------------------------------------------------
+
+def _deny_writing_in(monkeypatch, directory):
+    """os.access as for a user who may not write in ``directory`` (tests run as root, who may)."""
+    real = os.access
+
+    def access(path, mode, **kw):
+        if mode & os.W_OK and os.path.realpath(path) == os.path.realpath(directory):
+            return False
+        return real(path, mode, **kw)
+    monkeypatch.setattr(os, "access", access)
+
+
+def test_an_unwritable_directory_is_refused_before_the_work(tmp_path, monkeypatch, capsys):
+    src = _kitti(tmp_path / "k.bin")
+    ro = tmp_path / "ro"
+    ro.mkdir()
+    _deny_writing_in(monkeypatch, ro)
+    before = _tree(tmp_path)
+    assert main(_scan(src, ro / "o.npz")) == 2
+    assert "no permission to write in" in capsys.readouterr().err
+    # an output directory to create there: its nearest existing parent is what must be writable
+    assert main(["distances", str(src), "-o", str(ro / "sub"), "--origin", "0", "0", "0", "--quiet"]) == 2
+    assert "no permission to write in" in capsys.readouterr().err
+    plan = OutputPlan()
+    plan.directory(ro)
+    with pytest.raises(OutputError, match="no permission"):
+        plan.check()
+    assert _tree(tmp_path) == before
+
+
+@pytest.mark.parametrize("command", ["scan", "positions", "compare"])
+def test_a_figure_format_matplotlib_cannot_write_is_refused_before_the_work(tmp_path, capsys, command):
+    src = tmp_path / "c.npz"
+    rng = np.random.default_rng(0)
+    np.savez(src, points=rng.normal(size=(200, 3)) * 5, origin=np.zeros(3), is_ground=np.ones(200, bool))
+    before = _tree(tmp_path)
+    argv = {"scan": _scan(src, tmp_path / "s.npz"),
+            "positions": ["positions", str(src), "--n", "1", "--min-ground-points", "1", "-o",
+                          str(tmp_path / "p.json")],
+            "compare": ["compare", str(src), "--origin", "0", "0", "0", "--resolution", "2"]}[command]
+    assert main(argv + ["--png", str(tmp_path / "fig.xyz")]) == 2  # was: the scan written, then a traceback
+    err = capsys.readouterr().err
+    assert "fig.xyz" in err and "Traceback" not in err
+    assert _tree(tmp_path) == before
+
+
+def test_a_scene_spec_of_any_extension_is_an_input(tmp_path):
+    spec = tmp_path / "scene.txt"  # a TOML spec need not end in .toml, and .txt is a point format
+    spec.write_text('[scene]\nn_rectangles = 3\nseed = 0\n')
+    before = spec.read_text()
+    assert main(["scene", "scan", str(spec), "--origin", "0", "0", "0", "--resolution", "5", "--quiet",
+                 "-o", str(spec), "--force"]) == 2
+    assert spec.read_text() == before
+
+
+def test_validate_never_writes_its_reports_over_its_config(tmp_path):
+    out = tmp_path / "v"
+    out.mkdir()
+    config = out / "report.md"  # a config named like a report the command writes into its directory
+    config.write_text('[validate]\nname = "x"\nscenes = ["rect-0500"]\npositions = 1\n')
+    before = _tree(tmp_path)
+    assert main(["validate", str(config), "-o", str(out), "--quiet"]) == 2
+    assert main(["validate", str(config), "-o", str(config), "--quiet"]) == 2
+    assert _tree(tmp_path) == before
+
+
+def test_a_demo_whose_file_plan_would_exhaust_memory_is_refused_first(tmp_path, capsys):
+    assert main(["demo", "-o", str(tmp_path / "d"), "--quick", "--positions", str(10**12)]) == 2  # was: OOM
+    assert "would need about" in capsys.readouterr().err and not (tmp_path / "d").exists()
+
+
+def test_a_bin_written_into_the_semantickitti_layout_never_leaves_another_frames_labels_paired(tmp_path, capsys):
+    seq = tmp_path / "seq"
+    (seq / "velodyne").mkdir(parents=True)
+    (seq / "labels").mkdir()
+    src = _kitti(tmp_path / "k.bin")  # with labels beside it
+    old = seq / "labels" / "000001.label"  # the labels of a frame this scan will replace
+    np.full(7, 9, "<u4").tofile(old)
+    out = seq / "velodyne" / "000001.bin"
+    assert main(_scan(src, out)) == 2  # its labels exist: --force, as for the .bin itself
+    assert "000001.label exists" in capsys.readouterr().err and old.read_bytes() == np.full(7, 9, "<u4").tobytes()
+    assert main(_scan(src, out, "--force")) == 0
+    back = read_cloud(out)  # the new labels, in labels/ where SemanticKITTI's tools look (were: the old frame's)
+    assert len(back.attributes["semantic"]) == len(back) and old.stat().st_size == 4 * len(back)
+    assert not (seq / "velodyne" / "000001.label").exists()
+    write_cloud(out, PointCloud(np.zeros((3, 3))), "bin")  # without labels: the stale ones go
+    assert not old.exists() and "semantic" not in read_cloud(out).attributes
+    # a .bin outside velodyne/ never reads or removes a labels/ file of the directory above
+    (tmp_path / "other").mkdir()
+    np.zeros(3, "<u4").tofile(tmp_path / "labels.label")
+    (tmp_path / "labels").mkdir()
+    np.zeros(3, "<u4").tofile(tmp_path / "labels" / "f.label")
+    write_cloud(tmp_path / "other" / "f.bin", PointCloud(np.zeros((3, 3))))
+    assert (tmp_path / "labels" / "f.label").exists()
+    assert "semantic" not in read_cloud(tmp_path / "other" / "f.bin").attributes

@@ -291,3 +291,15 @@ def test_sensor_noise_moves_points_along_their_rays_and_drops_a_share():
         sensor_noise(pts, o, beams - 1)
     with pytest.raises(InputValueError, match="range_sd"):
         sensor_noise(pts, o, beams, range_sd=-0.01)
+
+
+@pytest.mark.parametrize("content", [
+    {"beam_altitude_angles": [-10.0, 0.0, 1e400], "beam_azimuth_angles": [0.0] * 3, "columns_per_frame": 512},
+    {"beam_altitude_angles": [-10.0, 0.0, 10.0], "beam_azimuth_angles": [0.0] * 2, "columns_per_frame": 512},
+    {"beam_altitude_angles": [0.0, 0.0], "beam_azimuth_angles": [0.0] * 2, "columns_per_frame": 512},
+    {"beam_altitude_angles": [-10.0, 10.0], "beam_azimuth_angles": [0.0] * 2, "columns_per_frame": 10**12}])
+def test_a_sensor_file_of_impossible_values_is_named_in_the_error(tmp_path, content):
+    path = tmp_path / "meta.json"
+    path.write_text(json.dumps(content))
+    with pytest.raises(InputValueError, match=f"^{path}: "):  # was: "elevation_deg must be ..." of no file
+        read_ouster_metadata(path)

@@ -449,3 +449,38 @@ def test_a_run_whose_primary_does_not_fit_gives_the_same_rows(tmp_path, monkeypa
     assert "primary to a mapped file" in stages
     assert "primary to a mapped file" not in [r["stage"] for r in _rows(tmp_path / "mem" / "stages.csv")]
     assert not [f for f in (tmp_path / "mapped").iterdir() if f.name.startswith(".primary")]
+
+
+def test_a_scene_spec_edited_in_place_is_not_resumed(tmp_path):
+    from slr_ray.validation.config import ValidationConfig
+    from slr_ray.validation.results import check_settings
+
+    spec = tmp_path / "scene.toml"
+    spec.write_text("[scene]\nn_rectangles = 3\nseed = 1\n")
+    cfg = ValidationConfig(name="x", scenes=[str(spec)], positions=1).check()
+    (tmp_path / "out").mkdir()
+    check_settings(tmp_path / "out", cfg)
+    spec.write_text("[scene]\nn_rectangles = 3\nseed = 2\n")  # same name, same size: another scene
+    with pytest.raises(InputValueError, match=r"scene spec .*\(content digest\)"):  # was: its rows mixed in
+        check_settings(tmp_path / "out", cfg)
+
+
+def test_a_validation_that_fails_before_its_first_row_leaves_nothing(tmp_path, capsys):
+    spec = tmp_path / "scene.toml"
+    spec.write_text("[scene]\nn_rectangles = 3\nno_such_argument = 1\n")  # found, read, refused inside the run
+    config = tmp_path / "v.toml"
+    config.write_text(f'[validate]\nname = "x"\nscenes = ["{spec}"]\npositions = 1\nbackends = ["binning"]\n')
+    assert main(["validate", str(config), "-o", str(tmp_path / "out"), "--quiet"]) == 2
+    assert "no_such_argument" in capsys.readouterr().err
+    assert not (tmp_path / "out").exists()  # was: results.csv, stages.csv and settings.json left behind
+
+
+@pytest.mark.parametrize("content", ["{bad", "[1]"])
+def test_a_settings_json_of_another_program_is_a_one_line_error(tmp_path, content):
+    from slr_ray.errors import FormatError
+    from slr_ray.validation.results import check_settings
+
+    (tmp_path / "settings.json").write_text(content)  # was a JSONDecodeError / AttributeError traceback
+    with pytest.raises(FormatError, match="not a settings.json of slr_ray"):
+        check_settings(tmp_path, load_config("quick"))
+    assert (tmp_path / "settings.json").read_text() == content

@@ -16,7 +16,7 @@ from enum import Enum
 
 import numpy as np
 
-from ..errors import InputValueError
+from ..errors import dataclass_from_mapping
 from ..scan import Scan
 
 __all__ = ["Backend", "Scanner", "BackendOptions"]
@@ -45,13 +45,7 @@ class BackendOptions:
         InputValueError
             naming unknown keys and listing the known ones.
         """
-        merged = {**(options or {}), **more}
-        known = {f.name for f in dataclasses.fields(cls)}
-        unknown = sorted(set(merged) - known)
-        if unknown:
-            raise InputValueError(
-                f"unknown option(s) {unknown} for {cls.__name__}; known: {sorted(known)}")
-        return cls(**merged)
+        return dataclass_from_mapping(cls, options, more, f"option(s) for {cls.__name__}:")
 
     @classmethod
     def describe(cls) -> dict:

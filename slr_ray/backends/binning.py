@@ -25,6 +25,7 @@ import numpy as np
 
 from .. import core, threads
 from ..arrays import as_origin
+from ..core.order import OutputPool
 from ..errors import InputValueError
 from ..pattern import as_pattern
 from ..scan import Scan
@@ -91,14 +92,21 @@ class BinningScanner(Scanner):
         # (a scan from another thread meanwhile gets its own)
         self._cache = None
         self._lock = threading.Lock()
+        #: output arrays of fine patterns' scans, reused once the scans are dropped
+        self._outputs = OutputPool()
 
     def _tables_for(self, origin, pattern) -> "core.BinTables":
+        # a pattern's first scan shares one slot array between the threads (a one-shot
+        # scan allocates no more); its second builds tables with one per thread (one
+        # pass, no key arrays), which the later scans reuse
         if self._lock.acquire(blocking=False):
             cached, self._cache = self._cache, None
             self._lock.release()
             if cached is not None and cached.pattern == pattern:
-                return cached.reset(origin)
-        return core.BinTables(origin, pattern, n_threads=self.options.n_threads)
+                if not cached.could_own_slots:
+                    return cached.reset(origin)
+                return core.BinTables(origin, pattern, n_threads=self.options.n_threads)
+        return core.BinTables(origin, pattern, n_threads=self.options.n_threads, own_slots=False)
 
     def _release(self, tables: "core.BinTables") -> None:
         if tables.reusable and self._lock.acquire(blocking=False):
@@ -116,8 +124,9 @@ class BinningScanner(Scanner):
         tables = self._tables_for(origin, pattern)
         try:
             tables.add(self.points, finite=True)  # checked when prepared
-            keys, ranges, idx = tables.winners(self.points)
+            pulses, ranges, idx = tables.winners(self.points, as_pulses=True, pool=self._outputs)
         finally:
             self._release(tables)
-        return Scan.from_keys(keys, ranges, idx, origin, pattern, self.backend, len(self.points),
-                              time.perf_counter() - t0)
+        return Scan(indices=idx.astype(np.intp, copy=False), ranges=ranges, pulses=pulses, origin=origin,
+                    pattern=pattern, backend=self.backend, n_input=len(self.points),
+                    seconds=time.perf_counter() - t0)

@@ -32,6 +32,8 @@ from . import arguments as A
 from .commands import COMMANDS
 from ..evaluate import METHODS as EVALUATE_METHODS
 from .evaluate_command import evaluate as evaluate_command
+from .effects_command import RING_SOURCES
+from .effects_command import effects as effects_command
 
 __all__ = ["main", "build_parser"]
 
@@ -75,6 +77,7 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("--quiet", action="store_true", help="no progress bars")
     p.add_argument("--force", action="store_true", help="overwrite the output")
     p.add_argument("--print-config", action="store_true", help="print the resolved configuration as JSON and stop")
+    A.add_effects(p)
 
     p = command("compare", "run both backends on a cloud and report where they differ")
     p.add_argument("input", help=f"input cloud ({_FORMATS})")
@@ -151,6 +154,7 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("--per-pass", type=A.positive_int, default=8,
                    help="positions reduced in one pass over a streamed input (default 8)")
     p.add_argument("--quiet", action="store_true")
+    A.add_effects(p)
 
     p = command("demo", "the main job on a built-in scene: scene, primary scan, SLR scans by both backends, report")
     p.add_argument("-o", "--output", default="slr_ray_demo", help="output directory (default slr_ray_demo)")
@@ -186,6 +190,31 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("--quiet", action="store_true", help="no progress bar")
     p.add_argument("--force", action="store_true", help="replace the evaluation files of an existing directory")
 
+    # effects: its handler lives in .effects_command (self-contained)
+    help_text = "sensor effects' tools: fit-drop (a ray-drop model from a real frame)"
+    p = sub.add_parser("effects", help=help_text, description=help_text)
+    p.set_defaults(func=effects_command)
+    esub = p.add_subparsers(dest="effects_cmd", required=True)
+    q = esub.add_parser("fit-drop", help="fit the ray-drop model of a real frame; writes the JSON --ray-drop reads",
+                        description="fit the ray-drop model of a real frame (a spinning sensor's, in its scan "
+                                    "order or with a 'ring' attribute); writes the JSON --ray-drop reads")
+    q.add_argument("frame", help=f"the frame, in its sensor's frame ({_FORMATS}; a KITTI .bin as written)")
+    q.add_argument("-o", "--output", required=True, help="the model (.json)")
+    q.add_argument("--origin", nargs=3, type=A.finite_float, metavar=("X", "Y", "Z"),
+                   help="the sensor's position (default: the frame's recorded origin; a KITTI .bin's is 0 0 0)")
+    q.add_argument("--rings", default="auto", choices=list(RING_SOURCES),
+                   help="each point's ring: auto (a 'ring' attribute, else the scan order) or scan-order")
+    q.add_argument("--max-gap", type=A.positive_int, default=16,
+                   help="longer runs of missing pulses are not counted as drops (sky; default 16)")
+    q.add_argument("--column-step-deg", type=A.positive_float,
+                   help="azimuth step between firings (default: the median step within a ring)")
+    q.add_argument("--no-intensity", action="store_true", help="fit without the intensity term")
+    q.add_argument("--intensity-scale", type=A.positive_float, default=1.0,
+                   help="the intensity value of reflectivity 1 (default 1, KITTI's; 255 for 8-bit)")
+    q.add_argument("-k", type=A.positive_int, default=10, help="neighbours of the PCA normals (default 10)")
+    A.add_input_format(q)
+    q.add_argument("--force", action="store_true", help="overwrite an existing output")
+
     p = command("scene", "synthetic rectangle scenes: info, build, scan")
     ssub = p.add_subparsers(dest="scene_cmd", required=True)
     q = ssub.add_parser("info", help="counts of a scene spec (shipped name or path)")
@@ -194,7 +223,7 @@ def build_parser() -> argparse.ArgumentParser:
     q.add_argument("spec")
     q.add_argument("-o", "--output", required=True)
     q.add_argument("--force", action="store_true", help="overwrite an existing output")
-    q = ssub.add_parser("scan", help="ground-truth scan of a scene")
+    q = ssub.add_parser("scan", help="ground-truth scan of a scene (with the effects its [effects] table requires)")
     q.add_argument("spec")
     A.add_pattern(q, origin="required")
     q.add_argument("--mode", default="center", choices=list(MESH_MODES))
@@ -202,6 +231,8 @@ def build_parser() -> argparse.ArgumentParser:
     q.add_argument("--spacing", type=A.positive_float, default=paper.DENSE_SPACING,
                    help=f"grid spacing for --mode dense (m, default {paper.DENSE_SPACING})")
     q.add_argument("--quiet", action="store_true", help="no progress bar")
+    q.add_argument("--no-effects", action="store_true",
+                   help="the ideal scan, without the sensor effects the scene's [effects] table requires")
     q.add_argument("-o", "--output", required=True)
     q.add_argument("--force", action="store_true", help="overwrite an existing output")
     return ap

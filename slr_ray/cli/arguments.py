@@ -8,16 +8,20 @@ backend, preset or option shows up on the command line without a second list.
 from __future__ import annotations
 
 import argparse
+import dataclasses
 import math
 
 from .. import paper
 from ..backends import BACKENDS, Backend
+from ..effects import Effects
+from ..effects.options import INTENSITY_MODES, RETURN_KINDS
 from ..errors import InputValueError
 from ..pattern import PRESETS, ScanPattern, preset
 from ..sensors import SENSORS, read_ouster_metadata, read_velodyne_calibration, sensor
 
 __all__ = ["add_pattern", "pattern_from", "add_backend", "backend_from", "add_ground", "ground_from",
-           "add_input_format", "finite_float", "positive_float", "positive_int"]
+           "add_input_format", "add_effects", "effects_from", "check_effects", "finite_float", "positive_float",
+           "positive_int"]
 
 
 def finite_float(text: str) -> float:
@@ -211,3 +215,72 @@ def add_positions(p) -> None:
                    help=f"ground points a position needs within 5 m (default {paper.MIN_GROUND_POINTS:,})")
     g.add_argument("--scanner-height", type=positive_float, default=paper.SCANNER_HEIGHT,
                    help=f"scanner height above the ground (m, default {paper.SCANNER_HEIGHT})")
+
+
+# --- sensor effects ------------------------------------------------------------------------------------------
+
+#: Effects fields with a flag of their own: field -> flag (the rest through --effects FILE).
+EFFECT_FLAGS = {"range_noise": "--range-noise", "divergence_mrad": "--divergence-mrad", "returns": "--returns",
+                "ray_drop": "--ray-drop", "intensity": "--intensity", "seed": "--effects-seed"}
+
+
+def _number_or_sensor(text: str):
+    """An argparse type: a finite number, or 'sensor' (the sensor table's value)."""
+    return text if text == "sensor" else finite_float(text)
+
+
+def add_effects(p) -> None:
+    """Sensor effects (:class:`~slr_ray.effects.Effects`, docs/effects.md): a file and flags for the common ones."""
+    g = p.add_argument_group("sensor effects", "all off by default (docs/effects.md); a flag overrides the "
+                             "same option of --effects")
+    g.add_argument("--effects", metavar="FILE", help="a TOML or JSON file of effect options (slr_ray.effects.Effects "
+                   "fields, at the top level or in an [effects] table, as a scene file has them)")
+    g.add_argument("--range-noise", type=_number_or_sensor, metavar="SIGMA",
+                   help="Gaussian range noise, sigma in metres, or 'sensor' (the --sensor table's range accuracy)")
+    g.add_argument("--divergence-mrad", type=_number_or_sensor, metavar="MRAD",
+                   help="full beam divergence angle (mrad) or 'sensor': each pulse a cone of sub-rays, "
+                        "multiple returns (--backend embree)")
+    g.add_argument("--returns", nargs="+", choices=RETURN_KINDS,
+                   help="returns of a pulse reported with beam divergence (default first strongest last)")
+    g.add_argument("--ray-drop", metavar="MODEL",
+                   help="a ray-drop model, JSON (written by 'slr-ray effects fit-drop')")
+    g.add_argument("--intensity", choices=INTENSITY_MODES,
+                   help="the input's intensity carried, or corrected for the new range and incidence")
+    g.add_argument("--effects-seed", type=int, metavar="N", help="seed of the random draws (noise, drop; default 0)")
+
+
+def effects_from(args) -> Effects | None:
+    """The effects of the effects group: ``--effects FILE`` with each flag
+    given over it; None when neither is given. A bad value is an error that
+    names its flag (or the file)."""
+    base = Effects.load(args.effects) if args.effects else None
+    changes = {}
+    for name, flag in EFFECT_FLAGS.items():
+        value = getattr(args, flag[2:].replace("-", "_"))
+        if value is None:
+            continue
+        value = tuple(value) if isinstance(value, list) else value
+        try:
+            Effects(**{name: value})  # alone, so that the error is this flag's
+        except InputValueError as exc:
+            raise InputValueError(f"{flag}: {exc}") from None
+        changes[name] = value
+    if base is None and not changes:
+        return None
+    eff = dataclasses.replace(base or Effects(), **changes)
+    if eff.motion:
+        where = f"--effects {args.effects}" if args.effects else "the effects"
+        raise InputValueError(f"{where}: motion needs the sensor's poses over the sweep, which the command line "
+                              "does not take (slr_ray.effects.simulate(..., poses=) does)")
+    return eff
+
+
+def check_effects(eff: Effects | None, backend: str, pattern) -> Effects | None:
+    """``eff`` with its 'sensor' values read from ``pattern``, checked against the
+    backend; None when no effect is on (a seed alone: the ideal scan)."""
+    if eff is None or not eff.any:
+        return None
+    if eff.divergence_mrad and Backend(backend) is not Backend.EMBREE:
+        raise InputValueError("--divergence-mrad (divergence_mrad) needs --backend embree: binning keeps one "
+                              "point per pulse bin and has no footprint beyond it")
+    return eff.resolve(pattern)

@@ -22,17 +22,19 @@ from ..backends import Backend, options_for, prepare
 from ..compare import compare_backends
 from ..demo import run_demo
 from ..distances import distance_study, study_files
+from ..effects import effect_cloud, simulate, simulate_given
 from ..errors import InputValueError
 from ..io import PointCloud, atomic_path, check_format, read_cloud, write_cloud
 from ..meshscan import scan_mesh
 from ..outputs import OutputPlan
 from ..paper import Q1_SCENES, Q2_SCENES
-from ..plotting import cells_figure, comparison_figure, paper_figure, range_image_figure, save_figure, validation_figure
+from ..plotting import check_figure_path, cells_figure, comparison_figure, paper_figure, range_image_figure, save_figure, validation_figure
 from ..positions import AzimuthProfile, build_synthetic_profile, default_profile, ground_labels, select_positions
-from ..scenes import MESH_FORMATS, scene_from_spec
+from ..scan import Scan, check_range_image
+from ..scenes import MESH_FORMATS, scene_effects, scene_from_spec
 from ..streaming import STREAMED_FORMATS, scan_las
 from ..validation import load_config, load_rows, paper_report, paper_report_markdown, run_validation, stage_summary
-from .arguments import backend_from, ground_from, pattern_from
+from .arguments import backend_from, check_effects, effects_from, ground_from, pattern_from
 
 __all__ = ["emit", "COMMANDS"]
 
@@ -54,30 +56,41 @@ def emit(obj) -> None:
     sys.stdout.flush()
 
 
-def _plan(args, *, inputs=(), outputs=(), fmt=None) -> OutputPlan:
+def _plan(args, *, inputs=(), outputs=(), fmt=None, figures=()) -> OutputPlan:
     """The command's :class:`~slr_ray.outputs.OutputPlan`: its inputs (with their
-    sidecars and the secondary inputs its flags name) and its outputs, checked."""
+    sidecars and the secondary inputs its flags name), its outputs and its
+    figures (whose format is checked with the rest), checked."""
     plan = OutputPlan(force=getattr(args, "force", False))
     for path in inputs:
         plan.read(path)
-    for flag in ("sensor_file", "profile_file"):
+    for flag in ("sensor_file", "profile_file", "effects", "ray_drop"):
         plan.read(getattr(args, flag, None), sidecars=False)
     for i, path in enumerate(outputs):
         plan.write(path, fmt=fmt if i == 0 else None)
+    for path in figures:
+        plan.write(path, check=check_figure_path)
     return plan.check()
 
 
 def scan(args):
     check_format(args.output, args.format)  # refuse an unknown output format before any work
-    plan = _plan(args, inputs=[args.input], outputs=[args.output, args.range_image, args.png], fmt=args.format)
+    plan = _plan(args, inputs=[args.input], outputs=[args.output, args.range_image], fmt=args.format,
+                 figures=[args.png])
     pattern = pattern_from(args)
+    if args.range_image or args.png:
+        check_range_image(pattern)  # before the scan, not after it
     options = options_for(args.backend, backend_from(args))  # built once, used below
+    effects = check_effects(effects_from(args), args.backend, pattern)
+    if effects is not None and (args.range_image or args.png):
+        raise InputValueError("--range-image and --png draw an ideal scan (one point a pulse): drop them, or the "
+                              "effects (slr_ray.effects.range_image draws a scan with effects)")
     if args.print_config:
         emit({"input": str(args.input), "output": str(args.output), "origin": args.origin,
-              "pattern": pattern.to_dict(), "backend": args.backend, "options": options.to_dict()})
+              "pattern": pattern.to_dict(), "backend": args.backend, "options": options.to_dict(),
+              "effects": None if effects is None else effects.to_dict()})
         return
-    # LAS/LAZ stream through the uniform binning reduction; beam tables read the file whole
-    streamed = (Backend(args.backend) is Backend.BINNING and pattern.streamable
+    # LAS/LAZ stream through the uniform binning reduction; beam tables and effects read the file whole
+    streamed = (effects is None and Backend(args.backend) is Backend.BINNING and pattern.streamable
                 and check_format(args.input, args.input_format) in STREAMED_FORMATS)
     with plan:
         if streamed:
@@ -93,9 +106,12 @@ def scan(args):
             cloud = read_cloud(args.input, args.input_format)
             t_read = time.perf_counter() - t0
             origin = _origin(args, cloud)
-            result = prepare(cloud.points, args.backend, options).scan(origin, pattern)
-            sub = cloud.subset(result.indices)
-            sub.origin = np.asarray(origin, float)
+            if effects is None:
+                result = prepare(cloud.points, args.backend, options).scan(origin, pattern)
+                sub = cloud.subset(result.indices)
+                sub.origin = np.asarray(origin, float)
+            else:
+                result, sub = _scan_with_effects(args, cloud, origin, pattern, options, effects)
         _keep(args, sub, result)
         # the range image is made before anything is written: an error there leaves no scan behind
         image = _range_image(sub, result) if args.range_image or args.png else None
@@ -106,6 +122,25 @@ def scan(args):
     emit({**result.summary(), "input": str(args.input), "output": str(args.output), "streamed": streamed,
           ("seconds_read_and_scan" if streamed else "seconds_read"): round(t_read, 6),
           "seconds_write": round(time.perf_counter() - t1, 6)})
+
+
+def _scan_with_effects(args, cloud, origin, pattern, options, effects):
+    """(a Scan of the returns, for the summary and --keep-*; the cloud written)."""
+    intensity = cloud.attributes.get("intensity")
+    if intensity is not None and np.ndim(intensity) != 1:
+        intensity = None
+    if effects.intensity == "correct" and cloud.origin is None:
+        raise InputValueError(f"--intensity correct needs where {args.input} was scanned from, and it records "
+                              "no scanner origin (use --intensity carry)")
+    t0 = time.perf_counter()
+    es = simulate(prepare(cloud.points, args.backend, options), origin, pattern, effects, intensity=intensity,
+                  primary_origin=cloud.origin)
+    info = {k: v for k, v in es.info.items() if k.startswith(("removed_", "returns_", "max_range_at"))}
+    result = Scan(es.indices, es.ranges, es.pulses, es.origin, es.pattern, backend=args.backend,
+                  n_input=len(cloud), seconds=time.perf_counter() - t0,
+                  info={"effects": effects.to_dict(), **info,
+                        "returns_in_multi_return_pulses": int(np.count_nonzero(es.number_of_returns > 1))})
+    return result, effect_cloud(es, cloud)
 
 
 def _keep(args, sub, result) -> None:
@@ -160,7 +195,7 @@ def demo(args):
 
 
 def scene(args):
-    spec_file = args.spec if Path(args.spec).suffix.lower() == ".toml" else None
+    spec_file = args.spec if Path(args.spec).suffix else None  # a path (any extension), not a shipped name
     if args.scene_cmd == "info":
         emit({"spec": args.spec, **scene_from_spec(args.spec).info()})
         return
@@ -178,19 +213,35 @@ def scene(args):
     check_format(args.output)  # refuse an unknown output format before the scan
     plan = _plan(args, inputs=[spec_file] if spec_file else [], outputs=[args.output])
     pattern = pattern_from(args)
+    effects = None if args.no_effects else scene_effects(args.spec)  # the effects the scene requires
+    if effects is not None and not effects.any:
+        effects = None
+    if effects is not None:
+        effects = effects.resolve(pattern)
+        if effects.divergence_mrad or effects.motion:
+            raise InputValueError(f"{args.spec}: [effects] asks for beam divergence or motion, which a mesh scan "
+                                  "does not model (it takes ray drop, range limits, noise): drop them there, "
+                                  "or give --no-effects")
     sc = scene_from_spec(args.spec)
     with plan:
         ms = scan_mesh(sc, args.origin, pattern, mode=args.mode, supersample=args.supersample,
                        spacing=args.spacing, progress=not args.quiet)
-        cloud = PointCloud(ms.points, {"label": ms.labels.astype(np.int32), "range": ms.ranges,
-                                       "v": ms.pulses[:, 0].astype(np.int32), "h": ms.pulses[:, 1].astype(np.int32)},
+        points, labels, ranges, pulses, info = ms.points, ms.labels, ms.ranges, ms.pulses, {}
+        if effects is not None:
+            given = Scan(np.arange(len(ms.points)), ms.ranges, ms.pulses, ms.origin, ms.pattern, backend="mesh")
+            es = simulate_given(given, ms.points, effects)
+            points, labels, ranges, pulses = es.points, ms.labels[es.indices], es.ranges, es.pulses
+            info = {"effects": effects.to_dict(), "points_before_effects": len(ms.points),
+                    **{k: v for k, v in es.info.items() if k.startswith("removed_")}}
+        cloud = PointCloud(points, {"label": labels.astype(np.int32), "range": ranges,
+                                    "v": pulses[:, 0].astype(np.int32), "h": pulses[:, 1].astype(np.int32)},
                            origin=ms.origin)
         write_cloud(args.output, cloud)
-    emit({"spec": args.spec, "output": str(args.output), **ms.summary()})
+    emit({"spec": args.spec, "output": str(args.output), **ms.summary(), "points_out": len(points), **info})
 
 
 def compare(args):
-    plan = _plan(args, inputs=[args.input], outputs=[args.png])
+    plan = _plan(args, inputs=[args.input], figures=[args.png])
     pattern = pattern_from(args)
     embree_options = backend_from(args, "embree")
     with plan:
@@ -205,7 +256,7 @@ def compare(args):
 
 def positions(args):
     args.profile_file = None if args.profile in ("none", "default") else args.profile
-    plan = _plan(args, inputs=[args.input], outputs=[args.output, args.png])
+    plan = _plan(args, inputs=[args.input], outputs=[args.output], figures=[args.png])
     ground = ground_from(args)
     with plan:
         cloud = read_cloud(args.input, args.input_format)
@@ -244,6 +295,17 @@ def validate(args):
         emit(asdict(config))
         return
     out = Path(args.output or f"slr_ray_validate_{config.name}")
+    # what the command writes after the run (which locks `out` and plans its own files), checked before it:
+    # never over the config or a scene spec, never through a directory or a link to an input
+    plan = OutputPlan()
+    plan.read(args.config if Path(args.config).suffix else None, sidecars=False)
+    for entry in config.scenes:
+        spec = config.scene_entry(entry)[0]
+        plan.read(spec if Path(spec).suffix else None, sidecars=False)
+    plan.directory(out)
+    for name in ("figure3.png", "report.json", "report.md", *(f"paper_figure_{b}.png" for b in config.backends)):
+        plan.write(out / name, resumed=True)
+    plan.check()
     res = run_validation(config, out, progress=not args.quiet)  # locks `out` while it runs
     rows = load_rows(out / "results.csv")
     save_figure(validation_figure(rows), out / "figure3.png")
@@ -289,7 +351,8 @@ def augment(args):
                            scanner_height=args.scanner_height, backend=args.backend,
                            backend_options=backend_from(args), fmt=args.format, seed=args.seed,
                            min_ground_points=args.min_ground_points, workers=args.workers,
-                           scheduler=args.scheduler, chunk_size=args.chunk_size, per_pass=args.per_pass)
+                           scheduler=args.scheduler, chunk_size=args.chunk_size, per_pass=args.per_pass,
+                           effects=effects_from(args))
     res = run_augment(args.input, args.output, config, ground=ground if args.csf or args.ground_attribute else None,
               progress=not args.quiet)
     emit({k: res[k] for k in ("input", "n_requested", "new_scans", "seconds", "software")}

@@ -30,9 +30,13 @@ def evaluate(args):
 def _evaluate(args, out):
     transform = None
     if args.transform:
-        transform = np.loadtxt(args.transform, dtype=np.float64, ndmin=2)
-        if transform.shape != (4, 4):
-            raise InputValueError(f"--transform {args.transform}: expected a 4 x 4 matrix, got {transform.shape}")
+        try:
+            transform = np.loadtxt(args.transform, dtype=np.float64, ndmin=2)
+        except (ValueError, UnicodeDecodeError) as exc:  # text that is not numbers, a binary file
+            raise InputValueError(f"--transform {args.transform}: not a 4 x 4 text matrix ({exc})") from None
+        if transform.shape != (4, 4) or not np.isfinite(transform).all():
+            raise InputValueError(f"--transform {args.transform}: expected a finite 4 x 4 matrix, got "
+                                  f"{transform.tolist() if transform.size <= 16 else transform.shape}")
     clouds = [read_cloud(p, args.input_format) for p in (args.a, args.b)]
     frames = []  # each in its sensor's frame: a file that records its scanner's position (.npz, .pcd, .e57)
     for c in clouds:  # holds world coordinates, moved to that position in float64

@@ -6,7 +6,8 @@
 - :mod:`slr_ray.core.beams`: pulse keys of a beam table (numba);
 - :mod:`slr_ray.core.tables`: :class:`BinTables`, the per-pulse minimum of
   (range, index) that the binning backend, streamed scans and mesh ground
-  truths reduce points with.
+  truths reduce points with (its slot tables in :mod:`slr_ray.core.slots`,
+  its winners in index order, without a sort, in :mod:`slr_ray.core.order`).
 
 The pulse index has one name: the *pulse id* ``row * columns + column``
 (``v * n_azimuth + h`` for a uniform grid; :attr:`slr_ray.Scan.pulse_ids`,

@@ -5,6 +5,20 @@ row is the beam whose elevation band holds it, tested on ``-z / r`` against
 the bands' negated edge cosines (ascending; no arctangent); its column is
 ``floor(((azimuth - offset) mod 2 pi) / (2 pi / columns))`` with that row's
 azimuth offset. Key ``row * columns + column``; -1 not seen.
+
+How the reduction runs (:func:`beam_reduce`): threads take contiguous shares
+of the points, each with its own per-pulse tables. Per block of
+:data:`~slr_ray.core.grid.BLOCK` points, two vectorised passes compute every
+azimuth with the polynomial ``atan2`` of :mod:`slr_ray.core.grid`
+(:func:`~slr_ray.core.grid.atan2_fast`, error ~1e-11 rad), and the range,
+``-z / r`` and a cell of a lookup table over ``-z / r`` (:func:`row_table`);
+a third pass, over the points seen only, takes the row the cell starts in and
+corrects it by exact comparisons with the band edges (the table is only a
+hint: the row is always the definition's, with no binary search), takes the
+column from the fast azimuth where it is more than
+:data:`~slr_ray.core.grid.FAST_TOL` from a column edge (and the wraps, which
+lie on column edges), elsewhere (a few points in 10^5) from libm's ``atan2``
+(:func:`_column`, the definition), and keeps the nearest point per pulse.
 """
 
 from __future__ import annotations
@@ -14,7 +28,14 @@ import math
 import numpy as np
 from numba import njit, prange
 
-__all__ = ["beam_keys", "beam_keys_given", "beam_reduce"]
+from .grid import APPROX_MATH, BLOCK, FAST_TOL, atan2_fast
+
+__all__ = ["beam_keys", "beam_keys_given", "beam_reduce", "row_table", "ROW_CELLS"]
+
+#: cells of the row lookup table over the bands' span of ``-z / r`` (4096: a
+#: cell is far narrower than any shipped table's narrowest band, so at most one
+#: edge lies in a cell and the correction takes at most one step)
+ROW_CELLS = 4096
 
 
 @njit(cache=True, inline="always", error_model="numpy")
@@ -66,15 +87,128 @@ def beam_keys(pts, ox, oy, oz, edges, offsets, columns, rmin, rmax, keys, ranges
                                        rmin, rmax)
 
 
+@njit(cache=True, inline="always", error_model="numpy")
+def _cell(q, e0, scale, last):
+    """Cell of the row table holding ``q >= e0``: monotone in ``q`` (each step rounds monotonically)."""
+    c = np.int64((q - e0) * scale)
+    return c if c < last else last
+
+
+@njit(cache=True, error_model="numpy")
+def row_table(edges, cells):
+    """``(lut, scale)``: ``lut[c]`` is the highest row ``j`` whose lower edge
+    ``edges[j]`` falls in a cell before ``c`` (0 if none), a lower bound of the
+    row of every ``q`` in cell ``c`` because :func:`_cell` is monotone; the
+    reduction corrects it by exact comparisons with the edges either side."""
+    nrow = len(edges) - 1
+    scale = cells / (edges[nrow] - edges[0])
+    lut = np.zeros(cells, np.int32)
+    for j in range(1, nrow):
+        c = _cell(edges[j], edges[0], scale, cells - 1)
+        for k in range(c + 1, cells):
+            lut[k] = j
+    return lut, scale
+
+
+@njit(cache=True, nogil=True, fastmath=APPROX_MATH, error_model="numpy")
+def _approx_azimuths(x, y, phi, n):
+    for i in range(n):
+        phi[i] = atan2_fast(y[i], x[i])
+
+
+@njit(cache=True, nogil=True, error_model="numpy")
+def _ranges_cells(x, y, z, n, e0, en, scale, last, rmin, rmax, ranges, qs, cells):
+    """Range, ``-z / r`` and row-table cell of each point; cell -1 where the point
+    is not seen (range 0, outside the limits or not finite, or ``-z / r``
+    outside the bands). Branch-free, so the compiler vectorises it; ``r`` and
+    ``-z / r`` are computed without contraction, bit for bit as in
+    :func:`_beam_key`."""
+    for i in range(n):
+        dx = x[i]
+        dy = y[i]
+        dz = z[i]
+        r = math.sqrt(dx * dx + dy * dy + dz * dz)
+        ranges[i] = r
+        q = -dz / r
+        qs[i] = q
+        seen = (r > 0.0) & (r >= rmin) & (r <= rmax) & (r < math.inf) & (q >= e0) & (q < en)
+        c = (q - e0) * scale
+        c = c if c < last else last
+        cells[i] = np.int32(c) if seen else np.int32(-1)
+
+
+@njit(cache=True, nogil=True, error_model="numpy")
+def _reduce_block(pts, s, e, ox, oy, oz, edges, lut, scale, offsets, columns, rmin, rmax, x, y, z, phi,
+                  ranges, qs, cells, best_r, best_i):
+    """Reduce pts[s:e] (at most BLOCK) into one thread's per-pulse minimum.
+
+    Two vectorised passes (fast azimuths; ranges, ``-z / r`` and table cells),
+    then one over the points seen: the row from the table's hint corrected by
+    exact comparisons with the band edges, the column from the fast azimuth
+    where it is certain (libm's ``atan2`` is within ``FAST_TOL`` of it, every
+    later step rounds monotonically and no wrap is near), else from libm, and
+    the per-pulse minimum.
+    """
+    n = e - s
+    for i in range(n):
+        x[i] = np.float64(pts[s + i, 0]) - ox
+        y[i] = np.float64(pts[s + i, 1]) - oy
+        z[i] = np.float64(pts[s + i, 2]) - oz
+    _approx_azimuths(x, y, phi, n)
+    nrow = len(edges) - 1
+    _ranges_cells(x, y, z, n, edges[0], edges[nrow], scale, np.float64(len(lut) - 1), rmin, rmax, ranges, qs,
+                  cells)
+    two_pi = 2.0 * math.pi
+    inv_2pi = 1.0 / two_pi
+    inv_w = columns / two_pi
+    tol_h = FAST_TOL * inv_w
+    for i in range(n):
+        c = cells[i]
+        if c < 0:
+            continue
+        q = qs[i]
+        row = np.int64(lut[c])
+        while q >= edges[row + 1]:
+            row += 1
+        while q < edges[row]:
+            row -= 1
+        p = phi[i]
+        a = p - offsets[row]
+        a = a - two_pi * math.floor(a * inv_2pi)
+        qh = a * inv_w
+        fh = math.floor(qh)
+        eh = qh - fh
+        mh = tol_h + 1e-12 * qh
+        if (abs(p) <= math.pi - FAST_TOL and a >= FAST_TOL and a <= two_pi - FAST_TOL
+                and eh >= mh and eh <= 1.0 - mh):
+            col = np.int64(fh)
+        else:  # near a column edge or a wrap, or at the axis (x = y = 0): the definition
+            col = _column(x[i], y[i], offsets[row], columns)
+        k = row * columns + col
+        r = ranges[i]
+        if r < best_r[k]:  # ascending index within a thread: a tie keeps the lower index
+            best_r[k] = r
+            best_i[k] = s + i
+
+
 @njit(cache=True, parallel=True, error_model="numpy")
 def beam_reduce(pts, ox, oy, oz, edges, offsets, columns, rmin, rmax, best_r, best_i):
+    """Nearest point per pulse of ``pts`` ((n, 3) float32/64) into ``best_r[t]``,
+    ``best_i[t]``, one row of tables per thread ``t`` (each takes a contiguous
+    share of the points; the caller merges them)."""
     t_count = best_r.shape[0]
     n = len(pts)
+    lut, scale = row_table(edges, ROW_CELLS)
     for t in prange(t_count):
         lo = n * t // t_count
         hi = n * (t + 1) // t_count
-        for i in range(lo, hi):
-            k, r = _beam_key(pts[i, 0] - ox, pts[i, 1] - oy, pts[i, 2] - oz, edges, offsets, columns, rmin, rmax)
-            if k >= 0 and r < best_r[t, k]:  # ascending i within a thread: a tie keeps the lower index
-                best_r[t, k] = r
-                best_i[t, k] = i
+        x = np.empty(BLOCK)
+        y = np.empty(BLOCK)
+        z = np.empty(BLOCK)
+        phi = np.empty(BLOCK)
+        ranges = np.empty(BLOCK)
+        qs = np.empty(BLOCK)
+        cells = np.empty(BLOCK, np.int32)
+        for s in range(lo, hi, BLOCK):
+            _reduce_block(pts, s, min(hi, s + BLOCK), ox, oy, oz, edges, lut, scale, offsets, columns, rmin,
+                          rmax, x, y, z, phi, ranges, qs, cells, best_r[t], best_i[t])

@@ -43,7 +43,7 @@ from ..arrays import as_origin
 from ..threads import default_threads
 
 __all__ = ["grid_keys", "ranges_of", "kernel_params", "block_keys", "block_keys_range", "keys_exact",
-           "count_nonfinite", "ranges_into", "scratch", "BLOCK"]
+           "count_nonfinite", "ranges_into", "scratch", "atan2_fast", "BLOCK", "FAST_TOL", "APPROX_MATH"]
 
 #: points per block: the scratch arrays (5 x 4 KiB) stay in the L1 cache
 BLOCK = 512
@@ -56,10 +56,10 @@ _ATAN_C = (0.9999999999783985, -0.333333320976113, 0.19999883856645354, -0.14281
            0.1104048923222256, -0.08456192859922249, 0.04707347983517718)
 _TAN_PI_8 = 0.41421356237309503
 #: bound used on |fast angle - libm angle| (radians), far above the true ~1e-11
-_FAST_TOL = 1e-8
+FAST_TOL = _FAST_TOL = 1e-8
 #: the polynomial may be contracted into FMAs and divide by reciprocals: it is
 #: only used where its error bound decides the bin for certain
-_APPROX_MATH = {"contract", "arcp"}
+APPROX_MATH = _APPROX_MATH = {"contract", "arcp"}
 
 
 @njit(cache=True, inline="always", fastmath=_APPROX_MATH, error_model="numpy")
@@ -91,6 +91,10 @@ def _atan2_fast(y, x):
     r = (math.pi / 2 - r) if ay > ax else r
     r = (math.pi - r) if x < 0.0 else r
     return -r if y < 0.0 else r
+
+
+#: the fast ``atan2`` under its public name (the beam-table kernels use it too)
+atan2_fast = _atan2_fast
 
 
 @njit(cache=True, nogil=True, fastmath=_APPROX_MATH, error_model="numpy")

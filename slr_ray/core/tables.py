@@ -13,9 +13,13 @@ Tables are of three kinds, by the pattern's size:
   per-pulse arrays, one per thread; threads split the points and the tables
   merge, in parallel, in O(pulses) when the result is asked for;
 - **slots** (``4 * n_pulses`` within :attr:`BinTables.slot_bytes`, 512 MiB;
-  SYNS's 0.036 deg has 3.75e7 pulses): one shared int32 slot per pulse
-  pointing into compact per-thread records ``(key, range, index)``; threads
-  own whole 64-byte lines of slots, so nothing is merged or hashed;
+  SYNS's 0.036 deg has 3.75e7 pulses): int32 slots per pulse pointing into
+  compact records ``(key, range, index)`` (:mod:`slr_ray.core.slots`). While
+  a slot array per thread fits the allowance (:attr:`BinTables.own_slots`),
+  each thread has its own and keys and inserts chunks of the points in one
+  pass; the tables are folded into the first when the result is asked for.
+  Otherwise one shared array, whose whole 64-byte lines the threads own, so
+  nothing is merged or hashed;
 - **hash** (finer patterns: 0.001 deg would be 6.5e10 pulses): an
   open-addressing hash table of 24-byte records per thread that grows with
   the number of *occupied* bins (at most twice that while growing), never
@@ -23,9 +27,10 @@ Tables are of three kinds, by the pattern's size:
   to neighbouring slots in groups of 16, so scan-ordered clouds touch memory
   in order.
 
-With slot and hash tables the threads split the *keys*: keys are computed
-for a superblock of points in parallel, then each thread inserts the keys it
-owns. Dense and slot tables are cleared in O(occupied bins) and reused from
+With shared slot and hash tables the threads split the *keys*: keys are
+computed for a superblock of points in parallel, then each thread inserts the
+keys it owns. The winners come out in index order without a sort
+(:mod:`slr_ray.core.order`). Dense and slot tables are cleared in O(occupied bins) and reused from
 one scan to the next by a prepared binning scanner. The tables outlive a
 call, which is what :class:`slr_ray.ScanAccumulator` uses to reduce a cloud
 chunk by chunk to exactly the one-shot answer, and what the dense mesh scans
@@ -41,17 +46,20 @@ from concurrent.futures import ThreadPoolExecutor
 import numpy as np
 from numba import njit
 
+from ..arrays import unravel_ids
 from ..errors import InputValueError, StateError
 from ..threads import default_threads
 from .grid import BLOCK, block_keys, block_keys_range, count_nonfinite, kernel_params, ranges_into, scratch
+from .order import in_index_order, mark_dense, mark_records, place_dense, place_records, place_records_pulses
+from .slots import GROUP, RECORD, SlotTable, owner
 
 __all__ = ["BinTables"]
 
 _HASH = np.uint64(0x9E3779B97F4A7C15)
 #: neighbouring keys share a group of 2**_GROUP consecutive slots
-_GROUP = 4
+_GROUP = GROUP
 _INITIAL_BITS = 12
-_RECORD = np.dtype([("key", np.int64), ("r", np.float64), ("idx", np.int64)])
+_RECORD = RECORD
 #: the hash tables' compact record (16 bytes instead of 24): for patterns of fewer
 #: than 2**31 pulses while point indices stay below 2**32 (a 0.00576 deg pattern
 #: has 1.95e9 pulses; its dense primary's 2e8 bins take 8 GiB of tables, not 12)
@@ -136,18 +144,9 @@ def _put(tab, bits, key, r, idx):
         s = (s + 1) & mask
 
 
-@njit(cache=True, inline="always", error_model="numpy")
-def _owner(key, n_parts):
-    """The thread (of ``n_parts``, at most 256) that owns a key's bin: groups of
-    16 neighbouring keys, dealt out in runs of 256 groups. A multiply and a shift:
-    an integer ``%`` here cost as much as the whole insertion."""
-    return (((key >> _GROUP) & 255) * n_parts) >> 8
-
-
-
 @njit(cache=True, nogil=True, error_model="numpy")
 def _insert_part(tab, count, keys, ranges, offset, part, n_parts, start):
-    """Insert the keys of one share (``_owner(key, n_parts) == part``).
+    """Insert the keys of one share (``owner(key, n_parts) == part``).
 
     Stops when the table reaches its load limit; returns (count, next position)
     so that the caller grows it and goes on.
@@ -159,7 +158,7 @@ def _insert_part(tab, count, keys, ranges, offset, part, n_parts, start):
     n = keys.shape[0]
     for i in range(start, n):
         key = keys[i]
-        if key < 0 or _owner(key, n_parts) != part:
+        if key < 0 or owner(key, n_parts) != part:
             continue
         r = ranges[i]
         if key == last_key:  # scans are ordered: neighbours often share a pulse
@@ -256,20 +255,10 @@ class _DenseTable:
             self.idx[keys] = -1
         self.count = 0
 
-    def extract(self):
-        """Occupied bins ``(keys, ranges, indices)`` sorted by index."""
-        keys = np.flatnonzero(self.idx >= 0).astype(np.int64)
-        idx = self.idx[keys]
-        bits = max(1, int(len(self.idx) - 1).bit_length())
-        if len(keys) and int(idx.max()) < 1 << (63 - bits):
-            # one sort of (index, key) packed in an int64 is faster than an argsort
-            packed = np.sort((idx << bits) | keys)
-            keys = packed & ((1 << bits) - 1)
-            idx = packed >> bits
-        else:  # pragma: no cover - more than 2**40 points
-            order = np.argsort(idx)
-            keys, idx = keys[order], idx[order]
-        return keys, self.ranges[keys], idx
+    def extract(self, n_points: int):
+        """Occupied bins ``(keys, ranges, indices)`` sorted by index (every index below ``n_points``)."""
+        return in_index_order(n_points, self.count, lambda bits: mark_dense(self.idx, bits),
+                               lambda *out: place_dense(self.idx, self.ranges, *out))
 
     @property
     def nbytes(self) -> int:
@@ -326,95 +315,6 @@ class _HashTable:
         return self.tab.nbytes
 
 
-@njit(cache=True, nogil=True, error_model="numpy")
-def _insert_slots(slots, rec, count, keys, ranges, offset, part, n_parts, start):
-    """Insert the keys of one share (``_owner(key, n_parts) == part``) into a
-    slot table: ``slots[key]`` is the bin's record in ``rec`` or -1.
-
-    Each key has one owner, which sees its points in index order, so a strict
-    ``<`` keeps ties on the lowest index. Stops when ``rec`` is full; returns
-    (count, next position) so that the caller grows it and goes on.
-    """
-    last_key = np.int64(-1)
-    last = np.int64(0)
-    n = keys.shape[0]
-    cap = rec.shape[0]
-    for i in range(start, n):
-        key = keys[i]
-        if key < 0 or _owner(key, n_parts) != part:
-            continue
-        r = ranges[i]
-        if key != last_key:
-            j = np.int64(slots[key])
-            if j < 0:
-                if count >= cap:
-                    return count, i
-                j = count
-                slots[key] = j
-                rec[j].key = key
-                rec[j].r = r
-                rec[j].idx = offset + i
-                count += 1
-                last_key = key
-                last = j
-                continue
-            last_key = key
-            last = j
-        if r < rec[last].r:
-            rec[last].r = r
-            rec[last].idx = offset + i
-    return count, n
-
-
-@njit(cache=True, nogil=True, error_model="numpy")
-def _clear_slots(slots, rec, count):
-    for j in range(count):
-        slots[rec[j].key] = -1
-
-
-class _SlotTable:
-    """One thread's bins in a table indexed directly by pulse key.
-
-    ``slots`` (int32 per pulse, shared by the threads: each owns the keys
-    ``(key >> 4) % n_threads == part``, i.e. whole 64-byte lines of it) holds
-    the position of a bin's ``(key, range, index)`` record in this thread's
-    compact record array. No hashing, no probing, and clearing it for the
-    next scan costs O(occupied bins). Used for patterns of up to
-    :attr:`BinTables.slot_bytes` / 4 pulses (SYNS's 0.036 deg: 37.5 M).
-    """
-
-    __slots__ = ("slots", "rec", "count")
-
-    def __init__(self, slots, capacity: int = 1 << _INITIAL_BITS):
-        self.slots = slots
-        self.rec = np.empty(capacity, dtype=_RECORD)
-        self.count = 0
-
-    def insert(self, keys, ranges, offset, part, n_parts) -> None:
-        start = 0
-        while True:
-            self.count, start = _insert_slots(self.slots, self.rec, self.count, keys, ranges,
-                                              offset, part, n_parts, start)
-            if start >= len(keys):
-                return
-            rec = np.empty(2 * len(self.rec), dtype=_RECORD)
-            rec[: self.count] = self.rec[: self.count]
-            self.rec = rec
-
-    def clear(self) -> None:
-        _clear_slots(self.slots, self.rec, self.count)
-        self.count = 0
-
-    @property
-    def tab(self):
-        """The occupied records (the layout of a hash table's occupied slots)."""
-        return self.rec[: self.count]
-
-    @property
-    def nbytes(self) -> int:
-        return self.rec.nbytes
-
-
 def _sort_by_index(keys, ranges, idx):
     """Reorder three parallel arrays by ``idx`` (unique)."""
     m = len(idx)
@@ -439,8 +339,12 @@ class BinTables:
 
     #: memory allowed for dense per-pulse arrays, all threads together
     dense_bytes = 256 * 2**20
-    #: memory allowed for the shared per-pulse slot array of the slot tables
+    #: memory allowed for the per-pulse slot arrays of the slot tables
     slot_bytes = 512 * 2**20
+    #: each thread keeps a slot array of its own while they all fit ``slot_bytes``
+    #: (threads split the points and key and insert them in one pass); else the
+    #: threads share one and insert the keys they own
+    own_slots = True
 
     @property
     def dense(self) -> bool:
@@ -453,7 +357,7 @@ class BinTables:
         return self.kind in ("dense", "slots")
 
     def __init__(self, origin, pattern, n_threads: int | None = None, key_range: tuple | None = None,
-                 slot_bytes: int | None = None):
+                 slot_bytes: int | None = None, own_slots: bool | None = None):
         self.origin = origin
         self.pattern = pattern
         #: ``slot_bytes``: this call's allowance for slot tables instead of the class's
@@ -473,7 +377,16 @@ class BinTables:
             self.kind = "hash"
         if self.key_range is not None and self.kind == "dense":
             self.kind = "hash"  # a band of a coarse pattern: the tables follow the band, not the pattern
-        self._slots = np.full(pattern.n_pulses, -1, np.int32) if self.kind == "slots" else None
+        allowance = self.slot_bytes if slot_bytes is None else slot_bytes
+        #: slot tables of their own per thread (threads split the points, one pass) while they fit
+        #: ``own_slots``: this call's choice instead of the class's (a one-shot scan
+        #: allocates one shared slot array rather than one per thread)
+        self._private = (self.kind == "slots" and (self.own_slots if own_slots is None else own_slots)
+                         and pattern.n_pulses * 4 * self.n_threads <= allowance)
+        self.could_own_slots = (self.kind == "slots" and self.own_slots and not self._private
+                                and pattern.n_pulses * 4 * self.n_threads <= allowance)
+        self._slots = np.zeros(pattern.n_pulses, np.int32) if self.kind == "slots" and not self._private \
+            else None
         self._compact = self.kind == "hash" and pattern.n_pulses <= _COMPACT_MAX_PULSES
         self.tables = [self._new_table() for _ in range(self.n_threads)]
         self.n_points = 0
@@ -481,6 +394,8 @@ class BinTables:
         #: occupied keys of the merged dense table when no add() came after
         #: the merge: then they are all that reset() has to clear
         self._touched = None
+        #: own slot tables: the others are folded into the first since the last add()
+        self._folded = False
 
     def reset(self, origin) -> "BinTables":
         """Empty the tables for a new scanner position with the same pattern.
@@ -493,6 +408,7 @@ class BinTables:
         self.origin = origin
         self._params = kernel_params(origin, self.pattern)
         self.n_points = 0
+        self._folded = False
         if self.kind == "dense":
             for t in self.tables:
                 t.clear(self._touched)
@@ -508,7 +424,9 @@ class BinTables:
     def _new_table(self):
         if self.kind == "dense":
             return _DenseTable(self.pattern.n_pulses)
-        return _SlotTable(self._slots) if self.kind == "slots" else _HashTable(compact=self._compact)
+        if self.kind == "slots":
+            return SlotTable(np.zeros(self.pattern.n_pulses, np.int32) if self._private else self._slots)
+        return _HashTable(compact=self._compact)
 
     #: points whose keys are computed before the threads insert them (slot and hash tables)
     superblock = 1 << 21
@@ -531,6 +449,8 @@ class BinTables:
         if n == 0:
             return 0
         self._touched = None
+        if self._private:
+            return self._add_private(points, finite)
         if not self.dense:
             return self._add_hash(points, finite)
         slices = self._slices(n)
@@ -552,6 +472,54 @@ class BinTables:
                     f.result()
         self.n_points += n
         return 0
+
+    def _add_private(self, points, finite: bool = False) -> int:
+        """Slot tables of their own: each thread keys and inserts chunks of the points in one pass."""
+        n = len(points)
+        slices = self._slices(n)
+        key_range = self.key_range or (0, self.pattern.n_pulses)
+        lo, hi = np.int64(key_range[0]), np.int64(key_range[1])
+
+        if len(slices) == 1:
+            bad = 0 if finite else count_nonfinite(points, 0, n)
+            if bad:
+                return bad
+            self.tables[0].reduce(points, self._params, (lo, hi), self.n_points, 0, n)
+        else:
+            # chunks handed out in ascending order as threads come free (parts of a cloud
+            # differ in cost: SYNS's first half makes 5.1 M bins, its second 0.46 M); a
+            # thread's table still sees its points in ascending order, so ties hold
+            step = max(BLOCK, -(-n // (8 * len(slices))))
+            starts = iter(range(0, n, step))
+            lock = threading.Lock()
+
+            def run(t):
+                while True:
+                    with lock:
+                        s = next(starts, None)
+                    if s is None:
+                        return
+                    t.reduce(points, self._params, (lo, hi), self.n_points, s, min(n, s + step))
+
+            with ThreadPoolExecutor(len(slices)) as pool:
+                bad = 0 if finite else sum(pool.map(lambda se: count_nonfinite(points, *se), slices))
+                if bad:
+                    return bad
+                list(pool.map(run, self.tables[: len(slices)]))
+        self.n_points += n
+        self._folded = False
+        return 0
+
+    def _merged_slots(self) -> "SlotTable":
+        """Own slot tables: fold all into the first (their records stay; once
+        per add: a second fold would change nothing)."""
+        first, *rest = self.tables
+        if not self._folded:
+            for t in rest:
+                if t.count:
+                    first.absorb(t)
+            self._folded = True
+        return first
 
     def _add_hash(self, points, finite: bool = False) -> int:
         """Slot and hash tables: threads split the *keys* (no merge needed), in two
@@ -605,19 +573,32 @@ class BinTables:
         """Number of occupied pulse bins so far."""
         if self.dense:
             return self._merged().count
+        if self._private:
+            return self._merged_slots().count
         return sum(t.count for t in self.tables)
 
     @property
     def nbytes(self) -> int:
         """Bytes held by the tables."""
-        return sum(t.nbytes for t in self.tables) + (0 if self._slots is None else self._slots.nbytes)
+        own = sum(t.slots.nbytes for t in self.tables) if self._private else 0
+        return sum(t.nbytes for t in self.tables) + own + (0 if self._slots is None else self._slots.nbytes)
 
-    def winners(self, points=None, with_ranges: bool = True, release: bool = False):
+    def winners(self, points=None, with_ranges: bool = True, release: bool = False, as_pulses: bool = False,
+                pool=None):
         """Occupied bins as ``(keys, ranges, indices)``, sorted by index.
 
-        ``points``: the cloud, when the caller still has it (one-shot scans):
-        ranges are then recomputed from it, which is faster than carrying
-        them through the sort. ``with_ranges=False`` returns ``None`` for the
+        ``as_pulses=True``: ``(m, 2) int64`` pulses ``(row, column)`` in place
+        of the flat keys (what :class:`~slr_ray.Scan` holds: written once,
+        with no flat keys in between). ``pool``: an
+        :class:`~slr_ray.core.order.OutputPool` those arrays come from (slot
+        and hash tables, ``as_pulses=True``).
+
+        Winners are put in index order without a sort (one bit a point, then
+        each bin's record written at its rank), carrying key and range along.
+        ``points``: the cloud, when the caller still has it: with
+        ``release=True`` ranges are recomputed from it (that path packs and
+        sorts, to hold no more than the tables while they are freed one by
+        one). ``with_ranges=False`` returns ``None`` for the
         ranges and needs the least memory (the dense-scene path recomputes
         them from the regenerated samples). ``release=True`` frees each
         thread's table as soon as it is read out, so the result never sits
@@ -627,15 +608,47 @@ class BinTables:
         if self.tables is None:
             raise StateError("these tables were released by winners(release=True)")
         if self.dense:
-            keys, ranges, idx = self._merged().extract()
+            keys, ranges, idx = self._merged().extract(self.n_points)
             self._touched = keys
-            return keys, (ranges if with_ranges else None), idx
+            return self._out(keys, as_pulses), (ranges if with_ranges else None), idx
         m = self.n_bins
+        final = [self._merged_slots()] if self._private else self.tables
+        if not release:
+            # every bin's record carries its range: no sort, no gather from the cloud
+            tabs = [t.tab for t in final]
+            nh = np.int64(self.pattern.shape[1])
+
+            def mark(bits):
+                for tab in tabs:  # one after the other: threads would race on a word
+                    mark_records(tab, bits)
+
+            def place(*out):
+                # every record has its own place: shares of the records are written out in
+                # parallel (and the fresh output pages are faulted in by all threads)
+                if as_pulses:
+                    run = lambda tab: place_records_pulses(tab, out[0], out[1], nh, *out[2:])  # noqa: E731
+                else:
+                    run = lambda tab: place_records(tab, *out)  # noqa: E731
+                parts = max(1, min(self.n_threads, m >> 16))
+                shares = [tab[len(tab) * i // parts: len(tab) * (i + 1) // parts] for tab in tabs
+                          for i in range(parts)]
+                if parts > 1:
+                    with ThreadPoolExecutor(parts) as pool:
+                        list(pool.map(run, shares))
+                else:
+                    for share in shares:
+                        run(share)
+
+            keys, ranges, idx = in_index_order(self.n_points, m, mark, place, (2,) if as_pulses else (),
+                                               pool.take if pool is not None and as_pulses else None)
+            return keys, (ranges if with_ranges else None), idx
         n_pulse_bits = max(1, int(self.pattern.n_pulses - 1).bit_length())
         fits = int(max(self.n_points - 1, 1)).bit_length() + n_pulse_bits <= 63
         if m and fits and (points is not None or not with_ranges):
             packed = np.empty(m, np.int64)
             at = 0
+            if self._private:
+                self.tables = final  # the others are folded in
             for i, t in enumerate(self.tables):
                 at = _pack_hash(t.tab, packed, n_pulse_bits, at)
                 if release:
@@ -651,13 +664,17 @@ class BinTables:
             if with_ranges:
                 ranges = np.empty(m, np.float64)
                 ranges_into(points, idx, *self._params[:3], ranges)
-            return keys, ranges, idx
+            return self._out(keys, as_pulses), ranges, idx
         keys = np.empty(m, np.int64)
         ranges = np.empty(m, np.float64)
         idx = np.empty(m, np.int64)
         at = 0
-        for t in self.tables:  # threads own disjoint keys: concatenate
+        for t in final:  # threads own disjoint keys: concatenate
             at = _extract_hash(t.tab, keys, ranges, idx, at)
-        return _sort_by_index(keys, ranges, idx)
+        keys, ranges, idx = _sort_by_index(keys, ranges, idx)
+        return self._out(keys, as_pulses), ranges, idx
+
+    def _out(self, keys, as_pulses: bool):
+        return unravel_ids(keys, self.pattern.shape[1]) if as_pulses else keys
 
 

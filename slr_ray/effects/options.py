@@ -13,10 +13,11 @@ from __future__ import annotations
 import dataclasses
 import json
 import math
+import tomllib
 from dataclasses import dataclass
 from pathlib import Path
 
-from ..errors import InputValueError
+from ..errors import InputValueError, dataclass_from_mapping
 from .raydrop import RayDropModel
 
 __all__ = ["Effects", "RETURN_KINDS", "INTENSITY_MODES", "MOTION_FRAMES"]
@@ -162,7 +163,13 @@ class Effects:
             path = Path(self.ray_drop)
             if not path.is_file():
                 raise InputValueError(f"ray_drop: no model file {str(path)!r} (a JSON of RayDropModel.to_dict())")
-            set_("ray_drop", json.loads(path.read_text()))
+            try:
+                set_("ray_drop", json.loads(path.read_text()))
+            except ValueError as exc:
+                raise InputValueError(f"ray_drop: {str(path)!r} is not valid JSON: {exc}") from None
+            if not isinstance(self.ray_drop, dict):
+                raise InputValueError(f"ray_drop: {str(path)!r} does not hold a model (a JSON object of "
+                                      "RayDropModel.to_dict())")
         if isinstance(self.ray_drop, dict):
             set_("ray_drop", RayDropModel.from_dict(self.ray_drop))
         if self.ray_drop is not None and not isinstance(self.ray_drop, RayDropModel):
@@ -172,20 +179,52 @@ class Effects:
             raise InputValueError(f"seed must be an integer, got {self.seed!r}")
 
     @classmethod
-    def from_dict(cls, options: dict | None = None, **more) -> "Effects":
+    def from_dict(cls, options: dict | None = None, *, relative_to=None, **more) -> "Effects":
         """Effects from a mapping (a scene's ``[effects]`` table) and keywords.
+
+        ``relative_to``: the directory a relative ``ray_drop`` path of
+        ``options`` is read from (the file's that holds them; default the
+        working directory).
 
         Raises
         ------
         InputValueError
             naming unknown keys and listing the known ones.
         """
-        merged = {**(options or {}), **more}
-        known = {f.name for f in dataclasses.fields(cls)}
-        unknown = sorted(set(merged) - known)
-        if unknown:
-            raise InputValueError(f"unknown effect option(s) {unknown}; known: {sorted(known)}")
-        return cls(**merged)
+        options = dict(options or {})
+        drop = options.get("ray_drop")
+        if relative_to is not None and isinstance(drop, str) and not Path(drop).is_absolute():
+            options["ray_drop"] = str(Path(relative_to) / drop)
+        return dataclass_from_mapping(cls, options, more, "effect option(s)")
+
+    @classmethod
+    def load(cls, path) -> "Effects":
+        """Effects from a TOML or JSON file (by its extension) of :class:`Effects`
+        fields, at the top level or in an ``[effects]`` table (a scene file's);
+        a relative ``ray_drop`` path is read from the file's directory.
+
+        Raises
+        ------
+        InputValueError
+            a missing or unreadable file, or bad fields; the message names the file.
+        """
+        path = Path(path)
+        if not path.is_file():
+            raise InputValueError(f"no effects file {str(path)!r}")
+        suffix = path.suffix.lower()
+        if suffix not in (".toml", ".json"):
+            raise InputValueError(f"{path}: an effects file is .toml or .json, got {suffix!r}")
+        try:
+            data = tomllib.loads(path.read_text()) if suffix == ".toml" else json.loads(path.read_text())
+        except (tomllib.TOMLDecodeError, ValueError) as exc:
+            raise InputValueError(f"{path}: not valid {suffix[1:].upper()}: {exc}") from None
+        if not isinstance(data, dict):
+            raise InputValueError(f"{path}: expected a table of effect options, got {type(data).__name__}")
+        table = data["effects"] if isinstance(data.get("effects"), dict) else data
+        try:
+            return cls.from_dict(table, relative_to=path.parent)
+        except InputValueError as exc:
+            raise InputValueError(f"{path}: {exc}") from None
 
     @property
     def any(self) -> bool:

@@ -37,7 +37,7 @@ from .noise import add_range_noise, reflectivity_max_range
 from .options import Effects
 from .returns import footprint_samples, group_returns, select_returns, subray_directions
 
-__all__ = ["EffectScan", "simulate"]
+__all__ = ["EffectScan", "simulate", "simulate_given", "effect_cloud"]
 
 #: rays cast per call (bounds memory: about 100 bytes a ray)
 RAYS_PER_BATCH = 1 << 21
@@ -101,6 +101,30 @@ class EffectScan:
         if self.intensity is not None:
             att["intensity"] = self.intensity
         return PointCloud(self.points, att, None if self.frame != "world" else self.origin)
+
+
+def effect_cloud(es: EffectScan, cloud: PointCloud) -> PointCloud:
+    """The returns of ``es`` as a subset of the scanned ``cloud`` (what the
+    command line writes): every attribute, and a LAS file's records, follow
+    :attr:`EffectScan.indices`; the points are where the returns land;
+    ``return_number`` and ``number_of_returns`` are set where a pulse can have
+    several returns (beam divergence), and ``intensity`` where the effects made
+    one (rounded to the input's type when that is an integer, as LAS's)."""
+    sub = cloud.subset(es.indices)
+    sub.points = np.ascontiguousarray(es.points)
+    sub.origin = es.origin if es.frame == "world" else None
+    if (es.info.get("effects") or {}).get("divergence_mrad"):
+        sub.attributes["return_number"] = es.return_number.astype(np.uint8)
+        sub.attributes["number_of_returns"] = es.number_of_returns.astype(np.uint8)
+    if es.intensity is not None:
+        old = cloud.attributes.get("intensity")
+        kind = np.asarray(old).dtype if old is not None else np.dtype(np.float64)
+        if kind.kind in "iu":
+            info = np.iinfo(kind)
+            sub.attributes["intensity"] = np.clip(np.round(es.intensity), info.min, info.max).astype(kind)
+        else:
+            sub.attributes["intensity"] = es.intensity.astype(kind if kind.kind == "f" else np.float64)
+    return sub
 
 
 def _cast_returns(scanner, origin, pattern, eff: Effects, poses, intensity):
@@ -317,3 +341,47 @@ def simulate(scanner, origin, pattern, effects=None, *, intensity=None, normals=
                       return_number=g["return_number"].astype(np.int64),
                       number_of_returns=g["number_of_returns"].astype(np.int64), share=g["share"],
                       intensity=out_intensity, origin=origin, pattern=pattern, frame=frame, ideal=ideal, info=info)
+
+
+class _GivenScan:
+    """A scan made elsewhere, as the scanner :func:`simulate` starts from."""
+
+    backend = "given"
+    normals = None
+
+    def __init__(self, points, scan: Scan):
+        self.points = points
+        self._scan = scan
+
+    def scan(self, origin, pattern) -> Scan:
+        return self._scan
+
+
+def simulate_given(scan: Scan, points, effects=None, *, intensity=None, normals=None,
+                   primary_origin=None) -> EffectScan:
+    """The effects that follow the geometry (ray drop, blind zone and
+    reflectivity range, range noise, intensity) on a scan made elsewhere,
+    e.g. the hits of a mesh scan (:func:`slr_ray.meshscan.scan_mesh`).
+
+    Parameters
+    ----------
+    scan : Scan
+        Its ``indices`` index ``points``; its ``origin`` and ``pattern`` are the scan's.
+    points : (n, 3) float
+    effects : Effects or dict, optional
+    intensity, normals : (n,) float, (n, 3) float, optional
+        Per point of ``points`` (default normals: PCA of the points' neighbours).
+    primary_origin : (3,) float, optional
+
+    Raises
+    ------
+    InputValueError
+        effects that need rays cast here: beam divergence, motion.
+    """
+    eff = effects if isinstance(effects, Effects) else Effects.from_dict(effects)
+    if eff.divergence_mrad or eff.motion:
+        raise InputValueError("beam divergence and motion cast their own rays: they apply to a prepared cloud "
+                              "(simulate), not to a scan made elsewhere")
+    pts = np.asarray(points, np.float64)
+    return simulate(_GivenScan(pts, scan), scan.origin, scan.pattern, eff, intensity=intensity, normals=normals,
+                    primary_origin=primary_origin)

@@ -3,12 +3,13 @@
 from __future__ import annotations
 
 from dataclasses import dataclass, field, fields
+from pathlib import Path
 
 from .. import paper
 from ..backends import Backend, options_for
 from ..errors import InputValueError
 from ..meshscan import MESH_MODES
-from ..scenes import load_toml_spec
+from ..scenes import SCENES_DIR, load_toml_spec, scene_effects
 
 __all__ = ["ValidationConfig", "load_config", "TRUTHS", "PRIMARY_SEMANTICS"]
 
@@ -89,6 +90,9 @@ class ValidationConfig:
                     raise InputValueError(f"unknown backend {b!r} for scene {spec!r}; choose from {_BACKENDS}")
             if not res or any(not (float(r) > 0) for r in res):
                 raise InputValueError(f"scene {spec!r}: primary_resolutions must be positive numbers")
+            if _requires_effects(spec):
+                raise InputValueError(f"scene {spec!r} requires sensor effects (its [effects] table): a validation "
+                                      "compares ideal scans, so use a scene without [effects]")
         return self
 
     def scene_entry(self, entry) -> tuple[str, list]:
@@ -117,6 +121,16 @@ class ValidationConfig:
                 if (t != "nearest" or position % self.nearest_every == 0)
                 and (b != Backend.EMBREE or (position % self.embree_every == 0
                                        and (emb_res is None or float(resolution) in map(float, emb_res))))]
+
+
+def _requires_effects(spec) -> bool:
+    """Whether a scene's file has an ``[effects]`` table with an effect on (a
+    spec with no file is reported where the scene is built)."""
+    path = Path(spec) if Path(spec).suffix else SCENES_DIR / f"{spec}.toml"
+    if not path.is_file():
+        return False
+    effects = scene_effects(spec)
+    return effects is not None and effects.any
 
 
 def load_config(spec) -> ValidationConfig:

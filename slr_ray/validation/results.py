@@ -13,6 +13,7 @@ rows (more positions, scenes, backends, truths) may change between sittings.
 from __future__ import annotations
 
 import csv
+import hashlib
 import json
 import resource
 from pathlib import Path
@@ -20,6 +21,7 @@ from pathlib import Path
 from ..backends.embree import EmbreeOptions
 from ..errors import FormatError, InputValueError
 from ..io import atomic_path
+from ..scenes import load_toml_spec
 
 __all__ = ["COLUMNS", "read_rows", "row_key", "ResultsWriter", "StageLog", "peak_rss_gib", "stage_summary",
            "PAPER_STAGES", "EXTRA_STAGES", "ROW_SETTINGS", "check_settings"]
@@ -88,22 +90,45 @@ def check_settings(outdir, config) -> dict:
     """
     path = Path(outdir) / "settings.json"
     now = json.loads(json.dumps({**{k: getattr(config, k) for k in ROW_SETTINGS},
-                                 "embree_resolved": _embree_resolved(config)}))  # tuples -> lists
+                                 "embree_resolved": _embree_resolved(config),
+                                 "scene_specs": _spec_digests(config)}))  # tuples -> lists
     if path.exists():
-        then = json.loads(path.read_text())
+        try:
+            then = json.loads(path.read_text())
+        except ValueError:
+            then = None
+        if not isinstance(then, dict):
+            raise FormatError(f"{path} is not a settings.json of slr_ray: write the validation elsewhere")
         differ = {k: (then.get(k), now[k]) for k in ROW_SETTINGS if then.get(k, now[k]) != now[k]}
         old_opts, new_opts = then.get("embree_resolved", {}), now["embree_resolved"]
         differ.update({f"embree option {k}": (old_opts[k], new_opts[k]) for k in old_opts
                        if k in new_opts and old_opts[k] != new_opts[k]})
+        old_specs = then.get("scene_specs", {})  # a spec edited in place (same name, even same size)
+        differ.update({f"scene spec {k} (content digest)": (old_specs[k], d) for k, d in now["scene_specs"].items()
+                       if k in old_specs and old_specs[k] != d})
         if differ:
             said = "; ".join(f"{k}: {a!r} in the run, {b!r} now" for k, (a, b) in differ.items())
             raise InputValueError(f"{outdir} holds rows made with other settings ({said}); resuming would mix "
                                   "them: write to another directory, or resume with the run's settings")
-        if all(k in then for k in (*ROW_SETTINGS, "embree_resolved")):
+        if all(k in then for k in (*ROW_SETTINGS, "embree_resolved", "scene_specs")):
             return now
     with atomic_path(path) as tmp:
         Path(tmp).write_text(json.dumps(now, indent=1, sort_keys=True) + "\n")
     return now
+
+
+def _spec_digests(config) -> dict:
+    """Each scene spec's identity by content: a digest of its parsed TOML (a spec
+    given by path can be edited in place, a shipped one changed by an upgrade)."""
+    out = {}
+    for entry in config.scenes:
+        spec = config.scene_entry(entry)[0]
+        try:
+            data = load_toml_spec(spec, "scene", "scene spec")[0]
+        except InputValueError:  # not found or not TOML: the run says so where it reads the spec
+            continue
+        out[spec] = hashlib.blake2b(json.dumps(data, sort_keys=True, default=str).encode(), digest_size=8).hexdigest()
+    return out
 
 
 def _embree_resolved(config) -> dict:

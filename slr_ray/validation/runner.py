@@ -11,6 +11,7 @@ config and seed give the same rows.
 from __future__ import annotations
 
 import math
+import shutil
 import sys
 import time
 from dataclasses import asdict
@@ -106,10 +107,28 @@ def run_validation(config: ValidationConfig, outdir, progress: bool = True) -> d
         plan.write(out / name, resumed=True)
     for entry in config.scenes:
         spec = config.scene_entry(entry)[0]
-        if Path(spec).suffix.lower() == ".toml":
+        if Path(spec).suffix:  # a path (any extension), not a shipped name
             plan.read(spec, sidecars=False)
+    own = [out / n for n in ("results.csv", "stages.csv", "settings.json", "positions")]
+    fresh = not any(p.exists() for p in own)
     with plan:
-        return _run_validation(config, out, progress)
+        try:
+            return _run_validation(config, out, progress)
+        except BaseException:
+            if fresh and _no_rows(out / "results.csv"):  # failed before its first row: leave nothing
+                for p in own:
+                    if p.is_dir():
+                        shutil.rmtree(p, ignore_errors=True)
+                    else:
+                        p.unlink(missing_ok=True)
+            raise
+
+
+def _no_rows(csv_path) -> bool:
+    try:
+        return not read_rows(csv_path)
+    except Exception:  # unreadable: keep it, someone may want to look
+        return False
 
 
 def _run_validation(config: ValidationConfig, out: Path, progress: bool) -> dict:

@@ -1,0 +1,71 @@
+"""``slr-ray effects``: sensor effects' own tools (:mod:`slr_ray.effects`).
+
+``fit-drop``: the ray-drop model of a real frame (:func:`~slr_ray.effects.frame_pulses`,
+:func:`~slr_ray.effects.fit_ray_drop`), written as the JSON that ``--ray-drop``
+(and ``ray_drop`` in an effects or scene file) reads. Kept apart from
+:mod:`.commands`, as :mod:`.evaluate_command` is: flags in, library call, files
+and one JSON line out."""
+
+from __future__ import annotations
+
+import json
+import time
+from pathlib import Path
+
+import numpy as np
+
+from ..backends.embree import estimate_normals
+from ..effects import fit_ray_drop, frame_pulses
+from ..errors import InputValueError
+from ..io import atomic_path, read_cloud
+from ..outputs import OutputPlan
+from .commands import emit
+
+__all__ = ["effects", "RING_SOURCES"]
+
+#: Where fit-drop takes each point's ring from.
+RING_SOURCES = ("auto", "scan-order")
+
+
+def effects(args):
+    if args.effects_cmd == "fit-drop":
+        fit_drop(args)
+    else:  # argparse's required sub-command leaves no other
+        raise InputValueError(f"unknown effects command {args.effects_cmd!r}")
+
+
+def fit_drop(args):
+    if Path(args.output).suffix.lower() != ".json":
+        raise InputValueError(f"-o {args.output}: the model is written as JSON (.json)")
+    plan = OutputPlan(force=args.force)
+    plan.read(args.frame)
+    plan.write(args.output)
+    with plan:
+        t0 = time.perf_counter()
+        cloud = read_cloud(args.frame, args.input_format)
+        origin = args.origin if args.origin is not None else cloud.origin
+        if origin is None:
+            raise InputValueError(f"{args.frame} records no scanner origin: give --origin X Y Z")
+        ring = cloud.attributes.get("ring")
+        if args.rings == "auto" and ring is not None:
+            rings, source = np.asarray(ring, np.int64), "the 'ring' attribute"
+        else:
+            rings, source = None, "the scan order"  # frame_pulses: rings_from_scan_order
+        intensity = None if args.no_intensity else cloud.attributes.get("intensity")
+        if intensity is not None and np.ndim(intensity) != 1:
+            intensity = None
+        if len(cloud) < args.k + 1:
+            raise InputValueError(f"{args.frame} has {len(cloud)} points: too few to fit a ray-drop model")
+        normals = estimate_normals(cloud.points, k=args.k, primary_origin=np.asarray(origin, np.float64))
+        fp = frame_pulses(cloud.points, origin, rings=rings, intensity=intensity,
+                          column_step_deg=args.column_step_deg, max_gap=args.max_gap, normals=normals)
+        info = {"source": Path(args.frame).name, "rings": source, "max_gap": args.max_gap, "k": args.k,
+                "column_step_deg": fp["column_step_deg"], "rings_counted": int(len(np.unique(fp["ring"])))}
+        model = fit_ray_drop(fp["range"], fp["incidence"], fp["dropped"], fp["intensity"],
+                             intensity_scale=args.intensity_scale, info=info)
+        with atomic_path(Path(args.output)) as tmp:
+            tmp.write_text(json.dumps(model.to_dict(), indent=1))
+    emit({"frame": str(args.frame), "output": str(args.output), "pulses": model.info["pulses"],
+          "dropped": model.info["dropped"], "drop_rate": model.info["drop_rate"],
+          "uses_intensity": model.uses_intensity, "rings": source, "column_step_deg": fp["column_step_deg"],
+          "coef": dict(zip(model.names, model.coef)), "seconds": round(time.perf_counter() - t0, 6)})

@@ -1,0 +1,114 @@
+"""Point Cloud Library files (``.pcd``), ascii and binary: :func:`read` and :func:`write`.
+
+:mod:`slr_ray.io` reads and writes ``.pcd`` with these. They take and give
+plain arrays and any object with ``points``, ``attributes`` and ``origin``,
+so this module does not import :mod:`slr_ray.io`. The reader believes no
+count: POINTS against WIDTH x HEIGHT and against the data, in both directions.
+"""
+
+from __future__ import annotations
+
+import io
+import warnings
+
+import numpy as np
+
+from .errors import FormatError
+
+__all__ = ["read", "write"]
+
+_PCD_TYPES = {("F", 4): "f4", ("F", 8): "f8", ("I", 1): "i1", ("I", 2): "i2", ("I", 4): "i4", ("I", 8): "i8",
+              ("U", 1): "u1", ("U", 2): "u2", ("U", 4): "u4", ("U", 8): "u8"}
+
+
+def read(path) -> tuple:
+    """A PCD file as ``(points, attributes, origin)``: every field kept; VIEWPOINT's translation as the origin."""
+    with open(path, "rb") as f:
+        header = {}
+        while True:
+            line = f.readline()
+            if not line:
+                raise FormatError(f"{path}: PCD header ends before DATA")
+            words = line.decode("ascii", "replace").strip().split()
+            if not words or words[0].startswith("#"):
+                continue
+            header[words[0].upper()] = words[1:]
+            if words[0].upper() == "DATA":
+                break
+        body = f.read()
+    try:
+        fields = header["FIELDS"]
+        sizes = [int(x) for x in header["SIZE"]]
+        types = header["TYPE"]
+        counts = [int(x) for x in header.get("COUNT", ["1"] * len(fields))]
+        n = int(header["POINTS"][0])
+        if n < 0 or any(c < 1 for c in counts) or any(sz < 1 for sz in sizes):
+            raise ValueError(f"POINTS {n}, SIZE {sizes}, COUNT {counts}: counts must be >= 0 and sizes >= 1")
+        if not len(fields) == len(sizes) == len(types) == len(counts):
+            raise ValueError(f"{len(fields)} FIELDS, {len(sizes)} SIZE, {len(types)} TYPE, {len(counts)} COUNT")
+        if "WIDTH" in header and "HEIGHT" in header and int(header["WIDTH"][0]) * int(header["HEIGHT"][0]) != n:
+            raise ValueError(f"WIDTH x HEIGHT = {header['WIDTH'][0]} x {header['HEIGHT'][0]} is not POINTS {n}")
+        dtype = np.dtype([(name if c == 1 else name, _PCD_TYPES[(t, sz)], () if c == 1 else (c,))
+                          for name, sz, t, c in zip(fields, sizes, types, counts)])
+    except (KeyError, ValueError, IndexError) as exc:
+        raise FormatError(f"{path}: bad PCD header ({exc})") from None
+    kind = header["DATA"][0].lower()
+    if kind == "ascii":
+        with warnings.catch_warnings():
+            warnings.simplefilter("ignore", UserWarning)  # numpy's "input contained no data"
+            flat = np.loadtxt(io.BytesIO(body), ndmin=2)
+        if flat.size == 0:
+            flat = np.empty((0, sum(counts)))
+        if len(flat) != n:
+            raise FormatError(f"{path}: {len(flat)} rows for POINTS {n}")
+        data = np.empty(n, dtype)
+        col = 0
+        for name, c in zip(fields, counts):
+            data[name] = flat[:, col] if c == 1 else flat[:, col:col + c]
+            col += c
+    elif kind == "binary":
+        if len(body) < n * dtype.itemsize:
+            raise FormatError(f"{path}: truncated ({len(body)} bytes of data for POINTS {n} of "
+                              f"{dtype.itemsize} bytes)")
+        if len(body) - n * dtype.itemsize >= dtype.itemsize:  # padding shorter than a point is tolerated
+            raise FormatError(f"{path}: POINTS {n} declared, the data holds {len(body) // dtype.itemsize} points "
+                              "(a header that lies, or a corrupt file)")
+        data = np.frombuffer(body[: n * dtype.itemsize], dtype)
+    else:
+        raise FormatError(f"{path}: PCD DATA {kind} is not supported (ascii and binary are)")
+    if not {"x", "y", "z"} <= set(fields):
+        raise FormatError(f"{path}: no x, y, z fields")
+    pts = np.column_stack([data["x"], data["y"], data["z"]]).astype(np.float64)
+    attrs = {name: np.array(data[name]) for name in fields if name not in ("x", "y", "z") and name != "_"}
+    vp = header.get("VIEWPOINT")
+    origin = np.array([float(v) for v in vp[:3]]) if vp and len(vp) >= 3 else None
+    return pts, attrs, origin
+
+
+def write(path, cloud, binary: bool = True) -> None:
+    """``cloud`` (``points``, ``attributes``, ``origin``) as PCD v0.7, binary or ascii."""
+    names, arrays = ["x", "y", "z"], [cloud.points[:, 0], cloud.points[:, 1], cloud.points[:, 2]]
+    for k, v in cloud.attributes.items():
+        v = np.asarray(v)
+        if v.ndim != 1 or v.dtype.kind not in "iufb":
+            raise FormatError(f"PCD cannot store attribute {k!r} of dtype {v.dtype} and shape {v.shape}")
+        names.append(k)
+        arrays.append(v.astype(np.uint8) if v.dtype == bool else v)
+    dtype = np.dtype([(nm, a.dtype) for nm, a in zip(names, arrays)])
+    data = np.empty(len(cloud), dtype)
+    for nm, a in zip(names, arrays):
+        data[nm] = a
+    kind = {"f": "F", "i": "I", "u": "U"}
+    o = cloud.origin if cloud.origin is not None else np.zeros(3)
+    header = "\n".join([
+        "# .PCD v0.7 - Point Cloud Data file format (slr_ray)", "VERSION 0.7",
+        "FIELDS " + " ".join(names), "SIZE " + " ".join(str(a.dtype.itemsize) for a in arrays),
+        "TYPE " + " ".join(kind[a.dtype.kind] for a in arrays), "COUNT " + " ".join("1" for _ in arrays),
+        f"WIDTH {len(cloud)}", "HEIGHT 1", "VIEWPOINT " + " ".join(repr(float(x)) for x in o) + " 1 0 0 0",
+        f"POINTS {len(cloud)}", "DATA " + ("binary" if binary else "ascii")]) + "\n"
+    with open(path, "wb") as f:
+        f.write(header.encode("ascii"))
+        if binary:
+            f.write(data.astype(data.dtype.newbyteorder("<")).tobytes())
+        else:
+            np.savetxt(f, np.column_stack([a.astype(np.float64) for a in arrays]), fmt="%.10g")
