@@ -194,15 +194,28 @@ def test_fit_drop_on_the_kitti_frame_and_its_sensor_table(tmp_path, capsys):
     (["--effects", "{motion}"], "motion"),
     (["--effects", "{badtoml}"], "not valid TOML"),
     (["--range-noise", "0.1", "--png", "x.png"], "--png"),
+    # wrong types in a file or a model, a negative seed: one line, not a traceback
+    (["--effects", "{types}"], "types.toml: returns must be"),
+    (["--effects", "{seedstr}"], "seed must be an integer"),
+    (["--effects", "{rings}"], "beam_rings must be"),
+    (["--effects-seed", "-3", "--range-noise", "0.1"], "--effects-seed: seed must be an integer >= 0"),
+    (["--ray-drop", "{coefstr}"], "'coef' is a list of numbers"),
+    (["--ray-drop", "{coefitems}"], "coef must be 5 finite numbers"),
 ])
 def test_bad_effects_are_one_line_errors(wall, tmp_path, capsys, flags, says):
     (tmp_path / "garbage.json").write_text("{not json")
     (tmp_path / "unknown.toml").write_text("noise = 0.1\n")
     (tmp_path / "motion.toml").write_text("motion = true\n")
     (tmp_path / "badtoml.toml").write_text("range_noise = = 1\n")
+    (tmp_path / "types.toml").write_text("returns = 3\n")
+    (tmp_path / "seedstr.toml").write_text("range_noise = 0.1\nseed = 'a'\n")
+    (tmp_path / "rings.toml").write_text("beam_rings = 'x'\n")
+    (tmp_path / "coefstr.json").write_text('{"coef": "x"}')
+    (tmp_path / "coefitems.json").write_text('{"coef": [1, 2, 3, "x", 5]}')
     names = {"{garbage}": "garbage.json", "{unknown}": "unknown.toml", "{motion}": "motion.toml",
              "{badtoml}": "badtoml.toml", "missing.json": "missing.json", "missing.toml": "missing.toml",
-             "x.png": "x.png"}
+             "x.png": "x.png", "{types}": "types.toml", "{seedstr}": "seedstr.toml", "{rings}": "rings.toml",
+             "{coefstr}": "coefstr.json", "{coefitems}": "coefitems.json"}
     flags = [str(tmp_path / names[f]) if f in names else f for f in flags]
     out = tmp_path / "out.npz"
     assert main(["scan", str(wall), "-o", str(out), *PATTERN, *flags]) == 2

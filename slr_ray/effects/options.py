@@ -13,6 +13,7 @@ from __future__ import annotations
 import dataclasses
 import json
 import math
+import numbers
 import tomllib
 from dataclasses import dataclass
 from pathlib import Path
@@ -35,6 +36,15 @@ def _positive(name, v, allow_zero=False):
             and (v >= 0 if allow_zero else v > 0)):
         raise InputValueError(f"{name} must be a finite number {'>=' if allow_zero else '>'} 0, got {v!r}")
     return float(v)
+
+
+def _integral(v, lo=None, hi=None):
+    """Whether ``v`` is a whole number (an int, or a float with no fraction; not a bool, not a string) in [lo, hi]."""
+    if isinstance(v, bool) or not isinstance(v, (numbers.Integral, float)):
+        return False
+    if isinstance(v, float) and not v.is_integer():  # also refuses nan and inf
+        return False
+    return (lo is None or v >= lo) and (hi is None or v <= hi)
 
 
 @dataclass(frozen=True)
@@ -120,10 +130,11 @@ class Effects:
         set_ = lambda k, v: object.__setattr__(self, k, v)  # noqa: E731 (frozen dataclass)
         if self.divergence_mrad is not None and self.divergence_mrad != "sensor":
             _positive("divergence_mrad", self.divergence_mrad)
-        if int(self.beam_rings) != self.beam_rings or not 1 <= self.beam_rings <= 64:
+        if not _integral(self.beam_rings, 1, 64):
             raise InputValueError(f"beam_rings must be an integer in [1, 64], got {self.beam_rings!r}")
-        ret = (self.returns,) if isinstance(self.returns, str) else tuple(self.returns)
-        bad = [r for r in ret if r not in RETURN_KINDS]
+        ret = (self.returns,) if isinstance(self.returns, str) else self.returns
+        ret = tuple(ret) if isinstance(ret, (tuple, list)) else ()
+        bad = [r for r in ret if not isinstance(r, str) or r not in RETURN_KINDS]
         if not ret or bad:
             raise InputValueError(f"returns must be one or more of {RETURN_KINDS}, got {self.returns!r}")
         set_("returns", ret)
@@ -149,8 +160,7 @@ class Effects:
             raise InputValueError(f"intensity must be one of {INTENSITY_MODES} or None, got {self.intensity!r}")
         if not isinstance(self.motion, bool):
             raise InputValueError(f"motion must be true or false, got {self.motion!r}")
-        if self.motion_sectors is not None and (int(self.motion_sectors) != self.motion_sectors
-                                                or self.motion_sectors < 1):
+        if self.motion_sectors is not None and not _integral(self.motion_sectors, 1):
             raise InputValueError(f"motion_sectors must be an integer >= 1, got {self.motion_sectors!r}")
         if not (isinstance(self.sweep_start_deg, (int, float)) and not isinstance(self.sweep_start_deg, bool)
                 and math.isfinite(self.sweep_start_deg)):
@@ -175,8 +185,8 @@ class Effects:
         if self.ray_drop is not None and not isinstance(self.ray_drop, RayDropModel):
             raise InputValueError(f"ray_drop must be a RayDropModel, its dict or a JSON path, "
                                   f"got {type(self.ray_drop).__name__}")
-        if int(self.seed) != self.seed:
-            raise InputValueError(f"seed must be an integer, got {self.seed!r}")
+        if not _integral(self.seed, 0):  # numpy's generators take no negative seed
+            raise InputValueError(f"seed must be an integer >= 0, got {self.seed!r}")
 
     @classmethod
     def from_dict(cls, options: dict | None = None, *, relative_to=None, **more) -> "Effects":

@@ -82,13 +82,19 @@ class RayDropModel:
     info: dict = field(default_factory=dict, compare=False)
 
     def __post_init__(self):
-        c = tuple(float(x) for x in self.coef)
+        if not isinstance(self.uses_intensity, bool):
+            raise InputValueError(f"uses_intensity must be true or false, got {self.uses_intensity!r}")
         want = len(_NAMES_GEOMETRY) + (1 if self.uses_intensity else 0)
-        if len(c) != want or not all(math.isfinite(x) for x in c):
+        try:
+            c = tuple(float(x) for x in self.coef if not isinstance(x, (str, bool)))
+        except (TypeError, ValueError):
+            c = ()
+        if len(c) != want or len(c) != len(self.coef) or not all(math.isfinite(x) for x in c):
             raise InputValueError(f"coef must be {want} finite numbers (uses_intensity={self.uses_intensity}), "
                                   f"got {self.coef!r}")
         object.__setattr__(self, "coef", c)
-        if not (math.isfinite(self.intensity_scale) and self.intensity_scale > 0):
+        if not (isinstance(self.intensity_scale, (int, float)) and not isinstance(self.intensity_scale, bool)
+                and math.isfinite(self.intensity_scale) and self.intensity_scale > 0):
             raise InputValueError(f"intensity_scale must be > 0, got {self.intensity_scale!r}")
 
     @property
@@ -130,6 +136,9 @@ class RayDropModel:
             raise InputValueError(f"unknown ray-drop model key(s) {unknown}; known: {list(keys)}")
         if "coef" not in d:
             raise InputValueError("a ray-drop model needs 'coef'")
+        for k in ("coef", "stderr"):
+            if d.get(k) is not None and not isinstance(d[k], (list, tuple)):
+                raise InputValueError(f"a ray-drop model's {k!r} is a list of numbers, got {d[k]!r}")
         return cls(**{k: (tuple(d[k]) if k in ("coef", "stderr") and d[k] is not None else d[k])
                       for k in keys if k in d})
 
