@@ -253,7 +253,7 @@ def effects_from(args) -> Effects | None:
     """The effects of the effects group: ``--effects FILE`` with each flag
     given over it; None when neither is given. A bad value is an error that
     names its flag (or the file)."""
-    base = Effects.load(args.effects) if args.effects else None
+    base = Effects.load(args.effects) if args.effects is not None else None  # "" too: an unset variable
     changes = {}
     for name, flag in EFFECT_FLAGS.items():
         value = getattr(args, flag[2:].replace("-", "_"))
