@@ -14,6 +14,8 @@ from __future__ import annotations
 
 import numpy as np
 
+from ..errors import InputValueError
+
 __all__ = ["range_sigma", "add_range_noise", "reflectivity_max_range"]
 
 
@@ -24,9 +26,13 @@ def range_sigma(ranges, sigma: float, slope: float = 0.0) -> np.ndarray:
 
 def add_range_noise(ranges, sigma: float, slope: float = 0.0, rng=None) -> np.ndarray:
     """``ranges`` plus a normal draw of :func:`range_sigma` each (``rng``: a seed
-    or a generator), never below 0."""
+    or a generator), never below 0. A sigma so large that a range overflows is
+    an :class:`~slr_ray.errors.InputValueError` (not a file of infinite points)."""
     r = np.asarray(ranges, np.float64)
-    noisy = r + np.random.default_rng(rng).standard_normal(len(r)) * range_sigma(r, sigma, slope)
+    with np.errstate(over="ignore", invalid="ignore"):
+        noisy = r + np.random.default_rng(rng).standard_normal(len(r)) * range_sigma(r, sigma, slope)
+    if not np.isfinite(noisy).all():
+        raise InputValueError(f"range noise sigma={sigma!r}, slope={slope!r} makes ranges overflow to infinity")
     return np.maximum(noisy, 0.0)
 
 
