@@ -358,7 +358,8 @@ def _scan_name(i: int, h: float, ext: str) -> str:
     return f"scan_{i:04d}_h{h:g}{ext}"
 
 
-def augment(input_path, outdir, config: AugmentConfig, *, ground=None, progress: bool = True) -> dict:
+def augment(input_path, outdir, config: AugmentConfig, *, ground=None, progress: bool = True,
+            reads=()) -> dict:
     """Write ``config.n`` positions x heights SLR scans of ``input_path`` into ``outdir``.
 
     Parameters
@@ -380,6 +381,10 @@ def augment(input_path, outdir, config: AugmentConfig, *, ground=None, progress:
         class 2), which must have some (use :func:`slr_ray.label_ground` otherwise).
     progress : bool
         A progress bar on stderr.
+    reads : iterable of paths
+        Other files the caller read the settings from (an effects file, a
+        ray-drop model): planned as inputs, so that no file of the run
+        (its manifest included) may be one of them.
 
     Returns
     -------
@@ -397,6 +402,8 @@ def augment(input_path, outdir, config: AugmentConfig, *, ground=None, progress:
         raise InputValueError(f"chunk_size streams {'/'.join(STREAMED_FORMATS)} inputs, not {input_path.suffix!r}")
     plan = OutputPlan()
     plan.read(input_path)
+    for path in reads:
+        plan.read(path)
     out = plan.directory(outdir)  # absolute before any path is sent to a worker or a cluster
     refuse_memory(1024.0 * config.n * len(heights), f"an augment of {config.n:,} x {len(heights)} scans "
                   "(about 1 KB a scan: its file plan and manifest)", "ask for fewer scans a run")

@@ -270,6 +270,22 @@ def test_augment_records_its_effects_and_refuses_a_resume_with_others(small_laz,
     assert not np.array_equal(dists[0][:100], dists[1][:100])
 
 
+def test_augment_never_writes_the_effects_file_it_read(small_laz, tmp_path, capsys):
+    """An effects file (or ray-drop model) is an input: the run's manifest may
+    not be one, even though a manifest holds an [effects]-like table."""
+    out = tmp_path / "aug"
+    base = ["augment", str(small_laz), "--n", "2", "-o", str(out), "--min-ground-points", "500", "--resolution",
+            "1", "--workers", "1", "--quiet"]
+    assert main(base + ["--range-noise", "0.03"]) == 0
+    capsys.readouterr()
+    manifest = out / "manifest.json"
+    before = manifest.read_bytes()
+    assert main(base[:3] + ["3"] + base[4:] + ["--effects", str(manifest)]) == 2
+    err = capsys.readouterr().err
+    assert len(err.strip().splitlines()) == 1 and "manifest.json" in err, err
+    assert manifest.read_bytes() == before
+
+
 def test_augment_config_refuses_effects_it_cannot_make(small_laz, tmp_path):
     for effects, chunk, says in (({"divergence_mrad": 3.0}, None, "embree"), ({"range_noise": 0.1}, 10_000, "stream"),
                                  ({"motion": True}, None, "poses"), ({"noise": 1}, None, "unknown"),

@@ -353,8 +353,10 @@ def augment(args):
                            min_ground_points=args.min_ground_points, workers=args.workers,
                            scheduler=args.scheduler, chunk_size=args.chunk_size, per_pass=args.per_pass,
                            effects=effects_from(args))
+    # the files its settings came from are inputs: no file of the run may be one of them
+    reads = [p for p in (getattr(args, f, None) for f in ("sensor_file", "profile_file", "effects", "ray_drop")) if p]
     res = run_augment(args.input, args.output, config, ground=ground if args.csf or args.ground_attribute else None,
-              progress=not args.quiet)
+                      progress=not args.quiet, reads=reads)
     emit({k: res[k] for k in ("input", "n_requested", "new_scans", "seconds", "software")}
          | {"scans": len(res["scans"]), "positions": len(res["positions"]),
             "points_out": sum(s["points"] for s in res["scans"]), "output_dir": str(args.output)})
