@@ -39,3 +39,12 @@ def test_scene_toml_says_which_effects_it_requires(tmp_path):
     spec.write_text("[scene]\nn_rectangles = 3\n\n[effects]\nnoise = 1\n")
     with pytest.raises(InputValueError, match="noisy.toml"):
         scene_effects(spec)
+
+
+def test_an_effects_file_refuses_fields_beside_its_effects_table(tmp_path):
+    f = tmp_path / "e.toml"
+    f.write_text("range_noise = 0.5\nseed = 3\n[effects]\nrange_noise = 0.01\n")
+    with pytest.raises(InputValueError, match="outside its \\[effects\\] table"):
+        Effects.load(f)
+    f.write_text("seed = 3\nname = 'scene'\n[effects]\nrange_noise = 0.01\n")  # a scene's own keys are fine
+    assert Effects.load(f).range_noise == 0.01

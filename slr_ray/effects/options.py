@@ -231,6 +231,11 @@ class Effects:
         if not isinstance(data, dict):
             raise InputValueError(f"{path}: expected a table of effect options, got {type(data).__name__}")
         table = data["effects"] if isinstance(data.get("effects"), dict) else data
+        if table is not data:  # fields beside the table would be ignored: say so instead
+            stray = sorted(set(data) & {f.name for f in dataclasses.fields(cls)} - {"seed"})
+            if stray:
+                raise InputValueError(f"{path}: effect option(s) {stray} lie outside its [effects] table, "
+                                      "where they would be ignored: move them into it")
         try:
             return cls.from_dict(table, relative_to=path.parent)
         except InputValueError as exc:
