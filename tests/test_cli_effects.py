@@ -332,3 +332,10 @@ def test_simulate_given_takes_a_scan_made_elsewhere():
     assert 0 < len(noisy) < len(ideal) and noisy.info["removed_range_limits"] == len(ideal) - len(noisy)
     with pytest.raises(InputValueError, match="divergence"):
         simulate_given(given, pts[ideal.indices], Effects(divergence_mrad=3.0))
+
+
+def test_fit_drop_on_a_frame_with_nothing_to_fit_names_the_frame(wall, tmp_path, capsys):
+    rc = main(["effects", "fit-drop", str(wall), "-o", str(tmp_path / "m.json")])
+    err = capsys.readouterr().err
+    assert rc == 2 and len(err.strip().splitlines()) == 1 and "wall.npz" in err, err
+    assert not (tmp_path / "m.json").exists()

@@ -61,8 +61,11 @@ def fit_drop(args):
                           column_step_deg=args.column_step_deg, max_gap=args.max_gap, normals=normals)
         info = {"source": Path(args.frame).name, "rings": source, "max_gap": args.max_gap, "k": args.k,
                 "column_step_deg": fp["column_step_deg"], "rings_counted": int(len(np.unique(fp["ring"])))}
-        model = fit_ray_drop(fp["range"], fp["incidence"], fp["dropped"], fp["intensity"],
-                             intensity_scale=args.intensity_scale, info=info)
+        try:
+            model = fit_ray_drop(fp["range"], fp["incidence"], fp["dropped"], fp["intensity"],
+                                 intensity_scale=args.intensity_scale, info=info)
+        except InputValueError as exc:  # e.g. a frame with no dropped pulse: say which frame
+            raise InputValueError(f"{args.frame}: {exc}") from None
         with atomic_path(Path(args.output)) as tmp:
             tmp.write_text(json.dumps(model.to_dict(), indent=1))
     emit({"frame": str(args.frame), "output": str(args.output), "pulses": model.info["pulses"],
