@@ -381,7 +381,7 @@ def augment(input_path, outdir, config: AugmentConfig, *, ground=None, progress:
         class 2), which must have some (use :func:`slr_ray.label_ground` otherwise).
     progress : bool
         A progress bar on stderr.
-    reads : iterable of paths
+    reads : iterable of paths (None skipped)
         Other files the caller read the settings from (an effects file, a
         ray-drop model): planned as inputs, so that no file of the run
         (its manifest included) may be one of them.
@@ -403,7 +403,7 @@ def augment(input_path, outdir, config: AugmentConfig, *, ground=None, progress:
     plan = OutputPlan()
     plan.read(input_path)
     for path in reads:
-        plan.read(path)
+        plan.read(path, sidecars=False)  # settings files: nothing is read beside them
     out = plan.directory(outdir)  # absolute before any path is sent to a worker or a cluster
     refuse_memory(1024.0 * config.n * len(heights), f"an augment of {config.n:,} x {len(heights)} scans "
                   "(about 1 KB a scan: its file plan and manifest)", "ask for fewer scans a run")

@@ -354,7 +354,7 @@ def augment(args):
                            scheduler=args.scheduler, chunk_size=args.chunk_size, per_pass=args.per_pass,
                            effects=effects_from(args))
     # the files its settings came from are inputs: no file of the run may be one of them
-    reads = [p for p in (getattr(args, f, None) for f in ("sensor_file", "profile_file", "effects", "ray_drop")) if p]
+    reads = [getattr(args, f, None) for f in ("sensor_file", "profile_file", "effects", "ray_drop")]
     res = run_augment(args.input, args.output, config, ground=ground if args.csf or args.ground_attribute else None,
                       progress=not args.quiet, reads=reads)
     emit({k: res[k] for k in ("input", "n_requested", "new_scans", "seconds", "software")}
