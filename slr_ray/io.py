@@ -128,7 +128,7 @@ def check_format(path, fmt=None) -> str:
     return ext
 
 
-def read_cloud(path, format: str | None = None, check_finite: bool = True) -> PointCloud:
+def read_cloud(path, format: str | None = None, check_finite: bool = True, allow_empty: bool = True) -> PointCloud:
     """Read a point cloud; the format comes from the extension unless given.
 
     Parameters
@@ -137,6 +137,11 @@ def read_cloud(path, format: str | None = None, check_finite: bool = True) -> Po
         Refuse coordinates that are NaN or infinite (default), naming the file
         and how many; False reads them as they are (an organised PCD's
         no-return points, to be removed by the caller).
+    allow_empty : bool
+        A file of no points reads as an empty cloud (default); False refuses
+        it (``FormatError: PATH: no points``), in every format alike: what the
+        commands do, since an empty input is nearly always a failed export
+        and a scan of it would be an empty file with exit status 0.
 
     Raises
     ------
@@ -146,7 +151,7 @@ def read_cloud(path, format: str | None = None, check_finite: bool = True) -> Po
         unknown extension, or a file that cannot be parsed (truncated, corrupt,
         a declared count that is not what the file holds), non-finite
         coordinates (unless ``check_finite=False``), a recorded scanner origin
-        that is not three finite numbers.
+        that is not three finite numbers, no points (with ``allow_empty=False``).
     """
     path = Path(path)
     ext = check_format(path, format)
@@ -168,6 +173,8 @@ def read_cloud(path, format: str | None = None, check_finite: bool = True) -> Po
     if pts.dtype.kind not in "fiu":
         raise FormatError(f"{path}: coordinates must be real numbers, got dtype {pts.dtype}")
     cloud.points = np.ascontiguousarray(pts, dtype=np.float64)
+    if not allow_empty and len(pts) == 0:
+        raise FormatError(f"{path}: no points")
     if check_finite:
         bad = ~np.isfinite(cloud.points).all(axis=1)
         if bad.any():

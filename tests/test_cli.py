@@ -332,3 +332,44 @@ def test_a_range_image_too_large_is_refused_before_the_scan(tmp_path, capsys, mo
                  "--range-image", str(tmp_path / "r.npz")]) == 2
     assert "larger than max_pixels" in capsys.readouterr().err and not scanned
     assert sorted(p.name for p in tmp_path.iterdir()) == ["c.npz"]
+
+
+def _empty_inputs(tmp_path):
+    """A file of no points in each format that can hold none."""
+    import laspy
+
+    np.savez(tmp_path / "e.npz", points=np.empty((0, 3)))
+    np.save(tmp_path / "e.npy", np.empty((0, 3)))
+    (tmp_path / "e.bin").write_bytes(b"")
+    (tmp_path / "e.xyz").write_text("")
+    laspy.LasData(laspy.LasHeader(point_format=3, version="1.4")).write(tmp_path / "e.las")
+    write_cloud(tmp_path / "e.pcd", PointCloud(np.empty((0, 3))))
+    return sorted(p for p in tmp_path.iterdir() if p.stem == "e")
+
+
+@pytest.mark.parametrize("cmd", [
+    ["scan", "--origin", "1", "1", "1", "--resolution", "1", "-o", "{out}.npz"],
+    ["scan", "--origin", "1", "1", "1", "--resolution", "1", "--backend", "embree", "-o", "{out}.npz"],
+    ["augment", "--n", "2", "--resolution", "1", "-o", "{out}"],
+    ["compare", "--origin", "1", "1", "1", "--resolution", "1"],
+    ["positions", "--n", "2", "-o", "{out}.json"],
+], ids=lambda c: " ".join(c[:3]))
+def test_an_empty_input_is_refused_in_every_format(tmp_path, capsys, cmd):
+    # a zero-point .npz/.ply/.xyz or 0-byte .bin used to give an empty scan with exit 0,
+    # while an empty LAS was an error: every format and command now says "no points"
+    for path in _empty_inputs(tmp_path):
+        out = tmp_path / f"out_{path.suffix[1:]}"
+        argv = [cmd[0], str(path)] + [a.format(out=out) for a in cmd[1:]]
+        assert main(argv) == 2, path
+        err = capsys.readouterr().err
+        assert "no points" in err and path.name in err, (path, err)
+        assert not [p for p in tmp_path.iterdir() if p.name.startswith("out_")], path
+
+
+def test_read_cloud_allow_empty(tmp_path):
+    from slr_ray.errors import FormatError
+
+    for path in _empty_inputs(tmp_path):
+        assert len(read_cloud(path)) == 0  # the library reads an empty file as an empty cloud
+        with pytest.raises(FormatError, match="no points"):
+            read_cloud(path, allow_empty=False)

@@ -103,7 +103,7 @@ def scan(args):
             t_read = time.perf_counter() - t0
         else:
             t0 = time.perf_counter()
-            cloud = read_cloud(args.input, args.input_format)
+            cloud = read_cloud(args.input, args.input_format, allow_empty=False)
             t_read = time.perf_counter() - t0
             origin = _origin(args, cloud)
             if effects is None:
@@ -245,7 +245,7 @@ def compare(args):
     pattern = pattern_from(args)
     embree_options = backend_from(args, "embree")
     with plan:
-        cloud = read_cloud(args.input, args.input_format)
+        cloud = read_cloud(args.input, args.input_format, allow_empty=False)
         res = compare_backends(cloud.points, np.array(args.origin, float).reshape(-1, 3), pattern,
                                tolerance=args.tolerance, embree_options=embree_options)
         if args.png:
@@ -259,7 +259,7 @@ def positions(args):
     plan = _plan(args, inputs=[args.input], outputs=[args.output], figures=[args.png])
     ground = ground_from(args)
     with plan:
-        cloud = read_cloud(args.input, args.input_format)
+        cloud = read_cloud(args.input, args.input_format, allow_empty=False)
         is_ground = ground_labels(cloud, **ground)
         profile = None if args.profile == "none" else default_profile() if args.profile == "default" \
             else AzimuthProfile.load(args.profile)

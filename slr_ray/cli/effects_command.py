@@ -42,7 +42,7 @@ def fit_drop(args):
     plan.write(args.output)
     with plan:
         t0 = time.perf_counter()
-        cloud = read_cloud(args.frame, args.input_format)
+        cloud = read_cloud(args.frame, args.input_format, allow_empty=False)
         origin = args.origin if args.origin is not None else cloud.origin
         if origin is None:
             raise InputValueError(f"{args.frame} records no scanner origin: give --origin X Y Z")

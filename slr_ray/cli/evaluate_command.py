@@ -37,7 +37,7 @@ def _evaluate(args, out):
         if transform.shape != (4, 4) or not np.isfinite(transform).all():
             raise InputValueError(f"--transform {args.transform}: expected a finite 4 x 4 matrix, got "
                                   f"{transform.tolist() if transform.size <= 16 else transform.shape}")
-    clouds = [read_cloud(p, args.input_format) for p in (args.a, args.b)]
+    clouds = [read_cloud(p, args.input_format, allow_empty=False) for p in (args.a, args.b)]
     frames = []  # each in its sensor's frame: a file that records its scanner's position (.npz, .pcd, .e57)
     for c in clouds:  # holds world coordinates, moved to that position in float64
         frames.append(c.points - np.asarray(c.origin, np.float64) if c.origin is not None else c.points)
