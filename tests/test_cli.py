@@ -373,3 +373,14 @@ def test_read_cloud_allow_empty(tmp_path):
         assert len(read_cloud(path)) == 0  # the library reads an empty file as an empty cloud
         with pytest.raises(FormatError, match="no points"):
             read_cloud(path, allow_empty=False)
+
+
+@pytest.mark.parametrize("name", ["image.txt", "image.png", "image"])
+def test_range_image_other_than_npz_is_refused_before_the_scan(tmp_path, cloud_ply, capsys, name):
+    # it was written as npz bytes under any name
+    path, _ = cloud_ply
+    out = tmp_path / "out.npz"
+    rc = main(["scan", str(path), "--origin", "1", "0", "0", "--resolution", "1", "-o", str(out),
+               "--range-image", str(tmp_path / name)])
+    assert rc == 2 and "--range-image" in capsys.readouterr().err
+    assert not out.exists() and not (tmp_path / name).exists()

@@ -201,8 +201,9 @@ def test_fit_drop_on_the_kitti_frame_and_its_sensor_table(tmp_path, capsys):
     (["--effects-seed", "-3", "--range-noise", "0.1"], "--effects-seed: seed must be an integer >= 0"),
     (["--ray-drop", "{coefstr}"], "'coef' is a list of numbers"),
     (["--ray-drop", "{coefitems}"], "coef must be 5 finite numbers"),
-    (["--effects", ""], "no effects file"),
-    (["--range-noise", "1e308"], "overflow"),  # not a file of infinite points that read_cloud refuses  # an unset $EFFECTS: not silently the ideal scan
+    (["--effects", ""], "no effects file"),  # an unset $EFFECTS: not silently the ideal scan
+    (["--ray-drop", ""], "no model file given"),  # an unset $MODEL: it said "no model file '.'"
+    (["--range-noise", "1e308"], "overflow"),  # not a file of infinite points that read_cloud refuses
 ])
 def test_bad_effects_are_one_line_errors(wall, tmp_path, capsys, flags, says):
     (tmp_path / "garbage.json").write_text("{not json")

@@ -74,6 +74,10 @@ def _plan(args, *, inputs=(), outputs=(), fmt=None, figures=()) -> OutputPlan:
 
 def scan(args):
     check_format(args.output, args.format)  # refuse an unknown output format before any work
+    if args.range_image and Path(args.range_image).suffix.lower() != ".npz":
+        # it is written as numpy's .npz whatever its name: a .txt or .png of npz bytes misleads
+        raise InputValueError(f"--range-image {args.range_image}: the range image is written as .npz "
+                              "(for a picture, --png)")
     plan = _plan(args, inputs=[args.input], outputs=[args.output, args.range_image], fmt=args.format,
                  figures=[args.png])
     pattern = pattern_from(args)

@@ -170,6 +170,8 @@ class Effects:
         if self.motion_frame not in MOTION_FRAMES:
             raise InputValueError(f"motion_frame must be one of {MOTION_FRAMES}, got {self.motion_frame!r}")
         if isinstance(self.ray_drop, (str, Path)):
+            if not str(self.ray_drop).strip():  # an unset $MODEL: Path("") is the current directory
+                raise InputValueError("ray_drop: no model file given (an empty path)")
             path = Path(self.ray_drop)
             if not path.is_file():
                 raise InputValueError(f"ray_drop: no model file {str(path)!r} (a JSON of RayDropModel.to_dict())")
