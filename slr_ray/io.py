@@ -447,6 +447,13 @@ _RESERVED = {".las": {"x", "y", "z", "X", "Y", "Z", "points", "header", "point_f
 _RESERVED[".laz"] = _RESERVED[".las"]
 
 
+#: formats without a boolean type: boolean attributes are written as uint8 0/1, with a warning
+_NO_BOOL = {".ply", ".pcd", ".las", ".laz"}
+#: LAS's own one-bit fields, which take booleans as they are
+_LAS_FLAGS = {".las": {"synthetic", "key_point", "withheld", "overlap"},
+              ".laz": {"synthetic", "key_point", "withheld", "overlap"}}
+
+
 def _spellable(ext, name) -> bool:
     """Whether format ``ext`` can name an attribute ``name`` (PLY, PCD: ASCII without blanks; LAS: 32 bytes)."""
     if ext in (".ply", ".pcd"):
@@ -465,6 +472,11 @@ def _storable(path, ext, cloud) -> PointCloud:
         raise FormatError(f"{path}: {ext} cannot name attribute(s) {bad} "
                           f"({'32 bytes at most' if ext in ('.las', '.laz') else 'ASCII without blanks'}): "
                           "rename them, or write .npz")
+    flags = [k for k, v in cloud.attributes.items() if np.asarray(v).dtype == np.bool_
+             and ext in _NO_BOOL and k not in _LAS_FLAGS.get(ext, ())]
+    if flags:
+        warnings.warn(f"{path}: {ext} has no boolean type; {', '.join(map(repr, flags))} written as uint8 0/1 "
+                      "(read back as uint8; .npz keeps booleans)", stacklevel=3)
     reserved = _RESERVED.get(ext, set())
     if not reserved & set(cloud.attributes):
         return cloud

@@ -684,3 +684,28 @@ def test_text_and_npy_columns_say_which_names_they_drop_and_keep_integers_exact(
         write_cloud(tmp_path / "a.npy", PointCloud(np.zeros((2, 3)), {"intensity": np.ones(2)}))
     with pytest.raises(FormatError, match="holds numbers"):
         write_cloud(tmp_path / "c.xyz", PointCloud(np.zeros((2, 3)), {"name": np.array(["a", "b"])}))
+
+
+@pytest.mark.parametrize("ext", [".ply", ".pcd", ".las", ".laz"])
+def test_boolean_attributes_are_written_as_uint8_with_a_warning(tmp_path, ext):
+    # these formats have no boolean type: the values survive as 0/1, and the type change is said
+    pts = np.random.default_rng(0).normal(size=(50, 3))
+    flag = np.arange(50) % 3 == 0
+    path = tmp_path / f"c{ext}"
+    with pytest.warns(UserWarning, match="'is_ground' written as uint8"):
+        write_cloud(path, PointCloud(pts, {"is_ground": flag}))
+    back = read_cloud(path).attributes["is_ground"]
+    np.testing.assert_array_equal(np.asarray(back).astype(bool), flag)
+
+
+def test_boolean_attributes_keep_their_type_in_npz_and_las_flags_silently(tmp_path):
+    import warnings
+
+    pts = np.random.default_rng(0).normal(size=(50, 3))
+    flag = np.arange(50) % 3 == 0
+    with warnings.catch_warnings():
+        warnings.simplefilter("error")
+        write_cloud(tmp_path / "c.npz", PointCloud(pts, {"is_ground": flag}))
+        write_cloud(tmp_path / "c.las", PointCloud(pts, {"synthetic": flag}))
+    assert read_cloud(tmp_path / "c.npz").attributes["is_ground"].dtype == np.bool_
+    np.testing.assert_array_equal(read_cloud(tmp_path / "c.las").attributes["synthetic"], flag)
