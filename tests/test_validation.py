@@ -484,3 +484,31 @@ def test_a_settings_json_of_another_program_is_a_one_line_error(tmp_path, conten
     with pytest.raises(FormatError, match="not a settings.json of slr_ray"):
         check_settings(tmp_path, load_config("quick"))
     assert (tmp_path / "settings.json").read_text() == content
+
+
+def test_reports_are_made_under_the_runs_lock(tmp_path):
+    # validate's reports were written after the run released its directory lock: a second
+    # run starting in that window could add rows the reports then mixed in
+    from slr_ray.errors import OutputError
+    from slr_ray.outputs import OutputPlan
+    from slr_ray.validation.config import ValidationConfig
+
+    spec = tmp_path / "scene.toml"
+    spec.write_text("[scene]\nn_rectangles = 3\nseed = 1\n")
+    cfg = ValidationConfig(name="x", scenes=[str(spec)], positions=1, backends=["binning"]).check()
+    seen = []
+
+    def then(out, res):
+        other = OutputPlan()
+        other.directory(out)
+        with pytest.raises(OutputError, match="in use by another slr-ray run"):
+            with other:
+                pass
+        seen.append(res["new_rows"])
+
+    res = run_validation(cfg, tmp_path / "out", progress=False, then=then)
+    assert seen == [res["new_rows"]] and seen[0] > 0
+    free = OutputPlan()  # released afterwards
+    free.directory(tmp_path / "out")
+    with free:
+        pass

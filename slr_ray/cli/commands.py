@@ -310,7 +310,14 @@ def validate(args):
     for name in ("figure3.png", "report.json", "report.md", *(f"paper_figure_{b}.png" for b in config.backends)):
         plan.write(out / name, resumed=True)
     plan.check()
-    res = run_validation(config, out, progress=not args.quiet)  # locks `out` while it runs
+    res = run_validation(config, out, progress=not args.quiet,
+                         then=lambda out, res: _validation_reports(config, out, res))  # under the run's lock
+    emit(res)
+
+
+def _validation_reports(config, out: Path, res: dict) -> None:
+    """figure3.png, report.json/.md and the paper figures, made from a run's rows
+    while its directory is still locked (never beside another run's rows)."""
     rows = load_rows(out / "results.csv")
     save_figure(validation_figure(rows), out / "figure3.png")
     res["figures"] = [str(out / "figure3.png")]
@@ -327,7 +334,6 @@ def validate(args):
             png = out / f"paper_figure_{b}.png"
             save_figure(paper_figure(rows, backend=b, truth="center"), png)
             res["figures"].append(str(png))
-    emit(res)
 
 
 def distances(args):

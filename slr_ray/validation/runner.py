@@ -88,7 +88,7 @@ def spill_primary(primary: np.ndarray, folder: Path, extra_bytes_per_point: floa
     return mapped
 
 
-def run_validation(config: ValidationConfig, outdir, progress: bool = True) -> dict:
+def run_validation(config: ValidationConfig, outdir, progress: bool = True, then=None) -> dict:
     """Run (or resume) a validation; returns a summary.
 
     Writes ``outdir/results.csv`` (a row per pair, appended as made; see
@@ -98,7 +98,10 @@ def run_validation(config: ValidationConfig, outdir, progress: bool = True) -> d
     and ``outdir/settings.json`` (the settings its rows depend on: a resume
     with other values raises :class:`~slr_ray.errors.InputValueError`).
     ``outdir`` is locked while the run writes there: a second run into it is
-    refused (:class:`~slr_ray.errors.OutputError`).
+    refused (:class:`~slr_ray.errors.OutputError`). ``then(outdir, summary)``,
+    if given, runs once the rows are in, still under the lock: what is made
+    from the rows (the command's reports and figures) is never written beside
+    another run's rows.
     """
     config.check()
     plan = OutputPlan()  # resumable files; the directory locked while this run writes
@@ -113,7 +116,7 @@ def run_validation(config: ValidationConfig, outdir, progress: bool = True) -> d
     fresh = not any(p.exists() for p in own)
     with plan:
         try:
-            return _run_validation(config, out, progress)
+            res = _run_validation(config, out, progress)
         except BaseException:
             if fresh and _no_rows(out / "results.csv"):  # failed before its first row: leave nothing
                 for p in own:
@@ -122,6 +125,9 @@ def run_validation(config: ValidationConfig, outdir, progress: bool = True) -> d
                     else:
                         p.unlink(missing_ok=True)
             raise
+        if then is not None:
+            then(out, res)
+        return res
 
 
 def _no_rows(csv_path) -> bool:
