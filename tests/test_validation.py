@@ -512,3 +512,10 @@ def test_reports_are_made_under_the_runs_lock(tmp_path):
     free.directory(tmp_path / "out")
     with free:
         pass
+
+
+def test_a_validation_whose_plan_would_exhaust_memory_is_refused_first(tmp_path, capsys):
+    # `validate --positions 1000000000` built a plan of 10**9 positions a primary for minutes
+    assert main(["validate", "quick", "--positions", "1000000000", "-o", str(tmp_path / "v"), "--quiet"]) == 2
+    assert "would need about" in capsys.readouterr().err
+    assert not (tmp_path / "v").exists()

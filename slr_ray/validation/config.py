@@ -7,7 +7,7 @@ from pathlib import Path
 
 from .. import paper
 from ..backends import Backend, options_for
-from ..errors import InputValueError
+from ..errors import InputValueError, refuse_memory
 from ..meshscan import MESH_MODES
 from ..scenes import SCENES_DIR, load_toml_spec, scene_effects
 
@@ -93,6 +93,10 @@ class ValidationConfig:
             if _requires_effects(spec):
                 raise InputValueError(f"scene {spec!r} requires sensor effects (its [effects] table): a validation "
                                       "compares ideal scans, so use a scene without [effects]")
+        rows = self.positions * sum(len(self.scene_entry(e)[1]) * len(self.scene_backends(e)) for e in self.scenes)
+        # the plan of a run lists every (scene, primary, position) and keeps a row of each pair: about 1 KB a row
+        refuse_memory(1024.0 * rows, f"a validation of {self.positions:,} positions ({rows:,} rows, about 1 KB a "
+                      "row: its plan and results)", "fewer positions")
         return self
 
     def scene_entry(self, entry) -> tuple[str, list]:
