@@ -260,10 +260,14 @@ def check_las_size(path, header) -> None:
     """Refuse an uncompressed LAS whose header declares fewer points than its
     point data holds (whole records left over before the EVLRs or the end of
     the file: a header that lies). A declared count *larger* than the file
-    holds is found by the readers, which stop where the records run out; a
-    LAZ file's chunks are not checked here. Point data ends at the first EVLR
-    or at LAS 1.3's internal waveform packets, where a file has them."""
+    holds is found by the readers, which stop where the records run out.
+    Point data ends at the first EVLR or at LAS 1.3's internal waveform
+    packets, where a file has them. LAZ: the chunk table's point counts
+    (variable-size chunks: exactly; fixed-size chunks: a count that leaves
+    whole chunks unread — a lie within the last chunk needs a decompression
+    to see, and goes unseen)."""
     if header.are_points_compressed:
+        _check_laz_chunks(path, header)
         return
     end = os.path.getsize(path)
     start_evlr = int(getattr(header, "start_of_first_evlr", 0) or 0)
@@ -276,6 +280,41 @@ def check_las_size(path, header) -> None:
     if room > header.point_count:
         raise FormatError(f"{path}: the header declares {header.point_count:,} points, the file holds "
                           f"{room:,} (a header that lies, or a corrupt file)")
+
+
+def _check_laz_chunks(path, header) -> None:
+    """Refuse a LAZ whose chunk table holds more points than its header declares
+    (:func:`check_las_size`). Files without a readable table (LAZ 1.0, no
+    ``lazrs``) are left to the readers."""
+    try:
+        import lazrs
+    except ImportError:  # laspy's other LAZ backend: no table to read
+        return
+    vlr = next((v for v in header.vlrs if getattr(v, "record_id", None) == 22204
+                and getattr(v, "user_id", "") == "laszip encoded"), None)
+    if vlr is None:
+        return
+    try:
+        laz = lazrs.LazVlr(vlr.record_data_bytes())
+        with open(path, "rb") as f:
+            f.seek(int(header.offset_to_point_data))
+            table = lazrs.read_chunk_table(f, laz)
+    except Exception:  # noqa: BLE001  no table (an old writer), or a corrupt one: the readers decide
+        return
+    if not table:
+        return
+    declared = int(header.point_count)
+    if laz.uses_variable_size_chunks():
+        held = sum(int(c[0]) for c in table)
+        if held > declared:
+            raise FormatError(f"{path}: the header declares {declared:,} points, its LAZ chunk table holds "
+                              f"{held:,} (a header that lies, or a corrupt file)")
+        return
+    size = int(laz.chunk_size())
+    if size and declared <= (len(table) - 1) * size:
+        raise FormatError(f"{path}: the header declares {declared:,} points, its LAZ chunk table holds "
+                          f"{len(table):,} chunks of {size:,}: more than {(len(table) - 1) * size:,} points "
+                          "(a header that lies, or a corrupt file)")
 
 
 def _read_las(path):

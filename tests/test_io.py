@@ -709,3 +709,22 @@ def test_boolean_attributes_keep_their_type_in_npz_and_las_flags_silently(tmp_pa
         write_cloud(tmp_path / "c.las", PointCloud(pts, {"synthetic": flag}))
     assert read_cloud(tmp_path / "c.npz").attributes["is_ground"].dtype == np.bool_
     np.testing.assert_array_equal(read_cloud(tmp_path / "c.las").attributes["synthetic"], flag)
+
+
+@pytest.mark.parametrize("streamed", [False, True])
+def test_a_laz_header_that_claims_fewer_points_than_its_chunks_hold(tmp_path, streamed):
+    # LAZ was not checked: laspy decompresses the declared count and drops the rest silently
+    from slr_ray.streaming import scan_las
+
+    rng = np.random.default_rng(0)
+    path = tmp_path / "a.laz"
+    write_cloud(path, PointCloud(rng.uniform(0, 10, (120_000, 3))))  # three chunks of 50,000
+    assert len(read_cloud(path)) == 120_000
+    _lie_about_count(path, 40_000)
+    with pytest.raises(FormatError, match="declares 40,000 points, its LAZ chunk table holds 3 chunks"):
+        if streamed:
+            scan_las(path, [5, 5, 5], 5.0, chunk=30_000)
+        else:
+            read_cloud(path)
+    _lie_about_count(path, 110_000)  # within the last chunk: the table cannot tell (documented)
+    assert len(read_cloud(path)) == 110_000
