@@ -349,3 +349,40 @@ def test_folding_own_slot_tables_keeps_the_lowest_index_on_ties():
     early.reduce(pts, params, band, 0, 0, 20000)
     late.absorb(early)
     assert sorted(late.tab["idx"].tolist()) == brute_force_scan(pts[:20000], np.zeros(3), pattern).tolist()
+
+
+@pytest.mark.parametrize("kind", ["slots", "shared-slots"])
+@pytest.mark.parametrize("expected_bins", [0, 1, 5000, 10**6])
+def test_slot_tables_sized_from_an_expected_count_give_the_same_scan(kind, expected_bins, monkeypatch):
+    # a prepared scanner sizes its second scan's tables from its first scan's bins: any
+    # hint (none, too small: the tables grow, too large: room left over) is the same answer
+    rng = np.random.default_rng(5)
+    pts = rng.normal(size=(40000, 3)) * 10
+    pts[30000:31000] = pts[:1000]  # ties across the threads' shares
+    pattern = ScanPattern(0.5)
+    monkeypatch.setattr(BinTables, "dense_bytes", 0)
+    monkeypatch.setattr(BinTables, "slot_bytes", 2**62)
+    monkeypatch.setattr(BinTables, "own_slots", kind == "slots")
+    t = BinTables(np.zeros(3), pattern, 3, expected_bins=expected_bins)
+    first = len(t.tables[0].rec)
+    assert first >= max(tables.INITIAL_CAPACITY, expected_bins if kind == "slots" else expected_bins // 3)
+    t.add(pts)
+    np.testing.assert_array_equal(t.winners()[2], brute_force_scan(pts, np.zeros(3), pattern))
+    t.reset(np.ones(3))
+    t.add(pts)
+    np.testing.assert_array_equal(t.winners()[2], brute_force_scan(pts, np.ones(3), pattern))
+
+
+def test_a_prepared_scanner_sizes_its_own_tables_from_its_first_scan(monkeypatch):
+    from slr_ray import prepare
+
+    monkeypatch.setattr(BinTables, "dense_bytes", 0)  # slot tables
+    pts = np.random.default_rng(6).normal(size=(50000, 3)) * 10
+    pattern = ScanPattern(0.2)
+    scanner = prepare(pts, n_threads=2)
+    a = scanner.scan(np.zeros(3), pattern)  # one shared slot array
+    assert scanner._cache.kind == "slots" and not scanner._cache._private
+    b = scanner.scan(np.zeros(3), pattern)  # tables of its own per thread, sized from a
+    tabs = scanner._cache
+    assert tabs._private and len(tabs.tables[0].rec) >= len(a) > tables.INITIAL_CAPACITY
+    np.testing.assert_array_equal(a.indices, b.indices)

@@ -105,7 +105,9 @@ class BinningScanner(Scanner):
             if cached is not None and cached.pattern == pattern:
                 if not cached.could_own_slots:
                     return cached.reset(origin)
-                return core.BinTables(origin, pattern, n_threads=self.options.n_threads)
+                # sized from the first scan's bins: no growing by doubling in the second
+                return core.BinTables(origin, pattern, n_threads=self.options.n_threads,
+                                      expected_bins=cached.n_bins)
         return core.BinTables(origin, pattern, n_threads=self.options.n_threads, own_slots=False)
 
     def _release(self, tables: "core.BinTables") -> None:

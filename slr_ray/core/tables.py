@@ -51,7 +51,7 @@ from ..errors import InputValueError, StateError
 from ..threads import default_threads
 from .grid import BLOCK, block_keys, block_keys_range, count_nonfinite, kernel_params, ranges_into, scratch
 from .order import in_index_order, mark_dense, mark_records, place_dense, place_records, place_records_pulses
-from .slots import GROUP, RECORD, SlotTable, owner
+from .slots import GROUP, INITIAL_CAPACITY, RECORD, SlotTable, owner
 
 __all__ = ["BinTables"]
 
@@ -357,8 +357,12 @@ class BinTables:
         return self.kind in ("dense", "slots")
 
     def __init__(self, origin, pattern, n_threads: int | None = None, key_range: tuple | None = None,
-                 slot_bytes: int | None = None, own_slots: bool | None = None):
+                 slot_bytes: int | None = None, own_slots: bool | None = None, expected_bins: int | None = None):
         self.origin = origin
+        #: ``expected_bins``: about how many bins a scan will fill (a prepared scanner's
+        #: previous scan): slot tables start with room for them rather than growing by
+        #: doubling from a few thousand (each growth a fresh array and a copy)
+        self._expected = int(expected_bins or 0)
         self.pattern = pattern
         #: ``slot_bytes``: this call's allowance for slot tables instead of the class's
         #: (a dense mesh scan allows more: its tables live through 1e9 samples)
@@ -388,7 +392,7 @@ class BinTables:
         self._slots = np.zeros(pattern.n_pulses, np.int32) if self.kind == "slots" and not self._private \
             else None
         self._compact = self.kind == "hash" and pattern.n_pulses <= _COMPACT_MAX_PULSES
-        self.tables = [self._new_table() for _ in range(self.n_threads)]
+        self.tables = [self._new_table(i) for i in range(self.n_threads)]
         self.n_points = 0
         self._params = kernel_params(origin, pattern)
         #: occupied keys of the merged dense table when no add() came after
@@ -417,15 +421,20 @@ class BinTables:
                 t.clear()
         else:
             self._compact = self.pattern.n_pulses <= _COMPACT_MAX_PULSES
-            self.tables = [self._new_table() for _ in self.tables]
+            self.tables = [self._new_table(i) for i in range(len(self.tables))]
         self._touched = None
         return self
 
-    def _new_table(self):
+    def _new_table(self, i: int = 0):
         if self.kind == "dense":
             return _DenseTable(self.pattern.n_pulses)
         if self.kind == "slots":
-            return SlotTable(np.zeros(self.pattern.n_pulses, np.int32) if self._private else self._slots)
+            # own tables: the first takes the others' bins when they are folded in; each
+            # other holds about its share. Shared: each thread owns about 1/n of the keys
+            share = self._expected if (self._private and i == 0) else self._expected // self.n_threads
+            capacity = max(INITIAL_CAPACITY, share + share // 8)
+            return SlotTable(np.zeros(self.pattern.n_pulses, np.int32) if self._private else self._slots,
+                             capacity)
         return _HashTable(compact=self._compact)
 
     #: points whose keys are computed before the threads insert them (slot and hash tables)
