@@ -386,3 +386,63 @@ def test_a_prepared_scanner_sizes_its_own_tables_from_its_first_scan(monkeypatch
     tabs = scanner._cache
     assert tabs._private and len(tabs.tables[0].rec) >= len(a) > tables.INITIAL_CAPACITY
     np.testing.assert_array_equal(a.indices, b.indices)
+
+
+@pytest.mark.parametrize("parts", [1, 2, 3, 7])
+def test_a_fold_split_over_threads_equals_the_serial_fold(parts):
+    # absorb_parallel: records the table has compared in place, new ones appended at
+    # offsets from the first pass; the same records, in the same order, as absorb
+    from concurrent.futures import ThreadPoolExecutor
+
+    from slr_ray.core.slots import SlotTable
+
+    rng = np.random.default_rng(parts)
+    n_pulses = 5000
+
+    def table(keys, ranges, idx, capacity=16):
+        t = SlotTable(np.zeros(n_pulses, np.int32), capacity)
+        best = {}
+        for k, r, i in zip(keys, ranges, idx):
+            if k not in best or (r, i) < best[k]:
+                best[k] = (r, i)
+        for k, (r, i) in best.items():
+            while t.count >= len(t.rec):
+                t._grow()
+            t.rec[t.count] = (k, r, i)
+            t.slots[k] = t.count + 1
+            t.count += 1
+        return t
+
+    def pair():
+        n = 3000
+        k1 = rng.integers(0, n_pulses, n)
+        k2 = rng.integers(0, n_pulses, n)
+        r1 = rng.integers(0, 5, n).astype(float)  # many equal ranges: ties on the index
+        r2 = rng.integers(0, 5, n).astype(float)
+        return table(k1, r1, np.arange(n)), table(k2, r2, np.arange(n, 2 * n) - rng.integers(0, 2 * n, n) % 7)
+
+    a, b = pair()
+    a2 = SlotTable(a.slots.copy(), len(a.rec))
+    a2.rec[:a.count] = a.rec[:a.count]
+    a2.count = a.count
+    a.absorb(b)
+    with ThreadPoolExecutor(parts) as pool:
+        a2.absorb_parallel(b, pool, parts)
+    assert a2.count == a.count
+    np.testing.assert_array_equal(a2.rec[:a2.count], a.rec[:a.count])
+    np.testing.assert_array_equal(a2.slots, a.slots)
+
+
+def test_own_slot_tables_folded_in_parallel_give_the_exact_scan(monkeypatch):
+    # enough bins in the second thread's table (> 65,536) that the fold is split over threads
+    rng = np.random.default_rng(8)
+    pts = rng.normal(size=(400_000, 3)) * 10
+    pts[300_000:340_000] = pts[:40_000]  # copies in the other thread's share: ties on the index
+    pattern = ScanPattern(0.1)
+    t = _tables("slots", np.zeros(3), pattern, 2, monkeypatch)
+    t.add(pts)
+    assert t.tables[1].count > (1 << 16)
+    np.testing.assert_array_equal(t.winners()[2], brute_force_scan(pts, np.zeros(3), pattern))
+    t.reset(np.full(3, 0.5))
+    t.add(pts)
+    np.testing.assert_array_equal(t.winners()[2], brute_force_scan(pts, np.full(3, 0.5), pattern))

@@ -145,6 +145,39 @@ def _merge_slots(slots, rec, count, other, start):
     return count, other.shape[0]
 
 
+@njit(cache=True, nogil=True, error_model="numpy")
+def _merge_existing(slots, rec, other, new, start, stop):
+    """First half of a parallel fold, over ``other[start:stop]``: records whose bin
+    this table has are compared in place (ties to the lower index); the others are
+    flagged in ``new``. Returns how many were flagged. Shares of one fold touch
+    disjoint bins (a table holds a key once): threads run it side by side."""
+    n_new = 0
+    for j in range(start, stop):
+        s = np.int64(slots[other[j].key]) - 1
+        if s < 0:
+            new[j] = True
+            n_new += 1
+        else:
+            new[j] = False
+            r = other[j].r
+            i = other[j].idx
+            if r < rec[s].r or (r == rec[s].r and i < rec[s].idx):
+                rec[s].r = r
+                rec[s].idx = i
+    return n_new
+
+
+@njit(cache=True, nogil=True, error_model="numpy")
+def _append_new(slots, rec, other, new, start, stop, at):
+    """Second half: the flagged records of ``other[start:stop]`` appended at ``rec[at:]``."""
+    for j in range(start, stop):
+        if new[j]:
+            rec[at] = other[j]
+            slots[other[j].key] = at + 1
+            at += 1
+    return at
+
+
 class SlotTable:
     """One thread's bins in a table indexed directly by pulse key.
 
@@ -199,6 +232,24 @@ class SlotTable:
             if start >= other.count:
                 return
             self._grow()
+
+    def absorb_parallel(self, other: "SlotTable", pool, parts: int) -> None:
+        """:meth:`absorb` split over ``parts`` threads of ``pool``: the records this
+        table has compared in place, then the new ones appended at offsets known
+        from the first pass (the same records in the same order as :meth:`absorb`)."""
+        tab = other.tab
+        n = len(tab)
+        cuts = [n * k // parts for k in range(parts + 1)]
+        new = np.empty(n, np.bool_)
+        counts = list(pool.map(lambda k: _merge_existing(self.slots, self.rec, tab, new, cuts[k], cuts[k + 1]),
+                               range(parts)))
+        need = self.count + sum(counts)
+        while len(self.rec) < need:
+            self._grow()
+        starts = np.cumsum([self.count] + counts[:-1]).tolist()
+        list(pool.map(lambda k: _append_new(self.slots, self.rec, tab, new, cuts[k], cuts[k + 1], starts[k]),
+                      range(parts)))
+        self.count = need
 
     def clear(self) -> None:
         _clear_slots(self.slots, self.rec, self.count)

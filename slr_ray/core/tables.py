@@ -417,8 +417,12 @@ class BinTables:
             for t in self.tables:
                 t.clear(self._touched)
         elif self.kind == "slots":
-            for t in self.tables:
-                t.clear()
+            if self._private and len(self.tables) > 1 and self.tables[0].count > (1 << 16):
+                with ThreadPoolExecutor(len(self.tables)) as pool:  # each its own slot array: in parallel
+                    list(pool.map(SlotTable.clear, self.tables))
+            else:
+                for t in self.tables:
+                    t.clear()
         else:
             self._compact = self.pattern.n_pulses <= _COMPACT_MAX_PULSES
             self.tables = [self._new_table(i) for i in range(len(self.tables))]
@@ -524,9 +528,17 @@ class BinTables:
         per add: a second fold would change nothing)."""
         first, *rest = self.tables
         if not self._folded:
-            for t in rest:
-                if t.count:
-                    first.absorb(t)
+            pool = None
+            try:
+                for t in rest:
+                    if self.n_threads > 1 and t.count > (1 << 16):  # millions of records: split over the threads
+                        pool = pool or ThreadPoolExecutor(self.n_threads)
+                        first.absorb_parallel(t, pool, self.n_threads)
+                    elif t.count:
+                        first.absorb(t)
+            finally:
+                if pool is not None:
+                    pool.shutdown()
             self._folded = True
         return first
 
