@@ -26,7 +26,8 @@ from tqdm import tqdm
 
 from .accumulator import ScanAccumulator
 from .errors import FormatError, InputValueError
-from .io import LasRecords, PointCloud, check_las_size
+from .io import LasRecords, PointCloud
+from .las import check_las_size
 from .paper import CELL_SIZE, MIN_GROUND_POINTS
 from .positions import select_positions
 from .threads import default_threads

@@ -1,0 +1,234 @@
+"""LAS and LAZ files (laspy, lazrs): :func:`read`, :func:`write` and the count checks.
+
+:mod:`slr_ray.io` reads and writes ``.las``/``.laz`` with these; they take
+and give plain arrays and any object with ``points``, ``attributes`` and
+``meta`` (and a source's records: ``header``, ``evlrs``, ``array``), so this
+module does not import :mod:`slr_ray.io`. Readers believe no count
+(:func:`check_las_size`); writers keep a LAS source's header, records and
+field types, and never wrap a value into a field too small for it.
+"""
+
+from __future__ import annotations
+
+import copy
+import os
+import warnings
+from pathlib import Path
+
+import laspy
+import lazrs
+import numpy as np
+from laspy.vlrs.vlrlist import VLRList
+
+from .errors import FormatError
+
+__all__ = ["read", "write", "check_las_size"]
+
+
+def check_las_size(path, header) -> None:
+    """Refuse an uncompressed LAS whose header declares fewer points than its
+    point data holds (whole records left over before the EVLRs or the end of
+    the file: a header that lies). A declared count *larger* than the file
+    holds is found by the readers, which stop where the records run out.
+    Point data ends at the first EVLR or at LAS 1.3's internal waveform
+    packets, where a file has them. LAZ: the chunk table's point counts
+    (variable-size chunks: exactly; fixed-size chunks: a count that leaves
+    whole chunks unread — a lie within the last chunk needs a decompression
+    to see, and goes unseen)."""
+    if header.are_points_compressed:
+        _check_laz_chunks(path, header)
+        return
+    end = os.path.getsize(path)
+    start_evlr = int(getattr(header, "start_of_first_evlr", 0) or 0)
+    if getattr(header, "number_of_evlrs", 0) and header.offset_to_point_data < start_evlr <= end:
+        end = start_evlr
+    waveforms = int(getattr(header, "start_of_waveform_data_packet_record", 0) or 0)  # LAS 1.3+, internal
+    if header.offset_to_point_data < waveforms <= end:
+        end = waveforms
+    room = (end - int(header.offset_to_point_data)) // header.point_format.size
+    if room > header.point_count:
+        raise FormatError(f"{path}: the header declares {header.point_count:,} points, the file holds "
+                          f"{room:,} (a header that lies, or a corrupt file)")
+
+
+def _check_laz_chunks(path, header) -> None:
+    """Refuse a LAZ whose chunk table holds more points than its header declares
+    (:func:`check_las_size`). Files without a readable table (an old writer's)
+    are left to the readers."""
+    vlr = next((v for v in header.vlrs if getattr(v, "record_id", None) == 22204
+                and getattr(v, "user_id", "") == "laszip encoded"), None)
+    if vlr is None:
+        return
+    try:
+        laz = lazrs.LazVlr(vlr.record_data_bytes())
+        with open(path, "rb") as f:
+            f.seek(int(header.offset_to_point_data))
+            table = lazrs.read_chunk_table(f, laz)
+    except Exception:  # noqa: BLE001  no table (an old writer), or a corrupt one: the readers decide
+        return
+    if not table:
+        return
+    declared = int(header.point_count)
+    if laz.uses_variable_size_chunks():
+        held = sum(int(c[0]) for c in table)
+        if held > declared:
+            raise FormatError(f"{path}: the header declares {declared:,} points, its LAZ chunk table holds "
+                              f"{held:,} (a header that lies, or a corrupt file)")
+        return
+    size = int(laz.chunk_size())
+    if size and declared <= (len(table) - 1) * size:
+        raise FormatError(f"{path}: the header declares {declared:,} points, its LAZ chunk table holds "
+                          f"{len(table):,} chunks of {size:,}: more than {(len(table) - 1) * size:,} points "
+                          "(a header that lies, or a corrupt file)")
+
+
+def read(path) -> tuple:
+    """A LAS/LAZ file as ``(points, attributes, meta, (header, evlrs, records))``:
+    every dimension kept (extra bytes with their types); ``meta``: point format,
+    scales, offsets. Counts checked both ways (:func:`check_las_size`)."""
+    with laspy.open(str(path)) as reader:
+        check_las_size(path, reader.header)
+    las = laspy.read(str(path))
+    if len(las.points) != las.header.point_count:  # laspy stops quietly where a lying header's points run out
+        raise FormatError(f"{path}: the header declares {las.header.point_count:,} points, the file holds "
+                          f"{len(las.points):,} (truncated or corrupt)")
+    pts = np.column_stack([np.asarray(las.x), np.asarray(las.y), np.asarray(las.z)])
+    attrs = {name: np.asarray(las.points[name]) for name in las.point_format.dimension_names  # not las[name]:
+             if name not in ("X", "Y", "Z")}  # an extra dimension 'header' is a field, not LasData's header
+    meta = {"las_point_format": int(las.header.point_format.id),
+            "las_scales": las.header.scales.tolist(), "las_offsets": las.header.offsets.tolist()}
+    return pts, attrs, meta, (las.header, list(las.evlrs or []), las.points.array)
+
+
+_LAYOUT_RECORDS = {"copc"}
+
+
+def write(path, cloud, src=None) -> None:
+    """Write ``cloud`` as LAS/LAZ (by the extension). From a LAS source ``src``
+    (:class:`~slr_ray.io.LasRecords`, a cloud's ``meta["las"]``): the source's header, VLRs,
+    EVLRs and raw records for the points kept, so version, point format, CRS,
+    GPS time type and extra-byte types are those of the input; attributes
+    added since (or edited) are written through the checks below. From other
+    sources: LAS 1.4, and a value a standard field cannot hold exactly is
+    never wrapped: floats in [0, 1] for an unsigned field are scaled to its
+    full range, anything else goes to an extra dimension ``<name>_value``;
+    either is said in a warning."""
+    if src is not None and len(src.array) == len(cloud):
+        header = copy.deepcopy(src.header)
+        layout = [v for v in header.vlrs if str(v.user_id).strip().lower() in _LAYOUT_RECORDS]
+        evlrs = [e for e in src.evlrs if str(e.user_id).strip().lower() not in _LAYOUT_RECORDS]
+        if layout or len(evlrs) != len(src.evlrs):
+            for v in layout:
+                header.vlrs.remove(v)
+            warnings.warn(f"{path}: COPC records dropped (they index the whole input, not this subset); "
+                          "the file is a plain LAS/LAZ", stacklevel=4)
+        if getattr(header, "evlrs", None) is not None:  # laspy keeps EVLRs read with the header too
+            header.evlrs = VLRList(evlrs)
+        # the records given, never header.point_count (a header that lies, or 7e8 points, would be allocated);
+        # read in place, and copied only when something is written into them (the caller's stay as they were)
+        las = laspy.LasData(header, laspy.ScaleAwarePointRecord(src.array, header.point_format,
+                                                                header.scales, header.offsets))
+        las.evlrs = VLRList(evlrs)
+        moved = not all(np.array_equal(np.asarray(las[c]), cloud.points[:, i]) for i, c in enumerate("xyz"))
+        have = set(las.point_format.dimension_names)
+        edited = [k for k, v in cloud.attributes.items()
+                  if k in have and not np.array_equal(np.asarray(las[k]), np.asarray(v))]
+        if moved or edited:
+            las.points = laspy.ScaleAwarePointRecord(src.array.copy(), header.point_format, header.scales,
+                                                     header.offsets)
+        if moved:
+            las.x, las.y, las.z = cloud.points[:, 0], cloud.points[:, 1], cloud.points[:, 2]
+        for k, v in cloud.attributes.items():
+            if k in edited:
+                _set_las_field(las, k, v, path)
+            elif k not in have:
+                _add_las_extra(las, k, v, path)
+    else:
+        fmt, version = _las_format_for(cloud)
+        header = laspy.LasHeader(point_format=fmt, version=version)
+        n = len(cloud)
+        if "las_scales" in cloud.meta:
+            header.scales = np.array(cloud.meta["las_scales"])
+            header.offsets = np.array(cloud.meta["las_offsets"])
+        else:
+            header.scales = np.array([0.001, 0.001, 0.001])
+            # column by column: numpy's min(axis=0) of an (n, 3) array is 20x slower
+            header.offsets = np.floor([cloud.points[:, i].min() for i in range(3)]) if n else np.zeros(3)
+        # the records allocated at their size (assigning x to an empty LasData grows it by np.append)
+        las = laspy.LasData(header, laspy.ScaleAwarePointRecord.zeros(n, header=header))
+        las.x, las.y, las.z = cloud.points[:, 0], cloud.points[:, 1], cloud.points[:, 2]
+        standard = set(header.point_format.dimension_names)
+        for k, v in cloud.attributes.items():
+            if k in standard:
+                _set_las_field(las, k, v, path)
+            else:
+                _add_las_extra(las, k, v, path)
+    las.write(str(path), do_compress=Path(path).suffix.lower() == ".laz")
+
+
+def _las_format_for(cloud) -> tuple[int, str]:
+    """(point format, version) for a cloud that does not come from a LAS file.
+
+    The most widely read that holds its attributes: LAS 1.2 with format 0 to 3
+    (GPS time: 1, colour: 2, both: 3), unless a value needs LAS 1.4's wider
+    fields (classification above 31, more than 7 returns, 2**32 points or
+    more): then format 6, 7 (colour) or 8 (colour and NIR).
+    """
+    a = cloud.attributes
+    if "las_point_format" in cloud.meta:  # recorded by an earlier LAS read
+        fmt = int(cloud.meta["las_point_format"])
+        return fmt, "1.4" if fmt >= 6 else "1.3" if fmt >= 4 else "1.2"  # 4, 5: waveforms, LAS 1.3
+
+    def above(name, limit):
+        v = a.get(name)
+        return v is not None and np.size(v) > 0 and np.asarray(v).max() > limit
+
+    rgb = all(c in a for c in ("red", "green", "blue"))
+    wide = (len(cloud) >= 2**32 or above("classification", 31) or above("return_number", 7)
+            or above("number_of_returns", 7) or "nir" in a)
+    if wide:
+        return (8 if "nir" in a and rgb else 7 if rgb else 6), "1.4"
+    return (2 if rgb else 0) + (1 if "gps_time" in a else 0), "1.2"
+
+
+def _add_las_extra(las, name, values, path):
+    """An attribute as an extra dimension with its own type (arrays of up to 3 values a point)."""
+    v = np.asarray(values)
+    if v.dtype == bool:
+        v = v.astype(np.uint8)
+    if v.dtype.kind not in "iuf" or v.ndim > 2 or (v.ndim == 2 and not 1 <= v.shape[1] <= 3):
+        raise FormatError(f"LAS cannot store attribute {name!r} of dtype {v.dtype} and shape {v.shape}")
+    dtype = v.dtype if v.ndim == 1 else np.dtype((v.dtype, (v.shape[1],)))
+    las.add_extra_dim(laspy.ExtraBytesParams(name=name, type=dtype))
+    las[name] = v
+
+
+def _set_las_field(las, name, values, path):
+    """A standard LAS field from ``values``, exactly, or scaled / moved aside with a warning: never wrapped."""
+    v = np.asarray(values)
+    field_dtype = np.asarray(las[name]).dtype
+    if v.dtype == bool:
+        v = v.astype(np.uint8)
+    if field_dtype.kind == "f" or v.size == 0:
+        las[name] = v
+        return
+    if field_dtype == np.bool_:
+        if np.isin(v, (0, 1)).all():
+            las[name] = v.astype(bool)
+            return
+    else:
+        info = np.iinfo(field_dtype)
+        finite = np.isfinite(v).all() if v.dtype.kind == "f" else True
+        if finite and (v.dtype.kind != "f" or np.array_equal(v, np.round(v))) and v.min() >= info.min \
+                and v.max() <= info.max:
+            las[name] = v.astype(field_dtype)
+            return
+        if v.dtype.kind == "f" and finite and info.min == 0 and v.min() >= 0 and v.max() <= 1:
+            las[name] = np.round(v * info.max).astype(field_dtype)
+            warnings.warn(f"{path}: {name!r} holds values in [0, 1]; written scaled by {info.max} "
+                          f"to fill the LAS field's {field_dtype} range", stacklevel=5)
+            return
+    alt = f"{name}_value"
+    warnings.warn(f"{path}: {name!r} values do not fit the LAS field ({field_dtype}); kept as extra "
+                  f"dimension {alt!r}, the field left at 0", stacklevel=5)
+    _add_las_extra(las, alt, v, path)
