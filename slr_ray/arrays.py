@@ -7,12 +7,14 @@ expected, what was given and, for non-finite rows, how many.
 
 from __future__ import annotations
 
+import mmap
+
 import numpy as np
 from numba import njit, prange
 
 from .errors import InputTypeError, InputValueError
 
-__all__ = ["as_points", "as_origin", "count_nonfinite_rows", "bounds"]
+__all__ = ["as_points", "as_origin", "count_nonfinite_rows", "bounds", "file_mapping", "release_pages"]
 
 
 def _check_real_dtype(name: str, arr: np.ndarray) -> None:
@@ -135,3 +137,45 @@ def _chunk_bounds(a, chunks, los, his):
                     hi = x
             los[c, j] = lo
             his[c, j] = hi
+
+
+def file_mapping(a):
+    """The ``mmap`` of a file that ``a`` (or the array it is a view of) lives
+    in, when that mapping is shared with the file (``np.load(...,
+    mmap_mode='r')``, ``np.memmap`` in mode ``'r'``, ``'r+'`` or ``'w+'``);
+    else None (an in-memory array, or a copy-on-write ``'c'`` mapping, whose
+    changed pages exist nowhere else)."""
+    owner = a
+    while isinstance(owner, np.ndarray):
+        if isinstance(owner, np.memmap) and getattr(owner, "mode", "c") != "c":
+            mm = getattr(owner, "_mmap", None)
+            if isinstance(mm, mmap.mmap):
+                return mm
+        owner = owner.base
+    return None
+
+
+def release_pages(a) -> int:
+    """Drop the resident pages of a file-mapped array from this process's
+    memory (``madvise(MADV_DONTNEED)``); returns the bytes of the range
+    released, 0 where ``a`` is not file-mapped (:func:`file_mapping`).
+
+    The data does not change: the pages stay in the kernel's file cache
+    while memory allows and come back on the next touch (a minor fault), or
+    from the file. A mapped primary is read whole by a preparation's passes
+    and by every binning scan; released afterwards it no longer counts in
+    the process's resident memory while Embree builds or while the next
+    stage allocates.
+    """
+    mm = file_mapping(a)
+    if mm is None or not hasattr(mmap, "MADV_DONTNEED") or a.size == 0:
+        return 0
+    base = np.frombuffer(mm, np.uint8).ctypes.data
+    lo, hi = np.lib.array_utils.byte_bounds(a)
+    page = mmap.PAGESIZE
+    start = (lo - base) // page * page
+    stop = min(len(mm), -(-(hi - base) // page) * page)
+    if stop <= start:
+        return 0
+    mm.madvise(mmap.MADV_DONTNEED, start, stop - start)
+    return stop - start

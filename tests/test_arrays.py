@@ -61,3 +61,34 @@ def test_bounds_equal_numpy(n, dtype):
         np.testing.assert_array_equal(bounds(a[::2])[0], a[::2, :3].min(axis=0))
         m = np.column_stack([np.arange(n), -np.arange(n), np.zeros(n)]).astype(dtype)
         np.testing.assert_array_equal(bounds(m)[1], [n - 1, 0, 0])
+
+
+def _mapped(tmp_path, a, mode="r"):
+    path = tmp_path / "a.npy"
+    np.save(path, a)
+    return np.load(path, mmap_mode=mode)
+
+
+def test_release_pages_of_a_mapped_array_keeps_its_data(tmp_path):
+    from slr_ray.arrays import file_mapping, release_pages
+
+    a = np.random.default_rng(0).normal(size=(50_000, 3))
+    m = _mapped(tmp_path, a)
+    view = as_points(m)  # what prepare holds: a view, still of the file
+    assert file_mapping(view) is not None
+    assert release_pages(view) >= a.nbytes
+    np.testing.assert_array_equal(view, a)  # read back from the file cache
+    assert 0 < release_pages(view[100:200:3]) < a.nbytes
+    np.testing.assert_array_equal(m, a)
+
+
+def test_release_pages_leaves_memory_and_copy_on_write_maps_alone(tmp_path):
+    from slr_ray.arrays import file_mapping, release_pages
+
+    a = np.ones((1000, 3))
+    assert file_mapping(a) is None and release_pages(a) == 0
+    assert release_pages(np.empty((0, 3))) == 0
+    c = _mapped(tmp_path, a, "c")
+    c[0] = 5.0  # a changed page of a private mapping exists nowhere else: never released
+    assert file_mapping(c) is None and release_pages(c) == 0
+    assert c[0, 0] == 5.0

@@ -840,3 +840,28 @@ def test_pulse_grid_pass_turns_normals_as_the_separate_pass_does():
     changed = np.any(want != plain, axis=1)
     assert changed.sum() > 1000  # grazing floor: many edge-on discs
     np.testing.assert_allclose(turned, want, atol=1e-12)
+
+
+def test_a_file_mapped_primary_gives_the_same_scan(tmp_path, monkeypatch):
+    """The validation's spilled primary: the discs are built after its pages are
+    released (Embree reads its own float32 buffer), the tie rule reads the
+    float64 points back from the file; same indices, ranges and pulses."""
+    import slr_ray.raycast.scene as scene
+
+    walls = two_walls(0.01)[0]
+    pts = np.ascontiguousarray(walls[simulate_scan(walls, [0, 0, 0], ScanPattern(0.2)).indices])
+    np.save(tmp_path / "p.npy", pts)
+    mapped = np.load(tmp_path / "p.npy", mmap_mode="r")
+    released = []
+    real = scene.release_pages
+    monkeypatch.setattr(scene, "release_pages", lambda a: released.append(real(a)) or released[-1])
+    opts = {"primary_origin": [0, 0, 0], "primary_resolution": 0.2, "neighbours": "pulse-grid"}
+    want = discs(pts, **opts)
+    got = discs(mapped, **opts)
+    assert released[0] == 0 and released[1] >= pts.nbytes  # in memory: nothing; mapped: the whole cloud
+    for origin in ((0.5, 0.3, 0.1), (1.0, -2.0, 0.5)):
+        a, b = want.scan(origin, 0.3), got.scan(origin, 0.3)
+        assert len(a) > 100
+        np.testing.assert_array_equal(a.indices, b.indices)
+        np.testing.assert_array_equal(a.ranges, b.ranges)
+        np.testing.assert_array_equal(a.pulses, b.pulses)

@@ -428,6 +428,21 @@ def test_spill_primary_maps_the_points_only_when_memory_is_short(tmp_path):
     assert list(tmp_path.iterdir()) == []  # unlinked once mapped: nothing left behind
 
 
+def test_a_large_primary_is_mapped_even_when_it_fits(tmp_path, monkeypatch):
+    """From MAPPED_PRIMARY_POINTS points on, the primary becomes file pages (the kernel
+    may drop them; the embree build and binning scans release them) whatever the
+    free memory: 24 B a point less of the run's own memory at its peak."""
+    import slr_ray.validation.runner as runner
+
+    pts = np.random.default_rng(0).normal(size=(1000, 3))
+    monkeypatch.setattr(runner, "MAPPED_PRIMARY_POINTS", 1000)
+    mapped = runner.spill_primary(pts, tmp_path, 67, available=1e12)
+    assert isinstance(mapped, np.memmap)
+    np.testing.assert_array_equal(mapped, pts)
+    monkeypatch.setattr(runner, "MAPPED_PRIMARY_POINTS", 1001)
+    assert runner.spill_primary(pts, tmp_path, 67, available=1e12) is pts
+
+
 def test_a_run_whose_primary_does_not_fit_gives_the_same_rows(tmp_path, monkeypatch):
     """With too little memory for the primary and its discs, the points go to a
     memory-mapped file (a stage of its own in stages.csv) and every row is

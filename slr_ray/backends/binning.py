@@ -24,7 +24,7 @@ from dataclasses import dataclass
 import numpy as np
 
 from .. import core, threads
-from ..arrays import as_origin
+from ..arrays import as_origin, file_mapping, release_pages
 from ..core.order import OutputPool
 from ..errors import InputValueError
 from ..pattern import as_pattern
@@ -32,6 +32,9 @@ from ..scan import Scan
 from .base import Backend, BackendOptions, Scanner
 
 __all__ = ["BinningOptions", "BinningScanner"]
+
+#: points a scan of a file-mapped cloud bins at a time before releasing their pages (384 MB of float64)
+MAPPED_CHUNK = 1 << 24
 
 #: names this module had before the pulse geometry moved to slr_ray.core (deprecated here)
 _MOVED = {"pulse_keys": (core.pulse_ids, "slr_ray.core.pulse_ids"),
@@ -125,7 +128,16 @@ class BinningScanner(Scanner):
                                   time.perf_counter() - t0)
         tables = self._tables_for(origin, pattern)
         try:
-            tables.add(self.points, finite=True)  # checked when prepared
+            if file_mapping(self.points) is None:
+                tables.add(self.points, finite=True)  # checked when prepared
+            else:
+                # a file-mapped cloud (a validation's spilled primary) in chunks, each chunk's pages
+                # released once binned: the scan holds its tables, not the cloud (same answer: the
+                # tables merge chunks as one pass, ties to the lowest index)
+                for a in range(0, len(self.points), MAPPED_CHUNK):
+                    part = self.points[a:a + MAPPED_CHUNK]
+                    tables.add(part, finite=True)
+                    release_pages(part)
             pulses, ranges, idx = tables.winners(self.points, as_pulses=True, pool=self._outputs)
         finally:
             self._release(tables)

@@ -17,7 +17,7 @@ from numba import carray, cfunc, njit, prange, types
 from numba.core import cgutils
 from numba.extending import intrinsic
 
-from ..arrays import as_origin, bounds
+from ..arrays import as_origin, bounds, release_pages
 from ..errors import InputValueError
 from ..threads import default_threads
 from .library import (BUFFER_INDEX, BUFFER_NORMAL, BUFFER_VERTEX, FEATURE_FLAGS_ALL, FORMAT_FLOAT3, FORMAT_FLOAT4,
@@ -543,6 +543,9 @@ class RayScene:
         centre = _centre_of(c) if centre is None else as_origin(centre, "centre")
         vbuf = shared if shared is not None else np.empty((len(c), 4), np.float32)
         _fill_vertices(c, centre, r, vbuf)  # one parallel pass, no float64 temporaries
+        # Embree builds from its float32 buffer: a file-mapped primary's pages (24 B a point) need not stay
+        # resident through the build; the tie rule reads back the few it needs
+        release_pages(c)
         buffers = [(BUFFER_VERTEX, 0, FORMAT_FLOAT4, 16, vbuf, len(c))]
         if normals is not None:
             nrm = np.asarray(normals)

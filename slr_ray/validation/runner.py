@@ -41,8 +41,14 @@ PAPER_BACKEND = Backend.BINNING
 PAPER_TRUTH = "center"
 
 #: bytes a point the embree backend holds beyond the float64 points (16 vertex + 12 normal
-#: + ~35 Embree BVH, measured on the 58 M-point rect-1000 primary; its build peak, +4)
+#: + 33 Embree BVH, which is its builder's 32-byte PrimRef array kept as the tree's storage;
+#: measured on 5 M discs and in benchmarks/bench_validation_memory.py) and the transients
+#: of its preparation
 EMBREE_BYTES_PER_POINT = 67
+#: a primary of this many points or more is memory-mapped before its discs are built, fitting
+#: or not: its pages are then file cache the kernel can drop, not 24 B a point of the process's
+#: own memory (rect-1000's 0.00576 deg primary: 4.7 GB of 209 M points)
+MAPPED_PRIMARY_POINTS = 10_000_000
 #: share of the available memory a primary and its discs may take before the points are
 #: moved to a memory-mapped file
 _MEMORY_SHARE = 0.85
@@ -63,20 +69,26 @@ def available_memory() -> float:
 
 def spill_primary(primary: np.ndarray, folder: Path, extra_bytes_per_point: float,
                   available: float | None = None) -> np.ndarray:
-    """``primary``, or the same points memory-mapped from a file, when they and
+    """``primary``, or the same points memory-mapped from a file: when it has
+    :data:`MAPPED_PRIMARY_POINTS` points or more, or when they and
     ``extra_bytes_per_point`` (what will be built on them: the embree
     backend's discs) would take more than 85 % of the available memory.
 
     A memory-mapped primary lets the kernel drop its pages under pressure and
     read them back when needed (a scan then costs more, it does not fail):
     rect-2000's 0.00576 deg primary is 253 M points, 6.1 GB, with ~17 GB of
-    discs on a 24 GB machine. The file is unlinked as soon as it is mapped,
+    discs on a 24 GB machine. Mapped, the points are file pages: the
+    embree backend releases them before Embree's build
+    (:func:`~slr_ray.arrays.release_pages`), and a binning scan releases
+    each chunk it has read, so neither counts them in the process's memory
+    while it allocates its own. The file is unlinked as soon as it is mapped,
     so nothing is left behind, even when the run is killed. The caller must
     drop its own reference to the in-memory array.
     """
     n = len(primary)
     avail = available_memory() if available is None else available
-    if primary.nbytes + n * extra_bytes_per_point <= _MEMORY_SHARE * (avail + primary.nbytes):
+    fits = primary.nbytes + n * extra_bytes_per_point <= _MEMORY_SHARE * (avail + primary.nbytes)
+    if n < MAPPED_PRIMARY_POINTS and fits:
         return primary
     folder.mkdir(parents=True, exist_ok=True)
     path = folder / f".primary-{time.time_ns()}.npy"
@@ -202,6 +214,7 @@ def _run_scene(config, p: ScenePlan, out: Path, done, results, stages, bar) -> i
                 np.savetxt(tmp, positions, delimiter=",", fmt="%.17g",
                            header=positions_tag(config, config.positions)[2:])
             stages.add(p.spec, res, "positions", time.perf_counter() - t0, len(positions))
+        ground = None  # only the positions need it (1 B a point through the pairs otherwise)
         if wanted_here:
             # only when embree rows remain to be made (a resumed run whose discs are done does not spill)
             if any(b == Backend.EMBREE and row_key(p.spec, res, i, b, t) not in done

@@ -9,7 +9,7 @@ import time
 import numpy as np
 from numba import njit
 
-from ...arrays import as_origin, as_points, bounds
+from ...arrays import as_origin, as_points, bounds, release_pages
 from ...core import ranges_of
 from ...errors import InputValueError, refuse_memory
 from ...pattern import as_pattern, pulse_rays
@@ -211,6 +211,7 @@ class DiscScanner(Scanner):
             raise InputValueError("cast needs engine 'embree' or 'fan' (Open3D's scene has no tie rule)")
         d = np.ascontiguousarray(directions, np.float64).reshape(-1, 3)
         pt, t = self._cast(as_origin(origin), d, min(float(max_range), 3e37))
+        release_pages(self.points)  # a file-mapped cloud: the pages the tie rule read (scan_and_rays)
         return pt, np.where(pt >= 0, t, np.inf)
 
     def scan(self, origin, pattern, rays_per_batch: int = 1 << 21) -> Scan:
@@ -244,6 +245,10 @@ class DiscScanner(Scanner):
                     seconds=time.perf_counter() - t_start,
                     info={"cast_seconds": round(cast, 6), "rays": int(pattern.n_pulses),
                           "ray_hits": int(n_ray_hits), **self.options.to_dict()})
+        # a file-mapped cloud (a validation's spilled primary): one scan's tie rule and gathers touch
+        # nearly every page of it (the hits are spread over the whole cloud); released here, they do
+        # not pile up over the positions (a page read again is a minor fault while the file is cached)
+        release_pages(self.points)
         return scan, rays
 
 
