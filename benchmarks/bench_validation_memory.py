@@ -2,6 +2,7 @@
 
     python benchmarks/bench_validation_memory.py [--scene rect-1000] [--resolution 0.0288]
                                                  [--positions 3] [--variants in-memory mapped]
+                                                 [--memory-cap GIB]
 
 Runs :func:`slr_ray.validation.run_validation` on one scene and one primary
 resolution with the binning and embree backends (the embree options of
@@ -22,6 +23,10 @@ Reports per stage the peak of each kind in GiB and in bytes a point of the
 primary (above the process's memory before the run: the interpreter and the
 compiled kernels), and projects the peak to the 209,188,935 points of
 rect-1000's 0.00576 deg primary: ``start + bytes a point x 209.2 M``.
+``--memory-cap GIB`` runs the variants in a cgroup of that limit (root; v1
+or v2): a run that fits its own memory but not the mapped file's pages
+beside it finishes, the kernel dropping the clean pages, and must give the
+same rows (variant names get ``, capped at GIB GiB``).
 Saves results/bench_validation_memory.json.
 """
 
@@ -125,10 +130,56 @@ def main(argv=None):
     ap.add_argument("--min-ground-points", type=int, default=5000,
                     help="positions' ground threshold (the paper's 50,000 leaves none on coarse primaries)")
     ap.add_argument("--variants", nargs="+", default=["in-memory", "mapped"], choices=VARIANTS)
+    ap.add_argument("--memory-cap", type=float, metavar="GIB",
+                    help="run each variant under a memory limit (a cgroup, v1 or v2; root): does the run fit it, "
+                         "and does it give the same rows? (the kernel drops clean file pages to stay under)")
     ap.add_argument("--job", nargs=1, help=argparse.SUPPRESS)
     args = ap.parse_args(argv)
     if args.job:
         return run_one(args.scene, args.resolution, args.positions, args.job[0], args.min_ground_points)
+    cap = _MemoryCap(args.memory_cap) if args.memory_cap else None
+    try:
+        out = _run_variants(args, cap)
+    finally:
+        if cap is not None:
+            cap.close()
+    if cap is not None:
+        for r in out:
+            r["memory_cap_gib"] = args.memory_cap
+            r["variant"] = f"{r['variant']}, capped at {args.memory_cap:g} GiB"
+    _save(args, out)
+
+
+class _MemoryCap:
+    """This process and its children in a cgroup limited to ``gib`` (v1 ``memory`` or v2 ``memory.max``)."""
+
+    def __init__(self, gib: float):
+        import os
+
+        limit = str(int(gib * 2**30))
+        v1 = Path("/sys/fs/cgroup/memory")
+        if v1.is_dir():
+            self.root = v1
+            self.dir = v1 / f"slr_ray_cap_{os.getpid()}"
+            self.dir.mkdir()
+            (self.dir / "memory.limit_in_bytes").write_text(limit)
+        else:
+            self.root = Path("/sys/fs/cgroup")
+            self.dir = self.root / f"slr_ray_cap_{os.getpid()}"
+            self.dir.mkdir()
+            (self.dir / "memory.max").write_text(limit)
+            (self.dir / "memory.swap.max").write_text("0")
+        (self.dir / "cgroup.procs").write_text(str(os.getpid()))
+        print(f"memory capped at {gib:g} GiB ({self.dir})")
+
+    def close(self) -> None:
+        import os
+
+        (self.root / "cgroup.procs").write_text(str(os.getpid()))
+        self.dir.rmdir()
+
+
+def _run_variants(args, cap):
     out = []
     for v in args.variants:
         r = run_isolated(__file__, ["--scene", args.scene, "--resolution", str(args.resolution), "--positions",
@@ -159,6 +210,10 @@ def main(argv=None):
     if len(out) > 1 and all("rows" in r for r in out):
         same = all(r["rows"] == out[0]["rows"] for r in out)
         print(f"\nsame rows in every variant: {same}")
+    return out
+
+
+def _save(args, out):
     # keep the runs of earlier calls at other resolutions or variants (each says when it was measured)
     stamp = time.strftime("%Y-%m-%d %H:%M:%S")
     for r in out:
