@@ -93,9 +93,18 @@ class Scanner(ABC):
     options : BackendOptions
     prepare_seconds : float
         Time spent preparing (neighbours, BVH...).
+    release_mapped : bool
+        A file-mapped cloud (``np.load(..., mmap_mode='r')``): drop the pages
+        each scan has read from this process's memory as it goes
+        (:func:`~slr_ray.arrays.release_pages`). Off by default: the next
+        scan would fault them all in again (a loop over positions, as in
+        ``augment``, runs slower by that); the paper-size validation turns
+        it on for its spilled primary, whose pages would otherwise count
+        beside its discs.
     """
 
     backend: Backend
+    release_mapped: bool = False
 
     def __init__(self, points: np.ndarray, options: BackendOptions, prepare_seconds: float = 0.0):
         self.points = points

@@ -128,7 +128,7 @@ class BinningScanner(Scanner):
                                   time.perf_counter() - t0)
         tables = self._tables_for(origin, pattern)
         try:
-            if file_mapping(self.points) is None:
+            if not self.release_mapped or file_mapping(self.points) is None:
                 tables.add(self.points, finite=True)  # checked when prepared
             else:
                 # a file-mapped cloud (a validation's spilled primary) in chunks, each chunk's pages

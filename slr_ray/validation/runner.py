@@ -259,6 +259,7 @@ def _pairs(config, p: ScenePlan, scene, res, primary, positions, secondary, trut
                 options = {"primary_origin": [0.0, 0.0, 0.0], "primary_resolution": res,
                            **config.embree_options}
             scanners[backend] = prepare(primary, backend, options)
+            scanners[backend].release_mapped = True  # a spilled primary's pages: not kept beside the discs
             if backend == Backend.EMBREE:
                 stages.add(p.spec, res, "embree discs", time.perf_counter() - t0, len(primary))
             else:

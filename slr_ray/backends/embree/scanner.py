@@ -211,7 +211,8 @@ class DiscScanner(Scanner):
             raise InputValueError("cast needs engine 'embree' or 'fan' (Open3D's scene has no tie rule)")
         d = np.ascontiguousarray(directions, np.float64).reshape(-1, 3)
         pt, t = self._cast(as_origin(origin), d, min(float(max_range), 3e37))
-        release_pages(self.points)  # a file-mapped cloud: the pages the tie rule read (scan_and_rays)
+        if self.release_mapped:  # a file-mapped cloud: the pages the tie rule read (scan_and_rays)
+            release_pages(self.points)
         return pt, np.where(pt >= 0, t, np.inf)
 
     def scan(self, origin, pattern, rays_per_batch: int = 1 << 21) -> Scan:
@@ -248,7 +249,8 @@ class DiscScanner(Scanner):
         # a file-mapped cloud (a validation's spilled primary): one scan's tie rule and gathers touch
         # nearly every page of it (the hits are spread over the whole cloud); released here, they do
         # not pile up over the positions (a page read again is a minor fault while the file is cached)
-        release_pages(self.points)
+        if self.release_mapped:
+            release_pages(self.points)
         return scan, rays
 
 
