@@ -82,6 +82,10 @@ _MIN_RHO = 1e-9
 #: the tie window stops growing beyond 20 radii (incidence above ~87 deg)
 _MIN_COS = 0.05
 _MODE_SKIP, _MODE_TIES, _MODE_ONE_PASS = 1, 2, 4
+#: one pass: the ray is cut at the nearest hit's window times this, so that a nearer hit found
+#: later whose window reaches a little further (an equal distance is common: duplicate points
+#: with other normals) leaves the candidates complete; the window itself is unchanged
+_CULL_PAD = 2.0
 
 
 @njit(cache=True, nogil=True, inline="always")
@@ -180,15 +184,16 @@ def _filter(fargs):
                 nrm8 = carray(_as_pointer(ctx[_C_NORMALS] + owner * 24), 3, dtype=np.float64)
                 nx, ny, nz = nrm8[0], nrm8[1], nrm8[2]
             w = _tie_window(ctxf[_C_TIES], np.float64(rad[0]), nb > 0, nx, ny, nz, dx, dy, dz)
-            cull = np.float64(np.float32(t + w))
-            if ctx[_C_FIRST_OWNER] >= 0 and cull > ctxf[_C_CULL]:
+            first = ctx[_C_FIRST_OWNER] < 0
+            if not first and np.float64(np.float32(t + w)) > ctxf[_C_CULL]:
                 # its window reaches past where traversal has already culled: the caller
                 # queries the window again
                 ctx[_C_INCOMPLETE] = 1
             ctxf[_C_FIRST_T] = t
             ctx[_C_FIRST_OWNER] = owner
             ctx[_C_FIRST_PRIM] = prim
-            if not ctx[_C_INCOMPLETE]:
+            cull = np.float64(np.float32(t + _CULL_PAD * w))
+            if not ctx[_C_INCOMPLETE] and (first or cull < ctxf[_C_CULL]):
                 ctxf[_C_CULL] = cull
         if ctx[_C_INCOMPLETE]:
             return  # a plain query from here on: only the nearest hit matters
