@@ -255,9 +255,10 @@ def FILTER(fargs):
         ctx[k + 1] = owner
         ctx[k + 2] = prim  # its score only if it is in the final window (cast_rays)
         ctx[b + _L_NCAND] = m + 1
-        # the caller reads the float64 centres of the candidates in the window: start the load
-        _prefetch(ctx[_C_CENTRES] + owner * 24)
-        _prefetch(ctx[_C_CENTRES] + owner * 24 + 23)
+        if not ctx[_C_VERTICES]:
+            # the caller reads the float64 centres of the candidates in the window: start the load
+            _prefetch(ctx[_C_CENTRES] + owner * 24)
+            _prefetch(ctx[_C_CENTRES] + owner * 24 + 23)
         ray[_TFAR * n + i] = np.float32(ctxf[b + _L_CULL])
 
 
@@ -296,6 +297,88 @@ def _misses_box(ox, oy, oz, dx, dy, dz, box, tnear, tfar):
             if t0 > t1:
                 return True
     return False
+
+
+@njit(cache=True, nogil=True, inline="always")
+def _score_bounds(vertices, owner, local, dx, dy, dz, aspect):
+    """Bounds ``(lo, hi)`` on the float64 tie score (:func:`_tie_score`) of disc ``owner``,
+    from its float32 centre in Embree's vertex buffer (in cache: Embree has just read it)
+    instead of the float64 one: the rounding of the vertex to float32 moves the centre
+    by at most 2^-23 of its coordinates; the bounds take that, float64 rounding and a
+    wide margin. ``(0, inf)`` where the pulse-unit score is undecided (a centre near the
+    plane through the origin normal to the ray)."""
+    v = carray(_as_pointer(vertices + owner * 16), 3, dtype=np.float32)
+    v0, v1, v2 = np.float64(v[0]), np.float64(v[1]), np.float64(v[2])
+    cx, cy, cz = v0 - local[0], v1 - local[1], v2 - local[2]
+    m = abs(cx) + abs(cy) + abs(cz)
+    err = (2.0 ** -22 * (abs(v0) + abs(v1) + abs(v2))
+           + 1e-15 * (m + abs(local[0]) + abs(local[1]) + abs(local[2])) + 1e-30)
+    t = cx * dx + cy * dy + cz * dz
+    ex, ey, ez = cx - t * dx, cy - t * dy, cz - t * dz
+    p2 = ex * ex + ey * ey + ez * ez
+    if aspect > 0.0 and t + err >= 0.0:
+        if t - err <= 0.0:
+            return 0.0, np.inf
+        # sqrt(score) = N(e) / t with N a norm on the plane normal to the ray, N <= k |e|
+        rho = max(math.sqrt(dx * dx + dy * dy), _MIN_RHO)
+        k = aspect / rho
+        lip = max(1.0, k)
+        e_az = (ey * dx - ex * dy) / rho
+        nq = math.sqrt(max(p2 - e_az * e_az, 0.0) + (e_az * k) * (e_az * k))
+        a = max(nq - lip * err, 0.0) / (t + err)
+        z = (nq + lip * err) / (t - err)
+        slack = 1e-13 * (lip * (m + err) / (t - err)) ** 2
+        return a * a - slack, z * z + slack
+    p = math.sqrt(p2)
+    a = max(p - err, 0.0)
+    z = p + err
+    slack = 1e-13 * (m + err) ** 2
+    return a * a - slack, z * z + slack
+
+
+@njit(cache=True, nogil=True, inline="always")
+def _pick(ctx, ctxf, b, lo, hi, centres, org64, vertices, local, dx, dy, dz, aspect):
+    """The tie rule over lane ``b``'s candidates within [lo, hi]: ``(owner, t, primitive)``
+    of the one whose float64 score is least, then the lowest owner; ``owner`` -1 for
+    fewer than two (the nearest hit is the answer). For discs, bounds from the float32
+    vertices first: only candidates that could be the least read their float64 centres
+    (a candidate whose lower bound exceeds another's upper bound cannot)."""
+    n = ctx[b + _L_NCAND]
+    inside = 0
+    cut = np.inf  # the least upper bound of a score
+    for j in range(n):
+        c = b + _L_CAND + 4 * j
+        if lo <= ctxf[c] <= hi:
+            inside += 1
+            if vertices:
+                s_lo, s_hi = _score_bounds(vertices, ctx[c + 1], local, dx, dy, dz, aspect)
+                ctxf[c + 3] = s_lo
+                if s_hi < cut:
+                    cut = s_hi
+    best = best_prim = np.int64(-1)
+    best_t = 0.0
+    if inside < 2:
+        return best, best_t, best_prim  # one candidate: the nearest hit itself (no centre to read)
+    survivors = inside
+    if vertices:
+        survivors = 0
+        for j in range(n):
+            c = b + _L_CAND + 4 * j
+            if lo <= ctxf[c] <= hi and not ctxf[c + 3] > cut:
+                survivors += 1
+    score = np.inf
+    for j in range(n):
+        c = b + _L_CAND + 4 * j
+        tc = ctxf[c]
+        if lo <= tc <= hi and not (vertices and ctxf[c + 3] > cut):
+            oc = ctx[c + 1]
+            if survivors == 1:
+                return oc, tc, ctx[c + 2]
+            s = _tie_score(centres[oc, 0] - org64[0], centres[oc, 1] - org64[1],
+                           centres[oc, 2] - org64[2], dx, dy, dz, aspect)
+            if s < score or (s == score and oc < best):
+                score, best, best_t, best_prim = s, oc, tc, ctx[c + 2]
+    return best, best_t, best_prim
 
 
 @njit(cache=True, nogil=True)
@@ -352,6 +435,12 @@ def cast_rays(isect, width, scene, filt, org32, org64, dirs, tnear, tfar, mode_f
     first_args = args_ptr if mode else np.int64(0)
     ox, oy, oz = np.float64(org32[0]), np.float64(org32[1]), np.float64(org32[2])
     t_lo, t_hi = np.float64(tnear), np.float64(tfar)
+    for k in range(W):  # what Embree only reads, the same for every packet
+        rh[_ORG * W + k], rh[(_ORG + 1) * W + k], rh[(_ORG + 2) * W + k] = org32[0], org32[1], org32[2]
+        rh[_TIME * W + k] = 0.0
+        ru[_MASK * W + k] = INVALID_ID
+        ru[_ID * W + k] = k  # the lane: the filter's state of this ray
+        ru[_FLAGS * W + k] = 0
     n_rays = dirs.shape[0]
     i = 0
     while i < n_rays:
@@ -365,14 +454,9 @@ def cast_rays(isect, width, scene, filt, org32, org64, dirs, tnear, tfar, mode_f
                 t_out[i] = np.inf
                 i += 1
                 continue
-            rh[_ORG * W + k], rh[(_ORG + 1) * W + k], rh[(_ORG + 2) * W + k] = org32[0], org32[1], org32[2]
-            rh[_TNEAR * W + k] = tnear
+            rh[_TNEAR * W + k] = tnear  # a second query moves it
             rh[_DIR * W + k], rh[(_DIR + 1) * W + k], rh[(_DIR + 2) * W + k] = dx, dy, dz
-            rh[_TIME * W + k] = 0.0
             rh[_TFAR * W + k] = tfar
-            ru[_MASK * W + k] = INVALID_ID
-            ru[_ID * W + k] = k  # the lane: the filter's state of this ray
-            ru[_FLAGS * W + k] = 0
             ru[_PRIM * W + k] = INVALID_ID
             ru[_GEOM * W + k] = INVALID_ID
             ru[_INST * W + k] = INVALID_ID
@@ -427,23 +511,8 @@ def cast_rays(isect, width, scene, filt, org32, org64, dirs, tnear, tfar, mode_f
                 hi = np.float32(t0 + window)
                 if one and not ctx[b + _L_INCOMPLETE]:
                     # the candidates within [lo, hi]: those a second query over the window would meet
-                    best = best_prim = np.int64(-1)
-                    best_t = 0.0
-                    score = np.inf
-                    inside = 0
-                    for j in range(ctx[b + _L_NCAND]):
-                        if lo <= ctxf[b + _L_CAND + 4 * j] <= hi:
-                            inside += 1
-                    # one candidate: the nearest hit itself (no float64 centre to read)
-                    for j in range(ctx[b + _L_NCAND] if inside > 1 else 0):
-                        c = b + _L_CAND + 4 * j
-                        tc = ctxf[c]
-                        if lo <= tc <= hi:
-                            oc = ctx[c + 1]
-                            s = _tie_score(centres[oc, 0] - org64[0], centres[oc, 1] - org64[1],
-                                           centres[oc, 2] - org64[2], dx, dy, dz, aspect)
-                            if s < score or (s == score and oc < best):
-                                score, best, best_t, best_prim = s, oc, tc, ctx[c + 2]
+                    best, best_t, best_prim = _pick(ctx, ctxf, b, lo, hi, centres, org64, vertices, local,
+                                                    dx, dy, dz, aspect)
                     if best >= 0 and best != owner:
                         owner = best
                         prim = best_prim
