@@ -365,3 +365,28 @@ def test_discs_skipped_exactly_at_the_reach(offset):
         scene = RayScene.discs(np.array([c, far]), np.array([r, 0.1]), np.array([d, [1.0, 0, 0]]))
         hits = scene.intersect(o, d[None], skip_containing=True)
         assert hits.owners.tolist() == ([-1] if inside else [0])
+
+
+@pytest.mark.parametrize("aspect", [None, 2.0])
+def test_ties_decided_in_float64_where_the_float32_vertices_disagree(aspect):
+    # two coplanar discs 1e-4 m apart, 10 km from the scene's centre (float32 steps of ~1 mm
+    # there): the one whose float64 centre is nearest the ray must win, also where the
+    # float32 vertices Embree holds rank them the other way round
+    a, b = 1e4 + 4.0e-4, 1e4 + 5.0e-4  # float32: 1e4 and 1e4 + 2^-10
+    c = np.array([[a, 0.0, 0.0], [b, 0.0, 0.0], [-1e4, 0.0, 0.0]])
+    scene = RayScene.discs(c, np.full(3, 0.5), np.tile([0, 0, 1.0], (3, 1)), centre=np.zeros(3))
+    v = (c - scene.centre).astype(np.float32).astype(np.float64)
+    assert v[0, 0] != v[1, 0]
+    d = np.array([0.3, 0.2, -1.0]) if aspect else np.array([0.0, 0.0, -1.0])
+    d /= np.linalg.norm(d)
+    for x in np.linspace(a - 1e-4, b + 1e-4, 41):
+        o = np.array([x, 0.0, 0.0]) - 5.0 * d
+        one = scene.intersect(o, d[None], ties=1.0, pulse_aspect=aspect)
+        two = scene.intersect(o, d[None], ties=1.0, pulse_aspect=aspect, one_pass=False)
+        assert one.owners[0] == two.owners[0] and one.distances[0] == two.distances[0]
+        if aspect is None:
+            perp = np.linalg.norm(np.cross(c[:2] - o, d), axis=1)
+            perp32 = np.linalg.norm(np.cross(v[:2] - (o - scene.centre), d), axis=1)
+            assert one.owners[0] == np.argmin(perp)
+            if a + 5.5e-5 < x < a + 8.5e-5:  # float32 would take the other one
+                assert np.argmin(perp32) != np.argmin(perp)

@@ -46,11 +46,13 @@ candidate, and the answer is the one whose centre lies nearest the ray,
 computed in float64 from the input coordinates, then the lowest index. One
 query collects them: an Embree filter callback keeps each candidate within
 the window of the nearest hit met so far and accepts it with the ray's end
-moved to that window's far end (Embree keeps a filter's tfar for an accepted
-hit), so traversal culls nothing the rule needs. A ray whose nearer hit
-widens the window past what was already culled, or with more than 64
-candidates, is queried again over its window; ``one_pass=False`` does that
-for every ray (the rule of earlier versions, the same answers). On a sampled surface that is the
+moved to twice that window (Embree keeps a filter's tfar for an accepted
+hit), so traversal culls nothing the rule needs, even when a nearer hit met
+later has a slightly wider window (a disc at the same distance, another
+normal). A ray whose nearer hit widens the window past what was already
+culled, or with more than 64 candidates, is queried again over its window;
+``one_pass=False`` does that for every ray (the rule of earlier versions,
+the same answers). On a sampled surface that is the
 point in the ray's own pulse, whichever larger neighbouring disc happens to be
 met first.
 
@@ -60,6 +62,13 @@ A disc whose centre lies within its own reach of the ray origin would be hit
 by half of all rays at a tiny distance and hide the scene. ``skip_containing``
 rejects hits on such discs (the same filter callback), so a scanner standing
 among the points needs no rebuilt BVH.
+
+Ray packets
+-----------
+Rays go to Embree in packets (``rtcIntersect4/8/16``; by default the widest
+the CPU traces natively, ``packet=1`` one ray at a time): the same answers,
+fewer descents of the BVH. Each ray carries its lane in its ``id``, and the
+filter keeps that lane's state, whatever packet size Embree calls it with.
 
 Struct layouts and enum values are those of the Embree 4 headers
 (``rtcore_ray.h``, ``rtcore_common.h``, ``rtcore_scene.h``,

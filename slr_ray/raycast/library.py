@@ -63,10 +63,17 @@ class EmbreeLibrary:
         self.commit_geometry = fn("rtcCommitGeometry", None, P)
         self.attach_geometry = fn("rtcAttachGeometry", U, P, P)
         self.release_geometry = fn("rtcReleaseGeometry", None, P)
-        self.intersect1 = ctypes.cast(lib.rtcIntersect1, ctypes.c_void_p).value
+        self.get_device_property = fn("rtcGetDeviceProperty", ctypes.c_ssize_t, P, I)
+        #: addresses of rtcIntersect1, 4, 8, 16 by packet width
+        self.intersect = {w: ctypes.cast(getattr(lib, f"rtcIntersect{w}"), ctypes.c_void_p).value for w in (1, 4, 8, 16)}
+        self.intersect1 = self.intersect[1]
         self.device = self.new_device(None)
         if not self.device:
             raise MissingDependencyError(f"Embree at {path} could not create a device")
+        #: the widest packet this CPU's Embree kernels trace natively (RTC_DEVICE_PROPERTY_NATIVE_RAY4/8/16_SUPPORTED),
+        #: 1 if none
+        self.native_width = max([w for w, prop in ((4, 32), (8, 33), (16, 34))
+                                 if self.get_device_property(self.device, prop)] or [1])
 
     def check(self, what: str):
         code = self.device_error(self.device)
