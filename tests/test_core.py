@@ -433,16 +433,27 @@ def test_a_fold_split_over_threads_equals_the_serial_fold(parts):
     np.testing.assert_array_equal(a2.slots, a.slots)
 
 
-def test_own_slot_tables_folded_in_parallel_give_the_exact_scan(monkeypatch):
-    # enough bins in the second thread's table (> 65,536) that the fold is split over threads
+@pytest.mark.parametrize("n_threads", [2, 3])
+@pytest.mark.parametrize("release", [False, True])
+def test_own_slot_tables_resolved_in_parallel_give_the_exact_scan(monkeypatch, n_threads, release):
+    # enough bins in each thread's table (> 65,536) that the losers of bins held by several
+    # tables are found in parallel shares (three tables: pairs side by side); release=True folds
     rng = np.random.default_rng(8)
     pts = rng.normal(size=(400_000, 3)) * 10
-    pts[300_000:340_000] = pts[:40_000]  # copies in the other thread's share: ties on the index
+    pts[300_000:340_000] = pts[:40_000]  # copies in another thread's share: ties on the index
+    pts[200_000:210_000] = pts[350_000:360_000] * 1.0000001  # near copies, the later one nearer
     pattern = ScanPattern(0.1)
-    t = _tables("slots", np.zeros(3), pattern, 2, monkeypatch)
+    monkeypatch.setattr(BinTables, "parallel_records", 1000)  # however the threads shared the chunks
+    t = _tables("slots", np.zeros(3), pattern, n_threads, monkeypatch)
     t.add(pts)
-    assert t.tables[1].count > (1 << 16)
-    np.testing.assert_array_equal(t.winners()[2], brute_force_scan(pts, np.zeros(3), pattern))
+    want = brute_force_scan(pts, np.zeros(3), pattern)
+    assert t.n_bins == len(want)
+    np.testing.assert_array_equal(t.winners(pts, release=release)[2], want)
+    if release:
+        return
+    t.add(pts[:1000] * 0.5)  # more points after a read-out: each table's records changed, read again
+    np.testing.assert_array_equal(t.winners()[2], brute_force_scan(np.concatenate([pts, pts[:1000] * 0.5]),
+                                                                   np.zeros(3), pattern))
     t.reset(np.full(3, 0.5))
     t.add(pts)
     np.testing.assert_array_equal(t.winners()[2], brute_force_scan(pts, np.full(3, 0.5), pattern))

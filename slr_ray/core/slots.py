@@ -16,7 +16,7 @@ from numba import njit
 
 from .grid import BLOCK, block_keys, scratch
 
-__all__ = ["SlotTable", "RECORD", "GROUP", "INITIAL_CAPACITY", "owner"]
+__all__ = ["SlotTable", "RECORD", "GROUP", "INITIAL_CAPACITY", "owner", "mark_losers"]
 
 #: a bin's record (the hash tables' wide record too)
 RECORD = np.dtype([("key", np.int64), ("r", np.float64), ("idx", np.int64)])
@@ -176,6 +176,23 @@ def _append_new(slots, rec, other, new, start, stop, at):
             slots[other[j].key] = at + 1
             at += 1
     return at
+
+
+@njit(cache=True, nogil=True, error_model="numpy")
+def mark_losers(slots_a, tab_a, lose_a, tab_b, lose_b, start, stop):
+    """Of each bin held by table ``b`` (records ``tab_b[start:stop]``) and by
+    table ``a`` (its ``slots_a``), flag the record that loses: the farther,
+    or as near with the higher index. Shares of ``tab_b`` meet distinct
+    records of ``a``: threads run them side by side."""
+    for j in range(start, stop):
+        s = np.int64(slots_a[tab_b[j].key]) - 1
+        if s >= 0:
+            rb = tab_b[j].r
+            ra = tab_a[s].r
+            if rb < ra or (rb == ra and tab_b[j].idx < tab_a[s].idx):
+                lose_a[s] = True
+            else:
+                lose_b[j] = True
 
 
 class SlotTable:

@@ -50,8 +50,9 @@ from ..arrays import unravel_ids
 from ..errors import InputValueError, StateError
 from ..threads import default_threads
 from .grid import BLOCK, block_keys, block_keys_range, count_nonfinite, kernel_params, ranges_into, scratch
-from .order import in_index_order, mark_dense, mark_records, place_dense, place_records, place_records_pulses
-from .slots import GROUP, INITIAL_CAPACITY, RECORD, SlotTable, owner
+from .order import (in_index_order, mark_alive, mark_dense, mark_records, place_alive, place_alive_pulses,
+                    place_dense, place_records, place_records_pulses)
+from .slots import GROUP, INITIAL_CAPACITY, RECORD, SlotTable, mark_losers, owner
 
 __all__ = ["BinTables"]
 
@@ -341,6 +342,9 @@ class BinTables:
     dense_bytes = 256 * 2**20
     #: memory allowed for the per-pulse slot arrays of the slot tables
     slot_bytes = 512 * 2**20
+    #: records of a table beyond which reading out own slot tables (finding the bins two tables
+    #: hold, or folding) is split over the threads
+    parallel_records = 1 << 16
     #: each thread keeps a slot array of its own while they all fit ``slot_bytes``
     #: (threads split the points and key and insert them in one pass); else the
     #: threads share one and insert the keys they own
@@ -400,6 +404,8 @@ class BinTables:
         self._touched = None
         #: own slot tables: the others are folded into the first since the last add()
         self._folded = False
+        #: own slot tables: (records of each table, which of them another table beats, winners) since the last add()
+        self._resolution = None
 
     def reset(self, origin) -> "BinTables":
         """Empty the tables for a new scanner position with the same pattern.
@@ -413,11 +419,12 @@ class BinTables:
         self._params = kernel_params(origin, self.pattern)
         self.n_points = 0
         self._folded = False
+        self._resolution = None
         if self.kind == "dense":
             for t in self.tables:
                 t.clear(self._touched)
         elif self.kind == "slots":
-            if self._private and len(self.tables) > 1 and self.tables[0].count > (1 << 16):
+            if self._private and len(self.tables) > 1 and self.tables[0].count > self.parallel_records:
                 with ThreadPoolExecutor(len(self.tables)) as pool:  # each its own slot array: in parallel
                     list(pool.map(SlotTable.clear, self.tables))
             else:
@@ -521,7 +528,42 @@ class BinTables:
                 list(pool.map(run, self.tables[: len(slices)]))
         self.n_points += n
         self._folded = False
+        self._resolution = None
         return 0
+
+    def _resolved(self):
+        """Own slot tables, unfolded: each table's records and a mask of those
+        another table beats in the same bin (farther, or as near with a higher
+        index: pairwise, so the nearest of any number of tables is the one
+        never beaten), and the number of winners. Cheaper than a fold (a look-up
+        per record of the later tables, no record moved) and leaves each table
+        only its own records to clear. Computed once per add."""
+        if self._folded:  # the release path folded them all into the first
+            first = self.tables[0]
+            return [first.tab], [np.zeros(first.count, np.bool_)], first.count
+        if self._resolution is None:
+            tabs = [t.tab for t in self.tables]
+            lose = [np.zeros(len(tab), np.bool_) for tab in tabs]
+            jobs = []
+            for b in range(1, len(tabs)):
+                n = len(tabs[b])
+                parts = self.n_threads if n > self.parallel_records else 1
+                jobs += [(a, b, n * k // parts, n * (k + 1) // parts) for a in range(b) if len(tabs[a])
+                         for k in range(parts)]
+
+            def run(job):
+                a, b, start, stop = job
+                mark_losers(self.tables[a].slots, tabs[a], lose[a], tabs[b], lose[b], start, stop)
+
+            if len(jobs) > 1 and self.n_threads > 1:
+                with ThreadPoolExecutor(self.n_threads) as pool:  # losers only ever set to True: races are benign
+                    list(pool.map(run, jobs))
+            else:
+                for job in jobs:
+                    run(job)
+            m = sum(len(tab) - int(np.count_nonzero(x)) for tab, x in zip(tabs, lose))
+            self._resolution = (tabs, lose, m)
+        return self._resolution
 
     def _merged_slots(self) -> "SlotTable":
         """Own slot tables: fold all into the first (their records stay; once
@@ -531,7 +573,7 @@ class BinTables:
             pool = None
             try:
                 for t in rest:
-                    if self.n_threads > 1 and t.count > (1 << 16):  # millions of records: split over the threads
+                    if self.n_threads > 1 and t.count > self.parallel_records:  # millions of records: split over the threads
                         pool = pool or ThreadPoolExecutor(self.n_threads)
                         first.absorb_parallel(t, pool, self.n_threads)
                     elif t.count:
@@ -595,7 +637,7 @@ class BinTables:
         if self.dense:
             return self._merged().count
         if self._private:
-            return self._merged_slots().count
+            return self._resolved()[2]
         return sum(t.count for t in self.tables)
 
     @property
@@ -633,36 +675,47 @@ class BinTables:
             self._touched = keys
             return self._out(keys, as_pulses), (ranges if with_ranges else None), idx
         m = self.n_bins
-        final = [self._merged_slots()] if self._private else self.tables
         if not release:
             # every bin's record carries its range: no sort, no gather from the cloud
-            tabs = [t.tab for t in final]
+            if self._private:  # each table's records, less those another table's beat: no fold
+                tabs, lose, _ = self._resolved()
+            else:
+                tabs, lose = [t.tab for t in self.tables], None
             nh = np.int64(self.pattern.shape[1])
 
             def mark(bits):
-                for tab in tabs:  # one after the other: threads would race on a word
-                    mark_records(tab, bits)
+                for i, tab in enumerate(tabs):  # one after the other: threads would race on a word
+                    if lose is None:
+                        mark_records(tab, bits)
+                    else:
+                        mark_alive(tab, lose[i], bits)
 
             def place(*out):
                 # every record has its own place: shares of the records are written out in
                 # parallel (and the fresh output pages are faulted in by all threads)
-                if as_pulses:
-                    run = lambda tab: place_records_pulses(tab, out[0], out[1], nh, *out[2:])  # noqa: E731
+                if lose is None and as_pulses:
+                    run = lambda tab, _: place_records_pulses(tab, out[0], out[1], nh, *out[2:])  # noqa: E731
+                elif lose is None:
+                    run = lambda tab, _: place_records(tab, *out)  # noqa: E731
+                elif as_pulses:
+                    run = lambda tab, x: place_alive_pulses(tab, x, out[0], out[1], nh, *out[2:])  # noqa: E731
                 else:
-                    run = lambda tab: place_records(tab, *out)  # noqa: E731
+                    run = lambda tab, x: place_alive(tab, x, *out)  # noqa: E731
                 parts = max(1, min(self.n_threads, m >> 16))
-                shares = [tab[len(tab) * i // parts: len(tab) * (i + 1) // parts] for tab in tabs
-                          for i in range(parts)]
+                shares = [(tab[len(tab) * i // parts: len(tab) * (i + 1) // parts],
+                           None if lose is None else lose[t][len(tab) * i // parts: len(tab) * (i + 1) // parts])
+                          for t, tab in enumerate(tabs) for i in range(parts)]
                 if parts > 1:
                     with ThreadPoolExecutor(parts) as pool:
-                        list(pool.map(run, shares))
+                        list(pool.map(lambda sh: run(*sh), shares))
                 else:
                     for share in shares:
-                        run(share)
+                        run(*share)
 
             keys, ranges, idx = in_index_order(self.n_points, m, mark, place, (2,) if as_pulses else (),
                                                pool.take if pool is not None and as_pulses else None)
             return keys, (ranges if with_ranges else None), idx
+        final = [self._merged_slots()] if self._private else self.tables  # freed one by one: folded first
         n_pulse_bits = max(1, int(self.pattern.n_pulses - 1).bit_length())
         fits = int(max(self.n_points - 1, 1)).bit_length() + n_pulse_bits <= 63
         if m and fits and (points is not None or not with_ranges):
