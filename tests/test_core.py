@@ -457,3 +457,23 @@ def test_own_slot_tables_resolved_in_parallel_give_the_exact_scan(monkeypatch, n
     t.reset(np.full(3, 0.5))
     t.add(pts)
     np.testing.assert_array_equal(t.winners()[2], brute_force_scan(pts, np.full(3, 0.5), pattern))
+
+
+@pytest.mark.parametrize("first", [64 * 3000, 64 * 3000 + 37])
+def test_own_slot_tables_marked_side_by_side_only_on_whole_words(monkeypatch, first):
+    # chunks of whole 64-point words let the tables mark the read-out's bitmap side by side;
+    # an add that starts inside a word (the second, after 192,037 points) turns that off
+    rng = np.random.default_rng(9)
+    pts = rng.normal(size=(300_000, 3)) * 10
+    pts[250_000:260_000] = pts[:10_000]
+    pattern = ScanPattern(0.1)
+    monkeypatch.setattr(BinTables, "parallel_records", 1000)
+    t = _tables("slots", np.zeros(3), pattern, 2, monkeypatch)
+    t.add(pts[:first])
+    assert t._word_aligned
+    np.testing.assert_array_equal(t.winners()[2], brute_force_scan(pts[:first], np.zeros(3), pattern))
+    t.add(pts[first:])
+    assert t._word_aligned == (first % 64 == 0)
+    np.testing.assert_array_equal(t.winners()[2], brute_force_scan(pts, np.zeros(3), pattern))
+    t.reset(np.zeros(3))
+    assert t._word_aligned

@@ -406,6 +406,8 @@ class BinTables:
         self._folded = False
         #: own slot tables: (records of each table, which of them another table beats, winners) since the last add()
         self._resolution = None
+        #: own slot tables: every add so far began on a 64-point word (tables never share a word of winners)
+        self._word_aligned = True
 
     def reset(self, origin) -> "BinTables":
         """Empty the tables for a new scanner position with the same pattern.
@@ -420,6 +422,7 @@ class BinTables:
         self.n_points = 0
         self._folded = False
         self._resolution = None
+        self._word_aligned = True
         if self.kind == "dense":
             for t in self.tables:
                 t.clear(self._touched)
@@ -496,6 +499,7 @@ class BinTables:
     def _add_private(self, points, finite: bool = False) -> int:
         """Slot tables of their own: each thread keys and inserts chunks of the points in one pass."""
         n = len(points)
+        self._word_aligned = self._word_aligned and self.n_points % 64 == 0
         slices = self._slices(n)
         key_range = self.key_range or (0, self.pattern.n_pulses)
         lo, hi = np.int64(key_range[0]), np.int64(key_range[1])
@@ -509,7 +513,11 @@ class BinTables:
             # chunks handed out in ascending order as threads come free (parts of a cloud
             # differ in cost: SYNS's first half makes 5.1 M bins, its second 0.46 M); a
             # thread's table still sees its points in ascending order, so ties hold
+            # chunks of whole 64-point words (BLOCK is one): while every add starts on a word,
+            # no two tables hold winners in one word of the read-out's bitmap, which the
+            # tables then mark side by side
             step = max(BLOCK, -(-n // (8 * len(slices))))
+            step = -(-step // BLOCK) * BLOCK
             starts = iter(range(0, n, step))
             lock = threading.Lock()
 
@@ -684,6 +692,12 @@ class BinTables:
             nh = np.int64(self.pattern.shape[1])
 
             def mark(bits):
+                if lose is not None and self._word_aligned and len(tabs) > 1 and self.n_threads > 1 \
+                        and m > self.parallel_records:
+                    # own tables of whole-word chunks: no word holds two tables' winners
+                    with ThreadPoolExecutor(min(self.n_threads, len(tabs))) as pool:
+                        list(pool.map(lambda i: mark_alive(tabs[i], lose[i], bits), range(len(tabs))))
+                    return
                 for i, tab in enumerate(tabs):  # one after the other: threads would race on a word
                     if lose is None:
                         mark_records(tab, bits)
