@@ -17,8 +17,8 @@ import threading
 import numpy as np
 from numba import njit
 
-__all__ = ["in_index_order", "OutputPool", "mark_records", "place_records", "place_records_pulses", "NO_MASK",
-           "mark_dense", "place_dense"]
+__all__ = ["in_index_order", "OutputPool", "mark_records", "place_records", "place_records_pulses", "mark_alive",
+           "place_alive", "place_alive_pulses", "mark_dense", "place_dense"]
 
 _ONE = np.uint64(1)
 _M1 = np.uint64(0x5555555555555555)
@@ -55,28 +55,17 @@ def _ranks(bits, rank):
         c += _popcount(bits[w])
 
 
-#: no record masked (hash tables, or a single table)
-NO_MASK = np.zeros(0, np.bool_)
-
-
-@njit(cache=True, inline="always", error_model="numpy")
-def _alive(tab, lose, j):
-    """A record that is a winner: not an empty hash slot (key -1), not flagged in ``lose``
-    (own slot tables: another thread's table holds the bin nearer); ``lose`` may be empty."""
-    return tab[j].key != -1 and (lose.shape[0] == 0 or not lose[j])
-
-
 @njit(cache=True, nogil=True, error_model="numpy")
-def mark_records(tab, lose, bits):
+def mark_records(tab, bits):
     for j in range(tab.shape[0]):
-        if _alive(tab, lose, j):
+        if tab[j].key != -1:
             _mark(bits, np.int64(tab[j].idx))
 
 
 @njit(cache=True, nogil=True, error_model="numpy")
-def place_records(tab, lose, bits, rank, keys, ranges, idx):
+def place_records(tab, bits, rank, keys, ranges, idx):
     for j in range(tab.shape[0]):
-        if _alive(tab, lose, j):
+        if tab[j].key != -1:
             i = np.int64(tab[j].idx)
             p = _place(bits, rank, i)
             keys[p] = tab[j].key
@@ -85,10 +74,43 @@ def place_records(tab, lose, bits, rank, keys, ranges, idx):
 
 
 @njit(cache=True, nogil=True, error_model="numpy")
-def place_records_pulses(tab, lose, bits, rank, n_columns, pulses, ranges, idx):
-    """As :func:`place_records`, each key written as its pulse ``(row, column)``."""
+def place_records_pulses(tab, bits, rank, n_columns, pulses, ranges, idx):
+    """As :func:`_place_records`, each key written as its pulse ``(row, column)``."""
     for j in range(tab.shape[0]):
-        if _alive(tab, lose, j):
+        if tab[j].key != -1:
+            i = np.int64(tab[j].idx)
+            p = _place(bits, rank, i)
+            k = np.int64(tab[j].key)
+            v = k // n_columns
+            pulses[p, 0] = v
+            pulses[p, 1] = k - v * n_columns
+            ranges[p] = tab[j].r
+            idx[p] = i
+
+
+@njit(cache=True, nogil=True, error_model="numpy")
+def mark_alive(tab, lose, bits):
+    """:func:`mark_records` of the records ``lose`` does not flag (slot tables beaten by another thread's)."""
+    for j in range(tab.shape[0]):
+        if not lose[j]:
+            _mark(bits, np.int64(tab[j].idx))
+
+
+@njit(cache=True, nogil=True, error_model="numpy")
+def place_alive(tab, lose, bits, rank, keys, ranges, idx):
+    for j in range(tab.shape[0]):
+        if not lose[j]:
+            i = np.int64(tab[j].idx)
+            p = _place(bits, rank, i)
+            keys[p] = tab[j].key
+            ranges[p] = tab[j].r
+            idx[p] = i
+
+
+@njit(cache=True, nogil=True, error_model="numpy")
+def place_alive_pulses(tab, lose, bits, rank, n_columns, pulses, ranges, idx):
+    for j in range(tab.shape[0]):
+        if not lose[j]:
             i = np.int64(tab[j].idx)
             p = _place(bits, rank, i)
             k = np.int64(tab[j].key)

@@ -50,7 +50,8 @@ from ..arrays import unravel_ids
 from ..errors import InputValueError, StateError
 from ..threads import default_threads
 from .grid import BLOCK, block_keys, block_keys_range, count_nonfinite, kernel_params, ranges_into, scratch
-from .order import NO_MASK, in_index_order, mark_dense, mark_records, place_dense, place_records, place_records_pulses
+from .order import (in_index_order, mark_alive, mark_dense, mark_records, place_alive, place_alive_pulses,
+                    place_dense, place_records, place_records_pulses)
 from .slots import GROUP, INITIAL_CAPACITY, RECORD, SlotTable, mark_losers, owner
 
 __all__ = ["BinTables"]
@@ -687,33 +688,37 @@ class BinTables:
             if self._private:  # each table's records, less those another table's beat: no fold
                 tabs, lose, _ = self._resolved()
             else:
-                tabs = [t.tab for t in self.tables]
-                lose = [NO_MASK] * len(tabs)
+                tabs, lose = [t.tab for t in self.tables], None
             nh = np.int64(self.pattern.shape[1])
 
             def mark(bits):
-                if self._private and self._word_aligned and len(tabs) > 1 and self.n_threads > 1 \
+                if lose is not None and self._word_aligned and len(tabs) > 1 and self.n_threads > 1 \
                         and m > self.parallel_records:
                     # own tables of whole-word chunks: no word holds two tables' winners
                     with ThreadPoolExecutor(min(self.n_threads, len(tabs))) as pool:
-                        list(pool.map(lambda i: mark_records(tabs[i], lose[i], bits), range(len(tabs))))
+                        list(pool.map(lambda i: mark_alive(tabs[i], lose[i], bits), range(len(tabs))))
                     return
-                for tab, x in zip(tabs, lose):  # one after the other: threads would race on a word
-                    mark_records(tab, x, bits)
+                for i, tab in enumerate(tabs):  # one after the other: threads would race on a word
+                    if lose is None:
+                        mark_records(tab, bits)
+                    else:
+                        mark_alive(tab, lose[i], bits)
 
             def place(*out):
                 # every record has its own place: shares of the records are written out in
                 # parallel (and the fresh output pages are faulted in by all threads)
-                if as_pulses:
-                    run = lambda tab, x: place_records_pulses(tab, x, out[0], out[1], nh, *out[2:])  # noqa: E731
+                if lose is None and as_pulses:
+                    run = lambda tab, _: place_records_pulses(tab, out[0], out[1], nh, *out[2:])  # noqa: E731
+                elif lose is None:
+                    run = lambda tab, _: place_records(tab, *out)  # noqa: E731
+                elif as_pulses:
+                    run = lambda tab, x: place_alive_pulses(tab, x, out[0], out[1], nh, *out[2:])  # noqa: E731
                 else:
-                    run = lambda tab, x: place_records(tab, x, *out)  # noqa: E731
+                    run = lambda tab, x: place_alive(tab, x, *out)  # noqa: E731
                 parts = max(1, min(self.n_threads, m >> 16))
-
-                def cut(a, i):
-                    return a[len(a) * i // parts: len(a) * (i + 1) // parts] if len(a) else a
-
-                shares = [(cut(tab, i), cut(x, i)) for tab, x in zip(tabs, lose) for i in range(parts)]
+                shares = [(tab[len(tab) * i // parts: len(tab) * (i + 1) // parts],
+                           None if lose is None else lose[t][len(tab) * i // parts: len(tab) * (i + 1) // parts])
+                          for t, tab in enumerate(tabs) for i in range(parts)]
                 if parts > 1:
                     with ThreadPoolExecutor(parts) as pool:
                         list(pool.map(lambda sh: run(*sh), shares))
