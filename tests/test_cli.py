@@ -353,6 +353,7 @@ def _empty_inputs(tmp_path):
     ["augment", "--n", "2", "--resolution", "1", "-o", "{out}"],
     ["compare", "--origin", "1", "1", "1", "--resolution", "1"],
     ["positions", "--n", "2", "-o", "{out}.json"],
+    ["distances", "--origin", "1", "1", "1", "-o", "{out}.csv"],
 ], ids=lambda c: " ".join(c[:3]))
 def test_an_empty_input_is_refused_in_every_format(tmp_path, capsys, cmd):
     # a zero-point .npz/.ply/.xyz or 0-byte .bin used to give an empty scan with exit 0,
