@@ -707,8 +707,13 @@ def test_boolean_attributes_keep_their_type_in_npz_and_las_flags_silently(tmp_pa
         warnings.simplefilter("error")
         write_cloud(tmp_path / "c.npz", PointCloud(pts, {"is_ground": flag}))
         write_cloud(tmp_path / "c.las", PointCloud(pts, {"synthetic": flag}))
+        # every one-bit field of LAS takes booleans, those of the return byte too
+        write_cloud(tmp_path / "d.las", PointCloud(pts, {"edge_of_flight_line": flag, "scan_direction_flag": ~flag}))
     assert read_cloud(tmp_path / "c.npz").attributes["is_ground"].dtype == np.bool_
     np.testing.assert_array_equal(read_cloud(tmp_path / "c.las").attributes["synthetic"], flag)
+    back = read_cloud(tmp_path / "d.las").attributes
+    np.testing.assert_array_equal(back["edge_of_flight_line"], flag)
+    np.testing.assert_array_equal(back["scan_direction_flag"], ~flag)
 
 
 @pytest.mark.parametrize("streamed", [False, True])
