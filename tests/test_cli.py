@@ -364,6 +364,7 @@ def test_an_empty_input_is_refused_in_every_format(tmp_path, capsys, cmd):
         assert main(argv) == 2, path
         err = capsys.readouterr().err
         assert "no points" in err and path.name in err, (path, err)
+        assert err.count("\n") == 1 and "\r" not in err, (path, err)  # one line: no progress bar of 0 points
         assert not [p for p in tmp_path.iterdir() if p.name.startswith("out_")], path
 
 
