@@ -41,6 +41,12 @@ def _band_stats(b_idx, e_idx, b_rng, e_rng, see, bands):
     return rows
 
 
+def _jaccard(a, b):
+    """|a & b| / |a | b|; None where both are empty (as in the bands: nothing to agree on)."""
+    union = len(np.union1d(a, b))
+    return len(np.intersect1d(a, b)) / union if union else None
+
+
 def compare_backends(points, origins, pattern, *, tolerance: float = 0.10, bands=DEFAULT_BANDS,
                      embree_options: dict | None = None, scene: Scanner | None = None,
                      binning: Scanner | None = None) -> dict:
@@ -69,7 +75,7 @@ def compare_backends(points, origins, pattern, *, tolerance: float = 0.10, bands
     -------
     dict
         ``positions``: per position the totals and ``bands`` (per range band:
-        points from each backend, Jaccard index of the two index sets, points
+        points from each backend, Jaccard index of the two index sets (None where both are empty), points
         only one backend returns, see-through points), timings, and the
         options used. Plain JSON.
     """
@@ -99,7 +105,7 @@ def compare_backends(points, origins, pattern, *, tolerance: float = 0.10, bands
         see = b.ranges > t_same + tolerance
         out.append({
             "origin": origin.tolist(), "binning": len(b), "embree": len(e),
-            "jaccard": len(np.intersect1d(b.indices, e.indices)) / max(1, len(np.union1d(b.indices, e.indices))),
+            "jaccard": _jaccard(b.indices, e.indices),
             "see_through": int(see.sum()), "see_through_fraction": float(see.mean()) if len(see) else 0.0,
             "binning_seconds": b.seconds, "embree_seconds": e.seconds,
             "embree_cast_seconds": e.info["cast_seconds"],

@@ -316,7 +316,7 @@ def distance_study(inputs, *, origin=None, heights=SWEEP_HEIGHTS, positions: int
     original, slr, sweep, per_input = DistanceHistogram(bins), DistanceHistogram(bins), {}, []
     pattern = ScanPattern(resolution, max_range=max_range)
     for item in inputs:
-        cloud = item if isinstance(item, PointCloud) else read_cloud(item)
+        cloud = item if isinstance(item, PointCloud) else read_cloud(item, allow_empty=False)
         name = "<PointCloud>" if isinstance(item, PointCloud) else str(item)
         is_ground = ground_labels(cloud, **(ground or {}))
         o = origin if origin is not None else cloud.origin

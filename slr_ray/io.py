@@ -420,8 +420,8 @@ _RESERVED[".laz"] = _RESERVED[".las"]
 #: formats without a boolean type: boolean attributes are written as uint8 0/1, with a warning
 _NO_BOOL = {".ply", ".pcd", ".las", ".laz"}
 #: LAS's own one-bit fields, which take booleans as they are
-_LAS_FLAGS = {".las": {"synthetic", "key_point", "withheld", "overlap"},
-              ".laz": {"synthetic", "key_point", "withheld", "overlap"}}
+_LAS_FLAGS = {".las": {"synthetic", "key_point", "withheld", "overlap", "scan_direction_flag", "edge_of_flight_line"}}
+_LAS_FLAGS[".laz"] = _LAS_FLAGS[".las"]
 
 
 def _spellable(ext, name) -> bool:

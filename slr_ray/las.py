@@ -34,7 +34,8 @@ def check_las_size(path, header) -> None:
     packets, where a file has them. LAZ: the chunk table's point counts
     (variable-size chunks: exactly; fixed-size chunks: a count that leaves
     whole chunks unread — a lie within the last chunk needs a decompression
-    to see, and goes unseen)."""
+    to see, and goes unseen; a count larger than the table can hold is
+    refused here too, in its terms rather than the decompressor's)."""
     if header.are_points_compressed:
         _check_laz_chunks(path, header)
         return
@@ -52,7 +53,7 @@ def check_las_size(path, header) -> None:
 
 
 def _check_laz_chunks(path, header) -> None:
-    """Refuse a LAZ whose chunk table holds more points than its header declares
+    """Refuse a LAZ whose chunk table holds a count other than its header declares
     (:func:`check_las_size`). Files without a readable table (an old writer's)
     are left to the readers."""
     vlr = next((v for v in header.vlrs if getattr(v, "record_id", None) == 22204
@@ -71,7 +72,7 @@ def _check_laz_chunks(path, header) -> None:
     declared = int(header.point_count)
     if laz.uses_variable_size_chunks():
         held = sum(int(c[0]) for c in table)
-        if held > declared:
+        if held != declared:
             raise FormatError(f"{path}: the header declares {declared:,} points, its LAZ chunk table holds "
                               f"{held:,} (a header that lies, or a corrupt file)")
         return
@@ -80,6 +81,10 @@ def _check_laz_chunks(path, header) -> None:
         raise FormatError(f"{path}: the header declares {declared:,} points, its LAZ chunk table holds "
                           f"{len(table):,} chunks of {size:,}: more than {(len(table) - 1) * size:,} points "
                           "(a header that lies, or a corrupt file)")
+    if size and declared > len(table) * size:  # lazrs would say 'failed to fill whole buffer'
+        raise FormatError(f"{path}: the header declares {declared:,} points, its LAZ chunk table holds "
+                          f"{len(table):,} chunks of {size:,}: {len(table) * size:,} points at most "
+                          "(truncated, or a header that lies)")
 
 
 def read(path) -> tuple:

@@ -249,7 +249,7 @@ def load_toml_spec(spec, table: str, what: str, prefix: str = "") -> tuple[dict,
     with open(path, "rb") as f:
         try:
             data = tomllib.load(f)
-        except tomllib.TOMLDecodeError as exc:
+        except (tomllib.TOMLDecodeError, UnicodeDecodeError) as exc:  # binary (a cloud given for a config)
             raise InputValueError(f"{path}: not valid TOML: {exc}") from None
     if table not in data:
         raise InputValueError(f"{path}: no [{table}] table")

@@ -314,4 +314,6 @@ def _bar(path, what, progress):
         return None
     with laspy.open(str(path)) as r:
         total = r.header.point_count
+    if not total:  # no points: refused after the (empty) read, with no bar drawn before the error
+        return None
     return tqdm(total=total, unit="pt", unit_scale=True, desc=what, leave=False)

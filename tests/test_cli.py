@@ -353,6 +353,7 @@ def _empty_inputs(tmp_path):
     ["augment", "--n", "2", "--resolution", "1", "-o", "{out}"],
     ["compare", "--origin", "1", "1", "1", "--resolution", "1"],
     ["positions", "--n", "2", "-o", "{out}.json"],
+    ["distances", "--origin", "1", "1", "1", "-o", "{out}.csv"],
 ], ids=lambda c: " ".join(c[:3]))
 def test_an_empty_input_is_refused_in_every_format(tmp_path, capsys, cmd):
     # a zero-point .npz/.ply/.xyz or 0-byte .bin used to give an empty scan with exit 0,
@@ -363,6 +364,7 @@ def test_an_empty_input_is_refused_in_every_format(tmp_path, capsys, cmd):
         assert main(argv) == 2, path
         err = capsys.readouterr().err
         assert "no points" in err and path.name in err, (path, err)
+        assert err.count("\n") == 1 and "\r" not in err, (path, err)  # one line: no progress bar of 0 points
         assert not [p for p in tmp_path.iterdir() if p.name.startswith("out_")], path
 
 
@@ -384,3 +386,16 @@ def test_range_image_other_than_npz_is_refused_before_the_scan(tmp_path, cloud_p
                "--range-image", str(tmp_path / name)])
     assert rc == 2 and "--range-image" in capsys.readouterr().err
     assert not out.exists() and not (tmp_path / name).exists()
+
+
+@pytest.mark.parametrize("ext", [".npz", ".ply", ".las", ".laz", ".pcd", ".bin", ".xyz"])
+def test_a_scan_of_no_point_in_the_pattern_is_an_empty_output(tmp_path, cloud_ply, ext):
+    # every point beyond --max-range: a legitimate empty scan (exit 0, a file read_cloud reads back);
+    # its range image raised IndexError (an internal error) indexing the scan's empty indices
+    path, _ = cloud_ply
+    out, image = tmp_path / f"out{ext}", tmp_path / "image.npz"
+    assert main(["scan", str(path), "--origin", "1", "0", "0", "--resolution", "1", "--max-range", "0.001",
+                 "-o", str(out), "--range-image", str(image), "--png", str(tmp_path / "image.png")]) == 0
+    assert len(read_cloud(out)) == 0
+    with np.load(image) as got:
+        assert (got["index"] == -1).all() and got["index"].shape == (180, 360)

@@ -866,3 +866,14 @@ def test_a_file_mapped_primary_gives_the_same_scan(tmp_path, monkeypatch):
         np.testing.assert_array_equal(a.indices, b.indices)
         np.testing.assert_array_equal(a.ranges, b.ranges)
         np.testing.assert_array_equal(a.pulses, b.pulses)
+
+
+def test_compare_backends_with_both_scans_empty_has_no_jaccard():
+    # every point beyond max_range: the top-level Jaccard said 0.0 (no agreement) where the bands said None
+    from slr_ray.compare import compare_backends
+
+    pts = plane_grid(5.0, 1.0, 0.1)
+    res = compare_backends(pts, [[0, 0, 0]], ScanPattern(1.0, max_range=1.0))
+    pos = res["positions"][0]
+    assert pos["binning"] == pos["embree"] == 0
+    assert pos["jaccard"] is None and all(b["jaccard"] is None for b in pos["bands"])

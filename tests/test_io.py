@@ -707,8 +707,69 @@ def test_boolean_attributes_keep_their_type_in_npz_and_las_flags_silently(tmp_pa
         warnings.simplefilter("error")
         write_cloud(tmp_path / "c.npz", PointCloud(pts, {"is_ground": flag}))
         write_cloud(tmp_path / "c.las", PointCloud(pts, {"synthetic": flag}))
+        # every one-bit field of LAS takes booleans, those of the return byte too
+        write_cloud(tmp_path / "d.las", PointCloud(pts, {"edge_of_flight_line": flag, "scan_direction_flag": ~flag}))
     assert read_cloud(tmp_path / "c.npz").attributes["is_ground"].dtype == np.bool_
     np.testing.assert_array_equal(read_cloud(tmp_path / "c.las").attributes["synthetic"], flag)
+    back = read_cloud(tmp_path / "d.las").attributes
+    np.testing.assert_array_equal(back["edge_of_flight_line"], flag)
+    np.testing.assert_array_equal(back["scan_direction_flag"], ~flag)
+
+
+def _variable_chunk_laz(path, xyz, chunks):
+    """A LAZ of variable-size chunks (COPC's kind) of the given sizes: laspy writes fixed ones,
+    so its file's LASzip record is swapped for a variable one and the points compressed again."""
+    import laspy
+    import lazrs
+
+    las = laspy.LasData(laspy.LasHeader(point_format=3, version="1.2"))
+    las.header.scales = [0.001] * 3
+    las.x, las.y, las.z = xyz.T
+    las.write(str(path))
+    with laspy.open(str(path)) as r:
+        offset = int(r.header.offset_to_point_data)
+        old = next(v for v in r.header.vlrs if v.record_id == 22204).record_data_bytes()
+    vlr = lazrs.LazVlr.new_for_compression(3, 0, True)
+    data = bytearray(path.read_bytes()[:offset])
+    assert data.count(old) == 1 and len(vlr.record_data()) == len(old)
+    data[data.index(old):data.index(old) + len(old)] = vlr.record_data()
+    raw = np.frombuffer(las.points.array.tobytes(), np.uint8).reshape(len(xyz), -1)
+    with open(path, "wb") as f:
+        f.write(bytes(data))
+        comp = lazrs.LasZipCompressor(f, vlr)
+        start = 0
+        for n in chunks:
+            comp.compress_many(raw[start:start + n].ravel())
+            comp.finish_current_chunk()
+            start += n
+        comp.done()
+
+
+@pytest.mark.parametrize("streamed", [False, True])
+def test_a_laz_count_checked_against_a_table_of_variable_chunks(tmp_path, streamed):
+    # a count larger than the table's was lazrs's "failed to fill whole buffer"
+    from slr_ray.streaming import scan_las
+
+    path = tmp_path / "v.laz"
+    xyz = np.random.default_rng(0).uniform(0, 10, (20_000, 3))
+    _variable_chunk_laz(path, xyz, [3_000, 7_000, 10_000])
+    np.testing.assert_allclose(read_cloud(path).points, xyz, atol=1e-3)
+    for lie in (19_000, 25_000):
+        _lie_about_count(path, lie)
+        with pytest.raises(FormatError, match=f"declares {lie:,} points, its LAZ chunk table holds 20,000"):
+            if streamed:
+                list(scan_las(path, [5, 5, 5], 5.0, chunk=6_000))
+            else:
+                read_cloud(path)
+
+
+def test_a_laz_header_that_claims_more_points_than_its_chunks_can_hold(tmp_path):
+    path = tmp_path / "a.laz"
+    write_cloud(path, PointCloud(np.random.default_rng(0).uniform(0, 10, (60_000, 3))))  # chunks of 50,000
+    _lie_about_count(path, 100_001)
+    with pytest.raises(FormatError, match="declares 100,001 points, its LAZ chunk table holds 2 chunks of 50,000: "
+                                          "100,000 points at most"):
+        read_cloud(path)
 
 
 @pytest.mark.parametrize("streamed", [False, True])

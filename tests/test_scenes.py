@@ -67,6 +67,9 @@ def test_bad_specs(tmp_path):
     bad.write_text("[scene\n")
     with pytest.raises(InputValueError, match="TOML"):
         load_scene_spec(bad)
+    np.save(tmp_path / "cloud.npy", np.zeros((3, 3)))  # a cloud given for a config: binary, not UTF-8
+    with pytest.raises(InputValueError, match="cloud.npy: not valid TOML"):
+        load_scene_spec(tmp_path / "cloud.npy")
     bad.write_text("[scene]\nn_rectangles = 3\ncolour = 'red'\n")
     with pytest.raises(InputValueError, match="colour"):
         scene_from_spec(bad)

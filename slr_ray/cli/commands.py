@@ -169,7 +169,10 @@ def _range_image(sub, result) -> dict:
     local = replace(result, indices=np.arange(len(result)))  # images of the subset's own rows
     attrs = {k: v for k, v in sub.attributes.items() if np.asarray(v).ndim == 1 and np.asarray(v).dtype.kind in "biuf"}
     image = local.range_image(attrs)
-    image["index"] = np.where(image["index"] >= 0, result.indices[np.maximum(image["index"], 0)], -1)
+    local_index = image["index"]
+    image["index"] = np.full(local_index.shape, -1, dtype=np.asarray(result.indices).dtype)
+    hit = local_index >= 0
+    image["index"][hit] = result.indices[local_index[hit]]  # an empty scan has no index to look up
     return image
 
 
