@@ -87,36 +87,31 @@ def _prefetch(typingctx, address):
     return sig, codegen
 
 
+def _c_call(fptr, *args):
+    """Signature and code of a call to the C function at address ``fptr`` with
+    pointer-sized integer arguments (None: not integers, numba tries no other)."""
+    if not all(isinstance(x, types.Integer) for x in (fptr, *args)):
+        return None
+
+    def codegen(context, builder, signature, values):
+        i64 = ir.IntType(64)
+        f = builder.inttoptr(values[0], ir.FunctionType(ir.VoidType(), [i64] * len(args)).as_pointer())
+        builder.call(f, [builder.zext(x, i64) if x.type.width < 64 else x for x in values[1:]])
+        return context.get_dummy_value()
+
+    return types.void(fptr, *args), codegen
+
+
 @intrinsic
 def _call3(typingctx, fptr, a, b, c):
     """Call the C function at address ``fptr`` with three pointer-sized arguments."""
-    if not all(isinstance(x, types.Integer) for x in (fptr, a, b, c)):
-        return None
-    sig = types.void(fptr, a, b, c)
-
-    def codegen(context, builder, signature, args):
-        i64 = ir.IntType(64)
-        f = builder.inttoptr(args[0], ir.FunctionType(ir.VoidType(), [i64] * 3).as_pointer())
-        builder.call(f, [builder.zext(x, i64) if x.type.width < 64 else x for x in args[1:]])
-        return context.get_dummy_value()
-
-    return sig, codegen
+    return _c_call(fptr, a, b, c)
 
 
 @intrinsic
 def _call4(typingctx, fptr, a, b, c, d):
     """Call the C function at address ``fptr`` with four pointer-sized arguments."""
-    if not all(isinstance(x, types.Integer) for x in (fptr, a, b, c, d)):
-        return None
-    sig = types.void(fptr, a, b, c, d)
-
-    def codegen(context, builder, signature, args):
-        i64 = ir.IntType(64)
-        f = builder.inttoptr(args[0], ir.FunctionType(ir.VoidType(), [i64] * 4).as_pointer())
-        builder.call(f, [builder.zext(x, i64) if x.type.width < 64 else x for x in args[1:]])
-        return context.get_dummy_value()
-
-    return sig, codegen
+    return _c_call(fptr, a, b, c, d)
 
 
 @njit(cache=True, nogil=True, inline="always")
