@@ -20,6 +20,7 @@ from numba import carray, cfunc, njit, types
 from numba.core import cgutils
 from numba.extending import intrinsic
 
+from .cull import could_hit
 from .library import FEATURE_FLAGS_ALL, INVALID_ID, RAY_QUERY_FLAG_INVOKE_ARGUMENT_FILTER
 
 __all__ = ["cast_rays", "FILTER", "MODE_SKIP", "PACKET_WIDTHS"]
@@ -164,7 +165,8 @@ def FILTER(fargs):
             continue
         b = _C_LANES + np.int64(rayu[_ID * n + i]) * _LANE_WORDS
         prim = np.int64(hit[(_PRIM - 12) * n + i])
-        owner = prim // ctx[_C_DIV]
+        div = ctx[_C_DIV]
+        owner = prim if div == 1 else prim // div  # discs: a disc a primitive, no division
         # float32 radii with a stride: for discs, the radius column of Embree's own vertex buffer
         rad = carray(_as_pointer(ctx[_C_RADII] + owner * ctx[_C_RSTRIDE]), 1, dtype=np.float32)
         mode = ctx[b + _L_MODE]
@@ -378,14 +380,16 @@ def _pick(ctx, ctxf, b, lo, hi, centres, org64, vertices, local, dx, dy, dz, asp
 
 @njit(cache=True, nogil=True)
 def cast_rays(isect, width, scene, filt, org32, org64, dirs, tnear, tfar, mode_first, ties, one_pass, aspect,
-              centres, radii, normals, div, reach, box, prim_out, owner_out, t_out, vertices, local):
+              centres, radii, normals, div, reach, box, prim_out, owner_out, t_out, vertices, local, dmap, face):
     """Cast rays ``dirs`` from ``org32`` (scene frame) into ``*_out``, ``width`` at a time
     (``isect``: the address of rtcIntersect1 for 1, else of rtcIntersect<width>).
 
-    Rays that miss ``box`` (the scene's padded bounds, scene frame) are answered
-    here without a call into Embree: a call costs about as much as a short
-    traversal, and most rays of a scan from outside a cloud's bounds miss it; a
-    packet holds the next ``width`` rays that do not.
+    Rays that miss ``box`` (the scene's padded bounds, scene frame), or whose
+    direction falls in an unmarked cell of ``dmap`` (:func:`.cull.direction_map`
+    from ``org32``; empty: no such test), are answered here without a call into
+    Embree: a call costs about as much as a short traversal, and most rays of a
+    scan from outside a cloud's bounds miss it; a packet holds the next
+    ``width`` rays that do not.
     With ``ties`` and ``one_pass``, one query collects the tie candidates (the
     filter's one-pass mode); a second query over the window only for the rare ray
     whose candidates it could not all keep (a packet of those)."""
@@ -443,7 +447,7 @@ def cast_rays(isect, width, scene, filt, org32, org64, dirs, tnear, tfar, mode_f
         k = 0
         while k < W and i < n_rays:
             dx, dy, dz = dirs[i, 0], dirs[i, 1], dirs[i, 2]
-            if _misses_box(ox, oy, oz, dx, dy, dz, box, t_lo, t_hi):
+            if not could_hit(dmap, face, dx, dy, dz) or _misses_box(ox, oy, oz, dx, dy, dz, box, t_lo, t_hi):
                 prim_out[i] = -1
                 owner_out[i] = -1
                 t_out[i] = np.inf
@@ -494,7 +498,7 @@ def cast_rays(isect, width, scene, filt, org32, org64, dirs, tnear, tfar, mode_f
             else:
                 t0 = rh[_TFAR * W + q]
                 prim = np.int64(ru[_PRIM * W + q])
-                owner = prim // div
+                owner = prim if div == 1 else prim // div
             t_hit = np.float64(t0)
             if ties > 0.0:
                 dx, dy, dz = ctxf[b + _L_DIR], ctxf[b + _L_DIR + 1], ctxf[b + _L_DIR + 2]

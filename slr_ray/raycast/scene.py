@@ -18,6 +18,7 @@ from ..arrays import as_origin, bounds, release_pages
 from ..errors import InputValueError
 from ..threads import default_threads
 from .cast import FILTER, MODE_SKIP, PACKET_WIDTHS, cast_rays
+from .cull import FACE, direction_map, voxel_boxes
 from .library import (BUFFER_INDEX, BUFFER_NORMAL, BUFFER_VERTEX, FORMAT_FLOAT3, FORMAT_FLOAT4, FORMAT_UINT3,
                       GEOMETRY_DISC_POINT, GEOMETRY_ORIENTED_DISC_POINT, GEOMETRY_TRIANGLE, SCENE_FLAG_COMPACT,
                       SCENE_FLAG_FILTER_FUNCTION_IN_ARGUMENTS, embree_library)
@@ -26,6 +27,8 @@ __all__ = ["RayScene", "RayHits", "padded_rows", "disc_vertices"]
 
 #: rays of one task handed to a thread: small enough that a stopped scan stops soon
 _TASK_RAYS = 32768
+#: casts of fewer rays than this skip the direction map (.cull): making it costs more than it saves
+_CULL_RAYS = 4096
 
 
 @dataclass(frozen=True)
@@ -39,7 +42,10 @@ class RayHits:
         the primitive of the answer (``owners == primitives // prims_per_owner``).
     owners : (m,) int64
         The primitive's owner: for discs the disc (point) index; for triangles
-        the triangle index divided by ``prims_per_owner``. -1 on a miss.
+        the triangle index divided by ``prims_per_owner``. -1 on a miss. Where
+        every primitive is its own owner (discs, and triangles that stand for
+        no discs), ``owners`` *is* ``primitives``: one array (copy it before
+        changing one of them in place).
     distances : (m,) float64
         Distance along the (unit) ray, ``inf`` on a miss.
     """
@@ -102,6 +108,9 @@ class RayScene:
                                    geometry_type != GEOMETRY_TRIANGLE)
         lib = self._lib = embree_library()
         t0 = time.perf_counter()
+        # the occupied voxels' boxes: a cast marks the directions they cover (.cull)
+        self._cull_boxes = voxel_boxes(buffers[0][4], buffers[1][4] if geometry_type == GEOMETRY_TRIANGLE else None,
+                                       self.n_primitives)
         self._scene = lib.new_scene(lib.device)
         lib.set_scene_flags(self._scene, SCENE_FLAG_FILTER_FUNCTION_IN_ARGUMENTS
                             | (SCENE_FLAG_COMPACT if compact else 0))
@@ -240,7 +249,7 @@ class RayScene:
     def intersect(self, origin, directions, *, tnear: float = 0.0, tfar: float = math.inf,
                   ties: float = 0.0, skip_containing: bool = False, exact: bool = False,
                   n_threads: int | None = None, pulse_aspect: float | None = None,
-                  one_pass: bool = True, packet: int | None = None) -> RayHits:
+                  one_pass: bool = True, packet: int | None = None, cull: bool = True) -> RayHits:
         """First hit of every ray from ``origin``.
 
         Parameters
@@ -279,6 +288,14 @@ class RayScene:
             this CPU traces natively (Embree's ``NATIVE_RAY16_SUPPORTED`` and
             the like). The same answers; 1 casts one ray at a time (the
             reference for tests).
+        cull : bool
+            Answer a ray as a miss without Embree when its direction meets
+            none of the boxes of the scene's occupied voxels (default; a
+            cube map of directions made for each call of 4,096 rays or more,
+            :mod:`slr_ray.raycast.cull`). The same answers; it pays where
+            many rays meet the scene's bounding box and nothing in it (a scan
+            from outside a cloud, its sky). False: every ray that meets the
+            bounding box goes to Embree (the reference for tests).
 
         Returns
         -------
@@ -298,7 +315,8 @@ class RayScene:
             raise InputValueError(f"packet must be one of {PACKET_WIDTHS}, got {packet!r}")
         m = len(d)
         prim = np.empty(m, np.int64)
-        owner = np.empty(m, np.int64)
+        # a primitive its own owner (discs, plain triangles): one array for both, one write less a ray
+        owner = prim if self.prims_per_owner == 1 else np.empty(m, np.int64)
         t = np.empty(m, np.float64)
         if m == 0:
             return RayHits(prim, owner, t)
@@ -309,6 +327,10 @@ class RayScene:
         mode = MODE_SKIP if skip_containing else 0
         width = lib.native_width if packet is None else int(packet)
         n_threads = max(1, min(int(n_threads or default_threads()), -(-m // _TASK_RAYS)))
+        if cull and m >= _CULL_RAYS and len(self._cull_boxes):
+            dmap = direction_map(self._cull_boxes, org32.astype(np.float64), FACE)
+        else:
+            dmap = np.zeros(0, np.uint8)
 
         def run(a):
             # one task: rays a .. a + _TASK_RAYS (threads take tasks in turn)
@@ -317,7 +339,7 @@ class RayScene:
                         np.float32(tnear), np.float32(tf), mode, float(ties), bool(one_pass),
                         float(pulse_aspect or 0.0),
                         self._owner_centres, self._owner_radii, self._owner_normals, self.prims_per_owner,
-                        self.reach, self._box, prim[a:e], owner[a:e], t[a:e], self._vertex_centres, local)
+                        self.reach, self._box, prim[a:e], owner[a:e], t[a:e], self._vertex_centres, local, dmap, FACE)
 
         starts = range(0, m, _TASK_RAYS)
         if n_threads == 1:
