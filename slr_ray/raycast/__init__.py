@@ -13,13 +13,17 @@ polygons in Open3D's ``RaycastingScene``, :mod:`slr_ray.raycast.open3d_scene`).
   :class:`~slr_ray.errors.MissingDependencyError` when there is none;
 * the float32 boundary: geometry is recentred on a float64 ``centre`` before it
   becomes float32, and rays start from the scanner recentred the same way;
-* the cast loop: compiled (numba, ``nogil``), calling ``rtcIntersect1`` through
-  its C function pointer, one ``RTCRayHit`` per thread, rays split into tasks
-  of 32,768 that the threads take in turn (a signal stops a cast after the
-  running tasks, not after all of it); a ray that misses the scene's padded bounding box is
-  answered without the call (a float64 slab test: most rays of a scan from
+* the cast loop: compiled (numba, ``nogil``), calling ``rtcIntersect1/4/8/16``
+  through their C function pointers (ray packets, below), rays split into tasks
+  of 32,768 to 131,072 (eight a thread in between) that the threads take in
+  turn (a signal stops a cast after the running tasks, not after all of it);
+  a ray that misses the scene's padded bounding box is answered without the
+  call (a float64 slab test: most rays of a scan from
   outside a cloud's bounds miss it, and a call costs as much as a short
-  traversal; from inside the bounds nothing is saved);
+  traversal), and so is a ray whose direction meets none of the boxes of the
+  scene's occupied voxels (a cube map of directions made for each cast from
+  its origin, :mod:`slr_ray.raycast.cull`: rays that enter the bounds and
+  meet nothing, towards the sky or past a cloud seen from outside);
 * two refinements that make results independent of float32 noise: for
   triangles, the hit distance recomputed in float64 on the hit triangle's plane
   (``exact=True``); for discs, the deterministic tie rule (``ties``, below).

@@ -168,10 +168,10 @@ def FILTER(fargs):
         div = ctx[_C_DIV]
         owner = prim if div == 1 else prim // div  # discs: a disc a primitive, no division
         # float32 radii with a stride: for discs, the radius column of Embree's own vertex buffer
-        rad = carray(_as_pointer(ctx[_C_RADII] + owner * ctx[_C_RSTRIDE]), 1, dtype=np.float32)
+        rad_at = ctx[_C_RADII] + owner * ctx[_C_RSTRIDE]
         mode = ctx[b + _L_MODE]
         if mode & MODE_SKIP:
-            reach = np.float64(rad[0]) * ctxf[_C_REACH]
+            reach = np.float64(carray(_as_pointer(rad_at), 1, dtype=np.float32)[0]) * ctxf[_C_REACH]
             far = False
             if ctx[_C_VERTICES]:
                 # the float32 centre Embree has just read (in cache) settles all but a thin band
@@ -193,8 +193,8 @@ def FILTER(fargs):
                     continue
         if not mode & (_MODE_TIES | _MODE_ONE_PASS):
             continue
-        dx, dy, dz = ctxf[b + _L_DIR], ctxf[b + _L_DIR + 1], ctxf[b + _L_DIR + 2]
         if mode & _MODE_TIES:
+            dx, dy, dz = ctxf[b + _L_DIR], ctxf[b + _L_DIR + 1], ctxf[b + _L_DIR + 2]
             cen = carray(_as_pointer(ctx[_C_CENTRES] + owner * 24), 3, dtype=np.float64)
             s = _tie_score(cen[0] - ctxf[_C_ORG], cen[1] - ctxf[_C_ORG + 1], cen[2] - ctxf[_C_ORG + 2],
                            dx, dy, dz, ctxf[_C_ASPECT])
@@ -219,7 +219,9 @@ def FILTER(fargs):
             elif nb == 8:
                 nrm8 = carray(_as_pointer(ctx[_C_NORMALS] + owner * 24), 3, dtype=np.float64)
                 nx, ny, nz = nrm8[0], nrm8[1], nrm8[2]
-            w = _tie_window(ctxf[_C_TIES], np.float64(rad[0]), nb > 0, nx, ny, nz, dx, dy, dz)
+            dx, dy, dz = ctxf[b + _L_DIR], ctxf[b + _L_DIR + 1], ctxf[b + _L_DIR + 2]
+            rad = np.float64(carray(_as_pointer(rad_at), 1, dtype=np.float32)[0])
+            w = _tie_window(ctxf[_C_TIES], rad, nb > 0, nx, ny, nz, dx, dy, dz)
             first = ctx[b + _L_FIRST_OWNER] < 0
             if not first and np.float64(np.float32(t + w)) > ctxf[b + _L_CULL]:
                 # its window reaches past where traversal has already culled: the caller
