@@ -1,6 +1,7 @@
 """The embree cast of this checkout against another's, casts taken in turn in one process.
 
     python benchmarks/compare_cast.py OTHER_CHECKOUT [--points 5000000] [--rounds 9] [--threads 1] [--pcu]
+                                     [--origin X Y Z] [--skip]
 
 The inputs of ``bench_pcu.py`` (the first N points of the benchmark cloud,
 their radii and normals, 3.1 M pulse rays from 14 m away). The other
@@ -10,7 +11,10 @@ and cast in turn (with and without the tie rule; ``--pcu``: point-cloud-utils
 too), ``--rounds`` times: on a machine shared with other jobs the drift hits
 both alike. With ``--threads 1`` (the default) the times are the CPU time of
 the casting thread, which does not count the time other jobs hold the core;
-otherwise wall-clock. Checks that both give the same answers. Prints medians
+otherwise wall-clock. ``--origin``: cast from there instead (e.g. ``0 0 1.5``,
+inside the cloud, as the embree backend's scans are); ``--skip``: with
+``skip_containing`` and the tie rule in pulse units, as the backend casts.
+Checks that both give the same answers. Prints medians
 and minima; saves results/compare_cast.json.
 """
 
@@ -48,6 +52,8 @@ def main(argv=None):
     ap.add_argument("--rounds", type=int, default=9)
     ap.add_argument("--threads", type=int, default=1, help="threads of each cast (0: the default, all cores)")
     ap.add_argument("--pcu", action="store_true", help="point-cloud-utils' cast too (wall-clock, its own threads)")
+    ap.add_argument("--origin", type=float, nargs=3, default=list(ORIGIN), help="ray origin (default: bench_pcu's)")
+    ap.add_argument("--skip", action="store_true", help="skip_containing and pulse-unit ties, as the embree backend")
     args = ap.parse_args(argv)
     other = Path(args.other).resolve()
     if not (other / "slr_ray").is_dir():
@@ -64,18 +70,22 @@ def main(argv=None):
         theirs = _other_package(other, tmp).RayScene.discs(pts, radii, normals, centre=centre)
         ours = RayScene.discs(pts, radii, normals, centre=centre)
         n_threads = args.threads or None
+        origin = np.array(args.origin)
+        extra = {"skip_containing": True, "pulse_aspect": 1.0} if args.skip else {}
         clock = time.thread_time if n_threads == 1 else time.perf_counter
         casts = {}
         for ties in (1.0, 0.0):
             tag = "ties" if ties else "no ties"
-            casts[f"other, {tag}"] = lambda s=theirs, w=ties: s.intersect(ORIGIN, dirs, ties=w, n_threads=n_threads)
-            casts[f"this, {tag}"] = lambda s=ours, w=ties: s.intersect(ORIGIN, dirs, ties=w, n_threads=n_threads)
+            casts[f"other, {tag}"] = lambda s=theirs, w=ties: s.intersect(origin, dirs, ties=w, n_threads=n_threads,
+                                                                          **extra)
+            casts[f"this, {tag}"] = lambda s=ours, w=ties: s.intersect(origin, dirs, ties=w, n_threads=n_threads,
+                                                                       **extra)
         if args.pcu:
             import point_cloud_utils as pcu
 
             isect = pcu.RaySurfelIntersector((pts - centre).astype(np.float32), normals.astype(np.float32),
                                              r=radii.astype(np.float32))
-            o = np.repeat((ORIGIN - centre).astype(np.float32)[None], len(dirs), axis=0)
+            o = np.repeat((origin - centre).astype(np.float32)[None], len(dirs), axis=0)
             d32 = dirs.astype(np.float32)
             casts["pcu"] = lambda: isect.intersect_rays(o, d32)
         first = {k: f() for k, f in casts.items()}  # compiled (or loaded from numba's cache) untimed
