@@ -159,3 +159,17 @@ def test_the_map_of_a_far_speck_is_mostly_empty():
     scene = RayScene.discs(c, r, nrm)
     dmap = direction_map(scene._cull_boxes, np.array([300.0, 0.0, 0.0]) - scene.centre, FACE)
     assert 0 < dmap.mean() < 0.01
+
+
+def test_overlapping_large_boxes_give_up_the_map_not_the_answers():
+    # long random triangles from all over the scene: every voxel's box is nearly the scene's, and
+    # marking them all would cost minutes; past its budget the map is empty (no culling)
+    rng = np.random.default_rng(9)
+    v = rng.uniform(-10, 10, (3000, 3))
+    f = rng.integers(0, len(v), (20000, 3))
+    scene = RayScene.triangles(v, f)
+    o = np.array([30.0, 1.0, 2.0])
+    assert len(direction_map(scene._cull_boxes, o - scene.centre, FACE)) == 0
+    assert len(direction_map(scene._cull_boxes, o - scene.centre, FACE, budget=10**6)) == 6 * FACE * FACE
+    ref = assert_same_with_and_without(scene, o, _rays(rng, at=v, o=o))
+    assert np.count_nonzero(ref.hit) > 500

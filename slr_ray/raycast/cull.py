@@ -29,6 +29,8 @@ __all__ = ["voxel_boxes", "direction_map", "could_hit", "GRID", "FACE"]
 GRID = 64
 #: cells a side of one face of the direction cube (0.7 deg at a face's centre, 0.35 at its corners)
 FACE = 128
+#: a map's marking stops after this many times its cells (then: no culling for that cast)
+_BUDGET = 32
 #: margin on a projected coordinate (a direction given in float64 and traced in float32 moves by ~1e-7)
 _UV_MARGIN = 1e-6
 
@@ -52,14 +54,12 @@ def _accumulate(vertices, faces, n, lo, inv, dims, n_chunks):
         for p in range(c * step, min(n, (c + 1) * step)):
             if faces.shape[0]:  # a triangle: its vertices' box
                 v0, v1, v2 = faces[p, 0], faces[p, 1], faces[p, 2]
-                blo = np.empty(3)
-                bhi = np.empty(3)
-                for ax in range(3):
-                    x0, x1, x2 = np.float64(vertices[v0, ax]), np.float64(vertices[v1, ax]), np.float64(vertices[v2, ax])
-                    blo[ax] = min(x0, x1, x2)
-                    bhi[ax] = max(x0, x1, x2)
-                cx, cy, cz = 0.5 * (blo[0] + bhi[0]), 0.5 * (blo[1] + bhi[1]), 0.5 * (blo[2] + bhi[2])
-                xlo, ylo, zlo, xhi, yhi, zhi = blo[0], blo[1], blo[2], bhi[0], bhi[1], bhi[2]
+                x0, x1, x2 = np.float64(vertices[v0, 0]), np.float64(vertices[v1, 0]), np.float64(vertices[v2, 0])
+                y0, y1, y2 = np.float64(vertices[v0, 1]), np.float64(vertices[v1, 1]), np.float64(vertices[v2, 1])
+                z0, z1, z2 = np.float64(vertices[v0, 2]), np.float64(vertices[v1, 2]), np.float64(vertices[v2, 2])
+                xlo, ylo, zlo = min(x0, x1, x2), min(y0, y1, y2), min(z0, z1, z2)
+                xhi, yhi, zhi = max(x0, x1, x2), max(y0, y1, y2), max(z0, z1, z2)
+                cx, cy, cz = 0.5 * (xlo + xhi), 0.5 * (ylo + yhi), 0.5 * (zlo + zhi)
             else:  # a disc (float4: centre, radius): its centre plus and minus its radius
                 cx, cy, cz = np.float64(vertices[p, 0]), np.float64(vertices[p, 1]), np.float64(vertices[p, 2])
                 r = np.float64(vertices[p, 3])
@@ -150,12 +150,17 @@ def _cell(u, face):
 
 
 @njit(cache=True)
-def direction_map(boxes, origin, face=FACE):
+def direction_map(boxes, origin, face=FACE, budget=_BUDGET):
     """``(6 * face * face,)`` uint8: 1 where a direction from ``origin`` (scene frame, the
     origin Embree traces from) could meet one of ``boxes``. Face ``2 * axis + (0 for +,
     1 for -)``; on the face of axis ``i``, ``u = d[(i + 1) % 3] / |d[i]|`` and ``v = d[(i + 2) % 3] / |d[i]|``,
-    rows ``v``, columns ``u``."""
+    rows ``v``, columns ``u``.
+
+    Marking stops after ``budget`` times the map's cells (large boxes that overlap,
+    e.g. long triangles from all over a scene): the map is then empty, which
+    :func:`could_hit` reads as "any direction could hit" (no culling, no error)."""
     out = np.zeros(6 * face * face, np.uint8)
+    left = budget * out.shape[0]
     lo = np.empty(3)
     hi = np.empty(3)
     for b in range(boxes.shape[0]):
@@ -176,6 +181,9 @@ def direction_map(boxes, origin, face=FACE):
                 c0, c1 = _cell(max(u0, -1.0), face), _cell(min(u1, 1.0), face)
                 r0, r1 = _cell(max(v0, -1.0), face), _cell(min(v1, 1.0), face)
                 base = (2 * i + s) * face * face
+                left -= (r1 - r0 + 1) * (c1 - c0 + 1)
+                if left < 0:
+                    return np.zeros(0, np.uint8)
                 for r in range(r0, r1 + 1):
                     row = base + r * face
                     for c in range(c0, c1 + 1):
