@@ -159,3 +159,24 @@ def test_the_map_of_a_far_speck_is_mostly_empty():
     scene = RayScene.discs(c, r, nrm)
     dmap = direction_map(scene._cull_boxes, np.array([300.0, 0.0, 0.0]) - scene.centre, FACE)
     assert 0 < dmap.mean() < 0.01
+
+
+def test_directions_float32_holds_only_coarsely_go_to_embree():
+    # Embree traces float32 directions: components of 1e-45..1e-37 are denormal there (a few
+    # significant bits: the direction it traces is not the one the map was asked about) and
+    # it answers them with hits at NaN distances the map cannot foresee; the map leaves
+    # such rays (and any outside 1e-30..1e30) to Embree, like zero and non-finite ones
+    rng = np.random.default_rng(0)
+    c = rng.normal(size=(3000, 3)) * 2.2e-4 + 1e6
+    v = (c[:, None] + rng.normal(size=(3000, 3, 3)) * 6.7e-5).reshape(-1, 3)
+    scene = RayScene.triangles(v, np.arange(9000).reshape(-1, 3))
+    o = c[0] + rng.normal(size=3) * 6.7e-4
+    dirs = rng.choice([-1, 1], (8192, 3)) * 10.0 ** rng.uniform(-45, -37, (8192, 3))
+    axis = rng.integers(0, 4, 8192)
+    dirs[axis < 3, axis[axis < 3]] = 0.0
+    ref = assert_same_with_and_without(scene, o, dirs)
+    assert np.count_nonzero(ref.hit) > 0
+    dmap = np.zeros(6 * FACE * FACE, np.uint8)  # nothing to meet
+    for d in ([1e-40, 1e-41, 0.0], [0.0, 1e-31, 0.0], [1e31, 0.0, 1.0], [1e39, 1.0, 0.0]):
+        assert could_hit(dmap, FACE, *d), d
+    assert not could_hit(dmap, FACE, 0.0, 1e-29, 0.0) and not could_hit(dmap, FACE, 1e29, 0.0, 1.0)

@@ -13,7 +13,10 @@ projects each box from the ray origin onto the six faces of a cube of
 could fall in; :func:`could_hit` looks a ray's direction up. A ray whose cell
 is unmarked meets no box, hence no primitive: it is a miss without a call into
 Embree. Every bound is an over-estimate, so the answers are Embree's own; a
-ray whose direction is zero or not finite is always handed to Embree.
+ray whose direction is zero, not finite, or outside float32's comfortable
+range (components summing to less than 1e-30 or more than 1e30 in absolute
+value: Embree traces a float32 direction, denormal or infinite there) is always
+handed to Embree.
 """
 
 from __future__ import annotations
@@ -31,6 +34,11 @@ GRID = 64
 FACE = 128
 #: margin on a projected coordinate (a direction given in float64 and traced in float32 moves by ~1e-7)
 _UV_MARGIN = 1e-6
+#: directions whose |dx| + |dy| + |dz| lies outside these are handed to Embree: below, float32
+#: holds their components as denormals (a few significant bits; Embree traces another direction,
+#: and answers hits at NaN distances); above, its arithmetic overflows
+_D_MIN = 1e-30
+_D_MAX = 1e30
 
 
 @njit(cache=True, inline="always")
@@ -186,14 +194,15 @@ def direction_map(boxes, origin, face=FACE):
 @njit(cache=True, inline="always")
 def could_hit(dmap, face, dx, dy, dz):
     """Whether direction ``d`` falls in a marked cell of ``dmap`` (:func:`direction_map`);
-    True for an empty map (no culling), a zero or non-finite direction. Past one
+    True for an empty map (no culling), a zero, non-finite, tiny or huge direction
+    (``_D_MIN``, ``_D_MAX``). Past one
     test of the direction (taken almost never), the cell is found without branches
     (selects; 2-3 ns a ray)."""
     if dmap.shape[0] == 0:
         return True
     ax, ay, az = abs(dx), abs(dy), abs(dz)
-    if not (ax + ay + az > 0.0 and ax + ay + az < np.inf):
-        return True  # a zero, infinite or NaN direction: Embree's answer (and no NaN below)
+    if not (ax + ay + az >= _D_MIN and ax + ay + az <= _D_MAX):
+        return True  # zero, infinite, NaN, float32-denormal or huge: Embree's answer (and no NaN below)
     on_x = (ax >= ay) & (ax >= az)
     on_y = (not on_x) & (ay >= az)
     m = ax if on_x else (ay if on_y else az)
