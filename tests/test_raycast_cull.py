@@ -6,7 +6,7 @@ from hypothesis import given, settings
 from hypothesis import strategies as st
 
 from slr_ray.raycast import RayScene
-from slr_ray.raycast.cull import FACE, could_hit, direction_map, voxel_boxes
+from slr_ray.raycast.cull import FACE, GRID, _chunks, could_hit, direction_map, voxel_boxes
 from slr_ray.raycast.scene import _CULL_RAYS
 
 #: directions on the cube's edges and corners, the axes, and nearly so (face ties, u or v at +-1)
@@ -180,3 +180,13 @@ def test_directions_float32_holds_only_coarsely_go_to_embree():
     for d in ([1e-40, 1e-41, 0.0], [0.0, 1e-31, 0.0], [1e31, 0.0, 1.0], [1e39, 1.0, 0.0]):
         assert could_hit(dmap, FACE, *d), d
     assert not could_hit(dmap, FACE, 0.0, 1e-29, 0.0) and not could_hit(dmap, FACE, 1e29, 0.0, 1.0)
+
+
+def test_voxel_boxes_accumulators_stay_small_on_many_threads():
+    # one accumulator of 48 B a voxel a chunk: a full 64^3 grid is 12.6 MB a thread, so a chunk a
+    # thread on a 64-thread machine would hold 0.8 GB while a 20 M-point scene is built
+    for threads in (1, 2, 16, 64, 256):
+        for n_cells in (1, 1000, GRID ** 3, 256 ** 3):
+            k = _chunks(20_000_000, n_cells, threads)
+            assert 1 <= k <= threads and (k == 1 or k * n_cells * 48 <= 64 << 20), (threads, n_cells, k)
+    assert _chunks(20_000_000, 1000, 16) == 16 and _chunks(1000, GRID ** 3, 16) == 1

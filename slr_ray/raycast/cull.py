@@ -39,6 +39,9 @@ _UV_MARGIN = 1e-6
 #: and answers hits at NaN distances); above, its arithmetic overflows
 _D_MIN = 1e-30
 _D_MAX = 1e30
+#: bytes of the per-chunk accumulators of :func:`voxel_boxes` at most (a chunk a thread holds 48 B a
+#: voxel: 12.6 MB for a full 64^3 grid, 0.8 GB on 64 threads without this bound)
+_ACC_BYTES = 64 << 20
 
 
 @njit(cache=True, inline="always")
@@ -126,7 +129,7 @@ def voxel_boxes(vertices: np.ndarray, faces: np.ndarray | None, n: int, grid: in
     extent = float(np.max(hi - lo))
     cell = extent / grid if extent > 0 else 1.0
     dims = np.maximum(1, np.minimum(grid, np.ceil((hi - lo) / cell).astype(np.int64)))
-    n_chunks = max(1, min(get_num_threads(), n // 65536 + 1))
+    n_chunks = _chunks(n, int(np.prod(dims)), get_num_threads())
     boxes = _merge(_accumulate(vertices, f, n, lo, 1.0 / cell, dims, n_chunks))
     # Embree's bounds are conservative in float32; 1e-5 of the extent and of the coordinates'
     # magnitude (and 1 micrometre) is far beyond its rounding
@@ -135,6 +138,12 @@ def voxel_boxes(vertices: np.ndarray, faces: np.ndarray | None, n: int, grid: in
     boxes[:, :3] -= pad
     boxes[:, 3:] += pad
     return boxes
+
+
+def _chunks(n: int, n_cells: int, threads: int) -> int:
+    """Chunks of primitives :func:`voxel_boxes` accumulates in parallel: one a thread, one per
+    65,536 primitives, and no more than ``_ACC_BYTES`` of accumulators (48 B a voxel a chunk)."""
+    return max(1, min(threads, n // 65536 + 1, _ACC_BYTES // (48 * n_cells)))
 
 
 @njit(cache=True, inline="always")
