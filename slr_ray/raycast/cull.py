@@ -13,7 +13,10 @@ projects each box from the ray origin onto the six faces of a cube of
 could fall in; :func:`could_hit` looks a ray's direction up. A ray whose cell
 is unmarked meets no box, hence no primitive: it is a miss without a call into
 Embree. Every bound is an over-estimate, so the answers are Embree's own; a
-ray whose direction is zero or not finite is always handed to Embree.
+ray whose direction is zero, not finite, or outside float32's comfortable
+range (components summing to less than 1e-30 or more than 1e30 in absolute
+value: Embree traces a float32 direction, denormal or infinite there) is always
+handed to Embree.
 """
 
 from __future__ import annotations
@@ -33,6 +36,14 @@ FACE = 128
 _BUDGET = 32
 #: margin on a projected coordinate (a direction given in float64 and traced in float32 moves by ~1e-7)
 _UV_MARGIN = 1e-6
+#: directions whose |dx| + |dy| + |dz| lies outside these are handed to Embree: below, float32
+#: holds their components as denormals (a few significant bits; Embree traces another direction,
+#: and answers hits at NaN distances); above, its arithmetic overflows
+_D_MIN = 1e-30
+_D_MAX = 1e30
+#: bytes of the per-chunk accumulators of :func:`voxel_boxes` at most (a chunk a thread holds 48 B a
+#: voxel: 12.6 MB for a full 64^3 grid, 0.8 GB on 64 threads without this bound)
+_ACC_BYTES = 64 << 20
 
 
 @njit(cache=True, inline="always")
@@ -118,7 +129,7 @@ def voxel_boxes(vertices: np.ndarray, faces: np.ndarray | None, n: int, grid: in
     extent = float(np.max(hi - lo))
     cell = extent / grid if extent > 0 else 1.0
     dims = np.maximum(1, np.minimum(grid, np.ceil((hi - lo) / cell).astype(np.int64)))
-    n_chunks = max(1, min(get_num_threads(), n // 65536 + 1))
+    n_chunks = _chunks(n, int(np.prod(dims)), get_num_threads())
     boxes = _merge(_accumulate(vertices, f, n, lo, 1.0 / cell, dims, n_chunks))
     # Embree's bounds are conservative in float32; 1e-5 of the extent and of the coordinates'
     # magnitude (and 1 micrometre) is far beyond its rounding
@@ -127,6 +138,12 @@ def voxel_boxes(vertices: np.ndarray, faces: np.ndarray | None, n: int, grid: in
     boxes[:, :3] -= pad
     boxes[:, 3:] += pad
     return boxes
+
+
+def _chunks(n: int, n_cells: int, threads: int) -> int:
+    """Chunks of primitives :func:`voxel_boxes` accumulates in parallel: one a thread, one per
+    65,536 primitives, and no more than ``_ACC_BYTES`` of accumulators (48 B a voxel a chunk)."""
+    return max(1, min(threads, n // 65536 + 1, _ACC_BYTES // (48 * n_cells)))
 
 
 @njit(cache=True, inline="always")
@@ -194,14 +211,15 @@ def direction_map(boxes, origin, face=FACE, budget=_BUDGET):
 @njit(cache=True, inline="always")
 def could_hit(dmap, face, dx, dy, dz):
     """Whether direction ``d`` falls in a marked cell of ``dmap`` (:func:`direction_map`);
-    True for an empty map (no culling), a zero or non-finite direction. Past one
+    True for an empty map (no culling), a zero, non-finite, tiny or huge direction
+    (``_D_MIN``, ``_D_MAX``). Past one
     test of the direction (taken almost never), the cell is found without branches
     (selects; 2-3 ns a ray)."""
     if dmap.shape[0] == 0:
         return True
     ax, ay, az = abs(dx), abs(dy), abs(dz)
-    if not (ax + ay + az > 0.0 and ax + ay + az < np.inf):
-        return True  # a zero, infinite or NaN direction: Embree's answer (and no NaN below)
+    if not (ax + ay + az >= _D_MIN and ax + ay + az <= _D_MAX):
+        return True  # zero, infinite, NaN, float32-denormal or huge: Embree's answer (and no NaN below)
     on_x = (ax >= ay) & (ax >= az)
     on_y = (not on_x) & (ay >= az)
     m = ax if on_x else (ay if on_y else az)
