@@ -390,3 +390,20 @@ def test_ties_decided_in_float64_where_the_float32_vertices_disagree(aspect):
             assert one.owners[0] == np.argmin(perp)
             if a + 5.5e-5 < x < a + 8.5e-5:  # float32 would take the other one
                 assert np.argmin(perp32) != np.argmin(perp)
+
+
+def test_owners_is_primitives_where_each_primitive_is_its_own_owner():
+    # RayHits' documented contract: one array for discs and plain triangles, two for fans
+    rng = np.random.default_rng(1)
+    c = rng.uniform(-1, 1, (50, 3))
+    dirs = rng.normal(size=(200, 3))
+    dirs /= np.linalg.norm(dirs, axis=1, keepdims=True)
+    hits = RayScene.discs(c, np.full(50, 0.3)).intersect([0.0, 0.0, 5.0], dirs)
+    assert hits.owners is hits.primitives
+    v = np.array([[0.0, 0, 0], [1, 0, 0], [0, 1, 0], [1, 1, 0]])
+    f = np.array([[0, 1, 2], [1, 3, 2]])
+    plain = RayScene.triangles(v, f).intersect([0.3, 0.3, 1.0], [[0.0, 0.0, -1.0]])
+    assert plain.owners is plain.primitives and plain.owners[0] == 0
+    fan = RayScene.triangles(v, f, owners=(np.array([[0.5, 0.5, 0.0]]), np.ones(1), 2, 1.0, None))
+    h = fan.intersect([0.7, 0.7, 1.0], [[0.0, 0.0, -1.0]])
+    assert h.owners is not h.primitives and h.primitives[0] == 1 and h.owners[0] == 0
