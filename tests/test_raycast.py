@@ -407,3 +407,20 @@ def test_owners_is_primitives_where_each_primitive_is_its_own_owner():
     fan = RayScene.triangles(v, f, owners=(np.array([[0.5, 0.5, 0.0]]), np.ones(1), 2, 1.0, None))
     h = fan.intersect([0.7, 0.7, 1.0], [[0.0, 0.0, -1.0]])
     assert h.owners is not h.primitives and h.primitives[0] == 1 and h.owners[0] == 0
+
+
+@pytest.mark.parametrize("bad", [np.nan, np.inf, -np.inf, 1e39])
+def test_non_finite_geometry_is_refused_not_answered_with_misses(bad):
+    # a NaN or infinite coordinate, or one float32 cannot hold around the scene's centre, made
+    # Embree answer every ray with a miss (the scene's box was NaN): now a clear error
+    rng = np.random.default_rng(2)
+    c = rng.normal(size=(100, 3))
+    c[7, 2] = bad
+    with pytest.raises(InputValueError, match="finite"):
+        RayScene.discs(c, np.full(100, 0.1))
+    with pytest.raises(InputValueError, match="finite"):
+        RayScene.triangles(c, np.array([[0, 1, 2], [5, 6, 7]]))
+    c[7, 2] = 0.0
+    c[3] = [3e38, 0.0, 0.0]  # finite in float64, beyond float32 from the centre it sets
+    with pytest.raises(InputValueError, match="float32"):
+        RayScene.discs(c, np.full(100, 0.1), centre=[-3e38, 0.0, 0.0])

@@ -155,7 +155,9 @@ class RayScene:
             raise InputValueError("faces index vertices that do not exist")
         centre = _centre_of(v) if centre is None else as_origin(centre, "centre")
         vbuf = np.zeros((len(v) + 1, 3), np.float32)  # one spare row: Embree reads 16 bytes per vertex
-        vbuf[:len(v)] = v - centre
+        with np.errstate(invalid="ignore", over="ignore"):  # refused just below, with a count
+            vbuf[:len(v)] = v - centre
+        _check_finite(vbuf, len(v), "vertices")
         fbuf = np.ascontiguousarray(f, np.uint32)
         scene = cls.__new__(cls)
         scene._vertices64, scene._faces = v, f
@@ -205,6 +207,7 @@ class RayScene:
         centre = _centre_of(c) if centre is None else as_origin(centre, "centre")
         vbuf = shared if shared is not None else np.empty((len(c), 4), np.float32)
         _fill_vertices(c, centre, r, vbuf)  # one parallel pass, no float64 temporaries
+        _check_finite(vbuf, len(c), "centres")
         # Embree builds from its float32 buffer: a file-mapped primary's pages (24 B a point) need not stay
         # resident through the build; the tie rule reads back the few it needs
         release_pages(c)
@@ -416,6 +419,25 @@ def _spare_bytes(a: np.ndarray) -> int:
     if not owner.flags.c_contiguous:
         return 0
     return int(owner.ctypes.data + owner.nbytes - (a.ctypes.data + a.nbytes))
+
+
+def _check_finite(vbuf, n, what):
+    """Refuse rows of the float32 buffer that are not finite: NaN or infinite input, or a
+    coordinate too far from the scene's centre for float32 (Embree would answer no ray)."""
+    bad = _nonfinite_rows(vbuf, n)
+    if bad:
+        raise InputValueError(f"{what} must be finite and within float32 range of the scene's centre "
+                              f"(|coordinate - centre| < 3.4e38): {bad} of {n} rows are not")
+
+
+@njit(cache=True, parallel=True)
+def _nonfinite_rows(vbuf, n):
+    """Rows of ``vbuf[:n, :3]`` with a NaN or an infinity (one parallel pass, no temporaries)."""
+    bad = 0
+    for i in prange(n):
+        if not (np.isfinite(vbuf[i, 0]) and np.isfinite(vbuf[i, 1]) and np.isfinite(vbuf[i, 2])):
+            bad += 1
+    return bad
 
 
 @njit(cache=True, parallel=True)
