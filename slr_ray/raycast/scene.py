@@ -138,6 +138,7 @@ class RayScene:
         Parameters
         ----------
         vertices : (v, 3) float
+            Finite, and within float32 range of ``centre`` (else ``InputValueError``).
         faces : (f, 3) int
         centre : (3,) float, optional
             Recentring point (default: the middle of the bounding box).
@@ -178,7 +179,8 @@ class RayScene:
         Parameters
         ----------
         centres : (n, 3) float64
-            Disc centres (kept by reference for the float64 tie rule).
+            Disc centres (kept by reference for the float64 tie rule); finite,
+            and within float32 range of ``centre`` (else ``InputValueError``).
         radii : (n,) float
             Radii in metres, > 0. The radius column of :func:`disc_vertices`
             becomes Embree's vertex buffer (filled in place, not copied).
