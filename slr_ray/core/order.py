@@ -62,30 +62,42 @@ def mark_records(tab, bits):
             _mark(bits, np.int64(tab[j].idx))
 
 
+@njit(cache=True, inline="always", error_model="numpy")
+def _place_record(tab, j, bits, rank, keys, ranges, idx):
+    """Record ``j`` at its point's rank: key, range and index."""
+    i = np.int64(tab[j].idx)
+    p = _place(bits, rank, i)
+    keys[p] = tab[j].key
+    ranges[p] = tab[j].r
+    idx[p] = i
+
+
+@njit(cache=True, inline="always", error_model="numpy")
+def _place_record_pulse(tab, j, bits, rank, n_columns, pulses, ranges, idx):
+    """Record ``j`` at its point's rank, its key written as the pulse ``(row, column)``."""
+    i = np.int64(tab[j].idx)
+    p = _place(bits, rank, i)
+    k = np.int64(tab[j].key)
+    v = k // n_columns
+    pulses[p, 0] = v
+    pulses[p, 1] = k - v * n_columns
+    ranges[p] = tab[j].r
+    idx[p] = i
+
+
 @njit(cache=True, nogil=True, error_model="numpy")
 def place_records(tab, bits, rank, keys, ranges, idx):
     for j in range(tab.shape[0]):
         if tab[j].key != -1:
-            i = np.int64(tab[j].idx)
-            p = _place(bits, rank, i)
-            keys[p] = tab[j].key
-            ranges[p] = tab[j].r
-            idx[p] = i
+            _place_record(tab, j, bits, rank, keys, ranges, idx)
 
 
 @njit(cache=True, nogil=True, error_model="numpy")
 def place_records_pulses(tab, bits, rank, n_columns, pulses, ranges, idx):
-    """As :func:`_place_records`, each key written as its pulse ``(row, column)``."""
+    """As :func:`place_records`, each key written as its pulse ``(row, column)``."""
     for j in range(tab.shape[0]):
         if tab[j].key != -1:
-            i = np.int64(tab[j].idx)
-            p = _place(bits, rank, i)
-            k = np.int64(tab[j].key)
-            v = k // n_columns
-            pulses[p, 0] = v
-            pulses[p, 1] = k - v * n_columns
-            ranges[p] = tab[j].r
-            idx[p] = i
+            _place_record_pulse(tab, j, bits, rank, n_columns, pulses, ranges, idx)
 
 
 @njit(cache=True, nogil=True, error_model="numpy")
@@ -98,27 +110,18 @@ def mark_alive(tab, lose, bits):
 
 @njit(cache=True, nogil=True, error_model="numpy")
 def place_alive(tab, lose, bits, rank, keys, ranges, idx):
+    """:func:`place_records` of the records ``lose`` does not flag."""
     for j in range(tab.shape[0]):
         if not lose[j]:
-            i = np.int64(tab[j].idx)
-            p = _place(bits, rank, i)
-            keys[p] = tab[j].key
-            ranges[p] = tab[j].r
-            idx[p] = i
+            _place_record(tab, j, bits, rank, keys, ranges, idx)
 
 
 @njit(cache=True, nogil=True, error_model="numpy")
 def place_alive_pulses(tab, lose, bits, rank, n_columns, pulses, ranges, idx):
+    """:func:`place_records_pulses` of the records ``lose`` does not flag."""
     for j in range(tab.shape[0]):
         if not lose[j]:
-            i = np.int64(tab[j].idx)
-            p = _place(bits, rank, i)
-            k = np.int64(tab[j].key)
-            v = k // n_columns
-            pulses[p, 0] = v
-            pulses[p, 1] = k - v * n_columns
-            ranges[p] = tab[j].r
-            idx[p] = i
+            _place_record_pulse(tab, j, bits, rank, n_columns, pulses, ranges, idx)
 
 
 @njit(cache=True, nogil=True, error_model="numpy")
