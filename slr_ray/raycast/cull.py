@@ -26,7 +26,7 @@ from numba import get_num_threads, njit, prange
 
 from ..arrays import bounds
 
-__all__ = ["voxel_boxes", "direction_map", "could_hit", "GRID", "FACE"]
+__all__ = ["voxel_boxes", "direction_map", "could_hit", "float32_margin", "GRID", "FACE"]
 
 #: voxels a side of the grid (at most GRID**3 boxes; the longest axis gets GRID)
 GRID = 64
@@ -108,7 +108,15 @@ def _merge(acc):
     return out[:m].copy()
 
 
-def voxel_boxes(vertices: np.ndarray, faces: np.ndarray | None, n: int, grid: int = GRID) -> np.ndarray:
+def float32_margin(lo, hi) -> float:
+    """A margin far beyond float32 rounding for geometry within ``(lo, hi)`` (float64, scene frame):
+    1e-5 of the extent and of the coordinates' magnitude, and 1 micrometre. Embree's own bounds
+    are conservative in float32, so nothing it could report a hit for lies beyond it."""
+    return 1e-5 * float(np.max(hi - lo)) + 1e-5 * float(max(np.abs(lo).max(), np.abs(hi).max())) + 1e-6
+
+
+def voxel_boxes(vertices: np.ndarray, faces: np.ndarray | None, n: int, grid: int = GRID,
+                extent=None) -> np.ndarray:
     """``(m, 6)`` float64 boxes ``(lo, hi)`` (scene frame) that hold every primitive's bounds,
     one per occupied voxel of a grid of at most ``grid`` cells a side.
 
@@ -121,20 +129,19 @@ def voxel_boxes(vertices: np.ndarray, faces: np.ndarray | None, n: int, grid: in
         Triangles' vertex indices; None for discs.
     n : int
         Primitives.
+    extent : (lo, hi), optional
+        Bounds of the vertex rows (the scene's, computed once there); default: computed here.
     """
     if n == 0:
         return np.zeros((0, 6))
     f = np.zeros((0, 3), np.uint32) if faces is None else faces
-    lo, hi = bounds(vertices[:n] if faces is None else vertices[:int(f[:n].max()) + 1])
+    lo, hi = bounds(vertices[:n] if faces is None else vertices[:int(f[:n].max()) + 1]) if extent is None else extent
     extent = float(np.max(hi - lo))
     cell = extent / grid if extent > 0 else 1.0
     dims = np.maximum(1, np.minimum(grid, np.ceil((hi - lo) / cell).astype(np.int64)))
     n_chunks = _chunks(n, int(np.prod(dims)), get_num_threads())
     boxes = _merge(_accumulate(vertices, f, n, lo, 1.0 / cell, dims, n_chunks))
-    # Embree's bounds are conservative in float32; 1e-5 of the extent and of the coordinates'
-    # magnitude (and 1 micrometre) is far beyond its rounding
-    blo, bhi = boxes[:, :3], boxes[:, 3:]
-    pad = 1e-5 * float(np.max(bhi.max(axis=0) - blo.min(axis=0))) + 1e-5 * float(np.abs(boxes).max()) + 1e-6
+    pad = float32_margin(boxes[:, :3].min(axis=0), boxes[:, 3:].max(axis=0))
     boxes[:, :3] -= pad
     boxes[:, 3:] += pad
     return boxes

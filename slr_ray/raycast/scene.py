@@ -18,7 +18,7 @@ from ..arrays import as_origin, bounds, release_pages
 from ..errors import InputValueError
 from ..threads import default_threads
 from .cast import FILTER, MODE_SKIP, PACKET_WIDTHS, cast_rays
-from .cull import FACE, direction_map, voxel_boxes
+from .cull import FACE, direction_map, float32_margin, voxel_boxes
 from .library import (BUFFER_INDEX, BUFFER_NORMAL, BUFFER_VERTEX, FORMAT_FLOAT3, FORMAT_FLOAT4, FORMAT_UINT3,
                       GEOMETRY_DISC_POINT, GEOMETRY_ORIENTED_DISC_POINT, GEOMETRY_TRIANGLE, SCENE_FLAG_COMPACT,
                       SCENE_FLAG_FILTER_FUNCTION_IN_ARGUMENTS, embree_library)
@@ -108,14 +108,15 @@ class RayScene:
         self._has_owners = bool(has_owners)
         # discs: the float32 centres of Embree's vertex buffer (the filter's quick test before the float64 one)
         self._vertex_centres = int(buffers[0][4].ctypes.data) if geometry_type != GEOMETRY_TRIANGLE else 0
-        # vertex rows (a triangle buffer's spare row excluded): the bounds rays are tested against first
-        self._box = _padded_bounds(buffers[0][4], buffers[0][5] if self.n_primitives else 0,
-                                   geometry_type != GEOMETRY_TRIANGLE)
+        # vertex rows (a triangle buffer's spare row excluded), bounded once: the box rays are tested
+        # against first, and the occupied voxels' boxes whose directions a cast marks (.cull)
+        rows = buffers[0][4][:buffers[0][5] if self.n_primitives else 0]
+        extent = bounds(rows)
+        self._box = _padded_bounds(rows, extent, geometry_type != GEOMETRY_TRIANGLE)
         lib = self._lib = embree_library()
         t0 = time.perf_counter()
-        # the occupied voxels' boxes: a cast marks the directions they cover (.cull)
         self._cull_boxes = voxel_boxes(buffers[0][4], buffers[1][4] if geometry_type == GEOMETRY_TRIANGLE else None,
-                                       self.n_primitives)
+                                       self.n_primitives, extent=extent)
         self._scene = lib.new_scene(lib.device)
         lib.set_scene_flags(self._scene, SCENE_FLAG_FILTER_FUNCTION_IN_ARGUMENTS
                             | (SCENE_FLAG_COMPACT if compact else 0))
@@ -452,17 +453,14 @@ def _fill_vertices(c, centre, r, out):
         out[i, 3] = r[i]
 
 
-def _padded_bounds(vbuf, n, with_radius):
-    """``(lo, hi)`` float64 of the vertex buffer's first ``n`` rows (scene frame),
-    grown by the largest radius (discs) and a margin far above float32 rounding:
-    a ray that misses it misses the scene. Empty scene: an empty box."""
-    if n == 0:
+def _padded_bounds(rows, extent, with_radius):
+    """The vertex ``rows``' bounds ``extent`` (float64, scene frame) grown by the largest
+    radius (discs) and a margin far above float32 rounding: a ray that misses it misses
+    the scene. Empty scene: an empty box."""
+    if len(rows) == 0:
         return np.array([np.inf, np.inf, np.inf, -np.inf, -np.inf, -np.inf])
-    lo, hi = bounds(vbuf[:n])
-    grow = float(vbuf[:n, 3].max()) if with_radius else 0.0
-    # Embree's own bounds are conservative in float32; 1e-5 of the extent (and 1 µm) is
-    # far beyond its rounding, so no ray it could report a hit for is answered here
-    pad = grow + 1e-5 * float(np.max(hi - lo)) + 1e-5 * float(np.max(np.abs(np.concatenate([lo, hi])))) + 1e-6
+    lo, hi = extent
+    pad = (float(rows[:, 3].max()) if with_radius else 0.0) + float32_margin(lo, hi)
     return np.concatenate([lo - pad, hi + pad])
 
 
