@@ -442,18 +442,22 @@ def _lie_about_count(path, count):
     path.write_bytes(bytes(data))
 
 
-@pytest.mark.parametrize("streamed", [False, True])
-def test_a_las_header_that_claims_more_points_than_the_file_holds(tmp_path, streamed):
+def _read_las(path, streamed, chunk):
+    """Read a LAS/LAZ the way a command does: whole (read_cloud) or streamed (scan_las)."""
     from slr_ray.io import read_cloud
     from slr_ray.streaming import scan_las
 
+    if streamed:
+        return scan_las(path, [5, 5, 5], 5.0, chunk=chunk)
+    return read_cloud(path)
+
+
+@pytest.mark.parametrize("streamed", [False, True])
+def test_a_las_header_that_claims_more_points_than_the_file_holds(tmp_path, streamed):
     path = _las(tmp_path)
     _lie_about_count(path, 1500)
     with pytest.raises(FormatError, match="declares 1,500 points, the file holds 1,000"):
-        if streamed:
-            scan_las(path, [5, 5, 5], 5.0, chunk=300)
-        else:
-            read_cloud(path)
+        _read_las(path, streamed, chunk=300)
 
 
 def test_a_corrupt_laz_in_the_streamed_path_is_a_format_error(tmp_path):
@@ -775,17 +779,12 @@ def test_a_laz_header_that_claims_more_points_than_its_chunks_can_hold(tmp_path)
 @pytest.mark.parametrize("streamed", [False, True])
 def test_a_laz_header_that_claims_fewer_points_than_its_chunks_hold(tmp_path, streamed):
     # LAZ was not checked: laspy decompresses the declared count and drops the rest silently
-    from slr_ray.streaming import scan_las
-
     rng = np.random.default_rng(0)
     path = tmp_path / "a.laz"
     write_cloud(path, PointCloud(rng.uniform(0, 10, (120_000, 3))))  # three chunks of 50,000
     assert len(read_cloud(path)) == 120_000
     _lie_about_count(path, 40_000)
     with pytest.raises(FormatError, match="declares 40,000 points, its LAZ chunk table holds 3 chunks"):
-        if streamed:
-            scan_las(path, [5, 5, 5], 5.0, chunk=30_000)
-        else:
-            read_cloud(path)
+        _read_las(path, streamed, chunk=30_000)
     _lie_about_count(path, 110_000)  # within the last chunk: the table cannot tell (documented)
     assert len(read_cloud(path)) == 110_000
