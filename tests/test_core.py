@@ -62,6 +62,65 @@ def test_fast_path_equals_libm_anywhere(xyz, res):
         assert keys[0] == -1
 
 
+@pytest.mark.parametrize("pattern", [
+    ScanPattern(0.5, zenith_range=(45, 45.000001)),  # a view narrower than twice the margin
+    ScanPattern(1e-6, zenith_range=(45, 45.000001)),
+    ScanPattern(0.144, zenith_range=(0, 0.5)),  # the pole at the view's edge
+])
+def test_fast_path_equals_libm_in_views_narrower_than_its_margins(pattern):
+    pts = near_edge_points(pattern, eps=(0.0, 1e-15, 1e-12, 1e-9, 5e-9, 1e-8, 2e-8, 1e-7))
+    keys, _ = pulse_ids(pts, np.zeros(3), pattern)
+    np.testing.assert_array_equal(keys, exact_keys(pts, np.zeros(3), pattern))
+    assert (keys >= 0).any() and (keys == -1).any()
+
+
+def test_fast_path_keeps_its_margin_at_a_view_edge_between_bin_edges():
+    # 70.3 deg of view in 2 deg bins: the view ends inside a bin, where only the
+    # view's margin sends a point to libm; the polynomial is 3.8e-12 rad low at
+    # 100.3 deg, so without the margin points just outside would be kept
+    pattern = ScanPattern(2.0, zenith_range=(30, 100.3))
+    th1 = pattern.radians[3]
+    rng = np.random.default_rng(3)
+    n = 5000
+    theta = th1 + rng.uniform(-2e-11, 2e-11, n)
+    phi = rng.uniform(0, 2 * np.pi, n)
+    r = rng.uniform(0.5, 50, n)
+    pts = np.column_stack([r * np.sin(theta) * np.cos(phi), r * np.sin(theta) * np.sin(phi), r * np.cos(theta)])
+    ref = exact_keys(pts, np.zeros(3), pattern)
+    assert (ref == -1).sum() > n // 4 and (ref >= 0).sum() > n // 4
+    np.testing.assert_array_equal(pulse_ids(pts, np.zeros(3), pattern)[0], ref)
+
+
+@pytest.mark.parametrize("where", [0, 1, grid.BLOCK // 2, grid.BLOCK - 1])
+@pytest.mark.parametrize("odd", [[0.0, 0.0, 1.0], [2.0, 0.0, 0.5], [np.nan, 1.0, 1.0], [1.0, np.inf, 0.0],
+                                 [0.0, 0.0, 0.0]])
+def test_a_block_runs_the_exact_pass_whenever_one_point_needs_it(where, odd):
+    # the second pass counts the points it leaves undecided, and a block skips the
+    # third only when there are none: one such point anywhere in a block is decided
+    pattern = ScanPattern(1.0)
+    rng = np.random.default_rng(where)
+    theta = np.radians(rng.integers(1, 179, grid.BLOCK) + rng.uniform(0.1, 0.9, grid.BLOCK))
+    phi = np.radians(rng.integers(0, 360, grid.BLOCK) + rng.uniform(0.1, 0.9, grid.BLOCK))
+    pts = np.column_stack([np.sin(theta) * np.cos(phi), np.sin(theta) * np.sin(phi), np.cos(theta)])
+    pts *= rng.uniform(0.5, 50, (grid.BLOCK, 1))
+    params = kernel_params(np.zeros(3), pattern)
+    ref = exact_keys(pts, np.zeros(3), pattern)
+    keys = np.empty(grid.BLOCK, np.int64)
+    ranges = np.empty(grid.BLOCK)
+    keys[:], ranges[:] = pulse_ids(pts, np.zeros(3), pattern)  # every point sure: no third pass
+    np.testing.assert_array_equal(keys, ref)
+    pts[where] = odd
+    work = grid.scratch()
+    bad = grid.block_keys(pts, 0, grid.BLOCK, *params, *work)
+    keys = work[5][:grid.BLOCK]
+    finite = bool(np.isfinite(odd).all())
+    assert bad == (0 if finite else 1)
+    assert keys[where] == (exact_keys(pts[where:where + 1], np.zeros(3), pattern)[0] if any(odd) and finite
+                           else -1 if finite else -2)
+    others = np.arange(grid.BLOCK) != where
+    np.testing.assert_array_equal(keys[others], ref[others])
+
+
 def test_axes_and_signed_zeros_take_the_exact_path():
     pts = np.array([[0.0, 0, 1], [0, 0, -1], [-0.0, 0, 1], [1, 0, 0], [-1, 0, 0], [-1, -0.0, 0],
                     [0, 1, 0], [0, -1, 0], [1e-300, 1e-300, 1], [1, 1, 0.0]])

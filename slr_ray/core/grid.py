@@ -15,10 +15,10 @@ branch-free polynomial ``atan2`` that the compiler vectorises (one division
 per angle, a 7-term Chebyshev polynomial; error below 1e-11 rad); a second
 vectorised pass turns them into keys wherever they decide the bin for
 certain; a point within 1e-8 rad of a bin edge, a field-of-view limit or the
-azimuth wrap (a few in 10^5) is left to a third pass that takes its bin from
-the C library's ``atan2``: every key is exactly the definition's *for the
-float64 offsets* ``dx = x - ox``... as computed. Those offsets are the exact
-differences of the stored coordinates when point and origin lie within a
+azimuth wrap (a few in 10^5) is left to a third pass, run only for a block
+that has such points, that takes its bin from the C library's ``atan2``:
+every key is exactly the definition's *for the float64 offsets* ``dx = x -
+ox``... as computed. Those offsets are the exact differences of the stored coordinates when point and origin lie within a
 factor of two of each other on an axis (Sterbenz's lemma: a UTM cloud with
 its scanner inside it), or when both are multiples of one power of two
 ``2**-k`` below ``2**(53 - k)`` (1/1024 m up to 8.8e12 m); then moving cloud
@@ -135,8 +135,27 @@ def _sure_keys(x, y, z, theta, phi, n, inv_dt, inv_dp, th0, th1, nh, rmin, rmax,
     is bit for bit the range every other path computes. Multiplying by the
     inverse bin width instead of dividing moves ``q`` by a few ulp, far inside
     the ``1e-12 * q`` margin.
+
+    Each two-sided test is one comparison of a distance to a centre: ``lo <=
+    a <= hi`` as ``|a - (lo + hi) / 2| <= (hi - lo) / 2`` (a bin's fraction
+    ``e`` against its margins, the zenith against the view, the azimuth
+    against the wrap), and the range's four tests as two against limits that
+    exclude 0 and infinity; the roundings this adds (~1e-16 of a bin or a
+    radian) are 10^8 times smaller than the margins. NaN fails every test.
+    Returns the number of keys left at -3, so that a block with none skips
+    the third pass (most blocks: a few points in 10^5 are near an edge).
+    With the folded tests and the skip, a 0.144 deg prepared scan of the
+    29 M-point benchmark cloud takes 0.224 s of CPU on one thread instead of
+    0.250 (``python benchmarks/compare_checkouts.py``).
     """
     two_pi = 2.0 * math.pi
+    r_lo = max(rmin, 5e-324)  # r > 0 and r >= rmin
+    r_hi = min(rmax, 1.7976931348623157e308)  # r <= rmax and r < inf
+    t_mid = 0.5 * (th0 + th1)
+    t_in = 0.5 * (th1 - th0) - _FAST_TOL  # surely inside the view
+    t_out = 0.5 * (th1 - th0) + _FAST_TOL  # surely outside it
+    p_in = math.pi - _FAST_TOL  # surely clear of the wrap
+    unsure = 0
     for i in range(n):
         dx = x[i]
         dy = y[i]
@@ -150,19 +169,19 @@ def _sure_keys(x, y, z, theta, phi, n, inv_dt, inv_dp, th0, th1, nh, rmin, rmax,
         qh = p * inv_dp
         fv = math.floor(qv)
         fh = math.floor(qh)
-        ev = qv - fv
-        eh = qh - fh
-        mv = tol_v + 1e-12 * qv
-        mh = tol_h + 1e-12 * qh
-        inside = ((r > 0.0) & (r >= rmin) & (r <= rmax) & (r < math.inf)
-                  & (t >= th0 + _FAST_TOL) & (t <= th1 - _FAST_TOL)
-                  & (p >= _FAST_TOL) & (p <= two_pi - _FAST_TOL)
-                  & (ev >= mv) & (ev <= 1.0 - mv) & (eh >= mh) & (eh <= 1.0 - mh))
-        outside = (r < math.inf) & ((r < rmin) | (r > rmax)
-                                    | (t < th0 - _FAST_TOL) | (t > th1 + _FAST_TOL))
+        ev = abs(qv - fv - 0.5)  # qv - fv is exact, in [0, 1)
+        eh = abs(qh - fh - 0.5)
+        mv = 0.5 - (tol_v + 1e-12 * qv)
+        mh = 0.5 - (tol_h + 1e-12 * qh)
+        dt = abs(t - t_mid)
+        inside = ((r >= r_lo) & (r <= r_hi) & (dt <= t_in) & (abs(p - math.pi) <= p_in)
+                  & (ev <= mv) & (eh <= mh))
+        outside = (r < math.inf) & ((r < rmin) | (r > rmax) | (dt > t_out))
         # int64 arithmetic: keys reach 2**62, beyond a double's exact integers
         k = np.int64(fv) * nh + np.int64(fh)
         keys[i] = k if inside else (np.int64(-1) if outside else np.int64(-3))
+        unsure += 0 if inside | outside else 1
+    return unsure
 
 
 @njit(cache=True, nogil=True, error_model="numpy")
@@ -211,8 +230,10 @@ def block_keys(points, s, e, ox, oy, oz, d_theta, d_phi, th0, th1, nv, nh, rmin,
         y[i] = np.float64(points[s + i, 1]) - oy
         z[i] = np.float64(points[s + i, 2]) - oz
     _approx_angles(x, y, z, theta, phi, n)
-    _sure_keys(x, y, z, theta, phi, n, 1.0 / d_theta, 1.0 / d_phi, th0, th1, nh, rmin, rmax,
-               _FAST_TOL / d_theta, _FAST_TOL / d_phi, keys, ranges)
+    unsure = _sure_keys(x, y, z, theta, phi, n, 1.0 / d_theta, 1.0 / d_phi, th0, th1, nh, rmin,
+                        rmax, _FAST_TOL / d_theta, _FAST_TOL / d_phi, keys, ranges)
+    if unsure == 0:  # most blocks: the third pass would only look
+        return 0
     return _fix_keys(x, y, z, n, d_theta, d_phi, th0, th1, nv, nh, rmin, rmax, keys, ranges)
 
 
