@@ -121,6 +121,28 @@ def test_a_block_runs_the_exact_pass_whenever_one_point_needs_it(where, odd):
     np.testing.assert_array_equal(keys[others], ref[others])
 
 
+@pytest.mark.parametrize("zenith_range", [(0, 180), (3, 180), (0, 30)])
+def test_fast_path_equals_libm_where_the_squares_are_subnormal(zenith_range):
+    # below ~1e-154 m the squares in the fast angles are subnormal: sqrt(dx*dx + dy*dy)
+    # is off by up to ~2e-162 m while the range stays > 0, so the fast zenith was off
+    # by up to 0.1 rad and the sure-keys pass gave a wrong bin (2e-162, 3e-162, 1e-161:
+    # 7616 for 6896), called a point outside the view that is in it ((1e-162, 0,
+    # 1e-161) in a 3-180 deg view) or one in the view that is not ((1e-162, 4e-162,
+    # 7e-162) in a 0-30 deg view)
+    pattern = ScanPattern(1.0, zenith_range=zenith_range)
+    pts = np.array([[2e-162, 3e-162, 1e-161], [1e-162, 0.0, 1e-161], [1e-162, 4e-162, 7e-162],
+                    [-5e-162, 1e-162, 5e-162], [3e-160, -2e-160, 1e-159], [1e-150, 2e-150, 3e-150]])
+    keys, ranges = pulse_ids(pts, np.zeros(3), pattern)
+    assert (ranges > 0).all()
+    np.testing.assert_array_equal(keys, exact_keys(pts, np.zeros(3), pattern))
+    rng = np.random.default_rng(0)
+    pts = np.round(rng.uniform(-9, 9, (4 * grid.BLOCK, 3))) * 10.0 ** rng.integers(-163, -150, (4 * grid.BLOCK, 1))
+    keys, ranges = pulse_ids(pts, np.zeros(3), pattern)
+    ref = exact_keys(pts, np.zeros(3), pattern)
+    ref[ranges == 0] = -1
+    np.testing.assert_array_equal(keys, ref)
+
+
 def test_axes_and_signed_zeros_take_the_exact_path():
     pts = np.array([[0.0, 0, 1], [0, 0, -1], [-0.0, 0, 1], [1, 0, 0], [-1, 0, 0], [-1, -0.0, 0],
                     [0, 1, 0], [0, -1, 0], [1e-300, 1e-300, 1], [1, 1, 0.0]])

@@ -15,7 +15,8 @@ branch-free polynomial ``atan2`` that the compiler vectorises (one division
 per angle, a 7-term Chebyshev polynomial; error below 1e-11 rad); a second
 vectorised pass turns them into keys wherever they decide the bin for
 certain; a point within 1e-8 rad of a bin edge, a field-of-view limit or the
-azimuth wrap (a few in 10^5) is left to a third pass, run only for a block
+azimuth wrap (a few in 10^5), or within 1e-140 m of the origin (where the
+squares the fast angles take are subnormal), is left to a third pass, run only for a block
 that has such points, that takes its bin from the C library's ``atan2``:
 every key is exactly the definition's *for the float64 offsets* ``dx = x -
 ox``... as computed. Those offsets are the exact differences of the stored coordinates when point and origin lie within a
@@ -57,6 +58,11 @@ _ATAN_C = (0.9999999999783985, -0.333333320976113, 0.19999883856645354, -0.14281
 _TAN_PI_8 = 0.41421356237309503
 #: bound used on |fast angle - libm angle| (radians), far above the true ~1e-11
 FAST_TOL = _FAST_TOL = 1e-8
+#: below this range (metres) the squares in the fast angles may be subnormal:
+#: ``sqrt(dx * dx + dy * dy)`` is then off by up to ~2.2e-162 m (a zenith error
+#: of that over the range: 0.1 rad at 2e-161 m), so neither the fast bin nor the
+#: fast view test is trusted there; above it the error is below 1e-21 rad
+_R_SURE = 1e-140
 #: the polynomial may be contracted into FMAs and divide by reciprocals: it is
 #: only used where its error bound decides the bin for certain
 APPROX_MATH = _APPROX_MATH = {"contract", "arcp"}
@@ -130,18 +136,20 @@ def _sure_keys(x, y, z, theta, phi, n, inv_dt, inv_dp, th0, th1, nh, rmin, rmax,
     Branch-free (selects only), so the compiler vectorises it. Key -1: surely
     not seen (a finite range outside the limits, or an angle more than
     ``_FAST_TOL`` outside the field of view). Key -3: near a bin edge, the
-    view's edge or the azimuth wrap, at the origin, or not finite: decided by
-    :func:`_fix_keys` with libm. ``r`` is computed without contraction, so it
-    is bit for bit the range every other path computes. Multiplying by the
-    inverse bin width instead of dividing moves ``q`` by a few ulp, far inside
-    the ``1e-12 * q`` margin.
+    view's edge or the azimuth wrap, within ``_R_SURE`` of the origin, or not
+    finite: decided by :func:`_fix_keys` with libm. ``r`` is computed without
+    contraction, so it is bit for bit the range every other path computes.
+    Multiplying by the inverse bin width instead of dividing moves ``q`` by a
+    few ulp, far inside the ``1e-12 * q`` margin.
 
     Each two-sided test is one comparison of a distance to a centre: ``lo <=
     a <= hi`` as ``|a - (lo + hi) / 2| <= (hi - lo) / 2`` (a bin's fraction
     ``e`` against its margins, the zenith against the view, the azimuth
     against the wrap), and the range's four tests as two against limits that
-    exclude 0 and infinity; the roundings this adds (~1e-16 of a bin or a
-    radian) are 10^8 times smaller than the margins. NaN fails every test.
+    exclude infinity and ranges below ``_R_SURE`` (0 among them: there the
+    fast angles are not within their bound, so only the range may decide);
+    the roundings this adds (~1e-16 of a bin or a radian) are 10^8 times
+    smaller than the margins. NaN fails every test.
     Returns the number of keys left at -3, so that a block with none skips
     the third pass (most blocks: a few points in 10^5 are near an edge).
     With the folded tests and the skip, a 0.144 deg prepared scan of the
@@ -149,7 +157,7 @@ def _sure_keys(x, y, z, theta, phi, n, inv_dt, inv_dp, th0, th1, nh, rmin, rmax,
     0.250 (``python benchmarks/compare_checkouts.py``).
     """
     two_pi = 2.0 * math.pi
-    r_lo = max(rmin, 5e-324)  # r > 0 and r >= rmin
+    r_lo = max(rmin, _R_SURE)  # r > 0 and r >= rmin, and no subnormal squares
     r_hi = min(rmax, 1.7976931348623157e308)  # r <= rmax and r < inf
     t_mid = 0.5 * (th0 + th1)
     t_in = 0.5 * (th1 - th0) - _FAST_TOL  # surely inside the view
@@ -176,7 +184,7 @@ def _sure_keys(x, y, z, theta, phi, n, inv_dt, inv_dp, th0, th1, nh, rmin, rmax,
         dt = abs(t - t_mid)
         inside = ((r >= r_lo) & (r <= r_hi) & (dt <= t_in) & (abs(p - math.pi) <= p_in)
                   & (ev <= mv) & (eh <= mh))
-        outside = (r < math.inf) & ((r < rmin) | (r > rmax) | (dt > t_out))
+        outside = (r < math.inf) & ((r < rmin) | (r > rmax) | ((dt > t_out) & (r >= _R_SURE)))
         # int64 arithmetic: keys reach 2**62, beyond a double's exact integers
         k = np.int64(fv) * nh + np.int64(fh)
         keys[i] = k if inside else (np.int64(-1) if outside else np.int64(-3))
