@@ -256,6 +256,36 @@ def test_fast_path_outside_the_view_and_range_limits(pattern):
     assert (keys == -1).any() and (keys >= 0).any()
 
 
+@pytest.mark.parametrize("zenith_range", [(0, 180), (0, 80)])
+def test_range_limits_at_a_points_own_range_and_ranges_that_overflow(zenith_range):
+    # the sure-keys pass folds the range tests into r >= max(rmin, tiny) and
+    # r <= min(rmax, DBL_MAX): limits set to a point's own computed range and one ulp
+    # either side, a single admitted range (min_range == max_range), and finite
+    # coordinates whose squared range overflows (range inf: seen without max_range,
+    # not seen with one, never counted as not finite; the fast zenith of such a
+    # point is 90 deg whatever its direction, inside a 7 deg bin, outside a 0-80 view)
+    rng = np.random.default_rng(11)
+    theta = np.radians(rng.integers(1, 179, 64) + rng.uniform(0.1, 0.9, 64))
+    phi = np.radians(rng.integers(0, 360, 64) + rng.uniform(0.1, 0.9, 64))
+    u = np.column_stack([np.sin(theta) * np.cos(phi), np.sin(theta) * np.sin(phi), np.cos(theta)])
+    pts = np.concatenate([u * rng.uniform(0.5, 50, (64, 1)), u[:8] * 1e155, u[8:16] * 1e-150,
+                          u[16:24] * 5e-162, [[1.0, np.inf, 0.0], [np.inf, 0.0, 1.0], [0.0, 1.0, np.nan]]])
+    finite = np.isfinite(pts).all(axis=1)
+    _, r = pulse_ids(pts[finite], np.zeros(3), ScanPattern(7.0))
+    assert np.isinf(r[64:72]).all()
+    for i in (0, 5, 64, 72, 80):
+        for lo, hi in ((r[i], r[i]), (np.nextafter(r[i], np.inf), None), (None, np.nextafter(r[i], 0)),
+                       (r[i], None), (None, r[i]), (0.0, 1e308), (1e-149, 1e-145)):
+            pattern = ScanPattern(7.0, zenith_range=zenith_range, min_range=lo, max_range=hi)
+            rmin, rmax = pattern.range_limits
+            ref = exact_keys(pts[finite], np.zeros(3), pattern)
+            ref[(r == 0) | (r < rmin) | (r > rmax)] = -1
+            np.testing.assert_array_equal(pulse_ids(pts[finite], np.zeros(3), pattern)[0], ref)
+            work = grid.scratch()
+            assert grid.block_keys(pts, 0, len(pts), *kernel_params(np.zeros(3), pattern), *work) == 3
+            np.testing.assert_array_equal(work[5][:len(pts)], np.concatenate([ref, [-2, -2, -2]]))
+
+
 def test_hash_tables_grow_through_many_bins(monkeypatch):
     # forces many growth steps from the 4096-slot start, across superblocks
     monkeypatch.setattr(BinTables, "superblock", 1000)
