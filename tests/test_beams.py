@@ -79,6 +79,17 @@ def test_signed_zero_azimuth_and_the_poles():
     assert 12 not in idx  # range 0
 
 
+@pytest.mark.parametrize("offset", [0.46364762, math.atan(0.5) + 1e-8, math.atan(0.5) - 2e-8, math.atan(0.5)])
+def test_points_a_subnormal_distance_off_the_axis_take_the_exact_azimuth(offset):
+    # (1e-323, 5e-324) lies at atan(0.5) exactly; among subnormals the fast atan2's
+    # branch test rounds and it was 3e-8 rad off, beyond its margin: with a beam
+    # firing ~atan(0.5) off it, the point landed in the wrong column (0 for 359)
+    p = BeamPattern([60.0, 0.0, -60.0], columns=360, azimuth_offset_deg=[math.degrees(offset), 0.0, 0.0])
+    pts = np.array([[1e-323, 5e-324, 1.0], [5e-324, 1e-323, 2.0], [-1e-323, -5e-324, 2.5],
+                    [1e-301, 5e-302, 2.7], [1.0, 0.5, 3.0]])
+    check(p, pts, np.zeros(3), n_threads=1)
+
+
 def test_close_beams_need_several_steps_from_the_table():
     # bands far narrower than a cell of the row table: the hint is off by several rows
     el = [0.0, 1e-5, 2e-5, 3e-5, 4e-5, -40.0]

@@ -30,6 +30,11 @@ from numba import njit, prange
 
 from .grid import APPROX_MATH, BLOCK, FAST_TOL, atan2_fast
 
+#: nearer the axis than this (metres, |x| and |y| both), the fast azimuth is not
+#: trusted: its branch test multiplies by tan(pi/8), which rounds among
+#: subnormals (at |x|, |y| ~ 1e-323 it picked the wrong branch, 3e-8 rad off)
+AXIS = 1e-300
+
 __all__ = ["beam_keys", "beam_keys_given", "beam_reduce", "row_table", "ROW_CELLS"]
 
 #: cells of the row lookup table over the bands' span of ``-z / r`` (4096: a
@@ -180,9 +185,9 @@ def _reduce_block(pts, s, e, ox, oy, oz, edges, lut, scale, offsets, columns, rm
         eh = qh - fh
         mh = tol_h + 1e-12 * qh
         if (abs(p) <= math.pi - FAST_TOL and a >= FAST_TOL and a <= two_pi - FAST_TOL
-                and eh >= mh and eh <= 1.0 - mh):
+                and eh >= mh and eh <= 1.0 - mh and max(abs(x[i]), abs(y[i])) >= AXIS):
             col = np.int64(fh)
-        else:  # near a column edge or a wrap, or at the axis (x = y = 0): the definition
+        else:  # near a column edge or a wrap, or at the axis (|x|, |y| < AXIS): the definition
             col = _column(x[i], y[i], offsets[row], columns)
         k = row * columns + col
         r = ranges[i]

@@ -72,7 +72,11 @@ APPROX_MATH = _APPROX_MATH = {"contract", "arcp"}
 def _atan2_fast(y, x):
     """atan2(y, x) to ~1e-11 rad, branch-free so that loops vectorise.
 
-    NaN when x = y = 0; callers check such points with the exact path.
+    NaN when x = y = 0; callers check such points with the exact path. The
+    bound holds where ``max(|x|, |y|)`` is at least ~1e-300: below, the branch
+    test ``mn > tan(pi/8) * mx`` rounds among subnormals and the error reaches
+    3e-8 rad (callers send such points to the exact path too: the grid kernel
+    through its range and zenith tests, the beam kernel through ``AXIS``).
     """
     ax = abs(x)
     ay = abs(y)
