@@ -117,8 +117,10 @@ def row_table(edges, cells):
 
 @njit(cache=True, nogil=True, fastmath=APPROX_MATH, error_model="numpy")
 def _approx_azimuths(x, y, phi, n):
+    """Fast azimuths; NaN (the exact path's sign) nearer the axis than ``AXIS``."""
     for i in range(n):
-        phi[i] = atan2_fast(y[i], x[i])
+        p = atan2_fast(y[i], x[i])
+        phi[i] = p if max(abs(x[i]), abs(y[i])) >= AXIS else math.nan
 
 
 @njit(cache=True, nogil=True, error_model="numpy")
@@ -185,9 +187,9 @@ def _reduce_block(pts, s, e, ox, oy, oz, edges, lut, scale, offsets, columns, rm
         eh = qh - fh
         mh = tol_h + 1e-12 * qh
         if (abs(p) <= math.pi - FAST_TOL and a >= FAST_TOL and a <= two_pi - FAST_TOL
-                and eh >= mh and eh <= 1.0 - mh and max(abs(x[i]), abs(y[i])) >= AXIS):
+                and eh >= mh and eh <= 1.0 - mh):
             col = np.int64(fh)
-        else:  # near a column edge or a wrap, or at the axis (|x|, |y| < AXIS): the definition
+        else:  # near a column edge or a wrap, or at the axis (phi NaN): the definition
             col = _column(x[i], y[i], offsets[row], columns)
         k = row * columns + col
         r = ranges[i]
