@@ -35,7 +35,9 @@ def check_las_size(path, header) -> None:
     (variable-size chunks: exactly; fixed-size chunks: a count that leaves
     whole chunks unread — a lie within the last chunk needs a decompression
     to see, and goes unseen; a count larger than the table can hold is
-    refused here too, in its terms rather than the decompressor's)."""
+    refused here too, in its terms rather than the decompressor's). A LAS 1.4
+    legacy count that disagrees with the 1.4 count is read past with a warning."""
+    _check_legacy_count(path, header)
     if header.are_points_compressed:
         _check_laz_chunks(path, header)
         return
@@ -50,6 +52,27 @@ def check_las_size(path, header) -> None:
     if room > header.point_count:
         raise FormatError(f"{path}: the header declares {header.point_count:,} points, the file holds "
                           f"{room:,} (a header that lies, or a corrupt file)")
+
+
+def _check_legacy_count(path, header) -> None:
+    """Warn when a LAS 1.4 header's legacy point count (the 32-bit field that
+    readers of LAS 1.3 and older use) is neither 0 nor its 64-bit count: the
+    1.4 count is read (the specification's rule, and laspy's), but another
+    program may read the file as holding the legacy count's points."""
+    if (header.version.major, header.version.minor) < (1, 4):
+        return
+    with open(path, "rb") as f:
+        f.seek(_LEGACY_COUNT_AT)
+        raw = f.read(4)
+    legacy = int.from_bytes(raw, "little") if len(raw) == 4 else 0
+    if legacy and legacy != int(header.point_count):
+        warnings.warn(f"{path}: the header's legacy point count ({legacy:,}) disagrees with its LAS 1.4 "
+                      f"count ({int(header.point_count):,}); reading the 1.4 count (a reader of LAS 1.3 and "
+                      f"older would read {legacy:,})", UserWarning, stacklevel=3)
+
+
+#: byte offset of the public header's legacy "number of point records" (LAS 1.0-1.4)
+_LEGACY_COUNT_AT = 107
 
 
 def _check_laz_chunks(path, header) -> None:

@@ -453,6 +453,34 @@ def _read_las(path, streamed, chunk):
 
 
 @pytest.mark.parametrize("streamed", [False, True])
+@pytest.mark.parametrize("ext", [".las", ".laz"])
+@pytest.mark.parametrize("fmt", [1, 6])
+def test_a_las14_legacy_count_that_disagrees_is_read_past_with_a_warning(tmp_path, streamed, ext, fmt):
+    import warnings
+
+    import laspy
+
+    las = laspy.LasData(laspy.LasHeader(point_format=fmt, version="1.4"))
+    n = 1000
+    las.x, las.y, las.z = np.linspace(0, 10, n), np.linspace(1, 11, n), np.full(n, 0.5)
+    path = tmp_path / f"c{ext}"
+    las.write(str(path))
+    raw = bytearray(path.read_bytes())
+    for legacy, says in [(0, False), (n, False), (n // 2, True), (3 * n, True)]:
+        raw[107:111] = legacy.to_bytes(4, "little")
+        path.write_bytes(bytes(raw))
+        with warnings.catch_warnings(record=True) as got:
+            warnings.simplefilter("always")
+            out = _read_las(path, streamed, chunk=300)
+        said = [str(w.message) for w in got if "legacy point count" in str(w.message)]
+        assert bool(said) == says, (legacy, said)
+        if says:
+            assert f"({legacy:,})" in said[0] and f"({n:,})" in said[0]
+        if not streamed:
+            assert len(out) == n  # the 1.4 count
+
+
+@pytest.mark.parametrize("streamed", [False, True])
 def test_a_las_header_that_claims_more_points_than_the_file_holds(tmp_path, streamed):
     path = _las(tmp_path)
     _lie_about_count(path, 1500)
