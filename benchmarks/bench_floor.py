@@ -19,12 +19,15 @@ steadier figure: it does not count the time other jobs hold the core):
   pooled output arrays, as a prepared scan does, and into fresh ones (the
   difference: faulting in 177 MB of new pages).
 
-Saves results/bench_floor.json (bench_floor_<n>threads.json for other thread counts).
+Saves results/bench_floor.json (bench_floor_<n>threads.json for other thread counts)
+and draws docs/figures/floor.png from the saved one- and two-thread results
+(``--figure-only`` draws it without measuring).
 """
 
 from __future__ import annotations
 
 import argparse
+import json
 import sys
 import time
 from concurrent.futures import ThreadPoolExecutor
@@ -35,7 +38,7 @@ from numba import njit
 
 sys.path.insert(0, str(Path(__file__).resolve().parent))
 
-from common import machine, realistic_cloud, save  # noqa: E402
+from common import RESULTS, machine, realistic_cloud, save  # noqa: E402
 
 import slr_ray  # noqa: E402
 from slr_ray import ScanPattern, prepare  # noqa: E402
@@ -79,7 +82,10 @@ def main(argv=None):
     ap.add_argument("--rounds", type=int, default=7)
     ap.add_argument("--threads", type=int, default=2)
     ap.add_argument("--resolution", type=float, default=0.029, help="primary scan resolution of the cloud")
+    ap.add_argument("--figure-only", action="store_true", help="draw the figure from the saved results")
     args = ap.parse_args(argv)
+    if args.figure_only:
+        return _figure()
     T = args.threads
     pts = np.ascontiguousarray(realistic_cloud(args.resolution))
     scanner = prepare(pts, n_threads=T)
@@ -136,6 +142,43 @@ def main(argv=None):
     save("bench_floor" if T == 2 else f"bench_floor_{T}threads", {"machine": machine(), "inputs": {"points": len(pts), "threads": T, "rounds": args.rounds,
                                                          "origin": ORIGIN.tolist(), "bytes": pts.nbytes},
                          "read_gb_per_s": gbps, "rows": rows})
+    _figure()
+
+
+def _figure():
+    """Each pass's seconds beside the angle kernel's: one thread (CPU) and two (wall)."""
+    from matplotlib.figure import Figure
+
+    from slr_ray.plotting import save_figure
+
+    runs = {label: RESULTS / name for label, name in
+            (("1 thread, CPU s", "bench_floor_1threads.json"), ("2 threads, wall s", "bench_floor.json"))}
+    runs = {k: json.loads(v.read_text()) for k, v in runs.items() if v.exists()}
+    if not runs:
+        print("no saved results to draw")
+        return
+    names = {"read": "read the coordinates", "angles": "angle kernel alone", "scan 0.144": "0.144 deg scan",
+             "scan syns 0.036": "SYNS 0.036 deg scan", "scan hdl64e_s2": "HDL-64E S2 frame",
+             "scan vlp16": "VLP-16 frame"}
+    fig = Figure(figsize=(6.5, 3.4), layout="constrained")
+    ax = fig.add_subplot()
+    ys = np.arange(len(names))
+    height = 0.8 / len(runs)
+    for j, (label, run) in enumerate(runs.items()):
+        key = "median_cpu_seconds" if label.endswith("CPU s") else "median_seconds"
+        by = {r["what"]: r.get(key, r["median_seconds"]) for r in run["rows"]}
+        vals = [by.get(k, np.nan) for k in names]
+        ax.barh(ys + (j - (len(runs) - 1) / 2) * height, vals, height, label=f"{label} ({run['machine']['date'][:10]})")
+        ax.axvline(by["angles"], color=f"C{j}", lw=0.8, ls="--")
+    ax.set_yticks(ys, list(names.values()))
+    ax.invert_yaxis()
+    ax.set_xlabel("seconds (dashed: the angle kernel alone)")
+    pts = next(iter(runs.values()))["inputs"]["points"]
+    ax.set_title(f"binning passes on {pts / 1e6:.0f} M points, prepared scanner, medians", fontsize=9)
+    ax.legend(fontsize=8)
+    path = Path(__file__).resolve().parent.parent / "docs" / "figures" / "floor.png"
+    save_figure(fig, path)
+    print(f"saved {path}")
 
 
 if __name__ == "__main__":
