@@ -92,9 +92,11 @@ def label_path(bin_path) -> Path | None:
     return None
 
 
-def input_sidecars(path) -> list:
-    """The files :func:`slr_ray.io.read_cloud` reads beside ``path`` (a ``.bin``'s labels)."""
-    if Path(path).suffix.lower() == ".bin":
+def input_sidecars(path, fmt: str | None = None) -> list:
+    """The files :func:`slr_ray.io.read_cloud` reads beside ``path`` read as ``fmt``
+    (default: its extension; ``--input-format bin`` reads a ``.label`` beside any name):
+    a ``.bin``'s labels."""
+    if (fmt or Path(path).suffix).lower().lstrip(".") == "bin":
         lab = label_path(path)
         return [lab] if lab is not None else []
     return []
@@ -265,13 +267,14 @@ class OutputPlan:
         self._created: list = []
 
     # -- building --
-    def read(self, path, sidecars: bool = True):
-        """An input (and, with ``sidecars``, what the reader reads beside it). None is skipped."""
+    def read(self, path, sidecars: bool = True, fmt: str | None = None):
+        """An input (and, with ``sidecars``, what the reader of format ``fmt``, default
+        the extension's, reads beside it). None is skipped."""
         if path is None:
             return None
         self.inputs.setdefault(resolve(path), str(path))
         if sidecars:
-            for s in input_sidecars(path):
+            for s in input_sidecars(path, fmt):
                 self.inputs.setdefault(resolve(s), str(s))
         return Path(path)
 

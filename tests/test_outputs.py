@@ -112,6 +112,15 @@ def test_a_kitti_output_plans_its_label_sidecar(tmp_path):
     assert (tmp_path / "p.label").read_bytes() == b"mine"
 
 
+def test_input_format_bin_plans_the_labels_it_reads_beside_any_name(tmp_path):
+    # `--input-format bin` reads k.label beside k.dat: it is an input, never written over (--force too)
+    src = _kitti(tmp_path / "k.dat")
+    before = _tree(tmp_path)
+    assert main(_scan(src, tmp_path / "k.bin", "--input-format", "bin", "--force")) == 2  # writes k.label
+    assert main(_scan(src, tmp_path / "k.label", "--input-format", "bin", "--format", "npy", "--force")) == 2
+    assert _tree(tmp_path) == before
+
+
 def test_a_bin_written_without_labels_leaves_no_stale_labels_beside_it(tmp_path):
     out = tmp_path / "o.bin"
     np.arange(3, dtype="<u4").tofile(tmp_path / "o.label")
