@@ -259,9 +259,13 @@ def _read_las(path):
     return PointCloud(pts, attrs, None, {**meta, "las": LasRecords(header, evlrs, array)})
 
 
-def _write_las(path, cloud, binary):
+def _write_las(path, cloud, binary, compress=False):
     src = cloud.meta.get("las")
-    las.write(path, cloud, src if isinstance(src, LasRecords) else None)
+    las.write(path, cloud, src if isinstance(src, LasRecords) else None, compress=compress)
+
+
+def _write_laz(path, cloud, binary):  # the format asked for, not the name's extension (-o x.dat --format laz)
+    _write_las(path, cloud, binary, compress=True)
 
 
 def _read_kitti(path):
@@ -606,6 +610,6 @@ def _write_xyz(path, cloud, binary):
     np.savetxt(path, data, fmt=fmts)
 
 
-_WRITERS = {".npy": _write_npy, ".npz": _write_npz, ".ply": _write_ply, ".las": _write_las, ".laz": _write_las,
+_WRITERS = {".npy": _write_npy, ".npz": _write_npz, ".ply": _write_ply, ".las": _write_las, ".laz": _write_laz,
             ".bin": _write_kitti, ".xyz": _write_xyz, ".txt": _write_xyz, ".e57": e57.write,
             ".pcd": pcd.write}
