@@ -458,7 +458,9 @@ def _augment(input_path, out, config, pattern, options, ext, names, ground, prog
     if not fresh:
         done = _resumable(manifest_path, settings, positions, out)
     else:
-        strays = sorted(n for n in names if (out / n).exists())
+        # a scan's sidecars too (a .bin's .label): written over, or removed as stale, by a fresh run
+        strays = sorted(str(p if p.parent != out else p.name) for n in names
+                        for p in [out / n, *output_sidecars(out / n, ext)] if p.exists())
         if strays:
             raise OutputError(f"{out} holds {strays[0]}{f' and {len(strays) - 1} more' if len(strays) > 1 else ''} "
                               f"but no {MANIFEST}: not a run this one can resume; write elsewhere")

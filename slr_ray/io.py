@@ -42,7 +42,7 @@ from plyfile import PlyData, PlyElement
 from . import e57, las, pcd
 from .las import check_las_size
 from .errors import FormatError, OutputError
-from .outputs import label_path, label_targets, part_prefix, resolve
+from .outputs import label_destinations, label_path, label_targets, part_prefix, resolve
 
 __all__ = ["PointCloud", "LasRecords", "read_cloud", "write_cloud", "read_e57_scans", "check_format",
            "check_las_size", "label_path", "FORMATS"]
@@ -259,9 +259,13 @@ def _read_las(path):
     return PointCloud(pts, attrs, None, {**meta, "las": LasRecords(header, evlrs, array)})
 
 
-def _write_las(path, cloud, binary):
+def _write_las(path, cloud, binary, compress=False):
     src = cloud.meta.get("las")
-    las.write(path, cloud, src if isinstance(src, LasRecords) else None)
+    las.write(path, cloud, src if isinstance(src, LasRecords) else None, compress=compress)
+
+
+def _write_laz(path, cloud, binary):  # the format asked for, not the name's extension (-o x.dat --format laz)
+    _write_las(path, cloud, binary, compress=True)
 
 
 def _read_kitti(path):
@@ -400,12 +404,12 @@ def write_cloud(path, cloud: PointCloud, format: str | None = None, binary: bool
             # the user named `path`, not our temporary file: say it in their terms
             raise FormatError(str(exc).replace(str(tmp), str(path))) from exc
     if ext == ".bin":
-        targets = label_targets(path)
-        if words is not None:
-            with atomic_path(targets[0]) as tmp:
+        written = label_destinations(path) if words is not None else []  # a link's: beside it and its file
+        for dest in written:
+            with atomic_path(dest) as tmp:
                 words.tofile(tmp)
-        for stale in targets[words is not None:]:  # an older file's labels: a reader would pair them with this .bin
-            if stale.is_file():
+        for stale in label_targets(path)[len(written):]:  # an older file's labels: a reader would pair them
+            if stale.is_file():                            # with this .bin
                 stale.unlink()
     return path
 
@@ -606,6 +610,6 @@ def _write_xyz(path, cloud, binary):
     np.savetxt(path, data, fmt=fmts)
 
 
-_WRITERS = {".npy": _write_npy, ".npz": _write_npz, ".ply": _write_ply, ".las": _write_las, ".laz": _write_las,
+_WRITERS = {".npy": _write_npy, ".npz": _write_npz, ".ply": _write_ply, ".las": _write_las, ".laz": _write_laz,
             ".bin": _write_kitti, ".xyz": _write_xyz, ".txt": _write_xyz, ".e57": e57.write,
             ".pcd": pcd.write}

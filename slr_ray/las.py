@@ -131,8 +131,8 @@ def read(path) -> tuple:
 _LAYOUT_RECORDS = {"copc"}
 
 
-def write(path, cloud, src=None) -> None:
-    """Write ``cloud`` as LAS/LAZ (by the extension). From a LAS source ``src``
+def write(path, cloud, src=None, compress: bool | None = None) -> None:
+    """Write ``cloud`` as LAS/LAZ (``compress``; default: by the extension). From a LAS source ``src``
     (:class:`~slr_ray.io.LasRecords`, a cloud's ``meta["las"]``): the source's header, VLRs,
     EVLRs and raw records for the points kept, so version, point format, CRS,
     GPS time type and extra-byte types are those of the input; attributes
@@ -191,7 +191,9 @@ def write(path, cloud, src=None) -> None:
                 _set_las_field(las, k, v, path)
             else:
                 _add_las_extra(las, k, v, path)
-    las.write(str(path), do_compress=Path(path).suffix.lower() == ".laz")
+    # laspy decides compression by a path's extension and ignores do_compress: hand it a file object
+    with open(path, "w+b") as f:  # as laspy opens it
+        las.write(f, do_compress=Path(path).suffix.lower() == ".laz" if compress is None else bool(compress))
 
 
 def _las_format_for(cloud) -> tuple[int, str]:

@@ -43,7 +43,7 @@ from pathlib import Path
 from .errors import OutputError
 
 __all__ = ["OutputPlan", "resolve", "output_sidecars", "input_sidecars", "label_targets", "content_digest",
-           "clean_stale_parts", "part_prefix", "label_path", "LOCK_NAME"]
+           "clean_stale_parts", "part_prefix", "label_path", "label_destinations", "LOCK_NAME"]
 
 #: The lock file in an output directory while a command writes there.
 LOCK_NAME = ".slr_ray.lock"
@@ -69,16 +69,46 @@ def _layout_label(p: Path) -> Path | None:
     return p.parent.parent / "labels" / (p.stem + ".label") if p.parent.name == "velodyne" else None
 
 
-def label_targets(bin_path) -> list:
-    """Where :func:`slr_ray.io.write_cloud` puts the labels of a KITTI ``.bin`` (first),
-    and every other place a reader would look for them: a stale file there is
-    removed (it would be paired with the new points). In the SemanticKITTI layout
-    (``velodyne/`` beside an existing ``labels/``) the labels go to ``labels/``."""
-    p = Path(bin_path)
+def _named_label_targets(p: Path) -> list:
     beside, layout = p.with_suffix(".label"), _layout_label(p)
     if layout is not None and layout.parent.is_dir():
         return [layout, beside]
     return [beside]
+
+
+def label_destinations(bin_path) -> list:
+    """Where :func:`slr_ray.io.write_cloud` writes the labels of a KITTI ``.bin``:
+    where a reader of ``bin_path`` looks first and, for a ``bin_path`` that is a
+    symbolic link (written through), where a reader of the file it points to
+    looks first too (else that file's old labels would stay paired with its new
+    points)."""
+    p = Path(bin_path)
+    out = [_named_label_targets(p)[0]]
+    if p.is_symlink():
+        real = _named_label_targets(resolve(p))[0]
+        if resolve(real) != resolve(out[0]):
+            out.append(real)
+    return out
+
+
+def label_targets(bin_path) -> list:
+    """Where :func:`slr_ray.io.write_cloud` puts the labels of a KITTI ``.bin``
+    (:func:`label_destinations`, first), and every other place a reader would
+    look for them: a stale file there is removed (it would be paired with the
+    new points). In the SemanticKITTI layout (``velodyne/`` beside an existing
+    ``labels/``) the labels go to ``labels/``. A ``.bin`` that is a symbolic
+    link adds the places beside the file it points to."""
+    p = Path(bin_path)
+    targets = label_destinations(p) + _named_label_targets(p)
+    if p.is_symlink():
+        targets += _named_label_targets(resolve(p))
+    out, seen = [], set()
+    for t in targets:  # one path per file: a .label that is a link to another is one target
+        r = resolve(t)
+        if r not in seen:
+            seen.add(r)
+            out.append(t)
+    return out
 
 
 def label_path(bin_path) -> Path | None:
@@ -92,9 +122,11 @@ def label_path(bin_path) -> Path | None:
     return None
 
 
-def input_sidecars(path) -> list:
-    """The files :func:`slr_ray.io.read_cloud` reads beside ``path`` (a ``.bin``'s labels)."""
-    if Path(path).suffix.lower() == ".bin":
+def input_sidecars(path, fmt: str | None = None) -> list:
+    """The files :func:`slr_ray.io.read_cloud` reads beside ``path`` read as ``fmt``
+    (default: its extension; ``--input-format bin`` reads a ``.label`` beside any name):
+    a ``.bin``'s labels."""
+    if (fmt or Path(path).suffix).lower().lstrip(".") == "bin":
         lab = label_path(path)
         return [lab] if lab is not None else []
     return []
@@ -265,13 +297,14 @@ class OutputPlan:
         self._created: list = []
 
     # -- building --
-    def read(self, path, sidecars: bool = True):
-        """An input (and, with ``sidecars``, what the reader reads beside it). None is skipped."""
+    def read(self, path, sidecars: bool = True, fmt: str | None = None):
+        """An input (and, with ``sidecars``, what the reader of format ``fmt``, default
+        the extension's, reads beside it). None is skipped."""
         if path is None:
             return None
         self.inputs.setdefault(resolve(path), str(path))
         if sidecars:
-            for s in input_sidecars(path):
+            for s in input_sidecars(path, fmt):
                 self.inputs.setdefault(resolve(s), str(s))
         return Path(path)
 

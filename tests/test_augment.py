@@ -332,3 +332,19 @@ def test_a_manifest_of_another_shape_is_a_one_line_error(laz, tmp_path, content)
     with pytest.raises(InputValueError, match="not a manifest slr_ray can read"):
         _run(laz, out, 1, min_ground_points=1000)
     assert (out / "manifest.json").read_text() == content
+
+
+def test_a_fresh_run_never_removes_a_label_file_it_did_not_write(tmp_path):
+    # a directory with another program's scan_0000_h1.65.label and no manifest: a fresh --format bin
+    # run removed it as a stale sidecar of its scan (and would have written over it with labels)
+    rng = np.random.default_rng(0)
+    pts = np.column_stack([rng.uniform(-20, 20, (4000, 2)), rng.normal(0, 0.01, 4000)])
+    src = tmp_path / "g.npz"
+    np.savez(src, points=pts, is_ground=np.ones(4000, bool))
+    out = tmp_path / "out"
+    out.mkdir()
+    (out / "scan_0000_h1.65.label").write_bytes(b"mine")
+    with pytest.raises(SlrError, match="scan_0000_h1.65.label"):
+        _run(src, out, 1, resolution=2.0, min_ground_points=10, workers=1, fmt=".bin")
+    assert (out / "scan_0000_h1.65.label").read_bytes() == b"mine"
+    assert sorted(p.name for p in out.iterdir()) == ["scan_0000_h1.65.label"]

@@ -1,5 +1,6 @@
 import os
 
+import laspy
 import numpy as np
 import pytest
 
@@ -816,3 +817,13 @@ def test_a_laz_header_that_claims_fewer_points_than_its_chunks_hold(tmp_path, st
         _read_las(path, streamed, chunk=30_000)
     _lie_about_count(path, 110_000)  # within the last chunk: the table cannot tell (documented)
     assert len(read_cloud(path)) == 110_000
+
+
+def test_format_laz_compresses_whatever_the_name_and_las_does_not(tmp_path):
+    # -o out.dat --format laz was written as uncompressed LAS (compression followed the name's extension)
+    cloud = PointCloud(np.random.default_rng(0).uniform(0, 10, (2000, 3)))
+    for fmt, name in (("laz", "a.dat"), ("las", "b.laz"), ("laz", "c.laz"), ("las", "d.las")):
+        write_cloud(tmp_path / name, cloud, fmt)
+        with laspy.open(tmp_path / name) as f:
+            assert f.header.are_points_compressed == (fmt == "laz"), (fmt, name)
+        assert len(read_cloud(tmp_path / name, fmt)) == 2000

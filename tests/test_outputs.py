@@ -112,6 +112,32 @@ def test_a_kitti_output_plans_its_label_sidecar(tmp_path):
     assert (tmp_path / "p.label").read_bytes() == b"mine"
 
 
+def test_input_format_bin_plans_the_labels_it_reads_beside_any_name(tmp_path):
+    # `--input-format bin` reads k.label beside k.dat: it is an input, never written over (--force too)
+    src = _kitti(tmp_path / "k.dat")
+    before = _tree(tmp_path)
+    assert main(_scan(src, tmp_path / "k.bin", "--input-format", "bin", "--force")) == 2  # writes k.label
+    assert main(_scan(src, tmp_path / "k.label", "--input-format", "bin", "--format", "npy", "--force")) == 2
+    assert _tree(tmp_path) == before
+
+
+def test_a_bin_written_through_a_link_leaves_no_stale_labels_beside_the_file_it_points_to(tmp_path):
+    (tmp_path / "real").mkdir()
+    (tmp_path / "view").mkdir()
+    real = _kitti(tmp_path / "real" / "r.bin", n=50, seed=1)  # with its own labels
+    os.symlink(real, tmp_path / "view" / "r.bin")
+    src = _kitti(tmp_path / "k.bin")
+    assert main(_scan(src, tmp_path / "view" / "r.bin", "--force")) == 0
+    assert (tmp_path / "view" / "r.bin").is_symlink()
+    direct, linked = read_cloud(real), read_cloud(tmp_path / "view" / "r.bin")
+    assert len(direct) == len(linked) != 50
+    for c in (direct, linked):  # the new labels wherever a reader looks, never the old ones
+        assert np.array_equal(c.attributes["semantic"], linked.attributes["semantic"])
+    # written without labels: neither place keeps labels paired with the new points
+    write_cloud(tmp_path / "view" / "r.bin", PointCloud(np.zeros((5, 3))))
+    assert not (tmp_path / "real" / "r.label").exists() and not (tmp_path / "view" / "r.label").exists()
+
+
 def test_a_bin_written_without_labels_leaves_no_stale_labels_beside_it(tmp_path):
     out = tmp_path / "o.bin"
     np.arange(3, dtype="<u4").tofile(tmp_path / "o.label")

@@ -62,7 +62,7 @@ def _plan(args, *, inputs=(), outputs=(), fmt=None, figures=()) -> OutputPlan:
     figures (whose format is checked with the rest), checked."""
     plan = OutputPlan(force=getattr(args, "force", False))
     for path in inputs:
-        plan.read(path)
+        plan.read(path, fmt=getattr(args, "input_format", None))  # --input-format bin reads a .label beside it
     for flag in ("sensor_file", "profile_file", "effects", "ray_drop"):
         plan.read(getattr(args, flag, None), sidecars=False)
     for i, path in enumerate(outputs):

@@ -38,7 +38,7 @@ def fit_drop(args):
     if Path(args.output).suffix.lower() != ".json":
         raise InputValueError(f"-o {args.output}: the model is written as JSON (.json)")
     plan = OutputPlan(force=args.force)
-    plan.read(args.frame)
+    plan.read(args.frame, fmt=args.input_format)
     plan.write(args.output)
     with plan:
         t0 = time.perf_counter()

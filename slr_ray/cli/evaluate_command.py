@@ -18,8 +18,9 @@ __all__ = ["evaluate"]
 
 def evaluate(args):
     plan = OutputPlan(force=args.force)
-    for path in (args.a, args.b, args.transform):
-        plan.read(path)
+    for path in (args.a, args.b):
+        plan.read(path, fmt=args.input_format)  # --input-format bin reads a .label beside any name
+    plan.read(args.transform, sidecars=False)  # a text matrix: nothing is read beside it
     out = plan.directory(args.output)
     for name in EVALUATION_FILES.values():
         plan.write(out / name)
