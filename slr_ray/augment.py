@@ -85,8 +85,9 @@ def _resumable(manifest_path: Path, settings: dict, positions, out: Path) -> dic
     A run resumes only one with the same settings (input, seed, pattern,
     backend and options, ground threshold, format, effects) whose positions agree with
     this run's as far as both go (a run for more positions extends one for
-    fewer). Anything else is refused with the differences named: a rerun with
-    other settings never mixes its scans with the old ones.
+    fewer; a run for fewer is refused, as its manifest could not describe the
+    scans already there). Anything else is refused with the differences named:
+    a rerun with other settings never mixes its scans with the old ones.
     """
     try:
         old = json.loads(manifest_path.read_text())
@@ -99,7 +100,12 @@ def _resumable(manifest_path: Path, settings: dict, positions, out: Path) -> dic
         raise InputValueError(f"{manifest_path} was written by an older slr_ray without its settings: "
                               "write elsewhere (or remove the directory)")
     diff = _differences(before, settings)
-    k = min(len(positions), len(old.get("positions", [])))
+    held = len(old.get("positions", []))
+    if len(positions) < held and not diff:
+        # its manifest would list the old run's scans past this run's positions, without them
+        raise InputValueError(f"{out} holds a run of {held} positions and this run asks {len(positions)}: "
+                              f"ask n={held} (or more) to resume or extend it, or write elsewhere")
+    k = min(len(positions), held)
     if not np.array_equal(np.asarray(old.get("positions", []))[:k].reshape(-1, 3), positions[:k]):
         diff.append("positions differ")
     if diff:

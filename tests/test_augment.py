@@ -170,6 +170,11 @@ def test_a_rerun_with_other_settings_never_mixes_with_the_old_scans(laz, tmp_pat
         assert sorted(p.name for p in out.iterdir()) == files
     more = _run(laz, out, 5, **kw)  # more positions of the same draw extend the run
     assert more["positions"][:3] == first["positions"] and len(more["scans"]) == 5
+    manifest = (out / "manifest.json").read_bytes()
+    with pytest.raises(InputValueError, match="holds a run of 5 positions and this run asks 3"):
+        _run(laz, out, 3, **kw)  # fewer: its manifest would list scans it has no positions for
+    assert (out / "manifest.json").read_bytes() == manifest and len(_files(out)) == 5
+    assert len(_run(laz, out, 5, **kw)["scans"]) == 5  # the same run again: nothing to do
     with pytest.raises(InputValueError, match="repeat"):
         _run(laz, tmp_path / "h", 2, heights=(1.65, 1.65), **kw)
     assert not (tmp_path / "h").exists()
