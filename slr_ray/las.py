@@ -161,6 +161,8 @@ def write(path, cloud, src=None, compress: bool | None = None) -> None:
         have = set(las.point_format.dimension_names)
         edited = [k for k, v in cloud.attributes.items()
                   if k in have and not np.array_equal(np.asarray(las[k]), np.asarray(v))]
+        if moved:
+            _fit_offsets(header, cloud.points, path)
         if moved or edited:
             las.points = laspy.ScaleAwarePointRecord(src.array.copy(), header.point_format, header.scales,
                                                      header.offsets)
@@ -182,6 +184,7 @@ def write(path, cloud, src=None, compress: bool | None = None) -> None:
             header.scales = np.array([0.001, 0.001, 0.001])
             # column by column: numpy's min(axis=0) of an (n, 3) array is 20x slower
             header.offsets = np.floor([cloud.points[:, i].min() for i in range(3)]) if n else np.zeros(3)
+        _fit_offsets(header, cloud.points, path)
         # the records allocated at their size (assigning x to an empty LasData grows it by np.append)
         las = laspy.LasData(header, laspy.ScaleAwarePointRecord.zeros(n, header=header))
         las.x, las.y, las.z = cloud.points[:, 0], cloud.points[:, 1], cloud.points[:, 2]
@@ -194,6 +197,38 @@ def write(path, cloud, src=None, compress: bool | None = None) -> None:
     # laspy decides compression by a path's extension and ignores do_compress: hand it a file object
     with open(path, "w+b") as f:  # as laspy opens it
         las.write(f, do_compress=Path(path).suffix.lower() == ".laz" if compress is None else bool(compress))
+
+
+def _fit_offsets(header, points, path) -> None:
+    """Keep ``header``'s offsets where every coordinate fits LAS's 32-bit
+    integers at its scales; elsewhere move the offset to the middle of the
+    points (whole metres; a warning names old and new: the scales, hence the
+    precision, stay). A span the scale cannot hold at all is a FormatError
+    (laspy said "Values given do not fit" in a traceback: points moved by
+    sensor effects out of a source's range, or a cloud thousands of km wide)."""
+    if not len(points):
+        return
+    scales = np.asarray(header.scales, float)
+    offsets = np.asarray(header.offsets, float)
+    lo = np.array([points[:, i].min() for i in range(3)])  # column by column: min(axis=0) is slow here
+    hi = np.array([points[:, i].max() for i in range(3)])
+
+    def fits(off):
+        return (np.round((lo - off) / scales) >= -(2**31)) & (np.round((hi - off) / scales) <= 2**31 - 1)
+
+    ok = fits(offsets)
+    if ok.all():
+        return
+    new = np.where(ok, offsets, np.floor((lo + hi) / 2))
+    bad = ~fits(new)
+    if bad.any():
+        i = int(np.flatnonzero(bad)[0])
+        raise FormatError(f"{path}: the points span {hi[i] - lo[i]:.6g} m in {'xyz'[i]}, more than LAS's 32-bit "
+                          f"integers hold at its scale {scales[i]:g} (at most {scales[i] * (2**32 - 1):.6g} m)")
+    warnings.warn(f"{path}: the points do not fit the LAS offsets {offsets.tolist()} at scales "
+                  f"{scales.tolist()}; offsets written as {new.tolist()} (the scales, hence the precision, "
+                  "are kept)", stacklevel=5)
+    header.offsets = new
 
 
 def _las_format_for(cloud) -> tuple[int, str]:

@@ -453,13 +453,43 @@ def _read_las(path, streamed, chunk):
     return read_cloud(path)
 
 
+@pytest.mark.parametrize("ext", [".las", ".laz"])
+def test_points_moved_out_of_a_las_sources_offsets_get_new_offsets_with_a_warning(tmp_path, ext):
+    import warnings
+
+    header = laspy.LasHeader(point_format=1, version="1.2")
+    header.scales, header.offsets = [0.01, 0.01, 0.001], [0.0, 0.0, 0.0]
+    las = laspy.LasData(header)
+    n = 500
+    las.x, las.y, las.z = 2.147e7 + np.arange(n) * 0.01, np.linspace(-5, 5, n), np.full(n, 1.5)
+    las.gps_time = np.arange(n, dtype=float)
+    src = tmp_path / f"src{ext}"
+    las.write(str(src))
+    cloud = read_cloud(src)
+    with warnings.catch_warnings():
+        warnings.simplefilter("error")  # unmoved: the source's offsets, no warning
+        write_cloud(tmp_path / f"same{ext}", cloud)
+    assert laspy.read(str(tmp_path / f"same{ext}")).header.offsets.tolist() == [0.0, 0.0, 0.0]
+    cloud.points[:, 0] += 1e5  # beyond 2**31 hundredths of a metre from the offset (effects that move points)
+    with pytest.warns(UserWarning, match=r"do not fit the LAS offsets \[0.0, 0.0, 0.0\].*written as \[21"):
+        write_cloud(tmp_path / f"moved{ext}", cloud)
+    back = laspy.read(str(tmp_path / f"moved{ext}"))
+    assert back.header.scales.tolist() == [0.01, 0.01, 0.001] and back.header.point_format.id == 1
+    assert back.header.offsets[1:].tolist() == [0.0, 0.0]  # the axes that fit keep theirs
+    np.testing.assert_allclose(read_cloud(tmp_path / f"moved{ext}").points, cloud.points, atol=0.0051)
+    np.testing.assert_array_equal(back.gps_time, np.arange(n, dtype=float))
+    wide = PointCloud(np.array([[0.0, 0, 0], [1e8, 0, 0]]), {}, None,
+                      {"las_scales": [0.01, 0.01, 0.01], "las_offsets": [0.0, 0.0, 0.0]})
+    with pytest.raises(FormatError, match="span 1e\\+08 m in x"):
+        write_cloud(tmp_path / f"wide{ext}", wide)
+    assert not (tmp_path / f"wide{ext}").exists()
+
+
 @pytest.mark.parametrize("streamed", [False, True])
 @pytest.mark.parametrize("ext", [".las", ".laz"])
 @pytest.mark.parametrize("fmt", [1, 6])
 def test_a_las14_legacy_count_that_disagrees_is_read_past_with_a_warning(tmp_path, streamed, ext, fmt):
     import warnings
-
-    import laspy
 
     las = laspy.LasData(laspy.LasHeader(point_format=fmt, version="1.4"))
     n = 1000
