@@ -212,14 +212,22 @@ def _fit_offsets(header, points, path) -> None:
     offsets = np.asarray(header.offsets, float)
     lo = np.array([points[:, i].min() for i in range(3)])  # column by column: min(axis=0) is slow here
     hi = np.array([points[:, i].max() for i in range(3)])
+    if not (np.isfinite(lo).all() and np.isfinite(hi).all()):  # NaN: the span below would say 'nan m'
+        rows = np.flatnonzero(~np.isfinite(points).all(axis=1))
+        raise FormatError(f"{path}: {len(rows):,} of {len(points):,} points have NaN or infinite coordinates "
+                          f"(rows {', '.join(map(str, rows[:5]))}{', ...' if len(rows) > 5 else ''}): "
+                          "LAS cannot store them; remove them first")
 
-    def fits(off):
-        return (np.round((lo - off) / scales) >= -(2**31)) & (np.round((hi - off) / scales) <= 2**31 - 1)
+    def fits(off):  # laspy's own test (past edge * scale + offset: OverflowError), and the rounded integers
+        return ((lo >= -(2**31) * scales + off) & (hi <= (2**31 - 1) * scales + off)
+                & (np.round((lo - off) / scales) >= -(2**31)) & (np.round((hi - off) / scales) <= 2**31 - 1))
 
     ok = fits(offsets)
     if ok.all():
         return
-    new = np.where(ok, offsets, np.floor((lo + hi) / 2))
+    middle = (lo + hi) / 2
+    new = np.where(ok, offsets, np.floor(middle))
+    new = np.where(fits(new), new, middle)  # whole metres can cost up to 1 m of a span near the limit (1e-7: 429 m)
     bad = ~fits(new)
     if bad.any():
         i = int(np.flatnonzero(bad)[0])

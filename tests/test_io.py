@@ -485,6 +485,49 @@ def test_points_moved_out_of_a_las_sources_offsets_get_new_offsets_with_a_warnin
     assert not (tmp_path / f"wide{ext}").exists()
 
 
+@pytest.mark.parametrize("edge", [2**31 - 1 + 0.3, -(2**31) - 0.3])
+def test_a_coordinate_within_half_a_step_past_the_int32_edge_gets_new_offsets(tmp_path, edge):
+    import warnings
+
+    # rounds to the edge's integer, but laspy refuses any value past edge * scale + offset (OverflowError)
+    header = laspy.LasHeader(point_format=1, version="1.2")
+    header.scales, header.offsets = [0.01, 0.01, 0.01], [0.0, 0.0, 0.0]
+    las = laspy.LasData(header)
+    las.x, las.y, las.z = np.array([0.0, 1.0]), np.zeros(2), np.zeros(2)
+    las.write(str(tmp_path / "src.las"))
+    cloud = read_cloud(tmp_path / "src.las")
+    cloud.points[1, 0] = edge * 0.01
+    with pytest.warns(UserWarning, match="do not fit the LAS offsets"):
+        write_cloud(tmp_path / "out.las", cloud)
+    np.testing.assert_allclose(read_cloud(tmp_path / "out.las").points, cloud.points, atol=0.005)
+    with warnings.catch_warnings():
+        warnings.simplefilter("error")  # exactly at the edge: fits, the offsets stay
+        cloud.points[1, 0] = np.trunc(edge) * 0.01
+        write_cloud(tmp_path / "edge.las", cloud)
+    assert laspy.read(str(tmp_path / "edge.las")).header.offsets.tolist() == [0.0, 0.0, 0.0]
+
+
+def test_a_span_that_fits_only_off_whole_metres_is_written(tmp_path):
+    # 428.99 m at scale 1e-7 fits 32 bits (429.5 m), but not around floor(middle) = 215
+    cloud = PointCloud(np.array([[0.99, 0, 0], [429.98, 0, 0]]), {}, None,
+                       {"las_scales": [1e-7] * 3, "las_offsets": [0.0, 0.0, 0.0]})
+    with pytest.warns(UserWarning, match="do not fit the LAS offsets"):
+        write_cloud(tmp_path / "fine.las", cloud)
+    np.testing.assert_allclose(read_cloud(tmp_path / "fine.las").points, cloud.points, atol=5e-8)
+
+
+@pytest.mark.parametrize("src", [False, True])
+def test_non_finite_coordinates_are_refused_by_the_las_writer_in_those_terms(tmp_path, src):
+    cloud = PointCloud(np.array([[0.0, 0, 0], [1.0, 2, 3]]), {}, None, {})
+    if src:
+        write_cloud(tmp_path / "src.las", cloud)
+        cloud = read_cloud(tmp_path / "src.las")
+    cloud.points[1, 1] = np.nan
+    with pytest.raises(FormatError, match="1 of 2 points have NaN or infinite coordinates"):
+        write_cloud(tmp_path / "nan.las", cloud)
+    assert not (tmp_path / "nan.las").exists()
+
+
 @pytest.mark.parametrize("streamed", [False, True])
 @pytest.mark.parametrize("ext", [".las", ".laz"])
 @pytest.mark.parametrize("fmt", [1, 6])
