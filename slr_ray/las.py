@@ -202,8 +202,9 @@ def write(path, cloud, src=None, compress: bool | None = None) -> None:
 def _fit_offsets(header, points, path) -> None:
     """Keep ``header``'s offsets where every coordinate fits LAS's 32-bit
     integers at its scales; elsewhere move the offset to the middle of the
-    points (whole metres; a warning names old and new: the scales, hence the
-    precision, stay). A span the scale cannot hold at all is a FormatError
+    points (whole metres where they fit, else the exact middle; a warning
+    names old and new: the scales, hence the precision, stay). NaN or infinite
+    coordinates are a FormatError naming them. A span the scale cannot hold at all is a FormatError
     (laspy said "Values given do not fit" in a traceback: points moved by
     sensor effects out of a source's range, or a cloud thousands of km wide)."""
     if not len(points):
