@@ -174,6 +174,10 @@ def write(path, cloud, src=None, compress: bool | None = None) -> None:
             elif k not in have:
                 _add_las_extra(las, k, v, path)
     else:
+        if src is not None and (src.header.vlrs or src.evlrs):
+            warnings.warn(f"{path}: the cloud's {len(cloud):,} points are not its LAS source's {len(src.array):,} "
+                          "records (a cloud built anew around another's meta): written with a new header, "
+                          "without the source's VLRs and EVLRs (its CRS among them)", stacklevel=4)
         fmt, version = _las_format_for(cloud)
         header = laspy.LasHeader(point_format=fmt, version=version)
         n = len(cloud)

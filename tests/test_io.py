@@ -453,6 +453,24 @@ def _read_las(path, streamed, chunk):
     return read_cloud(path)
 
 
+def test_a_cloud_that_no_longer_matches_its_las_source_says_its_records_are_not_carried(tmp_path):
+    import warnings
+
+    header = laspy.LasHeader(point_format=1, version="1.2")
+    header.vlrs.append(laspy.VLR("slr_ray_test", 1, "a record (a CRS, say)", b"\x00" * 8))
+    las = laspy.LasData(header)
+    las.x, las.y, las.z = np.arange(10.0), np.zeros(10), np.zeros(10)
+    las.write(str(tmp_path / "src.las"))
+    cloud = read_cloud(tmp_path / "src.las")
+    with warnings.catch_warnings():
+        warnings.simplefilter("error")  # a subset carries them: no warning
+        write_cloud(tmp_path / "sub.las", cloud.subset(np.arange(5)))
+    assert [v.user_id for v in laspy.read(str(tmp_path / "sub.las")).header.vlrs] == ["slr_ray_test"]
+    other = PointCloud(np.zeros((3, 3)), {}, None, cloud.meta)  # another cloud around its meta
+    with pytest.warns(UserWarning, match="without the source's VLRs and EVLRs"):
+        write_cloud(tmp_path / "other.las", other)
+
+
 @pytest.mark.parametrize("ext", [".las", ".laz"])
 def test_points_moved_out_of_a_las_sources_offsets_get_new_offsets_with_a_warning(tmp_path, ext):
     import warnings
