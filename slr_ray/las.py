@@ -37,10 +37,15 @@ def check_las_size(path, header) -> None:
     to see, and goes unseen; a count larger than the table can hold is
     refused here too, in its terms rather than the decompressor's). A LAS 1.4
     legacy count that disagrees with the 1.4 count is read past with a warning."""
-    _check_legacy_count(path, header)
     if header.are_points_compressed:
         _check_laz_chunks(path, header)
-        return
+    else:
+        _check_las_records(path, header)
+    _check_legacy_count(path, header)  # after the refusals: a file refused is not also warned about
+
+
+def _check_las_records(path, header) -> None:
+    """The uncompressed half of :func:`check_las_size`."""
     end = os.path.getsize(path)
     start_evlr = int(getattr(header, "start_of_first_evlr", 0) or 0)
     if getattr(header, "number_of_evlrs", 0) and header.offset_to_point_data < start_evlr <= end:

@@ -471,6 +471,23 @@ def test_a_cloud_that_no_longer_matches_its_las_source_says_its_records_are_not_
         write_cloud(tmp_path / "other.las", other)
 
 
+def test_a_las14_header_refused_for_its_count_is_not_also_warned_about_its_legacy_count(tmp_path):
+    import warnings
+
+    las = laspy.LasData(laspy.LasHeader(point_format=1, version="1.4"))
+    las.x, las.y, las.z = np.arange(10.0), np.zeros(10), np.zeros(10)
+    path = tmp_path / "c.las"
+    las.write(str(path))
+    raw = bytearray(path.read_bytes())
+    raw[107:111] = (10).to_bytes(4, "little")  # the legacy count right,
+    raw[247:255] = (0).to_bytes(8, "little")  # the 1.4 count a lie
+    path.write_bytes(bytes(raw))
+    with warnings.catch_warnings(record=True) as got, pytest.raises(FormatError, match="declares 0 points"):
+        warnings.simplefilter("always")
+        read_cloud(path)
+    assert not [w for w in got if "legacy point count" in str(w.message)]
+
+
 @pytest.mark.parametrize("ext", [".las", ".laz"])
 def test_points_moved_out_of_a_las_sources_offsets_get_new_offsets_with_a_warning(tmp_path, ext):
     import warnings
