@@ -167,7 +167,7 @@ def write(path, cloud, src=None, compress: bool | None = None) -> None:
         edited = [k for k, v in cloud.attributes.items()
                   if k in have and not np.array_equal(np.asarray(las[k]), np.asarray(v))]
         if moved:
-            _fit_offsets(header, cloud.points, path)
+            _fit_offsets(header, cloud.points, path, *_bounds(cloud.points))
         if moved or edited:
             las.points = laspy.ScaleAwarePointRecord(src.array.copy(), header.point_format, header.scales,
                                                      header.offsets)
@@ -186,14 +186,14 @@ def write(path, cloud, src=None, compress: bool | None = None) -> None:
         fmt, version = _las_format_for(cloud)
         header = laspy.LasHeader(point_format=fmt, version=version)
         n = len(cloud)
+        lo, hi = _bounds(cloud.points)  # once, for the default offsets and their check
         if "las_scales" in cloud.meta:
             header.scales = np.array(cloud.meta["las_scales"])
             header.offsets = np.array(cloud.meta["las_offsets"])
         else:
             header.scales = np.array([0.001, 0.001, 0.001])
-            # column by column: numpy's min(axis=0) of an (n, 3) array is 20x slower
-            header.offsets = np.floor([cloud.points[:, i].min() for i in range(3)]) if n else np.zeros(3)
-        _fit_offsets(header, cloud.points, path)
+            header.offsets = np.floor(lo) if n else np.zeros(3)
+        _fit_offsets(header, cloud.points, path, lo, hi)
         # the records allocated at their size (assigning x to an empty LasData grows it by np.append)
         las = laspy.LasData(header, laspy.ScaleAwarePointRecord.zeros(n, header=header))
         las.x, las.y, las.z = cloud.points[:, 0], cloud.points[:, 1], cloud.points[:, 2]
@@ -208,20 +208,27 @@ def write(path, cloud, src=None, compress: bool | None = None) -> None:
         las.write(f, do_compress=Path(path).suffix.lower() == ".laz" if compress is None else bool(compress))
 
 
-def _fit_offsets(header, points, path) -> None:
+def _bounds(points) -> tuple:
+    """Per-axis minimum and maximum (NaN where a column holds one; zeros for no points),
+    column by column: numpy's ``min(axis=0)`` of an ``(n, 3)`` array is 20x slower."""
+    if not len(points):
+        return np.zeros(3), np.zeros(3)
+    return (np.array([points[:, i].min() for i in range(3)]), np.array([points[:, i].max() for i in range(3)]))
+
+
+def _fit_offsets(header, points, path, lo, hi) -> None:
     """Keep ``header``'s offsets where every coordinate fits LAS's 32-bit
     integers at its scales; elsewhere move the offset to the middle of the
     points (whole metres where they fit, else the exact middle; a warning
     names old and new: the scales, hence the precision, stay). NaN or infinite
-    coordinates are a FormatError naming them. A span the scale cannot hold at all is a FormatError
-    (laspy said "Values given do not fit" in a traceback: points moved by
-    sensor effects out of a source's range, or a cloud thousands of km wide)."""
+    coordinates are a FormatError naming them, and so is a span the scale
+    cannot hold at all (laspy said "Values given do not fit" in a traceback: points moved by
+    sensor effects out of a source's range, or a cloud thousands of km wide).
+    ``lo``, ``hi``: the points' :func:`_bounds`."""
     if not len(points):
         return
     scales = np.asarray(header.scales, float)
     offsets = np.asarray(header.offsets, float)
-    lo = np.array([points[:, i].min() for i in range(3)])  # column by column: min(axis=0) is slow here
-    hi = np.array([points[:, i].max() for i in range(3)])
     if not (np.isfinite(lo).all() and np.isfinite(hi).all()):  # NaN: the span below would say 'nan m'
         rows = np.flatnonzero(~np.isfinite(points).all(axis=1))
         raise FormatError(f"{path}: {len(rows):,} of {len(points):,} points have NaN or infinite coordinates "

@@ -16,10 +16,11 @@ per angle, a 7-term Chebyshev polynomial; error below 1e-11 rad); a second
 vectorised pass turns them into keys wherever they decide the bin for
 certain; a point within 1e-8 rad of a bin edge, a field-of-view limit or the
 azimuth wrap (a few in 10^5), or within 1e-140 m of the origin (where the
-squares the fast angles take are subnormal), is left to a third pass, run only for a block
-that has such points, that takes its bin from the C library's ``atan2``:
-every key is exactly the definition's *for the float64 offsets* ``dx = x -
-ox``... as computed. Those offsets are the exact differences of the stored coordinates when point and origin lie within a
+squares the fast angles take are subnormal), is left to a third pass, run
+only for a block that has such points, that takes its bin from the C
+library's ``atan2``: every key is exactly the definition's *for the float64
+offsets* ``dx = x - ox``... as computed. Those offsets are the exact
+differences of the stored coordinates when point and origin lie within a
 factor of two of each other on an axis (Sterbenz's lemma: a UTM cloud with
 its scanner inside it), or when both are multiples of one power of two
 ``2**-k`` below ``2**(53 - k)`` (1/1024 m up to 8.8e12 m); then moving cloud
@@ -156,9 +157,8 @@ def _sure_keys(x, y, z, theta, phi, n, inv_dt, inv_dp, th0, th1, nh, rmin, rmax,
     smaller than the margins. NaN fails every test.
     Returns the number of keys left at -3, so that a block with none skips
     the third pass (most blocks: a few points in 10^5 are near an edge).
-    With the folded tests and the skip, a 0.144 deg prepared scan of the
-    29 M-point benchmark cloud takes 0.224 s of CPU on one thread instead of
-    0.250 (``python benchmarks/compare_checkouts.py``).
+    What the folded tests and the skip gained: docs/speed.md
+    (``python benchmarks/compare_checkouts.py``).
     """
     two_pi = 2.0 * math.pi
     r_lo = max(rmin, _R_SURE)  # r > 0 and r >= rmin, and no subnormal squares
