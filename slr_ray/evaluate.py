@@ -68,7 +68,6 @@ from dataclasses import dataclass
 from pathlib import Path
 
 import numpy as np
-from tqdm import tqdm
 
 from .arrays import as_points
 from .backends import prepare
@@ -77,6 +76,7 @@ from .io import atomic_path
 from .metrics import (FIELD_THRESHOLD, LIDAR4D_CODE_THRESHOLD, PAPER_THRESHOLD, point_metrics, range_bands,
                       range_image_metrics, seen_from)
 from .plotting import evaluation_figure, save_figure
+from .progress import bar as progress_bar
 from .scan import Scan
 from .sensors import BeamPattern, sensor
 
@@ -409,7 +409,7 @@ def evaluate_pair(a_points, b_points, a_beams="scan-order", b_beams="scan-order"
     rows, images = [], {"real": real_img["range"]}
     binning_img = None
     todo = [m for m in methods if not (m == "embree-beams" and a_beams is None)]
-    for m in tqdm(todo, desc="methods", disable=not progress):
+    for m in progress_bar(todo, "methods", "method", progress=progress, leave=True):
         t0 = time.perf_counter()
         prep = 0.0
         if m == BASELINE:

@@ -18,6 +18,7 @@ import matplotlib
 import numpy as np
 from matplotlib.backend_bases import FigureCanvasBase
 from matplotlib.figure import Figure
+from matplotlib.lines import Line2D
 from matplotlib.patches import Patch
 
 from .errors import InputValueError
@@ -201,29 +202,54 @@ def comparison_figure(result: dict):
 
 
 def demo_figure(primary, positions, rows, n_rectangles: int):
-    """The demo's figure: the primary scan from above with the SLR positions,
-    and coverage and precision of each SLR scan against its true scan, per backend."""
+    """The demo's figure: the primary scan from above with the SLR positions
+    numbered as in the demo's table and files (``position_01``...), and
+    coverage and precision of each SLR scan against its true scan, per backend.
+
+    ``rows`` carry ``number`` (1, 2, ...), ``distance_m``, ``backend``,
+    ``similarity`` and ``precision``."""
     fig = _figure(figsize=(12, 5.5))
     ax = fig.subplots(1, 2)
     pts = primary.points
     step = max(1, len(pts) // 200_000)
-    ax[0].scatter(pts[::step, 0], pts[::step, 1], s=0.1, c=primary.labels[::step] > 0, cmap="coolwarm",
-                  rasterized=True)
-    ax[0].scatter(positions[:, 0], positions[:, 1], marker="^", c="k", s=60, label="SLR positions")
-    ax[0].scatter([0], [0], marker="*", c="gold", s=150, edgecolor="k", label="primary scanner")
+    objects = primary.labels[::step] > 0
+    colours = {"ground": "#9db4d8", "objects (rectangles)": "#c0392b"}
+    ax[0].scatter(pts[::step, 0], pts[::step, 1], s=0.1, rasterized=True,
+                  c=np.where(objects, colours["objects (rectangles)"], colours["ground"]))
+    ax[0].scatter(positions[:, 0], positions[:, 1], marker="^", c="k", s=60, zorder=3)
+    for i, p in enumerate(positions, 1):
+        ax[0].annotate(str(i), p[:2], xytext=(5, 5), textcoords="offset points", fontsize=11, fontweight="bold",
+                       bbox={"boxstyle": "round,pad=0.15", "fc": "white", "ec": "none", "alpha": 0.8})
+    ax[0].scatter([0], [0], marker="*", c="gold", s=150, edgecolor="k", zorder=3)
+    handles = [Patch(color=c, label=k) for k, c in colours.items()] + [
+        Line2D([], [], ls="", marker="^", c="k", label="SLR positions (numbered)"),
+        Line2D([], [], ls="", marker="*", c="gold", mec="k", ms=12, label="primary scanner")]
+    ax[0].legend(handles=handles, loc="upper right", fontsize=8)
     ax[0].set(xlim=(-60, 60), ylim=(-60, 60), aspect="equal", xlabel="x (m)", ylabel="y (m)",
               title=f"primary scan, top view ({n_rectangles} rectangles)")
-    ax[0].legend(loc="upper right")
     backends = sorted({r.get("backend", "binning") for r in rows})
+    values = []
     for k, b in enumerate(backends):
         rr = [r for r in rows if r.get("backend", "binning") == b]
         d = [r["distance_m"] for r in rr]
-        ax[1].plot(d, [100 * r["similarity"] for r in rr], "o", c=f"C{k}", label=f"{b}: coverage")
+        cov = [100 * r["similarity"] for r in rr]
+        ax[1].plot(d, cov, "o", c=f"C{k}", ms=8, label=f"{b}: coverage")
+        values += cov
         if all("precision" in r for r in rr):
-            ax[1].plot(d, [100 * r["precision"] for r in rr], "x", c=f"C{k}", label=f"{b}: precision")
-    ax[1].axhline(90, ls=":", c="gray")
-    ax[1].set(xlabel="distance from primary scanner (m)", ylabel="% within 10 cm", ylim=(0, 101),
-              title="SLR scan vs true scan")
+            prec = [100 * r["precision"] for r in rr]
+            ax[1].plot(d, prec, "x", c=f"C{k}", ms=8, mew=2, label=f"{b}: precision")
+            values += prec
+    for r in rows:  # the position's number once, above its points
+        if r.get("backend", "binning") == backends[0] and "number" in r:
+            ax[1].annotate(str(r["number"]), (r["distance_m"], 100), xytext=(0, -12), textcoords="offset points",
+                           ha="center", fontsize=11, fontweight="bold")
+    ax[1].axhline(90, ls=":", c="gray", label="90 %: the paper's similarity below 17.5 m")
+    low = min([90.0, *values])
+    ax[1].set(xlabel="distance from primary scanner (m)", ylabel="% within 10 cm",
+              ylim=(max(0.0, 5 * np.floor(low / 5) - 5), 101), title="SLR scan vs true scan, by position")
+    d = [r["distance_m"] for r in rows]
+    if d:
+        ax[1].set_xlim(min(d) - 1.5, max(d) + 1.5)
     ax[1].legend(loc="lower left", fontsize=8)
     fig.tight_layout()
     return fig

@@ -106,6 +106,7 @@ def build_parser() -> argparse.ArgumentParser:
     A.add_backend(p, default="embree")
     A.add_input_format(p)
     p.add_argument("--png", help="also write a figure")
+    p.add_argument("--quiet", action="store_true", help="no progress")
     p.add_argument("--force", action="store_true", help="overwrite an existing --png")
 
     p = command("positions", "choose secondary scanner positions (the paper's grid method)")
@@ -192,6 +193,7 @@ def build_parser() -> argparse.ArgumentParser:
     backends = [b.value for b in Backend]
     p.add_argument("--backends", nargs="+", default=backends, choices=backends, help="backends run at each position")
     p.add_argument("--quick", action="store_true", help="a coarser, faster run (for tests)")
+    p.add_argument("--quiet", action="store_true", help="no progress (the report is still printed)")
     p.add_argument("--force", action="store_true", help="overwrite the files of an earlier demo")
 
     # evaluate: its handler lives in .evaluate_command (self-contained)
