@@ -287,30 +287,58 @@ def distances_figure(original, slr, sweep, max_distance: float = 40.0):
     return fig
 
 
+#: What each stage of the grid method removes, in a newcomer's words (slr_ray.positions.STAGES)
+_STAGE_WORDS = {"ground_support": "too little ground within reach", "azimuth_profile": "view test (azimuth profile)"}
+
+
+def _axis_origin(values) -> float:
+    """A round number to measure large coordinates (UTM, 10^5-10^7 m) from, so that
+    tick labels stay short and matplotlib adds no '+5.4012e6' offset; 0 for small ones."""
+    values = np.asarray(values, float)
+    if not len(values) or np.abs(values).max() < 1e4:
+        return 0.0
+    return float(np.floor(values.min() / 100.0) * 100.0)
+
+
 def cells_figure(cells, positions=None, points=None):
-    """Top view of the candidate cells each stage of the grid method removed and
-    kept (the paper's supplementary figure), with the drawn positions
-    (:class:`~slr_ray.positions.CandidateCells`)."""
-    fig = _figure(figsize=(8, 8))
+    """Top view of the candidate cells of the grid method: those kept, and those
+    removed by each stage (:class:`~slr_ray.positions.CandidateCells`), with the
+    drawn positions numbered as in the output's list."""
+    span = np.ptp(cells.centres, axis=0) if len(cells.centres) else np.ones(2)
+    fig = _figure(figsize=(8, 1.5 + float(np.clip(6.5 * span[1] / max(span[0], 1e-9), 3.0, 8.0))))
     ax = fig.subplots()
+    x0, y0 = _axis_origin(cells.centres[:, 0]), _axis_origin(cells.centres[:, 1])
+    skipped = {st["stage"] for st in cells.stages if st.get("skipped")}
+    shift = np.array([x0, y0])
     if points is not None and len(points):
         step = max(1, len(points) // 200_000)
-        ax.scatter(points[::step, 0], points[::step, 1], s=0.05, c="0.8", rasterized=True)
+        ax.scatter(points[::step, 0] - x0, points[::step, 1] - y0, s=0.05, c="0.8", rasterized=True)
     state = np.full(len(cells.ij), "ground_support", dtype=object)  # removed by ground support
     state[cells.kept["ground_support"] & ~cells.kept["azimuth_profile"]] = "azimuth_profile"
     state[cells.kept["azimuth_profile"]] = "kept"
-    face = {"ground_support": "#ff7f0e", "azimuth_profile": "#1f77b4", "kept": "#2ca02c"}
+    face = {"ground_support": "#f5b041", "azimuth_profile": "#85c1e9", "kept": "#1e8449"}
+    handles = []
     for st, colour in face.items():
         m = state == st
         if m.any():
-            ax.scatter(cells.centres[m, 0], cells.centres[m, 1], marker="s", s=12, c=colour, alpha=0.6)
+            ax.scatter(cells.centres[m, 0] - x0, cells.centres[m, 1] - y0, marker="s", s=12, c=colour,
+                       alpha=0.8 if st == "kept" else 0.5, rasterized=True)
+        if st in skipped:
+            handles.append(Patch(color="none", label=f"not run: {_STAGE_WORDS[st]}"))
+            continue
+        words = "candidates kept" if st == "kept" else "removed: " + _STAGE_WORDS[st]
+        handles.append(Patch(color=colour, label=f"{words} ({int(m.sum()):,})"))
     if positions is not None and len(positions):
-        ax.scatter(positions[:, 0], positions[:, 1], marker="^", c="k", s=40, label="positions")
-    ax.legend(handles=[Patch(color=face["ground_support"], label="removed: ground support"),
-                       Patch(color=face["azimuth_profile"], label="removed: azimuth profile"),
-                       Patch(color=face["kept"], label=f"kept ({len(cells)})")], loc="upper right")
-    ax.set(aspect="equal", xlabel="x (m)", ylabel="y (m)", title=f"{cells.cell_size:g} m cells: " + ", ".join(
-        f"{st['stage']} -{st['removed']}" for st in cells.stages))
+        xy = np.asarray(positions)[:, :2] - shift
+        ax.scatter(xy[:, 0], xy[:, 1], marker="^", c="k", s=50, zorder=3)
+        for i, p in enumerate(xy, 1):
+            ax.annotate(str(i), p, xytext=(4, 4), textcoords="offset points", fontsize=10, fontweight="bold")
+        handles.append(Line2D([], [], ls="", marker="^", c="k", label=f"positions drawn ({len(xy)})"))
+    ax.legend(handles=handles, loc="best", fontsize=9)
+    ax.ticklabel_format(useOffset=False, style="plain")
+    ax.set(aspect="equal", xlabel=f"x (m{f', from {x0:,.0f}' if x0 else ''})",
+           ylabel=f"y (m{f', from {y0:,.0f}' if y0 else ''})",
+           title=f"scanner positions: {cells.cell_size:g} m cells with points, and which could hold a scanner")
     fig.tight_layout()
     return fig
 
