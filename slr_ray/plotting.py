@@ -361,37 +361,41 @@ def range_image_figure(image: dict, title: str = "", max_range: float | None = N
 
 
 def evaluation_figure(result: dict, max_range: float = 50.0, max_error: float = 1.0):
-    """A real-pair evaluation (:func:`slr_ray.evaluate.evaluate_pair`): the real
-    range image, each method's simulated one and its error (simulated - real,
-    where both return; grey where only one returns)."""
+    """A real-pair evaluation (:func:`slr_ray.evaluate.evaluate_pair`) at a glance:
+    the real range image of B, then one panel a method with its error where
+    both return (simulated - real, blue nearer, red farther) and grey where
+    only one of them returns; each titled with its scores. (Each method's
+    simulated range image is in ``result['images']``.)"""
     images = result["images"]
     real = np.asarray(images["real"], float)
     methods = [r["method"] for r in result["rows"]]
-    n = 1 + 2 * len(methods)
+    n = 1 + len(methods)
     rows, cols = real.shape
-    fig = _figure(figsize=(min(18, 2 + cols / 120), 1.0 + n * min(2.2, max(1.0, rows / 30))))
-    axes = fig.subplots(n, 1, squeeze=False)[:, 0]
+    fig = _figure(figsize=(14, 0.6 + n * float(np.clip(rows / 22, 1.6, 3.0))), layout="constrained")
+    axes = fig.subplots(n, 1, squeeze=False, sharex=True)[:, 0]
     kw = {"aspect": "auto", "interpolation": "nearest"}
     im = axes[0].imshow(real, cmap="turbo", vmin=0, vmax=max_range, **kw)
-    axes[0].set_title(f"real B: {100 * np.isfinite(real).mean():.1f} % of pulses returned", fontsize=9)
-    fig.colorbar(im, ax=axes[0], label="range (m)", pad=0.01)
+    axes[0].set_title(f"real scan B: range, {100 * np.isfinite(real).mean():.1f} % of pulses returned", fontsize=12,
+                      loc="left")
+    fig.colorbar(im, ax=axes[0], label="range (m)", pad=0.01, fraction=0.03)
     by = {r["method"]: r for r in result["rows"]}
-    for k, m in enumerate(methods):
+    err = None
+    for ax, m in zip(axes[1:], methods):
         sim = np.asarray(images[m], float)
-        ax = axes[1 + 2 * k]
-        im = ax.imshow(sim, cmap="turbo", vmin=0, vmax=max_range, **kw)
-        fig.colorbar(im, ax=ax, label="range (m)", pad=0.01)
-        img = by[m]["image"]
-        ax.set_title(f"{by[m]['label']}, simulated from A: RMSE {img['rmse']:.2f} m, MedAE {img['medae']:.3f} m, "
-                     f"ray-drop accuracy {100 * img['accuracy']:.1f} %", fontsize=9)
-        ax = axes[2 + 2 * k]
         only_one = np.isfinite(real) != np.isfinite(sim)
         ax.imshow(np.where(only_one, 1.0, np.nan), cmap="Greys", vmin=0, vmax=2, **kw)
-        im = ax.imshow(sim - real, cmap="RdBu_r", vmin=-max_error, vmax=max_error, **kw)
-        fig.colorbar(im, ax=ax, label="sim - real (m)", pad=0.01)
-        ax.set_title(f"{by[m]['label']}: error (grey: only one of real and simulated returns)", fontsize=9)
+        with np.errstate(invalid="ignore"):  # inf - inf where neither returns: blank
+            diff = np.where(np.isfinite(real) & np.isfinite(sim), sim - real, np.nan)
+        err = ax.imshow(diff, cmap="RdBu_r", vmin=-max_error, vmax=max_error, **kw)
+        img = by[m]["image"]
+        ax.set_title(f"{by[m]['label']}: RMSE {img['rmse']:.2f} m, median error {img['medae']:.3f} m, "
+                     f"return or drop right {100 * img['accuracy']:.1f} %", fontsize=12, loc="left")
+    if err is not None:
+        fig.colorbar(err, ax=list(axes[1:]), label="simulated - real (m)", pad=0.01, fraction=0.03)
+        axes[1].legend(handles=[Patch(color="0.5", label="only one of real and simulated returns")],
+                       loc="upper right", fontsize=10, framealpha=0.9)
     for ax in axes:
         ax.set_yticks([])
+        ax.set_ylabel("beam")
     axes[-1].set_xlabel("column (azimuth)")
-    fig.tight_layout()
     return fig
