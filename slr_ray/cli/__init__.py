@@ -101,7 +101,7 @@ def build_parser() -> argparse.ArgumentParser:
     p = command("compare", "run both backends on a cloud and report where they differ")
     p.add_argument("input", help=f"input cloud ({_FORMATS})")
     A.add_pattern(p, origin="many")
-    p.add_argument("--tolerance", type=A.positive_float, default=paper.SIMILARITY_THRESHOLD,
+    p.add_argument("--tolerance", type=A.positive_float, default=paper.SIMILARITY_THRESHOLD, metavar="M",
                    help=f"see-through tolerance (m, default {paper.SIMILARITY_THRESHOLD})")
     A.add_backend(p, default="embree")
     A.add_input_format(p)
@@ -121,7 +121,7 @@ def build_parser() -> argparse.ArgumentParser:
                    help=f"radius of the ground point count (m, default {paper.GROUND_COUNT_RADIUS:g})")
     p.add_argument("--ground-height-radius", type=A.positive_float, default=paper.GROUND_HEIGHT_RADIUS, metavar="M",
                    help=f"radius of the ground height (m, default {paper.GROUND_HEIGHT_RADIUS:g})")
-    p.add_argument("--profile", default="none",
+    p.add_argument("--profile", default="none", metavar="P",
                    help="azimuth minimum profile: none (default), default, or a JSON path")
     p.add_argument("--allow-fewer", action="store_true", help="return fewer positions than --n if cells run out")
     p.add_argument("--png", help="also write a top view of the cells kept and removed")
@@ -176,8 +176,8 @@ def build_parser() -> argparse.ArgumentParser:
     A.add_backend(p)
     A.add_positions(p)
     A.add_ground(p)
-    p.add_argument("--workers", type=A.positive_int, help="local worker processes (default: all cores)")
-    p.add_argument("--scheduler", help="address of a dask.distributed scheduler to run on")
+    p.add_argument("--workers", type=A.positive_int, metavar="N", help="local worker processes (default: all cores)")
+    p.add_argument("--scheduler", metavar="ADDRESS", help="a dask.distributed scheduler to run on")
     p.add_argument("--chunk-size", type=A.positive_int, metavar="N",
                    help="stream a LAS/LAZ input N points at a time (docs/augment.md)")
     p.add_argument("--per-pass", type=A.positive_int, default=8, metavar="N",
@@ -202,20 +202,19 @@ def build_parser() -> argparse.ArgumentParser:
     p.set_defaults(func=evaluate_command)
     p.add_argument("a", help=f"frame A, the primary, in its sensor's frame ({_FORMATS})")
     p.add_argument("b", help="frame B, the real scan to re-simulate, in its sensor's frame")
-    p.add_argument("-o", "--output", required=True, help="output directory (table.md, table.csv, splits.csv, "
-                   "evaluation.json, evaluation.png); refused if it exists and is not empty, unless --force")
-    p.add_argument("--sensor", default="velodyne_hdl64e_s2", choices=list(SENSORS),
-                   help="the sensor's shipped beam table (default velodyne_hdl64e_s2, KITTI's)")
+    p.add_argument("-o", "--output", required=True, help="a new or empty directory for the tables and figure")
+    p.add_argument("--sensor", default="velodyne_hdl64e_s2", choices=list(SENSORS), metavar="NAME",
+                   help="the sensor's beam table (default velodyne_hdl64e_s2, KITTI's; see scan --help)")
     p.add_argument("--beams", default="auto", choices=["auto", "scan-order", "none"],
                    help="each point's beam: auto (a 'ring' field, else the scan order of a KITTI .bin), "
                         "scan-order, or none (elevation bands of the shipped table)")
     p.add_argument("--methods", nargs="+", default=list(EVALUATE_METHODS), choices=list(EVALUATE_METHODS),
-                   help=f"methods scored (default all: {', '.join(EVALUATE_METHODS)})")
-    p.add_argument("--transform", help="B's pose in A's frame, a 4 x 4 text matrix, instead of registering")
-    p.add_argument("--seen-threshold", type=A.positive_float, default=paper.SIMILARITY_THRESHOLD,
-                   help="a point of B is seen from A when an A point is closer than this (m, default 0.1)")
-    p.add_argument("--min-fitness", type=float, default=0.3, help="refuse a registration whose fitness is below "
-                   "this (default 0.3; 0 accepts any)")
+                   metavar="M", help=f"methods scored (default all: {', '.join(EVALUATE_METHODS)})")
+    p.add_argument("--transform", metavar="FILE", help="B's pose in A's frame (4 x 4 text) instead of registering")
+    p.add_argument("--seen-threshold", type=A.positive_float, default=paper.SIMILARITY_THRESHOLD, metavar="M",
+                   help="B's point is seen from A within this (m, default 0.1)")
+    p.add_argument("--min-fitness", type=float, default=0.3, metavar="F",
+                   help="refuse a registration fitting worse (default 0.3; 0: any)")
     A.add_input_format(p)
     p.add_argument("--quiet", action="store_true", help="no progress bar")
     p.add_argument("--force", action="store_true", help="replace the evaluation files of an existing directory")

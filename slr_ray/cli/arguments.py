@@ -56,7 +56,7 @@ def positive_int(text: str) -> int:
 
 
 def add_input_format(p) -> None:
-    p.add_argument("--input-format", help="input format, overriding the extension")
+    p.add_argument("--input-format", metavar="EXT", help="input format, overriding the extension")
 
 
 # --- scan pattern -------------------------------------------------------------------------------------------
@@ -230,11 +230,11 @@ def backend_from(args, backend: str | None = None) -> dict:
 def add_ground(p) -> None:
     """Where ground labels come from (:func:`slr_ray.positions.ground_labels`)."""
     g = p.add_argument_group("ground labels", "default: the input's is_ground or LAS classification 2")
-    g.add_argument("--ground-attribute", help="per-point attribute holding ground labels")
-    g.add_argument("--ground-value", type=int, help="its ground value (default 2, LAS ground; needs --ground-attribute)")
+    g.add_argument("--ground-attribute", metavar="NAME", help="per-point attribute holding ground labels")
+    g.add_argument("--ground-value", type=int, metavar="V", help="its ground value (default 2, LAS ground; needs --ground-attribute)")
     g.add_argument("--csf", action="store_true",
                    help="label ground by Cloth Simulation Filtering when the input has no labels")
-    g.add_argument("--cloth-resolution", type=positive_float, default=0.5, help="CSF cloth cell (m, default 0.5)")
+    g.add_argument("--cloth-resolution", type=positive_float, default=0.5, metavar="M", help="CSF cloth cell (m, default 0.5)")
 
 
 def ground_from(args) -> dict:
@@ -249,10 +249,10 @@ def ground_from(args) -> dict:
 def add_positions(p) -> None:
     """The grid method's settings (:func:`slr_ray.positions.select_positions`)."""
     g = p.add_argument_group("positions (the paper's grid method)")
-    g.add_argument("--seed", type=int, default=0, help="random seed of the draw (default 0)")
-    g.add_argument("--min-ground-points", type=positive_int, default=paper.MIN_GROUND_POINTS,
+    g.add_argument("--seed", type=int, default=0, metavar="N", help="random seed of the draw (default 0)")
+    g.add_argument("--min-ground-points", type=positive_int, default=paper.MIN_GROUND_POINTS, metavar="N",
                    help=f"ground points a position needs within 5 m (default {paper.MIN_GROUND_POINTS:,})")
-    g.add_argument("--scanner-height", type=positive_float, default=paper.SCANNER_HEIGHT,
+    g.add_argument("--scanner-height", type=positive_float, default=paper.SCANNER_HEIGHT, metavar="M",
                    help=f"scanner height above the ground (m, default {paper.SCANNER_HEIGHT})")
 
 
