@@ -76,7 +76,7 @@ from .io import atomic_path
 from .metrics import (FIELD_THRESHOLD, LIDAR4D_CODE_THRESHOLD, PAPER_THRESHOLD, point_metrics, range_bands,
                       range_image_metrics, seen_from)
 from .plotting import evaluation_figure, save_figure
-from .progress import bar as progress_bar
+from .progress import bar as progress_bar, phase
 from .scan import Scan
 from .sensors import BeamPattern, sensor
 
@@ -374,7 +374,8 @@ def evaluate_pair(a_points, b_points, a_beams="scan-order", b_beams="scan-order"
 
     t0 = time.perf_counter()
     if transform is None:
-        reg = register(b, a)
+        with phase(f"registering B to A ({len(b):,} and {len(a):,} points)", progress=progress):
+            reg = register(b, a)
         if not reg.fitness >= min_fitness:
             raise InputValueError(
                 f"registration failed: B aligned to A with fitness {reg.fitness:.3f} (share of B's points with an "
