@@ -31,7 +31,6 @@ from dataclasses import dataclass, field
 from pathlib import Path
 
 import numpy as np
-from tqdm import tqdm
 
 from . import __version__
 from .backends import Backend, options_for, prepare
@@ -42,6 +41,7 @@ from .outputs import OutputPlan, content_digest, output_sidecars
 from .paper import MIN_GROUND_POINTS, SCANNER_HEIGHT, SECONDARY_RESOLUTION
 from .pattern import ScanPattern, as_pattern
 from .positions import ground_labels, select_positions
+from .progress import bar as progress_bar
 from .streaming import STREAMED_FORMATS, las_positions, scan_las_many
 
 __all__ = ["augment", "AugmentConfig", "MANIFEST", "JOURNAL"]
@@ -513,7 +513,7 @@ def _augment(input_path, out, config, pattern, options, ext, names, ground, prog
     record_start = time.perf_counter()
     bar = None
     if progress:
-        bar = tqdm(total=len(jobs), unit="scan", desc="augment")
+        bar = progress_bar(total=len(jobs), desc="augment", unit="scan", leave=True)
 
     def done_one(entry):
         record(entry)

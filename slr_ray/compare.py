@@ -18,6 +18,7 @@ from .arrays import as_origin, as_points
 from .errors import InputValueError
 from .backends import Backend, Scanner, prepare
 from .pattern import as_pattern
+from .progress import bar, phase
 
 __all__ = ["compare_backends", "DEFAULT_BANDS"]
 
@@ -49,7 +50,7 @@ def _jaccard(a, b):
 
 def compare_backends(points, origins, pattern, *, tolerance: float = 0.10, bands=DEFAULT_BANDS,
                      embree_options: dict | None = None, scene: Scanner | None = None,
-                     binning: Scanner | None = None) -> dict:
+                     binning: Scanner | None = None, progress: bool = False) -> dict:
     """Run both backends from each origin and compare them.
 
     Parameters
@@ -70,6 +71,8 @@ def compare_backends(points, origins, pattern, *, tolerance: float = 0.10, bands
         These points already prepared with ``backend='embree'``, reused.
     binning : Scanner, optional
         These points already prepared with ``backend='binning'``, reused.
+    progress : bool
+        Progress on stderr: preparing the discs, then a bar over the positions.
 
     Returns
     -------
@@ -90,12 +93,13 @@ def compare_backends(points, origins, pattern, *, tolerance: float = 0.10, bands
     if len(bands) < 2 or any(hi <= lo for lo, hi in zip(bands[:-1], bands[1:])):
         raise InputValueError(f"bands must be at least two increasing edges, got {bands}")
     if scene is None:
-        scene = prepare(pts, Backend.EMBREE, embree_options)
+        with phase(f"embree: preparing {len(pts):,} points", progress=progress):
+            scene = prepare(pts, Backend.EMBREE, embree_options)
     if binning is None:
         binning = prepare(pts, Backend.BINNING)
     out = []
     nh = pattern.n_azimuth
-    for origin in origins:
+    for origin in bar(origins, "compare", "position", progress=progress):
         origin = as_origin(origin)
         b = binning.scan(origin, pattern)
         e, (ray_pulses, _, ray_t) = scene.scan_and_rays(origin, pattern)

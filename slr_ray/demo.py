@@ -29,6 +29,7 @@ from .outputs import OutputPlan
 from .pattern import ScanPattern, preset
 from .plotting import demo_figure, save_figure
 from .positions import select_positions
+from .progress import bar, phase
 from .scenes import rectangle_scene
 from .similarity import agreement
 
@@ -41,7 +42,7 @@ def _log(msg):
 
 def run_demo(outdir="slr_ray_demo", n_rectangles: int = 200, n_positions: int = 4, seed: int = 0,
              quick: bool = False, primary_resolution: float | None = None,
-             backends=None, force: bool = False) -> dict:
+             backends=None, force: bool = False, progress: bool | None = None) -> dict:
     """Run the demo and return its summary (the full report is written to ``outdir/report.json``).
 
     Parameters
@@ -63,6 +64,9 @@ def run_demo(outdir="slr_ray_demo", n_rectangles: int = 200, n_positions: int = 
     force : bool
         Replace the files of an earlier demo in ``outdir`` (without it, an
         existing one is an :class:`~slr_ray.errors.OutputError` before any work).
+    progress : bool, optional
+        Progress on stderr (scans, preparing the backends; default: not ``quick``).
+        The report table is printed either way.
     """
     backends = [b.value for b in Backend] if backends is None else list(backends)
     refuse_memory(1024.0 * n_positions * (1 + len(backends)), f"a demo of {n_positions:,} positions "
@@ -72,16 +76,18 @@ def run_demo(outdir="slr_ray_demo", n_rectangles: int = 200, n_positions: int = 
     for name in demo_files(n_positions, backends):
         plan.write(out / name)
     with plan:
-        return _run_demo(Path(outdir), n_rectangles, n_positions, seed, quick, primary_resolution, backends)
+        return _run_demo(Path(outdir), n_rectangles, n_positions, seed, quick, primary_resolution, backends,
+                         not quick if progress is None else bool(progress))
 
 
 def demo_files(n_positions: int, backends) -> list:
-    """The files :func:`run_demo` may write (fewer when fewer positions are found)."""
-    return ["demo.png", "report.json"] + [f"position_{i:02d}_{kind}.ply" for i in range(n_positions)
+    """The files :func:`run_demo` may write (fewer when fewer positions are found); positions are
+    numbered from 1, as in the demo's table and figure."""
+    return ["demo.png", "report.json"] + [f"position_{i:02d}_{kind}.ply" for i in range(1, n_positions + 1)
                                          for kind in ["true", *(f"slr_{b}" for b in backends)]]
 
 
-def _run_demo(out, n_rectangles, n_positions, seed, quick, primary_resolution, backends) -> dict:
+def _run_demo(out, n_rectangles, n_positions, seed, quick, primary_resolution, backends, progress) -> dict:
     t_all = time.perf_counter()
     primary_res = float(primary_resolution or (0.12 if quick else paper.SYNS_RESOLUTION))
     secondary = ScanPattern(0.36) if quick else preset("slr")
@@ -89,7 +95,7 @@ def _run_demo(out, n_rectangles, n_positions, seed, quick, primary_resolution, b
     _log(f"scene: {scene.n_present} of {n_rectangles} rectangles present, {len(scene.mesh.faces)} faces")
 
     origin = np.zeros(3)
-    primary = scan_mesh(scene, origin, ScanPattern(primary_res, max_range=120.0), progress=not quick)
+    primary = scan_mesh(scene, origin, ScanPattern(primary_res, max_range=120.0), progress=progress)
     _log(f"primary scan at {primary_res} deg: {len(primary):,} points in {primary.seconds:.1f} s")
     # the primary (27 M points, 0.7 GB) is not written: `slr-ray scene scan` makes it on its own
 
@@ -108,11 +114,11 @@ def _run_demo(out, n_rectangles, n_positions, seed, quick, primary_resolution, b
         # primary scanner need no neighbour search (the dearest part of preparing discs)
         options = {"radius": "footprint", "orientation": "primary", "primary_origin": origin,
                    "primary_resolution": primary_res} if b == Backend.EMBREE else None
-        scanners[b] = prepare(primary.points, b, options)
-        _log(f"{b}: prepared in {scanners[b].prepare_seconds:.1f} s")
+        with phase(f"{b}: preparing {len(primary):,} points", progress=progress):
+            scanners[b] = prepare(primary.points, b, options)
 
     rows = []
-    for i, pos in enumerate(positions):
+    for i, pos in enumerate(bar(positions, "true and SLR scans", "position", progress=progress), 1):
         truth = scan_mesh(scene, pos, secondary)
         name = f"position_{i:02d}"
         write_cloud(out / f"{name}_true.ply", PointCloud(truth.points, {"label": truth.labels.astype(np.int32)}))
@@ -121,7 +127,7 @@ def _run_demo(out, n_rectangles, n_positions, seed, quick, primary_resolution, b
             a = agreement(truth.points, primary.points[slr.indices])
             write_cloud(out / f"{name}_slr_{b}.ply", PointCloud(
                 primary.points[slr.indices], {"label": primary.labels[slr.indices].astype(np.int32)}))
-            rows.append({"position": pos.round(3).tolist(), "distance_m": round(float(np.hypot(*pos[:2])), 3),
+            rows.append({"number": i, "position": pos.round(3).tolist(), "distance_m": round(float(np.hypot(*pos[:2])), 3),
                          "backend": b, "slr_points": len(slr), "true_points": len(truth),
                          "similarity": round(a.coverage, 4), "precision": round(a.precision, 4),
                          "slr_seconds": round(slr.seconds, 3), "true_seconds": round(truth.seconds, 3)})
@@ -137,10 +143,11 @@ def _run_demo(out, n_rectangles, n_positions, seed, quick, primary_resolution, b
     with atomic_path(out / "report.json") as tmp:
         tmp.write_text(json.dumps(report, indent=2))
     _log("")
-    _log(f"{'position':>8} {'dist m':>7} {'backend':>8} {'SLR pts':>9} {'true pts':>9} {'coverage':>9} "
-         f"{'precision':>9}")
+    _log(f"{'position':>8} {'x, y (m)':>14} {'dist m':>7} {'backend':>8} {'SLR pts':>9} {'true pts':>9} "
+         f"{'coverage':>9} {'precision':>9}")
     for r in rows:
-        _log(f"{str(r['position'][:2]):>8} {r['distance_m']:>7.1f} {r['backend']:>8} {r['slr_points']:>9,} "
+        xy = f"{r['position'][0]:.1f}, {r['position'][1]:.1f}"
+        _log(f"{r['number']:>8} {xy:>14} {r['distance_m']:>7.1f} {r['backend']:>8} {r['slr_points']:>9,} "
              f"{r['true_points']:>9,} {r['similarity']:>9.1%} {r['precision']:>9.1%}")
     _log(f"\nfiles in {out}/ ; figure {out / 'demo.png'} ; {report['seconds']} s in all")
     summary = {}

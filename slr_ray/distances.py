@@ -19,7 +19,6 @@ from dataclasses import dataclass, field
 from pathlib import Path
 
 import numpy as np
-from tqdm import tqdm
 
 from .arrays import as_origin, as_points
 from .backends import prepare
@@ -29,6 +28,7 @@ from .paper import MIN_GROUND_POINTS, SCANNER_HEIGHT, SECONDARY_RESOLUTION, SWEE
 from .pattern import ScanPattern, as_pattern
 from .plotting import distances_figure, save_figure
 from .positions import ground_labels, select_positions
+from .progress import bar as progress_bar
 
 __all__ = ["pulse_sized_bins", "DistanceHistogram", "distance_histogram", "height_sweep", "DistanceStudy",
            "distance_study", "study_files"]
@@ -229,7 +229,7 @@ def height_sweep(points, is_ground, positions, heights=SWEEP_HEIGHTS, pattern=No
     out = {float(h): DistanceHistogram(bins_for(h), horizontal=horizontal) for h in heights}
     bar = None
     if progress:
-        bar = tqdm(total=len(pos) * len(heights), unit="scan", desc="height sweep", leave=False)
+        bar = progress_bar(total=len(pos) * len(heights), desc="height sweep", unit="scan")
     for p in pos:
         ground_z = p[2] - scanner_height
         for h in heights:

@@ -32,13 +32,13 @@ from dataclasses import dataclass
 from pathlib import Path
 
 import numpy as np
-from tqdm import tqdm
 
 from .arrays import as_origin, unravel_ids
 from .core import BinTables, ranges_of
 from .errors import InputValueError, refuse_memory
 from .io import atomic_path
 from .pattern import ScanPattern, as_pattern, pulse_rays
+from .progress import bar as progress_bar
 from .raycast import RayScene
 from .scenes import RectangleScene, dense_samples
 
@@ -160,7 +160,7 @@ def _hit_chunks(scene_or_mesh, origin, pattern, mode, supersample=4, spacing=0.0
     rows_per = max(1, rays_per_batch // (nh * k * k))
     bar = None
     if progress:
-        bar = tqdm(total=nv, unit="row", desc=f"scan {mode}", leave=False)
+        bar = progress_bar(total=nv, desc=f"scan {mode}", unit="row")
     try:
         for r0 in range(0, nv, rows_per):
             rows = slice(r0, min(nv, r0 + rows_per))

@@ -18,6 +18,7 @@ import matplotlib
 import numpy as np
 from matplotlib.backend_bases import FigureCanvasBase
 from matplotlib.figure import Figure
+from matplotlib.lines import Line2D
 from matplotlib.patches import Patch
 
 from .errors import InputValueError
@@ -201,29 +202,54 @@ def comparison_figure(result: dict):
 
 
 def demo_figure(primary, positions, rows, n_rectangles: int):
-    """The demo's figure: the primary scan from above with the SLR positions,
-    and coverage and precision of each SLR scan against its true scan, per backend."""
+    """The demo's figure: the primary scan from above with the SLR positions
+    numbered as in the demo's table and files (``position_01``...), and
+    coverage and precision of each SLR scan against its true scan, per backend.
+
+    ``rows`` carry ``number`` (1, 2, ...), ``distance_m``, ``backend``,
+    ``similarity`` and ``precision``."""
     fig = _figure(figsize=(12, 5.5))
     ax = fig.subplots(1, 2)
     pts = primary.points
     step = max(1, len(pts) // 200_000)
-    ax[0].scatter(pts[::step, 0], pts[::step, 1], s=0.1, c=primary.labels[::step] > 0, cmap="coolwarm",
-                  rasterized=True)
-    ax[0].scatter(positions[:, 0], positions[:, 1], marker="^", c="k", s=60, label="SLR positions")
-    ax[0].scatter([0], [0], marker="*", c="gold", s=150, edgecolor="k", label="primary scanner")
+    objects = primary.labels[::step] > 0
+    colours = {"ground": "#9db4d8", "objects (rectangles)": "#c0392b"}
+    ax[0].scatter(pts[::step, 0], pts[::step, 1], s=0.1, rasterized=True,
+                  c=np.where(objects, colours["objects (rectangles)"], colours["ground"]))
+    ax[0].scatter(positions[:, 0], positions[:, 1], marker="^", c="k", s=60, zorder=3)
+    for i, p in enumerate(positions, 1):
+        ax[0].annotate(str(i), p[:2], xytext=(5, 5), textcoords="offset points", fontsize=11, fontweight="bold",
+                       bbox={"boxstyle": "round,pad=0.15", "fc": "white", "ec": "none", "alpha": 0.8})
+    ax[0].scatter([0], [0], marker="*", c="gold", s=150, edgecolor="k", zorder=3)
+    handles = [Patch(color=c, label=k) for k, c in colours.items()] + [
+        Line2D([], [], ls="", marker="^", c="k", label="SLR positions (numbered)"),
+        Line2D([], [], ls="", marker="*", c="gold", mec="k", ms=12, label="primary scanner")]
+    ax[0].legend(handles=handles, loc="upper right", fontsize=8)
     ax[0].set(xlim=(-60, 60), ylim=(-60, 60), aspect="equal", xlabel="x (m)", ylabel="y (m)",
               title=f"primary scan, top view ({n_rectangles} rectangles)")
-    ax[0].legend(loc="upper right")
     backends = sorted({r.get("backend", "binning") for r in rows})
+    values = []
     for k, b in enumerate(backends):
         rr = [r for r in rows if r.get("backend", "binning") == b]
         d = [r["distance_m"] for r in rr]
-        ax[1].plot(d, [100 * r["similarity"] for r in rr], "o", c=f"C{k}", label=f"{b}: coverage")
+        cov = [100 * r["similarity"] for r in rr]
+        ax[1].plot(d, cov, "o", c=f"C{k}", ms=8, label=f"{b}: coverage")
+        values += cov
         if all("precision" in r for r in rr):
-            ax[1].plot(d, [100 * r["precision"] for r in rr], "x", c=f"C{k}", label=f"{b}: precision")
-    ax[1].axhline(90, ls=":", c="gray")
-    ax[1].set(xlabel="distance from primary scanner (m)", ylabel="% within 10 cm", ylim=(0, 101),
-              title="SLR scan vs true scan")
+            prec = [100 * r["precision"] for r in rr]
+            ax[1].plot(d, prec, "x", c=f"C{k}", ms=8, mew=2, label=f"{b}: precision")
+            values += prec
+    for r in rows:  # the position's number once, above its points
+        if r.get("backend", "binning") == backends[0] and "number" in r:
+            ax[1].annotate(str(r["number"]), (r["distance_m"], 100), xytext=(0, -12), textcoords="offset points",
+                           ha="center", fontsize=11, fontweight="bold")
+    ax[1].axhline(90, ls=":", c="gray", label="90 %: the paper's similarity below 17.5 m")
+    low = min([90.0, *values])
+    ax[1].set(xlabel="distance from primary scanner (m)", ylabel="% within 10 cm",
+              ylim=(max(0.0, 5 * np.floor(low / 5) - 5), 101), title="SLR scan vs true scan, by position")
+    d = [r["distance_m"] for r in rows]
+    if d:
+        ax[1].set_xlim(min(d) - 1.5, max(d) + 1.5)
     ax[1].legend(loc="lower left", fontsize=8)
     fig.tight_layout()
     return fig
@@ -261,30 +287,58 @@ def distances_figure(original, slr, sweep, max_distance: float = 40.0):
     return fig
 
 
+#: What each stage of the grid method removes, in a newcomer's words (slr_ray.positions.STAGES)
+_STAGE_WORDS = {"ground_support": "too little ground within reach", "azimuth_profile": "view test (azimuth profile)"}
+
+
+def _axis_origin(values) -> float:
+    """A round number to measure large coordinates (UTM, 10^5-10^7 m) from, so that
+    tick labels stay short and matplotlib adds no '+5.4012e6' offset; 0 for small ones."""
+    values = np.asarray(values, float)
+    if not len(values) or np.abs(values).max() < 1e4:
+        return 0.0
+    return float(np.floor(values.min() / 100.0) * 100.0)
+
+
 def cells_figure(cells, positions=None, points=None):
-    """Top view of the candidate cells each stage of the grid method removed and
-    kept (the paper's supplementary figure), with the drawn positions
-    (:class:`~slr_ray.positions.CandidateCells`)."""
-    fig = _figure(figsize=(8, 8))
+    """Top view of the candidate cells of the grid method: those kept, and those
+    removed by each stage (:class:`~slr_ray.positions.CandidateCells`), with the
+    drawn positions numbered as in the output's list."""
+    span = np.ptp(cells.centres, axis=0) if len(cells.centres) else np.ones(2)
+    fig = _figure(figsize=(8, 1.5 + float(np.clip(6.5 * span[1] / max(span[0], 1e-9), 3.0, 8.0))))
     ax = fig.subplots()
+    x0, y0 = _axis_origin(cells.centres[:, 0]), _axis_origin(cells.centres[:, 1])
+    skipped = {st["stage"] for st in cells.stages if st.get("skipped")}
+    shift = np.array([x0, y0])
     if points is not None and len(points):
         step = max(1, len(points) // 200_000)
-        ax.scatter(points[::step, 0], points[::step, 1], s=0.05, c="0.8", rasterized=True)
+        ax.scatter(points[::step, 0] - x0, points[::step, 1] - y0, s=0.05, c="0.8", rasterized=True)
     state = np.full(len(cells.ij), "ground_support", dtype=object)  # removed by ground support
     state[cells.kept["ground_support"] & ~cells.kept["azimuth_profile"]] = "azimuth_profile"
     state[cells.kept["azimuth_profile"]] = "kept"
-    face = {"ground_support": "#ff7f0e", "azimuth_profile": "#1f77b4", "kept": "#2ca02c"}
+    face = {"ground_support": "#f5b041", "azimuth_profile": "#85c1e9", "kept": "#1e8449"}
+    handles = []
     for st, colour in face.items():
         m = state == st
         if m.any():
-            ax.scatter(cells.centres[m, 0], cells.centres[m, 1], marker="s", s=12, c=colour, alpha=0.6)
+            ax.scatter(cells.centres[m, 0] - x0, cells.centres[m, 1] - y0, marker="s", s=12, c=colour,
+                       alpha=0.8 if st == "kept" else 0.5, rasterized=True)
+        if st in skipped:
+            handles.append(Patch(color="none", label=f"not run: {_STAGE_WORDS[st]}"))
+            continue
+        words = "candidates kept" if st == "kept" else "removed: " + _STAGE_WORDS[st]
+        handles.append(Patch(color=colour, label=f"{words} ({int(m.sum()):,})"))
     if positions is not None and len(positions):
-        ax.scatter(positions[:, 0], positions[:, 1], marker="^", c="k", s=40, label="positions")
-    ax.legend(handles=[Patch(color=face["ground_support"], label="removed: ground support"),
-                       Patch(color=face["azimuth_profile"], label="removed: azimuth profile"),
-                       Patch(color=face["kept"], label=f"kept ({len(cells)})")], loc="upper right")
-    ax.set(aspect="equal", xlabel="x (m)", ylabel="y (m)", title=f"{cells.cell_size:g} m cells: " + ", ".join(
-        f"{st['stage']} -{st['removed']}" for st in cells.stages))
+        xy = np.asarray(positions)[:, :2] - shift
+        ax.scatter(xy[:, 0], xy[:, 1], marker="^", c="k", s=50, zorder=3)
+        for i, p in enumerate(xy, 1):
+            ax.annotate(str(i), p, xytext=(4, 4), textcoords="offset points", fontsize=10, fontweight="bold")
+        handles.append(Line2D([], [], ls="", marker="^", c="k", label=f"positions drawn ({len(xy)})"))
+    ax.legend(handles=handles, loc="best", fontsize=9)
+    ax.ticklabel_format(useOffset=False, style="plain")
+    ax.set(aspect="equal", xlabel=f"x (m{f', from {x0:,.0f}' if x0 else ''})",
+           ylabel=f"y (m{f', from {y0:,.0f}' if y0 else ''})",
+           title=f"scanner positions: {cells.cell_size:g} m cells with points, and which could hold a scanner")
     fig.tight_layout()
     return fig
 
@@ -307,37 +361,41 @@ def range_image_figure(image: dict, title: str = "", max_range: float | None = N
 
 
 def evaluation_figure(result: dict, max_range: float = 50.0, max_error: float = 1.0):
-    """A real-pair evaluation (:func:`slr_ray.evaluate.evaluate_pair`): the real
-    range image, each method's simulated one and its error (simulated - real,
-    where both return; grey where only one returns)."""
+    """A real-pair evaluation (:func:`slr_ray.evaluate.evaluate_pair`) at a glance:
+    the real range image of B, then one panel a method with its error where
+    both return (simulated - real, blue nearer, red farther) and grey where
+    only one of them returns; each titled with its scores. (Each method's
+    simulated range image is in ``result['images']``.)"""
     images = result["images"]
     real = np.asarray(images["real"], float)
     methods = [r["method"] for r in result["rows"]]
-    n = 1 + 2 * len(methods)
+    n = 1 + len(methods)
     rows, cols = real.shape
-    fig = _figure(figsize=(min(18, 2 + cols / 120), 1.0 + n * min(2.2, max(1.0, rows / 30))))
-    axes = fig.subplots(n, 1, squeeze=False)[:, 0]
+    fig = _figure(figsize=(14, 0.6 + n * float(np.clip(rows / 22, 1.6, 3.0))), layout="constrained")
+    axes = fig.subplots(n, 1, squeeze=False, sharex=True)[:, 0]
     kw = {"aspect": "auto", "interpolation": "nearest"}
     im = axes[0].imshow(real, cmap="turbo", vmin=0, vmax=max_range, **kw)
-    axes[0].set_title(f"real B: {100 * np.isfinite(real).mean():.1f} % of pulses returned", fontsize=9)
-    fig.colorbar(im, ax=axes[0], label="range (m)", pad=0.01)
+    axes[0].set_title(f"real scan B: range, {100 * np.isfinite(real).mean():.1f} % of pulses returned", fontsize=12,
+                      loc="left")
+    fig.colorbar(im, ax=axes[0], label="range (m)", pad=0.01, fraction=0.03)
     by = {r["method"]: r for r in result["rows"]}
-    for k, m in enumerate(methods):
+    err = None
+    for ax, m in zip(axes[1:], methods):
         sim = np.asarray(images[m], float)
-        ax = axes[1 + 2 * k]
-        im = ax.imshow(sim, cmap="turbo", vmin=0, vmax=max_range, **kw)
-        fig.colorbar(im, ax=ax, label="range (m)", pad=0.01)
-        img = by[m]["image"]
-        ax.set_title(f"{by[m]['label']}, simulated from A: RMSE {img['rmse']:.2f} m, MedAE {img['medae']:.3f} m, "
-                     f"ray-drop accuracy {100 * img['accuracy']:.1f} %", fontsize=9)
-        ax = axes[2 + 2 * k]
         only_one = np.isfinite(real) != np.isfinite(sim)
         ax.imshow(np.where(only_one, 1.0, np.nan), cmap="Greys", vmin=0, vmax=2, **kw)
-        im = ax.imshow(sim - real, cmap="RdBu_r", vmin=-max_error, vmax=max_error, **kw)
-        fig.colorbar(im, ax=ax, label="sim - real (m)", pad=0.01)
-        ax.set_title(f"{by[m]['label']}: error (grey: only one of real and simulated returns)", fontsize=9)
+        with np.errstate(invalid="ignore"):  # inf - inf where neither returns: blank
+            diff = np.where(np.isfinite(real) & np.isfinite(sim), sim - real, np.nan)
+        err = ax.imshow(diff, cmap="RdBu_r", vmin=-max_error, vmax=max_error, **kw)
+        img = by[m]["image"]
+        ax.set_title(f"{by[m]['label']}: RMSE {img['rmse']:.2f} m, median error {img['medae']:.3f} m, "
+                     f"return or drop right {100 * img['accuracy']:.1f} %", fontsize=12, loc="left")
+    if err is not None:
+        fig.colorbar(err, ax=list(axes[1:]), label="simulated - real (m)", pad=0.01, fraction=0.03)
+        axes[1].legend(handles=[Patch(color="0.5", label="only one of real and simulated returns")],
+                       loc="upper right", fontsize=10, framealpha=0.9)
     for ax in axes:
         ax.set_yticks([])
+        ax.set_ylabel("beam")
     axes[-1].set_xlabel("column (azimuth)")
-    fig.tight_layout()
     return fig

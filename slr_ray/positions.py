@@ -32,7 +32,6 @@ from pathlib import Path
 
 import numpy as np
 from scipy.spatial import cKDTree
-from tqdm import tqdm
 
 from .arrays import as_points
 from .backends import prepare
@@ -41,6 +40,7 @@ from .meshscan import scan_mesh
 from .paper import (CELL_SIZE, GROUND_COUNT_RADIUS, GROUND_HEIGHT_RADIUS, MIN_GROUND_POINTS, SCANNER_HEIGHT,
                     SECONDARY_RESOLUTION)
 from .pattern import ScanPattern
+from .progress import bar as progress_bar
 from .scenes import scene_from_spec
 
 __all__ = ["CandidateCells", "AzimuthProfile", "candidate_cells", "select_positions",
@@ -298,7 +298,7 @@ def candidate_cells(points, is_ground, *, cell_size: float = CELL_SIZE, min_grou
         zs = _ground_z(tree, gpts, gcentre, centres[todo], ground_height_radius)
         bar = None
         if progress:
-            bar = tqdm(total=len(todo), unit="cell", desc="azimuth test", leave=False)
+            bar = progress_bar(total=len(todo), desc="azimuth test", unit="cell")
         for i, z in zip(todo, zs):
             if not np.isfinite(z):
                 az[i] = False

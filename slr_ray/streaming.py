@@ -22,7 +22,6 @@ from pathlib import Path
 
 import laspy
 import numpy as np
-from tqdm import tqdm
 
 from .accumulator import ScanAccumulator
 from .errors import FormatError, InputValueError
@@ -30,6 +29,7 @@ from .io import LasRecords, PointCloud
 from .las import check_las_size
 from .paper import CELL_SIZE, MIN_GROUND_POINTS
 from .positions import select_positions
+from .progress import bar as progress_bar
 from .threads import default_threads
 
 __all__ = ["scan_las", "las_positions", "scan_las_many", "STREAMED_FORMATS", "DEFAULT_CHUNK",
@@ -316,4 +316,4 @@ def _bar(path, what, progress):
         total = r.header.point_count
     if not total:  # no points: refused after the (empty) read, with no bar drawn before the error
         return None
-    return tqdm(total=total, unit="pt", unit_scale=True, desc=what, leave=False)
+    return progress_bar(total=total, desc=what, unit="pt", unit_scale=True)

@@ -41,6 +41,52 @@ def test_every_command_prints_its_help(cmd, capsys):
     assert "usage:" in capsys.readouterr().out
 
 
+def _parser_of(cmd):
+    import argparse
+
+    from slr_ray.cli import build_parser
+
+    parser = build_parser()
+    for name in cmd:
+        parser = next(a for a in parser._actions if isinstance(a, argparse._SubParsersAction)).choices[name]
+    return parser
+
+
+@pytest.mark.parametrize("cmd", _subcommands(), ids=" ".join)
+def test_every_option_has_help(cmd):
+    import argparse
+
+    bare = [a.option_strings[0] if a.option_strings else a.dest for a in _parser_of(cmd)._actions
+            if not isinstance(a, argparse._SubParsersAction) and not a.help]
+    assert not bare, f"slr-ray {' '.join(cmd)}: options without help: {bare}"
+
+
+def test_scan_help_is_short(capsys, monkeypatch):
+    # a newcomer reads `scan --help` whole: one line an option where possible, details by link
+    # (it was 202 lines of usage, choices and benchmark figures at 80 columns)
+    monkeypatch.setenv("COLUMNS", "80")
+    assert main(["scan", "--help"]) == 0
+    out = capsys.readouterr().out
+    assert len(out.splitlines()) <= 120
+    assert out.startswith("usage: slr-ray scan input -o OUTPUT [options]")
+    assert "README" not in out and "docs/backends.md" in out
+
+
+def test_long_steps_show_progress_on_stderr_unless_quiet(tmp_path, cloud_ply, capsys, monkeypatch):
+    import slr_ray.progress
+
+    monkeypatch.setattr(slr_ray.progress, "PHASE_AFTER", 0.0)  # every step counts as long
+    path, _ = cloud_ply
+    argv = ["scan", str(path), "--origin", "1", "0", "0", "--resolution", "2", "--backend", "embree"]
+    assert main(argv + ["-o", str(tmp_path / "a.ply")]) == 0
+    out, err = capsys.readouterr()
+    assert len(out.splitlines()) == 1 and "embree: preparing 5,000 points" in err and "embree: scanning" in err
+    assert main(argv + ["-o", str(tmp_path / "b.ply"), "--quiet"]) == 0
+    assert capsys.readouterr().err == ""
+    assert main(["compare", str(path), "--origin", "1", "0", "0", "--resolution", "2", "--quiet"]) == 0
+    assert capsys.readouterr().err == ""
+
+
 @pytest.mark.parametrize("out_ext", [".ply", ".npz", ".npy"])
 def test_scan_command(tmp_path, cloud_ply, capsys, out_ext):
     path, pts = cloud_ply
@@ -104,8 +150,12 @@ def test_demo_quick(tmp_path, capsys):
         assert 0.3 < rep["backends"][b]["mean_similarity"] <= 1
         assert 0.5 < rep["backends"][b]["mean_precision"] <= 1
     files = {p.name for p in (tmp_path / "d").iterdir()}
-    assert {"report.json", "demo.png", "position_00_slr_binning.ply",
-            "position_00_slr_embree.ply", "position_01_true.ply"} <= files
+    # numbered from 1 as in the table and the figure: position_01 is the table's row 1
+    assert {"report.json", "demo.png", "position_01_slr_binning.ply",
+            "position_01_slr_embree.ply", "position_02_true.ply"} <= files
+    assert not any(name.startswith("position_00") for name in files)
+    pairs = json.loads((tmp_path / "d" / "report.json").read_text())["pairs"]
+    assert sorted({r["number"] for r in pairs}) == [1, 2]
 
 
 def test_positions_command(tmp_path, capsys):

@@ -5,6 +5,10 @@
   ``# doctest: skip: REASON``, for a long run or a data file that is absent);
 - every ``slr-ray ...`` command in a ```bash / ```console / ```sh block is
   accepted by the command's own argument parser;
+- every such block is marked, on the line above its fence, as run here
+  (``<!-- docs test: runs -->``: on data it makes itself, each command in
+  order in a fresh directory, exit status 0) or not (``<!-- docs test: skip:
+  REASON -->``: your own data, hours of work);
 - every relative link (and image) points at a file or folder of the
   repository, and its #anchor, if any, at a heading of the page;
 - the README stays short, starts with the two quick-start commands and lists
@@ -19,7 +23,7 @@ from pathlib import Path
 
 import pytest
 
-from slr_ray.cli import build_parser
+from slr_ray.cli import build_parser, main
 
 ROOT = Path(__file__).resolve().parent.parent
 README = ROOT / "README.md"
@@ -28,6 +32,8 @@ FENCE = re.compile(r"^```([\w-]*)[^\n]*\n(.*?)^```[ \t]*$", re.M | re.S)
 LINK = re.compile(r"!?\[(?:[^\]\[]|\[[^\]]*\])*\]\(([^)\s]+)(?:\s+\"[^\"]*\")?\)")
 SKIP = "# doctest: skip"
 SHELL = {"bash", "console", "sh", "shell"}
+#: the mark on the line above a shell block's fence: run by the tests, or not and why
+SHELL_MARK = re.compile(r"^<!-- docs test: (runs|skip: (.{10,}?)) -->$")
 
 
 def _rel(page: Path) -> str:
@@ -78,7 +84,22 @@ def commands(page: Path) -> list[tuple[int, list[str]]]:
     return found
 
 
+def shell_marks(page: Path) -> list[tuple[int, str, str | None]]:
+    """``(line number, code, mark)`` of the page's shell blocks that hold an ``slr-ray`` command;
+    mark is ``'runs'``, ``'skip: REASON'`` or None (the line above the fence is not a mark)."""
+    text = page.read_text(encoding="utf-8")
+    out = []
+    for m in FENCE.finditer(text):
+        if m.group(1).lower() not in SHELL or "slr-ray" not in m.group(2):
+            continue
+        above = text[:m.start()].rstrip("\n").rsplit("\n", 1)[-1].strip()
+        mark = SHELL_MARK.match(above)
+        out.append((text.count("\n", 0, m.start()) + 2, m.group(2), mark.group(1) if mark else None))
+    return out
+
+
 PY_PAGES = [p for p in PAGES if code_blocks(p, {"python"})]
+RUN_PAGES = [p for p in PAGES if any(mark == "runs" for _, _, mark in shell_marks(p))]
 CLI_PAGES = [p for p in PAGES if commands(p)]
 
 
@@ -102,6 +123,31 @@ def test_skipped_blocks_are_few_and_say_why():
     for page, n, first in skipped:
         assert len(first.removeprefix(SKIP).strip(" :")) >= 10, f"{_rel(page)}:{n}: a skip needs its reason"
     assert len(skipped) <= 3, [f"{_rel(p)}:{n}" for p, n, _ in skipped]
+
+
+@pytest.mark.parametrize("page", CLI_PAGES, ids=_rel)
+def test_shell_blocks_say_whether_they_run(page):
+    unmarked = [n for n, _, mark in shell_marks(page) if mark is None]
+    assert not unmarked, (f"{_rel(page)}: the shell blocks at lines {unmarked} need '<!-- docs test: runs -->' "
+                          "or '<!-- docs test: skip: REASON -->' on the line above the fence")
+
+
+@pytest.mark.parametrize("page", RUN_PAGES, ids=_rel)
+def test_runnable_shell_blocks_run(page, tmp_path, monkeypatch, capsys):
+    from slr_ray.cli import main
+
+    monkeypatch.chdir(tmp_path)
+    for line_no, code, mark in shell_marks(page):
+        if mark != "runs":
+            continue
+        for i, line in enumerate(code.replace("\\\n", " ").split("\n")):
+            tokens = shlex.split(line, comments=True)
+            if not tokens:
+                continue
+            assert tokens[0] == "slr-ray", f"{_rel(page)}:{line_no + i}: a block that runs holds slr-ray commands only"
+            rc = main(tokens[1:])
+            err = capsys.readouterr().err.strip().splitlines()
+            assert rc == 0, f"{_rel(page)}:{line_no + i}: `{line.strip()}` exits {rc}: {err[-1:] or ''}"
 
 
 @pytest.mark.parametrize("page", CLI_PAGES, ids=_rel)

@@ -93,6 +93,8 @@ def test_register_recovers_a_known_pose():
     assert reg.init == "identity" and reg.fitness > 0.5  # sparse rings: many B points lie > 0.2 m from A
     np.testing.assert_allclose(reg.transform[:3, 3], [0.6, 0.3, 0.05], atol=0.03)
     np.testing.assert_allclose(reg.transform[:3, :3], np.eye(3), atol=5e-3)
+    # rounded, so that Open3D's thread-order noise (15th digit) cannot change a rerun's tables
+    np.testing.assert_array_equal(reg.transform[:3], np.round(reg.transform[:3], 9))
 
 
 @pytest.fixture(scope="module")

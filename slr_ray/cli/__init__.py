@@ -46,6 +46,27 @@ class _Parser(argparse.ArgumentParser):
     def error(self, message):
         self.exit(2, f"slr-ray: error: {self.prog.removeprefix('slr-ray ')}: {message} (see --help)\n")
 
+    def format_usage(self):
+        return self.format_help().split("\n\n", 1)[0] + "\n"
+
+    def format_help(self):
+        # a command with many flags: the usage names what is required and "[options]"
+        # for the rest (each listed below), not a wall of every flag and choice
+        if self.usage is None and not any(isinstance(a, argparse._SubParsersAction) for a in self._actions):
+            self.usage = " ".join(["%(prog)s", *filter(None, map(_usage_word, self._actions)), "[options]"])
+        return super().format_help()
+
+
+def _usage_word(action) -> str:
+    """``action`` in a short usage line: a positional or a required option, else ''."""
+    if action.option_strings and not action.required:
+        return ""
+    meta = action.metavar or (action.dest.upper() if action.option_strings else action.dest)
+    meta = " ".join(meta) if isinstance(meta, tuple) else meta
+    if action.nargs == "+":
+        meta = f"{meta} [{meta} ...]"
+    return f"{action.option_strings[0]} {meta}" if action.option_strings else meta
+
 
 def build_parser() -> argparse.ArgumentParser:
     ap = _Parser(prog="slr-ray", description=(
@@ -67,26 +88,25 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("--format", help="output format, overriding the extension")
     A.add_input_format(p)
     p.add_argument("--keep-range", action="store_true", help="add a 'range' attribute")
-    p.add_argument("--keep-ring", action="store_true",
-                   help="add 'ring' (beam id; zenith row for uniform patterns) and 'column' attributes")
-    p.add_argument("--range-image", metavar="NPZ",
-                   help="also write the scan as a range image (.npz: range, index, ring, every attribute)")
+    p.add_argument("--keep-ring", action="store_true", help="add 'ring' (beam or zenith row) and 'column'")
+    p.add_argument("--range-image", metavar="NPZ", help="also write the scan as a range image (.npz)")
     p.add_argument("--png", help="also draw the range image (PNG)")
-    p.add_argument("--chunk-size", type=A.positive_int, default=2_000_000,
-                   help="points read at a time from LAS/LAZ (binning reads them in one pass; default 2,000,000)")
+    p.add_argument("--chunk-size", type=A.positive_int, default=2_000_000, metavar="N",
+                   help="points read at a time from LAS/LAZ (default 2,000,000)")
     p.add_argument("--quiet", action="store_true", help="no progress bars")
     p.add_argument("--force", action="store_true", help="overwrite the output")
-    p.add_argument("--print-config", action="store_true", help="print the resolved configuration as JSON and stop")
+    p.add_argument("--print-config", action="store_true", help="print the resolved settings (JSON) and stop")
     A.add_effects(p)
 
     p = command("compare", "run both backends on a cloud and report where they differ")
     p.add_argument("input", help=f"input cloud ({_FORMATS})")
     A.add_pattern(p, origin="many")
-    p.add_argument("--tolerance", type=A.positive_float, default=paper.SIMILARITY_THRESHOLD,
+    p.add_argument("--tolerance", type=A.positive_float, default=paper.SIMILARITY_THRESHOLD, metavar="M",
                    help=f"see-through tolerance (m, default {paper.SIMILARITY_THRESHOLD})")
     A.add_backend(p, default="embree")
     A.add_input_format(p)
     p.add_argument("--png", help="also write a figure")
+    p.add_argument("--quiet", action="store_true", help="no progress")
     p.add_argument("--force", action="store_true", help="overwrite an existing --png")
 
     p = command("positions", "choose secondary scanner positions (the paper's grid method)")
@@ -95,10 +115,13 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("-o", "--output", required=True, help="positions and per-stage counts (JSON)")
     A.add_positions(p)
     A.add_ground(p)
-    p.add_argument("--cell-size", type=A.positive_float, default=paper.CELL_SIZE)
-    p.add_argument("--ground-count-radius", type=A.positive_float, default=paper.GROUND_COUNT_RADIUS)
-    p.add_argument("--ground-height-radius", type=A.positive_float, default=paper.GROUND_HEIGHT_RADIUS)
-    p.add_argument("--profile", default="none",
+    p.add_argument("--cell-size", type=A.positive_float, default=paper.CELL_SIZE, metavar="M",
+                   help=f"grid cell size (m, default {paper.CELL_SIZE:g})")
+    p.add_argument("--ground-count-radius", type=A.positive_float, default=paper.GROUND_COUNT_RADIUS, metavar="M",
+                   help=f"radius of the ground point count (m, default {paper.GROUND_COUNT_RADIUS:g})")
+    p.add_argument("--ground-height-radius", type=A.positive_float, default=paper.GROUND_HEIGHT_RADIUS, metavar="M",
+                   help=f"radius of the ground height (m, default {paper.GROUND_HEIGHT_RADIUS:g})")
+    p.add_argument("--profile", default="none", metavar="P",
                    help="azimuth minimum profile: none (default), default, or a JSON path")
     p.add_argument("--allow-fewer", action="store_true", help="return fewer positions than --n if cells run out")
     p.add_argument("--png", help="also write a top view of the cells kept and removed")
@@ -106,10 +129,12 @@ def build_parser() -> argparse.ArgumentParser:
     A.add_input_format(p)
 
     p = command("profile", "rebuild the shipped azimuth minimum profile from synthetic scans")
-    p.add_argument("--scenes", default=",".join(paper.Q1_SCENES))
-    p.add_argument("--positions-per-scene", type=A.positive_int, default=4)
-    p.add_argument("--seed", type=int, default=0)
-    p.add_argument("-o", "--output", required=True)
+    p.add_argument("--scenes", default=",".join(paper.Q1_SCENES),
+                   help=f"shipped scenes, comma-separated (default {','.join(paper.Q1_SCENES)})")
+    p.add_argument("--positions-per-scene", type=A.positive_int, default=4, metavar="N",
+                   help="positions scanned per scene (default 4)")
+    p.add_argument("--seed", type=int, default=0, help="random seed (default 0)")
+    p.add_argument("-o", "--output", required=True, help="the profile (JSON)")
     p.add_argument("--force", action="store_true", help="overwrite an existing output")
 
     p = command("validate", "reproduce the paper's validation (Experiment 1) from a config")
@@ -125,45 +150,50 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("-o", "--output", required=True, help="output directory (CSV tables, distances.png)")
     p.add_argument("--origin", nargs=3, type=A.finite_float, metavar=("X", "Y", "Z"),
                    help="scanner origin of every input (over any the files record)")
-    p.add_argument("--heights", nargs="+", type=A.positive_float, default=list(paper.SWEEP_HEIGHTS))
-    p.add_argument("--positions", type=A.positive_int, default=20, help="SLR positions per input")
-    p.add_argument("--resolution", type=A.positive_float, default=paper.SECONDARY_RESOLUTION)
-    p.add_argument("--max-range", type=A.positive_float, default=120.0)
+    p.add_argument("--heights", nargs="+", type=A.positive_float, default=list(paper.SWEEP_HEIGHTS), metavar="M",
+                   help=f"scanner heights swept (m, default {' '.join(f'{h:g}' for h in paper.SWEEP_HEIGHTS)})")
+    p.add_argument("--positions", type=A.positive_int, default=20, help="SLR positions per input (default 20)")
+    p.add_argument("--resolution", type=A.positive_float, default=paper.SECONDARY_RESOLUTION, metavar="DEG",
+                   help=f"SLR angular resolution (degrees, default {paper.SECONDARY_RESOLUTION:g})")
+    p.add_argument("--max-range", type=A.positive_float, default=120.0, metavar="M",
+                   help="farthest range returned (m, default 120)")
     A.add_positions(p)
     A.add_ground(p)
-    p.add_argument("--quiet", action="store_true")
+    p.add_argument("--quiet", action="store_true", help="no progress bars")
     p.add_argument("--force", action="store_true", help="overwrite the tables and figure of an earlier run")
 
     p = command("augment", "many simulated scans of one real scan (resumable, parallel)")
     p.add_argument("input", help=f"input cloud ({_FORMATS})")
     p.add_argument("--n", type=A.positive_int, required=True, help="positions")
     p.add_argument("-o", "--output", required=True, help="output directory (a rerun resumes)")
-    p.add_argument("--resolution", type=A.positive_float, default=paper.SECONDARY_RESOLUTION)
-    p.add_argument("--heights", nargs="+", type=A.positive_float,
+    p.add_argument("--resolution", type=A.positive_float, default=paper.SECONDARY_RESOLUTION, metavar="DEG",
+                   help=f"angular resolution (degrees, default {paper.SECONDARY_RESOLUTION:g})")
+    p.add_argument("--heights", nargs="+", type=A.positive_float, metavar="M",
                    help="scanner heights above ground, a scan each (default: --scanner-height)")
     p.add_argument("--format", help="output extension (default: the input's)")
-    p.add_argument("--sensor", choices=list(SENSORS), help="a spinning sensor's beam table instead of --resolution")
+    p.add_argument("--sensor", choices=list(SENSORS), metavar="NAME",
+                   help="a sensor's beam table instead of --resolution: " + ", ".join(SENSORS))
     A.add_backend(p)
     A.add_positions(p)
     A.add_ground(p)
-    p.add_argument("--workers", type=A.positive_int, help="local worker processes (default: all cores)")
-    p.add_argument("--scheduler", help="address of a dask.distributed scheduler to run on")
-    p.add_argument("--chunk-size", type=A.positive_int,
-                   help="stream a LAS/LAZ input this many points at a time instead of reading it whole "
-                        "(clouds larger than memory; binning, uniform patterns; same files)")
-    p.add_argument("--per-pass", type=A.positive_int, default=8,
-                   help="positions reduced in one pass over a streamed input (default 8)")
-    p.add_argument("--quiet", action="store_true")
+    p.add_argument("--workers", type=A.positive_int, metavar="N", help="local worker processes (default: all cores)")
+    p.add_argument("--scheduler", metavar="ADDRESS", help="a dask.distributed scheduler to run on")
+    p.add_argument("--chunk-size", type=A.positive_int, metavar="N",
+                   help="stream a LAS/LAZ input N points at a time (docs/augment.md)")
+    p.add_argument("--per-pass", type=A.positive_int, default=8, metavar="N",
+                   help="positions per pass over a streamed input (default 8)")
+    p.add_argument("--quiet", action="store_true", help="no progress bars")
     A.add_effects(p)
 
     p = command("demo", "the main job on a built-in scene: scene, primary scan, SLR scans by both backends, report")
     p.add_argument("-o", "--output", default="slr_ray_demo", help="output directory (default slr_ray_demo)")
-    p.add_argument("--rectangles", type=int, default=200)
-    p.add_argument("--positions", type=A.positive_int, default=4)
-    p.add_argument("--seed", type=int, default=0)
+    p.add_argument("--rectangles", type=int, default=200, help="rectangles in the scene (default 200)")
+    p.add_argument("--positions", type=A.positive_int, default=4, help="SLR positions (default 4)")
+    p.add_argument("--seed", type=int, default=0, help="seed of the scene and positions (default 0)")
     backends = [b.value for b in Backend]
     p.add_argument("--backends", nargs="+", default=backends, choices=backends, help="backends run at each position")
     p.add_argument("--quick", action="store_true", help="a coarser, faster run (for tests)")
+    p.add_argument("--quiet", action="store_true", help="no progress (the report is still printed)")
     p.add_argument("--force", action="store_true", help="overwrite the files of an earlier demo")
 
     # evaluate: its handler lives in .evaluate_command (self-contained)
@@ -172,20 +202,19 @@ def build_parser() -> argparse.ArgumentParser:
     p.set_defaults(func=evaluate_command)
     p.add_argument("a", help=f"frame A, the primary, in its sensor's frame ({_FORMATS})")
     p.add_argument("b", help="frame B, the real scan to re-simulate, in its sensor's frame")
-    p.add_argument("-o", "--output", required=True, help="output directory (table.md, table.csv, splits.csv, "
-                   "evaluation.json, evaluation.png); refused if it exists and is not empty, unless --force")
-    p.add_argument("--sensor", default="velodyne_hdl64e_s2", choices=list(SENSORS),
-                   help="the sensor's shipped beam table (default velodyne_hdl64e_s2, KITTI's)")
+    p.add_argument("-o", "--output", required=True, help="a new or empty directory for the tables and figure")
+    p.add_argument("--sensor", default="velodyne_hdl64e_s2", choices=list(SENSORS), metavar="NAME",
+                   help="the sensor's beam table (default velodyne_hdl64e_s2, KITTI's; see scan --help)")
     p.add_argument("--beams", default="auto", choices=["auto", "scan-order", "none"],
                    help="each point's beam: auto (a 'ring' field, else the scan order of a KITTI .bin), "
                         "scan-order, or none (elevation bands of the shipped table)")
     p.add_argument("--methods", nargs="+", default=list(EVALUATE_METHODS), choices=list(EVALUATE_METHODS),
-                   help=f"methods scored (default all: {', '.join(EVALUATE_METHODS)})")
-    p.add_argument("--transform", help="B's pose in A's frame, a 4 x 4 text matrix, instead of registering")
-    p.add_argument("--seen-threshold", type=A.positive_float, default=paper.SIMILARITY_THRESHOLD,
-                   help="a point of B is seen from A when an A point is closer than this (m, default 0.1)")
-    p.add_argument("--min-fitness", type=float, default=0.3, help="refuse a registration whose fitness is below "
-                   "this (default 0.3; 0 accepts any)")
+                   metavar="M", help=f"methods scored (default all: {', '.join(EVALUATE_METHODS)})")
+    p.add_argument("--transform", metavar="FILE", help="B's pose in A's frame (4 x 4 text) instead of registering")
+    p.add_argument("--seen-threshold", type=A.positive_float, default=paper.SIMILARITY_THRESHOLD, metavar="M",
+                   help="B's point is seen from A within this (m, default 0.1)")
+    p.add_argument("--min-fitness", type=float, default=0.3, metavar="F",
+                   help="refuse a registration fitting worse (default 0.3; 0: any)")
     A.add_input_format(p)
     p.add_argument("--quiet", action="store_true", help="no progress bar")
     p.add_argument("--force", action="store_true", help="replace the evaluation files of an existing directory")
@@ -217,23 +246,25 @@ def build_parser() -> argparse.ArgumentParser:
 
     p = command("scene", "synthetic rectangle scenes: info, build, scan")
     ssub = p.add_subparsers(dest="scene_cmd", required=True)
+    spec_help = "a shipped scene name or a scene TOML path (docs/scenes.md)"
     q = ssub.add_parser("info", help="counts of a scene spec (shipped name or path)")
-    q.add_argument("spec")
+    q.add_argument("spec", help=spec_help)
     q = ssub.add_parser("build", help="write the scene's mesh")
-    q.add_argument("spec")
-    q.add_argument("-o", "--output", required=True)
+    q.add_argument("spec", help=spec_help)
+    q.add_argument("-o", "--output", required=True, help="the mesh (.ply, .obj, ...)")
     q.add_argument("--force", action="store_true", help="overwrite an existing output")
     q = ssub.add_parser("scan", help="ground-truth scan of a scene (with the effects its [effects] table requires)")
-    q.add_argument("spec")
+    q.add_argument("spec", help=spec_help)
     A.add_pattern(q, origin="required")
-    q.add_argument("--mode", default="center", choices=list(MESH_MODES))
+    q.add_argument("--mode", default="center", choices=list(MESH_MODES),
+                   help="ray per pulse: center (default), nearest of k x k, or a dense grid")
     q.add_argument("--supersample", type=A.positive_int, default=4, help="k for --mode nearest (k x k rays a pulse)")
     q.add_argument("--spacing", type=A.positive_float, default=paper.DENSE_SPACING,
                    help=f"grid spacing for --mode dense (m, default {paper.DENSE_SPACING})")
     q.add_argument("--quiet", action="store_true", help="no progress bar")
     q.add_argument("--no-effects", action="store_true",
-                   help="the ideal scan, without the sensor effects the scene's [effects] table requires")
-    q.add_argument("-o", "--output", required=True)
+                   help="the ideal scan, without the scene's [effects]")
+    q.add_argument("-o", "--output", required=True, help="the scan (a cloud)")
     q.add_argument("--force", action="store_true", help="overwrite an existing output")
     return ap
 

@@ -10,6 +10,7 @@ from __future__ import annotations
 import argparse
 import dataclasses
 import math
+import re
 
 from .. import paper
 from ..backends import BACKENDS, Backend
@@ -55,7 +56,7 @@ def positive_int(text: str) -> int:
 
 
 def add_input_format(p) -> None:
-    p.add_argument("--input-format", help="input format, overriding the extension")
+    p.add_argument("--input-format", metavar="EXT", help="input format, overriding the extension")
 
 
 # --- scan pattern -------------------------------------------------------------------------------------------
@@ -79,16 +80,16 @@ def add_pattern(p, origin: str = "optional", resolution_default: float | None = 
                    help="angular resolution, both axes (degrees)"
                    + (f"; default {resolution_default:g}" if resolution_default else ""))
     g.add_argument("--preset", choices=sorted(PRESETS), help="a pattern of the paper (other options override it)")
-    g.add_argument("--sensor", choices=list(SENSORS),
-                   help="a spinning sensor's beam table instead of a uniform pattern (range options override it)")
+    g.add_argument("--sensor", choices=list(SENSORS), metavar="NAME",
+                   help="a sensor's beam table instead of a uniform pattern: " + ", ".join(SENSORS))
     g.add_argument("--sensor-file", metavar="PATH",
-                   help="your sensor's calibration: Ouster metadata .json or Velodyne calibration .yaml")
+                   help="a calibration: Ouster metadata .json or Velodyne .yaml")
     g.add_argument("--columns", type=positive_int, metavar="N",
-                   help="columns per revolution of --sensor / --sensor-file (its azimuth resolution)")
+                   help="columns per revolution of a sensor (azimuth steps)")
     g.add_argument("--zenith-range", nargs=2, type=finite_float, metavar=("A", "B"),
-                   help="zenith field of view in degrees (0 = up; default 0 180)")
-    g.add_argument("--min-range", type=finite_float, metavar="M")
-    g.add_argument("--max-range", type=finite_float, metavar="M")
+                   help="zenith field of view (degrees, 0 = up; default 0 180)")
+    g.add_argument("--min-range", type=finite_float, metavar="M", help="nearest range returned (m; default: any)")
+    g.add_argument("--max-range", type=finite_float, metavar="M", help="farthest range returned (m; default: any)")
 
 
 def pattern_from(args):
@@ -148,25 +149,63 @@ def _option_type(name: str, typ: str):
 
 _OPTION_CLASSES = {b.value: entry.options for b, entry in BACKENDS.items()}
 
+#: One line of ``--help`` (and a metavar) per backend option. The option classes'
+#: docstrings hold the whole story and docs/backends.md "Options" its figures; a
+#: field missing here shows its docstring's first sentence.
+OPTION_HELP = {
+    "n_threads": ("N", "threads (default: all cores)"),
+    "radius": ("R", "disc radius (m), 'spacing' (default) or 'footprint'"),
+    "radius_scale": ("S", "multiplies every radius (default 1)"),
+    "k": ("K", "neighbours of 'spacing' radii and normals"),
+    "orientation": (None, "discs along the normal, facing the ray or the primary"),
+    "engine": (None, "exact discs, or polygon fans (cross-checks)"),
+    "segments": ("N", "rim vertices of a fan engine's disc (>= 3)"),
+    "ties": ("W", "tie window in disc radii, 0 off (default 1 or 3)"),
+    "primary_origin": (("X", "Y", "Z"), "the primary scanner's position"),
+    "primary_resolution": ("DEG", "the primary's uniform resolution (degrees)"),
+    "primary_pattern": ("NAME", "the primary's sensor or preset, if not uniform"),
+    "min_radius": ("M", "floor of computed radii (default 0.1 x median spacing)"),
+    "fallback_radius": ("M", "radius when the cloud has no spacing"),
+    "chunk": ("N", "points per neighbour query (about 100 bytes a point)"),
+    "neighbours": (None, "neighbours: k nearest, or the primary's pulse grid"),
+    "max_incidence": ("DEG", "turn discs edge-on to the primary to this angle"),
+    "grid_gate": ("F", "pulse-grid neighbours within this fraction of range"),
+    "grid_spacing": (None, "pulse-grid spacing: mean distance or axis step"),
+}
+
+
+def _first_sentence(text: str) -> str:
+    """A docstring description's first sentence, without its reST markup."""
+    text = text.replace("``", "")
+    return re.split(r"(?<=[.;])\s", text, maxsplit=1)[0].rstrip(".;")
+
 
 def add_backend(p, default: str = Backend.BINNING.value) -> None:
     """``--backend`` and every backend's option flags, generated from the option
-    classes' fields (a field shared by several backends is one flag)."""
+    classes' fields (a field shared by several backends is one flag), grouped by
+    the backends they apply to; the help is one line each, the details a link."""
     p.add_argument("--backend", default=default, choices=list(_OPTION_CLASSES),
-                   help=f"subsampling backend (default {default})")
-    g = p.add_argument_group("backend options", "each applies to the backends named in brackets")
+                   help=f"subsampling backend (default {default}; docs/backends.md)")
     seen: dict = {}
     for backend, cls in _OPTION_CLASSES.items():
         for name, (typ, text) in cls.describe().items():
             if name not in _NOT_ON_CLI:
                 seen.setdefault(name, (cls, typ, text, []))[3].append(backend)
+    groups: dict = {}
     for name, (cls, typ, text, backends) in seen.items():
+        key = tuple(backends)
+        if key not in groups:
+            title = " and ".join(backends) + " options"
+            groups[key] = p.add_argument_group(title, "details: docs/backends.md \"Options\"" if
+                                               len(backends) < len(_OPTION_CLASSES) else None)
         kind, nargs = _option_type(name, typ)
         choices = cls.choices().get(name)
-        g.add_argument("--" + name.replace("_", "-"), dest=f"opt_{name}", type=kind, nargs=nargs, choices=choices,
-                       default=None, metavar=None if choices else name.split("_")[-1].upper(),
-                       # argparse formats help with %: a docstring's "85 %" must not read as a conversion
-                       help=f"[{', '.join(backends)}] {(text or typ).replace('``', '').replace('%', '%%')}")
+        metavar, short = OPTION_HELP.get(name, (None, _first_sentence(text or typ)))
+        groups[key].add_argument(
+            "--" + name.replace("_", "-"), dest=f"opt_{name}", type=kind, nargs=nargs, choices=choices,
+            default=None, metavar=None if choices else metavar or name.split("_")[-1].upper(),
+            # argparse formats help with %: a docstring's "85 %" must not read as a conversion
+            help=short.replace("%", "%%"))
 
 
 def backend_from(args, backend: str | None = None) -> dict:
@@ -191,11 +230,11 @@ def backend_from(args, backend: str | None = None) -> dict:
 def add_ground(p) -> None:
     """Where ground labels come from (:func:`slr_ray.positions.ground_labels`)."""
     g = p.add_argument_group("ground labels", "default: the input's is_ground or LAS classification 2")
-    g.add_argument("--ground-attribute", help="per-point attribute holding ground labels")
-    g.add_argument("--ground-value", type=int, help="its ground value (default 2, LAS ground; needs --ground-attribute)")
+    g.add_argument("--ground-attribute", metavar="NAME", help="per-point attribute holding ground labels")
+    g.add_argument("--ground-value", type=int, metavar="V", help="its ground value (default 2, LAS ground; needs --ground-attribute)")
     g.add_argument("--csf", action="store_true",
                    help="label ground by Cloth Simulation Filtering when the input has no labels")
-    g.add_argument("--cloth-resolution", type=positive_float, default=0.5, help="CSF cloth cell (m, default 0.5)")
+    g.add_argument("--cloth-resolution", type=positive_float, default=0.5, metavar="M", help="CSF cloth cell (m, default 0.5)")
 
 
 def ground_from(args) -> dict:
@@ -210,10 +249,10 @@ def ground_from(args) -> dict:
 def add_positions(p) -> None:
     """The grid method's settings (:func:`slr_ray.positions.select_positions`)."""
     g = p.add_argument_group("positions (the paper's grid method)")
-    g.add_argument("--seed", type=int, default=0, help="random seed of the draw (default 0)")
-    g.add_argument("--min-ground-points", type=positive_int, default=paper.MIN_GROUND_POINTS,
+    g.add_argument("--seed", type=int, default=0, metavar="N", help="random seed of the draw (default 0)")
+    g.add_argument("--min-ground-points", type=positive_int, default=paper.MIN_GROUND_POINTS, metavar="N",
                    help=f"ground points a position needs within 5 m (default {paper.MIN_GROUND_POINTS:,})")
-    g.add_argument("--scanner-height", type=positive_float, default=paper.SCANNER_HEIGHT,
+    g.add_argument("--scanner-height", type=positive_float, default=paper.SCANNER_HEIGHT, metavar="M",
                    help=f"scanner height above the ground (m, default {paper.SCANNER_HEIGHT})")
 
 
@@ -231,22 +270,20 @@ def _number_or_sensor(text: str):
 
 def add_effects(p) -> None:
     """Sensor effects (:class:`~slr_ray.effects.Effects`, docs/effects.md): a file and flags for the common ones."""
-    g = p.add_argument_group("sensor effects", "all off by default (docs/effects.md); a flag overrides the "
-                             "same option of --effects")
-    g.add_argument("--effects", metavar="FILE", help="a TOML or JSON file of effect options (slr_ray.effects.Effects "
-                   "fields, at the top level or in an [effects] table, as a scene file has them)")
+    g = p.add_argument_group("sensor effects", "all off by default; a flag overrides --effects; docs/effects.md")
+    g.add_argument("--effects", metavar="FILE", help="effect options, a TOML or JSON file")
     g.add_argument("--range-noise", type=_number_or_sensor, metavar="SIGMA",
-                   help="Gaussian range noise, sigma in metres, or 'sensor' (the --sensor table's range accuracy)")
+                   help="Gaussian range noise (m), or 'sensor'")
     g.add_argument("--divergence-mrad", type=_number_or_sensor, metavar="MRAD",
-                   help="full beam divergence angle (mrad) or 'sensor': each pulse a cone of sub-rays, "
-                        "multiple returns (--backend embree)")
-    g.add_argument("--returns", nargs="+", choices=RETURN_KINDS,
-                   help="returns of a pulse reported with beam divergence (default first strongest last)")
+                   help="beam divergence (mrad) or 'sensor' (--backend embree)")
+    g.add_argument("--returns", nargs="+", choices=RETURN_KINDS, metavar="KIND",
+                   help=f"returns a pulse reports with divergence: {', '.join(RETURN_KINDS)} "
+                        "(default first strongest last)")
     g.add_argument("--ray-drop", metavar="MODEL",
-                   help="a ray-drop model, JSON (written by 'slr-ray effects fit-drop')")
+                   help="a ray-drop model (JSON of 'slr-ray effects fit-drop')")
     g.add_argument("--intensity", choices=INTENSITY_MODES,
-                   help="the input's intensity carried, or corrected for the new range and incidence")
-    g.add_argument("--effects-seed", type=int, metavar="N", help="seed of the random draws (noise, drop; default 0)")
+                   help="the input's intensity carried, or corrected")
+    g.add_argument("--effects-seed", type=int, metavar="N", help="seed of noise and drop (default 0)")
 
 
 def effects_from(args) -> Effects | None:

@@ -28,6 +28,7 @@ from ..io import PointCloud, atomic_path, check_format, read_cloud, write_cloud
 from ..meshscan import scan_mesh
 from ..outputs import OutputPlan
 from ..paper import Q1_SCENES, Q2_SCENES
+from ..progress import phase
 from ..plotting import check_figure_path, cells_figure, comparison_figure, paper_figure, range_image_figure, save_figure, validation_figure
 from ..positions import AzimuthProfile, build_synthetic_profile, default_profile, ground_labels, select_positions
 from ..scan import Scan, check_range_image
@@ -110,12 +111,20 @@ def scan(args):
             cloud = read_cloud(args.input, args.input_format, allow_empty=False)
             t_read = time.perf_counter() - t0
             origin = _origin(args, cloud)
+            if effects is not None and effects.intensity == "correct" and cloud.origin is None:
+                raise InputValueError(f"--intensity correct needs where {args.input} was scanned from, and it "
+                                      "records no scanner origin (use --intensity carry)")
+            with phase(f"{args.backend}: preparing {len(cloud):,} points", progress=not args.quiet):
+                scanner = prepare(cloud.points, args.backend, options)
             if effects is None:
-                result = prepare(cloud.points, args.backend, options).scan(origin, pattern)
+                with phase(f"{args.backend}: scanning", progress=not args.quiet):
+                    result = scanner.scan(origin, pattern)
                 sub = cloud.subset(result.indices)
                 sub.origin = np.asarray(origin, float)
             else:
-                result, sub = _scan_with_effects(args, cloud, origin, pattern, options, effects)
+                what = "with beam divergence" if effects.divergence_mrad else "with effects"
+                with phase(f"{args.backend}: scanning {what}", progress=not args.quiet):
+                    result, sub = _scan_with_effects(args, cloud, origin, pattern, scanner, effects)
         _keep(args, sub, result)
         # the range image is made before anything is written: an error there leaves no scan behind
         image = _range_image(sub, result) if args.range_image or args.png else None
@@ -128,16 +137,13 @@ def scan(args):
           "seconds_write": round(time.perf_counter() - t1, 6)})
 
 
-def _scan_with_effects(args, cloud, origin, pattern, options, effects):
+def _scan_with_effects(args, cloud, origin, pattern, scanner, effects):
     """(a Scan of the returns, for the summary and --keep-*; the cloud written)."""
     intensity = cloud.attributes.get("intensity")
     if intensity is not None and np.ndim(intensity) != 1:
         intensity = None
-    if effects.intensity == "correct" and cloud.origin is None:
-        raise InputValueError(f"--intensity correct needs where {args.input} was scanned from, and it records "
-                              "no scanner origin (use --intensity carry)")
     t0 = time.perf_counter()
-    es = simulate(prepare(cloud.points, args.backend, options), origin, pattern, effects, intensity=intensity,
+    es = simulate(scanner, origin, pattern, effects, intensity=intensity,
                   primary_origin=cloud.origin)
     info = {k: v for k, v in es.info.items() if k.startswith(("removed_", "returns_", "max_range_at"))}
     result = Scan(es.indices, es.ranges, es.pulses, es.origin, es.pattern, backend=args.backend,
@@ -198,7 +204,7 @@ def _origin(args, cloud):
 
 def demo(args):
     emit(run_demo(args.output, n_rectangles=args.rectangles, n_positions=args.positions, seed=args.seed,
-                  quick=args.quick, backends=args.backends, force=args.force))
+                  quick=args.quick, backends=args.backends, force=args.force, progress=not args.quiet))
 
 
 def scene(args):
@@ -254,7 +260,7 @@ def compare(args):
     with plan:
         cloud = read_cloud(args.input, args.input_format, allow_empty=False)
         res = compare_backends(cloud.points, np.array(args.origin, float).reshape(-1, 3), pattern,
-                               tolerance=args.tolerance, embree_options=embree_options)
+                               tolerance=args.tolerance, embree_options=embree_options, progress=not args.quiet)
         if args.png:
             save_figure(comparison_figure(res), args.png)
             res["png"] = args.png

@@ -12,13 +12,11 @@ from __future__ import annotations
 
 import math
 import shutil
-import sys
 import time
 from dataclasses import asdict
 from pathlib import Path
 
 import numpy as np
-from tqdm import tqdm
 
 from ..backends import Backend, prepare
 from ..io import atomic_path
@@ -31,6 +29,7 @@ from ..similarity import agreement
 from .config import ValidationConfig
 from .planning import ScenePlan, load_positions, plan, positions_file, positions_tag
 from .report import headline
+from ..progress import bar as progress_bar
 from .results import ResultsWriter, StageLog, check_settings, peak_rss_gib, read_rows, row_key
 from .truths import TruthCache
 
@@ -157,8 +156,8 @@ def _run_validation(config: ValidationConfig, out: Path, progress: bool) -> dict
     t_all = time.perf_counter()
     bar = None
     if progress:
-        bar = tqdm(total=sum(len(p.resolutions) for p in plans) * config.positions, unit="position",
-                   desc=config.name, file=sys.stderr)
+        bar = progress_bar(total=sum(len(p.resolutions) for p in plans) * config.positions, desc=config.name,
+                           unit="position", leave=True)
     n_new = 0
     try:
         with ResultsWriter(csv_path) as results, StageLog(out / "stages.csv") as stages:

@@ -10,7 +10,7 @@ artefacts (a point far behind a surface, returned only because no point of the
 surface fell in that pulse).
 
 Options (:class:`EmbreeOptions`; defaults measured by
-``benchmarks/bench_tradeoff.py``, README "Speed and accuracy"):
+``benchmarks/bench_tradeoff.py``, docs/backends.md "Speed and accuracy"):
 
 radius
     a fixed value in metres, an ``(n,)`` array, ``"spacing"`` (``radius_scale``

@@ -67,7 +67,7 @@ class EmbreeOptions(BackendOptions):
         its scan order records it. The pulse grid then puts each point in its
         beam's row instead of the band its elevation falls in: a real unit's
         beams depart from any table, and a beam's vertical offset moves near
-        points' elevation by degrees (KITTI frame: README "Where the KITTI
+        points' elevation by degrees (KITTI frame: docs/sensors.md "Where the KITTI
         frame's VLP-16 re-scan loses its points").
     normals : (n, 3) float, optional
         Normals to use instead of estimating them (``orientation='normal'``).
@@ -102,7 +102,7 @@ class EmbreeOptions(BackendOptions):
         scenes with mean-spacing discs), 90 (off) otherwise: kNN normals of noiseless
         ground are exact, and turned they stand up in the way of other
         positions' rays (precision 96.9 -> 76.7 % on bare ground). Normals
-        given by the user are never turned. README "Returned points on
+        given by the user are never turned. docs/backends.md "Returned points on
         sparse clouds".
     grid_gate : float, optional
         With 'pulse-grid': an adjacent pulse's point is a neighbour only when
