@@ -32,7 +32,7 @@ from .paper import CELL_SIZE, MIN_GROUND_POINTS
 from .positions import select_positions
 from .threads import default_threads
 
-__all__ = ["scan_las", "las_positions", "scan_las_many", "STREAMED_FORMATS", "DEFAULT_CHUNK",
+__all__ = ["scan_las", "las_bounds", "las_positions", "scan_las_many", "STREAMED_FORMATS", "DEFAULT_CHUNK",
            "MAX_GROUND_POINTS"]
 
 #: Input formats :func:`scan_las` reads in chunks.
@@ -92,6 +92,17 @@ def scan_las(path, origin, pattern, chunk: int = DEFAULT_CHUNK, progress: bool =
     return next(scan_las_many(path, [origin], pattern, chunk=chunk, progress=progress))
 
 
+def las_bounds(path) -> tuple[np.ndarray, np.ndarray]:
+    """The lowest and highest coordinates of a LAS/LAZ file, as its header records them (no point
+    read); None when it declares no point."""
+    try:
+        with laspy.open(str(path)) as reader:
+            h = reader.header
+            return (np.asarray(h.mins, np.float64), np.asarray(h.maxs, np.float64)) if h.point_count else None
+    except (laspy.errors.LaspyException, ValueError, RuntimeError) as exc:  # OSError (no such file) as it is
+        raise FormatError(f"cannot read {path}: {type(exc).__name__}: {exc}") from exc
+
+
 def _xyz(pts) -> np.ndarray:
     return np.column_stack([np.asarray(pts.x), np.asarray(pts.y), np.asarray(pts.z)])
 
@@ -103,8 +114,10 @@ def _chunk_ground(pts, names) -> np.ndarray:
         return np.asarray(pts["is_ground"]).astype(bool)
     if "classification" in names:
         return np.asarray(pts["classification"]) == 2
-    raise InputValueError("the input has no ground labels (is_ground, classification); "
-                          "pass them, or label the cloud first (slr-ray scan --csf is not streamed)")
+    raise InputValueError("the input has no ground labels (is_ground, classification) and a streamed read "
+                          "cannot find them (CSF needs the whole cloud): read it whole (no chunk_size), "
+                          "or pass labels", flags={"read it whole (no chunk_size), or pass labels":
+                                                   "drop --chunk-size, or name them with --ground-attribute"})
 
 
 #: Ground points :func:`las_positions` keeps at most (0.24 GB, and their k-d tree).
