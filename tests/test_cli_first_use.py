@@ -71,6 +71,10 @@ def test_a_far_origin_without_a_range_limit_is_warned_and_one_relative_to_the_ce
     assert out.err == "" and res["points_out"] > 1000
     lo, hi = read_cloud(utm_laz).points.min(0), read_cloud(utm_laz).points.max(0)
     np.testing.assert_allclose(res["origin"], (lo + hi) / 2 + [0, 0, 1])
+    # compare's origins are checked alike
+    assert main(["compare", str(utm_laz), "--origin", "12", "-3.5", "0.2", "--resolution", "2",
+                 "--max-range", "50"]) == 2
+    assert "beyond the pattern's max range (50 m)" in capsys.readouterr().err
     # relative to a recorded scanner origin: a LAS records none, which is said
     assert main(args + ["--origin-relative", "scanner", "-o", str(tmp_path / "c.laz")]) == 2
     assert "records no scanner origin" in capsys.readouterr().err

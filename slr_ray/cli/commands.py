@@ -214,7 +214,7 @@ def _extent(bounds) -> str:
     return ", ".join(f"{a} {lo[i]:,.1f} to {hi[i]:,.1f}" for i, a in enumerate("xyz"))
 
 
-def _check_origin(origin, bounds, pattern) -> bool:
+def _check_origin(origin, bounds, pattern, relative: bool = True) -> bool:
     """Refuse an origin from which the pattern reaches no point of the cloud; warn
     when it lies farther outside the cloud than the cloud is wide (a local origin
     given for a georeferenced cloud, say): True when it warned."""
@@ -224,7 +224,8 @@ def _check_origin(origin, bounds, pattern) -> bool:
     reach = pattern.range_limits[1]
     where = (f"the origin ({', '.join(f'{v:,.2f}' for v in o)}) lies {gap:,.1f} m outside the cloud "
              f"({_extent(bounds)})")
-    hint = "give it in the cloud's coordinates, or from its centre with --origin-relative centre"
+    hint = "give it in the cloud's coordinates" + (", or from its centre with --origin-relative centre"
+                                                    if relative else "")
     if gap > reach:
         raise InputValueError(f"{where}, beyond the pattern's max range ({reach:g} m): the scan would be empty; "
                               f"{hint}")
@@ -304,6 +305,9 @@ def compare(args):
     embree_options = backend_from(args, "embree")
     with plan:
         cloud = read_cloud(args.input, args.input_format, allow_empty=False)
+        bounds = (cloud.points.min(axis=0), cloud.points.max(axis=0))
+        for origin in args.origin:  # each reaches the cloud (a local origin for a UTM cloud does not)
+            _check_origin(origin, bounds, pattern, relative=False)
         res = compare_backends(cloud.points, np.array(args.origin, float).reshape(-1, 3), pattern,
                                tolerance=args.tolerance, embree_options=embree_options)
         if args.png:
