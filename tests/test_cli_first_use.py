@@ -63,7 +63,7 @@ def test_a_far_origin_without_a_range_limit_is_warned_and_one_relative_to_the_ce
     out = capsys.readouterr()
     assert json.loads(out.out)["points_out"] <= 1
     assert out.err.startswith("slr-ray: warning: the origin (12.00, -3.50, 0.20) lies ")
-    assert "farther than the cloud is wide" in out.err and "y 4,999,996.0 to 5,000,004.0" in out.err
+    assert "over ten times farther than the cloud is wide" in out.err and "y 4,999,996.0 to 5,000,004.0" in out.err
     assert main(args + ["--origin-relative", "centre", "--origin", "0", "0", "1", "--max-range", "120",
                         "-o", str(tmp_path / "b.laz")]) == 0
     out = capsys.readouterr()

@@ -216,8 +216,8 @@ def _extent(bounds) -> str:
 
 def _check_origin(origin, bounds, pattern, relative: bool = True) -> bool:
     """Refuse an origin from which the pattern reaches no point of the cloud; warn
-    when it lies farther outside the cloud than the cloud is wide (a local origin
-    given for a georeferenced cloud, say): True when it warned."""
+    when it lies over 1 km and ten times the cloud's width outside it (a local
+    origin given for a georeferenced cloud, say): True when it warned."""
     lo, hi = (np.asarray(b, float) for b in bounds)
     o = np.asarray(origin, float)
     gap = float(np.linalg.norm(np.maximum(lo - o, 0.0) + np.maximum(o - hi, 0.0)))  # distance to the box
@@ -229,8 +229,8 @@ def _check_origin(origin, bounds, pattern, relative: bool = True) -> bool:
     if gap > reach:
         raise InputValueError(f"{where}, beyond the pattern's max range ({reach:g} m): the scan would be empty; "
                               f"{hint}")
-    if gap > float(np.linalg.norm(hi - lo)):
-        warnings.warn(f"{where}, farther than the cloud is wide: {hint}", SlrWarning, stacklevel=2)
+    if gap > max(1000.0, 10 * float(np.linalg.norm(hi - lo))):
+        warnings.warn(f"{where}, over ten times farther than the cloud is wide: {hint}", SlrWarning, stacklevel=2)
         return True
     return False
 
