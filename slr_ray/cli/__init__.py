@@ -66,7 +66,7 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("-o", "--output", required=True, help="output cloud (same formats)")
     A.add_pattern(p, origin="optional")
     p.add_argument("--origin-relative", choices=["centre", "scanner"],
-                   help="--origin (default 0 0 0) from the cloud's bounding-box centre or its recorded scanner origin")
+                   help="--origin (default 0 0 0) from the cloud's centre or its recorded scanner origin")
     A.add_backend(p)
     p.add_argument("--format", help="output format, overriding the extension")
     A.add_input_format(p)
