@@ -14,6 +14,7 @@ Prints a table and saves results/bench_ground.json.
 from __future__ import annotations
 
 import argparse
+import os
 import statistics
 import sys
 import time
@@ -54,7 +55,8 @@ def main():
            "ground_share": round(float(first.mean()), 4),
            "ground_z_quantiles_5_50_95": [round(float(q), 3) for q in np.quantile(z, [0.05, 0.5, 0.95])],
            "non_ground_below_minus_1": int(np.count_nonzero(~first & (pts[:, 2] < -1.0))),
-           "deterministic": True, "machine": machine()}
+           "deterministic": True, "load_average_1_5_15": [round(x, 1) for x in os.getloadavg()],
+           "machine": machine()}
     for k, v in res.items():
         if k != "machine":
             print(f"{k:28s} {v}")

@@ -49,8 +49,7 @@ __all__ = ["CandidateCells", "AzimuthProfile", "candidate_cells", "select_positi
            "label_ground", "ground_labels", "DEFAULT_PROFILE_PATH"]
 
 #: Words of this module's messages that name arguments, and the flags of ``slr-ray`` that set them.
-CLI_FLAGS = {"pass allow_fewer=True": "give --allow-fewer", "min_ground_points": "--min-ground-points",
-             "cloth_resolution": "--cloth-resolution"}
+CLI_FLAGS = {"pass allow_fewer=True": "give --allow-fewer", "min_ground_points": "--min-ground-points"}
 
 DEFAULT_PROFILE_PATH = Path(__file__).resolve().parent / "data" / "default_profile.json"
 STAGES = ("non_empty", "ground_support", "azimuth_profile")

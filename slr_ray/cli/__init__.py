@@ -1,6 +1,8 @@
 """The ``slr-ray`` command.
 
-Results go to stdout as one line of JSON; logs and progress go to stderr. An
+Results go to stdout as one line of JSON; logs and progress go to stderr, and
+slr_ray's warnings (:class:`~slr_ray.errors.SlrWarning`) as one line each,
+``slr-ray: warning: ...`` or ``slr-ray: note: ...``. An
 error of the input or the settings (:class:`~slr_ray.errors.SlrError`) or of
 the system (``OSError``: no such file, no permission, disk full) exits with
 status 2 and one line ``slr-ray: error: ...`` on stderr, and leaves no output
