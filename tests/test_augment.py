@@ -7,7 +7,7 @@ import time
 import numpy as np
 import pytest
 
-from slr_ray import InputValueError
+from slr_ray import InputValueError, SlrWarning
 from slr_ray.augment import AugmentConfig, augment
 from slr_ray.cli import main
 from slr_ray.errors import SlrError
@@ -320,7 +320,8 @@ def test_scanner_height_is_honoured(laz, tmp_path):
 @pytest.mark.parametrize("chunk_size", [None, 50_000])
 def test_no_position_found_is_an_error_that_leaves_nothing(laz, tmp_path, chunk_size):
     out = tmp_path / "o"
-    with pytest.raises(InputValueError, match="no scanner position found"):  # was: exit 0, an empty manifest
+    with pytest.raises(InputValueError, match="no scanner position found"),  \
+            pytest.warns(SlrWarning, match="0 positions of the 2 asked"):  # was: exit 0, an empty manifest
         _run(laz, out, 2, min_ground_points=10**9, chunk_size=chunk_size, allow_fewer=True)
     assert not out.exists()
 
