@@ -39,7 +39,7 @@ def _slr_ray(*args, cwd):
 
 @pytest.fixture
 def utm_laz(tmp_path):
-    pts, _ = _cloud()
+    pts, _ = _cloud(n_ground=10_000)
     path = tmp_path / "utm.laz"
     write_cloud(path, PointCloud(pts + UTM))  # a LAS in UTM coordinates, no labels
     return path
@@ -71,6 +71,13 @@ def test_a_far_origin_without_a_range_limit_is_warned_and_one_relative_to_the_ce
     assert out.err == "" and res["points_out"] > 1000
     lo, hi = read_cloud(utm_laz).points.min(0), read_cloud(utm_laz).points.max(0)
     np.testing.assert_allclose(res["origin"], (lo + hi) / 2 + [0, 0, 1])
+    # a scan that returns almost nothing of a large cloud is said to, with the cloud's extent
+    assert main(args + ["--origin-relative", "centre", "--origin", "0", "0", "5", "--zenith-range", "0", "10",
+                        "-o", str(tmp_path / "up.laz")]) == 0
+    out = capsys.readouterr()
+    assert json.loads(out.out)["points_out"] == 0
+    assert out.err.startswith("slr-ray: warning: the scan returned 0 of the cloud's 10,800 points")
+    assert "x 499,996.0 to 500,004.0" in out.err
     # compare's origins are checked alike
     assert main(["compare", str(utm_laz), "--origin", "12", "-3.5", "0.2", "--resolution", "2",
                  "--max-range", "50"]) == 2
