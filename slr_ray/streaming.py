@@ -114,10 +114,15 @@ def _chunk_ground(pts, names) -> np.ndarray:
         return np.asarray(pts["is_ground"]).astype(bool)
     if "classification" in names:
         return np.asarray(pts["classification"]) == 2
-    raise InputValueError("the input has no ground labels (is_ground, classification) and a streamed read "
-                          "cannot find them (CSF needs the whole cloud): read it whole (no chunk_size), "
-                          "or pass labels", flags={"read it whole (no chunk_size), or pass labels":
-                                                   "drop --chunk-size, or name them with --ground-attribute"})
+    raise _unlabelled("the input has no ground labels (is_ground, classification)")
+
+
+def _unlabelled(what: str) -> InputValueError:
+    """The error of a streamed input without ground labels: CSF, which finds them, needs the whole cloud."""
+    return InputValueError(f"{what}, and a streamed read cannot find them (CSF needs the whole cloud): read it "
+                           "whole (no chunk_size), or pass labels",
+                           flags={"read it whole (no chunk_size), or pass labels":
+                                  "drop --chunk-size, or name them with --ground-attribute"})
 
 
 #: Ground points :func:`las_positions` keeps at most (0.24 GB, and their k-d tree).
@@ -184,6 +189,8 @@ def las_positions(path, n: int, *, seed=0, ground=None, chunk: int = DEFAULT_CHU
         total += len(pts)
     if ground is not None and len(ground) != total:
         raise InputValueError(f"ground has {len(ground)} labels for {total} points")
+    if ground is None and total and not n_ground:  # a TLS scan's LAS: classification 0 throughout
+        raise _unlabelled(f"{path}: its ground labels (is_ground, classification 2) mark no point as ground")
     # pass 2: ground points, the first point of each occupied cell and the lowest
     # points (so that candidate_cells finds the same corner), in file order
     if bar is not None:

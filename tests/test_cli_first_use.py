@@ -115,6 +115,15 @@ def test_the_labels_of_the_tools_own_scene_scan_are_ground_labels(tmp_path, caps
     assert json.loads((tmp_path / "p.json").read_text())["ground_points"] == np.count_nonzero(label == 0)
 
 
+def test_a_streamed_augment_of_an_unlabelled_las_says_why_it_cannot_find_ground(utm_laz, tmp_path, capsys):
+    # was: 'only 0 candidate cells' (its classification 0 read as labels marking no ground)
+    assert main(["augment", str(utm_laz), "--n", "2", "--chunk-size", "5000", "--quiet", "-o",
+                 str(tmp_path / "aug")]) == 2
+    err = capsys.readouterr().err
+    assert "mark no point as ground, and a streamed read cannot find them (CSF needs the whole cloud)" in err
+    assert "drop --chunk-size, or name them with --ground-attribute" in err and not (tmp_path / "aug").exists()
+
+
 # --- 4. fewer positions than --n: one rule for augment and positions ---------------------------------------
 
 @pytest.fixture
