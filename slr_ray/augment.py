@@ -462,7 +462,9 @@ def _augment(input_path, out, config, pattern, options, ext, names, ground, prog
         settings["effects"] = effects.to_dict()
         if effects.intensity == "correct" and cloud is not None and cloud.origin is None:
             raise InputValueError(f"intensity='correct' needs where {input_path} was scanned from, and it records "
-                                  "no scanner origin (use intensity='carry')")
+                                  "no scanner origin (use intensity='carry')",
+                                  flags={"intensity='correct'": "--intensity correct",
+                                         "intensity='carry'": "--intensity carry"})
     manifest_path = out / MANIFEST
     done = {}
     fresh = not manifest_path.exists()

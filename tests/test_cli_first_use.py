@@ -155,3 +155,10 @@ def test_allow_fewer_accepts_fewer_with_a_warning_in_both_commands(labelled_ply,
     out = capsys.readouterr()
     assert json.loads(out.out)["scans"] == 16
     assert out.err.startswith("slr-ray: warning: 16 positions of the 20 asked: 16 candidate cells")
+
+
+def test_augments_effects_error_names_the_flags_typed(labelled_ply, tmp_path, capsys):
+    assert main(["augment", str(labelled_ply), "--n", "2", "--min-ground-points", "500", "--intensity", "correct",
+                 "--quiet", "-o", str(tmp_path / "aug")]) == 2
+    err = capsys.readouterr().err
+    assert "--intensity correct needs where" in err and "(use --intensity carry)" in err and "intensity='" not in err
