@@ -532,11 +532,11 @@ def ground_labels(cloud, attribute: str | None = None, value: int | None = None,
     attrs = cloud.attributes
     if value is not None and not attribute:
         raise InputValueError(f"a ground value ({value}) needs the attribute that holds it: "
-                              "give --ground-attribute NAME too")
+                              "give attribute= too", flags={"attribute=": "--ground-attribute NAME"})
     if attribute:
         if csf:
-            raise InputValueError("ground labels from an attribute or by CSF, not both: drop --csf "
-                                  "or --ground-attribute")
+            raise InputValueError("ground labels from an attribute or by CSF, not both: drop csf=True or "
+                                  "attribute=", flags={"csf=True": "--csf", "attribute=": "--ground-attribute"})
         value = 2 if value is None else value
         if attribute not in attrs:
             raise InputValueError(f"no attribute {attribute!r} in the input (has {sorted(attrs)})")
@@ -552,15 +552,15 @@ def ground_labels(cloud, attribute: str | None = None, value: int | None = None,
             if found.any():
                 if name == "label":
                     warnings.warn(f"ground labels from 'label' == 0 (those of slr-ray scene scan): "
-                                  f"{int(found.sum()):,} of {len(found):,} points; name others with "
-                                  "--ground-attribute", SlrNote, stacklevel=2)
+                                  f"{int(found.sum()):,} of {len(found):,} points (others: --ground-attribute, "
+                                  "--ground-value)", SlrNote, stacklevel=2)
                 return found
             tried.append(f"{name} {'true' if ground_value is True else ground_value}")
         if csf is False:
             if tried:
                 raise InputValueError(f"the input's ground labels ({', '.join(tried)}) mark no point as ground")
             raise InputValueError("the input has no ground labels (is_ground, classification 2, label 0): "
-                                  "name one with --ground-attribute")
+                                  "name one with attribute=", flags={"attribute=": "--ground-attribute"})
         why = (f"the input's labels ({', '.join(tried)}) mark no point as ground" if tried
                else "the input has no ground labels (is_ground, classification 2, label 0)")
     else:
