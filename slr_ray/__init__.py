@@ -5,7 +5,7 @@ have recorded from other positions, using only points of the original cloud.
 """
 
 from .accumulator import ScanAccumulator
-from .errors import FormatError, InputTypeError, InputValueError, MissingDependencyError, SlrError
+from .errors import FormatError, InputTypeError, InputValueError, MissingDependencyError, SlrError, SlrNote, SlrWarning
 from .pattern import PRESETS, ScanPattern, as_pattern, preset, pulse_directions, pulse_rays
 from .scan import Scan
 from .backends import Backend, Scanner, available_backends, prepare, simulate_scan
@@ -27,4 +27,5 @@ __all__ = [
     "label_ground", "pulse_sized_bins", "distance_histogram", "DistanceHistogram", "height_sweep",
     "pulse_bins", "pulse_directions", "spherical_coordinates",
     "SlrError", "InputValueError", "InputTypeError", "FormatError", "MissingDependencyError",
+    "SlrWarning", "SlrNote",
 ]

@@ -40,7 +40,7 @@ from .io import PointCloud, atomic_path, check_format, read_cloud, write_cloud
 from .outputs import OutputPlan, content_digest, output_sidecars
 from .paper import MIN_GROUND_POINTS, SCANNER_HEIGHT, SECONDARY_RESOLUTION
 from .pattern import ScanPattern, as_pattern
-from .positions import ground_labels, select_positions
+from .positions import CLI_FLAGS, ground_labels, select_positions
 from .progress import bar as progress_bar
 from .streaming import STREAMED_FORMATS, las_positions, scan_las_many
 
@@ -227,7 +227,7 @@ class AugmentConfig:
 
     n : int
         Positions to draw (the grid method, :func:`~slr_ray.positions.select_positions`);
-        fewer when the cloud has fewer valid cells and ``allow_fewer``.
+        fewer is an error unless ``allow_fewer``.
     resolution : float
         Degrees between pulses, both axes, of the uniform pattern (default
         the paper's 0.036). Not used with ``sensor``.
@@ -253,7 +253,9 @@ class AugmentConfig:
         Ground points a position needs within 5 m (the paper's 200,000 for
         0.036 deg scans).
     allow_fewer : bool
-        Return fewer than ``n`` positions when cells run out (else an error).
+        Accept fewer than ``n`` positions when cells run out, with a warning
+        naming both counts (default False: an error, as
+        :func:`~slr_ray.positions.select_positions` has it).
     effects : Effects or dict, optional
         Sensor effects of every scan (:class:`~slr_ray.effects.Effects`;
         default none, the ideal scans). Each scan draws from its own seed,
@@ -292,7 +294,7 @@ class AugmentConfig:
     fmt: str | None = None
     seed: int = 0
     min_ground_points: int = MIN_GROUND_POINTS
-    allow_fewer: bool = True
+    allow_fewer: bool = False
     effects: object = None
     workers: int | None = None
     scheduler: str | None = None
@@ -383,8 +385,10 @@ def augment(input_path, outdir, config: AugmentConfig, *, ground=None, progress:
     ground : (n,) bool or dict, optional
         Ground labels, or keywords of :func:`~slr_ray.positions.ground_labels`
         (``attribute``, ``value``, ``csf``, ``cloth_resolution``) to label the
-        input once it is read; default from the input (``is_ground``, LAS
-        class 2), which must have some (use :func:`slr_ray.label_ground` otherwise).
+        input once it is read; default the input's (``is_ground``, LAS class
+        2, ``label`` 0), else found by CSF, with a note saying so
+        (:func:`~slr_ray.positions.ground_labels`). A streamed input
+        (``chunk_size``) must have labels, or be given them.
     progress : bool
         A progress bar on stderr.
     reads : iterable of paths (None skipped)
@@ -446,7 +450,8 @@ def _augment(input_path, out, config, pattern, options, ext, names, ground, prog
     if config.n and not len(positions):  # allow_fewer is fewer, not none: nothing to write, an error
         raise InputValueError(f"{input_path}: no scanner position found ("
                               + ", ".join(f"{s['stage']} removed {s['removed']}" for s in cells.stages
-                                          if not s.get("skipped")) + "): lower min_ground_points, or check the ground")
+                                          if not s.get("skipped")) + "): lower min_ground_points, or check the ground",
+                              flags=CLI_FLAGS)
     settings = {"input": str(input_path.resolve()), "input_bytes": input_path.stat().st_size,
                 "input_digest": content_digest(input_path), "seed": config.seed,
                 "pattern": pattern.to_dict(), "backend": backend, "backend_options": options.to_dict(),
@@ -457,7 +462,9 @@ def _augment(input_path, out, config, pattern, options, ext, names, ground, prog
         settings["effects"] = effects.to_dict()
         if effects.intensity == "correct" and cloud is not None and cloud.origin is None:
             raise InputValueError(f"intensity='correct' needs where {input_path} was scanned from, and it records "
-                                  "no scanner origin (use intensity='carry')")
+                                  "no scanner origin (use intensity='carry')",
+                                  flags={"intensity='correct'": "--intensity correct",
+                                         "intensity='carry'": "--intensity carry"})
     manifest_path = out / MANIFEST
     done = {}
     fresh = not manifest_path.exists()

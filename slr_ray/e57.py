@@ -22,7 +22,7 @@ def _pye57():
     try:
         import pye57
     except ImportError as exc:
-        raise MissingDependencyError('E57 needs pye57: pip install "slr_ray[e57]" (or pip install pye57)') from exc
+        raise MissingDependencyError('E57 needs pye57: pip install "slr_ray[e57]"') from exc
     return pye57
 
 

@@ -3,7 +3,13 @@
 Every error the library raises on purpose derives from :class:`SlrError`, and
 also from the built-in class a numpy user expects (``ValueError`` for a bad
 value or shape, ``TypeError`` for the wrong kind of data), so both
-``except SlrError`` and ``except ValueError`` work.
+``except SlrError`` and ``except ValueError`` work. A message that names a
+library argument (``allow_fewer=True``) carries the flag a command-line user
+types instead (``--allow-fewer``): :meth:`SlrError.for_cli`.
+
+What slr_ray decided on the caller's behalf, or a result short of what was
+asked, is said as a warning (:class:`SlrWarning`, :class:`SlrNote`), which
+``slr-ray`` prints as one ``slr-ray: warning: ...`` (or ``note:``) line.
 
 :func:`refuse_memory` turns a setting that would exhaust memory into an
 :class:`InputValueError` with the figure, before the work.
@@ -14,7 +20,34 @@ import os
 
 
 class SlrError(Exception):
-    """Base class of every error raised on purpose by slr_ray."""
+    """Base class of every error raised on purpose by slr_ray.
+
+    ``flags`` maps words of the message that name library arguments to what
+    a command-line user types instead (``{"allow_fewer=True": "--allow-fewer"}``);
+    :meth:`for_cli` is the message in those words.
+    """
+
+    def __init__(self, *args, flags: dict | None = None):
+        super().__init__(*args)
+        self.flags = dict(flags or {})
+
+    def for_cli(self) -> str:
+        """The message as a command-line user should read it: flags, not arguments."""
+        text = str(self)
+        for word, flag in self.flags.items():
+            text = text.replace(word, flag)
+        return text
+
+
+class SlrWarning(UserWarning):
+    """A result short of what was asked, accepted (fewer positions than ``n``
+    with ``allow_fewer``), or one that is probably not what was meant (a scan
+    that returns almost nothing of a large cloud)."""
+
+
+class SlrNote(SlrWarning):
+    """What slr_ray decided on the caller's behalf (ground labelled by CSF):
+    said, so that it is never silent."""
 
 
 class InputValueError(SlrError, ValueError):

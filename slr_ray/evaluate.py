@@ -232,8 +232,9 @@ def register(source, target, max_distance: float = 0.2, min_fitness: float = 0.5
     """
     try:
         import open3d as o3d
-    except ImportError:
-        raise MissingDependencyError("registration needs open3d: pip install open3d") from None
+    except (ImportError, OSError):  # OSError: its system library libusb-1.0 missing
+        raise MissingDependencyError("registration needs open3d: pip install open3d "
+                                     "(and its system library: apt-get install libusb-1.0-0)") from None
     reg = o3d.pipelines.registration
     t0 = time.perf_counter()
     s_pts, t_pts = as_points(source, "source"), as_points(target, "target")

@@ -25,6 +25,7 @@ import multiprocessing
 import os
 import tempfile
 import time
+import warnings
 from concurrent.futures import ProcessPoolExecutor
 from concurrent.futures.process import BrokenProcessPool
 from dataclasses import dataclass, field
@@ -35,7 +36,7 @@ from scipy.spatial import cKDTree
 
 from .arrays import as_points
 from .backends import prepare
-from .errors import InputValueError, MissingDependencyError
+from .errors import InputValueError, MissingDependencyError, SlrNote, SlrWarning
 from .meshscan import scan_mesh
 from .paper import (CELL_SIZE, GROUND_COUNT_RADIUS, GROUND_HEIGHT_RADIUS, MIN_GROUND_POINTS, SCANNER_HEIGHT,
                     SECONDARY_RESOLUTION)
@@ -46,6 +47,9 @@ from .scenes import scene_from_spec
 __all__ = ["CandidateCells", "AzimuthProfile", "candidate_cells", "select_positions",
            "azimuth_histogram", "minimum_profile", "default_profile", "build_synthetic_profile", "suggest_resolution",
            "label_ground", "ground_labels", "DEFAULT_PROFILE_PATH"]
+
+#: Words of this module's messages that name arguments, and the flags of ``slr-ray`` that set them.
+CLI_FLAGS = {"pass allow_fewer=True": "give --allow-fewer", "min_ground_points": "--min-ground-points"}
 
 DEFAULT_PROFILE_PATH = Path(__file__).resolve().parent / "data" / "default_profile.json"
 STAGES = ("non_empty", "ground_support", "azimuth_profile")
@@ -337,7 +341,8 @@ def select_positions(points, is_ground, n: int, seed=None, cell_size: float = CE
         Same seed, same positions.
     allow_fewer : bool
         With fewer candidates than ``n``: False (default) raises, True returns
-        all the positions there are.
+        all the positions there are and warns (:class:`~slr_ray.errors.SlrWarning`)
+        naming both counts.
     cells : CandidateCells, optional
         Reuse a :func:`candidate_cells` result (its parameters win).
     return_cells : bool
@@ -360,11 +365,10 @@ def select_positions(points, is_ground, n: int, seed=None, cell_size: float = CE
                                 progress=progress)
     rng = np.random.default_rng(seed)
     final = cells.final
+    removed = ", ".join(f"{s['stage']} removed {s['removed']}" for s in cells.stages if not s.get("skipped"))
     if len(final) < n and not allow_fewer:
-        raise InputValueError(
-            f"only {len(final)} candidate cells for n={n}: " + ", ".join(
-                f"{s['stage']} removed {s['removed']}" for s in cells.stages)
-            + " (lower min_ground_points, or pass allow_fewer=True)")
+        raise InputValueError(f"only {len(final)} candidate cells for n={n}: {removed} "
+                              "(lower min_ground_points, or pass allow_fewer=True to accept fewer)", flags=CLI_FLAGS)
     tree, gpts, gcentre = cells.ground_index if cells.ground_index is not None else _ground_tree(pts, g)
     out = []
     size = cells.cell_size
@@ -379,8 +383,15 @@ def select_positions(points, is_ground, n: int, seed=None, cell_size: float = CE
                 out.append([xy[0], xy[1], z + scanner_height])
                 break
     positions = np.array(out, dtype=np.float64).reshape(-1, 3)
-    if len(positions) < n and not allow_fewer:
-        raise InputValueError(f"only {len(positions)} positions could be placed for n={n}")
+    if len(positions) < n:
+        why = (f"{len(final)} candidate cells ({removed})" if len(final) < n else
+               f"{len(final) - len(positions)} of the {len(final)} candidate cells had no ground point within "
+               f"{ground_height_radius:g} m of any position drawn in them")
+        if not allow_fewer:
+            raise InputValueError(f"only {len(positions)} positions could be placed for n={n}: {why} "
+                                  "(lower min_ground_points, or pass allow_fewer=True to accept fewer)",
+                                  flags=CLI_FLAGS)
+        warnings.warn(f"{len(positions)} positions of the {n} asked: {why}", SlrWarning, stacklevel=2)
     return (positions, cells) if return_cells else positions
 
 
@@ -436,7 +447,7 @@ def label_ground(points, *, cloth_resolution: float = 0.5, rigidness: int = 2,
     """
     if importlib.util.find_spec("CSF") is None:
         raise MissingDependencyError(
-            'ground labelling needs cloth-simulation-filter: pip install "slr_ray[csf]"')
+            'ground labelling needs cloth-simulation-filter: pip install cloth-simulation-filter')
     for name, value, lo in (("cloth_resolution", cloth_resolution, 0.0), ("class_threshold", class_threshold, 0.0),
                             ("time_step", time_step, 0.0)):
         if not (isinstance(value, (int, float)) and math.isfinite(value) and value > lo):
@@ -463,6 +474,8 @@ def label_ground(points, *, cloth_resolution: float = 0.5, rigidness: int = 2,
 
 def _csf_ground(pts: np.ndarray, params: dict) -> np.ndarray:
     """Indices of CSF's ground points, in a child process (see :func:`label_ground`)."""
+    # one OpenMP thread: CSF's threads race, and the same cloud gave 20,000 then 20,001 ground points
+    os.environ["OMP_NUM_THREADS"] = "1"  # read when CSF's own libgomp loads, at its import just below
     import CSF
 
     csf = CSF.CSF()
@@ -478,23 +491,31 @@ def _csf_ground(pts: np.ndarray, params: dict) -> np.ndarray:
     return np.asarray(list(ground), dtype=np.int64)
 
 
-def ground_labels(cloud, attribute: str | None = None, value: int | None = None, csf: bool = False,
+def ground_labels(cloud, attribute: str | None = None, value: int | None = None, csf: bool | None = None,
                   cloth_resolution: float = 0.5) -> np.ndarray:
-    """Ground labels of a :class:`~slr_ray.io.PointCloud`: from its attributes, or by CSF when asked.
+    """Ground labels of a :class:`~slr_ray.io.PointCloud`: its own, else found by CSF.
+
+    Labels are read, in this order, from ``attribute`` when given, else from
+    ``is_ground``, LAS ``classification`` 2, or ``label`` 0 (the labels
+    ``slr-ray scene scan`` writes, and every scan of such a cloud carries);
+    the first of those that marks some point is used. A cloud with none is
+    labelled by Cloth Simulation Filtering (:func:`label_ground`, the paper's
+    choice; deterministic). Whatever was not read from named or standard
+    labels (``label`` 0, CSF) is said by a :class:`~slr_ray.errors.SlrNote`
+    warning with the count.
 
     Parameters
     ----------
     cloud : PointCloud
     attribute : str, optional
         A per-point attribute holding the labels; ground is where it equals
-        ``value`` (or is true, for a boolean attribute). Without it:
-        ``is_ground`` if present, else ``classification == 2`` (LAS ground).
+        ``value`` (or is true, for a boolean attribute).
     value : int, optional
         The ground value of ``attribute`` (default 2, LAS ground); an error
         without ``attribute`` (it would be ignored).
-    csf : bool
-        Label by Cloth Simulation Filtering (:func:`label_ground`) when the
-        cloud has no labels or they mark no point.
+    csf : bool, optional
+        None (default): CSF when the cloud has no labels. True: CSF whatever
+        labels the cloud has. False: never CSF (no labels is an error).
     cloth_resolution : float
         CSF's cloth cell (m).
 
@@ -505,31 +526,46 @@ def ground_labels(cloud, attribute: str | None = None, value: int | None = None,
     Raises
     ------
     InputValueError
-        When the named attribute is missing, or there are no usable labels and
-        ``csf`` is off (the message says which flag to use).
+        When the named attribute is missing or marks no point, or there are
+        no labels and ``csf`` is False.
     """
     attrs = cloud.attributes
     if value is not None and not attribute:
         raise InputValueError(f"a ground value ({value}) needs the attribute that holds it: "
-                              "give --ground-attribute NAME too")
+                              "give attribute= too", flags={"attribute=": "--ground-attribute NAME"})
     if attribute:
+        if csf:
+            raise InputValueError("ground labels from an attribute or by CSF, not both: drop csf=True or "
+                                  "attribute=", flags={"csf=True": "--csf", "attribute=": "--ground-attribute"})
         value = 2 if value is None else value
         if attribute not in attrs:
             raise InputValueError(f"no attribute {attribute!r} in the input (has {sorted(attrs)})")
         a = np.asarray(attrs[attribute])
         return a.astype(bool) if a.dtype == bool else a == value
-    found = None
-    if "is_ground" in attrs:
-        found = np.asarray(attrs["is_ground"]).astype(bool)
-    elif "classification" in attrs:
-        found = np.asarray(attrs["classification"]) == 2
-    if found is not None and found.any():
-        return found
-    if csf:
-        return label_ground(cloud.points, cloth_resolution=cloth_resolution)
-    if found is not None:
-        raise InputValueError("the input's ground labels (is_ground / classification 2) mark no point as ground; "
-                              "label them with --csf")
-    raise InputValueError("the input has no ground labels (is_ground, classification); "
-                          "name one with --ground-attribute or label them with --csf")
-
+    if not csf:
+        tried = []
+        for name, ground_value in (("is_ground", True), ("classification", 2), ("label", 0)):
+            if name not in attrs or np.ndim(attrs[name]) != 1:
+                continue
+            a = np.asarray(attrs[name])
+            found = a.astype(bool) if ground_value is True else a == ground_value
+            if found.any():
+                if name == "label":
+                    warnings.warn(f"ground labels from 'label' == 0 (those of slr-ray scene scan): "
+                                  f"{int(found.sum()):,} of {len(found):,} points (others: --ground-attribute, "
+                                  "--ground-value)", SlrNote, stacklevel=2)
+                return found
+            tried.append(f"{name} {'true' if ground_value is True else ground_value}")
+        if csf is False:
+            if tried:
+                raise InputValueError(f"the input's ground labels ({', '.join(tried)}) mark no point as ground")
+            raise InputValueError("the input has no ground labels (is_ground, classification 2, label 0): "
+                                  "name one with attribute=", flags={"attribute=": "--ground-attribute"})
+        why = (f"the input's labels ({', '.join(tried)}) mark no point as ground" if tried
+               else "the input has no ground labels (is_ground, classification 2, label 0)")
+    else:
+        why = "ground by CSF, as asked"
+    ground = label_ground(cloud.points, cloth_resolution=cloth_resolution)
+    warnings.warn(f"{why}: CSF labelled {int(ground.sum()):,} of {len(ground):,} points as ground "
+                  f"(cloth {cloth_resolution:g} m)", SlrNote, stacklevel=2)
+    return ground

@@ -32,7 +32,7 @@ from .positions import select_positions
 from .progress import bar as progress_bar
 from .threads import default_threads
 
-__all__ = ["scan_las", "las_positions", "scan_las_many", "STREAMED_FORMATS", "DEFAULT_CHUNK",
+__all__ = ["scan_las", "las_bounds", "las_positions", "scan_las_many", "STREAMED_FORMATS", "DEFAULT_CHUNK",
            "MAX_GROUND_POINTS"]
 
 #: Input formats :func:`scan_las` reads in chunks.
@@ -92,6 +92,17 @@ def scan_las(path, origin, pattern, chunk: int = DEFAULT_CHUNK, progress: bool =
     return next(scan_las_many(path, [origin], pattern, chunk=chunk, progress=progress))
 
 
+def las_bounds(path) -> tuple[np.ndarray, np.ndarray]:
+    """The lowest and highest coordinates of a LAS/LAZ file, as its header records them (no point
+    read); None when it declares no point."""
+    try:
+        with laspy.open(str(path)) as reader:
+            h = reader.header
+            return (np.asarray(h.mins, np.float64), np.asarray(h.maxs, np.float64)) if h.point_count else None
+    except (laspy.errors.LaspyException, ValueError, RuntimeError) as exc:  # OSError (no such file) as it is
+        raise FormatError(f"cannot read {path}: {type(exc).__name__}: {exc}") from exc
+
+
 def _xyz(pts) -> np.ndarray:
     return np.column_stack([np.asarray(pts.x), np.asarray(pts.y), np.asarray(pts.z)])
 
@@ -103,8 +114,15 @@ def _chunk_ground(pts, names) -> np.ndarray:
         return np.asarray(pts["is_ground"]).astype(bool)
     if "classification" in names:
         return np.asarray(pts["classification"]) == 2
-    raise InputValueError("the input has no ground labels (is_ground, classification); "
-                          "pass them, or label the cloud first (slr-ray scan --csf is not streamed)")
+    raise _unlabelled("the input has no ground labels (is_ground, classification)")
+
+
+def _unlabelled(what: str) -> InputValueError:
+    """The error of a streamed input without ground labels: CSF, which finds them, needs the whole cloud."""
+    return InputValueError(f"{what}, and a streamed read cannot find them (CSF needs the whole cloud): read it "
+                           "whole (no chunk_size), or pass labels",
+                           flags={"read it whole (no chunk_size), or pass labels":
+                                  "drop --chunk-size, or name them with --ground-attribute"})
 
 
 #: Ground points :func:`las_positions` keeps at most (0.24 GB, and their k-d tree).
@@ -171,6 +189,8 @@ def las_positions(path, n: int, *, seed=0, ground=None, chunk: int = DEFAULT_CHU
         total += len(pts)
     if ground is not None and len(ground) != total:
         raise InputValueError(f"ground has {len(ground)} labels for {total} points")
+    if ground is None and total and not n_ground:  # a TLS scan's LAS: classification 0 throughout
+        raise _unlabelled(f"{path}: its ground labels (is_ground, classification 2) mark no point as ground")
     # pass 2: ground points, the first point of each occupied cell and the lowest
     # points (so that candidate_cells finds the same corner), in file order
     if bar is not None:

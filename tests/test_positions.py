@@ -4,6 +4,7 @@ import numpy as np
 import pytest
 
 from slr_ray import InputValueError, ScanPattern, simulate_scan
+from slr_ray.errors import SlrWarning
 from slr_ray.positions import (AzimuthProfile, azimuth_histogram, candidate_cells, default_profile,
                                label_ground, minimum_profile, select_positions, suggest_resolution)
 
@@ -64,10 +65,14 @@ def test_same_seed_same_positions_and_shortage(ground_cloud):
     b = select_positions(pts, g, 5, seed=7, min_ground_points=1000)
     np.testing.assert_array_equal(a, b)
     assert not np.array_equal(a, select_positions(pts, g, 5, seed=8, min_ground_points=1000))
-    with pytest.raises(InputValueError, match="candidate cells"):
+    with pytest.raises(InputValueError, match="candidate cells") as err:
         select_positions(pts, g, 10_000, min_ground_points=1000)
-    few = select_positions(pts, g, 10_000, min_ground_points=1000, allow_fewer=True)
-    assert 0 < len(few) < 10_000
+    # the library names its arguments, the command line its flags
+    assert "pass allow_fewer=True" in str(err.value) and "min_ground_points" in str(err.value)
+    assert "give --allow-fewer" in err.value.for_cli() and "--min-ground-points" in err.value.for_cli()
+    with pytest.warns(SlrWarning, match=r"^\d+ positions of the 10000 asked: \d+ candidate cells") as said:
+        few = select_positions(pts, g, 10_000, min_ground_points=1000, allow_fewer=True)
+    assert 0 < len(few) < 10_000 and f"{len(few)} positions" in str(said[0].message)
 
 
 def test_azimuth_test_rejects_a_cell_at_the_edge_of_a_shadow():

@@ -1,6 +1,8 @@
 """The ``slr-ray`` command.
 
-Results go to stdout as one line of JSON; logs and progress go to stderr. An
+Results go to stdout as one line of JSON; logs and progress go to stderr, and
+slr_ray's warnings (:class:`~slr_ray.errors.SlrWarning`) as one line each,
+``slr-ray: warning: ...`` or ``slr-ray: note: ...``. An
 error of the input or the settings (:class:`~slr_ray.errors.SlrError`) or of
 the system (``OSError``: no such file, no permission, disk full) exits with
 status 2 and one line ``slr-ray: error: ...`` on stderr, and leaves no output
@@ -17,13 +19,15 @@ to report it, and status 1.
 from __future__ import annotations
 
 import argparse
+import functools
 import signal
 import sys
 import threading
 import traceback
+import warnings
 
 from .. import __version__, paper
-from ..errors import SlrError
+from ..errors import SlrError, SlrNote, SlrWarning
 from ..backends import Backend
 from ..meshscan import MESH_MODES
 from ..scenes import SCENES_DIR
@@ -84,6 +88,8 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("input", help=f"input cloud ({_FORMATS})")
     p.add_argument("-o", "--output", required=True, help="output cloud (same formats)")
     A.add_pattern(p, origin="optional")
+    p.add_argument("--origin-relative", choices=["centre", "scanner"],
+                   help="--origin (default 0 0 0) from the cloud's centre or its recorded scanner origin")
     A.add_backend(p)
     p.add_argument("--format", help="output format, overriding the extension")
     A.add_input_format(p)
@@ -123,7 +129,7 @@ def build_parser() -> argparse.ArgumentParser:
                    help=f"radius of the ground height (m, default {paper.GROUND_HEIGHT_RADIUS:g})")
     p.add_argument("--profile", default="none", metavar="P",
                    help="azimuth minimum profile: none (default), default, or a JSON path")
-    p.add_argument("--allow-fewer", action="store_true", help="return fewer positions than --n if cells run out")
+    p.add_argument("--allow-fewer", action="store_true", help="accept fewer positions than --n (a warning names both)")
     p.add_argument("--png", help="also write a top view of the cells kept and removed")
     p.add_argument("--force", action="store_true", help="overwrite existing outputs (never an input)")
     A.add_input_format(p)
@@ -182,6 +188,7 @@ def build_parser() -> argparse.ArgumentParser:
                    help="stream a LAS/LAZ input N points at a time (docs/augment.md)")
     p.add_argument("--per-pass", type=A.positive_int, default=8, metavar="N",
                    help="positions per pass over a streamed input (default 8)")
+    p.add_argument("--allow-fewer", action="store_true", help="accept fewer positions than --n (a warning names both)")
     p.add_argument("--quiet", action="store_true", help="no progress bars")
     A.add_effects(p)
 
@@ -278,11 +285,27 @@ def _on_sigterm(signum, frame):
     raise _Terminated()
 
 
+def _show_warning(message, category, filename, lineno, file=None, line=None, *, show=None):
+    """slr_ray's own warnings as one line, ``slr-ray: warning: ...`` (``note:``
+    for what it decided on the user's behalf); any other as Python shows it."""
+    if not issubclass(category, SlrWarning):
+        return show(message, category, filename, lineno, file, line)
+    kind = "note" if issubclass(category, SlrNote) else "warning"
+    print(f"slr-ray: {kind}: {message}", file=sys.stderr, flush=True)
+
+
 def main(argv=None) -> int:
     try:
         args = build_parser().parse_args(argv)
     except SystemExit as exc:  # argparse: 0 for --help/--version, 2 for a usage error
         return int(exc.code or 0)
+    with warnings.catch_warnings():
+        warnings.simplefilter("always", SlrWarning)  # each said, even when a run says the same twice
+        warnings.showwarning = functools.partial(_show_warning, show=warnings.showwarning)
+        return _run(args)
+
+
+def _run(args) -> int:
     previous = None
     if threading.current_thread() is threading.main_thread():
         previous = signal.signal(signal.SIGTERM, _on_sigterm)
@@ -295,7 +318,8 @@ def main(argv=None) -> int:
         print("slr-ray: interrupted", file=sys.stderr)
         return 130
     except (SlrError, OSError) as exc:
-        msg = str(exc).splitlines()[0] if str(exc) else type(exc).__name__
+        text = exc.for_cli() if isinstance(exc, SlrError) else str(exc)  # flags, not library arguments
+        msg = text.splitlines()[0] if text else type(exc).__name__
         print(f"slr-ray: error: {msg}", file=sys.stderr)
         return 2
     except Exception:  # not a deliberate error: a bug, which the user should see whole and report

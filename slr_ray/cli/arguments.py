@@ -229,11 +229,11 @@ def backend_from(args, backend: str | None = None) -> dict:
 
 def add_ground(p) -> None:
     """Where ground labels come from (:func:`slr_ray.positions.ground_labels`)."""
-    g = p.add_argument_group("ground labels", "default: the input's is_ground or LAS classification 2")
+    g = p.add_argument_group("ground labels", "default: the input's is_ground, LAS class 2 or label 0; "
+                             "without them, found by CSF (said on stderr)")
     g.add_argument("--ground-attribute", metavar="NAME", help="per-point attribute holding ground labels")
     g.add_argument("--ground-value", type=int, metavar="V", help="its ground value (default 2, LAS ground; needs --ground-attribute)")
-    g.add_argument("--csf", action="store_true",
-                   help="label ground by Cloth Simulation Filtering when the input has no labels")
+    g.add_argument("--csf", action="store_true", help="find ground by CSF even when the input has labels")
     g.add_argument("--cloth-resolution", type=positive_float, default=0.5, metavar="M", help="CSF cloth cell (m, default 0.5)")
 
 
@@ -242,7 +242,7 @@ def ground_from(args) -> dict:
     if args.ground_value is not None and not args.ground_attribute:
         raise InputValueError(f"--ground-value {args.ground_value} needs --ground-attribute NAME (the attribute "
                               "holding it): alone it would be ignored")
-    return {"attribute": args.ground_attribute, "value": args.ground_value, "csf": args.csf,
+    return {"attribute": args.ground_attribute, "value": args.ground_value, "csf": True if args.csf else None,
             "cloth_resolution": args.cloth_resolution}
 
 

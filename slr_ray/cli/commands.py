@@ -11,6 +11,7 @@ import json
 import math
 import sys
 import time
+import warnings
 from dataclasses import asdict, replace
 from pathlib import Path
 
@@ -23,7 +24,7 @@ from ..compare import compare_backends
 from ..demo import run_demo
 from ..distances import distance_study, study_files
 from ..effects import effect_cloud, simulate, simulate_given
-from ..errors import InputValueError
+from ..errors import InputValueError, SlrWarning
 from ..io import PointCloud, atomic_path, check_format, read_cloud, write_cloud
 from ..meshscan import scan_mesh
 from ..outputs import OutputPlan
@@ -33,7 +34,7 @@ from ..plotting import check_figure_path, cells_figure, comparison_figure, paper
 from ..positions import AzimuthProfile, build_synthetic_profile, default_profile, ground_labels, select_positions
 from ..scan import Scan, check_range_image
 from ..scenes import MESH_FORMATS, scene_effects, scene_from_spec
-from ..streaming import STREAMED_FORMATS, scan_las
+from ..streaming import STREAMED_FORMATS, las_bounds, scan_las
 from ..validation import load_config, load_rows, paper_report, paper_report_markdown, run_validation, stage_summary
 from .arguments import backend_from, check_effects, effects_from, ground_from, pattern_from
 
@@ -91,6 +92,7 @@ def scan(args):
                               "effects (slr_ray.effects.range_image draws a scan with effects)")
     if args.print_config:
         emit({"input": str(args.input), "output": str(args.output), "origin": args.origin,
+              "origin_relative": args.origin_relative,
               "pattern": pattern.to_dict(), "backend": args.backend, "options": options.to_dict(),
               "effects": None if effects is None else effects.to_dict()})
         return
@@ -100,17 +102,20 @@ def scan(args):
     with plan:
         if streamed:
             # LAS/LAZ: one pass in chunks, memory bounded by a chunk and the scan, not the file
-            if args.origin is None:
-                raise InputValueError(f"{args.input} records no scanner origin: give --origin X Y Z")
+            bounds = las_bounds(args.input)  # the header's: no point read (None: no point, refused by the scan)
+            origin = _origin(args, None, bounds or (np.zeros(3), np.zeros(3)))
+            said = bounds is None or _check_origin(origin, bounds, pattern)
             t0 = time.perf_counter()
-            sub, result = scan_las(args.input, args.origin, pattern, chunk=args.chunk_size, progress=not args.quiet)
-            sub.origin = np.asarray(args.origin, float)
+            sub, result = scan_las(args.input, origin, pattern, chunk=args.chunk_size, progress=not args.quiet)
+            sub.origin = np.asarray(origin, float)
             t_read = time.perf_counter() - t0
         else:
             t0 = time.perf_counter()
             cloud = read_cloud(args.input, args.input_format, allow_empty=False)
             t_read = time.perf_counter() - t0
-            origin = _origin(args, cloud)
+            bounds = (cloud.points.min(axis=0), cloud.points.max(axis=0))
+            origin = _origin(args, cloud.origin, bounds, cloud.meta.get("e57_pose") is False)
+            said = _check_origin(origin, bounds, pattern)
             if effects is not None and effects.intensity == "correct" and cloud.origin is None:
                 raise InputValueError(f"--intensity correct needs where {args.input} was scanned from, and it "
                                       "records no scanner origin (use --intensity carry)")
@@ -125,6 +130,8 @@ def scan(args):
                 what = "with beam divergence" if effects.divergence_mrad else "with effects"
                 with phase(f"{args.backend}: scanning {what}", progress=not args.quiet):
                     result, sub = _scan_with_effects(args, cloud, origin, pattern, scanner, effects)
+        if not said:
+            _check_returns(result, bounds)
         _keep(args, sub, result)
         # the range image is made before anything is written: an error there leaves no scan behind
         image = _range_image(sub, result) if args.range_image or args.png else None
@@ -192,14 +199,59 @@ def _write_range_image(args, image, result):
                                                     f"from {np.round(result.origin, 2).tolist()}"), args.png)
 
 
-def _origin(args, cloud):
-    """--origin, else the input's recorded origin."""
-    origin = args.origin if args.origin is not None else cloud.origin
-    if origin is None:
+def _origin(args, recorded, bounds, poseless_e57: bool = False):
+    """--origin, else the input's recorded origin; with --origin-relative, --origin
+    (default 0 0 0) is an offset from the cloud's centre or its recorded origin."""
+    offset = np.zeros(3) if args.origin is None else np.asarray(args.origin, float)
+    if args.origin_relative == "centre":
+        return 0.5 * (bounds[0] + bounds[1]) + offset
+    if args.origin_relative is None and args.origin is not None:
+        return offset
+    if recorded is None:
         hint = (" (its scan has no pose; by the E57 standard that means the scanner frame is the file's:"
-                " --origin 0 0 0)") if cloud.meta.get("e57_pose") is False else ""
-        raise InputValueError(f"{args.input} records no scanner origin: give --origin X Y Z{hint}")
-    return origin
+                " --origin 0 0 0)") if poseless_e57 else ""
+        raise InputValueError(f"{args.input} records no scanner origin: give --origin X Y Z"
+                              f"{' (or --origin-relative centre)' if args.origin_relative else ''}{hint}")
+    return np.asarray(recorded, float) + offset
+
+
+def _extent(bounds) -> str:
+    lo, hi = bounds
+    return ", ".join(f"{a} {lo[i]:,.1f} to {hi[i]:,.1f}" for i, a in enumerate("xyz"))
+
+
+def _check_origin(origin, bounds, pattern, relative: bool = True) -> bool:
+    """Refuse an origin from which the pattern reaches no point of the cloud; warn
+    when it lies over 1 km and ten times the cloud's width outside it (a local
+    origin given for a georeferenced cloud, say): True when it warned."""
+    lo, hi = (np.asarray(b, float) for b in bounds)
+    o = np.asarray(origin, float)
+    gap = float(np.linalg.norm(np.maximum(lo - o, 0.0) + np.maximum(o - hi, 0.0)))  # distance to the box
+    reach = pattern.range_limits[1]
+    where = (f"the origin ({', '.join(f'{v:,.2f}' for v in o)}) lies {gap:,.1f} m outside the cloud "
+             f"({_extent(bounds)})")
+    hint = "give it in the cloud's coordinates" + (", or from its centre with --origin-relative centre"
+                                                    if relative else "")
+    if gap > reach:
+        raise InputValueError(f"{where}, beyond the pattern's max range ({reach:g} m): the scan would be empty; "
+                              f"{hint}")
+    if gap > max(1000.0, 10 * float(np.linalg.norm(hi - lo))):
+        warnings.warn(f"{where}, over ten times farther than the cloud is wide: {hint}", SlrWarning, stacklevel=2)
+        return True
+    return False
+
+
+#: A scan returning fewer than one point in this many of a cloud of at least as many is said to (almost) miss it.
+_SPARSE = 10_000
+
+
+def _check_returns(result, bounds) -> None:
+    """Warn when a scan returns almost nothing of a large cloud."""
+    if result.n_input >= _SPARSE and len(result) * _SPARSE < result.n_input:
+        warnings.warn(f"the scan returned {len(result):,} of the cloud's {result.n_input:,} points: is the origin "
+                      f"({', '.join(f'{v:,.2f}' for v in result.origin)}) where you meant, in the cloud's "
+                      f"coordinates ({_extent(bounds)})? (--origin-relative centre takes it from the cloud's centre)",
+                      SlrWarning, stacklevel=2)
 
 
 def demo(args):
@@ -259,6 +311,9 @@ def compare(args):
     embree_options = backend_from(args, "embree")
     with plan:
         cloud = read_cloud(args.input, args.input_format, allow_empty=False)
+        bounds = (cloud.points.min(axis=0), cloud.points.max(axis=0))
+        for origin in args.origin:  # each reaches the cloud (a local origin for a UTM cloud does not)
+            _check_origin(origin, bounds, pattern, relative=False)
         res = compare_backends(cloud.points, np.array(args.origin, float).reshape(-1, 3), pattern,
                                tolerance=args.tolerance, embree_options=embree_options, progress=not args.quiet)
         if args.png:
@@ -371,7 +426,7 @@ def augment(args):
                            backend_options=backend_from(args), fmt=args.format, seed=args.seed,
                            min_ground_points=args.min_ground_points, workers=args.workers,
                            scheduler=args.scheduler, chunk_size=args.chunk_size, per_pass=args.per_pass,
-                           effects=effects_from(args))
+                           effects=effects_from(args), allow_fewer=args.allow_fewer)
     # the files its settings came from are inputs: no file of the run may be one of them
     reads = [getattr(args, f, None) for f in ("sensor_file", "profile_file", "effects", "ray_drop")]
     res = run_augment(args.input, args.output, config, ground=ground if args.csf or args.ground_attribute else None,

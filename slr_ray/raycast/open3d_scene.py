@@ -49,10 +49,9 @@ class Open3DScene:
                  centre=None):
         try:
             import open3d as o3d
-        except ImportError as exc:
-            raise MissingDependencyError(
-                "engine='open3d' needs open3d (pip install 'slr_ray[open3d]'; apt-get install libusb-1.0-0)"
-            ) from exc
+        except (ImportError, OSError) as exc:  # OSError: its system library libusb-1.0 missing
+            raise MissingDependencyError("engine='open3d' needs open3d: pip install open3d "
+                                         "(and its system library: apt-get install libusb-1.0-0)") from exc
         self._o3d = o3d
         v = np.asarray(vertices, np.float64)
         if centre is None:
