@@ -227,7 +227,7 @@ def simulate(scanner, origin, pattern, effects=None, *, intensity=None, normals=
     EffectScan
     """
     pattern = as_pattern(pattern)
-    eff = effects if isinstance(effects, Effects) else Effects.from_dict(effects)
+    eff = (effects if isinstance(effects, Effects) else Effects.from_dict(effects)).check_needs()
     eff = eff.resolve(pattern)
     n = len(scanner.points)
     intensity = _check_per_point("intensity", intensity, n)
@@ -378,7 +378,7 @@ def simulate_given(scan: Scan, points, effects=None, *, intensity=None, normals=
     InputValueError
         effects that need rays cast here: beam divergence, motion.
     """
-    eff = effects if isinstance(effects, Effects) else Effects.from_dict(effects)
+    eff = (effects if isinstance(effects, Effects) else Effects.from_dict(effects)).check_needs()
     if eff.divergence_mrad or eff.motion:
         raise InputValueError("beam divergence and motion cast their own rays: they apply to a prepared cloud "
                               "(simulate), not to a scan made elsewhere")
