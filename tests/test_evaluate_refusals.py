@@ -141,3 +141,18 @@ def test_a_registration_needs_enough_points_and_a_bounded_rmse():
     with pytest.raises(InputValueError, match="inlier RMSE"):
         evaluate_pair(pts, pts + rng.normal(0, 0.01, pts.shape), a_beams=None, b_beams=None, sensor=VLP16,
                       methods=("zbuffer",), max_rmse=1e-3)
+
+
+def test_an_empty_transform_file_is_one_line_in_a_real_process(frames, tmp_path):
+    """numpy's loadtxt printed its warning and source line on an empty file before the error."""
+    import subprocess
+    import sys
+
+    empty = tmp_path / "T.txt"
+    empty.write_text("")
+    f = str(frames["ordered"])
+    proc = subprocess.run([sys.executable, "-m", "slr_ray.cli", "evaluate", f, f, "-o", str(tmp_path / "o"),
+                           "--transform", str(empty), "--sensor", "velodyne_vlp16", "--quiet"],
+                          capture_output=True, text=True)
+    assert proc.returncode == 2 and proc.stdout == "" and not (tmp_path / "o").exists()
+    assert proc.stderr.count("\n") == 1 and proc.stderr.startswith("slr-ray: error: --transform"), proc.stderr
