@@ -125,7 +125,7 @@ def as_rigid_pose(pose, name: str = "pose", tol: float = POSE_TOLERANCE,
         raise InputValueError(f"{name} holds {int(np.count_nonzero(~np.isfinite(T)))} NaN or inf value(s)")
     if not np.array_equal(T[3], [0.0, 0.0, 0.0, 1.0]):
         raise InputValueError(f"{name}: the last row must be 0 0 0 1 (a rigid pose), got "
-                              f"{' '.join(f'{v:g}' for v in T[3])}")
+                              f"{' '.join(repr(float(v)) for v in T[3])}")
     R, t = T[:3, :3], T[:3, 3]
     with np.errstate(all="ignore"):  # 1e300 entries: R^T R overflows to inf, which fails below
         off = float(np.abs(R.T @ R - np.eye(3)).max())

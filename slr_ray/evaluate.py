@@ -418,6 +418,8 @@ def evaluate_pair(a_points, b_points, a_beams="auto", b_beams="auto",
         raise InputValueError(f"min_fitness must be a number in [0, 1] (a share of B's points), got {min_fitness!r}")
     if isinstance(methods, str):
         methods = (methods,)
+    if not len(methods):
+        raise InputValueError(f"methods: none given; choose from {list(METHODS)}")
     unknown = [m for m in methods if m not in METHODS]
     if unknown:
         raise InputValueError(f"unknown method(s) {unknown}; choose from {list(METHODS)}")

@@ -364,7 +364,8 @@ def test_fit_drop_refuses_a_frame_that_is_not_a_scan_and_normals_from_too_few_ne
               "good": PointCloud(pts, {}, np.zeros(3))}
     cases = [("shuffled", [], "--rings auto"), ("random", ["--rings", "scan-order"], "rings"),
              ("float_ring", [], "integers"), ("random_ring", [], "not a scan's rings"), ("good", ["-k", "1"], "-k 1"),
-             ("good", ["-k", "1000000000"], "-k 1000000000"), ("good", ["--column-step-deg", "90"], "--column-step")]
+             ("good", ["-k", "1000000000"], "-k 1000000000"), ("good", ["--column-step-deg", "90"], "--column-step"),
+             ("good", ["--intensity-scale", "1e-300"], "--intensity-scale")]
     for name, flags, says in cases:
         path = tmp_path / f"{name}.npz"
         if not path.exists():

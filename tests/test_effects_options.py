@@ -33,8 +33,9 @@ def test_off_by_default_and_sensor_values_need_a_table():
     # sizes no sensor has
     for size in ({"divergence_mrad": 1e9}, {"range_noise": 1e300}, {"range_noise_slope": 1.0},
                  {"return_separation": 1e9, "divergence_mrad": 2.0}, {"min_range": 1e9},
-                 {"max_range_at": (50.0, 10.0)}, {"max_range_at": (1e9, 0.1)}, {"reflectivity_scale": 1e300}):
-        with pytest.raises(InputValueError, match="at most"):
+                 {"max_range_at": (50.0, 10.0)}, {"max_range_at": (1e9, 0.1)}, {"reflectivity_scale": 1e300},
+                 {"sweep_start_deg": 1e300}):
+        with pytest.raises(InputValueError, match="at most|in \\[-360, 360\\]"):
             Effects.from_dict(size)
 
 

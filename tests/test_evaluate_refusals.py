@@ -138,6 +138,8 @@ def test_a_registration_needs_enough_points_and_a_bounded_rmse():
     with pytest.raises(InputValueError, match="frame B has 40 points, too few to register"):
         evaluate_pair(pts, b, a_beams=None, b_beams=None, sensor=VLP16, methods=("zbuffer",), min_fitness=0.0)
     assert len(pts) >= MIN_REGISTRATION_POINTS
+    with pytest.raises(InputValueError, match="methods: none given"):
+        evaluate_pair(pts, pts, a_beams=None, b_beams=None, sensor=VLP16, methods=(), transform=np.eye(4))
     with pytest.raises(InputValueError, match="inlier RMSE"):
         evaluate_pair(pts, pts + rng.normal(0, 0.01, pts.shape), a_beams=None, b_beams=None, sensor=VLP16,
                       methods=("zbuffer",), max_rmse=1e-3)

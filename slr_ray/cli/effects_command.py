@@ -15,7 +15,7 @@ from pathlib import Path
 import numpy as np
 
 from ..effects import fit_ray_drop, frame_pulses
-from ..effects.raydrop import COLUMN_STEP_RANGE_DEG, NORMAL_K_RANGE
+from ..effects.raydrop import COLUMN_STEP_RANGE_DEG, INTENSITY_SCALE_RANGE, NORMAL_K_RANGE
 from ..errors import InputValueError
 from ..io import atomic_path, read_cloud
 from ..outputs import OutputPlan
@@ -40,6 +40,10 @@ def fit_drop(args):
     lo, hi = NORMAL_K_RANGE
     if not lo <= args.k <= hi:
         raise InputValueError(f"-k {args.k}: a PCA normal takes {lo} to {hi} neighbours ({lo}: a plane)")
+    lo, hi = INTENSITY_SCALE_RANGE
+    if not lo <= args.intensity_scale <= hi:
+        raise InputValueError(f"--intensity-scale {args.intensity_scale:g}: the intensity of reflectivity 1 lies in "
+                              f"[{lo:g}, {hi:g}] (1 KITTI's, 255 8-bit, 65535 16-bit)")
     lo, hi = COLUMN_STEP_RANGE_DEG
     if args.column_step_deg is not None and not lo <= args.column_step_deg <= hi:
         raise InputValueError(f"--column-step-deg {args.column_step_deg:g}: a spinning unit's step between "

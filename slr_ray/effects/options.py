@@ -181,8 +181,9 @@ class Effects:
         if self.motion_sectors is not None and not _integral(self.motion_sectors, 1):
             raise InputValueError(f"motion_sectors must be an integer >= 1, got {self.motion_sectors!r}")
         if not (isinstance(self.sweep_start_deg, (int, float)) and not isinstance(self.sweep_start_deg, bool)
-                and math.isfinite(self.sweep_start_deg)):
-            raise InputValueError(f"sweep_start_deg must be a finite angle in degrees, got {self.sweep_start_deg!r}")
+                and -360 <= self.sweep_start_deg <= 360):
+            raise InputValueError(f"sweep_start_deg must be an angle in degrees in [-360, 360], got "
+                                  f"{self.sweep_start_deg!r}")
         if not isinstance(self.sweep_clockwise, bool):
             raise InputValueError(f"sweep_clockwise must be true or false, got {self.sweep_clockwise!r}")
         if self.motion_frame not in MOTION_FRAMES:

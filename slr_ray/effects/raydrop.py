@@ -38,7 +38,7 @@ from ..errors import InputValueError
 
 __all__ = ["RayDropModel", "fit_ray_drop", "frame_pulses", "rings_from_scan_order", "incidence_deg",
            "drop_rates", "RANGE_SCALE", "MAX_RINGS", "COLUMN_STEP_RANGE_DEG", "MAX_RING_SPREAD_DEG", "NORMAL_K_RANGE",
-           "MAX_COEF"]
+           "MAX_COEF", "MAX_FEATURE", "INTENSITY_SCALE_RANGE"]
 
 #: Range unit of the model's features, metres.
 RANGE_SCALE = 50.0
@@ -52,6 +52,11 @@ COLUMN_STEP_RANGE_DEG = (0.01, 2.0)
 MAX_RING_SPREAD_DEG = 1.0
 #: Neighbours of a PCA normal: at least a plane's 3, at most a local patch's 100.
 NORMAL_K_RANGE = (3, 100)
+#: The largest feature a fit takes, in absolute value: (range / 50 m)^2 up to it is 50 km, intensity up
+#: to it times the intensity scale (a point 1e150 m away overflowed the fit's logit).
+MAX_FEATURE = 1e6
+#: The intensity scale of a model: the intensity of reflectivity 1 (1 KITTI's, 255 8-bit, 65535 16-bit).
+INTENSITY_SCALE_RANGE = (1e-6, 1e6)
 #: The largest weight of a model, in absolute value: a logit of 1e6 is a certainty already (a fit to
 #: separable pulses stays far below; 1e308 overflowed the probability).
 MAX_COEF = 1e6
@@ -59,11 +64,12 @@ _NAMES_GEOMETRY = ("intercept", "range", "range^2", "incidence", "incidence^2")
 
 
 def _design(ranges, incidence, intensity, intensity_scale):
-    rho = np.asarray(ranges, np.float64) / RANGE_SCALE
-    gam = np.asarray(incidence, np.float64) / 90.0
-    cols = [np.ones_like(rho), rho, rho * rho, gam, gam * gam]
-    if intensity is not None:
-        cols.append(np.asarray(intensity, np.float64) / intensity_scale)
+    with np.errstate(over="ignore", invalid="ignore"):  # absurd features become inf: refused by the fit
+        rho = np.asarray(ranges, np.float64) / RANGE_SCALE
+        gam = np.asarray(incidence, np.float64) / 90.0
+        cols = [np.ones_like(rho), rho, rho * rho, gam, gam * gam]
+        if intensity is not None:
+            cols.append(np.asarray(intensity, np.float64) / intensity_scale)
     return np.column_stack(cols)
 
 
@@ -110,9 +116,11 @@ class RayDropModel:
             raise InputValueError(f"coef must lie within +-{MAX_COEF:g} (a logit beyond is a certainty), got "
                                   f"{max(c, key=abs):g}")
         object.__setattr__(self, "coef", c)
+        lo, hi = INTENSITY_SCALE_RANGE
         if not (isinstance(self.intensity_scale, (int, float)) and not isinstance(self.intensity_scale, bool)
-                and math.isfinite(self.intensity_scale) and self.intensity_scale > 0):
-            raise InputValueError(f"intensity_scale must be > 0, got {self.intensity_scale!r}")
+                and lo <= self.intensity_scale <= hi):
+            raise InputValueError(f"intensity_scale must lie in [{lo:g}, {hi:g}] (the intensity of reflectivity 1), "
+                                  f"got {self.intensity_scale!r}")
 
     @property
     def names(self) -> tuple:
@@ -182,12 +190,21 @@ def fit_ray_drop(ranges, incidence, dropped, intensity=None, intensity_scale: fl
         mismatched lengths, non-finite features, or a class (dropped / returned) absent.
     """
     y = np.asarray(dropped, bool).ravel()
+    lo, hi = INTENSITY_SCALE_RANGE
+    if not (isinstance(intensity_scale, (int, float)) and lo <= intensity_scale <= hi):
+        raise InputValueError(f"intensity_scale must lie in [{lo:g}, {hi:g}] (the intensity of reflectivity 1), "
+                              f"got {intensity_scale!r}")
     x = _design(ranges, incidence, intensity, intensity_scale)
     if x.shape[0] != len(y):
         raise InputValueError(f"ranges, incidence, intensity and dropped must have one length, got "
                               f"{x.shape[0]} and {len(y)}")
     if not np.all(np.isfinite(x)):
         raise InputValueError(f"{int(np.count_nonzero(~np.isfinite(x).all(axis=1)))} pulses have non-finite features")
+    big = int(np.count_nonzero((np.abs(x) > MAX_FEATURE).any(axis=1)))
+    if big:
+        raise InputValueError(f"{big} pulses have features beyond a sensor's (ranges over "
+                              f"{RANGE_SCALE * math.sqrt(MAX_FEATURE):,.0f} m, or intensities over {MAX_FEATURE:g} "
+                              "times intensity_scale)")
     if y.all() or not y.any():
         raise InputValueError("fit_ray_drop needs dropped and returned pulses both")
     w = np.zeros(x.shape[1])
