@@ -333,7 +333,7 @@ def _beams_of(points, beams, base, what):
         if why is None:
             return found, "scan order"
         if beams == "scan-order":
-            raise InputValueError(f"{what}='scan-order': {why}")
+            raise InputValueError(f"{what}: not in scan order: {why}")
         return None, f"none: not in scan order ({why})"
     if beams is None:
         return None, "none"

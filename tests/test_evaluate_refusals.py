@@ -91,7 +91,7 @@ def test_cli_evaluate_refuses_a_transform_that_is_not_a_rigid_pose(frames, tmp_p
 
 def test_cli_evaluate_beams_scan_order_refuses_a_frame_not_in_scan_order_and_auto_says_so(frames, tmp_path, capsys):
     eye = tmp_path / "eye.txt"
-    eye.write_text("1 0 0 0\n0 1 0 0\n0 0 1 0\n0 0 0 1\n")
+    eye.write_text("1 0 0 0 0 1 0 0 0 0 1 0\n")  # a line of a KITTI poses file: 3 x 4, row by row
     base = ["--sensor", "velodyne_vlp16", "--methods", "zbuffer", "--transform", str(eye), "--quiet"]
     shuffled, ordered = str(frames["shuffled"]), str(frames["ordered"])
     rc, _, err = run(["evaluate", ordered, shuffled, "-o", str(tmp_path / "s"), "--beams", "scan-order", *base],
@@ -119,6 +119,8 @@ def test_cli_evaluate_refuses_duplicate_methods_and_a_non_empty_directory(frames
     base = ["evaluate", f, f, "--sensor", "velodyne_vlp16", "--transform", str(eye), "--quiet"]
     rc, _, err = run([*base, "-o", str(tmp_path / "d"), "--methods", "binning", "binning"], capsys)
     assert rc == 2 and "--methods: binning given twice" in err and not (tmp_path / "d").exists()
+    rc, _, err = run([*base, "-o", str(tmp_path / "d"), "--min-fitness", "nan"], capsys)
+    assert rc == 2 and "--min-fitness nan" in err and not (tmp_path / "d").exists()
     mine = tmp_path / "mine"
     mine.mkdir()
     (mine / "notes.txt").write_text("keep")

@@ -20,7 +20,8 @@ __all__ = ["evaluate", "read_matrix"]
 
 
 def read_matrix(path, flag: str = "--transform") -> np.ndarray:
-    """A text matrix: rows of numbers (spaces or commas; ``#`` starts a comment), as float64.
+    """A text matrix: rows of numbers (spaces or commas; ``#`` starts a comment), as float64; one
+    line of 12 or 16 numbers is a 3 x 4 (a KITTI poses line) or 4 x 4 matrix, row by row.
 
     Parsed here, not by numpy, so that an empty or ragged file is one line naming ``flag``
     (numpy's loadtxt warns with its own source line on an empty file)."""
@@ -40,6 +41,8 @@ def read_matrix(path, flag: str = "--transform") -> np.ndarray:
         raise InputValueError(f"{flag} {path}: the file holds no numbers (a 4 x 4 matrix, one row a line)")
     if len({len(r) for r in rows}) != 1:
         raise InputValueError(f"{flag} {path}: rows of {sorted({len(r) for r in rows})} numbers: not a matrix")
+    if len(rows) == 1 and len(rows[0]) in (12, 16):  # one line of a KITTI poses file (3 x 4), or 4 x 4 flat
+        return np.array(rows[0], np.float64).reshape(-1, 4)
     return np.array(rows, np.float64)
 
 
@@ -52,6 +55,8 @@ def _foreign_files(out: Path) -> list:
 
 
 def evaluate(args):
+    if not 0 <= args.min_fitness <= 1:  # nan too
+        raise InputValueError(f"--min-fitness {args.min_fitness}: a share of B's points, in [0, 1]")
     if len(set(args.methods)) != len(args.methods):
         twice = sorted({m for m in args.methods if args.methods.count(m) > 1})
         raise InputValueError(f"--methods: {', '.join(twice)} given twice (each method is one row)")
