@@ -216,6 +216,7 @@ def test_fit_drop_on_the_kitti_frame_and_its_sensor_table(tmp_path, capsys):
     (["--backend", "embree", "--divergence-mrad", "2", "--returns", "first", "first"], "first given twice"),
     (["--backend", "embree", "--divergence-mrad", "2", "--returns", "all", "last"], "'all' already holds last"),
     (["--ray-drop", "{hugecoef}"], "coef must lie within"),
+    (["--ray-drop", "{names}"], "'names'"),  # six names for five weights: the file disagrees with itself
 ])
 def test_bad_effects_are_one_line_errors(wall, tmp_path, capsys, flags, says):
     (tmp_path / "garbage.json").write_text("{not json")
@@ -228,13 +229,15 @@ def test_bad_effects_are_one_line_errors(wall, tmp_path, capsys, flags, says):
     (tmp_path / "coefstr.json").write_text('{"coef": "x"}')
     (tmp_path / "coefitems.json").write_text('{"coef": [1, 2, 3, "x", 5]}')
     (tmp_path / "hugecoef.json").write_text('{"coef": [1e308, 1e308, -1e308, 1, 1]}')
+    (tmp_path / "names.json").write_text('{"coef": [1, 1, 1, 1, 1], "names": ["intercept", "range", "range^2", '
+                                         '"incidence", "incidence^2", "intensity"]}')
     (tmp_path / "pct.toml").write_text("max_range_at = [50, 10]\n")  # 10 %, written as a percentage
     (tmp_path / "slope.toml").write_text("range_noise_slope = 0.01\n")
     names = {"{garbage}": "garbage.json", "{unknown}": "unknown.toml", "{motion}": "motion.toml",
              "{badtoml}": "badtoml.toml", "missing.json": "missing.json", "missing.toml": "missing.toml",
              "x.png": "x.png", "{types}": "types.toml", "{seedstr}": "seedstr.toml", "{rings}": "rings.toml",
              "{coefstr}": "coefstr.json", "{coefitems}": "coefitems.json", "{hugecoef}": "hugecoef.json",
-             "{pct}": "pct.toml", "{slope}": "slope.toml"}
+             "{pct}": "pct.toml", "{slope}": "slope.toml", "{names}": "names.json"}
     flags = [str(tmp_path / names[f]) if f in names else f for f in flags]
     out = tmp_path / "out.npz"
     assert main(["scan", str(wall), "-o", str(out), *PATTERN, *flags]) == 2

@@ -165,8 +165,16 @@ class RayDropModel:
         for k in ("coef", "stderr"):
             if d.get(k) is not None and not isinstance(d[k], (list, tuple)):
                 raise InputValueError(f"a ray-drop model's {k!r} is a list of numbers, got {d[k]!r}")
-        return cls(**{k: (tuple(d[k]) if k in ("coef", "stderr") and d[k] is not None else d[k])
-                      for k in keys if k in d})
+        model = cls(**{k: (tuple(d[k]) if k in ("coef", "stderr") and d[k] is not None else d[k])
+                       for k in keys if k in d})
+        if d.get("names") is not None and list(d["names"]) != list(model.names):
+            raise InputValueError(f"a ray-drop model's 'names' {d['names']!r} are not its weights' "
+                                  f"{list(model.names)} (uses_intensity={model.uses_intensity})")
+        if model.stderr is not None and (len(model.stderr) != len(model.coef) or not all(
+                isinstance(x, (int, float)) and not isinstance(x, bool) for x in model.stderr)):
+            raise InputValueError(f"a ray-drop model's 'stderr' must be {len(model.coef)} numbers, "
+                                  f"got {list(model.stderr)!r}")
+        return model
 
 
 def fit_ray_drop(ranges, incidence, dropped, intensity=None, intensity_scale: float = 1.0,
