@@ -23,6 +23,10 @@ P = np.random.default_rng(0).uniform(-5, 5, (300, 3))
     ({"radius": np.r_[np.full(299, 0.1), 0.0]}, "finite and > 0"),
     ({"radius": np.full((300, 1), 0.1)}, "one number a point"),
     ({"radius": True}, "boolean"),
+    ({"radius_scale": 1e300}, "at most"),  # float32 radii overflowed with numpy's warning
+    ({"min_radius": 1e300}, "at most"),
+    ({"radius": np.full(300, 1e300)}, "at most"),
+    ({"n_threads": -5}, "n_threads"),  # was ignored
 ])
 def test_prepare_refuses_per_point_arrays_that_do_not_fit(options, says):
     with warnings.catch_warnings():

@@ -4,6 +4,7 @@ describes what each does)."""
 from __future__ import annotations
 
 import math
+import numbers
 from dataclasses import dataclass
 
 import numpy as np
@@ -14,13 +15,16 @@ from ...pattern import as_pattern
 from ..base import BackendOptions
 
 __all__ = ["EmbreeOptions", "RADIUS_MODES", "ORIENTATIONS", "ENGINES", "NEIGHBOURS", "GRID_SPACINGS",
-           "DEFAULT_MAX_INCIDENCE", "refuse_cast", "FAST_RAYS_PER_SECOND", "MAX_CAST_SECONDS"]
+           "DEFAULT_MAX_INCIDENCE", "MAX_RADIUS", "refuse_cast", "FAST_RAYS_PER_SECOND", "MAX_CAST_SECONDS"]
 
 RADIUS_MODES = ("spacing", "footprint")
 ORIENTATIONS = ("normal", "billboard", "primary")
 ENGINES = ("embree", "fan", "open3d")
 NEIGHBOURS = ("knn", "pulse-grid")
 GRID_SPACINGS = ("mean", "step")
+#: The largest disc radius (metres) and radius scale: beyond, float32 radii overflow and a disc covers
+#: any scene.
+MAX_RADIUS = 1e6
 #: A fast machine's cast rate, rays a second: several threads at the ~15 M a second one thread casts
 #: (docs/speed.md: 3.1 M rays in 0.21 s): a cast is estimated at this rate, never slower than it is.
 FAST_RAYS_PER_SECOND = 1e8
@@ -212,6 +216,14 @@ class EmbreeOptions(BackendOptions):
             v = getattr(self, name)
             if not (isinstance(v, (int, float)) and math.isfinite(v) and v > 0):
                 raise InputValueError(f"{name} must be a finite number > 0, got {v!r}")
+        for name in ("radius", "radius_scale", "fallback_radius", "min_radius"):  # Embree holds float32
+            v = getattr(self, name)
+            if not isinstance(v, str) and v is not None and np.size(v) and np.max(v) > MAX_RADIUS:
+                raise InputValueError(f"{name} must be at most {MAX_RADIUS:g} (a disc of {MAX_RADIUS / 1000:g} km "
+                                      f"holds a whole scene), got {float(np.max(v))!r}")
+        if self.n_threads is not None and not (isinstance(self.n_threads, numbers.Integral)
+                                               and not isinstance(self.n_threads, bool) and 1 <= self.n_threads <= 256):
+            raise InputValueError(f"n_threads must be an integer in [1, 256] (binning's bound), got {self.n_threads!r}")
         if self.ties is None:  # frozen: set through object.__setattr__
             beams = self.primary_pattern is not None and as_pattern(self.primary_pattern).has_beams
             object.__setattr__(self, "ties", 3.0 if beams else 1.0)
@@ -261,14 +273,13 @@ class EmbreeOptions(BackendOptions):
             raise InputValueError(f"chunk must be an integer >= 1, got {self.chunk!r}")
 
     def check_points(self, n: int) -> None:
-        """Arrays of one value a point (``radius``, ``normals``, ``primary_beams``) must have ``n``."""
+        """Arrays of one value a point (``radius``, ``normals``) must have ``n`` (``primary_beams``: the
+        scanner checks them against its table)."""
         if not isinstance(self.radius, str) and np.ndim(self.radius) == 1 and len(self.radius) != n:
             raise InputValueError(f"radius has {len(self.radius)} values for {n} points (one a point, or one "
                                   "number for all)")
         if self.normals is not None and len(self.normals) != n:
             raise InputValueError(f"normals has {len(self.normals)} rows for {n} points")
-        if self.primary_beams is not None and np.ndim(self.primary_beams) == 1 and len(self.primary_beams) != n:
-            raise InputValueError(f"primary_beams has {len(self.primary_beams)} values for {n} points")
 
     @property
     def primary_grid(self):
