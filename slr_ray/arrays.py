@@ -14,7 +14,14 @@ from numba import njit, prange
 
 from .errors import InputTypeError, InputValueError
 
-__all__ = ["as_points", "as_origin", "count_nonfinite_rows", "bounds", "file_mapping", "release_pages"]
+__all__ = ["as_points", "as_origin", "as_rigid_pose", "count_nonfinite_rows", "bounds", "file_mapping", "release_pages",
+           "POSE_TOLERANCE", "MAX_POSE_TRANSLATION"]
+
+#: How far a pose's rotation may be from orthonormal (largest entry of |R^T R - I|) and its
+#: determinant from +1: a matrix written as text with 6 to 7 significant digits (KITTI's poses) passes.
+POSE_TOLERANCE = 1e-5
+#: The largest translation of a pose, metres: beyond any coordinate on Earth (UTM northings reach 1e7 m).
+MAX_POSE_TRANSLATION = 1e8
 
 
 def _check_real_dtype(name: str, arr: np.ndarray) -> None:
@@ -85,6 +92,58 @@ def as_origin(origin, name: str = "origin") -> np.ndarray:
     if not np.isfinite(arr).all():
         raise InputValueError(f"{name} must be finite, got {arr.tolist()}")
     return arr
+
+
+def as_rigid_pose(pose, name: str = "pose", tol: float = POSE_TOLERANCE,
+                  max_translation: float = MAX_POSE_TRANSLATION) -> np.ndarray:
+    """Return ``pose`` as a ``(4, 4)`` float64 rigid transform ``[[R, t], [0 0 0 1]]``, checked.
+
+    ``R`` must be a rotation: orthonormal (every entry of ``R^T R - I``
+    within ``tol``) with determinant +1 (within ``tol``; -1 is a reflection);
+    the last row exactly ``0 0 0 1``; every value finite; ``|t|`` at most
+    ``max_translation`` metres. A ``(3, 4)`` matrix (KITTI's poses rows) gets
+    the last row added. Nothing is corrected: a matrix that fails is refused.
+
+    Raises
+    ------
+    InputTypeError
+        complex, object, boolean or string data.
+    InputValueError
+        any other failure; the message says which check and by how much.
+    """
+    try:
+        arr = np.asarray(pose)
+    except (TypeError, ValueError) as exc:
+        raise InputValueError(f"{name} must be a 4 x 4 matrix: {exc}") from None
+    _check_real_dtype(name, arr)
+    if arr.shape == (3, 4):
+        arr = np.vstack([arr, [0, 0, 0, 1]])
+    if arr.shape != (4, 4):
+        raise InputValueError(f"{name} must be a 4 x 4 (or 3 x 4) matrix, got shape {arr.shape}")
+    T = arr.astype(np.float64)
+    if not np.isfinite(T).all():
+        raise InputValueError(f"{name} holds {int(np.count_nonzero(~np.isfinite(T)))} NaN or inf value(s)")
+    if not np.array_equal(T[3], [0.0, 0.0, 0.0, 1.0]):
+        raise InputValueError(f"{name}: the last row must be 0 0 0 1 (a rigid pose), got "
+                              f"{' '.join(repr(float(v)) for v in T[3])}")
+    R, t = T[:3, :3], T[:3, 3]
+    with np.errstate(all="ignore"):  # 1e300 entries: R^T R overflows to inf, which fails below
+        off = float(np.abs(R.T @ R - np.eye(3)).max())
+        s = np.linalg.svd(R / max(np.abs(R).max(), 1e-300), compute_uv=False) * np.abs(R).max()
+    if not off <= tol:
+        raise InputValueError(f"{name}: its 3 x 3 part is not a rotation (R^T R differs from I by {off:.3g} > "
+                              f"{tol:g}; singular values {', '.join(f'{v:.4g}' for v in s)}: a scale, shear "
+                              "or zero matrix)")
+    det = float(np.linalg.det(R))
+    if not abs(det - 1.0) <= tol:
+        raise InputValueError(f"{name}: its 3 x 3 part has determinant {det:.4g}: a reflection, not a rotation "
+                              "(a rigid pose has +1)")
+    big = float(np.abs(t).max())
+    norm = big * float(np.linalg.norm(t / big)) if big > 0 else 0.0  # no overflow for 1e300
+    if not norm <= max_translation:
+        raise InputValueError(f"{name}: its translation is {norm:.3g} m, beyond {max_translation:g} m (no place "
+                              "on Earth is that far; a matrix in other units or a wrong column?)")
+    return T
 
 
 @njit(cache=True, nogil=True)

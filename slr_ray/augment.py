@@ -344,7 +344,7 @@ class AugmentConfig:
         effects this run cannot make."""
         if self.effects is None:
             return None
-        eff = self.effects if isinstance(self.effects, Effects) else Effects.from_dict(self.effects)
+        eff = (self.effects if isinstance(self.effects, Effects) else Effects.from_dict(self.effects)).check_needs()
         if not eff.any:
             return None
         if eff.motion:

@@ -69,7 +69,7 @@ from pathlib import Path
 
 import numpy as np
 
-from .arrays import as_points
+from .arrays import as_points, as_rigid_pose
 from .backends import prepare
 from .errors import InputValueError, MissingDependencyError, OutputError
 from .io import atomic_path
@@ -80,7 +80,7 @@ from .progress import bar as progress_bar, phase
 from .scan import Scan
 from .sensors import BeamPattern, sensor
 
-__all__ = ["METHODS", "EVALUATION_FILES", "LABELS", "Registration", "register", "scan_order_beams", "fitted_pattern", "zbuffer",
+__all__ = ["METHODS", "BEAM_SOURCES", "EVALUATION_FILES", "LABELS", "Registration", "register", "scan_order_beams", "fitted_pattern", "zbuffer",
            "evaluate_pair", "evaluation_table", "markdown_table", "splits_table", "compact_json",
            "write_evaluation"]
 
@@ -93,6 +93,11 @@ BASELINE = METHODS[0]
 THRESHOLDS = (FIELD_THRESHOLD, PAPER_THRESHOLD, LIDAR4D_CODE_THRESHOLD)
 #: registrations below this fitness are refused by :func:`evaluate_pair` (KITTI's pair: 0.89)
 MIN_FITNESS = 0.3
+#: registrations whose inlier RMSE exceeds this share of the final correspondence distance are refused
+#: (KITTI's pairs: 0.072-0.075 m of 0.2; pairs spread evenly within 0.2 m give 0.115 m and more)
+MAX_RMSE_SHARE = 0.6
+#: frames with fewer points than this are not registered (a pose from 40 points is not to be trusted)
+MIN_REGISTRATION_POINTS = 1000
 
 
 # --- frames -------------------------------------------------------------------------------------------------
@@ -146,6 +151,7 @@ def fitted_pattern(points, beams, base: BeamPattern, columns: int | None = None)
         if np.any(mine):
             elev[i] = np.median(el[mine])
             d = np.abs(np.diff(np.unwrap(az[mine])))
+            d = d[d > 0]  # duplicate points are no step
             if len(d):
                 steps.append(np.median(d))
     if columns is None:
@@ -289,16 +295,67 @@ def _resolve_sensor(name_or_pattern) -> BeamPattern:
     return p
 
 
+#: the beam sources of :func:`evaluate_pair`'s ``a_beams`` / ``b_beams`` besides an array
+BEAM_SOURCES = ("auto", "scan-order")
+
+
+def _beam_spread_problem(points, beams, base) -> str | None:
+    """Why ``beams`` are not a scan's beams (None when they are): each beam's points must lie at one
+    elevation (the median of the beams' median absolute deviations within twice the table's mean beam
+    spacing; KITTI's frames: 0.24 deg against 0.95), and their azimuth step give a column count within
+    8 times the table's (a random or shuffled ring field spreads over tens of degrees)."""
+    p = as_points(points, "points")
+    b = np.asarray(beams, np.int64)
+    r = np.linalg.norm(p, axis=1)
+    el = np.degrees(np.arcsin(np.divide(p[:, 2], r, out=np.zeros_like(r), where=r > 0)))
+    az = np.arctan2(p[:, 1], p[:, 0])
+    mads, steps = [], []
+    for i in np.unique(b[b >= 0]):
+        mine = b == i
+        e = el[mine]
+        mads.append(np.median(np.abs(e - np.median(e))))
+        d = np.abs(np.diff(np.unwrap(az[mine])))
+        d = d[d > 0]
+        if len(d):
+            steps.append(np.median(d))
+    if not mads:
+        return "no point has a beam (every id is -1)"
+    spacing = float(np.mean(np.diff(np.sort(base.elevation_deg)))) if base.n_beams > 1 else 1.0
+    spread = float(np.median(mads))
+    if spread > 2 * spacing:
+        return (f"their beams' points spread over {spread:.2f} deg of elevation (median absolute deviation), more "
+                f"than twice the table's beam spacing ({spacing:.2f} deg): not a scan's beams")
+    columns = 2 * math.pi / float(np.median(steps)) if steps else float(base.columns)
+    if not base.columns / 8 <= columns <= base.columns * 8:
+        return (f"their beams' azimuth step gives {columns:.4g} columns a turn, against the table's "
+                f"{base.columns}: not a scan's beams")
+    return None
+
+
 def _beams_of(points, beams, base, what):
+    """``(beams or None, how they were found)``; 'auto' falls back to none, saying why."""
     if isinstance(beams, str):
-        if beams != "scan-order":
-            raise InputValueError(f"{what} must be an array, None or 'scan-order', got {beams!r}")
-        return scan_order_beams(points, base.n_beams)
+        if beams not in BEAM_SOURCES:
+            raise InputValueError(f"{what} must be an array, None, 'auto' or 'scan-order', got {beams!r}")
+        found = scan_order_beams(points, base.n_beams)
+        why = (f"the points are not stored ring after ring in {base.n_beams} rings of one turn each, highest "
+               "beam first (a KITTI .bin's order)") if found is None else _beam_spread_problem(points, found, base)
+        if why is None:
+            return found, "scan order"
+        if beams == "scan-order":
+            raise InputValueError(f"{what}: not in scan order: {why}")
+        return None, f"none: not in scan order ({why})"
     if beams is None:
-        return None
+        return None, "none"
     b = np.asarray(beams)
-    base.rows_of_beams(b, len(points))
-    return b.astype(np.int64)
+    try:
+        base.rows_of_beams(b, len(points))  # one integer a point, in the table
+    except InputValueError as exc:
+        raise InputValueError(f"{what}: {exc}") from None
+    why = _beam_spread_problem(points, b, base)
+    if why is not None:
+        raise InputValueError(f"{what}: {why}")
+    return b.astype(np.int64), "given"
 
 
 def _split_labels(rows_of_points, ranges, seen):
@@ -306,27 +363,33 @@ def _split_labels(rows_of_points, ranges, seen):
             "seen": np.where(seen, "seen", "unseen")}
 
 
-def evaluate_pair(a_points, b_points, a_beams="scan-order", b_beams="scan-order",
+def evaluate_pair(a_points, b_points, a_beams="auto", b_beams="auto",
                   sensor: str | BeamPattern = "velodyne_hdl64e_s2", methods=METHODS,
                   transform=None, seen_threshold: float = PAPER_THRESHOLD, thresholds=THRESHOLDS,
-                  min_fitness: float = MIN_FITNESS, progress: bool = False) -> dict:
+                  min_fitness: float = MIN_FITNESS, max_rmse: float | None = None, progress: bool = False) -> dict:
     """Re-simulate frame B from frame A at B's pose and score every method against the real B.
 
     Parameters
     ----------
     a_points, b_points : (n, 3), (m, 3) float
         Each frame in its own sensor frame (the sensor at the origin).
-    a_beams, b_beams : (n,) int, None or 'scan-order'
+    a_beams, b_beams : (n,) int, None, 'auto' or 'scan-order'
         The beam (table position, -1 unknown) of each point; ``'scan-order'``
-        (default) derives them from the file order (:func:`scan_order_beams`)
-        and falls back to none when that fails.
+        derives them from the file order (:func:`scan_order_beams`) and
+        refuses a frame not in scan order; ``'auto'`` (default) falls back to
+        none there (``patterns``' ``beams`` in the result says which, and
+        why). Beams, given or derived, whose points do not lie at one
+        elevation a beam (a random or shuffled ring field) are refused.
     sensor : str or BeamPattern
         The sensor's shipped table (columns, range limits; the elevations
         where a frame's beams are unknown).
     methods : sequence of str
         A subset of :data:`METHODS`.
     transform : (4, 4) float, optional
-        B's pose in A's frame (``a = R b + t``), instead of registering.
+        B's pose in A's frame (``a = R b + t``), instead of registering: a
+        rigid pose (:func:`slr_ray.arrays.as_rigid_pose`: a rotation to
+        1e-5, last row ``0 0 0 1``, finite), which must put some of A's
+        points in B's view.
     seen_threshold : float
         A point of B is seen from A when an A point lies strictly closer (m).
     thresholds : sequence of float
@@ -335,13 +398,21 @@ def evaluate_pair(a_points, b_points, a_beams="scan-order", b_beams="scan-order"
         A registration whose fitness (share of B's points with an A point
         within 0.2 m after the fit) is below this is refused: the pose is not
         to be trusted (frames that do not overlap, too few points). 0 accepts
-        any; ignored with ``transform``.
+        any; ignored with ``transform``. Registering also needs
+        :data:`MIN_REGISTRATION_POINTS` points in each frame.
+    max_rmse : float, optional
+        A registration whose inlier RMSE exceeds this (m; default
+        :data:`MAX_RMSE_SHARE` of the 0.2 m correspondence distance) is
+        refused; ignored with ``transform``.
 
     Raises
     ------
     InputValueError
         A frame with no point within its table's view (not in its sensor's
-        frame, or empty), or a registration below ``min_fitness``.
+        frame, or empty), a transform that is not a rigid pose or puts no
+        point of A in B's view, beams that are not a scan's, too few points
+        to register, or a registration below ``min_fitness`` or above
+        ``max_rmse``.
 
     Returns
     -------
@@ -355,14 +426,24 @@ def evaluate_pair(a_points, b_points, a_beams="scan-order", b_beams="scan-order"
     t_all = time.perf_counter()
     if not (isinstance(min_fitness, (int, float)) and 0 <= min_fitness <= 1):
         raise InputValueError(f"min_fitness must be a number in [0, 1] (a share of B's points), got {min_fitness!r}")
+    if isinstance(methods, str):
+        methods = (methods,)
+    if not len(methods):
+        raise InputValueError(f"methods: none given; choose from {list(METHODS)}")
     unknown = [m for m in methods if m not in METHODS]
     if unknown:
         raise InputValueError(f"unknown method(s) {unknown}; choose from {list(METHODS)}")
+    twice = sorted({m for m in methods if list(methods).count(m) > 1})
+    if twice:
+        raise InputValueError(f"methods: {', '.join(twice)} given twice (each method is one row)")
+    if max_rmse is not None and not (isinstance(max_rmse, (int, float)) and max_rmse > 0):
+        raise InputValueError(f"max_rmse must be a number > 0 (m), got {max_rmse!r}")
+    T = None if transform is None else as_rigid_pose(transform, "transform")  # before any work
     base = _resolve_sensor(sensor)
     a = as_points(a_points, "a_points")
     b = as_points(b_points, "b_points")
-    a_beams = _beams_of(a, a_beams, base, "a_beams")
-    b_beams = _beams_of(b, b_beams, base, "b_beams")
+    a_beams, a_how = _beams_of(a, a_beams, base, "a_beams")
+    b_beams, b_how = _beams_of(b, b_beams, base, "b_beams")
     pat_a = fitted_pattern(a, a_beams, base) if a_beams is not None else base
     pat_b = fitted_pattern(b, b_beams, base) if b_beams is not None else base
     seconds = {}
@@ -374,25 +455,37 @@ def evaluate_pair(a_points, b_points, a_beams="scan-order", b_beams="scan-order"
                 "in its own sensor's frame (the sensor at (0, 0, 0)): subtract the scanner position first")
 
     t0 = time.perf_counter()
-    if transform is None:
+    if T is None:
+        few = [(name, len(pts)) for name, pts in (("A", a), ("B", b)) if len(pts) < MIN_REGISTRATION_POINTS]
+        if few:
+            raise InputValueError(
+                f"frame {few[0][0]} has {few[0][1]:,} points, too few to register (at least "
+                f"{MIN_REGISTRATION_POINTS:,} in each frame): give B's pose (transform, --transform)")
         with phase(f"registering B to A ({len(b):,} and {len(a):,} points)", progress=progress):
             reg = register(b, a)
+        limit = MAX_RMSE_SHARE * reg.max_distance if max_rmse is None else max_rmse
         if not reg.fitness >= min_fitness:
             raise InputValueError(
                 f"registration failed: B aligned to A with fitness {reg.fitness:.3f} (share of B's points with an "
                 f"A point within {reg.max_distance:g} m) < min_fitness {min_fitness:g}; do the frames overlap? Give "
                 "B's pose (transform, --transform) or accept the fit (min_fitness=0, --min-fitness 0)")
+        if not reg.inlier_rmse <= limit:
+            raise InputValueError(
+                f"registration failed: B aligned to A with inlier RMSE {reg.inlier_rmse:.3f} m > {limit:g} m (the "
+                f"pairs within {reg.max_distance:g} m lie spread, not matched); give B's pose (transform, "
+                "--transform)")
         T = reg.transform
         registration = reg.to_dict()
     else:
-        T = np.asarray(transform, np.float64)
-        if T.shape != (4, 4) or not np.all(np.isfinite(T)):
-            raise InputValueError(f"transform must be a finite 4 x 4 matrix, got shape {T.shape}")
         registration = Registration(T, float("nan"), float("nan"), float("nan"), "given", 0.0).to_dict()
     seconds["registration"] = time.perf_counter() - t0
     R, t = T[:3, :3], T[:3, 3]
     a_in_b = (a - t) @ R  # R^T (a - t), row by row, in float64
     a_origin = -(R.T @ t)
+    if not np.any(pat_b.pulse_ids(a_in_b, np.zeros(3))[0] >= 0):
+        raise InputValueError(
+            f"at B's pose ({registration['translation_norm_m']:.4g} m from A's sensor) none of A's {len(a)} points "
+            "lies within B's view: the frames do not overlap there; check the pose (transform, --transform)")
 
     # The real B: its range image by the rule every simulated image is made by (nearest point per
     # pulse of B's table, a point in the elevation band it falls in), so that a simulation equal to
@@ -457,8 +550,8 @@ def evaluate_pair(a_points, b_points, a_beams="scan-order", b_beams="scan-order"
         identical = None
     seconds["total"] = time.perf_counter() - t_all
     return {"registration": registration,
-            "patterns": {"a": pat_a.to_dict() | {"beams_known": a_beams is not None},
-                         "b": pat_b.to_dict() | {"beams_known": b_beams is not None}},
+            "patterns": {"a": pat_a.to_dict() | {"beams_known": a_beams is not None, "beams": a_how},
+                         "b": pat_b.to_dict() | {"beams_known": b_beams is not None, "beams": b_how}},
             "frames": {"a_points": int(len(a)), "b_points": int(len(b)), "b_points_in_view": int(len(b_in)),
                        "b_pulses_returned": int(len(real)), "b_points_sharing_a_pulse": int(len(b_in) - len(real))},
             "seen_threshold": seen_threshold, "thresholds": [float(x) for x in thresholds],

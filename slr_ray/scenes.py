@@ -288,7 +288,7 @@ def scene_effects(spec) -> Effects | None:
     if "effects" not in data:
         return None
     try:
-        return Effects.from_dict(data["effects"], relative_to=path.parent)
+        return Effects.from_dict(data["effects"], relative_to=path.parent).check_needs()
     except InputValueError as exc:
         raise InputValueError(f"{path}: [effects]: {exc}") from None
 

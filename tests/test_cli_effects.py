@@ -2,6 +2,7 @@
 ``slr-ray effects fit-drop``, a scene's [effects], and the refusals."""
 
 import json
+import warnings
 from pathlib import Path
 
 import numpy as np
@@ -203,7 +204,19 @@ def test_fit_drop_on_the_kitti_frame_and_its_sensor_table(tmp_path, capsys):
     (["--ray-drop", "{coefitems}"], "coef must be 5 finite numbers"),
     (["--effects", ""], "no effects file"),  # an unset $EFFECTS: not silently the ideal scan
     (["--ray-drop", ""], "no model file given"),  # an unset $MODEL: it said "no model file '.'"
-    (["--range-noise", "1e308"], "overflow"),  # not a file of infinite points that read_cloud refuses
+    (["--range-noise", "1e308"], "at most 1"),  # not a file of infinite points that read_cloud refuses
+    # effect sizes beyond a sensor's (1e9 mrad gave more returns than points, 1e300 m of noise coordinates of
+    # 3e300), options that another would ignore, duplicate returns, a model whose logit overflows
+    (["--backend", "embree", "--divergence-mrad", "1e9"], "--divergence-mrad: divergence_mrad must be at most 50"),
+    (["--range-noise", "1e300"], "--range-noise: range_noise must be at most 1"),
+    (["--effects", "{pct}"], "max_range_at reflectivity must be at most 1"),
+    (["--returns", "all"], "--returns needs --divergence-mrad"),
+    (["--effects", "{slope}"], "slope.toml: range_noise_slope needs --range-noise"),
+    (["--effects", "{slope}", "--effects-seed", "2"], "slope.toml: range_noise_slope needs --range-noise"),
+    (["--backend", "embree", "--divergence-mrad", "2", "--returns", "first", "first"], "first given twice"),
+    (["--backend", "embree", "--divergence-mrad", "2", "--returns", "all", "last"], "'all' already holds last"),
+    (["--ray-drop", "{hugecoef}"], "coef must lie within"),
+    (["--ray-drop", "{names}"], "'names'"),  # six names for five weights: the file disagrees with itself
 ])
 def test_bad_effects_are_one_line_errors(wall, tmp_path, capsys, flags, says):
     (tmp_path / "garbage.json").write_text("{not json")
@@ -215,10 +228,16 @@ def test_bad_effects_are_one_line_errors(wall, tmp_path, capsys, flags, says):
     (tmp_path / "rings.toml").write_text("beam_rings = 'x'\n")
     (tmp_path / "coefstr.json").write_text('{"coef": "x"}')
     (tmp_path / "coefitems.json").write_text('{"coef": [1, 2, 3, "x", 5]}')
+    (tmp_path / "hugecoef.json").write_text('{"coef": [1e308, 1e308, -1e308, 1, 1]}')
+    (tmp_path / "names.json").write_text('{"coef": [1, 1, 1, 1, 1], "names": ["intercept", "range", "range^2", '
+                                         '"incidence", "incidence^2", "intensity"]}')
+    (tmp_path / "pct.toml").write_text("max_range_at = [50, 10]\n")  # 10 %, written as a percentage
+    (tmp_path / "slope.toml").write_text("range_noise_slope = 0.01\n")
     names = {"{garbage}": "garbage.json", "{unknown}": "unknown.toml", "{motion}": "motion.toml",
              "{badtoml}": "badtoml.toml", "missing.json": "missing.json", "missing.toml": "missing.toml",
              "x.png": "x.png", "{types}": "types.toml", "{seedstr}": "seedstr.toml", "{rings}": "rings.toml",
-             "{coefstr}": "coefstr.json", "{coefitems}": "coefitems.json"}
+             "{coefstr}": "coefstr.json", "{coefitems}": "coefitems.json", "{hugecoef}": "hugecoef.json",
+             "{pct}": "pct.toml", "{slope}": "slope.toml", "{names}": "names.json"}
     flags = [str(tmp_path / names[f]) if f in names else f for f in flags]
     out = tmp_path / "out.npz"
     assert main(["scan", str(wall), "-o", str(out), *PATTERN, *flags]) == 2
@@ -333,6 +352,43 @@ def test_simulate_given_takes_a_scan_made_elsewhere():
     assert 0 < len(noisy) < len(ideal) and noisy.info["removed_range_limits"] == len(ideal) - len(noisy)
     with pytest.raises(InputValueError, match="divergence"):
         simulate_given(given, pts[ideal.indices], Effects(divergence_mrad=3.0))
+
+
+def test_fit_drop_refuses_a_frame_that_is_not_a_scan_and_normals_from_too_few_neighbours(tmp_path, capsys):
+    """A shuffled frame read in scan order gave thousands of 'rings' and a 68 deg column step, a
+    random cloud thousands of rings, a ring field of random floats was truncated; -k 1 took a normal
+    from one neighbour and -k 1000000000 said 'too few points'."""
+    pts = ring_frame()
+    rng = np.random.default_rng(3)
+    frames = {"shuffled": PointCloud(pts[rng.permutation(len(pts))], {}, np.zeros(3)),
+              "random": PointCloud(rng.uniform(-20, 20, (3000, 3)), {}, np.zeros(3)),
+              "float_ring": PointCloud(pts, {"ring": rng.random(len(pts))}, np.zeros(3)),
+              "random_ring": PointCloud(pts, {"ring": rng.integers(0, 8, len(pts)).astype(np.int32)}, np.zeros(3)),
+              "good": PointCloud(pts, {}, np.zeros(3))}
+    cases = [("shuffled", [], "--rings auto"), ("random", ["--rings", "scan-order"], "rings"),
+             ("float_ring", [], "integers"), ("random_ring", [], "not a scan's rings"), ("good", ["-k", "1"], "-k 1"),
+             ("good", ["-k", "1000000000"], "-k 1000000000"), ("good", ["--column-step-deg", "90"], "--column-step"),
+             ("good", ["--intensity-scale", "1e-300"], "--intensity-scale")]
+    for name, flags, says in cases:
+        path = tmp_path / f"{name}.npz"
+        if not path.exists():
+            write_cloud(path, frames[name])
+        out = tmp_path / "m.json"
+        with warnings.catch_warnings():
+            warnings.simplefilter("error")
+            rc = main(["effects", "fit-drop", str(path), "-o", str(out), *flags])
+        err = capsys.readouterr().err
+        assert rc == 2 and says in err and err.count("\n") == 1 and not out.exists(), (name, flags, err)
+
+
+def test_a_ray_drop_model_never_overflows():
+    big = RayDropModel((1e6, 1e6, -1e6, 1e6, 1e6))
+    with warnings.catch_warnings():
+        warnings.simplefilter("error")
+        p = big.probability([1e300, 10.0], [45.0, 45.0])
+    assert p.tolist() == [0.0, 1.0]  # -1e6 rho^2 dominates at 1e300 m
+    with pytest.raises(InputValueError, match="within"):
+        RayDropModel((1e308, 0, 0, 0, 0))
 
 
 def test_fit_drop_on_a_frame_with_nothing_to_fit_names_the_frame(wall, tmp_path, capsys):

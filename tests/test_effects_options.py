@@ -24,7 +24,19 @@ def test_off_by_default_and_sensor_values_need_a_table():
     assert not Effects().any and Effects(range_noise=0.01).any
     with pytest.raises(InputValueError, match="table"):
         Effects(range_noise="sensor").resolve(ScanPattern(1.0))
-    assert Effects.from_dict({"returns": "first"}).returns == ("first",)
+    assert Effects.from_dict({"returns": "first", "divergence_mrad": 2.0}).returns == ("first",)
+    # an option that tunes an effect that is off would be ignored: refused (issue #40)
+    for tuning in ({"returns": "first"}, {"beam_rings": 5}, {"min_share": 0.2}, {"return_separation": 2.0},
+                   {"range_noise_slope": 0.01}, {"reflectivity_scale": 255.0}):
+        with pytest.raises(InputValueError, match="needs"):
+            Effects.from_dict(tuning).check_needs()
+    # sizes no sensor has
+    for size in ({"divergence_mrad": 1e9}, {"range_noise": 1e300}, {"range_noise_slope": 1.0},
+                 {"return_separation": 1e9, "divergence_mrad": 2.0}, {"min_range": 1e9},
+                 {"max_range_at": (50.0, 10.0)}, {"max_range_at": (1e9, 0.1)}, {"reflectivity_scale": 1e300},
+                 {"sweep_start_deg": 1e300}):
+        with pytest.raises(InputValueError, match="at most|in \\[-360, 360\\]"):
+            Effects.from_dict(size)
 
 
 def test_scene_toml_says_which_effects_it_requires(tmp_path):
@@ -32,7 +44,7 @@ def test_scene_toml_says_which_effects_it_requires(tmp_path):
 
     spec = tmp_path / "noisy.toml"
     spec.write_text('[scene]\nn_rectangles = 3\n\n[effects]\nrange_noise = 0.02\nmin_range = 1.0\n'
-                    'returns = ["first", "last"]\n')
+                    'divergence_mrad = 2.0\nreturns = ["first", "last"]\n')
     eff = scene_effects(spec)
     assert eff.range_noise == 0.02 and eff.min_range == 1.0 and eff.returns == ("first", "last")
     assert scene_effects("rect-0500") is None

@@ -94,3 +94,19 @@ def test_kitti_frame_rings_and_fit():
     assert fp["dropped"][far].mean() > 2 * fp["dropped"][near].mean()
     assert p[far].mean() > 2 * p[near].mean()
     assert p.mean() == pytest.approx(fp["dropped"].mean(), rel=0.01)  # a logistic fit matches the mean rate
+
+
+def test_a_fit_refuses_features_no_sensor_has_without_a_numpy_warning():
+    """A point 1e200 m away, an intensity scale of 1e-300: the fit's logit overflowed with numpy's warning."""
+    import warnings
+
+    rng = np.random.default_rng(0)
+    r, inc, inten = rng.uniform(1, 50, 500), rng.uniform(0, 80, 500), rng.uniform(0, 1, 500)
+    drop = rng.random(500) < 0.3
+    for kw, says in (({"ranges": r * 1e200}, "non-finite features"), ({"ranges": r * 1e150}, "beyond a sensor's"),
+                     ({"intensity_scale": 1e-300}, "intensity_scale must lie")):
+        args = {"ranges": r, "incidence": inc, "dropped": drop, "intensity": inten} | kw
+        with warnings.catch_warnings():
+            warnings.simplefilter("error")
+            with pytest.raises(InputValueError, match=says):
+                fit_ray_drop(**args)

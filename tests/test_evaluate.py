@@ -186,7 +186,7 @@ def test_cli_evaluate(tmp_path, capsys):
     assert res["registration"]["fitness"] > 0.5
     assert abs(res["registration"]["translation_m"][0] - 0.5) < 0.05
     assert [r["method"] for r in res["table"]] == ["no SLR (z-buffer)", "binning"]
-    assert main(argv) == 2 and "exists (use --force" in capsys.readouterr().err
+    assert main(argv) == 2 and "not empty (5 entries); --force" in capsys.readouterr().err
     assert main(argv + ["--force"]) == 0
 
 
@@ -240,14 +240,15 @@ def test_frames_not_in_their_sensor_frame_are_refused():
 
 
 def test_a_failed_registration_is_refused_unless_accepted():
-    """Two tiny frames that do not overlap: ICP finds nothing (fitness 0) and the pose is
+    """Two sparse frames that do not overlap: ICP finds nothing (fitness 0) and the pose is
     garbage; the evaluation says so instead of scoring at that pose."""
     rng = np.random.default_rng(0)
-    a = rng.uniform(-20, 20, (40, 3))
-    b = rng.uniform(-20, 20, (40, 3))
+    a = rng.uniform(-20, 20, (1000, 3))
+    b = rng.uniform(-20, 20, (1000, 3))
     with pytest.raises(InputValueError, match="fitness"):
         evaluate_pair(a, b, a_beams=None, b_beams=None, sensor=SMALL, methods=("zbuffer",))
-    res = evaluate_pair(a, b, a_beams=None, b_beams=None, sensor=SMALL, methods=("zbuffer",), min_fitness=0.0)
+    res = evaluate_pair(a, b, a_beams=None, b_beams=None, sensor=SMALL, methods=("zbuffer",), min_fitness=0.0,
+                        max_rmse=1.0)
     assert res["registration"]["fitness"] < 0.3
     for bad in (math.nan, -0.1, 1.5):
         with pytest.raises(InputValueError, match="min_fitness must"):

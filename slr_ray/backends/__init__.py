@@ -96,7 +96,9 @@ def prepare(points, backend: str | Backend = Backend.BINNING, options=None, **mo
     """
     b = _backend(backend)
     opts = options_for(b, options, **more)
-    return BACKENDS[b].scanner(as_points(points, check_finite=False), opts)
+    pts = as_points(points, check_finite=False)
+    opts.check_points(len(pts))
+    return BACKENDS[b].scanner(pts, opts)
 
 
 def simulate_scan(points, origin, pattern, backend: str | Backend = Backend.BINNING, **options) -> Scan:

@@ -69,6 +69,10 @@ class BackendOptions:
         """``{field: allowed values}`` of the fields that take one of a few names."""
         return {}
 
+    def check_points(self, n: int) -> None:
+        """Refuse options that do not fit a cloud of ``n`` points (an array of another
+        length); :func:`slr_ray.prepare` calls it before any work. None here."""
+
     def to_dict(self) -> dict:
         """Plain-JSON description (arrays summarised by shape)."""
         out = {}

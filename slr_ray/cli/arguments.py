@@ -305,6 +305,13 @@ def effects_from(args) -> Effects | None:
     if base is None and not changes:
         return None
     eff = dataclasses.replace(base or Effects(), **changes)
+    try:
+        eff.check_needs()
+    except InputValueError as exc:  # an option that needs another, off: name the flags
+        msg = str(exc)
+        for name, flag in EFFECT_FLAGS.items():
+            msg = re.sub(rf"\b{name}\b", flag, msg)
+        raise InputValueError(f"--effects {args.effects}: {msg}" if base is not None else msg) from None
     if eff.motion:
         where = f"--effects {args.effects}" if args.effects else "the effects"
         raise InputValueError(f"{where}: motion needs the sensor's poses over the sweep, which the command line "

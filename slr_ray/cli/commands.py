@@ -23,7 +23,8 @@ from ..backends import Backend, options_for, prepare
 from ..compare import compare_backends
 from ..demo import run_demo
 from ..distances import distance_study, study_files
-from ..effects import effect_cloud, simulate, simulate_given
+from ..backends.embree import refuse_cast
+from ..effects import cast_rays, effect_cloud, simulate, simulate_given
 from ..errors import InputValueError, SlrWarning
 from ..io import PointCloud, atomic_path, check_format, read_cloud, write_cloud
 from ..meshscan import scan_mesh
@@ -87,6 +88,9 @@ def scan(args):
         check_range_image(pattern)  # before the scan, not after it
     options = options_for(args.backend, backend_from(args))  # built once, used below
     effects = check_effects(effects_from(args), args.backend, pattern)
+    if Backend(args.backend) is Backend.EMBREE:  # before reading and preparing: binning answers at once
+        refuse_cast(cast_rays(pattern, effects), "--backend embree",
+                    "choose a coarser pattern (--resolution, --columns) or a smaller --divergence-mrad cone")
     if effects is not None and (args.range_image or args.png):
         raise InputValueError("--range-image and --png draw an ideal scan (one point a pulse): drop them, or the "
                               "effects (slr_ray.effects.range_image draws a scan with effects)")

@@ -4,19 +4,62 @@ subcommand stands alone: flags in, library call, files and one JSON line out."""
 
 from __future__ import annotations
 
+import sys
+from pathlib import Path
 
 import numpy as np
 
-from ..errors import InputValueError
+from ..arrays import as_rigid_pose
+from ..errors import InputValueError, OutputError
 from ..evaluate import EVALUATION_FILES, evaluate_pair, evaluation_table, write_evaluation
 from ..io import read_cloud
-from ..outputs import OutputPlan
+from ..outputs import LOCK_NAME, OutputPlan
 from .commands import emit
 
-__all__ = ["evaluate"]
+__all__ = ["evaluate", "read_matrix"]
+
+
+def read_matrix(path, flag: str = "--transform") -> np.ndarray:
+    """A text matrix: rows of numbers (spaces or commas; ``#`` starts a comment), as float64; one
+    line of 12 or 16 numbers is a 3 x 4 (a KITTI poses line) or 4 x 4 matrix, row by row.
+
+    Parsed here, not by numpy, so that an empty or ragged file is one line naming ``flag``
+    (numpy's loadtxt warns with its own source line on an empty file)."""
+    try:
+        text = Path(path).read_text()
+    except UnicodeDecodeError:
+        raise InputValueError(f"{flag} {path}: not a text matrix (a binary file)") from None
+    rows = []
+    for number, line in enumerate(text.splitlines(), 1):
+        words = line.split("#")[0].replace(",", " ").split()
+        if words:
+            try:
+                rows.append([float(w) for w in words])
+            except ValueError:
+                raise InputValueError(f"{flag} {path}: line {number} is not numbers: {line.strip()[:60]!r}") from None
+    if not rows:
+        raise InputValueError(f"{flag} {path}: the file holds no numbers (a 4 x 4 matrix, one row a line)")
+    if len({len(r) for r in rows}) != 1:
+        raise InputValueError(f"{flag} {path}: rows of {sorted({len(r) for r in rows})} numbers: not a matrix")
+    if len(rows) == 1 and len(rows[0]) in (12, 16):  # one line of a KITTI poses file (3 x 4), or 4 x 4 flat
+        return np.array(rows[0], np.float64).reshape(-1, 4)
+    return np.array(rows, np.float64)
+
+
+def _foreign_files(out: Path) -> list:
+    """What an existing output directory holds besides the evaluation's own files and the lock."""
+    if not out.is_dir():
+        return []
+    ours = set(EVALUATION_FILES.values()) | {LOCK_NAME}
+    return sorted(p.name for p in out.iterdir() if p.name not in ours)
 
 
 def evaluate(args):
+    if not 0 <= args.min_fitness <= 1:  # nan too
+        raise InputValueError(f"--min-fitness {args.min_fitness}: a share of B's points, in [0, 1]")
+    if len(set(args.methods)) != len(args.methods):
+        twice = sorted({m for m in args.methods if args.methods.count(m) > 1})
+        raise InputValueError(f"--methods: {', '.join(twice)} given twice (each method is one row)")
     plan = OutputPlan(force=args.force)
     for path in (args.a, args.b):
         plan.read(path, fmt=args.input_format)  # --input-format bin reads a .label beside any name
@@ -24,36 +67,61 @@ def evaluate(args):
     out = plan.directory(args.output)
     for name in EVALUATION_FILES.values():
         plan.write(out / name)
+    held = [p for p in (out.iterdir() if out.is_dir() else ()) if p.name != LOCK_NAME
+            and not (p.name.startswith(".") and p.name.endswith(".part"))]  # a killed run's: the plan removes them
+    if held and not args.force:
+        raise OutputError(f"-o {args.output} exists and is not empty ({len(held)} entries); --force replaces its "
+                          "evaluation files")
     with plan:
         _evaluate(args, out)
+
+
+def _beams(cloud, mode: str, what: str):
+    """The ``a_beams``/``b_beams`` of ``--beams``: the 'ring' attribute as stored (its values are checked, not
+    truncated), the scan order (strict for ``scan-order``), or none."""
+    ring = cloud.attributes.get("ring")
+    if mode == "auto" and ring is not None:
+        r = np.asarray(ring)
+        if r.dtype.kind not in "iu" and (r.dtype.kind != "f" or not np.all(np.isfinite(r))
+                                         or np.any(r != np.round(r))):
+            raise InputValueError(f"--beams auto: {what}'s 'ring' attribute holds non-integers (dtype {r.dtype}): "
+                                  "not beam ids; give --beams scan-order or --beams none")
+        return r
+    return {"auto": "auto", "scan-order": "scan-order", "none": None}[mode]
 
 
 def _evaluate(args, out):
     transform = None
     if args.transform:
-        try:
-            transform = np.loadtxt(args.transform, dtype=np.float64, ndmin=2)
-        except (ValueError, UnicodeDecodeError) as exc:  # text that is not numbers, a binary file
-            raise InputValueError(f"--transform {args.transform}: not a 4 x 4 text matrix ({exc})") from None
-        if transform.shape != (4, 4) or not np.isfinite(transform).all():
-            raise InputValueError(f"--transform {args.transform}: expected a finite 4 x 4 matrix, got "
-                                  f"{transform.tolist() if transform.size <= 16 else transform.shape}")
+        transform = as_rigid_pose(read_matrix(args.transform), f"--transform {args.transform}")
     clouds = [read_cloud(p, args.input_format, allow_empty=False) for p in (args.a, args.b)]
     frames = []  # each in its sensor's frame: a file that records its scanner's position (.npz, .pcd, .e57)
     for c in clouds:  # holds world coordinates, moved to that position in float64
         frames.append(c.points - np.asarray(c.origin, np.float64) if c.origin is not None else c.points)
-    beams = []
-    for c in clouds:  # a 'ring' field where the file has one, else the scan order (KITTI .bin), or none
-        ring = c.attributes.get("ring")
-        beams.append(np.asarray(ring, np.int64) if ring is not None and args.beams == "auto" else
-                     ("scan-order" if args.beams in ("auto", "scan-order") else None))
-    res = evaluate_pair(frames[0], frames[1], a_beams=beams[0], b_beams=beams[1], sensor=args.sensor,
-                        methods=args.methods, transform=transform, seen_threshold=args.seen_threshold,
-                        min_fitness=args.min_fitness, progress=not args.quiet)
+    beams = [_beams(c, args.beams, f"frame {k} ({p})") for c, k, p in zip(clouds, "AB", (args.a, args.b))]
+    try:
+        res = evaluate_pair(frames[0], frames[1], a_beams=beams[0], b_beams=beams[1], sensor=args.sensor,
+                            methods=args.methods, transform=transform, seen_threshold=args.seen_threshold,
+                            min_fitness=args.min_fitness, progress=not args.quiet)
+    except InputValueError as exc:  # the library names a_beams / b_beams: say the flag and the file
+        msg = str(exc)
+        for key, name, path in (("a_beams", "A", args.a), ("b_beams", "B", args.b)):
+            if msg.startswith(key):
+                msg = f"--beams {args.beams}: frame {name} ({path}){msg[len(key):]}"
+        raise InputValueError(msg) from None
+    for key, name, path in (("a", "A", args.a), ("b", "B", args.b)):
+        how = res["patterns"][key]["beams"]
+        if how.startswith("none:"):
+            print(f"slr-ray: note: --beams auto: frame {name} ({path}) has no 'ring' attribute and is {how[6:]}; "
+                  "its beams are unknown: scored by the shipped table's elevation bands", file=sys.stderr)
+    foreign = _foreign_files(out)
+    if foreign:
+        print(f"slr-ray: note: {out} also holds {len(foreign)} file(s) not written by this run: "
+              f"{', '.join(foreign[:5])}{' ...' if len(foreign) > 5 else ''}", file=sys.stderr)
     paths = write_evaluation(res, out, force=True,  # the plan checked --force file by file
                              inputs={"a": str(args.a), "b": str(args.b), "sensor": args.sensor, "beams": args.beams,
                                      "origins": [None if c.origin is None else np.asarray(c.origin).tolist()
-                                                 for c in clouds]})
+                                                 for c in clouds], "other_files_in_directory": foreign})
     emit({"a": str(args.a), "b": str(args.b), "output_dir": str(out), "files": paths,
           "registration": res["registration"], "unseen_share": res["unseen_share"], "seconds": res["seconds"],
-          "table": evaluation_table(res)})
+          "other_files_in_directory": foreign, "table": evaluation_table(res)})

@@ -21,7 +21,7 @@ from pathlib import Path
 from ..errors import InputValueError, dataclass_from_mapping
 from .raydrop import RayDropModel
 
-__all__ = ["Effects", "RETURN_KINDS", "INTENSITY_MODES", "MOTION_FRAMES"]
+__all__ = ["Effects", "RETURN_KINDS", "INTENSITY_MODES", "MOTION_FRAMES", "SIZE_BOUNDS", "NEEDS"]
 
 #: Which returns of a pulse a multiple-return scan reports.
 RETURN_KINDS = ("first", "last", "strongest", "all")
@@ -31,10 +31,23 @@ INTENSITY_MODES = ("carry", "correct")
 MOTION_FRAMES = ("sensor-end", "firing")
 
 
+#: The largest value of each effect size: what a sensor can be (docs/effects.md says why each).
+SIZE_BOUNDS = {"divergence_mrad": 50.0, "range_noise": 1.0, "range_noise_slope": 0.1, "return_separation": 100.0,
+               "min_range": 1000.0, "max_range_at range": 1e5, "max_range_at reflectivity": 1.0,
+               "reflectivity_scale": 1e6}
+#: Options that tune another effect, and the option that turns it on: set away from its default
+#: while that one is off, an option would be ignored, so it is refused.
+NEEDS = {"returns": "divergence_mrad", "beam_rings": "divergence_mrad", "return_separation": "divergence_mrad",
+         "min_share": "divergence_mrad", "range_noise_slope": "range_noise", "reflectivity_scale": "max_range_at"}
+
+
 def _positive(name, v, allow_zero=False):
     if not (isinstance(v, (int, float)) and not isinstance(v, bool) and math.isfinite(v)
             and (v >= 0 if allow_zero else v > 0)):
         raise InputValueError(f"{name} must be a finite number {'>=' if allow_zero else '>'} 0, got {v!r}")
+    top = SIZE_BOUNDS.get(name)
+    if top is not None and v > top:
+        raise InputValueError(f"{name} must be at most {top:g} (what a sensor can be; docs/effects.md), got {v!r}")
     return float(v)
 
 
@@ -137,6 +150,11 @@ class Effects:
         bad = [r for r in ret if not isinstance(r, str) or r not in RETURN_KINDS]
         if not ret or bad:
             raise InputValueError(f"returns must be one or more of {RETURN_KINDS}, got {self.returns!r}")
+        twice = sorted({r for r in ret if ret.count(r) > 1})
+        if twice:
+            raise InputValueError(f"returns: {', '.join(twice)} given twice")
+        if "all" in ret and len(ret) > 1:
+            raise InputValueError(f"returns: 'all' already holds {', '.join(r for r in ret if r != 'all')}")
         set_("returns", ret)
         _positive("return_separation", self.return_separation)
         if not (isinstance(self.min_share, (int, float)) and 0 <= self.min_share <= 1):
@@ -163,8 +181,9 @@ class Effects:
         if self.motion_sectors is not None and not _integral(self.motion_sectors, 1):
             raise InputValueError(f"motion_sectors must be an integer >= 1, got {self.motion_sectors!r}")
         if not (isinstance(self.sweep_start_deg, (int, float)) and not isinstance(self.sweep_start_deg, bool)
-                and math.isfinite(self.sweep_start_deg)):
-            raise InputValueError(f"sweep_start_deg must be a finite angle in degrees, got {self.sweep_start_deg!r}")
+                and -360 <= self.sweep_start_deg <= 360):
+            raise InputValueError(f"sweep_start_deg must be an angle in degrees in [-360, 360], got "
+                                  f"{self.sweep_start_deg!r}")
         if not isinstance(self.sweep_clockwise, bool):
             raise InputValueError(f"sweep_clockwise must be true or false, got {self.sweep_clockwise!r}")
         if self.motion_frame not in MOTION_FRAMES:
@@ -242,6 +261,17 @@ class Effects:
             return cls.from_dict(table, relative_to=path.parent)
         except InputValueError as exc:
             raise InputValueError(f"{path}: {exc}") from None
+
+    def check_needs(self) -> "Effects":
+        """``self``, refused when an option that tunes another effect (:data:`NEEDS`) is set away from
+        its default while that effect is off: it would be ignored. Checked where the effects are used
+        (:func:`~slr_ray.effects.simulate`, the command line), not by each part: a file may set
+        ``returns`` for a ``--divergence-mrad`` given beside it."""
+        defaults = {f.name: f.default for f in dataclasses.fields(self)}
+        for name, on in NEEDS.items():
+            if getattr(self, name) != defaults[name] and not getattr(self, on):
+                raise InputValueError(f"{name} needs {on} (without it, {name} would be ignored)")
+        return self
 
     @property
     def any(self) -> bool:

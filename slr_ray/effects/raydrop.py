@@ -37,19 +37,39 @@ from ..backends.embree import estimate_normals
 from ..errors import InputValueError
 
 __all__ = ["RayDropModel", "fit_ray_drop", "frame_pulses", "rings_from_scan_order", "incidence_deg",
-           "drop_rates", "RANGE_SCALE"]
+           "drop_rates", "RANGE_SCALE", "MAX_RINGS", "COLUMN_STEP_RANGE_DEG", "MAX_RING_SPREAD_DEG", "NORMAL_K_RANGE",
+           "MAX_COEF", "MAX_FEATURE", "INTENSITY_SCALE_RANGE"]
 
 #: Range unit of the model's features, metres.
 RANGE_SCALE = 50.0
+#: A frame's rings (beams) at most: spinning units have up to 128 (a shuffled KITTI frame read in
+#: scan order gives 35,000 "rings", a random cloud thousands).
+MAX_RINGS = 256
+#: The azimuth step between firings a spinning unit has (degrees; KITTI's HDL-64E: 0.18; a shuffled
+#: frame's "step" is 68).
+COLUMN_STEP_RANGE_DEG = (0.01, 2.0)
+#: The median spread of a ring's elevations at most (degrees, median absolute deviation; KITTI: 0.24).
+MAX_RING_SPREAD_DEG = 1.0
+#: Neighbours of a PCA normal: at least a plane's 3, at most a local patch's 100.
+NORMAL_K_RANGE = (3, 100)
+#: The largest feature a fit takes, in absolute value: (range / 50 m)^2 up to it is 50 km, intensity up
+#: to it times the intensity scale (a point 1e150 m away overflowed the fit's logit).
+MAX_FEATURE = 1e6
+#: The intensity scale of a model: the intensity of reflectivity 1 (1 KITTI's, 255 8-bit, 65535 16-bit).
+INTENSITY_SCALE_RANGE = (1e-6, 1e6)
+#: The largest weight of a model, in absolute value: a logit of 1e6 is a certainty already (a fit to
+#: separable pulses stays far below; 1e308 overflowed the probability).
+MAX_COEF = 1e6
 _NAMES_GEOMETRY = ("intercept", "range", "range^2", "incidence", "incidence^2")
 
 
 def _design(ranges, incidence, intensity, intensity_scale):
-    rho = np.asarray(ranges, np.float64) / RANGE_SCALE
-    gam = np.asarray(incidence, np.float64) / 90.0
-    cols = [np.ones_like(rho), rho, rho * rho, gam, gam * gam]
-    if intensity is not None:
-        cols.append(np.asarray(intensity, np.float64) / intensity_scale)
+    with np.errstate(over="ignore", invalid="ignore"):  # absurd features become inf: refused by the fit
+        rho = np.asarray(ranges, np.float64) / RANGE_SCALE
+        gam = np.asarray(incidence, np.float64) / 90.0
+        cols = [np.ones_like(rho), rho, rho * rho, gam, gam * gam]
+        if intensity is not None:
+            cols.append(np.asarray(intensity, np.float64) / intensity_scale)
     return np.column_stack(cols)
 
 
@@ -92,10 +112,15 @@ class RayDropModel:
         if len(c) != want or len(c) != len(self.coef) or not all(math.isfinite(x) for x in c):
             raise InputValueError(f"coef must be {want} finite numbers (uses_intensity={self.uses_intensity}), "
                                   f"got {self.coef!r}")
+        if max(abs(x) for x in c) > MAX_COEF:
+            raise InputValueError(f"coef must lie within +-{MAX_COEF:g} (a logit beyond is a certainty), got "
+                                  f"{max(c, key=abs):g}")
         object.__setattr__(self, "coef", c)
+        lo, hi = INTENSITY_SCALE_RANGE
         if not (isinstance(self.intensity_scale, (int, float)) and not isinstance(self.intensity_scale, bool)
-                and math.isfinite(self.intensity_scale) and self.intensity_scale > 0):
-            raise InputValueError(f"intensity_scale must be > 0, got {self.intensity_scale!r}")
+                and lo <= self.intensity_scale <= hi):
+            raise InputValueError(f"intensity_scale must lie in [{lo:g}, {hi:g}] (the intensity of reflectivity 1), "
+                                  f"got {self.intensity_scale!r}")
 
     @property
     def names(self) -> tuple:
@@ -113,8 +138,9 @@ class RayDropModel:
         if self.uses_intensity and intensity is None:
             raise InputValueError("this ray-drop model uses intensity; the scanned cloud has none "
                                   "(fit one without intensity: fit_ray_drop(..., intensity=None))")
-        x = _design(ranges, incidence, intensity if self.uses_intensity else None, self.intensity_scale)
-        return _sigmoid(x @ np.asarray(self.coef))
+        with np.errstate(over="ignore", invalid="ignore"):  # huge features: a logit of +-inf, p of 0 or 1
+            x = _design(ranges, incidence, intensity if self.uses_intensity else None, self.intensity_scale)
+            return _sigmoid(x @ np.asarray(self.coef))
 
     def sample(self, ranges, incidence, intensity=None, rng=None) -> np.ndarray:
         """``(m,) bool``: True where a pulse is dropped (one uniform draw each, from ``rng``:
@@ -139,8 +165,16 @@ class RayDropModel:
         for k in ("coef", "stderr"):
             if d.get(k) is not None and not isinstance(d[k], (list, tuple)):
                 raise InputValueError(f"a ray-drop model's {k!r} is a list of numbers, got {d[k]!r}")
-        return cls(**{k: (tuple(d[k]) if k in ("coef", "stderr") and d[k] is not None else d[k])
-                      for k in keys if k in d})
+        model = cls(**{k: (tuple(d[k]) if k in ("coef", "stderr") and d[k] is not None else d[k])
+                       for k in keys if k in d})
+        if d.get("names") is not None and list(d["names"]) != list(model.names):
+            raise InputValueError(f"a ray-drop model's 'names' {d['names']!r} are not its weights' "
+                                  f"{list(model.names)} (uses_intensity={model.uses_intensity})")
+        if model.stderr is not None and (len(model.stderr) != len(model.coef) or not all(
+                isinstance(x, (int, float)) and not isinstance(x, bool) for x in model.stderr)):
+            raise InputValueError(f"a ray-drop model's 'stderr' must be {len(model.coef)} numbers, "
+                                  f"got {list(model.stderr)!r}")
+        return model
 
 
 def fit_ray_drop(ranges, incidence, dropped, intensity=None, intensity_scale: float = 1.0,
@@ -164,12 +198,21 @@ def fit_ray_drop(ranges, incidence, dropped, intensity=None, intensity_scale: fl
         mismatched lengths, non-finite features, or a class (dropped / returned) absent.
     """
     y = np.asarray(dropped, bool).ravel()
+    lo, hi = INTENSITY_SCALE_RANGE
+    if not (isinstance(intensity_scale, (int, float)) and lo <= intensity_scale <= hi):
+        raise InputValueError(f"intensity_scale must lie in [{lo:g}, {hi:g}] (the intensity of reflectivity 1), "
+                              f"got {intensity_scale!r}")
     x = _design(ranges, incidence, intensity, intensity_scale)
     if x.shape[0] != len(y):
         raise InputValueError(f"ranges, incidence, intensity and dropped must have one length, got "
                               f"{x.shape[0]} and {len(y)}")
     if not np.all(np.isfinite(x)):
         raise InputValueError(f"{int(np.count_nonzero(~np.isfinite(x).all(axis=1)))} pulses have non-finite features")
+    big = int(np.count_nonzero((np.abs(x) > MAX_FEATURE).any(axis=1)))
+    if big:
+        raise InputValueError(f"{big} pulses have features beyond a sensor's (ranges over "
+                              f"{RANGE_SCALE * math.sqrt(MAX_FEATURE):,.0f} m, or intensities over {MAX_FEATURE:g} "
+                              "times intensity_scale)")
     if y.all() or not y.any():
         raise InputValueError("fit_ray_drop needs dropped and returned pulses both")
     w = np.zeros(x.shape[1])
@@ -220,6 +263,29 @@ def rings_from_scan_order(points, origin=(0.0, 0.0, 0.0)) -> np.ndarray:
     return np.cumsum(start)
 
 
+def _check_scan(d, r, rings, step, source):
+    """Refuse rings that are not a spinning unit's: too many, an azimuth step no unit has, or
+    rings whose points lie at many elevations (a shuffled frame, a random cloud, a ring field
+    of random values)."""
+    ids, counts = np.unique(rings, return_counts=True)
+    where = f"rings from {source}"
+    if len(ids) > MAX_RINGS:
+        raise InputValueError(f"{where}: {len(ids):,} rings, more than a spinning unit's {MAX_RINGS} (a median "
+                              f"of {int(np.median(counts))} points a ring): the frame is not a scan in its order")
+    lo, hi = COLUMN_STEP_RANGE_DEG
+    if not lo <= step <= hi:
+        raise InputValueError(f"{where}: a median azimuth step of {step:.3g} deg between a ring's consecutive "
+                              f"points, outside a spinning unit's [{lo:g}, {hi:g}]: the frame is not a scan in "
+                              "its order")
+    el = np.degrees(np.arcsin(np.divide(d[:, 2], r, out=np.zeros_like(r), where=r > 0)))
+    order = np.argsort(rings, kind="stable")
+    parts = np.split(el[order], np.cumsum(counts)[:-1])
+    spread = float(np.median([np.median(np.abs(e - np.median(e))) for e in parts]))
+    if spread > MAX_RING_SPREAD_DEG:
+        raise InputValueError(f"{where}: a ring's points spread over {spread:.2f} deg of elevation (median "
+                              f"absolute deviation; a beam's: under {MAX_RING_SPREAD_DEG:g}): not a scan's rings")
+
+
 def incidence_deg(points, normals, origin) -> np.ndarray:
     """``(n,)`` angle between each point's line of sight from ``origin`` and its normal, degrees (0-90)."""
     d = np.asarray(points, np.float64) - as_origin(origin)
@@ -243,11 +309,21 @@ def frame_pulses(points, origin=(0.0, 0.0, 0.0), rings=None, intensity=None, col
     intensity : (n,) float, optional
     column_step_deg : float, optional
         Azimuth step between firings; default the median step between
-        consecutive points of a ring.
+        consecutive points of a ring. Either must lie in
+        :data:`COLUMN_STEP_RANGE_DEG`.
     max_gap : int
         Longer runs of missing pulses are not counted (module docstring).
     normals : (n, 3) float, optional
-        Default: PCA of the ``k`` nearest neighbours.
+        Default: PCA of the ``k`` nearest neighbours (``k`` in
+        :data:`NORMAL_K_RANGE`).
+
+    Raises
+    ------
+    InputValueError
+        rings that are not a spinning unit's: more than :data:`MAX_RINGS`,
+        a median step outside :data:`COLUMN_STEP_RANGE_DEG`, or a median
+        spread of a ring's elevations over :data:`MAX_RING_SPREAD_DEG`
+        (a shuffled frame, a random cloud, a ring field of random values).
 
     Returns
     -------
@@ -258,19 +334,37 @@ def frame_pulses(points, origin=(0.0, 0.0, 0.0), rings=None, intensity=None, col
     pts = np.asarray(points, np.float64)
     o = as_origin(origin)
     n = len(pts)
-    rings = rings_from_scan_order(pts, o) if rings is None else np.asarray(rings, np.int64)
-    if rings.shape != (n,):
-        raise InputValueError(f"rings must have one entry per point ({n}), got {rings.shape}")
-    if int(max_gap) != max_gap or max_gap < 1:
+    lo_k, hi_k = NORMAL_K_RANGE
+    if normals is None and not (isinstance(k, (int, np.integer)) and lo_k <= k <= min(hi_k, max(n - 1, lo_k))):
+        raise InputValueError(f"k must be an integer in [{lo_k}, {hi_k}] and below the frame's {n} points (the "
+                              f"neighbours of a PCA normal), got {k!r}")
+    if rings is None:
+        rings, source = rings_from_scan_order(pts, o), "the scan order"
+    else:
+        given = np.asarray(rings)
+        if given.shape != (n,):
+            raise InputValueError(f"rings must have one entry per point ({n}), got {given.shape}")
+        if given.dtype.kind not in "iu" and (given.dtype.kind != "f" or not np.all(np.isfinite(given))
+                                             or np.any(given != np.round(given))):
+            raise InputValueError(f"rings must be integers (ring ids), got dtype {given.dtype} with fractions")
+        rings, source = given.astype(np.int64), "the rings given"
+    if not (isinstance(max_gap, (int, np.integer)) and max_gap >= 1):
         raise InputValueError(f"max_gap must be an integer >= 1, got {max_gap!r}")
+    lo, hi = COLUMN_STEP_RANGE_DEG
+    if column_step_deg is not None and not (isinstance(column_step_deg, (int, float)) and
+                                            lo <= column_step_deg <= hi):
+        raise InputValueError(f"column_step_deg must be degrees in [{lo:g}, {hi:g}] (a spinning unit's step "
+                              f"between firings), got {column_step_deg!r}")
     d = pts - o
     r = np.linalg.norm(d, axis=1)
     phi = np.degrees(np.unwrap(np.arctan2(d[:, 1], d[:, 0])))
     same = rings[1:] == rings[:-1]
     dphi = np.diff(phi)
+    steps = np.abs(dphi[same])
+    measured = float(np.median(steps[steps > 0])) if np.any(steps > 0) else math.nan
+    _check_scan(d, r, rings, measured, source)
     if column_step_deg is None:
-        steps = np.abs(dphi[same])
-        column_step_deg = float(np.median(steps[steps > 0])) if np.any(steps > 0) else 1.0
+        column_step_deg = measured
     nrm = estimate_normals(pts, k=k, primary_origin=o) if normals is None else np.asarray(normals, np.float64)
     inc = incidence_deg(pts, nrm, o)
     gap = np.rint(np.abs(dphi) / column_step_deg).astype(np.int64) - 1  # missing pulses between i and i+1

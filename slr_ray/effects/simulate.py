@@ -26,7 +26,7 @@ import numpy as np
 
 from ..arrays import as_origin
 from ..backends import prepare
-from ..backends.embree import estimate_normals
+from ..backends.embree import estimate_normals, refuse_cast
 from ..errors import InputValueError
 from ..io import PointCloud
 from ..pattern import as_pattern, pulse_rays
@@ -37,7 +37,7 @@ from .noise import add_range_noise, reflectivity_max_range
 from .options import Effects
 from .returns import footprint_samples, group_returns, select_returns, subray_directions
 
-__all__ = ["EffectScan", "simulate", "simulate_given", "effect_cloud"]
+__all__ = ["cast_rays", "EffectScan", "simulate", "simulate_given", "effect_cloud"]
 
 #: rays cast per call (bounds memory: about 100 bytes a ray)
 RAYS_PER_BATCH = 1 << 21
@@ -127,12 +127,23 @@ def effect_cloud(es: EffectScan, cloud: PointCloud) -> PointCloud:
     return sub
 
 
+def cast_rays(pattern, effects: Effects | None = None) -> int:
+    """The rays an embree scan of ``pattern`` with ``effects`` casts: one a pulse, or each pulse's
+    sub-rays with beam divergence (``1 + 3 beam_rings (beam_rings - 1)``)."""
+    n = int(as_pattern(pattern).n_pulses)
+    if effects is not None and effects.divergence_mrad and effects.divergence_mrad != "sensor":
+        n *= 1 + 3 * effects.beam_rings * (effects.beam_rings - 1)
+    return n
+
+
 def _cast_returns(scanner, origin, pattern, eff: Effects, poses, intensity):
     """Rays cast here (embree): sub-rays of every pulse from its column's pose."""
     nv, nh = pattern.shape
     div = eff.divergence_mrad
     offsets, weights = footprint_samples(div * 1e-3, eff.beam_rings) if div else (np.zeros((1, 2)), np.ones(1))
     s = len(weights)
+    refuse_cast(nv * nh * s, "the embree scan with its sub-rays",
+                "choose a coarser pattern (--resolution) or fewer sub-rays (beam_rings)")
     rmin, rmax = pattern.range_limits
     if poses is None:
         starts, stops, rots, origins = [0], [nh], np.eye(3)[None], origin[None]
@@ -227,7 +238,7 @@ def simulate(scanner, origin, pattern, effects=None, *, intensity=None, normals=
     EffectScan
     """
     pattern = as_pattern(pattern)
-    eff = effects if isinstance(effects, Effects) else Effects.from_dict(effects)
+    eff = (effects if isinstance(effects, Effects) else Effects.from_dict(effects)).check_needs()
     eff = eff.resolve(pattern)
     n = len(scanner.points)
     intensity = _check_per_point("intensity", intensity, n)
@@ -378,7 +389,7 @@ def simulate_given(scan: Scan, points, effects=None, *, intensity=None, normals=
     InputValueError
         effects that need rays cast here: beam divergence, motion.
     """
-    eff = effects if isinstance(effects, Effects) else Effects.from_dict(effects)
+    eff = (effects if isinstance(effects, Effects) else Effects.from_dict(effects)).check_needs()
     if eff.divergence_mrad or eff.motion:
         raise InputValueError("beam divergence and motion cast their own rays: they apply to a prepared cloud "
                               "(simulate), not to a scan made elsewhere")

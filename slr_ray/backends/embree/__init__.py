@@ -67,10 +67,10 @@ not returned.
 """
 
 from .discs import disc_radii, estimate_normals, neighbourhoods
-from .options import ENGINES, NEIGHBOURS, ORIENTATIONS, RADIUS_MODES, EmbreeOptions
+from .options import ENGINES, NEIGHBOURS, ORIENTATIONS, RADIUS_MODES, EmbreeOptions, refuse_cast
 from .pulsegrid import grid_gate, grid_neighbourhoods, pulse_grid_spacing_normals
 from .scanner import DiscScanner
 
-__all__ = ["EmbreeOptions", "DiscScanner", "disc_radii", "estimate_normals", "neighbourhoods",
+__all__ = ["EmbreeOptions", "DiscScanner", "disc_radii", "estimate_normals", "neighbourhoods", "refuse_cast",
            "grid_neighbourhoods", "pulse_grid_spacing_normals", "grid_gate", "RADIUS_MODES", "ORIENTATIONS", "ENGINES",
            "NEIGHBOURS"]

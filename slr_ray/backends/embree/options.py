@@ -4,20 +4,46 @@ describes what each does)."""
 from __future__ import annotations
 
 import math
+import numbers
 from dataclasses import dataclass
 
+import numpy as np
+
+from ...arrays import as_points
 from ...errors import InputValueError
 from ...pattern import as_pattern
 from ..base import BackendOptions
 
 __all__ = ["EmbreeOptions", "RADIUS_MODES", "ORIENTATIONS", "ENGINES", "NEIGHBOURS", "GRID_SPACINGS",
-           "DEFAULT_MAX_INCIDENCE"]
+           "DEFAULT_MAX_INCIDENCE", "MAX_RADIUS", "refuse_cast", "FAST_RAYS_PER_SECOND", "MAX_CAST_SECONDS"]
 
 RADIUS_MODES = ("spacing", "footprint")
 ORIENTATIONS = ("normal", "billboard", "primary")
 ENGINES = ("embree", "fan", "open3d")
 NEIGHBOURS = ("knn", "pulse-grid")
 GRID_SPACINGS = ("mean", "step")
+#: The largest disc radius (metres) and radius scale: beyond, float32 radii overflow and a disc covers
+#: any scene.
+MAX_RADIUS = 1e6
+#: A fast machine's cast rate, rays a second: several threads at the ~15 M a second one thread casts
+#: (docs/speed.md: 3.1 M rays in 0.21 s): a cast is estimated at this rate, never slower than it is.
+FAST_RAYS_PER_SECOND = 1e8
+#: A cast estimated longer than this (seconds, at :data:`FAST_RAYS_PER_SECOND`) is refused before it starts.
+MAX_CAST_SECONDS = 3600.0
+
+
+def refuse_cast(n_rays: float, what: str, hint: str = "choose a coarser pattern (--resolution)") -> None:
+    """Raise :class:`InputValueError` before a cast of ``n_rays`` that would take more than
+    :data:`MAX_CAST_SECONDS` even at :data:`FAST_RAYS_PER_SECOND` (the figure in the message), as
+    memory is refused (:func:`slr_ray.errors.refuse_memory`): a 0.00001 deg pattern (6.5e14 rays)
+    would run for months."""
+    seconds = float(n_rays) / FAST_RAYS_PER_SECOND
+    if seconds > MAX_CAST_SECONDS:
+        raise InputValueError(f"{what}: {float(n_rays):.3g} rays would take about {seconds / 3600:,.0f} hours "
+                              f"even at {FAST_RAYS_PER_SECOND:.0e} rays a second, more than "
+                              f"{MAX_CAST_SECONDS / 3600:g} h: {hint}")
+
+
 #: estimated disc normals are turned to meet the primary's line of sight at no more than this (degrees)
 DEFAULT_MAX_INCIDENCE = 80.0
 
@@ -159,6 +185,25 @@ class EmbreeOptions(BackendOptions):
         if isinstance(self.radius, str) and self.radius not in RADIUS_MODES:
             raise InputValueError(f"radius must be a number, an array or one of {RADIUS_MODES}, "
                                   f"got {self.radius!r}")
+        if not isinstance(self.radius, str):
+            try:
+                r = np.asarray(self.radius, dtype=np.float64)
+            except (TypeError, ValueError):
+                raise InputValueError(f"radius must be a number, an array or one of {RADIUS_MODES}, "
+                                      f"got {type(self.radius).__name__}") from None
+            if np.asarray(self.radius).dtype.kind == "b":
+                raise InputValueError(f"radius must be metres, got a boolean {self.radius!r}")
+            if r.ndim > 1:
+                raise InputValueError(f"radius must be a number or one number a point, got shape {r.shape}")
+            bad = int(np.count_nonzero(~(np.isfinite(r) & (r > 0))))
+            if bad:
+                raise InputValueError(f"radius must be finite and > 0: {bad} of {r.size} value(s) are not")
+        if self.normals is not None:
+            nrm = as_points(self.normals, "normals")  # (n, 3), finite
+            zero = int(np.count_nonzero(~(np.linalg.norm(nrm.astype(np.float64), axis=1) > 1e-6)))
+            if zero:
+                raise InputValueError(f"normals: {zero} of {len(nrm)} rows have (near) zero length: a disc needs "
+                                      "a direction (its discs would be met by no ray)")
         if self.orientation not in ORIENTATIONS:
             raise InputValueError(f"orientation must be one of {ORIENTATIONS}, got {self.orientation!r}")
         if self.engine not in ENGINES:
@@ -171,6 +216,14 @@ class EmbreeOptions(BackendOptions):
             v = getattr(self, name)
             if not (isinstance(v, (int, float)) and math.isfinite(v) and v > 0):
                 raise InputValueError(f"{name} must be a finite number > 0, got {v!r}")
+        for name in ("radius", "radius_scale", "fallback_radius", "min_radius"):  # Embree holds float32
+            v = getattr(self, name)
+            if not isinstance(v, str) and v is not None and np.size(v) and np.max(v) > MAX_RADIUS:
+                raise InputValueError(f"{name} must be at most {MAX_RADIUS:g} (a disc of {MAX_RADIUS / 1000:g} km "
+                                      f"holds a whole scene), got {float(np.max(v))!r}")
+        if self.n_threads is not None and not (isinstance(self.n_threads, numbers.Integral)
+                                               and not isinstance(self.n_threads, bool) and 1 <= self.n_threads <= 256):
+            raise InputValueError(f"n_threads must be an integer in [1, 256] (binning's bound), got {self.n_threads!r}")
         if self.ties is None:  # frozen: set through object.__setattr__
             beams = self.primary_pattern is not None and as_pattern(self.primary_pattern).has_beams
             object.__setattr__(self, "ties", 3.0 if beams else 1.0)
@@ -218,6 +271,15 @@ class EmbreeOptions(BackendOptions):
                                   "(or primary_pattern)")
         if int(self.chunk) != self.chunk or self.chunk < 1:
             raise InputValueError(f"chunk must be an integer >= 1, got {self.chunk!r}")
+
+    def check_points(self, n: int) -> None:
+        """Arrays of one value a point (``radius``, ``normals``) must have ``n`` (``primary_beams``: the
+        scanner checks them against its table)."""
+        if not isinstance(self.radius, str) and np.ndim(self.radius) == 1 and len(self.radius) != n:
+            raise InputValueError(f"radius has {len(self.radius)} values for {n} points (one a point, or one "
+                                  "number for all)")
+        if self.normals is not None and len(self.normals) != n:
+            raise InputValueError(f"normals has {len(self.normals)} rows for {n} points")
 
     @property
     def primary_grid(self):

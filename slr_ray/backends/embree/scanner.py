@@ -17,7 +17,7 @@ from ...raycast import Open3DScene, RayScene, disc_vertices, padded_rows
 from ...scan import Scan
 from ..base import Backend, Scanner
 from .discs import chunk_normals, disc_radii, fallback_directions, fan_polygons, limit_incidence, neighbourhoods
-from .options import EmbreeOptions
+from .options import EmbreeOptions, refuse_cast
 from .pulsegrid import pulse_grid_spacing_normals
 
 __all__ = ["DiscScanner"]
@@ -154,6 +154,7 @@ class DiscScanner(Scanner):
         reach = self._max_radius * self.options.reach
         tfar = min(rmax + 2 * reach, 3e37)
         nv, nh = pattern.shape
+        refuse_cast(pattern.n_pulses, "the embree scan")  # before the memory: a fine pattern's row may fit
         # a batch holds whole rows (directions, pulse ids, answers: about 100 B a ray)
         refuse_memory(100.0 * max(nh, min(rays_per_batch, nv * nh)),
                       f"a row of {nh:,} rays ({pattern.n_pulses:.3g} pulses in all)", "choose a coarser pattern")
