@@ -1,0 +1,299 @@
+"""A sequence of LiDAR frames and their poses, read from the layouts real data comes in.
+
+Two layouts:
+
+**KITTI odometry / SemanticKITTI** (:func:`read_kitti_layout`): a directory
+holding ``velodyne/NNNNNN.bin`` (numbered from 000000 without gaps), optional
+``labels/NNNNNN.label`` (one uint32 a point), ``poses.txt`` (one line a frame,
+12 numbers: the first three rows of the 4 x 4 pose of the *left camera* in the
+world) and ``calib.txt`` whose ``Tr`` line is the velodyne-to-camera transform.
+The velodyne pose of frame ``i`` is ``Tr^-1 P_i Tr``. Without ``calib.txt``
+``Tr`` is the identity (the poses are the velodyne's own); a ``calib.txt``
+with no ``Tr`` line is refused.
+
+**A list of files** (:func:`read_file_list`): any format
+:func:`slr_ray.io.read_cloud` reads, each frame in its own sensor's frame,
+with a trajectory file in KITTI form (12 numbers a line) or TUM form
+(``time x y z qx qy qz qw``), one pose a frame; or no poses at all, to be
+found by registration (:func:`register_chain`).
+
+Every pose is a sensor-to-world rigid transform, float64. Bad input is refused
+before anything is read beyond the headers, each error one line naming the
+file (and the line): a poses file with fewer or more lines than frames, a
+non-rigid or NaN pose, a calib without Tr, gaps in frame numbers, a labels
+file of another length than its frame.
+"""
+
+from __future__ import annotations
+
+import os
+import re
+from dataclasses import dataclass, field
+from pathlib import Path
+
+import numpy as np
+from tqdm import tqdm
+
+from ..errors import FormatError, InputValueError
+from ..evaluate import register
+from ..io import read_cloud
+
+__all__ = ["Sequence", "Frame", "read_sequence", "read_kitti_layout", "read_file_list", "read_trajectory",
+           "read_calib_tr", "check_sequence_pose", "kitti_velodyne_poses", "write_kitti_poses",
+           "register_chain", "POSE_TOLERANCE"]
+
+#: largest departure of a pose's rotation from orthonormal (|R^T R - I|, |det R - 1|): KITTI's poses
+#: are written with 6-7 significant digits, whose rounding leaves ~1e-6
+POSE_TOLERANCE = 1e-4
+
+
+def check_sequence_pose(T, where: str) -> np.ndarray:
+    """``T`` as a float64 4 x 4 rigid transform, or :class:`InputValueError` naming ``where``.
+
+    Rigid: finite, last row ``0 0 0 1``, ``R^T R = I`` and ``det R = +1``
+    within :data:`POSE_TOLERANCE` (no scale, shear or mirror)."""
+    M = np.asarray(T, np.float64)
+    if M.shape == (3, 4):
+        M = np.vstack([M, [0.0, 0.0, 0.0, 1.0]])
+    if M.shape != (4, 4):
+        raise InputValueError(f"{where}: a pose must be 4 x 4 (or 3 x 4), got shape {M.shape}")
+    if not np.all(np.isfinite(M)):
+        raise InputValueError(f"{where}: the pose holds NaN or infinite numbers")
+    if not np.allclose(M[3], [0, 0, 0, 1], atol=POSE_TOLERANCE, rtol=0):
+        raise InputValueError(f"{where}: the pose's last row is {M[3].tolist()}, not 0 0 0 1")
+    R = M[:3, :3]
+    off = float(np.abs(R.T @ R - np.eye(3)).max())
+    det = float(np.linalg.det(R))
+    if off > POSE_TOLERANCE or abs(det - 1) > POSE_TOLERANCE:
+        raise InputValueError(f"{where}: the pose is not rigid (its rotation departs from orthonormal by "
+                              f"{off:.2g}, determinant {det:.6g}): a scale, shear or mirror")
+    M[3] = (0.0, 0.0, 0.0, 1.0)
+    return M
+
+
+def _numbers(path: Path, line_no: int, text: str, n: int | tuple) -> np.ndarray:
+    try:
+        v = np.array([float(x) for x in text.split()], np.float64)
+    except ValueError:
+        raise InputValueError(f"{path}, line {line_no}: not numbers: {text.strip()[:80]!r}") from None
+    if len(v) not in ((n,) if isinstance(n, int) else n):
+        raise InputValueError(f"{path}, line {line_no}: {len(v)} numbers, expected {n}")
+    return v
+
+
+def _lines(path: Path) -> list[tuple[int, str]]:
+    try:
+        text = Path(path).read_text()
+    except UnicodeDecodeError:
+        raise FormatError(f"{path}: not a text file") from None
+    return [(i + 1, s) for i, s in enumerate(text.splitlines()) if s.strip() and not s.lstrip().startswith("#")]
+
+
+def _quaternion(qx, qy, qz, qw, where) -> np.ndarray:
+    q = np.array([qw, qx, qy, qz])
+    n = np.linalg.norm(q)
+    if not np.isfinite(n) or abs(n - 1) > 1e-3:
+        raise InputValueError(f"{where}: the quaternion's norm is {n:.6g}, not 1")
+    w, x, y, z = q / n
+    return np.array([[1 - 2 * (y * y + z * z), 2 * (x * y - z * w), 2 * (x * z + y * w)],
+                     [2 * (x * y + z * w), 1 - 2 * (x * x + z * z), 2 * (y * z - x * w)],
+                     [2 * (x * z - y * w), 2 * (y * z + x * w), 1 - 2 * (x * x + y * y)]])
+
+
+def read_trajectory(path, n_frames: int | None = None) -> np.ndarray:
+    """``(n, 4, 4)`` poses from a trajectory file: KITTI form (12 numbers a line, the 3 x 4 pose
+    row by row) or TUM form (8 numbers: time, x, y, z, qx, qy, qz, qw). With ``n_frames`` the
+    file must hold exactly that many poses."""
+    p = Path(path)
+    rows = _lines(p)
+    if n_frames is not None and len(rows) != n_frames:
+        at = f"line {rows[n_frames][0]}" if len(rows) > n_frames else f"line {rows[-1][0] + 1 if rows else 1}"
+        raise InputValueError(f"{p}, {at}: {len(rows)} poses for {n_frames} frames (one line a frame)")
+    out = np.empty((len(rows), 4, 4))
+    for k, (line_no, s) in enumerate(rows):
+        v = _numbers(p, line_no, s, (12, 8))
+        where = f"{p}, line {line_no}"
+        if len(v) == 12:
+            out[k] = check_sequence_pose(v.reshape(3, 4), where)
+        else:
+            if not np.all(np.isfinite(v)):
+                raise InputValueError(f"{where}: the pose holds NaN or infinite numbers")
+            T = np.eye(4)
+            T[:3, :3] = _quaternion(*v[4:], where)
+            T[:3, 3] = v[1:4]
+            out[k] = check_sequence_pose(T, where)
+    return out
+
+
+def read_calib_tr(path) -> np.ndarray:
+    """The velodyne-to-camera transform ``Tr`` of a KITTI ``calib.txt`` (4 x 4)."""
+    p = Path(path)
+    for line_no, s in _lines(p):
+        key, _, rest = s.partition(":")
+        if key.strip() == "Tr":
+            return check_sequence_pose(_numbers(p, line_no, rest, 12).reshape(3, 4), f"{p}, line {line_no}")
+    raise InputValueError(f"{p}: no 'Tr:' line (the velodyne-to-camera transform)")
+
+
+def kitti_velodyne_poses(camera_poses, Tr) -> np.ndarray:
+    """Velodyne poses ``Tr^-1 P_i Tr`` from KITTI's left-camera poses ``P_i``."""
+    Tr = np.asarray(Tr, np.float64)
+    inv = np.linalg.inv(Tr)
+    return np.einsum("ij,njk,kl->nil", inv, np.asarray(camera_poses, np.float64), Tr)
+
+
+def write_kitti_poses(path, poses) -> None:
+    """Poses as KITTI's ``poses.txt``: 12 numbers a line (to 1e-12 relative: %.17g)."""
+    lines = [" ".join(f"{x:.17g}" for x in T[:3].ravel()) for T in np.asarray(poses, np.float64)]
+    Path(path).write_text("\n".join(lines) + "\n")
+
+
+@dataclass
+class Frame:
+    """One frame: points in its sensor's frame (float64), attributes, pose (sensor to world)."""
+
+    index: int
+    name: str
+    points: np.ndarray
+    attributes: dict
+    pose: np.ndarray
+
+    def world(self) -> np.ndarray:
+        """The points in the world frame (float64)."""
+        return self.points @ self.pose[:3, :3].T + self.pose[:3, 3]
+
+    @property
+    def origin(self) -> np.ndarray:
+        return self.pose[:3, 3].copy()
+
+
+@dataclass
+class Sequence:
+    """Frame files and their poses (``(n, 4, 4)`` sensor-to-world, float64)."""
+
+    paths: list
+    poses: np.ndarray | None
+    names: list
+    pose_source: str
+    root: Path | None = None
+    input_format: str | None = None
+    meta: dict = field(default_factory=dict)
+
+    def __len__(self) -> int:
+        return len(self.paths)
+
+    def with_poses(self, poses, source: str) -> "Sequence":
+        P = np.asarray(poses, np.float64)
+        if P.shape != (len(self), 4, 4):
+            raise InputValueError(f"{len(P)} poses for {len(self)} frames")
+        return Sequence(self.paths, P, self.names, source, self.root, self.input_format, dict(self.meta))
+
+    def read(self, i: int) -> Frame:
+        """Frame ``i`` (points moved to its sensor's frame where the file records a scanner origin)."""
+        if self.poses is None:
+            raise InputValueError("the sequence has no poses: give a trajectory or register the frames")
+        c = read_cloud(self.paths[i], self.input_format, allow_empty=False)
+        pts = c.points
+        if c.origin is not None and np.any(np.asarray(c.origin) != 0):
+            pts = pts - np.asarray(c.origin, np.float64)
+        return Frame(i, self.names[i], pts, dict(c.attributes), self.poses[i])
+
+    def inputs(self) -> list:
+        """Every file the sequence reads (frames; the planner adds their sidecars)."""
+        return [Path(p) for p in self.paths] + [Path(p) for p in self.meta.get("pose_files", [])]
+
+
+_NUMBERED = re.compile(r"^(\d+)\.bin$")
+
+
+def _check_labels(bins, labels_dir: Path) -> None:
+    for b in bins:
+        lab = labels_dir / (b.stem + ".label")
+        if lab.is_file() and os.path.getsize(lab) * 4 != os.path.getsize(b):
+            raise FormatError(f"{lab}: {os.path.getsize(lab) // 4} labels for the {os.path.getsize(b) // 16} "
+                              f"points of {b}")
+
+
+def read_kitti_layout(root) -> Sequence:
+    """A KITTI odometry / SemanticKITTI sequence directory (module docstring)."""
+    root = Path(root)
+    vel = root / "velodyne"
+    if not vel.is_dir():
+        raise InputValueError(f"{root}: no velodyne/ directory (not a KITTI sequence)")
+    found = []
+    for p in vel.iterdir():
+        m = _NUMBERED.match(p.name)
+        if m:
+            found.append((int(m.group(1)), p))
+    if not found:
+        raise InputValueError(f"{vel}: no NNNNNN.bin frames")
+    found.sort()
+    for k, (num, p) in enumerate(found):
+        if num != k:
+            raise InputValueError(f"{p}: frame number {num} where {k} was expected (frames must be numbered "
+                                  f"from 0 without gaps)")
+    bins = [p for _, p in found]
+    if (root / "labels").is_dir():
+        _check_labels(bins, root / "labels")
+    meta = {"layout": "kitti"}
+    poses, source = None, "none"
+    if (root / "poses.txt").is_file():
+        cam = read_trajectory(root / "poses.txt", len(bins))
+        Tr = read_calib_tr(root / "calib.txt") if (root / "calib.txt").is_file() else np.eye(4)
+        poses = kitti_velodyne_poses(cam, Tr)
+        source = "poses.txt" + (" + calib.txt Tr" if (root / "calib.txt").is_file() else "")
+        meta["pose_files"] = [str(root / n) for n in ("poses.txt", "calib.txt") if (root / n).is_file()]
+    return Sequence(bins, poses, [p.stem for p in bins], source, root, None, meta)
+
+
+def read_file_list(paths, trajectory=None, input_format: str | None = None) -> Sequence:
+    """Frames from a list of files, in the order given, with an optional trajectory file."""
+    files = [Path(p) for p in paths]
+    if not files:
+        raise InputValueError("no frames given")
+    seen = {}
+    for p in files:
+        r = p.resolve()
+        if r in seen:
+            raise InputValueError(f"{p}: named twice in the sequence (as {seen[r]})")
+        seen[r] = p
+    poses, source, meta = None, "none", {}
+    if trajectory is not None:
+        poses, source = read_trajectory(trajectory, len(files)), "trajectory"
+        meta["pose_files"] = [str(trajectory)]
+    names = [f"{i:06d}" for i in range(len(files))]
+    return Sequence(files, poses, names, source, None, input_format, meta)
+
+
+def read_sequence(source, trajectory=None, input_format: str | None = None) -> Sequence:
+    """A KITTI layout directory (one path) or a list of frame files."""
+    src = [source] if isinstance(source, (str, os.PathLike)) else list(source)
+    if len(src) == 1 and Path(src[0]).is_dir():
+        seq = read_kitti_layout(src[0])
+        if trajectory is not None:
+            seq = seq.with_poses(read_trajectory(trajectory, len(seq)), "trajectory")
+            seq.meta["pose_files"] = [str(trajectory)]
+        return seq
+    return read_file_list(src, trajectory, input_format)
+
+
+def register_chain(seq: Sequence, min_fitness: float = 0.3, progress: bool = False) -> tuple[Sequence, list]:
+    """Poses by registering each frame to the one before (:func:`slr_ray.evaluate.register`),
+    chained from frame 0 at the identity. Returns the sequence with those poses and each
+    pair's registration (dicts)."""
+    if len(seq) < 2:
+        raise InputValueError("registration needs two frames or more")
+    poses = [np.eye(4)]
+    regs = []
+    prev = seq.with_poses(np.repeat(np.eye(4)[None], len(seq), 0), "identity")
+    last = prev.read(0).points
+    for i in tqdm(range(1, len(seq)), desc="registering", disable=not progress):
+        cur = prev.read(i).points
+        reg = register(cur, last)
+        if not reg.fitness >= min_fitness:
+            raise InputValueError(f"{seq.paths[i]}: registered to {seq.paths[i - 1]} with fitness {reg.fitness:.3f} "
+                                  f"< {min_fitness:g}: do the frames overlap? Give the poses instead")
+        poses.append(poses[-1] @ reg.transform)
+        regs.append(reg.to_dict() | {"frame": i, "to": i - 1})
+        last = cur
+    return seq.with_poses(np.stack(poses), "register"), regs
