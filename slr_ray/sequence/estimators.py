@@ -35,7 +35,7 @@ __all__ = ["PulseReturns", "estimate", "ESTIMATORS", "FPA_GAP"]
 
 ESTIMATORS = ("nearest", "fpa", "embree-knn")
 #: the fpa cluster's largest step between consecutive ranges (m)
-FPA_GAP = 0.15
+FPA_GAP = 0.1
 
 
 @dataclass

@@ -23,7 +23,7 @@ from ..errors import InputValueError
 from ..evaluate import THRESHOLDS, evaluation_table, fitted_pattern, scan_order_beams, zbuffer
 from ..metrics import PAPER_THRESHOLD, point_metrics, range_image_metrics, seen_from
 from ..sensors import sensor as shipped_sensor
-from .estimators import estimate
+from .estimators import FPA_GAP, estimate
 from .frames import Sequence
 from .union import FrameCache, accumulate, to_frame, window
 
@@ -51,7 +51,7 @@ def _adjacent(frames, target):
 def evaluate_holdout(seq: Sequence, target: int, sensor: str = "velodyne_hdl64e_s2", methods=DEFAULT_METHODS,
                      half: int | None = 2, radius: float | None = None, drop_moving: bool = True,
                      thresholds=THRESHOLDS, seen_threshold: float = PAPER_THRESHOLD,
-                     cache: FrameCache | None = None) -> dict:
+                     gap: float = FPA_GAP, cache: FrameCache | None = None) -> dict:
     """Frame ``target`` re-simulated from the other frames of its window by every method."""
     unknown = [m for m in methods if m not in METHODS]
     if unknown:
@@ -94,14 +94,14 @@ def evaluate_holdout(seq: Sequence, target: int, sensor: str = "velodyne_hdl64e_
             ret = estimate(a, pat, "nearest")
             sim = ret.points
         else:
-            ret = estimate(u, pat, m)
+            ret = estimate(u, pat, m, gap=gap)
             sim = ret.points
         img = ret.image(pat)
         pm = point_metrics(b_in, sim, thresholds=thresholds, groups=groups)
         im = range_image_metrics(real_img["range"], img, groups={"seen": pix.astype(str)})
         rows.append({"method": m, "label": LABELS[m], "points_out": int(len(sim)), "pulses_returned": int(len(ret)),
                      "seconds": round(time.perf_counter() - t0, 3), "points": pm.to_dict(), "image": im.to_dict()})
-    res = {"frame": seq.names[target], "index": int(target), "window": [seq.names[i] for i in others],
+    res = {"frame": seq.names[target], "fpa_gap_m": gap, "index": int(target), "window": [seq.names[i] for i in others],
            "adjacent": seq.names[adj], "union_points": int(len(union)), "removed": union.removed,
            "target_points_in_view": int(len(b_in)), "unseen_share": float(np.mean(~seen)),
            "pattern": pat.to_dict() | {"beams_known": beams is not None},
