@@ -1,0 +1,152 @@
+"""Sequences (slr_ray.sequence, `slr-ray sequence`): reading poses, the union, estimators,
+leave-one-out evaluation and conversion, on a tiny synthetic drive with exact poses."""
+
+import json
+from types import SimpleNamespace
+
+import numpy as np
+import pytest
+
+from slr_ray.cli import main
+from slr_ray.errors import FormatError, InputValueError
+from slr_ray.io import read_cloud
+from slr_ray.sensors import sensor
+from slr_ray.sequence import (MOVING_CLASSES, accumulate, check_sequence_pose, estimate, evaluate_sequence,
+                              read_sequence, read_trajectory, window)
+from slr_ray.sequence.synthetic import KITTI_TR, synthetic_drive
+
+
+@pytest.fixture(scope="module")
+def drive(tmp_path_factory):
+    root = tmp_path_factory.mktemp("drive") / "seq"
+    poses = synthetic_drive(root, n_frames=5, sensor="velodyne_vlp16", step=0.8)
+    return root, poses
+
+
+class _Run:
+    def __init__(self, capsys):
+        self.capsys = capsys
+
+    def __call__(self, *args):
+        self.capsys.readouterr()
+        rc = main([str(a) for a in args])
+        out = self.capsys.readouterr()
+        return SimpleNamespace(returncode=rc, stdout=out.out, stderr=out.err)
+
+
+def test_kitti_layout_poses_are_tr_inverse_p_tr(drive):
+    root, poses = drive
+    seq = read_sequence(root)
+    assert np.abs(seq.poses - poses).max() < 1e-12
+    assert not np.allclose(KITTI_TR, np.eye(4))  # the file's camera poses differ from the velodyne's
+    f = seq.read(3)
+    assert {"intensity", "semantic"} <= set(f.attributes)
+
+
+def test_union_keeps_source_frames_and_drops_moving_classes(drive):
+    root, poses = drive
+    seq = read_sequence(root)
+    assert window(seq, 2, half=1) == [1, 3]
+    assert window(seq, 0, half=None, radius=1.0) == [1]
+    u = accumulate(seq, [1, 3], drop_moving=False)
+    assert set(np.unique(u.frame_of_point)) == {1, 3}
+    assert np.allclose(u.origin_of_point[u.frame_of_point == 3], poses[3][:3, 3])
+    assert np.isin(u.attributes["semantic"], MOVING_CLASSES).any()
+    kept = accumulate(seq, [1, 3])
+    assert not np.isin(kept.attributes["semantic"], MOVING_CLASSES).any()
+    assert kept.removed["moving"] == len(u) - len(kept) > 0
+    # a frame's own points, moved to the world and back, are the frame (float64)
+    f = seq.read(1)
+    assert np.abs((u.points[u.frame_of_point == 1] - poses[1][:3, 3]) @ poses[1][:3, :3] - f.points).max() < 1e-9
+
+
+def test_fpa_averages_the_first_cluster_and_nearest_is_binning():
+    pat = sensor("velodyne_vlp16")
+    d = np.array([np.cos(0.01), np.sin(0.01), 0.0])
+    pts = np.vstack([d * 10.0, d * 10.06, d * 10.12, d * 15.0])  # one pulse: a cluster at 10-10.12 m, a wall behind
+    near, fpa = estimate(pts, pat, "nearest"), estimate(pts, pat, "fpa", gap=0.1)
+    assert len(near) == len(fpa) == 1 and near.keys[0] == fpa.keys[0]
+    assert near.ranges[0] == pytest.approx(10.0)
+    assert fpa.ranges[0] == pytest.approx(10.06) and fpa.index[0] == 0
+    assert estimate(pts, pat, "fpa", gap=0.01).ranges[0] == pytest.approx(10.0)
+
+
+def test_bad_poses_named_by_file_and_line(tmp_path, drive):
+    root, _ = drive
+    bins = sorted((root / "velodyne").glob("*.bin"))
+    good = " ".join(["1 0 0 0 0 1 0 0 0 0 1 0"])
+    traj = tmp_path / "t.txt"
+    traj.write_text("\n".join([good] * 4) + "\n")
+    with pytest.raises(InputValueError, match=r"t\.txt, line 5: 4 poses for 5 frames"):
+        read_sequence(bins, traj)
+    traj.write_text("\n".join([good] * 3 + ["2 0 0 0 0 1 0 0 0 0 1 0", good]) + "\n")
+    with pytest.raises(InputValueError, match=r"t\.txt, line 4: .*not rigid"):
+        read_sequence(bins, traj)
+    traj.write_text("\n".join([good] * 4 + ["nan 0 0 0 0 1 0 0 0 0 1 0"]) + "\n")
+    with pytest.raises(InputValueError, match=r"t\.txt, line 5: .*NaN"):
+        read_sequence(bins, traj)
+    tum = tmp_path / "tum.txt"
+    tum.write_text("".join(f"{i} {i} 0 0 0 0 0.0998334 0.9950042\n" for i in range(5)))
+    P = read_trajectory(tum, 5)
+    assert np.allclose(P[2][:3, 3], [2, 0, 0]) and np.allclose(np.linalg.det(P[:, :3, :3]), 1)
+    with pytest.raises(InputValueError, match="pose must be 4 x 4"):
+        check_sequence_pose(np.eye(3), "x")
+
+
+def test_bad_layouts_refused(tmp_path, drive):
+    root, _ = drive
+    import shutil
+    bad = tmp_path / "bad"
+    shutil.copytree(root, bad)
+    (bad / "calib.txt").write_text("P0: 1 0 0 0 0 1 0 0 0 0 1 0\n")
+    with pytest.raises(InputValueError, match=r"calib\.txt: no 'Tr:' line"):
+        read_sequence(bad)
+    (bad / "calib.txt").unlink()
+    (bad / "labels" / "000002.label").write_bytes(b"\0" * 8)
+    with pytest.raises(FormatError, match=r"000002\.label: 2 labels for the \d+ points"):
+        read_sequence(bad)
+    shutil.copy(root / "labels" / "000002.label", bad / "labels" / "000002.label")
+    (bad / "velodyne" / "000003.bin").rename(bad / "velodyne" / "000007.bin")
+    with pytest.raises(InputValueError, match=r"000004\.bin: frame number 4 where 3 was expected"):
+        read_sequence(bad)
+
+
+def test_leave_one_out_scores_every_method_and_union_beats_adjacent(drive):
+    root, _ = drive
+    seq = read_sequence(root)
+    res = evaluate_sequence(seq, [2], sensor="velodyne_vlp16", half=2)
+    rows = {r["method"]: r for r in res["frames"][0]["table"]}
+    assert len(rows) == 4 and [r["frame"] for r in res["mean"]] == ["mean"] * 4
+    for r in rows.values():
+        assert {"points", "F@5cm", "depth_medae_m", "drop_accuracy"} <= set(r)
+    union, adj = rows["nearest (binning of the union)"], rows["binning, adjacent frame alone"]
+    assert union["drop_accuracy"] >= adj["drop_accuracy"]
+    assert res["frames"][0]["removed"]["moving"] > 0
+
+
+def test_cli_evaluate_and_convert_resume(tmp_path, drive, capsys):
+    root, poses = drive
+    _cli = _Run(capsys)
+    out = tmp_path / "ev"
+    r = _cli("sequence", "evaluate", root, "--holdout", "1", "--sensor", "velodyne_vlp16", "--half", "1",
+             "-o", out, "--quiet")
+    assert r.returncode == 0, r.stderr
+    doc = json.loads(r.stdout)
+    assert len(doc["mean"]) == 4 and (out / "table.md").is_file()
+    conv = tmp_path / "conv"
+    args = ["sequence", "convert", root, "--sensor", "velodyne_vlp16", "--half", "1", "-o", conv, "--quiet",
+            "--offset", "0", "0", "0.5"]
+    r = _cli(*args)
+    assert r.returncode == 0, r.stderr
+    first = json.loads(r.stdout)
+    assert first["written"] == 5
+    c = read_cloud(conv / "velodyne" / "000002.bin")
+    assert {"intensity", "semantic"} <= set(c.attributes)
+    P = read_sequence(conv).poses
+    assert np.allclose(P[:, :3, 3], poses[:, :3, 3] + poses[:, :3, :3] @ [0, 0, 0.5])
+    again = json.loads(_cli(*args).stdout)
+    assert again["written"] == 0 and again["resumed"] == 5
+    r = _cli(*args[:-1], "0.6")  # other settings into the same directory: refused, nothing mixed
+    assert r.returncode == 2 and "other settings (offset" in r.stderr
+    r = _cli("sequence", "convert", root, "--sensor", "velodyne_vlp16", "-o", root / "out", "--quiet")
+    assert r.returncode == 2 and "input directory" in r.stderr and not (root / "out").exists()
