@@ -9,7 +9,7 @@ import pytest
 
 from slr_ray.cli import main
 from slr_ray.errors import FormatError, InputValueError
-from slr_ray.io import read_cloud
+from slr_ray.io import PointCloud, read_cloud, write_cloud
 from slr_ray.sensors import sensor
 from slr_ray.sequence import (MOVING_CLASSES, accumulate, check_sequence_pose, estimate, evaluate_sequence,
                               read_sequence, read_trajectory, window)
@@ -150,3 +150,19 @@ def test_cli_evaluate_and_convert_resume(tmp_path, drive, capsys):
     assert r.returncode == 2 and "other settings (offset" in r.stderr
     r = _cli("sequence", "convert", root, "--sensor", "velodyne_vlp16", "-o", root / "out", "--quiet")
     assert r.returncode == 2 and "input directory" in r.stderr and not (root / "out").exists()
+
+
+def test_files_in_one_world_frame_with_their_origins(tmp_path):
+    rng = np.random.default_rng(0)
+    world = rng.normal(size=(50, 3)) * 5 + [4e5, 5e6, 10]  # UTM-sized: moved to the origin in float64
+    paths = []
+    for k, o in enumerate(([4e5, 5e6, 11], [4e5 + 1, 5e6, 11])):
+        paths.append(tmp_path / f"s{k}.npz")
+        write_cloud(paths[-1], PointCloud(world, {}, np.array(o)))
+    seq = read_sequence(paths, "origins")
+    assert np.array_equal(seq.poses[1][:3, 3], [4e5 + 1, 5e6, 11])
+    f = seq.read(1)
+    assert np.abs(f.points - (world - [4e5 + 1, 5e6, 11])).max() < 1e-9 and np.abs(f.world() - world).max() < 1e-9
+    write_cloud(tmp_path / "bare.npy", PointCloud(world, {}))
+    with pytest.raises(InputValueError, match=r"bare\.npy: records no scanner origin"):
+        read_sequence([paths[0], tmp_path / "bare.npy"], "origins")

@@ -31,7 +31,8 @@ COLUMNS = ("frame", "method", "points", "F@5cm", "F@10cm", "depth_medae_m", "dep
 def _common(p):
     p.add_argument("sequence", nargs="+", help=_SEQ_HELP)
     p.add_argument("--poses", help="a trajectory (KITTI 12 numbers or TUM 8 numbers a line, one a frame) "
-                                   "instead of the sequence's own poses")
+                                   "instead of the sequence's own poses; 'origins': the files are in one world "
+                                   "frame, each with its scanner's origin (.npz, .pcd, .e57)")
     p.add_argument("--register", action="store_true",
                    help="no poses: register each frame to the one before (ICP) and write the poses found")
     p.add_argument("--half", type=int, default=2, help="window: frames either side of the target (default 2)")
@@ -79,7 +80,8 @@ def add_sequence_parser(sub) -> None:
 def _plan_inputs(plan: OutputPlan, args, seq) -> None:
     for path in seq.inputs():
         plan.read(path, fmt=args.input_format)
-    plan.read(args.poses, sidecars=False)
+    if args.poses != "origins":
+        plan.read(args.poses, sidecars=False)
     plan.read(getattr(args, "target_poses", None), sidecars=False)
 
 

@@ -247,7 +247,9 @@ def read_kitti_layout(root) -> Sequence:
 
 
 def read_file_list(paths, trajectory=None, input_format: str | None = None) -> Sequence:
-    """Frames from a list of files, in the order given, with an optional trajectory file."""
+    """Frames from a list of files, in the order given, with an optional trajectory file; or
+    ``trajectory="origins"``: the files hold one world frame, each with its scanner's origin
+    (each pose the translation to it; a frame's points are moved to its origin when read)."""
     files = [Path(p) for p in paths]
     if not files:
         raise InputValueError("no frames given")
@@ -258,7 +260,16 @@ def read_file_list(paths, trajectory=None, input_format: str | None = None) -> S
             raise InputValueError(f"{p}: named twice in the sequence (as {seen[r]})")
         seen[r] = p
     poses, source, meta = None, "none", {}
-    if trajectory is not None:
+    if trajectory == "origins":  # every file in one world frame, each with its scanner's origin
+        poses = np.repeat(np.eye(4)[None], len(files), 0)
+        for i, p in enumerate(files):
+            c = read_cloud(p, input_format, allow_empty=False)
+            if c.origin is None:
+                raise InputValueError(f"{p}: records no scanner origin (poses 'origins' needs one in every file: "
+                                      ".npz origin, .pcd VIEWPOINT, .e57 pose)")
+            poses[i, :3, 3] = np.asarray(c.origin, np.float64)
+        source = "origins"
+    elif trajectory is not None:
         poses, source = read_trajectory(trajectory, len(files)), "trajectory"
         meta["pose_files"] = [str(trajectory)]
     names = [f"{i:06d}" for i in range(len(files))]
@@ -270,6 +281,9 @@ def read_sequence(source, trajectory=None, input_format: str | None = None) -> S
     src = [source] if isinstance(source, (str, os.PathLike)) else list(source)
     if len(src) == 1 and Path(src[0]).is_dir():
         seq = read_kitti_layout(src[0])
+        if trajectory == "origins":
+            raise InputValueError(f"{src[0]}: a KITTI sequence's frames are each in their sensor's frame: "
+                                  "poses 'origins' is for files in one world frame")
         if trajectory is not None:
             seq = seq.with_poses(read_trajectory(trajectory, len(seq)), "trajectory")
             seq.meta["pose_files"] = [str(trajectory)]

@@ -68,7 +68,7 @@ def synthetic_drive(out, n_frames: int = 24, step: float = 0.8, sensor: str = "v
         yaw = 0.01 * np.sin(i / 5)
         c, s = np.cos(yaw), np.sin(yaw)
         poses[i] = [[c, -s, 0, i * step], [s, c, 0, 0.05 * np.sin(i / 3)], [0, 0, 1, 0], [0, 0, 0, 1]]
-        mesh, labels = street_mesh(12.0 + moving_speed * i if moving else None)
+        mesh, labels = street_mesh(12.0 + moving_speed * i if moving else None, length=n_frames * step + 60)
         sc = scan_mesh(mesh, poses[i][:3, 3], pattern, "center", face_labels=labels)
         local = (sc.points - poses[i][:3, 3]) @ poses[i][:3, :3]  # into the sensor's frame (float64)
         intensity = rng.uniform(0.0, 1.0, len(local)).astype(np.float32)
