@@ -12,6 +12,7 @@ from slr_ray.errors import FormatError, InputValueError
 from slr_ray.io import PointCloud, read_cloud, write_cloud
 from slr_ray.sensors import sensor
 from slr_ray.sequence import (MOVING_CLASSES, accumulate, check_sequence_pose, estimate, evaluate_sequence,
+                              nearest_of_frames, to_frame,
                               read_sequence, read_trajectory, window)
 from slr_ray.sequence.synthetic import KITTI_TR, synthetic_drive
 
@@ -166,3 +167,17 @@ def test_files_in_one_world_frame_with_their_origins(tmp_path):
     write_cloud(tmp_path / "bare.npy", PointCloud(world, {}))
     with pytest.raises(InputValueError, match=r"bare\.npy: records no scanner origin"):
         read_sequence([paths[0], tmp_path / "bare.npy"], "origins")
+
+
+def test_nearest_a_frame_at_a_time_equals_nearest_of_the_union(drive):
+    root, poses = drive
+    seq = read_sequence(root)
+    pat = sensor("velodyne_vlp16")
+    pose = poses[2].copy()
+    pose[:3, 3] += [0.3, -0.2, 0.4]
+    u = accumulate(seq, [0, 1, 2, 3])
+    whole = estimate(to_frame(u.points, pose), pat, "nearest")
+    parts, carried = nearest_of_frames(seq, [0, 1, 2, 3], pose, pat)
+    assert np.array_equal(parts.keys, whole.keys) and np.array_equal(parts.index, whole.index)
+    assert np.array_equal(parts.points, whole.points)
+    assert np.array_equal(carried["semantic"], u.attributes["semantic"][whole.index])

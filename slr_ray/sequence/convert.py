@@ -22,7 +22,8 @@ from __future__ import annotations
 
 import json
 import time
-from concurrent.futures import ProcessPoolExecutor, as_completed
+import multiprocessing
+from functools import partial
 from pathlib import Path
 
 import numpy as np
@@ -30,10 +31,11 @@ from tqdm import tqdm
 
 from ..errors import InputValueError
 from ..io import PointCloud, atomic_path, write_cloud
+from ..outputs import clean_stale_parts
 from ..sensors import sensor as shipped_sensor
 from .estimators import FPA_GAP, estimate
 from .frames import Sequence, write_kitti_poses
-from .union import FrameCache, accumulate, to_frame, window
+from .union import FrameCache, accumulate, nearest_of_frames, to_frame, window
 
 __all__ = ["convert_sequence", "target_poses", "MANIFEST", "JOURNAL"]
 
@@ -54,19 +56,20 @@ def target_poses(poses, offset=(0.0, 0.0, 0.0)) -> np.ndarray:
 
 def _frame_cloud(seq, i, pose, pattern, settings, cache) -> PointCloud:
     frames = window(seq, i, settings["half"], settings["radius"], include_target=True)
-    union = accumulate(seq, frames, drop_moving=settings["drop_moving"], cache=cache)
-    ret = estimate(to_frame(union.points, pose), pattern, settings["estimator"], gap=settings["fpa_gap"])
-    attrs = {}
-    for name in ("intensity", "semantic", "instance"):
-        if name in union.attributes:
-            attrs[name] = union.attributes[name][ret.index]
+    if settings["estimator"] == "nearest":  # a frame at a time: the union is never held whole
+        ret, carried = nearest_of_frames(seq, frames, pose, pattern, settings["drop_moving"], cache)
+    else:
+        union = accumulate(seq, frames, drop_moving=settings["drop_moving"], cache=cache)
+        ret = estimate(to_frame(union.points, pose), pattern, settings["estimator"], gap=settings["fpa_gap"])
+        carried = {n: v[ret.index] for n, v in union.attributes.items()}
+    attrs = {n: carried[n] for n in ("intensity", "semantic", "instance") if n in carried}
     if settings["format"] != "bin":
         attrs["ring"] = pattern.beam_of_row[ret.keys // pattern.columns].astype(np.int32)
     return PointCloud(ret.points, attrs, np.zeros(3))
 
 
 def _init(seq, poses, settings):
-    _STATE.update(seq=seq, poses=poses, settings=settings, cache=FrameCache(seq, 2 * settings["cache"] + 16),
+    _STATE.update(seq=seq, poses=poses, settings=settings, cache=FrameCache(seq, 2 * settings["cache"] + 16, local=False),
                   pattern=shipped_sensor(settings["sensor"]))
 
 
@@ -129,6 +132,7 @@ def convert_sequence(seq: Sequence, out, sensor: str, estimator: str = "nearest"
     shipped_sensor(sensor)  # an unknown name is refused before anything is written
     done = _resume(out, settings)
     (out / "velodyne").mkdir(exist_ok=True)
+    clean_stale_parts(out / "velodyne", locked=True)  # a killed run's temporaries (the caller holds out's lock)
     probe = seq.read(0)
     if "semantic" in probe.attributes:
         (out / "labels").mkdir(exist_ok=True)
@@ -150,16 +154,26 @@ def convert_sequence(seq: Sequence, out, sensor: str, estimator: str = "nearest"
             journal.flush()
             bar.update(len(entries))
 
-        if workers <= 1 or len(blocks) <= 1:
-            _init(seq, P, settings)
-            for b in blocks:
-                record(_job(b, str(out)))
-        else:
-            with ProcessPoolExecutor(workers, initializer=_init, initargs=(seq, P, settings)) as ex:
-                futs = [ex.submit(_job, b, str(out)) for b in blocks]
-                for f in as_completed(futs):
-                    record(f.result())
-    bar.close()
+        try:
+            if workers <= 1 or len(blocks) <= 1:
+                _init(seq, P, settings)
+                for b in blocks:
+                    record(_job(b, str(out)))
+            else:
+                # spawn, not fork (a forked child inherits numba's thread pools in whatever state they
+                # were); multiprocessing.Pool, not ProcessPoolExecutor: on an interrupt (SIGINT, or
+                # SIGTERM turned into one by the CLI) its exit terminates the workers at once
+                ctx = multiprocessing.get_context("spawn")
+                with ctx.Pool(workers, initializer=_init, initargs=(seq, P, settings)) as pool:
+                    for entries in pool.imap_unordered(partial(_job, out=str(out)), blocks):
+                        record(entries)
+        except BaseException:
+            for sub in ("velodyne", "labels"):  # what a killed worker left mid-write
+                if (out / sub).is_dir():
+                    clean_stale_parts(out / sub, locked=True)
+            raise
+        finally:
+            bar.close()
     secs = time.perf_counter() - t0
     return {"output_dir": str(out), "frames": len(seq), "written": len(todo), "resumed": len(seq) - len(todo),
             "points": int(sum(e["points"] for e in done.values())), "seconds": round(secs, 3),

@@ -31,7 +31,7 @@ import numpy as np
 from ..backends import prepare
 from ..errors import InputValueError
 
-__all__ = ["PulseReturns", "estimate", "ESTIMATORS", "FPA_GAP"]
+__all__ = ["PulseReturns", "estimate", "merge_nearest", "ESTIMATORS", "FPA_GAP"]
 
 ESTIMATORS = ("nearest", "fpa", "embree-knn")
 #: the fpa cluster's largest step between consecutive ranges (m)
@@ -95,6 +95,24 @@ def _embree(points, pattern):
     sc = prepare(points, "embree").scan(np.zeros(3), pattern)
     idx = np.asarray(sc.indices)
     return _sorted(np.asarray(sc.pulse_ids), np.asarray(sc.ranges, np.float64), idx, points[idx])
+
+
+def merge_nearest(parts) -> tuple[PulseReturns, np.ndarray]:
+    """The nearest rule over a union given as parts: each part's :class:`PulseReturns` by
+    ``nearest`` with ``index`` already offset to the union's numbering (parts in union order).
+    Equal to ``estimate(union, pattern, "nearest")``: per pulse the least range, ties to the
+    lowest index. Returns it and each return's position in the parts' returns, concatenated."""
+    if not parts:
+        return PulseReturns(np.zeros(0, np.int64), np.zeros(0), np.zeros((0, 3)), np.zeros(0, np.int64)), \
+            np.zeros(0, np.int64)
+    k = np.concatenate([p.keys for p in parts])
+    r = np.concatenate([p.ranges for p in parts])
+    i = np.concatenate([p.index for p in parts])
+    order = np.lexsort((i, r, k))  # by pulse, then range, then index: the first of each pulse wins
+    ks = k[order]
+    first = order[np.r_[True, ks[1:] != ks[:-1]]] if len(ks) else order
+    pts = np.concatenate([p.points for p in parts])
+    return PulseReturns(k[first], r[first], pts[first], i[first]), first
 
 
 def estimate(points, pattern, estimator: str = "nearest", gap: float = FPA_GAP) -> PulseReturns:

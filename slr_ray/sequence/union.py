@@ -22,9 +22,10 @@ from dataclasses import dataclass, field
 import numpy as np
 
 from ..errors import InputValueError
+from .estimators import PulseReturns, estimate, merge_nearest
 from .frames import Frame, Sequence
 
-__all__ = ["Union", "MOVING_CLASSES", "window", "accumulate", "FrameCache", "to_frame"]
+__all__ = ["Union", "MOVING_CLASSES", "window", "accumulate", "nearest_of_frames", "FrameCache", "to_frame"]
 
 #: SemanticKITTI's moving classes (semantic-kitti.yaml: 252 moving-car ... 259 moving-other-vehicle)
 MOVING_CLASSES = tuple(range(252, 260))
@@ -96,10 +97,11 @@ def window(seq: Sequence, target: int, half: int | None = 2, radius: float | Non
 
 
 class FrameCache:
-    """The last ``size`` frames read, in the world frame (a sliding window reads each frame once)."""
+    """The last ``size`` frames read, in the world frame (a sliding window reads each frame once);
+    ``local=False`` keeps the world coordinates only (not the frame's own)."""
 
-    def __init__(self, seq: Sequence, size: int = 64):
-        self.seq, self.size = seq, max(1, int(size))
+    def __init__(self, seq: Sequence, size: int = 64, local: bool = True):
+        self.seq, self.size, self.local = seq, max(1, int(size)), local
         self._held: OrderedDict = OrderedDict()
 
     def get(self, i: int) -> tuple[Frame, np.ndarray]:
@@ -108,10 +110,44 @@ class FrameCache:
             return self._held[i]
         f = self.seq.read(i)
         item = (f, f.world())
+        if not self.local:  # the world coordinates only: half the memory of a window
+            f.points = np.zeros((0, 3))
         self._held[i] = item
         while len(self._held) > self.size:
             self._held.popitem(last=False)
         return item
+
+
+def _kept(f: Frame, drop_moving: bool):
+    sem = f.attributes.get("semantic")
+    if drop_moving and sem is not None:
+        return ~np.isin(np.asarray(sem), MOVING_CLASSES)
+    return None
+
+
+def nearest_of_frames(seq: Sequence, frames, pose, pattern, drop_moving: bool = True,
+                      cache: FrameCache | None = None) -> tuple[PulseReturns, dict]:
+    """The nearest rule over the union of ``frames`` seen from ``pose``, a frame at a time: each
+    frame reduced on its own, the winners merged (:func:`~slr_ray.sequence.estimators.merge_nearest`).
+    The same returns as ``estimate(to_frame(accumulate(...).points, pose), pattern)``, without the
+    union in memory. Returns them and the attributes carried (every frame's), by return."""
+    cache = cache or FrameCache(seq, len(frames))
+    parts, attrs, offset = [], [], 0
+    for i in frames:
+        f, w = cache.get(int(i))
+        keep = _kept(f, drop_moving)
+        a = {n: np.asarray(v) for n, v in f.attributes.items() if np.ndim(v) == 1}
+        if keep is not None:
+            w = w[keep]
+            a = {n: v[keep] for n, v in a.items()}
+        ret = estimate(to_frame(w, pose), pattern, "nearest")
+        parts.append(PulseReturns(ret.keys, ret.ranges, ret.points, ret.index + offset))
+        attrs.append({n: v[ret.index] for n, v in a.items()})
+        offset += len(w)
+    merged, pos = merge_nearest(parts)
+    common = set(attrs[0]).intersection(*attrs[1:]) if attrs else set()
+    carried = {n: np.concatenate([a[n] for a in attrs])[pos] for n in sorted(common)}
+    return merged, carried
 
 
 def accumulate(seq: Sequence, frames, drop_moving: bool = True, cache: FrameCache | None = None) -> Union:
