@@ -105,14 +105,20 @@ def merge_nearest(parts) -> tuple[PulseReturns, np.ndarray]:
     if not parts:
         return PulseReturns(np.zeros(0, np.int64), np.zeros(0), np.zeros((0, 3)), np.zeros(0, np.int64)), \
             np.zeros(0, np.int64)
-    k = np.concatenate([p.keys for p in parts])
-    r = np.concatenate([p.ranges for p in parts])
-    i = np.concatenate([p.index for p in parts])
-    order = np.lexsort((i, r, k))  # by pulse, then range, then index: the first of each pulse wins
-    ks = k[order]
-    first = order[np.r_[True, ks[1:] != ks[:-1]]] if len(ks) else order
+    # one pass per part over a table of the pulses seen (each part holds a pulse at most once)
+    keys = np.unique(np.concatenate([p.keys for p in parts]))
+    best_r = np.full(len(keys), np.inf)
+    best_i = np.full(len(keys), np.iinfo(np.int64).max)
+    best_at = np.full(len(keys), -1, np.int64)
+    at = 0
+    for p in parts:
+        slot = np.searchsorted(keys, p.keys)
+        better = (p.ranges < best_r[slot]) | ((p.ranges == best_r[slot]) & (p.index < best_i[slot]))
+        s = slot[better]
+        best_r[s], best_i[s], best_at[s] = p.ranges[better], p.index[better], at + np.flatnonzero(better)
+        at += len(p.keys)
     pts = np.concatenate([p.points for p in parts])
-    return PulseReturns(k[first], r[first], pts[first], i[first]), first
+    return PulseReturns(keys, best_r, pts[best_at], best_i), best_at
 
 
 def estimate(points, pattern, estimator: str = "nearest", gap: float = FPA_GAP) -> PulseReturns:

@@ -160,7 +160,11 @@ class Frame:
 
     def world(self) -> np.ndarray:
         """The points in the world frame (float64)."""
-        return self.points @ self.pose[:3, :3].T + self.pose[:3, 3]
+        R, t = self.pose[:3, :3], self.pose[:3, 3]
+        out = np.empty_like(self.points)
+        for j in range(3):  # three multiply-adds a column: no BLAS threads (see union.rotate)
+            out[:, j] = self.points[:, 0] * R[j, 0] + self.points[:, 1] * R[j, 1] + self.points[:, 2] * R[j, 2] + t[j]
+        return out
 
     @property
     def origin(self) -> np.ndarray:
