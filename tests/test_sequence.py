@@ -129,11 +129,11 @@ def test_cli_evaluate_and_convert_resume(tmp_path, drive, capsys):
     root, poses = drive
     _cli = _Run(capsys)
     out = tmp_path / "ev"
-    r = _cli("sequence", "evaluate", root, "--holdout", "1", "--sensor", "velodyne_vlp16", "--half", "1",
+    r = _cli("sequence", "evaluate", root, "--holdout", "1", "--every", "3", "--sensor", "velodyne_vlp16", "--half", "1",
              "-o", out, "--quiet")
     assert r.returncode == 0, r.stderr
     doc = json.loads(r.stdout)
-    assert len(doc["mean"]) == 4 and (out / "table.md").is_file()
+    assert len(doc["mean"]) == 4 and doc["holdout"] == ["000001", "000004"] and (out / "table.md").is_file()
     conv = tmp_path / "conv"
     args = ["sequence", "convert", root, "--sensor", "velodyne_vlp16", "--half", "1", "-o", conv, "--quiet",
             "--offset", "0", "0", "0.5"]
@@ -167,6 +167,12 @@ def test_files_in_one_world_frame_with_their_origins(tmp_path):
     write_cloud(tmp_path / "bare.npy", PointCloud(world, {}))
     with pytest.raises(InputValueError, match=r"bare\.npy: records no scanner origin"):
         read_sequence([paths[0], tmp_path / "bare.npy"], "origins")
+    for k, beams in enumerate((16, 64)):  # frames of two sensors in one sequence
+        write_cloud(paths[k], PointCloud(world, {"ring": np.arange(50) % beams}, np.array([4e5, 5e6, 11])))
+    seq = read_sequence(paths, "origins")
+    seq.read(0)
+    with pytest.raises(InputValueError, match=r"s1\.npz: rings up to 49 \(50 beams\) where .*s0\.npz has 16"):
+        seq.read(1)
 
 
 def test_nearest_a_frame_at_a_time_equals_nearest_of_the_union(drive):

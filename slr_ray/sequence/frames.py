@@ -197,6 +197,13 @@ class Sequence:
         if self.poses is None:
             raise InputValueError("the sequence has no poses: give a trajectory or register the frames")
         c = read_cloud(self.paths[i], self.input_format, allow_empty=False)
+        ring = c.attributes.get("ring")
+        if ring is not None and len(ring):  # one sensor a sequence: the frames' beam counts agree
+            beams = int(np.max(ring)) + 1
+            first = self.meta.setdefault("beams", (beams, str(self.paths[i])))
+            if first[0] != beams:
+                raise InputValueError(f"{self.paths[i]}: rings up to {beams - 1} ({beams} beams) where {first[1]} "
+                                      f"has {first[0]}: frames of different sensors in one sequence")
         pts = c.points
         if c.origin is not None and np.any(np.asarray(c.origin) != 0):
             pts = pts - np.asarray(c.origin, np.float64)
