@@ -14,6 +14,7 @@ from slr_ray.sensors import sensor
 from slr_ray.sequence import (MOVING_CLASSES, accumulate, check_sequence_pose, estimate, evaluate_sequence,
                               nearest_of_frames, to_frame,
                               read_sequence, read_trajectory, window)
+from slr_ray.sequence.holdout import clamped_depth_errors, lidar4d_holdout
 from slr_ray.sequence.synthetic import KITTI_TR, synthetic_drive
 
 
@@ -187,3 +188,14 @@ def test_nearest_a_frame_at_a_time_equals_nearest_of_the_union(drive):
     assert np.array_equal(parts.keys, whole.keys) and np.array_equal(parts.index, whole.index)
     assert np.array_equal(parts.points, whole.points)
     assert np.array_equal(carried["semantic"], u.attributes["semantic"][whole.index])
+
+
+def test_lidar4d_protocol_clamps_depth_and_takes_its_split(drive, capsys):
+    real = np.array([[10.0, np.nan], [90.0, 5.0]])
+    sim = np.array([[10.5, 3.0], [np.nan, 5.0]])
+    rmse, medae = clamped_depth_errors(real, sim)
+    e = np.array([0.5, 3.0 - 1e-6, 80.0 - 1e-6, 0.0])  # no return counts as 1e-6 m, 90 m as 80
+    assert rmse == pytest.approx(np.sqrt(np.mean(e ** 2))) and medae == pytest.approx(np.median(e))
+    assert lidar4d_holdout(51) == [10, 20, 30, 40]
+    r = _Run(capsys)("sequence", "evaluate", drive[0], "--protocol", "lidar4d", "-o", drive[0].parent / "l4d")
+    assert r.returncode == 2 and "51 frames" in r.stderr and not (drive[0].parent / "l4d").exists()

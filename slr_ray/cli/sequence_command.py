@@ -15,7 +15,7 @@ from ..errors import InputValueError, OutputError
 from ..sensors import SENSORS
 from ..sequence import (ESTIMATORS, FPA_GAP, METHODS, convert_sequence, evaluate_sequence, read_sequence,
                         read_trajectory, register_chain, write_kitti_poses)
-from ..sequence.holdout import DEFAULT_METHODS
+from ..sequence.holdout import DEFAULT_METHODS, lidar4d_holdout
 from . import arguments as A
 from .commands import emit
 
@@ -26,6 +26,8 @@ _SEQ_HELP = ("the sequence: a KITTI / SemanticKITTI directory (velodyne/, labels
 #: the table's columns in table.md (every column is in table.csv and the JSON)
 COLUMNS = ("frame", "method", "points", "F@5cm", "F@10cm", "depth_medae_m", "depth_rmse_m", "drop_accuracy",
            "drop_recall", "cd_sum_m2", "R@10cm seen")
+LIDAR4D_COLUMNS = ("frame", "method", "points", "cd_sum_m2", "F@22.3607cm", "lidar4d_depth_rmse_m",
+                   "lidar4d_depth_medae_m", "drop_accuracy")
 
 
 def _common(p):
@@ -59,6 +61,9 @@ def add_sequence_parser(sub) -> None:
     q.add_argument("-o", "--output", required=True, help="output directory (evaluation.json, table.md, table.csv)")
     q.add_argument("--holdout", nargs="+", type=int, help="held-out frames (positions in the sequence, from 0)")
     q.add_argument("--every", type=A.positive_int, help="hold out every N-th frame (from frame 1)")
+    q.add_argument("--protocol", choices=["slr", "lidar4d"], default="slr",
+                   help="lidar4d: LiDAR4D's KITTI-360 split (51 frames, frames 10, 20, 30, 40 held out, every other "
+                        "frame the scene); its clamped depth errors are in every table either way")
     q.add_argument("--sensor", default="velodyne_hdl64e_s2", choices=list(SENSORS),
                    help="the frames' sensor (default velodyne_hdl64e_s2, KITTI's); fitted to each held-out frame")
     q.add_argument("--methods", nargs="+", default=list(DEFAULT_METHODS), choices=list(METHODS),
@@ -148,6 +153,11 @@ def sequence(args):
     out = plan.directory(args.output)
     if args.sequence_cmd == "evaluate":
         holdout = list(args.holdout or [])
+        if args.protocol == "lidar4d":
+            if holdout or args.every:
+                raise InputValueError("--protocol lidar4d holds out its own frames: no --holdout or --every")
+            holdout = lidar4d_holdout(len(seq))
+            args.half, args.radius = None, None  # the scene is every other frame
         if args.every:
             holdout += list(range(1, len(seq), args.every))
         if not holdout:
@@ -173,10 +183,11 @@ def _evaluate(args, seq, holdout, out):
                             drop_moving=not args.keep_moving, progress=not args.quiet, gap=args.fpa_gap)
     rows = [r for f in res["frames"] for r in f["table"]] + res["mean"]
     files = {"json": out / "evaluation.json", "markdown": out / "table.md", "csv": out / "table.csv"}
-    doc = {k: v for k, v in res.items()} | {"registration": regs, "pose_source": seq.pose_source,
+    doc = {k: v for k, v in res.items()} | {"protocol": args.protocol, "registration": regs, "pose_source": seq.pose_source,
                                              "inputs": [str(p) for p in seq.paths], "table": rows}
     _write(files["json"], compact_json(_plain(doc)) + "\n")
-    _write(files["markdown"], markdown_table(rows, [c for c in COLUMNS if c in rows[0]]) + "\n")
+    cols = LIDAR4D_COLUMNS if args.protocol == "lidar4d" else COLUMNS
+    _write(files["markdown"], markdown_table(rows, [c for c in cols if c in rows[0]]) + "\n")
     _write(files["csv"], _csv(rows))
     if args.register:
         files["poses"] = out / "poses.txt"

@@ -27,7 +27,33 @@ from .estimators import FPA_GAP, estimate
 from .frames import Sequence
 from .union import FrameCache, accumulate, to_frame, window
 
-__all__ = ["METHODS", "LABELS", "evaluate_holdout", "evaluate_sequence", "mean_rows", "DEFAULT_METHODS"]
+__all__ = ["METHODS", "LABELS", "evaluate_holdout", "evaluate_sequence", "mean_rows", "DEFAULT_METHODS",
+           "clamped_depth_errors", "lidar4d_holdout", "LIDAR4D_MAX_DEPTH"]
+
+#: LiDAR4D's depth clamp (utils/metrics.py, compute_depth_errors: min 1e-6, max 80 m)
+LIDAR4D_MAX_DEPTH = 80.0
+LIDAR4D_MIN_DEPTH = 1e-6
+
+
+def clamped_depth_errors(real, simulated, min_depth: float = LIDAR4D_MIN_DEPTH,
+                         max_depth: float = LIDAR4D_MAX_DEPTH) -> tuple[float, float]:
+    """Depth RMSE and median absolute error as LiDAR4D's code computes them: over the whole image,
+    no return (NaN here, 0 in its panoramas) counted as a range of ``min_depth``, every range
+    clamped to ``[min_depth, max_depth]``: ray drop mixes into depth (``slr_ray.metrics`` scores
+    the two apart)."""
+    g = np.clip(np.nan_to_num(np.asarray(real, np.float64), nan=0.0, posinf=0.0), min_depth, max_depth)
+    p = np.clip(np.nan_to_num(np.asarray(simulated, np.float64), nan=0.0, posinf=0.0), min_depth, max_depth)
+    e = g - p
+    return float(np.sqrt(np.mean(e * e))), float(np.median(np.abs(e)))
+
+
+def lidar4d_holdout(n_frames: int) -> list[int]:
+    """LiDAR4D's KITTI-360 split (data/preprocess/kitti360_to_nerf.py): 51 frames, the 11th, 21st,
+    31st and 41st held out (start + 10, 20, 30, 40), every other frame the scene."""
+    if n_frames != 51:
+        raise InputValueError(f"the LiDAR4D protocol takes a sequence of 51 frames (its KITTI-360 scenes), got "
+                              f"{n_frames}: pick 51 frames, or hold out frames by --holdout / --every")
+    return [10, 20, 30, 40]
 
 METHODS = ("zbuffer", "adjacent", "nearest", "fpa", "embree-knn")
 DEFAULT_METHODS = ("zbuffer", "adjacent", "nearest", "fpa")
@@ -82,7 +108,7 @@ def evaluate_holdout(seq: Sequence, target: int, sensor: str = "velodyne_hdl64e_
     filled = real_img["index"] >= 0
     pix[filled] = np.where(seen_all[real_img["index"][filled]], "seen", "unseen")
     adj = _adjacent(others, target)
-    rows = []
+    rows, extra = [], {}
     for m in methods:
         t0 = time.perf_counter()
         if m == "zbuffer":
@@ -99,6 +125,7 @@ def evaluate_holdout(seq: Sequence, target: int, sensor: str = "velodyne_hdl64e_
         img = ret.image(pat)
         pm = point_metrics(b_in, sim, thresholds=thresholds, groups=groups)
         im = range_image_metrics(real_img["range"], img, groups={"seen": pix.astype(str)})
+        extra[m] = clamped_depth_errors(real_img["range"], img)
         rows.append({"method": m, "label": LABELS[m], "points_out": int(len(sim)), "pulses_returned": int(len(ret)),
                      "seconds": round(time.perf_counter() - t0, 3), "points": pm.to_dict(), "image": im.to_dict()})
     res = {"frame": seq.names[target], "fpa_gap_m": gap, "index": int(target), "window": [seq.names[i] for i in others],
@@ -106,7 +133,9 @@ def evaluate_holdout(seq: Sequence, target: int, sensor: str = "velodyne_hdl64e_
            "target_points_in_view": int(len(b_in)), "unseen_share": float(np.mean(~seen)),
            "pattern": pat.to_dict() | {"beams_known": beams is not None},
            "thresholds": [float(x) for x in thresholds], "seen_threshold": seen_threshold, "rows": rows}
-    res["table"] = [{"frame": res["frame"]} | r for r in evaluation_table(res)]
+    res["table"] = [{"frame": res["frame"]} | r
+                    | {"lidar4d_depth_rmse_m": extra[m][0], "lidar4d_depth_medae_m": extra[m][1]}
+                    for m, r in zip(methods, evaluation_table(res))]
     return res
 
 
