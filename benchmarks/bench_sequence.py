@@ -4,7 +4,8 @@
 directory, in a fresh process. Reports the median seconds a frame (the conversion loop: reading,
 accumulating, reducing, writing) and the largest resident peak of any one process (the command or
 a worker: ru_maxrss of the children) and the CPU seconds a frame of all its processes (process
-start included: on a shared machine, CPU seconds / workers is what 2 free cores would take); writes benchmarks/results/bench_sequence.json.
+start included: on a shared machine, CPU seconds / workers is what 2 free cores would take);
+writes benchmarks/results/bench_sequence.json.
 
     python benchmarks/bench_sequence.py [--frames 100] [--half 30] [--workers 2] [--runs 3] [--drive DIR]
 """

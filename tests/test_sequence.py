@@ -130,8 +130,8 @@ def test_cli_evaluate_and_convert_resume(tmp_path, drive, capsys):
     root, poses = drive
     _cli = _Run(capsys)
     out = tmp_path / "ev"
-    r = _cli("sequence", "evaluate", root, "--holdout", "1", "--every", "3", "--sensor", "velodyne_vlp16", "--half", "1",
-             "-o", out, "--quiet")
+    r = _cli("sequence", "evaluate", root, "--holdout", "1", "--every", "3", "--sensor", "velodyne_vlp16",
+             "--half", "1", "-o", out, "--quiet")
     assert r.returncode == 0, r.stderr
     doc = json.loads(r.stdout)
     assert len(doc["mean"]) == 4 and doc["holdout"] == ["000001", "000004"] and (out / "table.md").is_file()

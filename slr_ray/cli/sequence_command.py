@@ -183,8 +183,8 @@ def _evaluate(args, seq, holdout, out):
                             drop_moving=not args.keep_moving, progress=not args.quiet, gap=args.fpa_gap)
     rows = [r for f in res["frames"] for r in f["table"]] + res["mean"]
     files = {"json": out / "evaluation.json", "markdown": out / "table.md", "csv": out / "table.csv"}
-    doc = {k: v for k, v in res.items()} | {"protocol": args.protocol, "registration": regs, "pose_source": seq.pose_source,
-                                             "inputs": [str(p) for p in seq.paths], "table": rows}
+    doc = res | {"protocol": args.protocol, "registration": regs, "pose_source": seq.pose_source,
+                 "inputs": [str(p) for p in seq.paths], "table": rows}
     _write(files["json"], compact_json(_plain(doc)) + "\n")
     cols = LIDAR4D_COLUMNS if args.protocol == "lidar4d" else COLUMNS
     _write(files["markdown"], markdown_table(rows, [c for c in cols if c in rows[0]]) + "\n")

@@ -69,8 +69,8 @@ def _frame_cloud(seq, i, pose, pattern, settings, cache) -> PointCloud:
 
 
 def _init(seq, poses, settings):
-    _STATE.update(seq=seq, poses=poses, settings=settings, cache=FrameCache(seq, 2 * settings["cache"] + 16, local=False),
-                  pattern=shipped_sensor(settings["sensor"]))
+    _STATE.update(seq=seq, poses=poses, settings=settings, pattern=shipped_sensor(settings["sensor"]),
+                  cache=FrameCache(seq, 2 * settings["cache"] + 16, local=False))
 
 
 def _job(block, out) -> list:
