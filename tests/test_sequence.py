@@ -150,6 +150,12 @@ def test_cli_evaluate_and_convert_resume(tmp_path, drive, capsys):
     assert again["written"] == 0 and again["resumed"] == 5
     r = _cli(*args[:-1], "0.6")  # other settings into the same directory: refused, nothing mixed
     assert r.returncode == 2 and "other settings (offset" in r.stderr
+    other = tmp_path / "other"
+    other.mkdir()
+    (other / "notes.txt").write_text("mine")
+    r = _cli("sequence", "convert", root, "--sensor", "velodyne_vlp16", "-o", other, "--quiet")
+    assert r.returncode == 2 and "not a conversion by slr-ray (notes.txt)" in r.stderr
+    assert sorted(p.name for p in other.iterdir()) == ["notes.txt"]
     r = _cli("sequence", "convert", root, "--sensor", "velodyne_vlp16", "-o", root / "out", "--quiet")
     assert r.returncode == 2 and "input directory" in r.stderr and not (root / "out").exists()
 

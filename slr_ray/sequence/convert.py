@@ -29,9 +29,9 @@ from pathlib import Path
 import numpy as np
 from tqdm import tqdm
 
-from ..errors import InputValueError
+from ..errors import InputValueError, OutputError
 from ..io import PointCloud, atomic_path, write_cloud
-from ..outputs import clean_stale_parts
+from ..outputs import LOCK_NAME, clean_stale_parts
 from ..sensors import sensor as shipped_sensor
 from .estimators import FPA_GAP, estimate
 from .frames import Sequence, write_kitti_poses
@@ -89,6 +89,10 @@ def _job(block, out) -> list:
 def _resume(out: Path, settings: dict) -> dict:
     m = out / MANIFEST
     if not m.exists():
+        held = sorted(p.name for p in out.iterdir() if p.name != LOCK_NAME and ".part" not in p.name)
+        if held:  # not a conversion of ours: its files would be written over or mixed with frames
+            raise OutputError(f"{out} holds files that are not a conversion by slr-ray ({', '.join(held[:3])}"
+                              f"{', ...' if len(held) > 3 else ''}): write elsewhere")
         return {}
     try:
         old = json.loads(m.read_text())
