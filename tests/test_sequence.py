@@ -93,6 +93,18 @@ def test_bad_poses_named_by_file_and_line(tmp_path, drive):
     assert np.allclose(P[2][:3, 3], [2, 0, 0]) and np.allclose(np.linalg.det(P[:, :3, :3]), 1)
     with pytest.raises(InputValueError, match="pose must be 4 x 4"):
         check_sequence_pose(np.eye(3), "x")
+    files = []  # one pose file a frame
+    for i in range(5):
+        files.append(tmp_path / f"p{i}.txt")
+        T = np.eye(4)
+        T[0, 3] = i
+        np.savetxt(files[-1], T)
+    assert np.array_equal(read_sequence(bins, files).poses[:, 0, 3], np.arange(5.0))
+    np.savetxt(files[3], np.diag([1.0, 1, -1, 1]))
+    with pytest.raises(InputValueError, match=r"p3\.txt, line 1: .*not rigid"):
+        read_sequence(bins, files)
+    with pytest.raises(InputValueError, match="4 pose files for 5 frames"):
+        read_sequence(bins, files[:4])
 
 
 def test_bad_layouts_refused(tmp_path, drive):

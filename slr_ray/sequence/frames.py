@@ -39,7 +39,7 @@ from ..evaluate import register
 from ..io import read_cloud
 
 __all__ = ["Sequence", "Frame", "read_sequence", "read_kitti_layout", "read_file_list", "read_trajectory",
-           "read_calib_tr", "check_sequence_pose", "kitti_velodyne_poses", "write_kitti_poses",
+           "read_calib_tr", "read_pose_files", "check_sequence_pose", "kitti_velodyne_poses", "write_kitti_poses",
            "register_chain", "POSE_TOLERANCE"]
 
 #: largest departure of a pose's rotation from orthonormal (|R^T R - I|, |det R - 1|): KITTI's poses
@@ -122,6 +122,21 @@ def read_trajectory(path, n_frames: int | None = None) -> np.ndarray:
             T[:3, :3] = _quaternion(*v[4:], where)
             T[:3, 3] = v[1:4]
             out[k] = check_sequence_pose(T, where)
+    return out
+
+
+def read_pose_files(paths) -> np.ndarray:
+    """``(n, 4, 4)`` poses, one text file a frame: a 4 x 4 or 3 x 4 matrix (rows on lines) or its
+    12 or 16 numbers on one line."""
+    out = np.empty((len(paths), 4, 4))
+    for k, path in enumerate(paths):
+        p = Path(path)
+        rows = _lines(p)
+        nums = [_numbers(p, line_no, s, (3, 4, 12, 16)) for line_no, s in rows]
+        v = np.concatenate(nums) if nums else np.zeros(0)
+        if len(v) not in (12, 16):
+            raise InputValueError(f"{p}: {len(v)} numbers, expected a 4 x 4 or 3 x 4 pose (16 or 12)")
+        out[k] = check_sequence_pose(v.reshape(-1, 4), f"{p}, line {rows[0][0]}")
     return out
 
 
@@ -258,7 +273,8 @@ def read_kitti_layout(root) -> Sequence:
 
 
 def read_file_list(paths, trajectory=None, input_format: str | None = None) -> Sequence:
-    """Frames from a list of files, in the order given, with an optional trajectory file; or
+    """Frames from a list of files, in the order given, with an optional trajectory file, or a
+    list of pose files (one a frame, :func:`read_pose_files`); or
     ``trajectory="origins"``: the files hold one world frame, each with its scanner's origin
     (each pose the translation to it; a frame's points are moved to its origin when read)."""
     files = [Path(p) for p in paths]
@@ -280,7 +296,15 @@ def read_file_list(paths, trajectory=None, input_format: str | None = None) -> S
                                       ".npz origin, .pcd VIEWPOINT, .e57 pose)")
             poses[i, :3, 3] = np.asarray(c.origin, np.float64)
         source = "origins"
+    elif isinstance(trajectory, (list, tuple)) and len(trajectory) > 1:  # one pose file a frame
+        if len(trajectory) != len(files):
+            raise InputValueError(f"{len(trajectory)} pose files for {len(files)} frames (one a frame, in order)")
+        poses, source = read_pose_files(trajectory), "pose files"
+        meta["pose_files"] = [str(t) for t in trajectory]
     elif trajectory is not None:
+        trajectory = trajectory[0] if isinstance(trajectory, (list, tuple)) else trajectory
+        if trajectory == "origins":
+            return read_file_list(files, "origins", input_format)
         poses, source = read_trajectory(trajectory, len(files)), "trajectory"
         meta["pose_files"] = [str(trajectory)]
     names = [f"{i:06d}" for i in range(len(files))]
@@ -292,6 +316,10 @@ def read_sequence(source, trajectory=None, input_format: str | None = None) -> S
     src = [source] if isinstance(source, (str, os.PathLike)) else list(source)
     if len(src) == 1 and Path(src[0]).is_dir():
         seq = read_kitti_layout(src[0])
+        if isinstance(trajectory, (list, tuple)):
+            if len(trajectory) != 1:
+                raise InputValueError(f"{src[0]}: a KITTI sequence takes one trajectory file, got {len(trajectory)}")
+            trajectory = trajectory[0]
         if trajectory == "origins":
             raise InputValueError(f"{src[0]}: a KITTI sequence's frames are each in their sensor's frame: "
                                   "poses 'origins' is for files in one world frame")
