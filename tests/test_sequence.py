@@ -120,6 +120,11 @@ def test_bad_layouts_refused(tmp_path, drive):
     with pytest.raises(FormatError, match=r"000002\.label: 2 labels for the \d+ points"):
         read_sequence(bad)
     shutil.copy(root / "labels" / "000002.label", bad / "labels" / "000002.label")
+    with open(bad / "velodyne" / "000001.bin", "ab") as f:
+        f.write(b"\0" * 5)
+    with pytest.raises(FormatError, match=r"000001\.bin: \d+ bytes, not whole points"):
+        read_sequence(bad)
+    shutil.copy(root / "velodyne" / "000001.bin", bad / "velodyne" / "000001.bin")
     (bad / "velodyne" / "000003.bin").rename(bad / "velodyne" / "000007.bin")
     with pytest.raises(InputValueError, match=r"000004\.bin: frame number 4 where 3 was expected"):
         read_sequence(bad)
@@ -168,6 +173,13 @@ def test_cli_evaluate_and_convert_resume(tmp_path, drive, capsys):
     r = _cli("sequence", "convert", root, "--sensor", "velodyne_vlp16", "-o", other, "--quiet")
     assert r.returncode == 2 and "not a conversion by slr-ray (notes.txt)" in r.stderr
     assert sorted(p.name for p in other.iterdir()) == ["notes.txt"]
+    import shutil
+    broken = tmp_path / "broken"
+    shutil.copytree(root, broken, ignore=shutil.ignore_patterns("labels"))
+    with open(broken / "velodyne" / "000002.bin", "r+b") as f:
+        f.write(np.float32(np.nan).tobytes())  # a NaN coordinate: refused when the window first reads it
+    r = _cli("sequence", "convert", broken, "--sensor", "velodyne_vlp16", "-o", tmp_path / "fails", "--quiet")
+    assert r.returncode == 2 and "000002.bin" in r.stderr and not (tmp_path / "fails").exists()
     r = _cli("sequence", "convert", root, "--sensor", "velodyne_vlp16", "-o", root / "out", "--quiet")
     assert r.returncode == 2 and "input directory" in r.stderr and not (root / "out").exists()
 

@@ -30,7 +30,7 @@ import numpy as np
 from tqdm import tqdm
 
 from ..errors import InputValueError, OutputError
-from ..io import PointCloud, atomic_path, write_cloud
+from ..io import PointCloud, atomic_path, check_format, write_cloud
 from ..outputs import LOCK_NAME, clean_stale_parts
 from ..sensors import sensor as shipped_sensor
 from .estimators import FPA_GAP, estimate
@@ -133,8 +133,25 @@ def convert_sequence(seq: Sequence, out, sensor: str, estimator: str = "nearest"
                 "offset": [float(x) for x in offset], "drop_moving": bool(drop_moving), "format": fmt.lstrip("."),
                 "fpa_gap": float(fpa_gap), "frames": [str(p) for p in seq.paths],
                 "poses": np.round(P, 12).reshape(len(P), -1).tolist(), "cache": int(half or 8)}
-    shipped_sensor(sensor)  # an unknown name is refused before anything is written
+    shipped_sensor(sensor)  # an unknown name or format is refused before anything is written
+    check_format(out / "velodyne" / f"000000.{settings['format']}", settings["format"])
+    fresh = not (out / MANIFEST).exists()
     done = _resume(out, settings)
+    try:
+        return _convert(seq, out, P, settings, done, workers, block, progress, inputs)
+    except BaseException:
+        if fresh and not done:  # nothing converted: leave nothing (none of these files was there before)
+            for name in (MANIFEST, JOURNAL, "poses.txt", "calib.txt"):
+                (out / name).unlink(missing_ok=True)
+            for sub in ("velodyne", "labels"):
+                if (out / sub).is_dir() and not any((out / sub).iterdir()):
+                    (out / sub).rmdir()
+        raise
+    finally:
+        _STATE.clear()  # the serial run's frames
+
+
+def _convert(seq, out, P, settings, done, workers, block, progress, inputs) -> dict:
     (out / "velodyne").mkdir(exist_ok=True)
     clean_stale_parts(out / "velodyne", locked=True)  # a killed run's temporaries (the caller holds out's lock)
     probe = seq.read(0)

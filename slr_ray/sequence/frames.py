@@ -232,6 +232,13 @@ class Sequence:
 _NUMBERED = re.compile(r"^(\d+)\.bin$")
 
 
+def _check_sizes(bins) -> None:
+    for b in bins:
+        if os.path.getsize(b) % 16:
+            raise FormatError(f"{b}: {os.path.getsize(b)} bytes, not whole points (16 bytes a point: float32 x, y, z, "
+                              "intensity): truncated, or not a KITTI .bin")
+
+
 def _check_labels(bins, labels_dir: Path) -> None:
     for b in bins:
         lab = labels_dir / (b.stem + ".label")
@@ -259,6 +266,7 @@ def read_kitti_layout(root) -> Sequence:
             raise InputValueError(f"{p}: frame number {num} where {k} was expected (frames must be numbered "
                                   f"from 0 without gaps)")
     bins = [p for _, p in found]
+    _check_sizes(bins)
     if (root / "labels").is_dir():
         _check_labels(bins, root / "labels")
     meta = {"layout": "kitti"}
