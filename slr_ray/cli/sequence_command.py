@@ -33,8 +33,9 @@ LIDAR4D_COLUMNS = ("frame", "method", "points", "cd_sum_m2", "F@22.3607cm", "lid
 def _common(p):
     p.add_argument("sequence", nargs="+", help=_SEQ_HELP)
     p.add_argument("--poses", nargs="+", help="a trajectory (KITTI 12 numbers or TUM 8 numbers a line, one a frame) "
-                                   "instead of the sequence's own poses; 'origins': the files are in one world "
-                                   "frame, each with its scanner's origin (.npz, .pcd, .e57); or one pose file a frame (a 4 x 4 matrix)")
+                                              "instead of the sequence's own poses; or one pose file a frame (a 4 x 4 "
+                                              "matrix each); or 'origins': the files are in one world frame, each "
+                                              "with its scanner's origin (.npz, .pcd, .e57)")
     p.add_argument("--register", action="store_true",
                    help="no poses: register each frame to the one before (ICP) and write the poses found")
     p.add_argument("--half", type=int, default=2, help="window: frames either side of the target (default 2)")
