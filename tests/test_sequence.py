@@ -229,3 +229,20 @@ def test_lidar4d_protocol_clamps_depth_and_takes_its_split(drive, capsys):
     assert lidar4d_holdout(51) == [10, 20, 30, 40]
     r = _Run(capsys)("sequence", "evaluate", drive[0], "--protocol", "lidar4d", "-o", drive[0].parent / "l4d")
     assert r.returncode == 2 and "51 frames" in r.stderr and not (drive[0].parent / "l4d").exists()
+
+
+def test_an_e57_files_scans_are_a_sequence(tmp_path):
+    pye57 = pytest.importorskip("pye57")
+    path, world = tmp_path / "campaign.e57", []
+    e = pye57.E57(str(path), mode="w")
+    for k in range(3):
+        local = np.random.default_rng(k).normal(size=(100, 3)) * 5
+        world.append(local + [10.0 * k, 0, 0])
+        e.write_scan_raw({"cartesianX": local[:, 0], "cartesianY": local[:, 1], "cartesianZ": local[:, 2]},
+                         name=f"s{k}", translation=np.array([10.0 * k, 0, 0]), rotation=np.array([1.0, 0, 0, 0]))
+    e.close()
+    seq = read_sequence(path)
+    assert len(seq) == 3 and seq.pose_source == "e57 scan origins"
+    assert np.array_equal(seq.poses[:, 0, 3], [0, 10, 20])
+    u = accumulate(seq, [0, 2])
+    assert np.abs(u.points - np.vstack([world[0], world[2]])).max() < 1e-5  # pye57 stores float32

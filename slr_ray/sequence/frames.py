@@ -29,6 +29,7 @@ from __future__ import annotations
 import os
 import re
 from dataclasses import dataclass, field
+from functools import lru_cache
 from pathlib import Path
 
 import numpy as np
@@ -36,10 +37,10 @@ from tqdm import tqdm
 
 from ..errors import FormatError, InputValueError
 from ..evaluate import register
-from ..io import read_cloud
+from ..io import read_cloud, read_e57_scans
 
 __all__ = ["Sequence", "Frame", "read_sequence", "read_kitti_layout", "read_file_list", "read_trajectory",
-           "read_calib_tr", "read_pose_files", "check_sequence_pose", "kitti_velodyne_poses", "write_kitti_poses",
+           "read_calib_tr", "read_pose_files", "read_e57_sequence", "check_sequence_pose", "kitti_velodyne_poses", "write_kitti_poses",
            "register_chain", "POSE_TOLERANCE"]
 
 #: largest departure of a pose's rotation from orthonormal (|R^T R - I|, |det R - 1|): KITTI's poses
@@ -211,7 +212,10 @@ class Sequence:
         """Frame ``i`` (points moved to its sensor's frame where the file records a scanner origin)."""
         if self.poses is None:
             raise InputValueError("the sequence has no poses: give a trajectory or register the frames")
-        c = read_cloud(self.paths[i], self.input_format, allow_empty=False)
+        if self.meta.get("layout") == "e57":
+            c = _e57_scans(str(self.paths[i]), os.path.getmtime(self.paths[i]))[i]
+        else:
+            c = read_cloud(self.paths[i], self.input_format, allow_empty=False)
         ring = c.attributes.get("ring")
         if ring is not None and len(ring):  # one sensor a sequence: the frames' beam counts agree
             beams = int(np.max(ring)) + 1
@@ -227,6 +231,27 @@ class Sequence:
     def inputs(self) -> list:
         """Every file the sequence reads (frames; the planner adds their sidecars)."""
         return [Path(p) for p in self.paths] + [Path(p) for p in self.meta.get("pose_files", [])]
+
+
+@lru_cache(maxsize=1)
+def _e57_scans(path: str, mtime: float) -> list:
+    """Every scan of an E57 file, read once a process (a window reads its scans again and again)."""
+    return read_e57_scans(path)
+
+
+def read_e57_sequence(path) -> Sequence:
+    """The scans of one E57 file as a sequence: each scan a frame, in the world (the file's) frame,
+    its pose's translation as its origin (the frame's axes are the world's: a scan's rotation is
+    not used). A scan without a pose is refused."""
+    p = Path(path)
+    scans = _e57_scans(str(p), os.path.getmtime(p))
+    poses = np.repeat(np.eye(4)[None], len(scans), 0)
+    for i, c in enumerate(scans):
+        if c.origin is None:
+            raise InputValueError(f"{p}: scan {i} has no pose (no scanner origin): a sequence needs each scan's")
+        poses[i, :3, 3] = c.origin
+    return Sequence([p] * len(scans), poses, [f"{i:06d}" for i in range(len(scans))], "e57 scan origins", None,
+                    None, {"layout": "e57"})
 
 
 _NUMBERED = re.compile(r"^(\d+)\.bin$")
@@ -335,6 +360,10 @@ def read_sequence(source, trajectory=None, input_format: str | None = None) -> S
             seq = seq.with_poses(read_trajectory(trajectory, len(seq)), "trajectory")
             seq.meta["pose_files"] = [str(trajectory)]
         return seq
+    if len(src) == 1 and Path(src[0]).suffix.lower() == ".e57" and (input_format or ".e57").lstrip(".") == "e57":
+        if trajectory is not None:
+            raise InputValueError(f"{src[0]}: an E57 file's scans carry their poses: no --poses")
+        return read_e57_sequence(src[0])
     return read_file_list(src, trajectory, input_format)
 
 
