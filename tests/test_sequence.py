@@ -195,6 +195,16 @@ def test_files_in_one_world_frame_with_their_origins(tmp_path):
     assert np.array_equal(seq.poses[1][:3, 3], [4e5 + 1, 5e6, 11])
     f = seq.read(1)
     assert np.abs(f.points - (world - [4e5 + 1, 5e6, 11])).max() < 1e-9 and np.abs(f.world() - world).max() < 1e-9
+    origins = tmp_path / "origins.txt"  # files that record no origin (LAS of a campaign): a text file of them
+    las = [tmp_path / "a.las", tmp_path / "b.las"]
+    for p in las:
+        write_cloud(p, PointCloud(world, {}))
+    origins.write_text("400000 5000000 11\n400001 5000000 11\n")
+    seq = read_sequence(las, origins=origins)
+    assert np.abs(seq.read(1).points - (world - [4e5 + 1, 5e6, 11])).max() < 1e-3  # LAS: 1 mm
+    origins.write_text("400000 5000000 11\nnan 5000000 11\n")
+    with pytest.raises(InputValueError, match=r"origins\.txt, line 2: an origin holds NaN"):
+        read_sequence(las, origins=origins)
     write_cloud(tmp_path / "bare.npy", PointCloud(world, {}))
     with pytest.raises(InputValueError, match=r"bare\.npy: records no scanner origin"):
         read_sequence([paths[0], tmp_path / "bare.npy"], "origins")

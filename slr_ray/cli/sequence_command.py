@@ -36,6 +36,8 @@ def _common(p):
                                               "instead of the sequence's own poses; or one pose file a frame (a 4 x 4 "
                                               "matrix each); or 'origins': the files are in one world frame, each "
                                               "with its scanner's origin (.npz, .pcd, .e57)")
+    p.add_argument("--origins", help="the frames are in one world frame (LAS/LAZ of a campaign): a text file of "
+                                     "each one's scanner origin, x y z a line")
     p.add_argument("--register", action="store_true",
                    help="no poses: register each frame to the one before (ICP) and write the poses found")
     p.add_argument("--half", type=int, default=2, help="window: frames either side of the target (default 2)")
@@ -86,6 +88,7 @@ def add_sequence_parser(sub) -> None:
 def _plan_inputs(plan: OutputPlan, args, seq) -> None:
     for path in seq.inputs():
         plan.read(path, fmt=args.input_format)
+    plan.read(args.origins, sidecars=False)
     for path in args.poses or []:
         if path != "origins":
             plan.read(path, sidecars=False)
@@ -105,9 +108,9 @@ def _check_apart(out: Path, seq) -> None:
 
 def _load(args):
     seq = read_sequence(args.sequence if len(args.sequence) > 1 else args.sequence[0], args.poses,
-                        args.input_format)
-    if args.register and args.poses:
-        raise InputValueError("--register and --poses: give one")
+                        args.input_format, args.origins)
+    if args.register and (args.poses or args.origins):
+        raise InputValueError("--register with --poses or --origins: give one")
     if seq.poses is None and not args.register:
         raise InputValueError(f"{seq.root or seq.paths[0]}: the sequence has no poses: give --poses FILE "
                               "or --register")

@@ -40,7 +40,7 @@ from ..evaluate import register
 from ..io import read_cloud, read_e57_scans
 
 __all__ = ["Sequence", "Frame", "read_sequence", "read_kitti_layout", "read_file_list", "read_trajectory",
-           "read_calib_tr", "read_pose_files", "read_e57_sequence", "check_sequence_pose", "kitti_velodyne_poses", "write_kitti_poses",
+           "read_calib_tr", "read_pose_files", "read_e57_sequence", "read_origins", "check_sequence_pose", "kitti_velodyne_poses", "write_kitti_poses",
            "register_chain", "POSE_TOLERANCE"]
 
 #: largest departure of a pose's rotation from orthonormal (|R^T R - I|, |det R - 1|): KITTI's poses
@@ -224,7 +224,9 @@ class Sequence:
                 raise InputValueError(f"{self.paths[i]}: rings up to {beams - 1} ({beams} beams) where {first[1]} "
                                       f"has {first[0]}: frames of different sensors in one sequence")
         pts = c.points
-        if c.origin is not None and np.any(np.asarray(c.origin) != 0):
+        if self.meta.get("world"):  # one world frame: each frame moved to its scanner's origin
+            pts = pts - self.poses[i][:3, 3]
+        elif c.origin is not None and np.any(np.asarray(c.origin) != 0):
             pts = pts - np.asarray(c.origin, np.float64)
         return Frame(i, self.names[i], pts, dict(c.attributes), self.poses[i])
 
@@ -305,7 +307,20 @@ def read_kitti_layout(root) -> Sequence:
     return Sequence(bins, poses, [p.stem for p in bins], source, root, None, meta)
 
 
-def read_file_list(paths, trajectory=None, input_format: str | None = None) -> Sequence:
+def read_origins(path, n_frames: int) -> np.ndarray:
+    """``(n, 3)`` scanner origins, one ``x y z`` line a frame."""
+    p = Path(path)
+    rows = _lines(p)
+    if len(rows) != n_frames:
+        raise InputValueError(f"{p}: {len(rows)} origins for {n_frames} frames (one x y z line a frame)")
+    out = np.array([_numbers(p, line_no, s, 3) for line_no, s in rows]).reshape(-1, 3)
+    bad = np.flatnonzero(~np.isfinite(out).all(axis=1))
+    if len(bad):
+        raise InputValueError(f"{p}, line {rows[bad[0]][0]}: an origin holds NaN or infinite numbers")
+    return out
+
+
+def read_file_list(paths, trajectory=None, input_format: str | None = None, origins=None) -> Sequence:
     """Frames from a list of files, in the order given, with an optional trajectory file, or a
     list of pose files (one a frame, :func:`read_pose_files`); or
     ``trajectory="origins"``: the files hold one world frame, each with its scanner's origin
@@ -320,6 +335,13 @@ def read_file_list(paths, trajectory=None, input_format: str | None = None) -> S
             raise InputValueError(f"{p}: named twice in the sequence (as {seen[r]})")
         seen[r] = p
     poses, source, meta = None, "none", {}
+    if origins is not None:  # files in one world frame (LAS/LAZ of a campaign), their origins in a text file
+        if trajectory is not None:
+            raise InputValueError("give the frames' poses or their origins, not both")
+        poses = np.repeat(np.eye(4)[None], len(files), 0)
+        poses[:, :3, 3] = read_origins(origins, len(files))
+        return Sequence(files, poses, [f"{i:06d}" for i in range(len(files))], "origins file", None, input_format,
+                        {"world": True, "pose_files": [str(origins)]})
     if trajectory == "origins":  # every file in one world frame, each with its scanner's origin
         poses = np.repeat(np.eye(4)[None], len(files), 0)
         for i, p in enumerate(files):
@@ -329,6 +351,7 @@ def read_file_list(paths, trajectory=None, input_format: str | None = None) -> S
                                       ".npz origin, .pcd VIEWPOINT, .e57 pose)")
             poses[i, :3, 3] = np.asarray(c.origin, np.float64)
         source = "origins"
+        meta["world"] = True
     elif isinstance(trajectory, (list, tuple)) and len(trajectory) > 1:  # one pose file a frame
         if len(trajectory) != len(files):
             raise InputValueError(f"{len(trajectory)} pose files for {len(files)} frames (one a frame, in order)")
@@ -344,9 +367,13 @@ def read_file_list(paths, trajectory=None, input_format: str | None = None) -> S
     return Sequence(files, poses, names, source, None, input_format, meta)
 
 
-def read_sequence(source, trajectory=None, input_format: str | None = None) -> Sequence:
-    """A KITTI layout directory (one path) or a list of frame files."""
+def read_sequence(source, trajectory=None, input_format: str | None = None, origins=None) -> Sequence:
+    """A KITTI layout directory (one path), an E57 file of several scans, or a list of frame files
+    (with a trajectory, pose files, or ``origins``: a text file of each frame's scanner origin for
+    files in one world frame)."""
     src = [source] if isinstance(source, (str, os.PathLike)) else list(source)
+    if len(src) == 1 and (Path(src[0]).is_dir() or Path(src[0]).suffix.lower() == ".e57") and origins is not None:
+        raise InputValueError(f"{src[0]}: its frames carry their poses: origins are for files in one world frame")
     if len(src) == 1 and Path(src[0]).is_dir():
         seq = read_kitti_layout(src[0])
         if isinstance(trajectory, (list, tuple)):
@@ -364,7 +391,7 @@ def read_sequence(source, trajectory=None, input_format: str | None = None) -> S
         if trajectory is not None:
             raise InputValueError(f"{src[0]}: an E57 file's scans carry their poses: no --poses")
         return read_e57_sequence(src[0])
-    return read_file_list(src, trajectory, input_format)
+    return read_file_list(src, trajectory, input_format, origins)
 
 
 def register_chain(seq: Sequence, min_fitness: float = 0.3, progress: bool = False) -> tuple[Sequence, list]:
