@@ -40,8 +40,8 @@ from ..evaluate import register
 from ..io import read_cloud, read_e57_scans
 
 __all__ = ["Sequence", "Frame", "read_sequence", "read_kitti_layout", "read_file_list", "read_trajectory",
-           "read_calib_tr", "read_pose_files", "read_e57_sequence", "read_origins", "check_sequence_pose", "kitti_velodyne_poses", "write_kitti_poses",
-           "register_chain", "POSE_TOLERANCE"]
+           "read_calib_tr", "read_pose_files", "read_e57_sequence", "read_origins", "check_sequence_pose",
+           "kitti_velodyne_poses", "write_kitti_poses", "register_chain", "POSE_TOLERANCE"]
 
 #: largest departure of a pose's rotation from orthonormal (|R^T R - I|, |det R - 1|): KITTI's poses
 #: are written with 6-7 significant digits, whose rounding leaves ~1e-6
