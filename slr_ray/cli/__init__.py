@@ -38,6 +38,7 @@ from ..evaluate import METHODS as EVALUATE_METHODS
 from .evaluate_command import evaluate as evaluate_command
 from .effects_command import RING_SOURCES
 from .effects_command import effects as effects_command
+from .sequence_command import add_sequence_parser
 
 __all__ = ["main", "build_parser"]
 
@@ -250,6 +251,8 @@ def build_parser() -> argparse.ArgumentParser:
     q.add_argument("-k", type=A.positive_int, default=10, help="neighbours of the PCA normals (default 10)")
     A.add_input_format(q)
     q.add_argument("--force", action="store_true", help="overwrite an existing output")
+
+    add_sequence_parser(sub)  # sequence: its parser and handlers live in .sequence_command
 
     p = command("scene", "synthetic rectangle scenes: info, build, scan")
     ssub = p.add_subparsers(dest="scene_cmd", required=True)

@@ -1,0 +1,73 @@
+"""Speed and memory of `slr-ray sequence convert` (docs/sequences.md): a 100-frame synthetic drive
+(HDL-64E S2, 0.8 m a frame) converted as a VLP-16 with a +-30-frame window (61 frames, about
+6 M points a union), binning's rule (nearest), 2 worker processes; three runs, each into a fresh
+directory, in a fresh process. Reports the median seconds a frame (the conversion loop: reading,
+accumulating, reducing, writing) and the largest resident peak of any one process (the command or
+a worker: ru_maxrss of the children) and the CPU seconds a frame of all its processes (process
+start included: on a shared machine, CPU seconds / workers is what 2 free cores would take);
+writes benchmarks/results/bench_sequence.json.
+
+    python benchmarks/bench_sequence.py [--frames 100] [--half 30] [--workers 2] [--runs 3] [--drive DIR]
+"""
+
+from __future__ import annotations
+
+import argparse
+import json
+import os
+import resource
+import statistics
+import subprocess
+import sys
+import tempfile
+import time
+from pathlib import Path
+
+from common import machine, save
+
+from slr_ray.sequence.synthetic import synthetic_drive
+
+
+def main() -> None:
+    ap = argparse.ArgumentParser()
+    ap.add_argument("--frames", type=int, default=100)
+    ap.add_argument("--half", type=int, default=30)
+    ap.add_argument("--workers", type=int, default=2)
+    ap.add_argument("--runs", type=int, default=3)
+    ap.add_argument("--drive", help="an existing drive (KITTI layout) instead of making one")
+    a = ap.parse_args()
+    env = dict(os.environ, PYTHONPATH=str(Path(__file__).resolve().parents[1]))
+    with tempfile.TemporaryDirectory() as tmp:
+        t0 = time.perf_counter()
+        drive = Path(a.drive) if a.drive else Path(tmp) / "drive"
+        if not a.drive:
+            synthetic_drive(drive, n_frames=a.frames, sensor="velodyne_hdl64e_s2")
+        made = time.perf_counter() - t0
+        runs = []
+        for k in range(a.runs):
+            cmd = [sys.executable, "-m", "slr_ray.cli", "sequence", "convert", str(drive),
+                   "--sensor", "velodyne_vlp16", "--half", str(a.half), "--workers", str(a.workers),
+                   "-o", str(Path(tmp) / f"out{k}"), "--quiet"]
+            t0, ru0 = time.perf_counter(), resource.getrusage(resource.RUSAGE_CHILDREN)
+            res = subprocess.run(cmd, capture_output=True, text=True, env=env)
+            wall, ru = time.perf_counter() - t0, resource.getrusage(resource.RUSAGE_CHILDREN)
+            cpu = (ru.ru_utime + ru.ru_stime) - (ru0.ru_utime + ru0.ru_stime)
+            if res.returncode:
+                sys.exit(res.stderr)
+            doc = json.loads(res.stdout)
+            runs.append({"wall_s": round(wall, 2), "seconds_per_frame": doc["seconds_per_frame"],
+                         "cpu_seconds": round(cpu, 1), "cpu_seconds_per_frame": round(cpu / a.frames, 4),
+                         "load_average": os.getloadavg()[0], "points": doc["points"]})
+            print(runs[-1], flush=True)
+    peak = resource.getrusage(resource.RUSAGE_CHILDREN).ru_maxrss / 2**20  # KiB -> GiB
+    out = {"machine": machine(), "frames": a.frames, "half": a.half, "workers": a.workers,
+           "drive_seconds": round(made, 1), "runs": runs,
+           "median_seconds_per_frame": statistics.median(r["seconds_per_frame"] for r in runs),
+           "median_cpu_seconds_per_frame": statistics.median(r["cpu_seconds_per_frame"] for r in runs),
+           "largest_process_peak_gib": round(peak, 3)}
+    print(json.dumps({k: v for k, v in out.items() if k != "machine"}))
+    save("bench_sequence", out)
+
+
+if __name__ == "__main__":
+    main()

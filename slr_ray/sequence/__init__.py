@@ -1,0 +1,29 @@
+"""Sequences in, datasets out: frames of a drive or a campaign, their poses, their union.
+
+``frames``
+    reading a sequence (KITTI / SemanticKITTI layout, a list of files with a
+    trajectory) and its poses; bad input refused naming the file and line.
+``union``
+    the accumulated primary: a window of frames in the world frame, each point
+    with its source frame and origin, moving classes left out.
+``estimators``
+    one return per pulse from a union: nearest (SLR's rule), first-peak
+    average, embree discs.
+``holdout``
+    leave-one-out evaluation: each held-out frame re-simulated from the others.
+``convert``
+    a sequence re-simulated as another sensor, written in the SemanticKITTI layout.
+"""
+
+from .convert import convert_sequence, target_poses
+from .estimators import ESTIMATORS, FPA_GAP, PulseReturns, estimate
+from .frames import (Frame, Sequence, check_sequence_pose, kitti_velodyne_poses, read_calib_tr, read_file_list,
+                     read_kitti_layout, read_sequence, read_trajectory, register_chain, write_kitti_poses)
+from .holdout import METHODS, evaluate_holdout, evaluate_sequence, mean_rows
+from .union import MOVING_CLASSES, FrameCache, Union, accumulate, nearest_of_frames, to_frame, window
+
+__all__ = ["convert_sequence", "target_poses", "ESTIMATORS", "FPA_GAP", "PulseReturns", "estimate", "Frame",
+           "Sequence", "check_sequence_pose", "kitti_velodyne_poses", "read_calib_tr", "read_file_list",
+           "read_kitti_layout", "read_sequence", "read_trajectory", "register_chain", "write_kitti_poses",
+           "METHODS", "evaluate_holdout", "evaluate_sequence", "mean_rows", "MOVING_CLASSES", "FrameCache",
+           "Union", "accumulate", "nearest_of_frames", "to_frame", "window"]

@@ -1,0 +1,202 @@
+"""A sequence re-simulated as another sensor, written as a SemanticKITTI sequence.
+
+Each frame ``i``: the frames of its window (itself included) accumulated in
+the world frame, moved into the target sensor's frame at frame ``i``'s pose
+(times ``offset``, a translation in the frame's own axes; or a pose of a
+given trajectory), one return per pulse of the target sensor by an estimator
+(:mod:`~slr_ray.sequence.estimators`), written in the sensor's scan order
+(beam by beam, highest first; each beam by azimuth from the front,
+counter-clockwise) with the intensity and SemanticKITTI labels of the union
+point each return stands for. A KITTI ``.bin`` holds no ring: its order is
+the ring (row ``k // columns``); other formats (``fmt``) carry a ``ring``
+attribute.
+
+The output directory holds ``velodyne/NNNNNN.EXT``, ``labels/NNNNNN.label``
+(where the input has labels), ``poses.txt`` (the target poses, velodyne
+frame), ``calib.txt`` (``Tr`` the identity: the poses are the velodyne's) and
+``manifest.json`` (the settings). A rerun with the same settings resumes: the
+frames a journal records as written are kept; other settings are refused.
+"""
+
+from __future__ import annotations
+
+import json
+import time
+import multiprocessing
+from functools import partial
+from pathlib import Path
+
+import numpy as np
+from tqdm import tqdm
+
+from ..errors import InputValueError, OutputError
+from ..io import PointCloud, atomic_path, check_format, write_cloud
+from ..outputs import LOCK_NAME, clean_stale_parts
+from ..sensors import sensor as shipped_sensor
+from .estimators import FPA_GAP, estimate
+from .frames import Sequence, write_kitti_poses
+from .union import FrameCache, accumulate, nearest_of_frames, to_frame, window
+
+__all__ = ["convert_sequence", "target_poses", "MANIFEST", "JOURNAL"]
+
+MANIFEST = "manifest.json"
+JOURNAL = "journal.jsonl"
+_STATE: dict = {}
+
+
+def target_poses(poses, offset=(0.0, 0.0, 0.0)) -> np.ndarray:
+    """Each pose moved by ``offset`` in its own axes: ``T_i @ translate(offset)``."""
+    P = np.array(poses, np.float64)
+    off = np.asarray(offset, np.float64)
+    if off.shape != (3,) or not np.all(np.isfinite(off)):
+        raise InputValueError(f"the offset must be three finite numbers, got {offset!r}")
+    P[:, :3, 3] = P[:, :3, 3] + P[:, :3, :3] @ off
+    return P
+
+
+def _frame_cloud(seq, i, pose, pattern, settings, cache) -> PointCloud:
+    frames = window(seq, i, settings["half"], settings["radius"], include_target=True)
+    if settings["estimator"] == "nearest":  # a frame at a time: the union is never held whole
+        ret, carried = nearest_of_frames(seq, frames, pose, pattern, settings["drop_moving"], cache)
+    else:
+        union = accumulate(seq, frames, drop_moving=settings["drop_moving"], cache=cache)
+        ret = estimate(to_frame(union.points, pose), pattern, settings["estimator"], gap=settings["fpa_gap"])
+        carried = {n: v[ret.index] for n, v in union.attributes.items()}
+    attrs = {n: carried[n] for n in ("intensity", "semantic", "instance") if n in carried}
+    if settings["format"] != "bin":
+        attrs["ring"] = pattern.beam_of_row[ret.keys // pattern.columns].astype(np.int32)
+    return PointCloud(ret.points, attrs, np.zeros(3))
+
+
+def _init(seq, poses, settings):
+    _STATE.update(seq=seq, poses=poses, settings=settings, pattern=shipped_sensor(settings["sensor"]),
+                  cache=FrameCache(seq, 2 * settings["cache"] + 16, local=False))
+
+
+def _job(block, out) -> list:
+    s = _STATE
+    done = []
+    for i in block:
+        t0 = time.perf_counter()
+        cloud = _frame_cloud(s["seq"], i, s["poses"][i], s["pattern"], s["settings"], s["cache"])
+        name = f"velodyne/{s['seq'].names[i]}.{s['settings']['format']}"
+        write_cloud(Path(out) / name, cloud, format=s["settings"]["format"])
+        done.append({"frame": int(i), "file": name, "points": int(len(cloud)),
+                     "seconds": round(time.perf_counter() - t0, 3)})
+    return done
+
+
+def _resume(out: Path, settings: dict) -> dict:
+    m = out / MANIFEST
+    if not m.exists():
+        held = sorted(p.name for p in out.iterdir() if p.name != LOCK_NAME and ".part" not in p.name)
+        if held:  # not a conversion of ours: its files would be written over or mixed with frames
+            raise OutputError(f"{out} holds files that are not a conversion by slr-ray ({', '.join(held[:3])}"
+                              f"{', ...' if len(held) > 3 else ''}): write elsewhere")
+        return {}
+    try:
+        old = json.loads(m.read_text())
+    except ValueError:
+        raise InputValueError(f"{m} is not a manifest slr_ray can read: write elsewhere") from None
+    before = old.get("settings") if isinstance(old, dict) else None
+    if before != settings:
+        diff = sorted(k for k in set(before or {}) | set(settings) if (before or {}).get(k) != settings.get(k))
+        raise InputValueError(f"{out} holds a conversion with other settings ({', '.join(diff)}): write elsewhere, "
+                              "or remove it to start again")
+    done = {}
+    j = out / JOURNAL
+    if j.exists():
+        for line in j.read_text().splitlines():
+            try:
+                e = json.loads(line)
+            except ValueError:
+                continue  # a line cut short by an interruption
+            if (out / e["file"]).exists():
+                done[e["frame"]] = e
+    return done
+
+
+def convert_sequence(seq: Sequence, out, sensor: str, estimator: str = "nearest", half: int | None = 2,
+                     radius: float | None = None, offset=(0.0, 0.0, 0.0), poses=None, drop_moving: bool = True,
+                     fmt: str = "bin", fpa_gap: float = FPA_GAP, workers: int = 1, block: int = 4,
+                     progress: bool = False, inputs: dict | None = None) -> dict:
+    """Write ``seq`` re-simulated as ``sensor`` into the directory ``out`` (module docstring).
+    ``out`` must exist (the caller plans and locks it). Returns a summary."""
+    if seq.poses is None:
+        raise InputValueError("the sequence has no poses: give a trajectory (--poses) or --register")
+    out = Path(out)
+    base = seq.poses if poses is None else np.asarray(poses, np.float64)
+    if base.shape != (len(seq), 4, 4):
+        raise InputValueError(f"{len(base)} target poses for {len(seq)} frames")
+    P = target_poses(base, offset)
+    settings = {"sensor": sensor, "estimator": estimator, "half": half, "radius": radius,
+                "offset": [float(x) for x in offset], "drop_moving": bool(drop_moving), "format": fmt.lstrip("."),
+                "fpa_gap": float(fpa_gap), "frames": [str(p) for p in seq.paths],
+                "poses": np.round(P, 12).reshape(len(P), -1).tolist(), "cache": int(half or 8)}
+    shipped_sensor(sensor)  # an unknown name or format is refused before anything is written
+    check_format(out / "velodyne" / f"000000.{settings['format']}", settings["format"])
+    fresh = not (out / MANIFEST).exists()
+    done = _resume(out, settings)
+    try:
+        return _convert(seq, out, P, settings, done, workers, block, progress, inputs)
+    except BaseException:
+        if fresh and not done:  # nothing converted: leave nothing (none of these files was there before)
+            for name in (MANIFEST, JOURNAL, "poses.txt", "calib.txt"):
+                (out / name).unlink(missing_ok=True)
+            for sub in ("velodyne", "labels"):
+                if (out / sub).is_dir() and not any((out / sub).iterdir()):
+                    (out / sub).rmdir()
+        raise
+    finally:
+        _STATE.clear()  # the serial run's frames
+
+
+def _convert(seq, out, P, settings, done, workers, block, progress, inputs) -> dict:
+    (out / "velodyne").mkdir(exist_ok=True)
+    clean_stale_parts(out / "velodyne", locked=True)  # a killed run's temporaries (the caller holds out's lock)
+    probe = seq.read(0)
+    if "semantic" in probe.attributes:
+        (out / "labels").mkdir(exist_ok=True)
+    doc = {"settings": settings, "inputs": inputs or {}, "pose_source": seq.pose_source}
+    for name, text in ((MANIFEST, json.dumps(doc) + "\n"), ("calib.txt", "Tr: 1 0 0 0 0 1 0 0 0 0 1 0\n")):
+        with atomic_path(out / name) as tmp:
+            tmp.write_text(text)
+    with atomic_path(out / "poses.txt") as tmp:
+        write_kitti_poses(tmp, P)
+    todo = [i for i in range(len(seq)) if i not in done]
+    blocks = [todo[k:k + block] for k in range(0, len(todo), block)]
+    t0 = time.perf_counter()
+    bar = tqdm(total=len(seq), initial=len(done), desc="frames", unit="frame", disable=not progress)
+    with open(out / JOURNAL, "a") as journal:
+        def record(entries):
+            for e in entries:
+                journal.write(json.dumps(e) + "\n")
+                done[e["frame"]] = e
+            journal.flush()
+            bar.update(len(entries))
+
+        try:
+            if workers <= 1 or len(blocks) <= 1:
+                _init(seq, P, settings)
+                for b in blocks:
+                    record(_job(b, str(out)))
+            else:
+                # spawn, not fork (a forked child inherits numba's thread pools in whatever state they
+                # were); multiprocessing.Pool, not ProcessPoolExecutor: on an interrupt (SIGINT, or
+                # SIGTERM turned into one by the CLI) its exit terminates the workers at once
+                ctx = multiprocessing.get_context("spawn")
+                with ctx.Pool(workers, initializer=_init, initargs=(seq, P, settings)) as pool:
+                    for entries in pool.imap_unordered(partial(_job, out=str(out)), blocks):
+                        record(entries)
+        except BaseException:
+            for sub in ("velodyne", "labels"):  # what a killed worker left mid-write
+                if (out / sub).is_dir():
+                    clean_stale_parts(out / sub, locked=True)
+            raise
+        finally:
+            bar.close()
+    secs = time.perf_counter() - t0
+    return {"output_dir": str(out), "frames": len(seq), "written": len(todo), "resumed": len(seq) - len(todo),
+            "points": int(sum(e["points"] for e in done.values())), "seconds": round(secs, 3),
+            "seconds_per_frame": round(secs / max(1, len(todo)), 4), "settings": {k: v for k, v in settings.items()
+                                                                                 if k not in ("poses", "frames")}}

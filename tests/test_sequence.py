@@ -1,0 +1,258 @@
+"""Sequences (slr_ray.sequence, `slr-ray sequence`): reading poses, the union, estimators,
+leave-one-out evaluation and conversion, on a tiny synthetic drive with exact poses."""
+
+import json
+from types import SimpleNamespace
+
+import numpy as np
+import pytest
+
+from slr_ray.cli import main
+from slr_ray.errors import FormatError, InputValueError
+from slr_ray.io import PointCloud, read_cloud, write_cloud
+from slr_ray.sensors import sensor
+from slr_ray.sequence import (MOVING_CLASSES, accumulate, check_sequence_pose, estimate, evaluate_sequence,
+                              nearest_of_frames, to_frame,
+                              read_sequence, read_trajectory, window)
+from slr_ray.sequence.holdout import clamped_depth_errors, lidar4d_holdout
+from slr_ray.sequence.synthetic import KITTI_TR, synthetic_drive
+
+
+@pytest.fixture(scope="module")
+def drive(tmp_path_factory):
+    root = tmp_path_factory.mktemp("drive") / "seq"
+    poses = synthetic_drive(root, n_frames=5, sensor="velodyne_vlp16", step=0.8)
+    return root, poses
+
+
+class _Run:
+    def __init__(self, capsys):
+        self.capsys = capsys
+
+    def __call__(self, *args):
+        self.capsys.readouterr()
+        rc = main([str(a) for a in args])
+        out = self.capsys.readouterr()
+        return SimpleNamespace(returncode=rc, stdout=out.out, stderr=out.err)
+
+
+def test_kitti_layout_poses_are_tr_inverse_p_tr(drive):
+    root, poses = drive
+    seq = read_sequence(root)
+    assert np.abs(seq.poses - poses).max() < 1e-12
+    assert not np.allclose(KITTI_TR, np.eye(4))  # the file's camera poses differ from the velodyne's
+    f = seq.read(3)
+    assert {"intensity", "semantic"} <= set(f.attributes)
+
+
+def test_union_keeps_source_frames_and_drops_moving_classes(drive):
+    root, poses = drive
+    seq = read_sequence(root)
+    assert window(seq, 2, half=1) == [1, 3]
+    assert window(seq, 0, half=None, radius=1.0) == [1]
+    u = accumulate(seq, [1, 3], drop_moving=False)
+    assert set(np.unique(u.frame_of_point)) == {1, 3}
+    assert np.allclose(u.origin_of_point[u.frame_of_point == 3], poses[3][:3, 3])
+    assert np.isin(u.attributes["semantic"], MOVING_CLASSES).any()
+    kept = accumulate(seq, [1, 3])
+    assert not np.isin(kept.attributes["semantic"], MOVING_CLASSES).any()
+    assert kept.removed["moving"] == len(u) - len(kept) > 0
+    # a frame's own points, moved to the world and back, are the frame (float64)
+    f = seq.read(1)
+    assert np.abs((u.points[u.frame_of_point == 1] - poses[1][:3, 3]) @ poses[1][:3, :3] - f.points).max() < 1e-9
+
+
+def test_fpa_averages_the_first_cluster_and_nearest_is_binning():
+    pat = sensor("velodyne_vlp16")
+    d = np.array([np.cos(0.01), np.sin(0.01), 0.0])
+    pts = np.vstack([d * 10.0, d * 10.06, d * 10.12, d * 15.0])  # one pulse: a cluster at 10-10.12 m, a wall behind
+    near, fpa = estimate(pts, pat, "nearest"), estimate(pts, pat, "fpa", gap=0.1)
+    assert len(near) == len(fpa) == 1 and near.keys[0] == fpa.keys[0]
+    assert near.ranges[0] == pytest.approx(10.0)
+    assert fpa.ranges[0] == pytest.approx(10.06) and fpa.index[0] == 0
+    assert estimate(pts, pat, "fpa", gap=0.01).ranges[0] == pytest.approx(10.0)
+
+
+def test_bad_poses_named_by_file_and_line(tmp_path, drive):
+    root, _ = drive
+    bins = sorted((root / "velodyne").glob("*.bin"))
+    good = " ".join(["1 0 0 0 0 1 0 0 0 0 1 0"])
+    traj = tmp_path / "t.txt"
+    traj.write_text("\n".join([good] * 4) + "\n")
+    with pytest.raises(InputValueError, match=r"t\.txt, line 5: 4 poses for 5 frames"):
+        read_sequence(bins, traj)
+    traj.write_text("\n".join([good] * 3 + ["2 0 0 0 0 1 0 0 0 0 1 0", good]) + "\n")
+    with pytest.raises(InputValueError, match=r"t\.txt, line 4: .*not rigid"):
+        read_sequence(bins, traj)
+    traj.write_text("\n".join([good] * 4 + ["nan 0 0 0 0 1 0 0 0 0 1 0"]) + "\n")
+    with pytest.raises(InputValueError, match=r"t\.txt, line 5: .*NaN"):
+        read_sequence(bins, traj)
+    tum = tmp_path / "tum.txt"
+    tum.write_text("".join(f"{i} {i} 0 0 0 0 0.0998334 0.9950042\n" for i in range(5)))
+    P = read_trajectory(tum, 5)
+    assert np.allclose(P[2][:3, 3], [2, 0, 0]) and np.allclose(np.linalg.det(P[:, :3, :3]), 1)
+    with pytest.raises(InputValueError, match="pose must be 4 x 4"):
+        check_sequence_pose(np.eye(3), "x")
+    files = []  # one pose file a frame
+    for i in range(5):
+        files.append(tmp_path / f"p{i}.txt")
+        T = np.eye(4)
+        T[0, 3] = i
+        np.savetxt(files[-1], T)
+    assert np.array_equal(read_sequence(bins, files).poses[:, 0, 3], np.arange(5.0))
+    np.savetxt(files[3], np.diag([1.0, 1, -1, 1]))
+    with pytest.raises(InputValueError, match=r"p3\.txt, line 1: .*not rigid"):
+        read_sequence(bins, files)
+    with pytest.raises(InputValueError, match="4 pose files for 5 frames"):
+        read_sequence(bins, files[:4])
+
+
+def test_bad_layouts_refused(tmp_path, drive):
+    root, _ = drive
+    import shutil
+    bad = tmp_path / "bad"
+    shutil.copytree(root, bad)
+    (bad / "calib.txt").write_text("P0: 1 0 0 0 0 1 0 0 0 0 1 0\n")
+    with pytest.raises(InputValueError, match=r"calib\.txt: no 'Tr:' line"):
+        read_sequence(bad)
+    (bad / "calib.txt").unlink()
+    (bad / "labels" / "000002.label").write_bytes(b"\0" * 8)
+    with pytest.raises(FormatError, match=r"000002\.label: 2 labels for the \d+ points"):
+        read_sequence(bad)
+    shutil.copy(root / "labels" / "000002.label", bad / "labels" / "000002.label")
+    with open(bad / "velodyne" / "000001.bin", "ab") as f:
+        f.write(b"\0" * 5)
+    with pytest.raises(FormatError, match=r"000001\.bin: \d+ bytes, not whole points"):
+        read_sequence(bad)
+    shutil.copy(root / "velodyne" / "000001.bin", bad / "velodyne" / "000001.bin")
+    (bad / "velodyne" / "000003.bin").rename(bad / "velodyne" / "000007.bin")
+    with pytest.raises(InputValueError, match=r"000004\.bin: frame number 4 where 3 was expected"):
+        read_sequence(bad)
+
+
+def test_leave_one_out_scores_every_method_and_union_beats_adjacent(drive):
+    root, _ = drive
+    seq = read_sequence(root)
+    res = evaluate_sequence(seq, [2], sensor="velodyne_vlp16", half=2)
+    rows = {r["method"]: r for r in res["frames"][0]["table"]}
+    assert len(rows) == 4 and [r["frame"] for r in res["mean"]] == ["mean"] * 4
+    for r in rows.values():
+        assert {"points", "F@5cm", "depth_medae_m", "drop_accuracy"} <= set(r)
+    union, adj = rows["nearest (binning of the union)"], rows["binning, adjacent frame alone"]
+    assert union["drop_accuracy"] >= adj["drop_accuracy"]
+    assert res["frames"][0]["removed"]["moving"] > 0
+
+
+def test_cli_evaluate_and_convert_resume(tmp_path, drive, capsys):
+    root, poses = drive
+    _cli = _Run(capsys)
+    out = tmp_path / "ev"
+    r = _cli("sequence", "evaluate", root, "--holdout", "1", "--every", "3", "--sensor", "velodyne_vlp16",
+             "--half", "1", "-o", out, "--quiet")
+    assert r.returncode == 0, r.stderr
+    doc = json.loads(r.stdout)
+    assert len(doc["mean"]) == 4 and doc["holdout"] == ["000001", "000004"] and (out / "table.md").is_file()
+    conv = tmp_path / "conv"
+    args = ["sequence", "convert", root, "--sensor", "velodyne_vlp16", "--half", "1", "-o", conv, "--quiet",
+            "--offset", "0", "0", "0.5"]
+    r = _cli(*args)
+    assert r.returncode == 0, r.stderr
+    first = json.loads(r.stdout)
+    assert first["written"] == 5
+    c = read_cloud(conv / "velodyne" / "000002.bin")
+    assert {"intensity", "semantic"} <= set(c.attributes)
+    P = read_sequence(conv).poses
+    assert np.allclose(P[:, :3, 3], poses[:, :3, 3] + poses[:, :3, :3] @ [0, 0, 0.5])
+    again = json.loads(_cli(*args).stdout)
+    assert again["written"] == 0 and again["resumed"] == 5
+    r = _cli(*args[:-1], "0.6")  # other settings into the same directory: refused, nothing mixed
+    assert r.returncode == 2 and "other settings (offset" in r.stderr
+    other = tmp_path / "other"
+    other.mkdir()
+    (other / "notes.txt").write_text("mine")
+    r = _cli("sequence", "convert", root, "--sensor", "velodyne_vlp16", "-o", other, "--quiet")
+    assert r.returncode == 2 and "not a conversion by slr-ray (notes.txt)" in r.stderr
+    assert sorted(p.name for p in other.iterdir()) == ["notes.txt"]
+    import shutil
+    broken = tmp_path / "broken"
+    shutil.copytree(root, broken, ignore=shutil.ignore_patterns("labels"))
+    with open(broken / "velodyne" / "000002.bin", "r+b") as f:
+        f.write(np.float32(np.nan).tobytes())  # a NaN coordinate: refused when the window first reads it
+    r = _cli("sequence", "convert", broken, "--sensor", "velodyne_vlp16", "-o", tmp_path / "fails", "--quiet")
+    assert r.returncode == 2 and "000002.bin" in r.stderr and not (tmp_path / "fails").exists()
+    r = _cli("sequence", "convert", root, "--sensor", "velodyne_vlp16", "-o", root / "out", "--quiet")
+    assert r.returncode == 2 and "input directory" in r.stderr and not (root / "out").exists()
+
+
+def test_files_in_one_world_frame_with_their_origins(tmp_path):
+    rng = np.random.default_rng(0)
+    world = rng.normal(size=(50, 3)) * 5 + [4e5, 5e6, 10]  # UTM-sized: moved to the origin in float64
+    paths = []
+    for k, o in enumerate(([4e5, 5e6, 11], [4e5 + 1, 5e6, 11])):
+        paths.append(tmp_path / f"s{k}.npz")
+        write_cloud(paths[-1], PointCloud(world, {}, np.array(o)))
+    seq = read_sequence(paths, "origins")
+    assert np.array_equal(seq.poses[1][:3, 3], [4e5 + 1, 5e6, 11])
+    f = seq.read(1)
+    assert np.abs(f.points - (world - [4e5 + 1, 5e6, 11])).max() < 1e-9 and np.abs(f.world() - world).max() < 1e-9
+    origins = tmp_path / "origins.txt"  # files that record no origin (LAS of a campaign): a text file of them
+    las = [tmp_path / "a.las", tmp_path / "b.las"]
+    for p in las:
+        write_cloud(p, PointCloud(world, {}))
+    origins.write_text("400000 5000000 11\n400001 5000000 11\n")
+    seq = read_sequence(las, origins=origins)
+    assert np.abs(seq.read(1).points - (world - [4e5 + 1, 5e6, 11])).max() < 1e-3  # LAS: 1 mm
+    origins.write_text("400000 5000000 11\nnan 5000000 11\n")
+    with pytest.raises(InputValueError, match=r"origins\.txt, line 2: an origin holds NaN"):
+        read_sequence(las, origins=origins)
+    write_cloud(tmp_path / "bare.npy", PointCloud(world, {}))
+    with pytest.raises(InputValueError, match=r"bare\.npy: records no scanner origin"):
+        read_sequence([paths[0], tmp_path / "bare.npy"], "origins")
+    for k, beams in enumerate((16, 64)):  # frames of two sensors in one sequence
+        write_cloud(paths[k], PointCloud(world, {"ring": np.arange(50) % beams}, np.array([4e5, 5e6, 11])))
+    seq = read_sequence(paths, "origins")
+    seq.read(0)
+    with pytest.raises(InputValueError, match=r"s1\.npz: rings up to 49 \(50 beams\) where .*s0\.npz has 16"):
+        seq.read(1)
+
+
+def test_nearest_a_frame_at_a_time_equals_nearest_of_the_union(drive):
+    root, poses = drive
+    seq = read_sequence(root)
+    pat = sensor("velodyne_vlp16")
+    pose = poses[2].copy()
+    pose[:3, 3] += [0.3, -0.2, 0.4]
+    u = accumulate(seq, [0, 1, 2, 3])
+    whole = estimate(to_frame(u.points, pose), pat, "nearest")
+    parts, carried = nearest_of_frames(seq, [0, 1, 2, 3], pose, pat)
+    assert np.array_equal(parts.keys, whole.keys) and np.array_equal(parts.index, whole.index)
+    assert np.array_equal(parts.points, whole.points)
+    assert np.array_equal(carried["semantic"], u.attributes["semantic"][whole.index])
+
+
+def test_lidar4d_protocol_clamps_depth_and_takes_its_split(drive, capsys):
+    real = np.array([[10.0, np.nan], [90.0, 5.0]])
+    sim = np.array([[10.5, 3.0], [np.nan, 5.0]])
+    rmse, medae = clamped_depth_errors(real, sim)
+    e = np.array([0.5, 3.0 - 1e-6, 80.0 - 1e-6, 0.0])  # no return counts as 1e-6 m, 90 m as 80
+    assert rmse == pytest.approx(np.sqrt(np.mean(e ** 2))) and medae == pytest.approx(np.median(e))
+    assert lidar4d_holdout(51) == [10, 20, 30, 40]
+    r = _Run(capsys)("sequence", "evaluate", drive[0], "--protocol", "lidar4d", "-o", drive[0].parent / "l4d")
+    assert r.returncode == 2 and "51 frames" in r.stderr and not (drive[0].parent / "l4d").exists()
+
+
+def test_an_e57_files_scans_are_a_sequence(tmp_path):
+    pye57 = pytest.importorskip("pye57")
+    path, world = tmp_path / "campaign.e57", []
+    e = pye57.E57(str(path), mode="w")
+    for k in range(3):
+        local = np.random.default_rng(k).normal(size=(100, 3)) * 5
+        world.append(local + [10.0 * k, 0, 0])
+        e.write_scan_raw({"cartesianX": local[:, 0], "cartesianY": local[:, 1], "cartesianZ": local[:, 2]},
+                         name=f"s{k}", translation=np.array([10.0 * k, 0, 0]), rotation=np.array([1.0, 0, 0, 0]))
+    e.close()
+    seq = read_sequence(path)
+    assert len(seq) == 3 and seq.pose_source == "e57 scan origins"
+    assert np.array_equal(seq.poses[:, 0, 3], [0, 10, 20])
+    u = accumulate(seq, [0, 2])
+    assert np.abs(u.points - np.vstack([world[0], world[2]])).max() < 1e-5  # pye57 stores float32
