@@ -11,9 +11,10 @@ from slr_ray.cli import main
 from slr_ray.errors import FormatError, InputValueError
 from slr_ray.io import PointCloud, read_cloud, write_cloud
 from slr_ray.sensors import sensor
-from slr_ray.sequence import (MOVING_CLASSES, accumulate, check_sequence_pose, estimate, evaluate_sequence,
+from slr_ray.sequence import (MOVING_CLASSES, accumulate, estimate, evaluate_sequence,
                               nearest_of_frames, to_frame,
                               read_sequence, read_trajectory, window)
+from slr_ray.sequence.frames import read_pose_files
 from slr_ray.sequence.holdout import clamped_depth_errors, lidar4d_holdout
 from slr_ray.sequence.synthetic import KITTI_TR, synthetic_drive
 
@@ -82,7 +83,7 @@ def test_bad_poses_named_by_file_and_line(tmp_path, drive):
     with pytest.raises(InputValueError, match=r"t\.txt, line 5: 4 poses for 5 frames"):
         read_sequence(bins, traj)
     traj.write_text("\n".join([good] * 3 + ["2 0 0 0 0 1 0 0 0 0 1 0", good]) + "\n")
-    with pytest.raises(InputValueError, match=r"t\.txt, line 4: .*not rigid"):
+    with pytest.raises(InputValueError, match=r"t\.txt, line 4: .*not a rotation"):
         read_sequence(bins, traj)
     traj.write_text("\n".join([good] * 4 + ["nan 0 0 0 0 1 0 0 0 0 1 0"]) + "\n")
     with pytest.raises(InputValueError, match=r"t\.txt, line 5: .*NaN"):
@@ -91,8 +92,9 @@ def test_bad_poses_named_by_file_and_line(tmp_path, drive):
     tum.write_text("".join(f"{i} {i} 0 0 0 0 0.0998334 0.9950042\n" for i in range(5)))
     P = read_trajectory(tum, 5)
     assert np.allclose(P[2][:3, 3], [2, 0, 0]) and np.allclose(np.linalg.det(P[:, :3, :3]), 1)
-    with pytest.raises(InputValueError, match="pose must be 4 x 4"):
-        check_sequence_pose(np.eye(3), "x")
+    (tmp_path / "p_bad.txt").write_text("2 0 0 0\n0 2 0 0\n0 0 2 0\n0 0 0 1\n")  # a scale: not a pose
+    with pytest.raises(InputValueError, match=r"p_bad\.txt, line 1: .*not a rotation"):
+        read_pose_files([tmp_path / "p_bad.txt"])
     files = []  # one pose file a frame
     for i in range(5):
         files.append(tmp_path / f"p{i}.txt")
@@ -101,7 +103,7 @@ def test_bad_poses_named_by_file_and_line(tmp_path, drive):
         np.savetxt(files[-1], T)
     assert np.array_equal(read_sequence(bins, files).poses[:, 0, 3], np.arange(5.0))
     np.savetxt(files[3], np.diag([1.0, 1, -1, 1]))
-    with pytest.raises(InputValueError, match=r"p3\.txt, line 1: .*not rigid"):
+    with pytest.raises(InputValueError, match=r"p3\.txt, line 1: .*determinant -1: a reflection"):
         read_sequence(bins, files)
     with pytest.raises(InputValueError, match="4 pose files for 5 frames"):
         read_sequence(bins, files[:4])

@@ -17,13 +17,13 @@
 
 from .convert import convert_sequence, target_poses
 from .estimators import ESTIMATORS, FPA_GAP, PulseReturns, estimate
-from .frames import (Frame, Sequence, check_sequence_pose, kitti_velodyne_poses, read_calib_tr, read_file_list,
+from .frames import (Frame, Sequence, kitti_velodyne_poses, read_calib_tr, read_file_list,
                      read_kitti_layout, read_sequence, read_trajectory, register_chain, write_kitti_poses)
 from .holdout import METHODS, evaluate_holdout, evaluate_sequence, mean_rows
 from .union import MOVING_CLASSES, FrameCache, Union, accumulate, nearest_of_frames, to_frame, window
 
 __all__ = ["convert_sequence", "target_poses", "ESTIMATORS", "FPA_GAP", "PulseReturns", "estimate", "Frame",
-           "Sequence", "check_sequence_pose", "kitti_velodyne_poses", "read_calib_tr", "read_file_list",
+           "Sequence", "kitti_velodyne_poses", "read_calib_tr", "read_file_list",
            "read_kitti_layout", "read_sequence", "read_trajectory", "register_chain", "write_kitti_poses",
            "METHODS", "evaluate_holdout", "evaluate_sequence", "mean_rows", "MOVING_CLASSES", "FrameCache",
            "Union", "accumulate", "nearest_of_frames", "to_frame", "window"]

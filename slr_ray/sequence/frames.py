@@ -35,12 +35,13 @@ from pathlib import Path
 import numpy as np
 from tqdm import tqdm
 
+from ..arrays import as_rigid_pose
 from ..errors import FormatError, InputValueError
 from ..evaluate import register
 from ..io import read_cloud, read_e57_scans
 
 __all__ = ["Sequence", "Frame", "read_sequence", "read_kitti_layout", "read_file_list", "read_trajectory",
-           "read_calib_tr", "read_pose_files", "read_e57_sequence", "read_origins", "check_sequence_pose",
+           "read_calib_tr", "read_pose_files", "read_e57_sequence", "read_origins",
            "kitti_velodyne_poses", "write_kitti_poses", "register_chain", "POSE_TOLERANCE"]
 
 #: largest departure of a pose's rotation from orthonormal (|R^T R - I|, |det R - 1|): KITTI's poses
@@ -48,28 +49,10 @@ __all__ = ["Sequence", "Frame", "read_sequence", "read_kitti_layout", "read_file
 POSE_TOLERANCE = 1e-4
 
 
-def check_sequence_pose(T, where: str) -> np.ndarray:
-    """``T`` as a float64 4 x 4 rigid transform, or :class:`InputValueError` naming ``where``.
-
-    Rigid: finite, last row ``0 0 0 1``, ``R^T R = I`` and ``det R = +1``
-    within :data:`POSE_TOLERANCE` (no scale, shear or mirror)."""
-    M = np.asarray(T, np.float64)
-    if M.shape == (3, 4):
-        M = np.vstack([M, [0.0, 0.0, 0.0, 1.0]])
-    if M.shape != (4, 4):
-        raise InputValueError(f"{where}: a pose must be 4 x 4 (or 3 x 4), got shape {M.shape}")
-    if not np.all(np.isfinite(M)):
-        raise InputValueError(f"{where}: the pose holds NaN or infinite numbers")
-    if not np.allclose(M[3], [0, 0, 0, 1], atol=POSE_TOLERANCE, rtol=0):
-        raise InputValueError(f"{where}: the pose's last row is {M[3].tolist()}, not 0 0 0 1")
-    R = M[:3, :3]
-    off = float(np.abs(R.T @ R - np.eye(3)).max())
-    det = float(np.linalg.det(R))
-    if off > POSE_TOLERANCE or abs(det - 1) > POSE_TOLERANCE:
-        raise InputValueError(f"{where}: the pose is not rigid (its rotation departs from orthonormal by "
-                              f"{off:.2g}, determinant {det:.6g}): a scale, shear or mirror")
-    M[3] = (0.0, 0.0, 0.0, 1.0)
-    return M
+def _pose(T, where: str) -> np.ndarray:
+    """A pose read from a file, checked by :func:`slr_ray.arrays.as_rigid_pose`
+    at :data:`POSE_TOLERANCE` (poses files hold 6-7 significant digits)."""
+    return as_rigid_pose(T, name=where, tol=POSE_TOLERANCE)
 
 
 def _numbers(path: Path, line_no: int, text: str, n: int | tuple) -> np.ndarray:
@@ -115,14 +98,14 @@ def read_trajectory(path, n_frames: int | None = None) -> np.ndarray:
         v = _numbers(p, line_no, s, (12, 8))
         where = f"{p}, line {line_no}"
         if len(v) == 12:
-            out[k] = check_sequence_pose(v.reshape(3, 4), where)
+            out[k] = _pose(v.reshape(3, 4), where)
         else:
             if not np.all(np.isfinite(v)):
                 raise InputValueError(f"{where}: the pose holds NaN or infinite numbers")
             T = np.eye(4)
             T[:3, :3] = _quaternion(*v[4:], where)
             T[:3, 3] = v[1:4]
-            out[k] = check_sequence_pose(T, where)
+            out[k] = _pose(T, where)
     return out
 
 
@@ -137,7 +120,7 @@ def read_pose_files(paths) -> np.ndarray:
         v = np.concatenate(nums) if nums else np.zeros(0)
         if len(v) not in (12, 16):
             raise InputValueError(f"{p}: {len(v)} numbers, expected a 4 x 4 or 3 x 4 pose (16 or 12)")
-        out[k] = check_sequence_pose(v.reshape(-1, 4), f"{p}, line {rows[0][0]}")
+        out[k] = _pose(v.reshape(-1, 4), f"{p}, line {rows[0][0]}")
     return out
 
 
@@ -147,7 +130,7 @@ def read_calib_tr(path) -> np.ndarray:
     for line_no, s in _lines(p):
         key, _, rest = s.partition(":")
         if key.strip() == "Tr":
-            return check_sequence_pose(_numbers(p, line_no, rest, 12).reshape(3, 4), f"{p}, line {line_no}")
+            return _pose(_numbers(p, line_no, rest, 12).reshape(3, 4), f"{p}, line {line_no}")
     raise InputValueError(f"{p}: no 'Tr:' line (the velodyne-to-camera transform)")
 
 
