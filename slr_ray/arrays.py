@@ -119,10 +119,10 @@ def as_rigid_pose(pose, name: str = "pose", tol: float = POSE_TOLERANCE,
     if arr.shape == (3, 4):
         arr = np.vstack([arr, [0, 0, 0, 1]])
     if arr.shape != (4, 4):
-        raise InputValueError(f"{name} must be a 4 x 4 (or 3 x 4) matrix, got shape {arr.shape}")
+        raise InputValueError(f"{name}: must be a 4 x 4 (or 3 x 4) matrix, got shape {arr.shape}")
     T = arr.astype(np.float64)
     if not np.isfinite(T).all():
-        raise InputValueError(f"{name} holds {int(np.count_nonzero(~np.isfinite(T)))} NaN or inf value(s)")
+        raise InputValueError(f"{name}: {int(np.count_nonzero(~np.isfinite(T)))} NaN or inf value(s)")
     if not np.array_equal(T[3], [0.0, 0.0, 0.0, 1.0]):
         raise InputValueError(f"{name}: the last row must be 0 0 0 1 (a rigid pose), got "
                               f"{' '.join(repr(float(v)) for v in T[3])}")
