@@ -40,7 +40,7 @@ from tqdm import tqdm
 from . import __version__
 from .backends import Backend, options_for, prepare
 from .effects import Effects, effect_cloud, simulate
-from .errors import InputValueError, MissingDependencyError, OutputError, refuse_memory
+from .errors import InputValueError, MissingDependencyError, OutputError, SlrError, refuse_memory
 from .io import PointCloud, atomic_path, check_format, read_cloud, write_cloud
 from .outputs import OutputPlan, content_digest, label_destinations, link_new, output_sidecars, part_prefix
 from .paper import MIN_GROUND_POINTS, SCANNER_HEIGHT, SECONDARY_RESOLUTION
@@ -231,10 +231,14 @@ def _write_job(job, sub, entry, t0):
             write_cloud(stage, sub)
         for w in said:  # about the scan the user will see, not its staging name
             warnings.warn(str(w.message).replace(str(stage), str(final)), w.category, stacklevel=2)
-    except BaseException:
+    except BaseException as exc:
         for p in (stage, labels):
             if p is not None:
                 p.unlink(missing_ok=True)
+        if isinstance(exc, (OSError, SlrError)) and str(stage) in str(exc):  # the scan's name, not its stage's
+            if isinstance(exc, OSError) and exc.errno is not None:
+                raise OSError(exc.errno, str(exc.strerror).replace(str(stage), str(final))) from exc
+            raise type(exc)(str(exc).replace(str(stage), str(final))) from exc
         raise
     staged = [(str(stage), str(final))]
     if labels is not None and labels.exists():
@@ -567,7 +571,7 @@ def _augment(input_path, out, config, pattern, options, ext, names, ground, prog
     else:
         # a scan's sidecars too (a .bin's .label): written over, or removed as stale, by a fresh run
         strays = sorted(str(p if p.parent != out else p.name) for n in names
-                        for p in [out / n, *output_sidecars(out / n, ext)] if p.exists())
+                        for p in [out / n, *output_sidecars(out / n, ext)] if os.path.lexists(p))
         if strays:
             raise OutputError(f"{out} holds {strays[0]}{f' and {len(strays) - 1} more' if len(strays) > 1 else ''} "
                               f"but no {MANIFEST}: not a run this one can resume; write elsewhere")

@@ -454,3 +454,19 @@ def test_ctrl_c_while_workers_start_prints_one_line_and_no_worker_traceback(laz,
     if rc == 0:
         pytest.skip("the run finished before the signal arrived (a loaded machine)")
     assert rc == 130 and err.strip().splitlines() == ["slr-ray: interrupted"], err
+
+
+def test_a_scan_that_cannot_be_written_is_named_by_its_own_name_not_its_hidden_one(tmp_path, monkeypatch, capsys):
+    import errno
+
+    from slr_ray import io as sio
+
+    def full(path, *a):
+        raise OSError(errno.EFBIG, "File too large")
+
+    monkeypatch.setitem(sio._WRITERS, ".npz", full)
+    out = tmp_path / "out"
+    assert main(["augment", str(_ground(tmp_path)), *_SMALL, "--n", "2", "-o", str(out)]) == 2
+    (line,) = capsys.readouterr().err.strip().splitlines()
+    assert line.endswith(f"cannot write {out / 'scan_0000_h1.65.npz'}: File too large"), line
+    assert not out.exists()
