@@ -131,7 +131,8 @@ def _check_last_chunk(path, header, laz, record_data, table, declared_last) -> N
     past: points dropped, or garbage decoded). Layered chunks (LAS 1.4 point
     formats) record their count; a pointwise chunk does not, but its
     arithmetic coder ends in step with its bytes: the declared points must need
-    the chunk's last byte and no byte past it."""
+    the chunk's last byte and no byte past it (points that take no byte, exact
+    repeats of the one before at the chunk's end, cannot be counted so)."""
     start = int(header.offset_to_point_data) + 8 + sum(int(c[1]) for c in table[:-1])
     nbytes = int(table[-1][1])
     psize = int(header.point_format.size)
