@@ -25,7 +25,11 @@ import importlib.util
 import json
 import multiprocessing
 import os
+import re
+import signal
+import tempfile
 import time
+import warnings
 from concurrent.futures import ThreadPoolExecutor
 from dataclasses import dataclass, field
 from pathlib import Path
@@ -35,9 +39,9 @@ import numpy as np
 from . import __version__
 from .backends import Backend, options_for, prepare
 from .effects import Effects, effect_cloud, simulate
-from .errors import InputValueError, MissingDependencyError, OutputError, refuse_memory
+from .errors import InputValueError, MissingDependencyError, OutputError, SlrError, refuse_memory
 from .io import PointCloud, atomic_path, check_format, read_cloud, write_cloud
-from .outputs import OutputPlan, content_digest, output_sidecars
+from .outputs import OutputPlan, content_digest, label_destinations, link_new, output_sidecars, part_prefix
 from .paper import MIN_GROUND_POINTS, SCANNER_HEIGHT, SECONDARY_RESOLUTION
 from .pattern import ScanPattern, as_pattern
 from .positions import CLI_FLAGS, ground_labels, select_positions
@@ -119,21 +123,63 @@ def _resumable(manifest_path: Path, settings: dict, positions, out: Path) -> dic
                 entry = json.loads(line)
             except ValueError:
                 continue  # a line cut short by the interruption
-            scans[entry["file"]] = entry
+            if entry.get("withdrawn"):  # recorded, then found another's file at its name (_publish)
+                scans.pop(entry["file"], None)
+            else:
+                scans[entry["file"]] = entry
     return {k: v for k, v in scans.items() if (out / k).exists()}
 
 
+#: the signals that stop a run: the parent's to act on (it terminates its workers), never a worker's
+_STOP_SIGNALS = {signal.SIGINT, signal.SIGTERM}
+
+
+class _WorkerProcess(multiprocessing.context.SpawnProcess):
+    """A worker started with SIGINT and SIGTERM blocked (the mask a child
+    inherits), so that a worker interrupted while it starts (Ctrl-C reaches
+    the whole process group; the pool terminates its workers) never prints a
+    traceback of its half-read start-up data: :func:`_init_worker` ignores
+    SIGINT and lets SIGTERM in. The parent's signals stay blocked while it
+    sends a worker its start-up data, and arrive once it is sent."""
+
+    def start(self):
+        old = signal.pthread_sigmask(signal.SIG_BLOCK, _STOP_SIGNALS)
+        try:
+            super().start()
+        finally:
+            signal.pthread_sigmask(signal.SIG_SETMASK, old)
+
+
+class _WorkerContext(multiprocessing.context.SpawnContext):
+    Process = _WorkerProcess
+
+
 def _init_worker(points, attributes, origin, meta):
+    signal.signal(signal.SIGINT, signal.SIG_IGN)  # the parent decides, and terminates the pool
+    signal.pthread_sigmask(signal.SIG_UNBLOCK, _STOP_SIGNALS)  # a SIGTERM sent meanwhile ends it here
     _WORKER["cloud"] = PointCloud(points, attributes, origin, meta)
 
 
 def _remove_temporaries(jobs) -> None:
-    """Temporary files of ``jobs`` left by workers killed mid-write (the pool
-    terminates its workers with SIGTERM, which no worker code outlives)."""
+    """Temporary files of ``jobs``: those of workers killed mid-write (the pool
+    terminates its workers with SIGTERM, which no worker code outlives), and
+    scans staged but not published (:func:`_write_job`), labels included. One
+    listing of each directory, however many jobs."""
+    wanted = {}
     for job in jobs:
         path = Path(job["path"])
-        for tmp in path.parent.glob(f".{path.name}.*.part*"):
-            tmp.unlink(missing_ok=True)
+        for d in {path.parent, *(p.parent for p in output_sidecars(path))}:
+            wanted.setdefault(d, set()).add(path.name)
+    for d, names in wanted.items():
+        if not d.is_dir():
+            continue
+        for p in d.iterdir():
+            m = _TEMPORARY.match(p.name)  # a stage, or a stage's own temporary (..NAME...)
+            if m is not None and m["name"] in names:
+                p.unlink(missing_ok=True)
+
+
+_TEMPORARY = re.compile(r"^\.\.?(?P<name>.+?)\.\d+@[A-Za-z0-9_-]+\.[^.]+\.part")
 
 
 def _scanner(cloud, backend, options):
@@ -168,14 +214,73 @@ def _scan_job(job, cloud):
 
 
 def _write_job(job, sub, entry, t0):
-    """Write a job's scan (atomic: a temporary file renamed into place); its manifest entry."""
-    write_cloud(Path(job["path"]), sub)
-    return {**entry, "seconds": round(time.perf_counter() - t0, 4)}
+    """Write a job's scan, complete, under a hidden staging name beside its own
+    (a ``.bin``'s labels too); its manifest entry, with ``"_staged"``: the
+    ``(staged, final)`` pairs that :func:`_publish` renames once the run has
+    recorded the scan. Staged, not renamed here: a worker's file under a final
+    name before the run records it would be, after an interruption, a file
+    the run cannot tell from another program's."""
+    final = Path(job["path"])
+    fd, stage = tempfile.mkstemp(prefix=part_prefix(final), suffix=".part" + final.suffix, dir=final.parent)
+    os.close(fd)
+    stage = Path(stage)
+    labels = label_destinations(stage)[0] if final.suffix.lower() == ".bin" else None
+    try:
+        with warnings.catch_warnings(record=True) as said:
+            warnings.simplefilter("always")
+            write_cloud(stage, sub)
+        for w in said:  # about the scan the user will see, not its staging name
+            warnings.warn(str(w.message).replace(str(stage), str(final)), w.category, stacklevel=2)
+    except BaseException as exc:
+        for p in (stage, labels):
+            if p is not None:
+                p.unlink(missing_ok=True)
+        if isinstance(exc, (OSError, SlrError)) and str(stage) in str(exc):  # the scan's name, not its stage's
+            if isinstance(exc, OSError) and exc.errno is not None:
+                raise OSError(exc.errno, str(exc.strerror).replace(str(stage), str(final))) from exc
+            raise type(exc)(str(exc).replace(str(stage), str(final))) from exc
+        raise
+    staged = [(str(stage), str(final))]
+    if labels is not None and labels.exists():
+        staged.insert(0, (str(labels), str(label_destinations(final)[0])))
+    return {**entry, "seconds": round(time.perf_counter() - t0, 4), "_staged": staged}
+
+
+def _publish(staged, ext) -> list:
+    """Give a scan's staged files their final names, never over a file: one
+    there now (another program's, written into the directory during the run) is
+    an :class:`~slr_ray.errors.OutputError` naming it, left as it is, and the
+    scan's staged files are removed; so is a ``.label`` a reader would pair with
+    a ``.bin`` scan written without labels. Returns the paths published."""
+    final = Path(staged[-1][1])
+    finals = {Path(f) for _, f in staged}
+    unpaired = [p for p in output_sidecars(final, ext) if p not in finals and os.path.lexists(p)]
+    published = []
+    try:
+        if unpaired:
+            raise FileExistsError(unpaired[0])
+        for stage, dest in staged:
+            link_new(stage, dest)
+            published.append(Path(dest))
+    except FileExistsError as exc:
+        for p in published:  # this scan's own, just linked
+            p.unlink(missing_ok=True)
+        for stage, _ in staged:
+            Path(stage).unlink(missing_ok=True)
+        theirs = exc.filename or exc.args[0]
+        raise OutputError(f"{theirs} appeared in the output directory during the run (this run did not write it): "
+                          "left as it is, and the run stopped; move it away and rerun to resume") from None
+    return published
 
 
 def _scan_one(job, cloud=None):
-    """One SLR scan written to ``job['path']``; returns its manifest entry."""
-    return _write_job(job, *_scan_job(job, cloud if cloud is not None else _WORKER["cloud"]))
+    """One SLR scan staged for ``job['path']`` (in a worker); returns its manifest
+    entry, with ``"_warnings"``: what the scan warned, for the parent to say (a
+    worker's stderr would print Python's warning text, not the caller's)."""
+    with warnings.catch_warnings(record=True) as said:
+        warnings.simplefilter("always")
+        entry = _write_job(job, *_scan_job(job, cloud if cloud is not None else _WORKER["cloud"]))
+    return {**entry, "_warnings": [(str(w.message), w.category) for w in said]}
 
 
 def _run_streamed(jobs, path, pattern, chunk, per_pass, done, progress=False) -> None:
@@ -473,7 +578,7 @@ def _augment(input_path, out, config, pattern, options, ext, names, ground, prog
     else:
         # a scan's sidecars too (a .bin's .label): written over, or removed as stale, by a fresh run
         strays = sorted(str(p if p.parent != out else p.name) for n in names
-                        for p in [out / n, *output_sidecars(out / n, ext)] if p.exists())
+                        for p in [out / n, *output_sidecars(out / n, ext)] if os.path.lexists(p))
         if strays:
             raise OutputError(f"{out} holds {strays[0]}{f' and {len(strays) - 1} more' if len(strays) > 1 else ''} "
                               f"but no {MANIFEST}: not a run this one can resume; write elsewhere")
@@ -492,6 +597,13 @@ def _augment(input_path, out, config, pattern, options, ext, names, ground, prog
                          "options": backend_options,
                          "effects": None if effects is None else {**effects.to_dict(),
                                                                   "seed": _scan_seed(effects.seed, i, k)}})
+    if not fresh:  # an extension or a resume writes only names no run recorded: any file there is another's
+        theirs = sorted(str(p if p.parent != out else p.name) for j in jobs
+                        for p in [Path(j["path"]), *output_sidecars(j["path"], ext)] if os.path.lexists(p))
+        if theirs:
+            raise OutputError(f"{out} holds {theirs[0]}{f' and {len(theirs) - 1} more' if len(theirs) > 1 else ''}"
+                              f", which its {MANIFEST} does not list: this run would write there; move "
+                              f"{'it' if len(theirs) == 1 else 'them'} away, or write elsewhere")
     manifest = {"software": f"slr_ray {__version__}", "settings": settings, "input": str(input_path),
                 "n_requested": config.n, "seed": config.seed, "pattern": pattern.to_dict(), "backend": backend,
                 "heights": list(heights), "effects": settings.get("effects"),
@@ -511,10 +623,16 @@ def _augment(input_path, out, config, pattern, options, ext, names, ground, prog
         # MANIFEST_EVERY seconds (rewriting it after each of thousands of scans is quadratic)
         entry = {**entry, "done": round(time.perf_counter() - record_start, 3)}  # seconds into this run
         manifest["scans"].append(entry)
-        with open(journal, "a") as f:
-            f.write(json.dumps(entry) + "\n")
+        try:
+            with open(journal, "a") as f:
+                f.write(json.dumps(entry) + "\n")
+        except OSError as exc:  # 'File too large', 'No space left on device': say which file
+            if exc.filename is not None:
+                raise
+            raise OSError(exc.errno, f"cannot write {journal}: {exc.strerror or exc}") from exc
         if time.perf_counter() - last_write[0] > MANIFEST_EVERY:
             write_manifest()
+        return entry
 
     write_manifest()
     record_start = time.perf_counter()
@@ -523,11 +641,24 @@ def _augment(input_path, out, config, pattern, options, ext, names, ground, prog
         bar = progress_bar(total=len(jobs), desc="augment", unit="scan", leave=True)
 
     def done_one(entry):
-        record(entry)
+        # recorded, then published: a scan under its final name is always one the journal lists (an
+        # interruption between the two leaves a recorded scan whose file is absent: it is made again)
+        staged = entry.pop("_staged")
+        for message, category in entry.pop("_warnings", ()):  # a worker's, said here
+            warnings.warn(message, category, stacklevel=2)
+        entry = record(entry)
+        try:
+            _publish(staged, ext)
+        except OutputError:
+            manifest["scans"].remove(entry)
+            with open(journal, "a") as f:
+                f.write(json.dumps({"file": entry["file"], "withdrawn": True}) + "\n")
+            raise
         if bar is not None:
             bar.update()
 
     failed = False  # an error (exit 2), not an interruption (which keeps what it made, to resume)
+    complete = False
     try:
         if cloud is None:  # streamed
             _run_streamed(jobs, input_path, pattern, int(config.chunk_size), int(config.per_pass), done_one,
@@ -553,17 +684,14 @@ def _augment(input_path, out, config, pattern, options, ext, names, ground, prog
             # multiprocessing.Pool, not ProcessPoolExecutor: on an interrupt (SIGINT, or
             # SIGTERM turned into one by the CLI) its exit terminates the workers at once
             # instead of running every queued scan first.
-            ctx = multiprocessing.get_context("spawn")
-            try:
-                with ctx.Pool(n_workers, initializer=_init_worker,
-                              initargs=(cloud.points, cloud.attributes, cloud.origin, cloud.meta)) as pool:
-                    for entry in pool.imap(_scan_one, jobs):
-                        done_one(entry)
-            except BaseException:
-                _remove_temporaries(jobs)
-                raise
+            ctx = _WorkerContext()
+            with ctx.Pool(n_workers, initializer=_init_worker,
+                          initargs=(cloud.points, cloud.attributes, cloud.origin, cloud.meta)) as pool:
+                for entry in pool.imap(_scan_one, jobs):
+                    done_one(entry)
         else:
             _run_serial(jobs, cloud, done_one)
+        complete = True
     except Exception:
         failed = True
         raise
@@ -573,13 +701,12 @@ def _augment(input_path, out, config, pattern, options, ext, names, ground, prog
         if failed and fresh and not manifest["scans"]:
             # an error before any scan was recorded: leave nothing (none of these files existed before
             # this run; the plan then removes the directory if it created it)
-            _remove_temporaries(jobs)
-            for j in jobs:
-                for path in [Path(j["path"]), *output_sidecars(j["path"])]:
-                    path.unlink(missing_ok=True)
+            _remove_temporaries(jobs)  # no scan was published (each is recorded first): only staged files
             manifest_path.unlink(missing_ok=True)
             journal.unlink(missing_ok=True)
         else:
+            if not complete:  # scans staged but never published (an interruption)
+                _remove_temporaries(jobs)
             write_manifest()  # complete or interrupted: the manifest lists every scan written
     journal.unlink(missing_ok=True)
     manifest["seconds"] = round(time.perf_counter() - record_start, 3)

@@ -118,6 +118,8 @@ def check_format(path, fmt=None) -> str:
     FormatError
         for a format slr_ray cannot read and write.
     """
+    if os.path.isdir(path):  # its 'extension' is nothing, or a directory name's ('unknown format .')
+        raise FormatError(f"{path} is a directory, not a point-cloud file")
     ext = (fmt if fmt else Path(path).suffix).lower()
     if not ext.startswith("."):
         ext = "." + ext
@@ -368,9 +370,15 @@ def atomic_path(path):
     try:
         yield Path(tmp)
         os.replace(tmp, target)
-    except BaseException:
+    except BaseException as exc:
         if os.path.exists(tmp):
             os.unlink(tmp)
+        if isinstance(exc, OSError) and exc.filename in (None, tmp, str(tmp)):
+            # a writer's 'File too large' or 'No space left on device' names no file, or our temporary;
+            # numpy's tofile says '76468 requested and 1024 written', without an errno
+            if exc.errno is not None:
+                raise OSError(exc.errno, f"cannot write {path}: {exc.strerror or exc}") from exc
+            raise OSError(f"cannot write {path}: {exc} (a full disk, or a file-size limit?)") from exc
         raise
 
 

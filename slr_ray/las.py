@@ -11,7 +11,9 @@ field types, and never wrap a value into a field too small for it.
 from __future__ import annotations
 
 import copy
+import io
 import os
+import struct
 import warnings
 from pathlib import Path
 
@@ -26,16 +28,17 @@ __all__ = ["read", "write", "check_las_size"]
 
 
 def check_las_size(path, header) -> None:
-    """Refuse an uncompressed LAS whose header declares fewer points than its
-    point data holds (whole records left over before the EVLRs or the end of
-    the file: a header that lies). A declared count *larger* than the file
-    holds is found by the readers, which stop where the records run out.
+    """Refuse a LAS/LAZ whose header declares another count than its point
+    data holds. Uncompressed: whole records left over before the EVLRs or the
+    end of the file (a header that lies), or fewer records than declared (a
+    truncated file, a part of a record included: laspy read what was there,
+    or failed in numpy's words).
     Point data ends at the first EVLR or at LAS 1.3's internal waveform
     packets, where a file has them. LAZ: the chunk table's point counts
     (variable-size chunks: exactly; fixed-size chunks: a count that leaves
-    whole chunks unread — a lie within the last chunk needs a decompression
-    to see, and goes unseen; a count larger than the table can hold is
-    refused here too, in its terms rather than the decompressor's). A LAS 1.4
+    whole chunks unread, or one larger than the table can hold, and the last
+    chunk's own count, read from a layered chunk or found by decompressing a
+    pointwise one: :func:`_check_last_chunk`). A LAS 1.4
     legacy count that disagrees with the 1.4 count is read past with a warning."""
     if header.are_points_compressed:
         _check_laz_chunks(path, header)
@@ -53,10 +56,15 @@ def _check_las_records(path, header) -> None:
     waveforms = int(getattr(header, "start_of_waveform_data_packet_record", 0) or 0)  # LAS 1.3+, internal
     if header.offset_to_point_data < waveforms <= end:
         end = waveforms
-    room = (end - int(header.offset_to_point_data)) // header.point_format.size
+    data = end - int(header.offset_to_point_data)
+    room, rest = divmod(max(data, 0), header.point_format.size)
     if room > header.point_count:
         raise FormatError(f"{path}: the header declares {header.point_count:,} points, the file holds "
                           f"{room:,} (a header that lies, or a corrupt file)")
+    if room < header.point_count:  # laspy: points dropped quietly, or numpy's 'buffer size must be a multiple'
+        raise FormatError(f"{path}: the header declares {header.point_count:,} points, the file holds "
+                          f"{room:,}{f' and {rest} bytes of another' if rest else ''} (truncated, or a header "
+                          "that lies)")
 
 
 def _check_legacy_count(path, header) -> None:
@@ -113,6 +121,104 @@ def _check_laz_chunks(path, header) -> None:
         raise FormatError(f"{path}: the header declares {declared:,} points, its LAZ chunk table holds "
                           f"{len(table):,} chunks of {size:,}: {len(table) * size:,} points at most "
                           "(truncated, or a header that lies)")
+    if size:
+        _check_last_chunk(path, header, laz, vlr.record_data_bytes(), table, declared - (len(table) - 1) * size)
+
+
+def _check_last_chunk(path, header, laz, record_data, table, declared_last) -> None:
+    """Refuse a LAZ of fixed-size chunks whose last chunk holds another count
+    than the header leaves it (a lie inside the last chunk, which laspy reads
+    past: points dropped, or garbage decoded). Layered chunks (LAS 1.4 point
+    formats) record their count; a pointwise chunk does not, but its
+    arithmetic coder ends in step with its bytes: the declared points must need
+    the chunk's last byte and no byte past it (points that take no byte, exact
+    repeats of the one before at the chunk's end, cannot be counted so)."""
+    start = int(header.offset_to_point_data) + 8 + sum(int(c[1]) for c in table[:-1])
+    nbytes = int(table[-1][1])
+    psize = int(header.point_format.size)
+    with open(path, "rb") as f:
+        f.seek(start)
+        chunk = f.read(nbytes)
+    if len(chunk) < nbytes:
+        return  # cut short: the readers say so
+    compressor = int.from_bytes(record_data[:2], "little")
+    if compressor == 3:  # layered: the raw first point, then the chunk's count
+        held = int.from_bytes(chunk[psize:psize + 4], "little") if len(chunk) >= psize + 4 else None
+        if held is not None and held != declared_last:
+            _refuse_last_chunk(path, header, table, held, declared_last)
+        return
+    if compressor != 2:
+        return
+    stream = _ChunkStream(chunk, laz)
+
+    def fits(k, end):  # k points decode from the chunk's first `end` bytes
+        return stream.decodes(record_data, psize, k, end)
+
+    if fits(declared_last, nbytes) and not fits(declared_last, nbytes - 1):
+        return
+    cap = int(laz.chunk_size())
+    lo, hi = 0, cap + 1  # the fewest points that need the chunk's last byte: its count
+    while hi - lo > 1:
+        mid = (lo + hi) // 2
+        lo, hi = (mid, hi) if fits(mid, nbytes - 1) else (lo, mid)
+    _refuse_last_chunk(path, header, table, hi if hi <= cap and fits(hi, nbytes) else None, declared_last)
+
+
+def _refuse_last_chunk(path, header, table, held_last, declared_last):
+    full = len(table) - 1
+    before = int(header.point_count) - declared_last
+    last = f"{held_last:,}" if held_last is not None else "another count of"
+    where = (f"{full:,} full chunks and a last one of {last} points" if full else f"one chunk of {last} points")
+    held = f"{before + held_last:,}" if held_last is not None else "another count"
+    raise FormatError(f"{path}: the header declares {int(header.point_count):,} points, its LAZ chunks hold "
+                      f"{held} ({where}, not {declared_last:,}): a header that lies, or a corrupt file")
+
+
+class _ChunkStream(io.RawIOBase):
+    """One LAZ chunk as a file lazrs decompresses: the chunk-table offset,
+    the chunk, a one-entry table; reads stop at ``end`` bytes of the chunk."""
+
+    def __init__(self, chunk, laz):
+        table = io.BytesIO()
+        lazrs.write_chunk_table(table, [(int(laz.chunk_size()), len(chunk))], laz)
+        self.data = struct.pack("<q", 8 + len(chunk)) + chunk + table.getvalue()
+        self.pos, self.limit = 0, len(self.data)
+        self.chunk_end = 8 + len(chunk)
+
+    def readable(self):
+        return True
+
+    def seekable(self):
+        return True
+
+    def tell(self):
+        return self.pos
+
+    def seek(self, offset, whence=0):
+        self.pos = offset if whence == 0 else self.pos + offset if whence == 1 else len(self.data) + offset
+        return self.pos
+
+    def readinto(self, buf):
+        n = max(0, min(self.limit, self.pos + len(buf)) - self.pos)
+        buf[:n] = self.data[self.pos:self.pos + n]
+        self.pos += n
+        return n
+
+    def decodes(self, record_data, psize, k, end, batch=1 << 20) -> bool:
+        """Whether ``k`` points decode from the chunk's first ``end`` bytes."""
+        self.pos, self.limit = 0, len(self.data)
+        try:
+            dec = lazrs.LasZipDecompressor(self, record_data)  # reads the table, then returns to the chunk
+            self.limit = 8 + end
+            out = bytearray(min(k, batch) * psize)
+            left = k
+            while left:
+                step = min(left, batch)
+                dec.decompress_many(memoryview(out)[:step * psize])
+                left -= step
+        except Exception:  # noqa: BLE001  lazrs: 'failed to fill whole buffer', or garbage it cannot decode
+            return False
+        return True
 
 
 def read(path) -> tuple:

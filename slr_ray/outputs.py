@@ -20,7 +20,9 @@ directories), then enters the plan. The plan
   before the work, not after it;
 - locks every output directory (``.slr_ray.lock``, an advisory ``flock``,
   released by the kernel when the process dies, even by ``kill -9``), so two
-  runs into one directory cannot both proceed;
+  runs into one directory cannot both proceed; a single file is not written
+  into a directory another run holds (a shared lock on its lock file, where
+  there is one);
 - removes the ``.part`` temporaries that a killed run left beside its
   outputs (:func:`slr_ray.io.atomic_path` names them with the writer's host
   and process id; those of a process still alive are left alone);
@@ -43,7 +45,7 @@ from pathlib import Path
 from .errors import OutputError
 
 __all__ = ["OutputPlan", "resolve", "output_sidecars", "input_sidecars", "label_targets", "content_digest",
-           "clean_stale_parts", "part_prefix", "label_path", "label_destinations", "LOCK_NAME"]
+           "clean_stale_parts", "part_prefix", "label_path", "label_destinations", "link_new", "LOCK_NAME"]
 
 #: The lock file in an output directory while a command writes there.
 LOCK_NAME = ".slr_ray.lock"
@@ -180,6 +182,25 @@ def clean_stale_parts(directory, names=None, *, locked: bool = False) -> list:
     return removed
 
 
+def link_new(src, dst) -> None:
+    """Rename ``src`` to ``dst`` only if ``dst`` does not exist, atomically: a
+    hard link (which the kernel refuses over any existing name, a dangling
+    link included: :class:`FileExistsError`), then ``src`` removed. On a file
+    system without hard links, a check and a rename (a narrow race)."""
+    try:
+        os.link(src, dst)
+    except FileExistsError:
+        raise FileExistsError(errno.EEXIST, "File exists", str(dst)) from None
+    except OSError as exc:
+        if exc.errno not in (errno.EPERM, errno.ENOTSUP, errno.EOPNOTSUPP, errno.EMLINK, errno.ENOSYS):
+            raise
+        if os.path.lexists(dst):
+            raise FileExistsError(errno.EEXIST, "File exists", str(dst)) from None
+        os.rename(src, dst)
+        return
+    os.unlink(src)
+
+
 # --- identity ------------------------------------------------------------------------------------------------
 
 def content_digest(path, block: int = 1 << 22) -> str:
@@ -221,23 +242,42 @@ def _read_only_fs(d: Path) -> bool:
 
 
 class _Lock:
-    """An exclusive advisory lock on ``directory/.slr_ray.lock`` (non-blocking)."""
+    """An advisory lock on ``directory/.slr_ray.lock`` (non-blocking): exclusive
+    for a command that owns the directory (created if missing, removed at
+    release), or ``shared`` for one that writes a single file there: taken only
+    where the lock file exists (a directory command's), so that such a file is
+    never written into a directory another run holds, and several single-file
+    commands may write into one directory at once."""
 
-    def __init__(self, directory: Path):
+    def __init__(self, directory: Path, shared: bool = False):
         self.path = directory / LOCK_NAME
+        self.shared = shared
         self.fd = None
 
     def acquire(self) -> None:
         for _ in range(3):
-            fd = os.open(self.path, os.O_RDWR | os.O_CREAT, 0o666)
             try:
-                fcntl.flock(fd, fcntl.LOCK_EX | fcntl.LOCK_NB)
+                fd = os.open(self.path, os.O_RDONLY if self.shared else os.O_RDWR | os.O_CREAT, 0o666)
+            except FileNotFoundError:
+                if self.shared:
+                    return  # no directory command writes there
+                raise
+            except PermissionError:
+                if self.shared:
+                    return  # another user's lock file: the directory's permissions decide
+                raise
+            try:
+                fcntl.flock(fd, (fcntl.LOCK_SH if self.shared else fcntl.LOCK_EX) | fcntl.LOCK_NB)
             except OSError as exc:
                 holder = os.pread(fd, 64, 0).decode("ascii", "replace").strip()
+                m = re.fullmatch(r"pid (\d+) on (\S+)", holder)
+                if m is not None and m[2] == _HOST and not _alive(int(m[1])):
+                    holder = ""  # a killed run's: the lock is held by a single-file command (shared)
                 os.close(fd)
                 if exc.errno in (errno.EAGAIN, errno.EACCES):
                     raise OutputError(f"{self.path.parent} is in use by another slr-ray run"
-                                      f"{f' ({holder})' if holder else ''}: wait for it, or write elsewhere") from None
+                                      f"{f' ({holder})' if holder else ''}: wait for it, "
+                                      "or write elsewhere") from None
                 raise
             # the file may have been removed by the run that held it, between our open and flock
             try:
@@ -245,8 +285,9 @@ class _Lock:
             except FileNotFoundError:
                 same = False
             if same:
-                os.ftruncate(fd, 0)
-                os.pwrite(fd, f"pid {os.getpid()} on {_HOST}".encode(), 0)
+                if not self.shared:
+                    os.ftruncate(fd, 0)
+                    os.pwrite(fd, f"pid {os.getpid()} on {_HOST}".encode(), 0)
                 self.fd = fd
                 return
             os.close(fd)
@@ -254,12 +295,23 @@ class _Lock:
 
     def release(self) -> None:
         if self.fd is not None:
-            try:
-                os.unlink(self.path)
-            except FileNotFoundError:
-                pass
+            if not self.shared:
+                try:
+                    os.unlink(self.path)
+                except FileNotFoundError:
+                    pass
             os.close(self.fd)
             self.fd = None
+
+
+def _refuse_directory_syntax(path, what) -> None:
+    """Refuse a file named as a directory (``-o ts.npz/``: ``Path`` drops the
+    slash, and a file ``ts.npz`` was written; the system refuses ``ts.npz/``
+    as a file, so do we)."""
+    text = os.fspath(path)
+    if isinstance(text, str) and text.endswith(("/", os.sep, "/.")) and not os.path.isdir(text):
+        raise OutputError(f"{text}: a path ending in '/' names a directory, and this {what} is a file: "
+                          "drop the '/'")
 
 
 class OutputPlan:
@@ -302,6 +354,7 @@ class OutputPlan:
         the extension's, reads beside it). None is skipped."""
         if path is None:
             return None
+        _refuse_directory_syntax(path, "input")
         self.inputs.setdefault(resolve(path), str(path))
         if sidecars:
             for s in input_sidecars(path, fmt):
@@ -318,6 +371,7 @@ class OutputPlan:
         link, the file it points to. None is skipped."""
         if path is None:
             return None
+        _refuse_directory_syntax(path, "output")
         if check is not None:
             self.checks.append((check, path))
         for p in [Path(path)] + (output_sidecars(path, fmt) if sidecars else []):
@@ -391,7 +445,11 @@ class OutputPlan:
                 self._locks.append(lock)
                 clean_stale_parts(r, locked=True)
             files = [*self.outputs, *self.resumed]
-            for parent in {r.parent for r in files} - set(self.directories):
+            for parent in sorted({r.parent for r in files} - set(self.directories)):
+                if parent.is_dir():  # a directory another run holds (augment's) is not written into
+                    lock = _Lock(parent, shared=True)
+                    lock.acquire()
+                    self._locks.append(lock)
                 clean_stale_parts(parent, [r.name for r in files if r.parent == parent])
             self.check()  # again under the lock: another run may have written meanwhile
         except BaseException:

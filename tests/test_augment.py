@@ -132,7 +132,7 @@ def test_sigterm_stops_workers_and_leaves_no_temporaries(laz, tmp_path):
     worker processes are gone, no hidden temporary file is left, and a rerun
     completes the set."""
     out = tmp_path / "part"
-    n = 120
+    n = 40
     cmd = [sys.executable, "-m", "slr_ray.cli", "augment", str(laz), "--n", str(n), "--min-ground-points",
            "1000", "--workers", "2", "--quiet", "-o", str(out)]
     proc = subprocess.Popen(cmd, stdout=subprocess.PIPE, stderr=subprocess.PIPE)
@@ -144,7 +144,8 @@ def test_sigterm_stops_workers_and_leaves_no_temporaries(laz, tmp_path):
     rc = proc.wait(60)
     if rc == 0:
         pytest.skip("the run finished before the signal arrived (a loaded machine)")
-    assert rc == 143, proc.stderr.read().decode()
+    err = proc.stderr.read().decode()
+    assert rc == 143 and err.strip().splitlines() == ["slr-ray: terminated"], err  # no worker's traceback
 
     def running(pid):
         return subprocess.run(["ps", "-p", pid, "-o", "stat="], capture_output=True,
@@ -356,3 +357,119 @@ def test_a_fresh_run_never_removes_a_label_file_it_did_not_write(tmp_path):
         _run(src, out, 1, resolution=2.0, min_ground_points=10, workers=1, fmt=".bin")
     assert (out / "scan_0000_h1.65.label").read_bytes() == b"mine"
     assert sorted(p.name for p in out.iterdir()) == ["scan_0000_h1.65.label"]
+
+
+# --- issue 40: augment writes only its own files, and stops quietly --------------------------------------------
+
+def _ground(tmp_path, n=4000):
+    rng = np.random.default_rng(0)
+    src = tmp_path / "g.npz"
+    np.savez(src, points=np.column_stack([rng.uniform(-20, 20, (n, 2)), rng.normal(0, 0.01, n)]),
+             is_ground=np.ones(n, bool))
+    return src
+
+
+_SMALL = ["--resolution", "2", "--min-ground-points", "10", "--workers", "1", "--quiet"]
+
+
+@pytest.mark.parametrize("how", ["extend", "resume"])
+@pytest.mark.parametrize("fmt, planted", [(".npz", "scan_0002_h1.65.npz"), (".bin", "scan_0002_h1.65.label")])
+def test_an_extension_or_a_resume_never_writes_over_a_file_it_did_not_write(tmp_path, capsys, how, fmt, planted):
+    # a finished run of 2 extended to 3, or a run of 3 interrupted before scan_0002: another program's file
+    # under that name was replaced (or, a .label, removed as stale) without --force
+    out = tmp_path / "out"
+    cmd = ["augment", str(_ground(tmp_path)), *_SMALL, "--format", fmt, "-o", str(out), "--n"]
+    assert main(cmd + ["2" if how == "extend" else "3"]) == 0
+    if how == "resume":
+        m = json.loads((out / "manifest.json").read_text())
+        m["scans"] = [s for s in m["scans"] if not s["file"].startswith("scan_0002")]
+        (out / "manifest.json").write_text(json.dumps(m))
+        for p in out.glob("scan_0002_*"):
+            p.unlink()
+    (out / planted).write_bytes(b"mine")
+    before = sorted(p.name for p in out.iterdir())
+    capsys.readouterr()
+    assert main(cmd + ["3"]) == 2
+    err = capsys.readouterr().err.strip().splitlines()
+    assert len(err) == 1 and err[0].startswith("slr-ray: error:") and planted in err[0], err
+    assert (out / planted).read_bytes() == b"mine" and sorted(p.name for p in out.iterdir()) == before
+    (out / planted).unlink()  # moved away: the run goes on
+    assert main(cmd + ["3"]) == 0 and (out / f"scan_0002_h1.65{fmt}").exists()
+
+
+def test_a_file_written_into_the_directory_during_the_run_is_never_replaced(tmp_path, monkeypatch):
+    # `scan -o r2/scan_0001_h1.65.npz` while augment ran: augment replaced it silently
+    import slr_ray.augment as A
+    from pathlib import Path
+
+    from slr_ray.errors import OutputError
+
+    staged = A._write_job
+
+    def theirs_first(job, *rest):
+        entry = staged(job, *rest)
+        if entry["file"] == "scan_0001_h1.65.npz":
+            Path(job["path"]).write_bytes(b"theirs")  # between the scan and its rename
+        return entry
+
+    monkeypatch.setattr(A, "_write_job", theirs_first)
+    src, out = _ground(tmp_path), tmp_path / "out"
+    kw = dict(resolution=2.0, min_ground_points=10, workers=1)
+    with pytest.raises(OutputError, match="scan_0001_h1.65.npz appeared .* did not write it"):
+        _run(src, out, 3, **kw)
+    assert (out / "scan_0001_h1.65.npz").read_bytes() == b"theirs"
+    assert not [p.name for p in out.iterdir() if p.name.startswith(".")]
+    monkeypatch.undo()
+    (out / "scan_0001_h1.65.npz").unlink()
+    assert len(_run(src, out, 3, **kw)["scans"]) == 3  # resumed: its withdrawn entry is made again
+
+
+def test_a_scan_into_a_directory_another_run_holds_is_refused(tmp_path, capsys):
+    from slr_ray.outputs import OutputPlan
+
+    src, held = _ground(tmp_path), tmp_path / "r2"
+    cmd = ["scan", str(src), "--origin", "0", "0", "1.65", "--resolution", "2", "--quiet", "-o",
+           str(held / "scan_0000_h1.65.npz")]
+    plan = OutputPlan()
+    plan.directory(held)
+    with plan:  # an augment into r2 (a flock per open file: as another process would)
+        assert main(cmd) == 2
+        assert "in use by another slr-ray run" in capsys.readouterr().err
+        assert not (held / "scan_0000_h1.65.npz").exists()
+    assert main(cmd) == 0  # released: single-file commands share a directory, locked or not
+
+
+def test_ctrl_c_while_workers_start_prints_one_line_and_no_worker_traceback(laz, tmp_path):
+    # Ctrl-C reaches the whole process group: workers still starting printed KeyboardInterrupt and
+    # SemLock/pickle tracebacks after "slr-ray: interrupted"
+    import os
+
+    cmd = [sys.executable, "-m", "slr_ray.cli", "augment", str(laz), "--n", "40", "--min-ground-points",
+           "1000", "--workers", "2", "--quiet", "-o", str(tmp_path / "o")]
+    proc = subprocess.Popen(cmd, stdout=subprocess.PIPE, stderr=subprocess.PIPE, start_new_session=True)
+    deadline = time.time() + 120
+    while time.time() < deadline and len(subprocess.run(["pgrep", "-P", str(proc.pid)], capture_output=True,
+                                                        text=True).stdout.split()) < 2:
+        time.sleep(0.01)
+    os.killpg(proc.pid, signal.SIGINT)  # as a terminal does
+    rc = proc.wait(60)
+    err = proc.stderr.read().decode()
+    if rc == 0:
+        pytest.skip("the run finished before the signal arrived (a loaded machine)")
+    assert rc == 130 and err.strip().splitlines() == ["slr-ray: interrupted"], err
+
+
+def test_a_scan_that_cannot_be_written_is_named_by_its_own_name_not_its_hidden_one(tmp_path, monkeypatch, capsys):
+    import errno
+
+    from slr_ray import io as sio
+
+    def full(path, *a):
+        raise OSError(errno.EFBIG, "File too large")
+
+    monkeypatch.setitem(sio._WRITERS, ".npz", full)
+    out = tmp_path / "out"
+    assert main(["augment", str(_ground(tmp_path)), *_SMALL, "--n", "2", "-o", str(out)]) == 2
+    (line,) = capsys.readouterr().err.strip().splitlines()
+    assert line.endswith(f"cannot write {out / 'scan_0000_h1.65.npz'}: File too large"), line
+    assert not out.exists()

@@ -597,6 +597,21 @@ def test_a_las_header_that_claims_more_points_than_the_file_holds(tmp_path, stre
         _read_las(path, streamed, chunk=300)
 
 
+@pytest.mark.parametrize("streamed", [False, True])
+def test_a_truncated_las_names_both_counts_not_numpys_buffer_size(tmp_path, streamed):
+    # cut inside a record: was "buffer size must be a multiple of element size" (numpy, through laspy)
+    import laspy
+
+    path = _las(tmp_path)
+    with laspy.open(path) as f:
+        point_size = f.header.point_format.size
+    data = path.read_bytes()
+    for cut, match in ((7, "the file holds 999 and"), (point_size + 1, "the file holds 998 and")):
+        path.write_bytes(data[:-cut])
+        with pytest.raises(FormatError, match=f"declares 1,000 points, {match} .* bytes of another"):
+            _read_las(path, streamed, chunk=300)
+
+
 def test_a_corrupt_laz_in_the_streamed_path_is_a_format_error(tmp_path):
     from slr_ray.io import PointCloud, write_cloud
     from slr_ray.streaming import scan_las
@@ -923,8 +938,36 @@ def test_a_laz_header_that_claims_fewer_points_than_its_chunks_hold(tmp_path, st
     _lie_about_count(path, 40_000)
     with pytest.raises(FormatError, match="declares 40,000 points, its LAZ chunk table holds 3 chunks"):
         _read_las(path, streamed, chunk=30_000)
-    _lie_about_count(path, 110_000)  # within the last chunk: the table cannot tell (documented)
-    assert len(read_cloud(path)) == 110_000
+    # within the last chunk (the table cannot tell): was read with exit 0 and 10,000 points gone; the last
+    # chunk's own count tells, both ways, by one point too (a count too large was lazrs's 'failed to fill')
+    for declared, held_last in ((110_000, "20,000 points, not 10,000"), (119_999, "not 19,999"),
+                                (120_001, "not 20,001")):
+        _lie_about_count(path, declared)
+        with pytest.raises(FormatError, match=f"declares {declared:,} points, its LAZ chunks hold 120,000 "
+                                              f"\\(2 full chunks and a last one of .*{held_last}"):
+            _read_las(path, streamed, chunk=30_000)
+
+
+def test_a_lie_inside_the_only_or_last_laz_chunk_is_refused_in_every_point_format(tmp_path):
+    import struct
+
+    import laspy
+
+    rng = np.random.default_rng(0)
+    for fmt, n, declared in ((3, 30_000, 25_000), (6, 30_000, 25_000), (6, 60_000, 55_000), (1, 60_000, 60_001)):
+        header = laspy.LasHeader(point_format=fmt, version="1.4" if fmt >= 6 else "1.2")
+        las = laspy.LasData(header, laspy.ScaleAwarePointRecord.zeros(n, header=header))
+        las.x, las.y, las.z = rng.uniform(0, 10, (3, n))
+        path = tmp_path / f"f{fmt}_{n}.laz"
+        las.write(path)
+        assert len(read_cloud(path)) == n  # the honest file reads
+        data = bytearray(path.read_bytes())
+        struct.pack_into("<I", data, 107, declared if fmt < 6 else 0)
+        if fmt >= 6:
+            struct.pack_into("<Q", data, 247, declared)  # the LAS 1.4 count
+        path.write_bytes(bytes(data))
+        with pytest.raises(FormatError, match=f"declares {declared:,} points, its LAZ chunks hold {n:,}"):
+            read_cloud(path)  # layered chunks (6) record their count; pointwise ones (1, 3) are decoded
 
 
 def test_format_laz_compresses_whatever_the_name_and_las_does_not(tmp_path):

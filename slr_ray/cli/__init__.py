@@ -49,7 +49,15 @@ class _Parser(argparse.ArgumentParser):
     """argparse with the command's error contract: one line on stderr, status 2 (``--help`` has the usage)."""
 
     def error(self, message):
-        self.exit(2, f"slr-ray: error: {self.prog.removeprefix('slr-ray ')}: {message} (see --help)\n")
+        where = self.prog.removeprefix("slr-ray").strip()  # '' for slr-ray itself: no 'slr-ray: slr-ray:'
+        for action in self._actions:  # a subcommand by what the user types: 'cmd' is argparse's dest
+            if not isinstance(action.choices, dict):
+                continue
+            if action.dest in message.split(": ", 1)[-1].split(", "):
+                message = f"a command is needed: {', '.join(action.choices)}"
+            elif message.startswith(f"argument {action.dest}: invalid choice: "):
+                message = "unknown command " + message.removeprefix(f"argument {action.dest}: invalid choice: ")
+        self.exit(2, f"slr-ray: error: {f'{where}: ' if where else ''}{message} (see --help)\n")
 
     def format_usage(self):
         return self.format_help().split("\n\n", 1)[0] + "\n"
@@ -290,14 +298,32 @@ def _on_sigterm(signum, frame):
 
 def _show_warning(message, category, filename, lineno, file=None, line=None, *, show=None):
     """slr_ray's own warnings as one line, ``slr-ray: warning: ...`` (``note:``
-    for what it decided on the user's behalf); any other as Python shows it."""
+    for what it decided on the user's behalf); any other (numpy's, Python's) as
+    ``show`` says it, which ``main`` makes one line too (:func:`_one_line_warning`)."""
     if not issubclass(category, SlrWarning):
         return show(message, category, filename, lineno, file, line)
     kind = "note" if issubclass(category, SlrNote) else "warning"
-    print(f"slr-ray: {kind}: {message}", file=sys.stderr, flush=True)
+    print(f"slr-ray: {kind}: {' '.join(str(message).split())}", file=sys.stderr, flush=True)
+
+
+def _one_line_warning(message, category, filename, lineno, line=None) -> str:
+    """A warning as the command says it: ``slr-ray: warning: MESSAGE`` on one
+    line, without Python's file, line and category (numpy's included)."""
+    return f"slr-ray: warning: {' '.join(str(message).split())}\n"
 
 
 def main(argv=None) -> int:
+    # warnings.formatwarning, not showwarning: a caller recording warnings (pytest, catch_warnings) still
+    # gets them whole; restored on the way out (main runs inside a test's or another program's process)
+    formatted = warnings.formatwarning
+    warnings.formatwarning = _one_line_warning
+    try:
+        return _main(argv)
+    finally:
+        warnings.formatwarning = formatted
+
+
+def _main(argv) -> int:
     try:
         args = build_parser().parse_args(argv)
     except SystemExit as exc:  # argparse: 0 for --help/--version, 2 for a usage error
