@@ -6,6 +6,8 @@ from __future__ import annotations
 import math
 from dataclasses import dataclass
 
+import numpy as np
+
 from ...errors import InputValueError
 from ...pattern import as_pattern
 from ..base import BackendOptions
@@ -127,6 +129,14 @@ class EmbreeOptions(BackendOptions):
         (``primary_pattern`` a sensor: its rings are far apart, and mean
         discs close the holes between them). docs/backends.md "Grazing
         ground".
+    primary_image : bool
+        A scan from ``primary_origin`` (within a micrometre) with the
+        primary's own pattern returns, pulse for pulse, the primary's own
+        return in each pulse (the nearest point in it: binning's image):
+        the first surface along a pulse is the one the primary recorded in
+        it. Default True; False casts the discs there too (a near point's
+        disc then takes silhouette pulses whose own return lies behind it:
+        a KITTI frame re-scanned from itself lost 1.3 m of depth RMSE).
     """
 
     radius: object = "spacing"
@@ -149,6 +159,7 @@ class EmbreeOptions(BackendOptions):
     grid_gate: float | None = None
     max_incidence: float | None = None
     grid_spacing: str | None = None
+    primary_image: bool = True
 
     @classmethod
     def choices(cls) -> dict:
@@ -216,6 +227,8 @@ class EmbreeOptions(BackendOptions):
                 self.primary_origin is None or self.primary_grid is None):
             raise InputValueError("radius='footprint' needs primary_origin and primary_resolution "
                                   "(or primary_pattern)")
+        if not isinstance(self.primary_image, (bool, np.bool_)):
+            raise InputValueError(f"primary_image must be True or False, got {self.primary_image!r}")
         if int(self.chunk) != self.chunk or self.chunk < 1:
             raise InputValueError(f"chunk must be an integer >= 1, got {self.chunk!r}")
 

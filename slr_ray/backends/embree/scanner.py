@@ -20,7 +20,10 @@ from .discs import chunk_normals, disc_radii, fallback_directions, fan_polygons,
 from .options import EmbreeOptions
 from .pulsegrid import pulse_grid_spacing_normals
 
-__all__ = ["DiscScanner"]
+__all__ = ["DiscScanner", "PRIMARY_VIEW_TOLERANCE", "same_pulse_grid"]
+
+#: metres: a scan from this close to ``primary_origin`` with the primary's own pattern is its own view
+PRIMARY_VIEW_TOLERANCE = 1e-6
 
 
 class DiscScanner(Scanner):
@@ -148,8 +151,28 @@ class DiscScanner(Scanner):
                                          n_threads=o.n_threads, pulse_aspect=aspect)
         return hits.owners, hits.distances
 
+    def primary_view(self, origin, pattern) -> bool:
+        """Whether a scan from ``origin`` with ``pattern`` is the primary's own view:
+        ``primary_image`` on, ``origin`` within :data:`PRIMARY_VIEW_TOLERANCE` of
+        ``primary_origin`` and ``pattern`` the primary's pulse grid (range limits aside).
+        Each pulse then returns the primary's own return in it (:meth:`scan`)."""
+        o = self.options
+        if not o.primary_image or o.primary_origin is None or o.primary_grid is None:
+            return False
+        po = as_origin(o.primary_origin, "primary_origin")
+        if not float(np.max(np.abs(as_origin(origin) - po))) <= PRIMARY_VIEW_TOLERANCE:
+            return False
+        return same_pulse_grid(as_pattern(pattern), as_pattern(o.primary_grid))
+
     def _hits(self, origin, pattern, rays_per_batch=1 << 21):
         """Every ray that hits a disc: (point index, t, v, h) arrays."""
+        if self.primary_view(origin, pattern):
+            # the primary's own view: the first surface along each of its pulses is the one it
+            # recorded, the nearest point in the pulse (binning's image); discs would let a near
+            # point's disc take a silhouette pulse whose own return lies behind it
+            keys, ranges, idx = pattern.reduce(self.points, origin, self.options.n_threads)
+            nh = pattern.shape[1]
+            return idx.astype(np.int64), np.asarray(ranges, np.float64), keys // nh, keys % nh
         rmin, rmax = pattern.range_limits
         reach = self._max_radius * self.options.reach
         tfar = min(rmax + 2 * reach, 3e37)
@@ -245,6 +268,7 @@ class DiscScanner(Scanner):
                     origin=origin, pattern=pattern, backend=self.backend, n_input=len(self.points),
                     seconds=time.perf_counter() - t_start,
                     info={"cast_seconds": round(cast, 6), "rays": int(pattern.n_pulses),
+                          "primary_view": self.primary_view(origin, pattern),
                           "ray_hits": int(n_ray_hits), **self.options.to_dict()})
         # a file-mapped cloud (a validation's spilled primary): one scan's tie rule and gathers touch
         # nearly every page of it (the hits are spread over the whole cloud); released here, they do
@@ -264,6 +288,20 @@ def _nearest_ray(group, t, n_groups):
         if b < 0 or t[i] < t[b]:
             best[g] = i
     return best
+
+
+def same_pulse_grid(p, g) -> bool:
+    """Whether pattern ``p`` bins directions into the pulses of ``g`` (range limits
+    aside; a uniform grid may start its zenith range a whole number of rows later)."""
+    if getattr(p, "has_beams", False) or getattr(g, "has_beams", False):
+        if not (getattr(p, "has_beams", False) and getattr(g, "has_beams", False)):
+            return False
+        return (p.elevation_deg, p.columns, p.azimuth_offset_deg) == (g.elevation_deg, g.columns,
+                                                                       g.azimuth_offset_deg)
+    if (p.azimuth_resolution, p.zenith_resolution) != (g.azimuth_resolution, g.zenith_resolution):
+        return False
+    rows = (p.zenith_range[0] - g.zenith_range[0]) / g.zenith_resolution
+    return rows >= 0 and abs(rows - round(rows)) <= 1e-9 and p.zenith_range[1] <= g.zenith_range[1]
 
 
 def _pulse_aspect(pattern) -> float:
