@@ -8,6 +8,12 @@ origin with its own pattern returns its own image) and once with ``primary_image
 cast there too: the behaviour before). Prints one table row per frame, method and setting: depth RMSE
 (m), ray-drop accuracy, recall at 5 cm, points out. Saves results/bench_self_view.json.
 
+Part 2, terrestrial scans from their own origins: forest_tls_riegl.laz (its pattern known: 0.048 deg
+zenith x 0.622 deg azimuth, zenith 30-130) and pump_tls.e57 (origin 0, its pose the identity; its
+pattern only fitted), each scanned with the known pattern (the forest) or its fitted one (the pump) by
+binning and by embree with the primary's pattern given or ``primary_pattern='fit'``, with and without
+``primary_image``: points out and the share of binning's.
+
 Run: ``PYTHONPATH=. nice python benchmarks/bench_self_view.py`` from the repository root (about 1-2
 minutes on 2 cores).
 """
@@ -24,6 +30,7 @@ sys.path.insert(0, str(Path(__file__).resolve().parent))
 from common import machine, save  # noqa: E402
 
 import slr_ray.evaluate as ev  # noqa: E402
+from slr_ray import ScanPattern  # noqa: E402
 from slr_ray.backends import prepare  # noqa: E402
 from slr_ray.io import read_cloud  # noqa: E402
 
@@ -67,7 +74,38 @@ def main(argv=None) -> None:
                 rows.append(r)
                 print(f"| {r['frame']} | {r['primary_image']} | {r['method']} | {r['points']:,} | "
                       f"{r['depth_rmse_m']:.4f} | {r['drop_accuracy']:.4f} | {r['recall_5cm']:.4f} |", flush=True)
-    save("bench_self_view", {"machine": machine(), "rows": rows})
+    tls = terrestrial(args.data)
+    save("bench_self_view", {"machine": machine(), "rows": rows, "terrestrial": tls})
+
+
+FOREST = ScanPattern(azimuth_resolution=0.622, zenith_resolution=0.048, zenith_range=(30, 130))
+
+
+def terrestrial(data: Path) -> list[dict]:
+    rows = []
+    print("\n| scan | primary pattern | scanned with | primary_image | points | share of binning's |")
+    print("|---|---|---|---|---|---|")
+    for name, known in (("forest_tls_riegl.laz", FOREST), ("pump_tls.e57", None)):
+        pts = read_cloud(data / name).points
+        fitted = prepare(pts, "embree", primary_origin=np.zeros(3), primary_pattern="fit")
+        scan_with = known if known is not None else fitted.options.primary_grid
+        b = prepare(pts, "binning").scan(np.zeros(3), scan_with)
+        for label, prim in (("given", known), ("fit", "fit")):
+            if prim is None:
+                continue
+            for primary_image in (True, False):
+                s = prepare(pts, "embree", primary_origin=np.zeros(3), primary_pattern=prim,
+                            primary_image=primary_image).scan(np.zeros(3), scan_with)
+                r = {"scan": name, "primary_pattern": label, "fitted": fitted.primary_fit,
+                     "fitted_pattern": fitted.options.primary_grid.to_dict(),
+                     "scanned_with": "known" if known is not None else "fitted", "primary_image": primary_image,
+                     "points": len(s), "binning_points": len(b), "share": len(s) / len(b),
+                     "primary_view": s.info["primary_view"]}
+                rows.append(r)
+                print(f"| {name} | {label} | {r['scanned_with']} | {primary_image} | {len(s):,} | "
+                      f"{r['share']:.4f} |", flush=True)
+        print(f"  fitted: {fitted.primary_fit}", flush=True)
+    return rows
 
 
 if __name__ == "__main__":

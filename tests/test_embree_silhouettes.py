@@ -8,6 +8,7 @@ import pytest
 import trimesh
 
 from slr_ray import ScanPattern, prepare, scan_mesh, sensor
+from slr_ray.cli import main as cli
 from slr_ray.errors import InputValueError
 
 P = np.zeros(3)
@@ -84,3 +85,30 @@ def test_primary_pattern_fit_finds_a_uniform_grid(step_edge):
     assert s.info["primary_pattern"]["azimuth_resolution"] == 0.3  # the fitted pattern, reported
     with pytest.raises(InputValueError, match="needs primary_origin"):
         prepare(pts, "embree", primary_pattern="fit")
+
+
+def test_cli_scan_of_a_sensor_frame_takes_its_primary_from_the_file(tmp_path, capsys):
+    """#41: a KITTI .bin is in its sensor's frame and its scan order gives its beams: the embree
+    backend takes both as the primary (fitted table) by default, and the JSON says so."""
+    import json
+    import subprocess
+    import sys
+
+    table = sensor("velodyne_hdl64e_s2")
+    el = np.radians(np.sort(np.asarray(table.elevation_deg))[::-1])  # ring by ring, highest beam first
+    az = np.radians(np.arange(180) * 2.0 + 1.0)
+    e, a = np.meshgrid(el, az, indexing="ij")
+    r = 8.0 + 2.0 * np.sin(3 * a)
+    pts = np.stack([r * np.cos(e) * np.cos(a), r * np.cos(e) * np.sin(a), r * np.sin(e), np.ones_like(r)], -1)
+    frame = tmp_path / "frame.bin"
+    pts.reshape(-1, 4).astype("<f4").tofile(frame)
+
+    args = ["scan", str(frame), "--sensor", "velodyne_vlp16", "--backend", "embree", "--quiet"]
+    res = subprocess.run([sys.executable, "-m", "slr_ray.cli", *args, "-o", str(tmp_path / "a.ply")],
+                         capture_output=True, text=True)
+    assert res.returncode == 0, res.stderr
+    d = json.loads(res.stdout)
+    assert d["primary"]["from_file"] and d["primary"]["origin"] == [0.0, 0.0, 0.0]
+    assert "64 rings" in d["primary"]["fit"] and d["neighbours"] == "pulse-grid"
+    cli(args + ["-o", str(tmp_path / "b.ply"), "--primary-origin", "0", "0", "0", "--primary-resolution", "2"])
+    assert "primary" not in json.loads(capsys.readouterr().out)  # the user's primary, not the file's
