@@ -123,7 +123,9 @@ class EmbreeOptions(BackendOptions):
         With 'pulse-grid' and 'spacing' radii: a point's spacing is the mean
         distance to its neighbours ('mean'), or twice the smaller of its two
         axis steps, the distance to the nearer point of the pulses above and
-        below and of those left and right ('step'). On grazing ground the
+        below and of those left and right, and at least 1.5 x its range x
+        the pattern's coarser angular step ('step': oblong pulses, a forest
+        scan's 0.048 x 0.622 deg, are spaced by their long side). On grazing ground the
         range step between rows is long (``R dtheta / cos(incidence)``) and
         the azimuth step short; mean-spacing discs span the long step, and
         a disc's centre then stands in for true points up to a range step

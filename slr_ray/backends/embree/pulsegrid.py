@@ -372,8 +372,11 @@ def pulse_grid_spacing_normals(points, primary_origin, primary_resolution, gate:
     ``"step"`` (twice the smaller of the distances to the nearer neighbour
     along the grid's two axes: the nearer of the points of the pulses above
     and below, the nearer of those left and right; grazing ground is spaced
-    by its small azimuth step, not its long range step; :class:`EmbreeOptions`
-    ``grid_spacing``).
+    by its small azimuth step, not its long range step; and at least 1.5
+    times the range times the coarser of the pattern's two angular steps, so
+    that a pattern of oblong pulses, 0.048 x 0.622 deg, is spaced by its
+    long side, not twice its short one (no change on square pulses: twice
+    the step seen head-on is more); :class:`EmbreeOptions` ``grid_spacing``).
     ``silhouette``: an ``(n,)`` uint8 array filled with each point's
     silhouette bits (:func:`silhouette_bit`): bit ``b`` set where the adjacent
     pulse ``b`` of the primary holds returns, none within the range gate and
@@ -401,13 +404,13 @@ def pulse_grid_spacing_normals(points, primary_origin, primary_resolution, gate:
         _grid_fused(pts, ranges, sorted_keys, order, line_start, _row_tasks(line_start, 0, len(line_start) - 1),
                     line_len, transposed, grid_gate(primary_resolution, gate), o, spacing, normals, sp, nr,
                     math.cos(math.radians(max_incidence)) if max_incidence < 90 else 0.0, code, clip,
-                    _grid_pattern(primary_resolution).shape[0])
+                    _grid_pattern(primary_resolution).shape[0], *primary_steps(primary_resolution))
     return (sp if spacing else None), (nr if normals else None)
 
 
 @njit(cache=True, parallel=True)
 def _grid_fused(pts, ranges, sk, order, row_start, tasks, line_len, transposed, gate, po, want_spacing, want_normals,
-                sp, nr, cos_min, step, clip, n_rows):
+                sp, nr, cos_min, step, clip, n_rows, d_theta, d_phi):
     sin_min = math.sqrt(max(0.0, 1.0 - cos_min * cos_min))
     want_clip = clip.shape[0] > 0
     for task in prange(len(tasks) - 1):
@@ -430,7 +433,14 @@ def _grid_fused(pts, ranges, sk, order, row_start, tasks, line_len, transposed, 
                             bits |= 1 << silhouette_bit(slot)
                     clip[i] = bits
                 if want_spacing and m:
-                    sp[i] = dist[:m].sum() / m if step == 0 else _grid_step(pts, i, best, dist[:m].sum() / m)
+                    if step == 0:
+                        sp[i] = dist[:m].sum() / m
+                    else:
+                        # the pulse's longer side seen head-on: R times the coarser angular step
+                        dx, dy = pts[i, 0] - po[0], pts[i, 1] - po[1]
+                        rho = math.sqrt(dx * dx + dy * dy)
+                        coarse = 1.5 * max(d_theta * ranges[i], d_phi * rho)
+                        sp[i] = max(_grid_step(pts, i, best, dist[:m].sum() / m), coarse)
                 if want_normals:
                     nx, ny, nz = pca_normal(pts, i, nbr, 8, True, po)
                     if cos_min > 0.0:
