@@ -192,7 +192,8 @@ def _clipped(ctx, ctxf, owner, t, dx, dy, dz):
     """The silhouette rule: whether the hit at ``t`` on disc ``owner`` lies, as seen from the primary's
     origin, beyond the pulses next to the owner's own (in azimuth, where columns are narrower than a
     row, as far as a row's height), or in a pulse next to it where the owner stands at a silhouette
-    (its bit set: that pulse's own return lies behind)."""
+    (its bit set: that pulse's own return lies behind). Pulses are counted exactly for the owners at
+    a silhouette; for the others (nearly all) by the hit's angular offset, 1.5 pulses."""
     bits = np.int64(carray(_as_pointer(ctx[_C_CLIP] + owner), 1, dtype=np.uint8)[0])
     geo = carray(_as_pointer(ctx[_C_CLIP_GEO]), 8, dtype=np.float64)
     n_edges = ctx[_C_CLIP_NEDGES]
@@ -200,16 +201,23 @@ def _clipped(ctx, ctxf, owner, t, dx, dy, dz):
     cen = carray(_as_pointer(ctx[_C_CENTRES] + owner * 24), 3, dtype=np.float64)
     hx_, hy_, hz_ = ctxf[_C_ORG] + t * dx, ctxf[_C_ORG + 1] + t * dy, ctxf[_C_ORG + 2] + t * dz
     if bits == 0:
-        # an inner point: only a hit more than a pulse step off its direction can leave the 3 x 3
-        # pulses around its own (no angles to compute for the others, nearly all)
+        # an inner point: no angles, its pulse offset in the tangent frame of its direction: a hit
+        # 1.5 rows off, or 1.5 columns (or where columns are narrower than a row, half a column
+        # more than a row's height) is beyond the pulses next to its own
         ax, ay, az = cen[0] - geo[0], cen[1] - geo[1], cen[2] - geo[2]
         bx, by, bz = hx_ - geo[0], hy_ - geo[1], hz_ - geo[2]
-        cx, cy, cz = ay * bz - az * by, az * bx - ax * bz, ax * by - ay * bx
-        a2 = ax * ax + ay * ay + az * az
-        lim = min(geo[4], geo[5] * math.sqrt((ax * ax + ay * ay) / a2)) if a2 > 0.0 else 0.0
-        if ax * bx + ay * by + az * bz > 0.0 and cx * cx + cy * cy + cz * cz < lim * lim * a2 * (
-                bx * bx + by * by + bz * bz):
-            return False
+        rho = math.sqrt(ax * ax + ay * ay)
+        ra = math.sqrt(rho * rho + az * az)
+        rb = math.sqrt(bx * bx + by * by + bz * bz)
+        if rho * 1e6 <= ra or rb == 0.0:
+            return False  # on the pole's axis (or at the primary): any column
+        ex, ey, ez = bx / rb - ax / ra, by / rb - ay / ra, bz / rb - az / ra
+        u_theta = (ex * ax * az + ey * ay * az) / (rho * ra) - ez * rho / ra
+        u_phi = (ey * ax - ex * ay) / rho
+        if abs(u_theta) >= 1.5 * geo[4]:
+            return True
+        sin_theta = rho / ra
+        return abs(u_phi) >= max(1.5 * geo[5] * sin_theta, 0.5 * geo[5] * sin_theta + geo[4])
     vc, hc = _primary_cell(geo, edges, n_edges, cen[0], cen[1], cen[2])
     vx, hx = _primary_cell(geo, edges, n_edges, hx_, hy_, hz_)
     nh = np.int64(geo[7])
