@@ -9,6 +9,11 @@ positions 3-30 m away (bench_tradeoff's angles and distances, the first ``--posi
 resolution (pulse-grid discs, ``grid_spacing='step'``) with ``silhouettes=True`` (the default) and
 False (before), and binning. Coverage and precision at 10 cm (``slr_ray.agreement``), points out,
 cast seconds, and prepare seconds (medians over positions / runs). Saves results/bench_silhouettes.json.
+
+First, the step edge of tests/test_embree_silhouettes.py (a wall 5 m in front of one 10 m away, 0.5 deg,
+zenith 70-110, scanned exactly with ``scan_mesh`` from the origin): pulses returned more than 0.5 m off
+the exact scan of the mesh at the origin and 1 m away, binning and embree with ``primary_image=False``
+(the discs themselves) with and without ``silhouettes``.
 """
 
 from __future__ import annotations
@@ -27,12 +32,45 @@ from slr_ray import ScanPattern, agreement, prepare, scan_mesh  # noqa: E402
 from slr_ray.scenes import scene_from_spec  # noqa: E402
 
 
+def _quad(x, y0, y1, z0, z1):
+    import trimesh
+
+    v = np.array([[x, y0, z0], [x, y1, z0], [x, y1, z1], [x, y0, z1]], float)
+    return trimesh.Trimesh(v, [[0, 1, 2], [0, 2, 3]], process=False)
+
+
+def step_edge() -> list[dict]:
+    import trimesh
+
+    mesh = trimesh.util.concatenate([_quad(5.0, -1.0, 0.0, -1.0, 1.0), _quad(10.0, -4.0, 4.0, -3.0, 3.0)])
+    pat = ScanPattern(resolution=0.5, zenith_range=(70, 110))
+    pts = scan_mesh(mesh, [0, 0, 0], pat).points
+    grid = {"primary_origin": [0.0, 0.0, 0.0], "primary_resolution": 0.5, "primary_image": False}
+    scanners = {"binning": prepare(pts, "binning"), "embree, silhouettes": prepare(pts, "embree", **grid),
+                "embree, no silhouettes": prepare(pts, "embree", silhouettes=False, **grid)}
+    rows = []
+    print("| position | " + " | ".join(scanners) + " |")
+    for label, off in (("origin", (0, 0, 0)), ("1 m above", (0, 0, 1)), ("1 m aside +y", (0, 1, 0)),
+                       ("1 m aside -y", (0, -1, 0)), ("1 m forward", (1, 0, 0))):
+        truth = scan_mesh(mesh, off, pat)
+        t = dict(zip(map(tuple, truth.pulses.tolist()), truth.ranges))
+        row = {"position": label, "pulses": len(pts)}
+        for name, sc in scanners.items():
+            s = sc.scan(off, pat)
+            row[name] = int(sum(abs(r - t[p]) > 0.5 for p, r in zip(map(tuple, s.pulses.tolist()), s.ranges)
+                                if p in t))
+        rows.append(row)
+        print(f"| {label} | " + " | ".join(str(row[n]) for n in scanners) + " |", flush=True)
+    return rows
+
+
 def main(argv=None) -> None:
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     ap.add_argument("--scenes", default="ground-only,rect-1000")
     ap.add_argument("--primary-resolution", type=float, default=0.1)
     ap.add_argument("--positions", type=int, default=3)
     args = ap.parse_args(argv)
+    edge = step_edge()
     rng = np.random.default_rng(0)  # bench_tradeoff's positions
     n = 6
     dist = np.linspace(3, 30, n)
@@ -67,7 +105,7 @@ def main(argv=None) -> None:
             print(f"| {name} | {label} | {row['coverage']:.1%} | {row['precision']:.1%} | {sum(npts):,} | "
                   f"{prep:.2f} | {row['cast_seconds_median']:.2f} |", flush=True)
     save("bench_silhouettes", {"machine": machine(), "inputs": vars(args), "positions": positions.tolist(),
-                               "results": out})
+                               "step_edge": edge, "results": out})
 
 
 if __name__ == "__main__":

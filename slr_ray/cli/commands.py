@@ -208,7 +208,7 @@ def _primary_from_file(args, cloud, options):
                                               "primary_pattern": fitted})
     return with_primary, {"from_file": True, "origin": origin.tolist(), "pattern": fitted.to_dict(), "fit": how,
                           "why": f"{args.input} records where its scanner was; its pattern is fitted to the points "
-                                 "(--primary-origin / --primary-pattern choose them)"}
+                                 "(--primary-origin and --primary-pattern or --primary-resolution choose them)"}
 
 
 def _origin(args, cloud):
