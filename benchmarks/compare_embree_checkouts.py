@@ -30,9 +30,9 @@ def measure(resolution: float) -> dict:
 
     import numpy as np
 
-    from common import realistic_cloud
+    import slr_ray  # before common, which puts this checkout's root on sys.path
 
-    import slr_ray
+    from common import realistic_cloud
 
     pts = np.ascontiguousarray(realistic_cloud(resolution))
     grid = {"primary_origin": [0.0, 0.0, 0.0], "primary_resolution": resolution}

@@ -87,6 +87,31 @@ def test_primary_pattern_fit_finds_a_uniform_grid(step_edge):
         prepare(pts, "embree", primary_pattern="fit")
 
 
+def _ring_frame():
+    """A KITTI-like frame: 64 rings of 180 points, stored ring by ring from the highest beam, each a
+    turn of azimuth; (n, 4) x, y, z, intensity."""
+    table = sensor("velodyne_hdl64e_s2")
+    el = np.radians(np.sort(np.asarray(table.elevation_deg))[::-1])
+    az = np.radians(np.arange(180) * 2.0 + 1.0)
+    e, a = np.meshgrid(el, az, indexing="ij")
+    rng = np.random.default_rng(0)  # a real unit's: each point off its beam's angle, range noise
+    e = e + np.radians(rng.normal(scale=0.05, size=e.shape))
+    a = a + np.radians(rng.normal(scale=0.3, size=a.shape))
+    r = np.where(np.abs(np.sin(3 * a)) > 0.8, 4.0, 12.0) + rng.normal(scale=0.02, size=a.shape)  # silhouettes
+    pts = np.stack([r * np.cos(e) * np.cos(a), r * np.cos(e) * np.sin(a), r * np.sin(e), np.ones_like(r)], -1)
+    return pts.reshape(-1, 4)
+
+
+def test_a_frame_re_simulated_from_itself_is_its_own_image_for_every_grid():
+    from slr_ray.evaluate import evaluate_pair, evaluation_table
+
+    pts = _ring_frame()[:, :3]
+    res = evaluate_pair(pts, pts, transform=np.eye(4), methods=("binning", "embree-grid", "embree-beams"))
+    rows = evaluation_table(res)
+    assert len(rows) == 3 and all((r["depth_rmse_m"], r["drop_accuracy"]) == (0.0, 1.0) for r in rows)
+    assert len({r["R@5cm"] for r in rows}) == 1
+
+
 def test_cli_scan_of_a_sensor_frame_takes_its_primary_from_the_file(tmp_path, capsys):
     """#41: a KITTI .bin is in its sensor's frame and its scan order gives its beams: the embree
     backend takes both as the primary (fitted table) by default, and the JSON says so."""
@@ -94,14 +119,8 @@ def test_cli_scan_of_a_sensor_frame_takes_its_primary_from_the_file(tmp_path, ca
     import subprocess
     import sys
 
-    table = sensor("velodyne_hdl64e_s2")
-    el = np.radians(np.sort(np.asarray(table.elevation_deg))[::-1])  # ring by ring, highest beam first
-    az = np.radians(np.arange(180) * 2.0 + 1.0)
-    e, a = np.meshgrid(el, az, indexing="ij")
-    r = 8.0 + 2.0 * np.sin(3 * a)
-    pts = np.stack([r * np.cos(e) * np.cos(a), r * np.cos(e) * np.sin(a), r * np.sin(e), np.ones_like(r)], -1)
     frame = tmp_path / "frame.bin"
-    pts.reshape(-1, 4).astype("<f4").tofile(frame)
+    _ring_frame().astype("<f4").tofile(frame)
 
     args = ["scan", str(frame), "--sensor", "velodyne_vlp16", "--backend", "embree", "--quiet"]
     res = subprocess.run([sys.executable, "-m", "slr_ray.cli", *args, "-o", str(tmp_path / "a.ply")],
