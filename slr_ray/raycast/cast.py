@@ -42,7 +42,7 @@ _C_CENTRES, _C_RADII, _C_DIV, _C_RSTRIDE, _C_ORG, _C_REACH, _C_ASPECT = 4, 5, 6,
 # float32 vertex buffer (0: none) and the ray origin in its frame (float64)
 _C_NORMALS, _C_NBYTES, _C_TIES, _C_VERTICES, _C_LOCAL = 13, 14, 15, 16, 17
 # the silhouette rule: each owner's silhouette bits (uint8, 0: none), the primary's grid (float64:
-# origin xyz, zenith min, zenith step (a beam table: its least row gap), azimuth step, rows, columns) and its band edges (-cos, ascending)
+# origin xyz, zenith min, zenith step (a beam table: its largest row gap), azimuth step, rows, columns) and its band edges (-cos, ascending)
 _C_CLIP, _C_CLIP_GEO, _C_CLIP_EDGES, _C_CLIP_NEDGES = 20, 21, 22, 23
 _C_LANES = 24
 # a lane: its mode and direction (float64); tie mode's best so far (owner, score, t, primitive);

@@ -311,7 +311,7 @@ def _grid_geometry(primary_origin, primary_grid):
     po = as_origin(primary_origin, "primary_origin")
     if getattr(g, "has_beams", False):
         edges = np.asarray(g.band_edges, np.float64)
-        return np.array([*po, edges[0], float(np.diff(edges).min()), 2 * math.pi / nh, nv, nh]), -np.cos(edges)
+        return np.array([*po, edges[0], float(np.diff(edges).max()), 2 * math.pi / nh, nv, nh]), -np.cos(edges)
     d_theta, d_phi, theta_min, _ = g.radians
     return np.array([*po, theta_min, d_theta, d_phi, nv, nh]), np.zeros(0)
 
