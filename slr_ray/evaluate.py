@@ -78,7 +78,7 @@ from .metrics import (FIELD_THRESHOLD, LIDAR4D_CODE_THRESHOLD, PAPER_THRESHOLD, 
 from .plotting import evaluation_figure, save_figure
 from .progress import bar as progress_bar, phase
 from .scan import Scan
-from .sensors import BeamPattern, sensor
+from .sensors import BeamPattern, fitted_pattern, scan_order_beams, sensor
 
 __all__ = ["METHODS", "BEAM_SOURCES", "EVALUATION_FILES", "LABELS", "Registration", "register", "scan_order_beams", "fitted_pattern", "zbuffer",
            "evaluate_pair", "evaluation_table", "markdown_table", "splits_table", "compact_json",
@@ -101,69 +101,6 @@ MIN_REGISTRATION_POINTS = 1000
 
 
 # --- frames -------------------------------------------------------------------------------------------------
-
-def scan_order_beams(points, n_beams: int = 64) -> np.ndarray | None:
-    """Each point's beam from the order of a frame stored beam by beam (a KITTI ``.bin``).
-
-    KITTI's HDL-64E frames hold the points ring after ring, highest beam
-    first, each ring one turn of azimuth (counter-clockwise) starting at the
-    front. The azimuth, unwrapped along the file, grows by one turn per ring,
-    so ``floor(unwrapped azimuth / 2 pi)`` is the ring, which is the row of
-    the range image (beam 0 highest). Returns ``None`` when that does not give
-    exactly ``n_beams`` rings whose median elevations fall from first to last
-    (the file is not in scan order).
-    """
-    p = as_points(points, "points")
-    if len(p) < n_beams:
-        return None
-    u = np.unwrap(np.arctan2(p[:, 1], p[:, 0]))
-    ring = np.floor((u - u[0]) / (2 * math.pi) + 1e-9).astype(np.int64)
-    if ring.min() < 0 or ring.max() != n_beams - 1 or np.any(np.diff(ring) < 0):
-        return None
-    r = np.linalg.norm(p, axis=1)
-    el = np.arcsin(np.divide(p[:, 2], r, out=np.zeros_like(r), where=r > 0))
-    med = np.array([np.median(el[ring == b]) if np.any(ring == b) else np.nan for b in range(n_beams)])
-    if not np.all(np.isfinite(med)) or np.any(np.diff(med) >= 0):
-        return None
-    return ring
-
-
-def fitted_pattern(points, beams, base: BeamPattern, columns: int | None = None) -> BeamPattern:
-    """``base`` with each beam's elevation the median elevation of its points in this frame.
-
-    A real unit's beams are not where another unit's table says (the shipped
-    HDL-64E S2 table tops out at +5 deg, KITTI's unit at +2.6): a frame whose
-    points carry their beams gives its own elevations. Azimuth offsets are
-    zero (the points' azimuths are where they were measured); ``columns``
-    defaults to ``360 /`` the median azimuth step between a beam's
-    consecutive points, rounded. Beams with no point keep ``base``'s elevation.
-    """
-    p = as_points(points, "points")
-    base.rows_of_beams(beams, len(p))  # checks the beam ids
-    b = np.asarray(beams, np.int64)
-    r = np.linalg.norm(p, axis=1)
-    el = np.degrees(np.arcsin(np.divide(p[:, 2], r, out=np.zeros_like(r), where=r > 0)))
-    az = np.arctan2(p[:, 1], p[:, 0])
-    elev = np.array(base.elevation_deg, dtype=np.float64)
-    steps = []
-    for i in range(base.n_beams):
-        mine = b == i
-        if np.any(mine):
-            elev[i] = np.median(el[mine])
-            d = np.abs(np.diff(np.unwrap(az[mine])))
-            d = d[d > 0]  # duplicate points are no step
-            if len(d):
-                steps.append(np.median(d))
-    if columns is None:
-        columns = int(round(2 * math.pi / np.median(steps))) if steps else base.columns
-    while len(np.unique(elev)) != len(elev):  # two beams at one median: part them by a micro-degree
-        _, first = np.unique(elev, return_index=True)
-        dup = np.setdiff1d(np.arange(len(elev)), first)
-        elev[dup] += 1e-6
-    return base.with_(elevation_deg=tuple(elev.tolist()), azimuth_offset_deg=None, columns=int(columns),
-                      name=f"{base.name or 'sensor'} fitted to the frame",
-                      meta={**base.meta, "fitted": "elevations: median of each beam's points; offsets 0"})
-
 
 def zbuffer(points, pattern: BeamPattern, origin=(0.0, 0.0, 0.0), beams=None, backend: str = "z-buffer") -> Scan:
     """The nearest point per pulse of ``pattern`` (ties to the lowest index), as a :class:`Scan`.

@@ -793,8 +793,12 @@ def test_primary_beams_put_each_point_in_its_beams_row():
         for m, row, c in zip(members, idx, counts):
             got[m] = {int(q) for q in row[:c]}
     assert got == _grid_brute(sub, o, nominal, 0.1, beams=sub_beams)
-    plain = prepare(pts, "embree", primary_origin=o, primary_pattern=nominal)
-    own = prepare(pts, "embree", primary_origin=o, primary_pattern=nominal, primary_beams=beams)
+    # the discs themselves (from the primary's own origin with its own table the default returns the
+    # primary's own image: binning's, whatever the rows; issue #38)
+    plain = prepare(pts, "embree", primary_origin=o, primary_pattern=nominal, primary_image=False)
+    own = prepare(pts, "embree", primary_origin=o, primary_pattern=nominal, primary_beams=beams, primary_image=False)
+    own_view = prepare(pts, "embree", primary_origin=o, primary_pattern=nominal, primary_beams=beams).scan(o, nominal)
+    assert np.array_equal(own_view.indices, simulate_scan(pts, o, nominal).indices)
     for pattern in (nominal, sensor("velodyne_vlp16", columns=1000), ScanPattern(0.5)):
         truth = scan_mesh(mesh, o, pattern).points
         a, b, e = plain.scan(o, pattern), simulate_scan(pts, o, pattern), own.scan(o, pattern)

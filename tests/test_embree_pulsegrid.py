@@ -52,6 +52,10 @@ def _step_brute(pts, origin, res, gate):
             out[i] = 2 * (sh if sv is None else sv)
         else:
             out[i] = 2 * min(sv, sh)
+        # at least 1.5 x the range x the coarser angular step (oblong pulses; a square one's is less)
+        rho = float(np.hypot(*(pts[i, :2] - origin[:2])))
+        d_theta, d_phi = pattern.pulse_steps
+        out[i] = max(out[i], 1.5 * max(d_theta * ranges[i], d_phi * rho))
     return out
 
 

@@ -129,6 +129,16 @@ def pattern_from(args):
 _NOT_ON_CLI = {"normals", "primary_beams"}
 
 
+def _boolean(text: str) -> bool:
+    """``true``/``false`` (or yes/no, 1/0), any case."""
+    t = text.strip().lower()
+    if t in ("true", "yes", "1", "on"):
+        return True
+    if t in ("false", "no", "0", "off"):
+        return False
+    raise argparse.ArgumentTypeError(f"expected true or false, got {text!r}")
+
+
 def _option_type(name: str, typ: str):
     """argparse type and nargs of one option field, from its numpydoc type."""
     if name == "radius":
@@ -140,6 +150,8 @@ def _option_type(name: str, typ: str):
         return radius, None
     if typ.startswith("(3,)"):
         return finite_float, 3
+    if typ.startswith("bool"):
+        return _boolean, None
     if typ.startswith("int"):
         return int, None
     if typ.startswith("float"):

@@ -20,6 +20,7 @@ import numpy as np
 from ..augment import AugmentConfig
 from ..augment import augment as run_augment
 from ..backends import Backend, options_for, prepare
+from ..backends.embree.fit import fit_primary_pattern
 from ..compare import compare_backends
 from ..demo import run_demo
 from ..distances import distance_study, study_files
@@ -123,6 +124,7 @@ def scan(args):
             if effects is not None and effects.intensity == "correct" and cloud.origin is None:
                 raise InputValueError(f"--intensity correct needs where {args.input} was scanned from, and it "
                                       "records no scanner origin (use --intensity carry)")
+            options, primary = _primary_from_file(args, cloud, options)
             with phase(f"{args.backend}: preparing {len(cloud):,} points", progress=not args.quiet):
                 scanner = prepare(cloud.points, args.backend, options)
             if effects is None:
@@ -143,7 +145,8 @@ def scan(args):
         write_cloud(args.output, sub, args.format)
         if image is not None:
             _write_range_image(args, image, result)
-    emit({**result.summary(), "input": str(args.input), "output": str(args.output), "streamed": streamed,
+    emit({**result.summary(), **({"primary": primary} if not streamed and primary else {}),
+          "input": str(args.input), "output": str(args.output), "streamed": streamed,
           ("seconds_read_and_scan" if streamed else "seconds_read"): round(t_read, 6),
           "seconds_write": round(time.perf_counter() - t1, 6)})
 
@@ -201,6 +204,28 @@ def _write_range_image(args, image, result):
     if args.png:
         save_figure(range_image_figure(image, title=f"{result.pattern.to_dict().get('name') or 'scan'} "
                                                     f"from {np.round(result.origin, 2).tolist()}"), args.png)
+
+
+def _primary_from_file(args, cloud, options):
+    """Embree options with the primary taken from the input file when the user gave none: where its
+    scanner was (a KITTI .bin is in its sensor's frame; an .npz origin, PCD VIEWPOINT, E57 pose) and
+    its pattern fitted to the points (``primary_pattern='fit'``: a .bin's scan order gives its beams).
+    Returns ``(options, what the JSON says about it, or None)``."""
+    if Backend(args.backend) is not Backend.EMBREE or cloud.origin is None:
+        return options, None
+    given = backend_from(args)
+    if any(k in given for k in ("primary_origin", "primary_pattern", "primary_resolution")):
+        return options, None
+    origin = np.asarray(cloud.origin, np.float64)
+    try:
+        fitted, how = fit_primary_pattern(cloud.points, origin)
+    except InputValueError as e:  # no grid to fit: the discs go without the primary (kNN), and say why
+        return options, {"from_file": False, "why": str(e)}
+    with_primary = options_for(args.backend, {**given, "primary_origin": tuple(origin.tolist()),
+                                              "primary_pattern": fitted})
+    return with_primary, {"from_file": True, "origin": origin.tolist(), "pattern": fitted.to_dict(), "fit": how,
+                          "why": f"{args.input} records where its scanner was; its pattern is fitted to the points "
+                                 "(--primary-origin and --primary-pattern or --primary-resolution choose them)"}
 
 
 def _origin(args, recorded, bounds, poseless_e57: bool = False):

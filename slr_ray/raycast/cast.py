@@ -23,7 +23,7 @@ from numba.extending import intrinsic
 from .cull import could_hit
 from .library import FEATURE_FLAGS_ALL, INVALID_ID, RAY_QUERY_FLAG_INVOKE_ARGUMENT_FILTER
 
-__all__ = ["cast_rays", "FILTER", "MODE_SKIP", "PACKET_WIDTHS"]
+__all__ = ["cast_rays", "FILTER", "MODE_SKIP", "PACKET_WIDTHS", "silhouette_bit", "NO_CLIP"]
 
 #: the packet widths Embree has (rtcIntersect1, 4, 8, 16)
 PACKET_WIDTHS = (1, 4, 8, 16)
@@ -41,6 +41,9 @@ _C_CENTRES, _C_RADII, _C_DIV, _C_RSTRIDE, _C_ORG, _C_REACH, _C_ASPECT = 4, 5, 6,
 # one-pass ties: the normals (address, 4 or 8 bytes a value, 0: none), the tie factor; discs: the
 # float32 vertex buffer (0: none) and the ray origin in its frame (float64)
 _C_NORMALS, _C_NBYTES, _C_TIES, _C_VERTICES, _C_LOCAL = 13, 14, 15, 16, 17
+# the silhouette rule: each owner's silhouette bits (uint8, 0: none), the primary's grid (float64:
+# origin xyz, zenith min, zenith step (a beam table: its largest row gap), azimuth step, rows, columns) and its band edges (-cos, ascending)
+_C_CLIP, _C_CLIP_GEO, _C_CLIP_EDGES, _C_CLIP_NEDGES = 20, 21, 22, 23
 _C_LANES = 24
 # a lane: its mode and direction (float64); tie mode's best so far (owner, score, t, primitive);
 # one pass: the nearest hit so far (t, owner, primitive), where the ray is cut, the candidates
@@ -54,7 +57,7 @@ _CTX_WORDS = _C_LANES + _MAX_WIDTH * _LANE_WORDS
 _MIN_RHO = 1e-9
 #: the tie window stops growing beyond 20 radii (incidence above ~87 deg)
 _MIN_COS = 0.05
-MODE_SKIP, _MODE_TIES, _MODE_ONE_PASS = 1, 2, 4
+MODE_SKIP, _MODE_TIES, _MODE_ONE_PASS, _MODE_CLIP = 1, 2, 4, 8
 #: one pass: the ray is cut at the nearest hit's window times this, so that a nearer hit found
 #: later whose window reaches a little further (an equal distance is common: duplicate points
 #: with other normals) leaves the candidates complete; the window itself is unchanged
@@ -145,6 +148,97 @@ def _tie_window(ties, radius, has_normal, nx, ny, nz, dx, dy, dz):
     return window
 
 
+@njit(cache=True, nogil=True, inline="always")
+def silhouette_bit(slot):
+    """The bit of adjacent pulse ``slot`` (``(dv + 1) * 3 + dh + 1``; 4 is the pulse itself) in a
+    point's silhouette bits."""
+    return slot if slot < 4 else slot - 1
+
+
+#: no silhouette rule (cast_rays' clip arguments)
+NO_CLIP = (np.zeros(0, np.uint8), np.zeros(8), np.zeros(0))
+
+
+@njit(cache=True, nogil=True, inline="always")
+def _primary_cell(geo, edges, n_edges, x, y, z):
+    """Row and column of the primary's pulse grid that holds direction ``(x, y, z) - origin``."""
+    dx, dy, dz = x - geo[0], y - geo[1], z - geo[2]
+    rho = math.sqrt(dx * dx + dy * dy)
+    r = math.sqrt(rho * rho + dz * dz)
+    if r == 0.0:
+        return np.int64(-(1 << 40)), np.int64(0)
+    phi = math.atan2(dy, dx)
+    if phi < 0.0:
+        phi += 2.0 * math.pi
+    nh = np.int64(geo[7])
+    h = min(np.int64(phi / geo[5]), nh - 1)
+    if n_edges == 0:
+        v = np.int64(math.floor((math.atan2(rho, dz) - geo[3]) / geo[4]))
+    else:
+        c = -dz / r
+        lo, hi = 0, n_edges
+        while lo < hi:  # the first edge above c
+            mid = (lo + hi) // 2
+            if edges[mid] <= c:
+                lo = mid + 1
+            else:
+                hi = mid
+        v = np.int64(lo - 1)
+    return v, h
+
+
+@njit(cache=True, nogil=True, inline="always")
+def _clipped(ctx, ctxf, owner, t, dx, dy, dz):
+    """The silhouette rule: whether the hit at ``t`` on disc ``owner`` lies, as seen from the primary's
+    origin, beyond the pulses next to the owner's own (in azimuth, where columns are narrower than a
+    row, as far as a row's height), or in a pulse next to it where the owner stands at a silhouette
+    (its bit set: that pulse's own return lies behind). Pulses are counted exactly for the owners at
+    a silhouette; for the others (nearly all) by the hit's angular offset, 1.5 pulses."""
+    bits = np.int64(carray(_as_pointer(ctx[_C_CLIP] + owner), 1, dtype=np.uint8)[0])
+    geo = carray(_as_pointer(ctx[_C_CLIP_GEO]), 8, dtype=np.float64)
+    n_edges = ctx[_C_CLIP_NEDGES]
+    edges = carray(_as_pointer(ctx[_C_CLIP_EDGES]), max(n_edges, 1), dtype=np.float64)
+    cen = carray(_as_pointer(ctx[_C_CENTRES] + owner * 24), 3, dtype=np.float64)
+    hx_, hy_, hz_ = ctxf[_C_ORG] + t * dx, ctxf[_C_ORG + 1] + t * dy, ctxf[_C_ORG + 2] + t * dz
+    if bits == 0:
+        # an inner point: no angles, its pulse offset in the tangent frame of its direction: a hit
+        # 1.5 rows off, or 1.5 columns (or where columns are narrower than a row, half a column
+        # more than a row's height) is beyond the pulses next to its own
+        ax, ay, az = cen[0] - geo[0], cen[1] - geo[1], cen[2] - geo[2]
+        bx, by, bz = hx_ - geo[0], hy_ - geo[1], hz_ - geo[2]
+        rho = math.sqrt(ax * ax + ay * ay)
+        ra = math.sqrt(rho * rho + az * az)
+        rb = math.sqrt(bx * bx + by * by + bz * bz)
+        if rho * 1e6 <= ra or rb == 0.0:
+            return False  # on the pole's axis (or at the primary): any column
+        ex, ey, ez = bx / rb - ax / ra, by / rb - ay / ra, bz / rb - az / ra
+        u_theta = (ex * ax * az + ey * ay * az) / (rho * ra) - ez * rho / ra
+        u_phi = (ey * ax - ex * ay) / rho
+        if abs(u_theta) >= 1.5 * geo[4]:
+            return True
+        sin_theta = rho / ra
+        return abs(u_phi) >= max(1.5 * geo[5] * sin_theta, 0.5 * geo[5] * sin_theta + geo[4])
+    vc, hc = _primary_cell(geo, edges, n_edges, cen[0], cen[1], cen[2])
+    vx, hx = _primary_cell(geo, edges, n_edges, hx_, hy_, hz_)
+    nh = np.int64(geo[7])
+    dv = vx - vc
+    dh = (hx - hc) % nh
+    if 2 * dh > nh:
+        dh -= nh
+    if dv == 0 and dh == 0:
+        return False
+    if -1 <= dv <= 1 and -1 <= dh <= 1:
+        return (bits >> silhouette_bit((dv + 1) * 3 + dh + 1)) & 1 == 1
+    if dv < -1 or dv > 1:
+        return True  # a disc reaching two pulses would take the next one's silhouette pulse
+    # columns narrower than a row (towards the poles, a beam table's): as many as a row's height holds
+    rho = math.sqrt((cen[0] - geo[0]) ** 2 + (cen[1] - geo[1]) ** 2)
+    r = math.sqrt(rho * rho + (cen[2] - geo[2]) ** 2)
+    if rho * geo[5] * 1e6 <= geo[4] * r:
+        return False  # on the pole's axis: any column
+    return abs(dh) > max(1.0, math.floor(geo[4] * r / (rho * geo[5])))
+
+
 @cfunc(types.void(types.voidptr), cache=True, nopython=True)
 def FILTER(fargs):
     """RTCFilterFunctionN, for each valid ray of the packet: skip discs holding the ray
@@ -191,6 +285,10 @@ def FILTER(fargs):
                 if cx * cx + cy * cy + cz * cz <= reach * reach:
                     valid[i] = 0
                     continue
+        if mode & _MODE_CLIP and _clipped(ctx, ctxf, owner, np.float64(ray[_TFAR * n + i]), ctxf[b + _L_DIR],
+                                          ctxf[b + _L_DIR + 1], ctxf[b + _L_DIR + 2]):
+            valid[i] = 0
+            continue
         if not mode & (_MODE_TIES | _MODE_ONE_PASS):
             continue
         if mode & _MODE_TIES:
@@ -382,7 +480,8 @@ def _pick(ctx, ctxf, b, lo, hi, centres, org64, vertices, local, dx, dy, dz, asp
 
 @njit(cache=True, nogil=True)
 def cast_rays(isect, width, scene, filt, org32, org64, dirs, tnear, tfar, mode_first, ties, one_pass, aspect,
-              centres, radii, normals, div, reach, box, prim_out, owner_out, t_out, vertices, local, dmap, face):
+              centres, radii, normals, div, reach, box, prim_out, owner_out, t_out, vertices, local, dmap, face,
+              clip_bits, clip_geo, clip_edges):
     """Cast rays ``dirs`` from ``org32`` (scene frame) into ``*_out``, ``width`` at a time
     (``isect``: the address of rtcIntersect1 for 1, else of rtcIntersect<width>).
 
@@ -420,6 +519,12 @@ def cast_rays(isect, width, scene, filt, org32, org64, dirs, tnear, tfar, mode_f
     if vertices:
         ctxf[_C_LOCAL], ctxf[_C_LOCAL + 1], ctxf[_C_LOCAL + 2] = local[0], local[1], local[2]
     ctxf[_C_TIES] = ties
+    if clip_bits.shape[0] > 0:
+        ctx[_C_CLIP] = clip_bits.ctypes.data
+        ctx[_C_CLIP_GEO] = clip_geo.ctypes.data
+        ctx[_C_CLIP_EDGES] = clip_edges.ctypes.data
+        ctx[_C_CLIP_NEDGES] = clip_edges.shape[0]
+        mode_first |= _MODE_CLIP
     has_normals = normals.shape[0] > 0
     if has_normals:
         ctx[_C_NORMALS] = normals.ctypes.data

@@ -17,7 +17,7 @@ from numba import njit, prange
 from ..arrays import as_origin, bounds, release_pages
 from ..errors import InputValueError
 from ..threads import default_threads
-from .cast import FILTER, MODE_SKIP, PACKET_WIDTHS, cast_rays
+from .cast import FILTER, MODE_SKIP, NO_CLIP, PACKET_WIDTHS, cast_rays
 from .cull import FACE, direction_map, float32_margin, voxel_boxes
 from .library import (BUFFER_INDEX, BUFFER_NORMAL, BUFFER_VERTEX, FORMAT_FLOAT3, FORMAT_FLOAT4, FORMAT_UINT3,
                       GEOMETRY_DISC_POINT, GEOMETRY_ORIENTED_DISC_POINT, GEOMETRY_TRIANGLE, SCENE_FLAG_COMPACT,
@@ -260,7 +260,7 @@ class RayScene:
     def intersect(self, origin, directions, *, tnear: float = 0.0, tfar: float = math.inf,
                   ties: float = 0.0, skip_containing: bool = False, exact: bool = False,
                   n_threads: int | None = None, pulse_aspect: float | None = None,
-                  one_pass: bool = True, packet: int | None = None, cull: bool = True) -> RayHits:
+                  one_pass: bool = True, packet: int | None = None, cull: bool = True, clip=None) -> RayHits:
         """First hit of every ray from ``origin``.
 
         Parameters
@@ -308,6 +308,16 @@ class RayScene:
             many rays meet the scene's bounding box and nothing in it (a scan
             from outside a cloud, its sky). False: every ray that meets the
             bounding box goes to Embree (the reference for tests).
+        clip : tuple, optional
+            The silhouette rule (scenes with owners): ``(bits, geo, edges)``, each
+            owner's silhouette bits ``(n,) uint8``, the primary's grid
+            ``(8,) float64`` (origin xyz, zenith min, zenith step, azimuth
+            step, rows, columns; radians) and its band edges as ``-cos``
+            ascending (empty for a uniform grid). A hit on a disc beyond the
+            3 x 3 pulses of the primary around its owner's (seen from the
+            primary's origin) is not a hit, nor one in a pulse next to its
+            owner's where the owner's bit is set (that pulse's own return
+            lies behind, or it has none).
 
         Returns
         -------
@@ -325,6 +335,13 @@ class RayScene:
             raise InputValueError(f"ties must be a finite number >= 0, got {ties!r}")
         if packet is not None and (not isinstance(packet, (int, np.integer)) or packet not in PACKET_WIDTHS):
             raise InputValueError(f"packet must be one of {PACKET_WIDTHS}, got {packet!r}")
+        if clip is None:
+            clip = NO_CLIP
+        elif not self._has_owners or len(clip[0]) != len(self._owner_centres):
+            raise InputValueError("clip (the silhouette rule) needs owners (discs) and one byte an owner")
+        else:
+            clip = (np.ascontiguousarray(clip[0], np.uint8), np.ascontiguousarray(clip[1], np.float64),
+                    np.ascontiguousarray(clip[2], np.float64))
         m = len(d)
         prim = np.empty(m, np.int64)
         # a primitive its own owner (discs, plain triangles): one array for both, one write less a ray
@@ -352,7 +369,8 @@ class RayScene:
                         np.float32(tnear), np.float32(tf), mode, float(ties), bool(one_pass),
                         float(pulse_aspect or 0.0),
                         self._owner_centres, self._owner_radii, self._owner_normals, self.prims_per_owner,
-                        self.reach, self._box, prim[a:e], owner[a:e], t[a:e], self._vertex_centres, local, dmap, FACE)
+                        self.reach, self._box, prim[a:e], owner[a:e], t[a:e], self._vertex_centres, local, dmap, FACE,
+                        *clip)
 
         starts = range(0, m, task)
         if n_threads == 1:

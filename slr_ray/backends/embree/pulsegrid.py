@@ -17,7 +17,7 @@ from numba import njit, prange
 from ...arrays import as_origin
 from ...errors import InputValueError
 from ...pattern import as_pattern
-from ...raycast import padded_rows
+from ...raycast import padded_rows, silhouette_bit
 from ...threads import default_threads
 from .discs import fallback_directions, pca_normal, primary_steps, turned
 from .options import GRID_SPACINGS
@@ -230,9 +230,12 @@ def _transpose_keys(keys, nv, nh):
 
 
 @njit(cache=True, inline="always")
-def _offer(slot, q, ranges, ri, gate, best):
+def _offer(slot, q, ranges, ri, gate, best, near):
     """Keep ``q`` in ``best[slot]`` if within the range gate and nearer the scanner
-    (candidates come in index order within a pulse: ties keep the lowest index)."""
+    (candidates come in index order within a pulse: ties keep the lowest index);
+    ``near[slot]``: the least range of any point of the pulse, gated or not."""
+    if ranges[q] < near[slot]:
+        near[slot] = ranges[q]
     if abs(ranges[q] - ri) <= gate * ri and (best[slot] < 0 or ranges[q] < ranges[best[slot]]):
         best[slot] = q
 
@@ -248,7 +251,7 @@ def _line(row_start, line, off, transposed):
 
 
 @njit(cache=True, inline="always")
-def _pulse_neighbours(sk, order, ranges, row_start, ptr, line, pos, ri, gate, line_len, transposed, best):
+def _pulse_neighbours(sk, order, ranges, row_start, ptr, line, pos, ri, gate, line_len, transposed, best, near):
     """Fill ``best[slot]`` (-1: none) with the neighbour in each of the 8 pulses
     around the pulse at ``pos`` of line ``line``; slot ``(dv + 1) * 3 + dh + 1``
     (4 is the pulse itself), the output order of a (dv, dh) double loop,
@@ -257,6 +260,7 @@ def _pulse_neighbours(sk, order, ranges, row_start, ptr, line, pos, ri, gate, li
     a position in line ``line + t - 1`` at or before ``pos - 1``; called with
     non-decreasing ``pos`` along a line, the pointers only move forward."""
     best[:] = -1
+    near[:] = np.inf
     for t in range(3):
         rr = _line(row_start, line, t - 1, transposed)
         if rr < 0:
@@ -269,18 +273,18 @@ def _pulse_neighbours(sk, order, ranges, row_start, ptr, line, pos, ri, gate, li
         while q < end and sk[q] <= row0 + pos + 1:
             dw = sk[q] - row0 - pos
             if not (t == 1 and dw == 0):
-                _offer((dw + 1) * 3 + t if transposed else t * 3 + dw + 1, order[q], ranges, ri, gate, best)
+                _offer((dw + 1) * 3 + t if transposed else t * 3 + dw + 1, order[q], ranges, ri, gate, best, near)
             q += 1
         if not transposed and line_len >= 3 and pos == 0:  # azimuth wrap: the row's last pulse is h - 1
             q = end - 1
             while q >= row_start[rr] and sk[q] == row0 + line_len - 1:
                 q -= 1
             for q2 in range(q + 1, end):  # forward, so ties keep the lowest index
-                _offer(t * 3, order[q2], ranges, ri, gate, best)
+                _offer(t * 3, order[q2], ranges, ri, gate, best, near)
         if not transposed and line_len >= 3 and pos == line_len - 1:  # and its first pulse is h + 1
             q = row_start[rr]
             while q < end and sk[q] == row0:
-                _offer(t * 3 + 2, order[q], ranges, ri, gate, best)
+                _offer(t * 3 + 2, order[q], ranges, ri, gate, best, near)
                 q += 1
 
 
@@ -304,13 +308,14 @@ def _row_pointers(row_start, line, transposed):
 
 
 @njit(cache=True, inline="always")
-def _point_neighbours(pts, sk, order, ranges, row_start, ptr, v, j, gate, line_len, transposed, best, nbr, dist):
+def _point_neighbours(pts, sk, order, ranges, row_start, ptr, v, j, gate, line_len, transposed, best, nbr, dist,
+                      near):
     """The neighbours of the point at sorted position ``j`` of line ``v``:
     their indices and distances in ``nbr[:m]``, ``dist[:m]`` (slot order),
     the rest of the 8 padded with the point itself at distance 0; returns ``m``."""
     i = order[j]
     _pulse_neighbours(sk, order, ranges, row_start, ptr, v, sk[j] - v * line_len, ranges[i], gate, line_len,
-                      transposed, best)
+                      transposed, best, near)
     m = 0
     for slot in range(9):
         q = best[slot]
@@ -334,17 +339,19 @@ def _grid_rows(pts, ranges, sk, order, row_start, tasks, line_len, transposed, g
     base = row_start[tasks[0]]
     for task in prange(len(tasks) - 1):
         best = np.empty(9, np.int64)
+        near = np.empty(9)
         for v in range(tasks[task], tasks[task + 1]):
             ptr = _row_pointers(row_start, v, transposed)
             for j in range(row_start[v], row_start[v + 1]):
                 c = j - base
                 counts[c] = _point_neighbours(pts, sk, order, ranges, row_start, ptr, v, j, gate, line_len,
-                                              transposed, best, idx[c], dist[c])
+                                              transposed, best, idx[c], dist[c], near)
 
 
 def pulse_grid_spacing_normals(points, primary_origin, primary_resolution, gate: float | None = None,
                                spacing: bool = True, normals: bool = True, dtype=np.float64,
-                               layout: str = "auto", max_incidence: float = 90.0, beams=None, spacing_kind: str = "mean"):
+                               layout: str = "auto", max_incidence: float = 90.0, beams=None, spacing_kind: str = "mean",
+                               silhouette=None):
     """Mean neighbour spacing ``(n,)`` and PCA normals ``(n, 3)`` of a primary
     scan from its pulse grid, in one pass and without neighbour arrays.
 
@@ -365,13 +372,26 @@ def pulse_grid_spacing_normals(points, primary_origin, primary_resolution, gate:
     ``"step"`` (twice the smaller of the distances to the nearer neighbour
     along the grid's two axes: the nearer of the points of the pulses above
     and below, the nearer of those left and right; grazing ground is spaced
-    by its small azimuth step, not its long range step; :class:`EmbreeOptions`
-    ``grid_spacing``).
+    by its small azimuth step, not its long range step; and at least 1.5
+    times the range times the coarser of the pattern's two angular steps, so
+    that a pattern of oblong pulses, 0.048 x 0.622 deg, is spaced by its
+    long side, not twice its short one (no change on square pulses: twice
+    the step seen head-on is more); :class:`EmbreeOptions` ``grid_spacing``).
+    ``silhouette``: an ``(n,)`` uint8 array filled with each point's
+    silhouette bits (:func:`silhouette_bit`): bit ``b`` set where the adjacent
+    pulse ``b`` of the primary holds returns, none within the range gate and
+    none nearer (its return lies behind: the point is at a silhouette there);
+    empty pulses (lost pulses, sky, cells narrower than the noise near the
+    poles) and pulses beyond the pattern's rows set none. Not computed with
+    ``beams`` (the bits are read against elevation bands; left 0).
     """
     pts = np.ascontiguousarray(points, np.float64)
     n = len(pts)
     o = as_origin(primary_origin, "primary_origin")
     code = _spacing_code(spacing_kind)
+    clip = np.zeros(0, np.uint8) if silhouette is None or beams is not None else silhouette
+    if silhouette is not None:
+        silhouette[:] = 0
     sp = np.zeros(n) if spacing else np.empty(0)
     # spare rows after the normals: Embree shares float32 ones instead of copying them
     nr = padded_rows(n, dtype) if normals else np.empty((0, 3), dtype)
@@ -383,16 +403,19 @@ def pulse_grid_spacing_normals(points, primary_origin, primary_resolution, gate:
             nr[unseen] = fallback_directions(pts[unseen], o, dtype)
         _grid_fused(pts, ranges, sorted_keys, order, line_start, _row_tasks(line_start, 0, len(line_start) - 1),
                     line_len, transposed, grid_gate(primary_resolution, gate), o, spacing, normals, sp, nr,
-                    math.cos(math.radians(max_incidence)) if max_incidence < 90 else 0.0, code)
+                    math.cos(math.radians(max_incidence)) if max_incidence < 90 else 0.0, code, clip,
+                    _grid_pattern(primary_resolution).shape[0], *primary_steps(primary_resolution))
     return (sp if spacing else None), (nr if normals else None)
 
 
 @njit(cache=True, parallel=True)
 def _grid_fused(pts, ranges, sk, order, row_start, tasks, line_len, transposed, gate, po, want_spacing, want_normals,
-                sp, nr, cos_min, step):
+                sp, nr, cos_min, step, clip, n_rows, d_theta, d_phi):
     sin_min = math.sqrt(max(0.0, 1.0 - cos_min * cos_min))
+    want_clip = clip.shape[0] > 0
     for task in prange(len(tasks) - 1):
         best = np.empty(9, np.int64)
+        near = np.empty(9)
         nbr = np.empty(8, np.int64)
         dist = np.empty(8)
         for v in range(tasks[task], tasks[task + 1]):
@@ -400,9 +423,24 @@ def _grid_fused(pts, ranges, sk, order, row_start, tasks, line_len, transposed, 
             for j in range(row_start[v], row_start[v + 1]):
                 i = order[j]
                 m = _point_neighbours(pts, sk, order, ranges, row_start, ptr, v, j, gate, line_len, transposed,
-                                      best, nbr, dist)
+                                      best, nbr, dist, near)
+                if want_clip:
+                    row = sk[j] - v * line_len if transposed else v
+                    bits = 0
+                    for slot in range(9):
+                        rr = row + slot // 3 - 1
+                        if slot != 4 and 0 <= rr < n_rows and best[slot] < 0 and ranges[i] < near[slot] < np.inf:
+                            bits |= 1 << silhouette_bit(slot)
+                    clip[i] = bits
                 if want_spacing and m:
-                    sp[i] = dist[:m].sum() / m if step == 0 else _grid_step(pts, i, best, dist[:m].sum() / m)
+                    if step == 0:
+                        sp[i] = dist[:m].sum() / m
+                    else:
+                        # the pulse's longer side seen head-on: R times the coarser angular step
+                        dx, dy = pts[i, 0] - po[0], pts[i, 1] - po[1]
+                        rho = math.sqrt(dx * dx + dy * dy)
+                        coarse = 1.5 * max(d_theta * ranges[i], d_phi * rho)
+                        sp[i] = max(_grid_step(pts, i, best, dist[:m].sum() / m), coarse)
                 if want_normals:
                     nx, ny, nz = pca_normal(pts, i, nbr, 8, True, po)
                     if cos_min > 0.0:

@@ -3,6 +3,7 @@
 
 from __future__ import annotations
 
+import dataclasses
 import math
 import time
 
@@ -16,11 +17,15 @@ from ...pattern import as_pattern, pulse_rays
 from ...raycast import Open3DScene, RayScene, disc_vertices, padded_rows
 from ...scan import Scan
 from ..base import Backend, Scanner
+from .fit import fit_primary_pattern
 from .discs import chunk_normals, disc_radii, fallback_directions, fan_polygons, limit_incidence, neighbourhoods
 from .options import EmbreeOptions, refuse_cast
 from .pulsegrid import pulse_grid_spacing_normals
 
-__all__ = ["DiscScanner"]
+__all__ = ["DiscScanner", "PRIMARY_VIEW_TOLERANCE", "same_pulse_grid"]
+
+#: metres: a scan from this close to ``primary_origin`` with the primary's own pattern is its own view
+PRIMARY_VIEW_TOLERANCE = 1e-6
 
 
 class DiscScanner(Scanner):
@@ -53,6 +58,11 @@ class DiscScanner(Scanner):
         t0 = time.perf_counter()
         options = options or EmbreeOptions()
         pts = as_points(points).astype(np.float64, copy=False)
+        #: how ``primary_pattern='fit'`` was fitted (None: given)
+        self.primary_fit = None
+        if options.fit_pending:
+            fitted, self.primary_fit = fit_primary_pattern(pts, options.primary_origin)
+            options = dataclasses.replace(options, primary_pattern=fitted)
         super().__init__(pts, options)
         o = options
         n = len(pts)
@@ -82,13 +92,19 @@ class DiscScanner(Scanner):
         elif o.orientation == "primary":
             # float32: what Embree holds anyway (a float64 copy would be 24 B a point of peak memory)
             normals = fallback_directions(pts, o.primary_origin, np.float32)
+        self._clip = None
         if grid and n >= 2:
+            clip = (np.zeros(n, np.uint8) if o.silhouettes and o.primary_beams is None and o.engine != "open3d"
+                    else None)
             # one fused pass: no neighbour arrays (spacing 0 where none: the floor applies)
             spacing, grid_normals = pulse_grid_spacing_normals(pts, o.primary_origin, o.primary_grid,
                                                                o.grid_gate, need_spacing, need_normals, ndtype,
                                                                max_incidence=o.max_incidence,
                                                                beams=o.primary_beams,
-                                                               spacing_kind=o.grid_spacing)
+                                                               spacing_kind=o.grid_spacing,
+                                                               silhouette=clip)
+            if clip is not None:
+                self._clip = (clip, *_grid_geometry(o.primary_origin, o.primary_grid))
             if need_normals:
                 normals = grid_normals
         elif need_spacing or need_normals:
@@ -145,11 +161,31 @@ class DiscScanner(Scanner):
             hits = self._scene.intersect(origin, dirs, tfar=tfar, skip_containing=True, n_threads=o.n_threads)
         else:
             hits = self._scene.intersect(origin, dirs, tfar=tfar, ties=o.ties, skip_containing=True,
-                                         n_threads=o.n_threads, pulse_aspect=aspect)
+                                         n_threads=o.n_threads, pulse_aspect=aspect, clip=self._clip)
         return hits.owners, hits.distances
+
+    def primary_view(self, origin, pattern) -> bool:
+        """Whether a scan from ``origin`` with ``pattern`` is the primary's own view:
+        ``primary_image`` on, ``origin`` within :data:`PRIMARY_VIEW_TOLERANCE` of
+        ``primary_origin`` and ``pattern`` the primary's pulse grid (range limits aside).
+        Each pulse then returns the primary's own return in it (:meth:`scan`)."""
+        o = self.options
+        if not o.primary_image or o.primary_origin is None or o.primary_grid is None:
+            return False
+        po = as_origin(o.primary_origin, "primary_origin")
+        if not float(np.max(np.abs(as_origin(origin) - po))) <= PRIMARY_VIEW_TOLERANCE:
+            return False
+        return same_pulse_grid(as_pattern(pattern), as_pattern(o.primary_grid))
 
     def _hits(self, origin, pattern, rays_per_batch=1 << 21):
         """Every ray that hits a disc: (point index, t, v, h) arrays."""
+        if self.primary_view(origin, pattern):
+            # the primary's own view: the first surface along each of its pulses is the one it
+            # recorded, the nearest point in the pulse (binning's image); discs would let a near
+            # point's disc take a silhouette pulse whose own return lies behind it
+            keys, ranges, idx = pattern.reduce(self.points, origin, self.options.n_threads)
+            nh = pattern.shape[1]
+            return idx.astype(np.int64), np.asarray(ranges, np.float64), keys // nh, keys % nh
         rmin, rmax = pattern.range_limits
         reach = self._max_radius * self.options.reach
         tfar = min(rmax + 2 * reach, 3e37)
@@ -246,6 +282,8 @@ class DiscScanner(Scanner):
                     origin=origin, pattern=pattern, backend=self.backend, n_input=len(self.points),
                     seconds=time.perf_counter() - t_start,
                     info={"cast_seconds": round(cast, 6), "rays": int(pattern.n_pulses),
+                          "primary_view": self.primary_view(origin, pattern),
+                          **({"primary_pattern_fit": self.primary_fit} if self.primary_fit else {}),
                           "ray_hits": int(n_ray_hits), **self.options.to_dict()})
         # a file-mapped cloud (a validation's spilled primary): one scan's tie rule and gathers touch
         # nearly every page of it (the hits are spread over the whole cloud); released here, they do
@@ -265,6 +303,32 @@ def _nearest_ray(group, t, n_groups):
         if b < 0 or t[i] < t[b]:
             best[g] = i
     return best
+
+
+def _grid_geometry(primary_origin, primary_grid):
+    """The silhouette rule's description of the primary's pulse grid (RayScene.intersect's ``clip``)."""
+    g = as_pattern(primary_grid).aligned()
+    nv, nh = g.shape
+    po = as_origin(primary_origin, "primary_origin")
+    if getattr(g, "has_beams", False):
+        edges = np.asarray(g.band_edges, np.float64)
+        return np.array([*po, edges[0], float(np.diff(edges).max()), 2 * math.pi / nh, nv, nh]), -np.cos(edges)
+    d_theta, d_phi, theta_min, _ = g.radians
+    return np.array([*po, theta_min, d_theta, d_phi, nv, nh]), np.zeros(0)
+
+
+def same_pulse_grid(p, g) -> bool:
+    """Whether pattern ``p`` bins directions into the pulses of ``g`` (range limits
+    aside; a uniform grid may start its zenith range a whole number of rows later)."""
+    if getattr(p, "has_beams", False) or getattr(g, "has_beams", False):
+        if not (getattr(p, "has_beams", False) and getattr(g, "has_beams", False)):
+            return False
+        return (p.elevation_deg, p.columns, p.azimuth_offset_deg) == (g.elevation_deg, g.columns,
+                                                                       g.azimuth_offset_deg)
+    if (p.azimuth_resolution, p.zenith_resolution) != (g.azimuth_resolution, g.zenith_resolution):
+        return False
+    rows = (p.zenith_range[0] - g.zenith_range[0]) / g.zenith_resolution
+    return rows >= 0 and abs(rows - round(rows)) <= 1e-9 and p.zenith_range[1] <= g.zenith_range[1]
 
 
 def _pulse_aspect(pattern) -> float:

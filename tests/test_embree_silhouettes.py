@@ -1,0 +1,133 @@
+"""The embree backend at silhouettes (issue #38): the primary's own view is its own image, and no
+disc takes a pulse whose own primary return lies behind it."""
+
+from __future__ import annotations
+
+import numpy as np
+import pytest
+import trimesh
+
+from slr_ray import ScanPattern, prepare, scan_mesh, sensor
+from slr_ray.cli import main as cli
+from slr_ray.errors import InputValueError
+
+P = np.zeros(3)
+RES = 0.5
+PATTERN = ScanPattern(resolution=RES, zenith_range=(70, 110))
+
+
+def _quad(x, y0, y1, z0, z1):
+    v = np.array([[x, y0, z0], [x, y1, z0], [x, y1, z1], [x, y0, z1]], float)
+    return trimesh.Trimesh(v, [[0, 1, 2], [0, 2, 3]], process=False)
+
+
+@pytest.fixture(scope="module")
+def step_edge():
+    """A near wall (5 m) in front of part of a far one (10 m): silhouettes on four sides."""
+    mesh = trimesh.util.concatenate([_quad(5.0, -1.0, 0.0, -1.0, 1.0), _quad(10.0, -4.0, 4.0, -3.0, 3.0)])
+    return mesh, scan_mesh(mesh, P, PATTERN).points
+
+
+def _wrong(mesh, pts, origin, **opts):
+    """Pulses whose returned range is more than 0.5 m off the exact scan of the mesh there."""
+    truth = scan_mesh(mesh, origin, PATTERN)
+    t = dict(zip(map(tuple, truth.pulses.tolist()), truth.ranges))
+    sc = prepare(pts, "embree", primary_origin=P, primary_resolution=RES, **opts) if opts.pop("embree", True) \
+        else prepare(pts, "binning")
+    s = sc.scan(origin, PATTERN)
+    return sum(abs(r - t[p]) > 0.5 for p, r in zip(map(tuple, s.pulses.tolist()), s.ranges) if p in t), s
+
+
+def test_primary_view_is_the_primary_image(step_edge):
+    mesh, pts = step_edge
+    sc = prepare(pts, "embree", primary_origin=P, primary_resolution=RES)
+    s = sc.scan(P, PATTERN)
+    b = prepare(pts, "binning").scan(P, PATTERN)
+    assert s.info["primary_view"] and np.array_equal(s.indices, b.indices) and np.array_equal(s.pulses, b.pulses)
+    assert len(s.indices) == len(pts)  # every pulse its own point: the exact scan of the mesh
+    # a micrometre is the same place; a millimetre or another pattern casts the discs
+    assert sc.primary_view(P + 5e-7, PATTERN) and not sc.primary_view(P + 1e-3, PATTERN)
+    assert not sc.primary_view(P, ScanPattern(resolution=2 * RES))
+    assert sc.primary_view(P, ScanPattern(resolution=RES, zenith_range=(80, 100), max_range=7))
+
+
+def test_silhouette_rule_at_the_origin_and_1m_away(step_edge):
+    mesh, pts = step_edge
+    # the discs alone (primary_image off) at the primary's origin: each pulse meets its own point's disc
+    assert _wrong(mesh, pts, P, primary_image=False)[0] == 0
+    assert _wrong(mesh, pts, P, primary_image=False, silhouettes=False)[0] > 20  # near discs took far pulses
+    above = P + [0, 0, 1.0]  # 1 m away: no more wrong pulses than binning, far fewer than without the rule
+    new, old, binning = (_wrong(mesh, pts, above)[0], _wrong(mesh, pts, above, silhouettes=False)[0],
+                         _wrong(mesh, pts, above, embree=False)[0])
+    assert new <= binning + 2 and old > 5 * max(new, 2)
+
+
+def test_options_and_beam_tables():
+    with pytest.raises(InputValueError, match="primary_image"):
+        prepare(np.zeros((3, 3)), "embree", primary_image="yes")
+    # a beam table's own view: its table's image (the frame re-scanned from itself)
+    pts = np.random.default_rng(0).normal(size=(3000, 3)) * [10, 10, 1]
+    hdl = sensor("velodyne_hdl64e_s2")
+    sc = prepare(pts, "embree", primary_origin=P, primary_pattern=hdl)
+    s, b = sc.scan(P, hdl), prepare(pts, "binning").scan(P, hdl)
+    assert s.info["primary_view"] and np.array_equal(s.indices, b.indices)
+
+
+def test_primary_pattern_fit_finds_a_uniform_grid(step_edge):
+    mesh, _ = step_edge
+    pattern = ScanPattern(azimuth_resolution=0.3, zenith_resolution=0.5, zenith_range=(70, 110))
+    pts = scan_mesh(mesh, P, pattern).points
+    sc = prepare(pts, "embree", primary_origin=P, primary_pattern="fit")
+    g = sc.options.primary_grid
+    assert (g.azimuth_resolution, g.zenith_resolution) == (0.3, 0.5) and "uniform" in sc.primary_fit
+    s = sc.scan(P, pattern)
+    assert s.info["primary_view"] and s.info["primary_pattern_fit"] == sc.primary_fit
+    assert s.info["primary_pattern"]["azimuth_resolution"] == 0.3  # the fitted pattern, reported
+    with pytest.raises(InputValueError, match="needs primary_origin"):
+        prepare(pts, "embree", primary_pattern="fit")
+
+
+def _ring_frame():
+    """A KITTI-like frame: 64 rings of 180 points, stored ring by ring from the highest beam, each a
+    turn of azimuth; (n, 4) x, y, z, intensity."""
+    table = sensor("velodyne_hdl64e_s2")
+    el = np.radians(np.sort(np.asarray(table.elevation_deg))[::-1])
+    az = np.radians(np.arange(180) * 2.0 + 1.0)
+    e, a = np.meshgrid(el, az, indexing="ij")
+    rng = np.random.default_rng(0)  # a real unit's: each point off its beam's angle, range noise
+    e = e + np.radians(rng.normal(scale=0.05, size=e.shape))
+    a = a + np.radians(rng.normal(scale=0.3, size=a.shape))
+    r = np.where(np.abs(np.sin(3 * a)) > 0.8, 4.0, 12.0) + rng.normal(scale=0.02, size=a.shape)  # silhouettes
+    pts = np.stack([r * np.cos(e) * np.cos(a), r * np.cos(e) * np.sin(a), r * np.sin(e), np.ones_like(r)], -1)
+    return pts.reshape(-1, 4)
+
+
+def test_a_frame_re_simulated_from_itself_is_its_own_image_for_every_grid():
+    from slr_ray.evaluate import evaluate_pair, evaluation_table
+
+    pts = _ring_frame()[:, :3]
+    res = evaluate_pair(pts, pts, transform=np.eye(4), methods=("binning", "embree-grid", "embree-beams"))
+    rows = evaluation_table(res)
+    assert len(rows) == 3 and all((r["depth_rmse_m"], r["drop_accuracy"]) == (0.0, 1.0) for r in rows)
+    assert len({r["R@5cm"] for r in rows}) == 1
+
+
+def test_cli_scan_of_a_sensor_frame_takes_its_primary_from_the_file(tmp_path, capsys):
+    """#41: a KITTI .bin is in its sensor's frame and its scan order gives its beams: the embree
+    backend takes both as the primary (fitted table) by default, and the JSON says so."""
+    import json
+    import subprocess
+    import sys
+
+    frame = tmp_path / "frame.bin"
+    _ring_frame().astype("<f4").tofile(frame)
+
+    args = ["scan", str(frame), "--sensor", "velodyne_vlp16", "--backend", "embree", "--quiet"]
+    res = subprocess.run([sys.executable, "-m", "slr_ray.cli", *args, "-o", str(tmp_path / "a.ply")],
+                         capture_output=True, text=True)
+    assert res.returncode == 0, res.stderr
+    d = json.loads(res.stdout)
+    assert d["primary"]["from_file"] and d["primary"]["origin"] == [0.0, 0.0, 0.0]
+    assert "64 rings" in d["primary"]["fit"] and d["neighbours"] == "pulse-grid"
+    cli(args + ["-o", str(tmp_path / "b.ply"), "--primary-origin", "0", "0", "0", "--primary-resolution", "2"])
+    assert "primary" not in json.loads(capsys.readouterr().out)  # the user's primary, not the file's
