@@ -88,11 +88,12 @@ def test_primary_pattern_fit_finds_a_uniform_grid(step_edge):
 
 
 def _ring_frame():
-    """A KITTI-like frame: 64 rings of 180 points, stored ring by ring from the highest beam, each a
-    turn of azimuth; (n, 4) x, y, z, intensity."""
+    """A KITTI-like frame: 64 rings of 300 points, stored ring by ring from the highest beam, each a
+    turn of azimuth; (n, 4) x, y, z, intensity. (300 columns: a ring much sparser than the table's 2083
+    columns is refused as not a scan's beams, evaluate's check.)"""
     table = sensor("velodyne_hdl64e_s2")
     el = np.radians(np.sort(np.asarray(table.elevation_deg))[::-1])
-    az = np.radians(np.arange(180) * 2.0 + 1.0)
+    az = np.radians(np.arange(300) * 1.2 + 0.6)
     e, a = np.meshgrid(el, az, indexing="ij")
     rng = np.random.default_rng(0)  # a real unit's: each point off its beam's angle, range noise
     e = e + np.radians(rng.normal(scale=0.05, size=e.shape))
