@@ -162,3 +162,23 @@ def test_augments_effects_error_names_the_flags_typed(labelled_ply, tmp_path, ca
                  "--quiet", "-o", str(tmp_path / "aug")]) == 2
     err = capsys.readouterr().err
     assert "--intensity correct needs where" in err and "(use --intensity carry)" in err and "intensity='" not in err
+
+
+# --- 5. a hostile user's typing --------------------------------------------------------------------------
+
+@pytest.mark.parametrize("argv, command", [
+    (["positions", "x.ply", "--n", "1", "-o", "p.json", "--quiet"], "positions"),
+    (["scene", "info", "ground-only", "--bogus"], "scene info"),
+    (["effects", "fit-drop", "f.bin", "-o", "m.json", "--bogus"], "effects fit-drop"),
+])
+def test_an_unknown_flag_is_named_with_the_command_that_refused_it(argv, command, capsys):
+    assert main(argv) == 2
+    err = capsys.readouterr().err.strip().splitlines()
+    assert len(err) == 1 and err[0].startswith(f"slr-ray: error: {command}: unrecognized arguments: "), err
+    assert f"slr-ray {command} --help" in err[0]
+
+
+def test_an_unknown_command_is_one_plain_line(capsys):
+    assert main(["bogus"]) == 2
+    err = capsys.readouterr().err.strip()
+    assert err.startswith("slr-ray: error: argument command: invalid choice: 'bogus'") and "slr-ray: error: slr-ray" not in err

@@ -48,7 +48,17 @@ class _Parser(argparse.ArgumentParser):
     """argparse with the command's error contract: one line on stderr, status 2 (``--help`` has the usage)."""
 
     def error(self, message):
-        self.exit(2, f"slr-ray: error: {self.prog.removeprefix('slr-ray ')}: {message} (see --help)\n")
+        where = self.prog.removeprefix("slr-ray").strip()
+        self.exit(2, f"slr-ray: error: {where + ': ' if where else ''}{message} (see {self.prog} --help)\n")
+
+    def parse_known_args(self, args=None, namespace=None):
+        # a subcommand refuses what it does not know itself: argparse would hand it up to
+        # "slr-ray", whose error could not say which command's --help lists the flags
+        namespace, extra = super().parse_known_args(args, namespace)
+        if extra and self.prog != "slr-ray" and not any(
+                isinstance(a, argparse._SubParsersAction) for a in self._actions):
+            self.error(f"unrecognized arguments: {' '.join(extra)}")
+        return namespace, extra
 
     def format_usage(self):
         return self.format_help().split("\n\n", 1)[0] + "\n"
@@ -77,7 +87,7 @@ def build_parser() -> argparse.ArgumentParser:
         "Simulated LiDAR Repositioning: simulate the scans an ideal static scanner "
         "would record from new positions, using only points of one cloud."))
     ap.add_argument("--version", action="version", version=f"slr-ray {__version__}")
-    sub = ap.add_subparsers(dest="cmd", required=True)
+    sub = ap.add_subparsers(dest="cmd", required=True, metavar="command")
 
     def command(name, help_text):
         p = sub.add_parser(name, help=help_text, description=help_text)
@@ -230,7 +240,7 @@ def build_parser() -> argparse.ArgumentParser:
     help_text = "sensor effects' tools: fit-drop (a ray-drop model from a real frame)"
     p = sub.add_parser("effects", help=help_text, description=help_text)
     p.set_defaults(func=effects_command)
-    esub = p.add_subparsers(dest="effects_cmd", required=True)
+    esub = p.add_subparsers(dest="effects_cmd", required=True, metavar="command")
     q = esub.add_parser("fit-drop", help="fit the ray-drop model of a real frame; writes the JSON --ray-drop reads",
                         description="fit the ray-drop model of a real frame (a spinning sensor's, in its scan "
                                     "order or with a 'ring' attribute); writes the JSON --ray-drop reads")
@@ -252,7 +262,7 @@ def build_parser() -> argparse.ArgumentParser:
     q.add_argument("--force", action="store_true", help="overwrite an existing output")
 
     p = command("scene", "synthetic rectangle scenes: info, build, scan")
-    ssub = p.add_subparsers(dest="scene_cmd", required=True)
+    ssub = p.add_subparsers(dest="scene_cmd", required=True, metavar="command")
     spec_help = "a shipped scene name or a scene TOML path (docs/scenes.md)"
     q = ssub.add_parser("info", help="counts of a scene spec (shipped name or path)")
     q.add_argument("spec", help=spec_help)
