@@ -182,3 +182,14 @@ def test_an_unknown_command_is_one_plain_line(capsys):
     assert main(["bogus"]) == 2
     err = capsys.readouterr().err.strip()
     assert err.startswith("slr-ray: error: argument command: invalid choice: 'bogus'") and "slr-ray: error: slr-ray" not in err
+
+
+def test_every_warning_reaches_the_terminal_as_one_line(tmp_path, capsys):
+    # was: the library's UserWarnings (a format that loses names) in Python's form, file:line and source
+    src = tmp_path / "c.npz"
+    np.savez(src, points=_cloud(400, 40)[0], label=np.arange(440))
+    assert main(["scan", str(src), "--origin", "0", "0", "1", "--resolution", "2", "--quiet",
+                 "-o", str(tmp_path / "s.xyz")]) == 0
+    err = capsys.readouterr().err.splitlines()
+    assert err and all(line.startswith("slr-ray: warning: ") for line in err), err
+    assert ".xyz stores columns, not names: ['label']" in err[0]

@@ -1,8 +1,8 @@
 """The ``slr-ray`` command.
 
 Results go to stdout as one line of JSON; logs and progress go to stderr, and
-slr_ray's warnings (:class:`~slr_ray.errors.SlrWarning`) as one line each,
-``slr-ray: warning: ...`` or ``slr-ray: note: ...``. An
+every warning as one line, ``slr-ray: warning: ...`` or, for what slr_ray decided
+(:class:`~slr_ray.errors.SlrNote`), ``slr-ray: note: ...``. An
 error of the input or the settings (:class:`~slr_ray.errors.SlrError`) or of
 the system (``OSError``: no such file, no permission, disk full) exits with
 status 2 and one line ``slr-ray: error: ...`` on stderr, and leaves no output
@@ -19,7 +19,6 @@ to report it, and status 1.
 from __future__ import annotations
 
 import argparse
-import functools
 import signal
 import sys
 import threading
@@ -295,13 +294,15 @@ def _on_sigterm(signum, frame):
     raise _Terminated()
 
 
-def _show_warning(message, category, filename, lineno, file=None, line=None, *, show=None):
-    """slr_ray's own warnings as one line, ``slr-ray: warning: ...`` (``note:``
-    for what it decided on the user's behalf); any other as Python shows it."""
-    if not issubclass(category, SlrWarning):
-        return show(message, category, filename, lineno, file, line)
+def _show_warning(message, category, filename, lineno, file=None, line=None):
+    """Every warning as one line on stderr, never Python's ``file:line`` and source:
+    ``slr-ray: warning: ...`` (``note:`` for what slr_ray decided on the user's behalf);
+    one not slr_ray's nor a plain UserWarning (numpy's, say) with its category."""
     kind = "note" if issubclass(category, SlrNote) else "warning"
-    print(f"slr-ray: {kind}: {message}", file=sys.stderr, flush=True)
+    text = " ".join(str(message).split())
+    if not issubclass(category, SlrWarning) and category is not UserWarning:
+        text = f"{category.__name__}: {text}"
+    print(f"slr-ray: {kind}: {text}", file=sys.stderr, flush=True)
 
 
 def main(argv=None) -> int:
@@ -311,7 +312,7 @@ def main(argv=None) -> int:
         return int(exc.code or 0)
     with warnings.catch_warnings():
         warnings.simplefilter("always", SlrWarning)  # each said, even when a run says the same twice
-        warnings.showwarning = functools.partial(_show_warning, show=warnings.showwarning)
+        warnings.showwarning = _show_warning
         return _run(args)
 
 
