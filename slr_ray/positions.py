@@ -21,13 +21,12 @@ from __future__ import annotations
 import importlib.util
 import json
 import math
-import multiprocessing
 import os
+import subprocess
+import sys
 import tempfile
 import time
 import warnings
-from concurrent.futures import ProcessPoolExecutor
-from concurrent.futures.process import BrokenProcessPool
 from dataclasses import dataclass, field
 from pathlib import Path
 
@@ -435,7 +434,8 @@ def label_ground(points, *, cloth_resolution: float = 0.5, rigidness: int = 2,
     """Ground labels by Cloth Simulation Filtering (PyPI ``cloth-simulation-filter``).
 
     The cloth is dropped from above the inverted cloud; points within
-    ``class_threshold`` of it are ground. CSF runs in a child process, in a
+    ``class_threshold`` of it are ground. CSF runs in a child interpreter (numpy and
+    CSF only, so a script without a ``__main__`` guard is safe), in a
     temporary directory (it writes ``cloth_nodes.txt`` into its working
     directory and prints to the console): this process's working directory,
     stdout and threads are never touched, so it is safe to call from threads,
@@ -460,35 +460,39 @@ def label_ground(points, *, cloth_resolution: float = 0.5, rigidness: int = 2,
     params = {"bSloopSmooth": bool(slope_smooth), "cloth_resolution": float(cloth_resolution),
               "rigidness": int(rigidness), "class_threshold": float(class_threshold),
               "interations": int(iterations), "time_step": float(time_step)}
-    # spawn: a forked child would inherit this process's thread pools mid-state
-    with ProcessPoolExecutor(1, mp_context=multiprocessing.get_context("spawn")) as pool:
-        try:
-            ground = pool.submit(_csf_ground, pts - pts.mean(axis=0), params).result()
-        except BrokenProcessPool:
-            raise InputValueError("CSF crashed (its process ended without an answer); "
-                                  "try other cloth parameters") from None
+    # a child interpreter that imports numpy and CSF only: not multiprocessing's spawn, whose
+    # child re-runs the caller's __main__ (a plain script without a __main__ guard ran twice
+    # and CSF "crashed"); one OpenMP thread: CSF's threads race (20,000 then 20,001 ground points)
+    with tempfile.TemporaryDirectory(prefix="slr_ray_csf_") as tmp:
+        np.save(os.path.join(tmp, "points.npy"), pts - pts.mean(axis=0))
+        run = subprocess.run([sys.executable, "-c", _CSF_CHILD, tmp, json.dumps(params)], cwd=tmp,
+                             stdin=subprocess.DEVNULL, stdout=subprocess.DEVNULL, stderr=subprocess.PIPE,
+                             env={**os.environ, "OMP_NUM_THREADS": "1"}, text=True, errors="replace")
+        if run.returncode != 0:
+            last = (run.stderr.strip().splitlines() or [f"exit status {run.returncode}"])[-1]
+            raise InputValueError(f"CSF crashed ({last}); try other cloth parameters")
+        ground = np.load(os.path.join(tmp, "ground.npy"))
     out = np.zeros(len(pts), bool)
     out[ground] = True
     return out
 
 
-def _csf_ground(pts: np.ndarray, params: dict) -> np.ndarray:
-    """Indices of CSF's ground points, in a child process (see :func:`label_ground`)."""
-    # one OpenMP thread: CSF's threads race, and the same cloud gave 20,000 then 20,001 ground points
-    os.environ["OMP_NUM_THREADS"] = "1"  # read when CSF's own libgomp loads, at its import just below
-    import CSF
-
-    csf = CSF.CSF()
-    for k, v in params.items():
-        setattr(csf.params, k, v)
-    csf.setPointCloud(pts.tolist() if len(pts) < 10_000 else pts)
-    ground, off = CSF.VecInt(), CSF.VecInt()
-    with tempfile.TemporaryDirectory() as tmp, open(os.devnull, "w") as null:
-        os.chdir(tmp)
-        os.dup2(null.fileno(), 1)  # CSF prints from C++: silence the child's fd 1
-        csf.do_filtering(ground, off, False)
-        os.chdir(os.path.dirname(tmp))  # leave before the directory is removed
-    return np.asarray(list(ground), dtype=np.int64)
+# CSF in its own interpreter (see label_ground): argv is the directory, which holds points.npy and
+# gets ground.npy (and CSF's cloth_nodes.txt), and the parameters as JSON; CSF prints to stdout
+_CSF_CHILD = """
+import json, os, sys
+import numpy as np
+import CSF
+tmp, params = sys.argv[1], json.loads(sys.argv[2])
+pts = np.load(os.path.join(tmp, "points.npy"))
+csf = CSF.CSF()
+for k, v in params.items():
+    setattr(csf.params, k, v)
+csf.setPointCloud(pts.tolist() if len(pts) < 10_000 else pts)
+ground, off = CSF.VecInt(), CSF.VecInt()
+csf.do_filtering(ground, off, False)
+np.save(os.path.join(tmp, "ground.npy"), np.asarray(list(ground), dtype=np.int64))
+"""
 
 
 def ground_labels(cloud, attribute: str | None = None, value: int | None = None, csf: bool | None = None,

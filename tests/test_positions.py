@@ -1,4 +1,7 @@
 import os
+import subprocess
+import sys
+from pathlib import Path
 
 import numpy as np
 import pytest
@@ -154,6 +157,21 @@ def test_label_ground_is_safe_from_threads(tmp_path, monkeypatch):
         w.result()
     np.testing.assert_array_equal(labels[0], labels[1])
     assert labels[0][:4000].mean() > 0.95 and seen == {str(tmp_path)}
+
+
+def test_label_ground_works_from_a_plain_script(tmp_path):
+    # a user's script has no `if __name__ == "__main__":`; CSF's spawned child re-ran it,
+    # and the user read "CSF crashed ...; try other cloth parameters"
+    pytest.importorskip("CSF")
+    script = tmp_path / "label.py"
+    script.write_text("import numpy as np\nfrom slr_ray.positions import label_ground\n"
+                      "g = np.random.default_rng(0).uniform(-5, 5, (3000, 3)) * [1, 1, 0.001]\n"
+                      "print(label_ground(g).sum())\n")
+    env = {**os.environ, "PYTHONPATH": os.pathsep.join(filter(None, [str(Path(__file__).parents[1]),
+                                                                   os.environ.get("PYTHONPATH")]))}
+    run = subprocess.run([sys.executable, str(script)], cwd=tmp_path, env=env, capture_output=True, text=True,
+                         timeout=120)
+    assert run.returncode == 0 and run.stdout.strip() == "3000", run.stderr[-500:]
 
 
 def test_bad_inputs():
