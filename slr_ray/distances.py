@@ -318,7 +318,7 @@ def distance_study(inputs, *, origin=None, heights=SWEEP_HEIGHTS, positions: int
     for item in inputs:
         cloud = item if isinstance(item, PointCloud) else read_cloud(item, allow_empty=False)
         name = "<PointCloud>" if isinstance(item, PointCloud) else str(item)
-        is_ground = ground_labels(cloud, **(ground or {}))
+        is_ground = ground_labels(cloud, **(ground or {}), progress=progress)
         o = origin if origin is not None else cloud.origin
         if o is None:
             raise InputValueError(f"{name} records no scanner origin: give one (--origin X Y Z)")

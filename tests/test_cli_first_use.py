@@ -167,7 +167,7 @@ def test_augments_effects_error_names_the_flags_typed(labelled_ply, tmp_path, ca
 # --- 5. a hostile user's typing --------------------------------------------------------------------------
 
 @pytest.mark.parametrize("argv, command", [
-    (["positions", "x.ply", "--n", "1", "-o", "p.json", "--quiet"], "positions"),
+    (["positions", "x.ply", "--n", "1", "-o", "p.json", "--quite"], "positions"),
     (["scene", "info", "ground-only", "--bogus"], "scene info"),
     (["effects", "fit-drop", "f.bin", "-o", "m.json", "--bogus"], "effects fit-drop"),
 ])
@@ -193,3 +193,18 @@ def test_every_warning_reaches_the_terminal_as_one_line(tmp_path, capsys):
     err = capsys.readouterr().err.splitlines()
     assert err and all(line.startswith("slr-ray: warning: ") for line in err), err
     assert ".xyz stores columns, not names: ['label']" in err[0]
+
+
+def test_csf_is_a_named_phase_and_positions_is_quiet_with_quiet(tmp_path, capsys, monkeypatch):
+    # CSF with its 0.5 m cloth took 73 s on the 110,000-point airborne tile without a word on stderr
+    monkeypatch.setattr("slr_ray.progress.PHASE_AFTER", 0.0)
+    pts, _ = _cloud(2000, 200)
+    write_cloud(tmp_path / "nolabels.ply", PointCloud(pts))
+    argv = ["positions", str(tmp_path / "nolabels.ply"), "--n", "1", "--min-ground-points", "50", "--force",
+            "-o", str(tmp_path / "p.json")]
+    assert main(argv) == 0
+    err = capsys.readouterr().err
+    assert "CSF: labelling the ground of 2,200 points (cloth 0.5 m over 8 x 8 m) ..." in err
+    assert main(argv + ["--quiet"]) == 0
+    err = capsys.readouterr().err.splitlines()
+    assert len(err) == 1 and err[0].startswith("slr-ray: note: the input has no ground labels"), err

@@ -140,6 +140,7 @@ def build_parser() -> argparse.ArgumentParser:
                    help="azimuth minimum profile: none (default), default, or a JSON path")
     p.add_argument("--allow-fewer", action="store_true", help="accept fewer positions than --n (a warning names both)")
     p.add_argument("--png", help="also write a top view of the cells kept and removed")
+    p.add_argument("--quiet", action="store_true", help="no progress (CSF, the azimuth test)")
     p.add_argument("--force", action="store_true", help="overwrite existing outputs (never an input)")
     A.add_input_format(p)
 

@@ -328,14 +328,15 @@ def positions(args):
     ground = ground_from(args)
     with plan:
         cloud = read_cloud(args.input, args.input_format, allow_empty=False)
-        is_ground = ground_labels(cloud, **ground)
+        is_ground = ground_labels(cloud, **ground, progress=not args.quiet)
         profile = None if args.profile == "none" else default_profile() if args.profile == "default" \
             else AzimuthProfile.load(args.profile)
         pos, cells = select_positions(
             cloud.points, is_ground, args.n, seed=args.seed, cell_size=args.cell_size,
             min_ground_points=args.min_ground_points, ground_count_radius=args.ground_count_radius,
             ground_height_radius=args.ground_height_radius, scanner_height=args.scanner_height,
-            profile=profile, allow_fewer=args.allow_fewer, return_cells=True, progress=profile is not None)
+            profile=profile, allow_fewer=args.allow_fewer, return_cells=True,
+            progress=profile is not None and not args.quiet)
         res = {"input": str(args.input), "n_requested": args.n, "seed": args.seed,
                "positions": pos.tolist(), "ground_points": int(is_ground.sum()), **cells.summary()}
         with atomic_path(args.output) as tmp:
