@@ -198,3 +198,15 @@ def test_csf_parameters_are_checked_before_csf_runs():
                 {"class_threshold": 0}, {"iterations": 0}, {"rigidness": 7}):
         with pytest.raises(InputValueError):
             label_ground(pts, **bad)
+
+
+def test_too_few_candidates_says_the_most_ground_any_cell_has():
+    # an airborne tile at 0.17 points/m^2 against the paper's 50,000: the user had no number to lower it to
+    rng = np.random.default_rng(0)
+    pts = np.column_stack([rng.uniform(0, 40, (2000, 2)), np.zeros(2000)])
+    cells = candidate_cells(pts, np.ones(2000, bool))
+    best = int(cells.ground_counts.max())
+    with pytest.raises(InputValueError, match=f"the most ground points within 5 m of a cell's centre is {best}"):
+        select_positions(pts, np.ones(2000, bool), 3, seed=0)
+    with pytest.warns(SlrWarning, match=f"within 5 m of a cell's centre is {best}"):
+        select_positions(pts, np.ones(2000, bool), 3, seed=0, allow_fewer=True)
