@@ -104,7 +104,8 @@ def _resumable(manifest_path: Path, settings: dict, positions, out: Path) -> dic
     if len(positions) < held and not diff:
         # its manifest would list the old run's scans past this run's positions, without them
         raise InputValueError(f"{out} holds a run of {held} positions and this run asks {len(positions)}: "
-                              f"ask n={held} (or more) to resume or extend it, or write elsewhere")
+                              f"ask n={held} (or more) to resume or extend it, or write elsewhere",
+                              flags={f"ask n={held}": f"ask --n {held}"})
     k = min(len(positions), held)
     if not np.array_equal(np.asarray(old.get("positions", []))[:k].reshape(-1, 3), positions[:k]):
         diff.append("positions differ")

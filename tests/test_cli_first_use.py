@@ -208,3 +208,13 @@ def test_csf_is_a_named_phase_and_positions_is_quiet_with_quiet(tmp_path, capsys
     assert main(argv + ["--quiet"]) == 0
     err = capsys.readouterr().err.splitlines()
     assert len(err) == 1 and err[0].startswith("slr-ray: note: the input has no ground labels"), err
+
+
+def test_a_rerun_asking_fewer_positions_names_the_flag_to_type(labelled_ply, tmp_path, capsys):
+    argv = ["augment", str(labelled_ply), "--min-ground-points", "500", "--resolution", "4", "--workers", "1",
+            "--quiet", "-o", str(tmp_path / "aug")]
+    assert main(argv + ["--n", "2"]) == 0
+    capsys.readouterr()
+    assert main(argv + ["--n", "1"]) == 2
+    err = capsys.readouterr().err
+    assert "ask --n 2 (or more)" in err and "n=2" not in err, err
