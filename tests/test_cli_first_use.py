@@ -218,3 +218,16 @@ def test_a_rerun_asking_fewer_positions_names_the_flag_to_type(labelled_ply, tmp
     assert main(argv + ["--n", "1"]) == 2
     err = capsys.readouterr().err
     assert "ask --n 2 (or more)" in err and "n=2" not in err, err
+
+
+@pytest.mark.parametrize("flags, said", [
+    (["--resolution", "400"], "--resolution must be in (0, 180] degrees"),
+    (["--resolution", "1", "--zenith-range", "100", "50"], "--zenith-range must satisfy 0 <= min < max <= 180"),
+    (["--resolution", "1", "--min-range", "50", "--max-range", "10"], "--min-range (50.0) must not exceed --max-range"),
+    (["--sensor", "velodyne_vlp16", "--max-range", "-1"], "--max-range must be a finite number >= 0"),
+])
+def test_a_bad_pattern_flag_is_named_as_typed(flags, said, labelled_ply, tmp_path, capsys):
+    # was: the library's argument names (zenith_range, min_range, azimuth_resolution)
+    assert main(["scan", str(labelled_ply), "--origin", "0", "0", "1", *flags, "-o", str(tmp_path / "s.ply")]) == 2
+    err = capsys.readouterr().err
+    assert said in err and "_range" not in err and "_resolution" not in err, err
