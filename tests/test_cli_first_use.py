@@ -231,3 +231,14 @@ def test_a_bad_pattern_flag_is_named_as_typed(flags, said, labelled_ply, tmp_pat
     assert main(["scan", str(labelled_ply), "--origin", "0", "0", "1", *flags, "-o", str(tmp_path / "s.ply")]) == 2
     err = capsys.readouterr().err
     assert said in err and "_range" not in err and "_resolution" not in err, err
+
+
+def test_a_missing_profile_is_refused_before_csf_runs(tmp_path, capsys, monkeypatch):
+    def no_csf(*a, **k):
+        raise AssertionError("CSF ran")
+
+    monkeypatch.setattr("slr_ray.positions.label_ground", no_csf)
+    write_cloud(tmp_path / "nolabels.ply", PointCloud(_cloud(200, 20)[0]))
+    assert main(["positions", str(tmp_path / "nolabels.ply"), "--n", "1", "--profile", str(tmp_path / "no.json"),
+                 "-o", str(tmp_path / "p.json")]) == 2
+    assert "cannot read azimuth profile" in capsys.readouterr().err

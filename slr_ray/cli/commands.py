@@ -327,10 +327,10 @@ def positions(args):
     plan = _plan(args, inputs=[args.input], outputs=[args.output], figures=[args.png])
     ground = ground_from(args)
     with plan:
+        profile = None if args.profile == "none" else default_profile() if args.profile == "default" \
+            else AzimuthProfile.load(args.profile)  # before CSF, which can take a minute
         cloud = read_cloud(args.input, args.input_format, allow_empty=False)
         is_ground = ground_labels(cloud, **ground, progress=not args.quiet)
-        profile = None if args.profile == "none" else default_profile() if args.profile == "default" \
-            else AzimuthProfile.load(args.profile)
         pos, cells = select_positions(
             cloud.points, is_ground, args.n, seed=args.seed, cell_size=args.cell_size,
             min_ground_points=args.min_ground_points, ground_count_radius=args.ground_count_radius,
