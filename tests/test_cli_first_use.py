@@ -242,3 +242,12 @@ def test_a_missing_profile_is_refused_before_csf_runs(tmp_path, capsys, monkeypa
     assert main(["positions", str(tmp_path / "nolabels.ply"), "--n", "1", "--profile", str(tmp_path / "no.json"),
                  "-o", str(tmp_path / "p.json")]) == 2
     assert "cannot read azimuth profile" in capsys.readouterr().err
+
+
+def test_keep_range_and_ring_go_with_a_range_image(labelled_ply, tmp_path, capsys):
+    # was: "attribute name 'range' is taken by the range image", for the image's own layers
+    image = tmp_path / "ri.npz"
+    assert main(["scan", str(labelled_ply), "--origin", "0", "0", "1", "--resolution", "4", "--keep-range",
+                 "--keep-ring", "--range-image", str(image), "--quiet", "-o", str(tmp_path / "s.ply")]) == 0
+    with np.load(image) as z:
+        assert {"range", "ring", "classification"} <= set(z.files) and z["ring"].ndim == 1  # columns: its own

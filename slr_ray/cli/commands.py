@@ -132,9 +132,9 @@ def scan(args):
                     result, sub = _scan_with_effects(args, cloud, origin, pattern, scanner, effects)
         if not said:
             _check_returns(result, bounds)
-        _keep(args, sub, result)
+        kept = _keep(args, sub, result)
         # the range image is made before anything is written: an error there leaves no scan behind
-        image = _range_image(sub, result) if args.range_image or args.png else None
+        image = _range_image(sub, result, skip=kept) if args.range_image or args.png else None
         t1 = time.perf_counter()
         write_cloud(args.output, sub, args.format)
         if image is not None:
@@ -160,8 +160,9 @@ def _scan_with_effects(args, cloud, origin, pattern, scanner, effects):
     return result, effect_cloud(es, cloud)
 
 
-def _keep(args, sub, result) -> None:
-    """--keep-range / --keep-ring as attributes; an input attribute of those names is never replaced."""
+def _keep(args, sub, result) -> set:
+    """--keep-range / --keep-ring as attributes (their names are returned); an input attribute of
+    those names is never replaced."""
     added = {}
     if args.keep_range:
         added["range"] = ("--keep-range", result.ranges)
@@ -175,12 +176,15 @@ def _keep(args, sub, result) -> None:
                               "refusing to replace them (rename them in the input, or drop the flag)")
     for name, (_, values) in added.items():
         sub.attributes[name] = values
+    return set(added)
 
 
-def _range_image(sub, result) -> dict:
-    """The scan's range image with every 1-D attribute of ``sub`` (the scanned subset, in index order)."""
+def _range_image(sub, result, skip=()) -> dict:
+    """The scan's range image with every 1-D attribute of ``sub`` (the scanned subset, in index order)
+    but those in ``skip`` (--keep-range's and --keep-ring's: the image has its own range, ring and column)."""
     local = replace(result, indices=np.arange(len(result)))  # images of the subset's own rows
-    attrs = {k: v for k, v in sub.attributes.items() if np.asarray(v).ndim == 1 and np.asarray(v).dtype.kind in "biuf"}
+    attrs = {k: v for k, v in sub.attributes.items()
+             if k not in skip and np.asarray(v).ndim == 1 and np.asarray(v).dtype.kind in "biuf"}
     image = local.range_image(attrs)
     local_index = image["index"]
     image["index"] = np.full(local_index.shape, -1, dtype=np.asarray(result.indices).dtype)
