@@ -366,7 +366,7 @@ def select_positions(points, is_ground, n: int, seed=None, cell_size: float = CE
     rng = np.random.default_rng(seed)
     final = cells.final
     removed = ", ".join(f"{s['stage']} removed {s['removed']}" for s in cells.stages if not s.get("skipped"))
-    if cells.stages[1]["removed"] and len(cells.ground_counts):  # the number to lower min_ground_points to
+    if cells.stages[1]["removed"] and cells.stages[1]["kept"] < n:  # the number to lower min_ground_points to
         radius = cells.params.get("ground_count_radius", ground_count_radius)
         removed += f"; the most ground points within {radius:g} m of a cell's centre is {cells.ground_counts.max():,}"
     if len(final) < n and not allow_fewer:

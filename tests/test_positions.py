@@ -210,3 +210,9 @@ def test_too_few_candidates_says_the_most_ground_any_cell_has():
         select_positions(pts, np.ones(2000, bool), 3, seed=0)
     with pytest.warns(SlrWarning, match=f"within 5 m of a cell's centre is {best}"):
         select_positions(pts, np.ones(2000, bool), 3, seed=0, allow_fewer=True)
+    # not when the ground support left enough cells and the azimuth test removed them (wrong flag)
+    small = pts[:600] / 5  # 16 cells of 2 m
+    some = int(np.sort(candidate_cells(small, np.ones(600, bool)).ground_counts)[4])  # removes 4 or fewer
+    with pytest.raises(InputValueError, match=r"ground_support removed [1-4], azimuth_profile removed 1[2-5]") as e:
+        select_positions(small, np.ones(600, bool), 3, seed=0, min_ground_points=some, profile=default_profile())
+    assert "the most ground points" not in str(e.value)
