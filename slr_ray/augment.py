@@ -108,7 +108,8 @@ def _resumable(manifest_path: Path, settings: dict, positions, out: Path) -> dic
     if len(positions) < held and not diff:
         # its manifest would list the old run's scans past this run's positions, without them
         raise InputValueError(f"{out} holds a run of {held} positions and this run asks {len(positions)}: "
-                              f"ask n={held} (or more) to resume or extend it, or write elsewhere")
+                              f"ask n={held} (or more) to resume or extend it, or write elsewhere",
+                              flags={f"ask n={held}": f"ask --n {held}"})
     k = min(len(positions), held)
     if not np.array_equal(np.asarray(old.get("positions", []))[:k].reshape(-1, 3), positions[:k]):
         diff.append("positions differ")
@@ -537,7 +538,7 @@ def _augment(input_path, out, config, pattern, options, ext, names, ground, prog
     backend, backend_options = config.backend, dict(config.backend_options or {})
     ground_setting = "from the input" if ground is None else dict(ground) if isinstance(ground, dict) else "given"
     if isinstance(ground, dict) and config.chunk_size is not None:  # labels (CSF) need the whole cloud
-        ground = ground_labels(read_cloud(input_path, allow_empty=False), **ground)
+        ground = ground_labels(read_cloud(input_path, allow_empty=False), **ground, progress=progress)
     if config.chunk_size is not None:
         cloud = None
         positions, cells, _ = las_positions(input_path, config.n, seed=config.seed, ground=ground,
@@ -547,7 +548,7 @@ def _augment(input_path, out, config, pattern, options, ext, names, ground, prog
     else:
         cloud = read_cloud(input_path, allow_empty=False)
         if ground is None or isinstance(ground, dict):
-            ground = ground_labels(cloud, **(ground or {}))
+            ground = ground_labels(cloud, **(ground or {}), progress=progress)
         positions, cells = select_positions(cloud.points, ground, config.n, seed=config.seed,
                                             min_ground_points=config.min_ground_points,
                                             scanner_height=config.scanner_height,

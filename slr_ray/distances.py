@@ -318,10 +318,10 @@ def distance_study(inputs, *, origin=None, heights=SWEEP_HEIGHTS, positions: int
     for item in inputs:
         cloud = item if isinstance(item, PointCloud) else read_cloud(item, allow_empty=False)
         name = "<PointCloud>" if isinstance(item, PointCloud) else str(item)
-        is_ground = ground_labels(cloud, **(ground or {}))
         o = origin if origin is not None else cloud.origin
-        if o is None:
+        if o is None:  # before the ground labels: CSF can take a minute
             raise InputValueError(f"{name} records no scanner origin: give one (--origin X Y Z)")
+        is_ground = ground_labels(cloud, **(ground or {}), progress=progress)
         original += distance_histogram(cloud.points, o, is_ground, bins)
         pos = select_positions(cloud.points, is_ground, positions, seed=seed, min_ground_points=min_ground_points,
                                allow_fewer=True, scanner_height=scanner_height)

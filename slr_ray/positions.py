@@ -21,13 +21,12 @@ from __future__ import annotations
 import importlib.util
 import json
 import math
-import multiprocessing
 import os
+import subprocess
+import sys
 import tempfile
 import time
 import warnings
-from concurrent.futures import ProcessPoolExecutor
-from concurrent.futures.process import BrokenProcessPool
 from dataclasses import dataclass, field
 from pathlib import Path
 
@@ -42,6 +41,7 @@ from .paper import (CELL_SIZE, GROUND_COUNT_RADIUS, GROUND_HEIGHT_RADIUS, MIN_GR
                     SECONDARY_RESOLUTION)
 from .pattern import ScanPattern
 from .progress import bar as progress_bar
+from .progress import phase
 from .scenes import scene_from_spec
 
 __all__ = ["CandidateCells", "AzimuthProfile", "candidate_cells", "select_positions",
@@ -366,6 +366,9 @@ def select_positions(points, is_ground, n: int, seed=None, cell_size: float = CE
     rng = np.random.default_rng(seed)
     final = cells.final
     removed = ", ".join(f"{s['stage']} removed {s['removed']}" for s in cells.stages if not s.get("skipped"))
+    if cells.stages[1]["removed"] and cells.stages[1]["kept"] < n:  # the number to lower min_ground_points to
+        radius = cells.params.get("ground_count_radius", ground_count_radius)
+        removed += f"; the most ground points within {radius:g} m of a cell's centre is {cells.ground_counts.max():,}"
     if len(final) < n and not allow_fewer:
         raise InputValueError(f"only {len(final)} candidate cells for n={n}: {removed} "
                               "(lower min_ground_points, or pass allow_fewer=True to accept fewer)", flags=CLI_FLAGS)
@@ -435,7 +438,8 @@ def label_ground(points, *, cloth_resolution: float = 0.5, rigidness: int = 2,
     """Ground labels by Cloth Simulation Filtering (PyPI ``cloth-simulation-filter``).
 
     The cloth is dropped from above the inverted cloud; points within
-    ``class_threshold`` of it are ground. CSF runs in a child process, in a
+    ``class_threshold`` of it are ground. CSF runs in a child interpreter (numpy and
+    CSF only, so a script without a ``__main__`` guard is safe), in a
     temporary directory (it writes ``cloth_nodes.txt`` into its working
     directory and prints to the console): this process's working directory,
     stdout and threads are never touched, so it is safe to call from threads,
@@ -460,39 +464,43 @@ def label_ground(points, *, cloth_resolution: float = 0.5, rigidness: int = 2,
     params = {"bSloopSmooth": bool(slope_smooth), "cloth_resolution": float(cloth_resolution),
               "rigidness": int(rigidness), "class_threshold": float(class_threshold),
               "interations": int(iterations), "time_step": float(time_step)}
-    # spawn: a forked child would inherit this process's thread pools mid-state
-    with ProcessPoolExecutor(1, mp_context=multiprocessing.get_context("spawn")) as pool:
-        try:
-            ground = pool.submit(_csf_ground, pts - pts.mean(axis=0), params).result()
-        except BrokenProcessPool:
-            raise InputValueError("CSF crashed (its process ended without an answer); "
-                                  "try other cloth parameters") from None
+    # a child interpreter that imports numpy and CSF only: not multiprocessing's spawn, whose
+    # child re-runs the caller's __main__ (a plain script without a __main__ guard ran twice
+    # and CSF "crashed"); one OpenMP thread: CSF's threads race (20,000 then 20,001 ground points)
+    with tempfile.TemporaryDirectory(prefix="slr_ray_csf_") as tmp:
+        np.save(os.path.join(tmp, "points.npy"), pts - pts.mean(axis=0))
+        run = subprocess.run([sys.executable, "-c", _CSF_CHILD, tmp, json.dumps(params)], cwd=tmp,
+                             stdin=subprocess.DEVNULL, stdout=subprocess.DEVNULL, stderr=subprocess.PIPE,
+                             env={**os.environ, "OMP_NUM_THREADS": "1"}, text=True, errors="replace")
+        if run.returncode != 0:
+            last = (run.stderr.strip().splitlines() or [f"exit status {run.returncode}"])[-1]
+            raise InputValueError(f"CSF crashed ({last}); try other cloth parameters")
+        ground = np.load(os.path.join(tmp, "ground.npy"))
     out = np.zeros(len(pts), bool)
     out[ground] = True
     return out
 
 
-def _csf_ground(pts: np.ndarray, params: dict) -> np.ndarray:
-    """Indices of CSF's ground points, in a child process (see :func:`label_ground`)."""
-    # one OpenMP thread: CSF's threads race, and the same cloud gave 20,000 then 20,001 ground points
-    os.environ["OMP_NUM_THREADS"] = "1"  # read when CSF's own libgomp loads, at its import just below
-    import CSF
-
-    csf = CSF.CSF()
-    for k, v in params.items():
-        setattr(csf.params, k, v)
-    csf.setPointCloud(pts.tolist() if len(pts) < 10_000 else pts)
-    ground, off = CSF.VecInt(), CSF.VecInt()
-    with tempfile.TemporaryDirectory() as tmp, open(os.devnull, "w") as null:
-        os.chdir(tmp)
-        os.dup2(null.fileno(), 1)  # CSF prints from C++: silence the child's fd 1
-        csf.do_filtering(ground, off, False)
-        os.chdir(os.path.dirname(tmp))  # leave before the directory is removed
-    return np.asarray(list(ground), dtype=np.int64)
+# CSF in its own interpreter (see label_ground): argv is the directory, which holds points.npy and
+# gets ground.npy (and CSF's cloth_nodes.txt), and the parameters as JSON; CSF prints to stdout
+_CSF_CHILD = """
+import json, os, sys
+import numpy as np
+import CSF
+tmp, params = sys.argv[1], json.loads(sys.argv[2])
+pts = np.load(os.path.join(tmp, "points.npy"))
+csf = CSF.CSF()
+for k, v in params.items():
+    setattr(csf.params, k, v)
+csf.setPointCloud(pts.tolist() if len(pts) < 10_000 else pts)
+ground, off = CSF.VecInt(), CSF.VecInt()
+csf.do_filtering(ground, off, False)
+np.save(os.path.join(tmp, "ground.npy"), np.asarray(list(ground), dtype=np.int64))
+"""
 
 
 def ground_labels(cloud, attribute: str | None = None, value: int | None = None, csf: bool | None = None,
-                  cloth_resolution: float = 0.5) -> np.ndarray:
+                  cloth_resolution: float = 0.5, *, progress: bool = False) -> np.ndarray:
     """Ground labels of a :class:`~slr_ray.io.PointCloud`: its own, else found by CSF.
 
     Labels are read, in this order, from ``attribute`` when given, else from
@@ -518,6 +526,10 @@ def ground_labels(cloud, attribute: str | None = None, value: int | None = None,
         labels the cloud has. False: never CSF (no labels is an error).
     cloth_resolution : float
         CSF's cloth cell (m).
+    progress : bool
+        Name CSF on stderr when it runs longer than 2 s (its time grows with
+        the cloud's extent over the cloth cell: a minute for a 1 km airborne
+        tile at 0.5 m).
 
     Returns
     -------
@@ -565,7 +577,10 @@ def ground_labels(cloud, attribute: str | None = None, value: int | None = None,
                else "the input has no ground labels (is_ground, classification 2, label 0)")
     else:
         why = "ground by CSF, as asked"
-    ground = label_ground(cloud.points, cloth_resolution=cloth_resolution)
+    size = np.ptp(cloud.points[:, :2], axis=0) if len(cloud.points) else np.zeros(2)
+    with phase(f"CSF: labelling the ground of {len(cloud.points):,} points (cloth {cloth_resolution:g} m over "
+               f"{size[0]:,.0f} x {size[1]:,.0f} m)", progress=progress):
+        ground = label_ground(cloud.points, cloth_resolution=cloth_resolution)
     warnings.warn(f"{why}: CSF labelled {int(ground.sum()):,} of {len(ground):,} points as ground "
                   f"(cloth {cloth_resolution:g} m)", SlrNote, stacklevel=2)
     return ground

@@ -4,7 +4,7 @@ import numpy as np
 import pytest
 
 from slr_ray import InputValueError, ScanPattern, scan_mesh
-from slr_ray.distances import DistanceHistogram, distance_histogram, height_sweep, pulse_sized_bins
+from slr_ray.distances import DistanceHistogram, distance_histogram, distance_study, height_sweep, pulse_sized_bins
 from slr_ray.scenes import rectangle_scene
 
 
@@ -80,3 +80,16 @@ def test_distances_command(tmp_path, capsys):
     assert {"original.csv", "slr.csv", "height_1m.csv", "height_2m.csv", "distances.png"} <= set(res["files"])
     assert res["heights"]["1"]["peak_ground_m"] < res["heights"]["2"]["peak_ground_m"]
     assert 0 < res["original"]["ground_fraction_mean"] < 1
+
+
+def test_a_cloud_without_an_origin_is_refused_before_its_ground_is_labelled(monkeypatch):
+    # was: CSF first (a minute on an airborne tile), then "records no scanner origin"
+    from slr_ray.io import PointCloud
+
+    def no_csf(*a, **k):
+        raise AssertionError("CSF ran")
+
+    monkeypatch.setattr("slr_ray.positions.label_ground", no_csf)
+    pts = np.random.default_rng(0).uniform(-5, 5, (200, 3))
+    with pytest.raises(InputValueError, match="records no scanner origin"):
+        distance_study([PointCloud(pts)], positions=1)

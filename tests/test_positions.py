@@ -1,4 +1,7 @@
 import os
+import subprocess
+import sys
+from pathlib import Path
 
 import numpy as np
 import pytest
@@ -156,6 +159,21 @@ def test_label_ground_is_safe_from_threads(tmp_path, monkeypatch):
     assert labels[0][:4000].mean() > 0.95 and seen == {str(tmp_path)}
 
 
+def test_label_ground_works_from_a_plain_script(tmp_path):
+    # a user's script has no `if __name__ == "__main__":`; CSF's spawned child re-ran it,
+    # and the user read "CSF crashed ...; try other cloth parameters"
+    pytest.importorskip("CSF")
+    script = tmp_path / "label.py"
+    script.write_text("import numpy as np\nfrom slr_ray.positions import label_ground\n"
+                      "g = np.random.default_rng(0).uniform(-5, 5, (3000, 3)) * [1, 1, 0.001]\n"
+                      "print(label_ground(g).sum())\n")
+    env = {**os.environ, "PYTHONPATH": os.pathsep.join(filter(None, [str(Path(__file__).parents[1]),
+                                                                   os.environ.get("PYTHONPATH")]))}
+    run = subprocess.run([sys.executable, str(script)], cwd=tmp_path, env=env, capture_output=True, text=True,
+                         timeout=120)
+    assert run.returncode == 0 and run.stdout.strip() == "3000", run.stderr[-500:]
+
+
 def test_bad_inputs():
     pts = np.zeros((10, 3))
     with pytest.raises(InputValueError, match="is_ground"):
@@ -180,3 +198,21 @@ def test_csf_parameters_are_checked_before_csf_runs():
                 {"class_threshold": 0}, {"iterations": 0}, {"rigidness": 7}):
         with pytest.raises(InputValueError):
             label_ground(pts, **bad)
+
+
+def test_too_few_candidates_says_the_most_ground_any_cell_has():
+    # an airborne tile at 0.17 points/m^2 against the paper's 50,000: the user had no number to lower it to
+    rng = np.random.default_rng(0)
+    pts = np.column_stack([rng.uniform(0, 40, (2000, 2)), np.zeros(2000)])
+    cells = candidate_cells(pts, np.ones(2000, bool))
+    best = int(cells.ground_counts.max())
+    with pytest.raises(InputValueError, match=f"the most ground points within 5 m of a cell's centre is {best}"):
+        select_positions(pts, np.ones(2000, bool), 3, seed=0)
+    with pytest.warns(SlrWarning, match=f"within 5 m of a cell's centre is {best}"):
+        select_positions(pts, np.ones(2000, bool), 3, seed=0, allow_fewer=True)
+    # not when the ground support left enough cells and the azimuth test removed them (wrong flag)
+    small = pts[:600] / 5  # 16 cells of 2 m
+    some = int(np.sort(candidate_cells(small, np.ones(600, bool)).ground_counts)[4])  # removes 4 or fewer
+    with pytest.raises(InputValueError, match=r"ground_support removed [1-4], azimuth_profile removed 1[2-5]") as e:
+        select_positions(small, np.ones(600, bool), 3, seed=0, min_ground_points=some, profile=default_profile())
+    assert "the most ground points" not in str(e.value)

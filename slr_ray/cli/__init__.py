@@ -1,8 +1,8 @@
 """The ``slr-ray`` command.
 
 Results go to stdout as one line of JSON; logs and progress go to stderr, and
-slr_ray's warnings (:class:`~slr_ray.errors.SlrWarning`) as one line each,
-``slr-ray: warning: ...`` or ``slr-ray: note: ...``. An
+every warning as one line, ``slr-ray: warning: ...`` or, for what slr_ray decided
+(:class:`~slr_ray.errors.SlrNote`), ``slr-ray: note: ...``. An
 error of the input or the settings (:class:`~slr_ray.errors.SlrError`) or of
 the system (``OSError``: no such file, no permission, disk full) exits with
 status 2 and one line ``slr-ray: error: ...`` on stderr, and leaves no output
@@ -19,7 +19,6 @@ to report it, and status 1.
 from __future__ import annotations
 
 import argparse
-import functools
 import signal
 import sys
 import threading
@@ -57,7 +56,16 @@ class _Parser(argparse.ArgumentParser):
                 message = f"a command is needed: {', '.join(action.choices)}"
             elif message.startswith(f"argument {action.dest}: invalid choice: "):
                 message = "unknown command " + message.removeprefix(f"argument {action.dest}: invalid choice: ")
-        self.exit(2, f"slr-ray: error: {f'{where}: ' if where else ''}{message} (see --help)\n")
+        self.exit(2, f"slr-ray: error: {where + ': ' if where else ''}{message} (see {self.prog} --help)\n")
+
+    def parse_known_args(self, args=None, namespace=None):
+        # a subcommand refuses what it does not know itself: argparse would hand it up to
+        # "slr-ray", whose error could not say which command's --help lists the flags
+        namespace, extra = super().parse_known_args(args, namespace)
+        if extra and self.prog != "slr-ray" and not any(
+                isinstance(a, argparse._SubParsersAction) for a in self._actions):
+            self.error(f"unrecognized arguments: {' '.join(extra)}")
+        return namespace, extra
 
     def format_usage(self):
         return self.format_help().split("\n\n", 1)[0] + "\n"
@@ -86,7 +94,7 @@ def build_parser() -> argparse.ArgumentParser:
         "Simulated LiDAR Repositioning: simulate the scans an ideal static scanner "
         "would record from new positions, using only points of one cloud."))
     ap.add_argument("--version", action="version", version=f"slr-ray {__version__}")
-    sub = ap.add_subparsers(dest="cmd", required=True)
+    sub = ap.add_subparsers(dest="cmd", required=True, metavar="command")
 
     def command(name, help_text):
         p = sub.add_parser(name, help=help_text, description=help_text)
@@ -140,6 +148,7 @@ def build_parser() -> argparse.ArgumentParser:
                    help="azimuth minimum profile: none (default), default, or a JSON path")
     p.add_argument("--allow-fewer", action="store_true", help="accept fewer positions than --n (a warning names both)")
     p.add_argument("--png", help="also write a top view of the cells kept and removed")
+    p.add_argument("--quiet", action="store_true", help="no progress (CSF, the azimuth test)")
     p.add_argument("--force", action="store_true", help="overwrite existing outputs (never an input)")
     A.add_input_format(p)
 
@@ -239,7 +248,7 @@ def build_parser() -> argparse.ArgumentParser:
     help_text = "sensor effects' tools: fit-drop (a ray-drop model from a real frame)"
     p = sub.add_parser("effects", help=help_text, description=help_text)
     p.set_defaults(func=effects_command)
-    esub = p.add_subparsers(dest="effects_cmd", required=True)
+    esub = p.add_subparsers(dest="effects_cmd", required=True, metavar="command")
     q = esub.add_parser("fit-drop", help="fit the ray-drop model of a real frame; writes the JSON --ray-drop reads",
                         description="fit the ray-drop model of a real frame (a spinning sensor's, in its scan "
                                     "order or with a 'ring' attribute); writes the JSON --ray-drop reads")
@@ -263,7 +272,7 @@ def build_parser() -> argparse.ArgumentParser:
     add_sequence_parser(sub)  # sequence: its parser and handlers live in .sequence_command
 
     p = command("scene", "synthetic rectangle scenes: info, build, scan")
-    ssub = p.add_subparsers(dest="scene_cmd", required=True)
+    ssub = p.add_subparsers(dest="scene_cmd", required=True, metavar="command")
     spec_help = "a shipped scene name or a scene TOML path (docs/scenes.md)"
     q = ssub.add_parser("info", help="counts of a scene spec (shipped name or path)")
     q.add_argument("spec", help=spec_help)
@@ -296,14 +305,15 @@ def _on_sigterm(signum, frame):
     raise _Terminated()
 
 
-def _show_warning(message, category, filename, lineno, file=None, line=None, *, show=None):
-    """slr_ray's own warnings as one line, ``slr-ray: warning: ...`` (``note:``
-    for what it decided on the user's behalf); any other (numpy's, Python's) as
-    ``show`` says it, which ``main`` makes one line too (:func:`_one_line_warning`)."""
-    if not issubclass(category, SlrWarning):
-        return show(message, category, filename, lineno, file, line)
+def _show_warning(message, category, filename, lineno, file=None, line=None):
+    """Every warning as one line on stderr, never Python's ``file:line`` and source:
+    ``slr-ray: warning: ...`` (``note:`` for what slr_ray decided on the user's behalf);
+    one not slr_ray's nor a plain UserWarning (numpy's, say) with its category."""
     kind = "note" if issubclass(category, SlrNote) else "warning"
-    print(f"slr-ray: {kind}: {' '.join(str(message).split())}", file=sys.stderr, flush=True)
+    text = " ".join(str(message).split())
+    if not issubclass(category, SlrWarning) and category is not UserWarning:
+        text = f"{category.__name__}: {text}"
+    print(f"slr-ray: {kind}: {text}", file=sys.stderr, flush=True)
 
 
 def _one_line_warning(message, category, filename, lineno, line=None) -> str:
@@ -330,7 +340,7 @@ def _main(argv) -> int:
         return int(exc.code or 0)
     with warnings.catch_warnings():
         warnings.simplefilter("always", SlrWarning)  # each said, even when a run says the same twice
-        warnings.showwarning = functools.partial(_show_warning, show=warnings.showwarning)
+        warnings.showwarning = _show_warning
         return _run(args)
 
 

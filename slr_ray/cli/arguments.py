@@ -92,9 +92,23 @@ def add_pattern(p, origin: str = "optional", resolution_default: float | None = 
     g.add_argument("--max-range", type=finite_float, metavar="M", help="farthest range returned (m; default: any)")
 
 
+#: The pattern's argument names in its errors, as the flags a user types.
+_PATTERN_FLAGS = {"azimuth_resolution": "--resolution", "zenith_resolution": "--resolution",
+                  "zenith_range": "--zenith-range", "min_range": "--min-range", "max_range": "--max-range"}
+
+
 def pattern_from(args):
     """The pattern of the pattern group's flags: a :class:`ScanPattern` or a
-    :class:`~slr_ray.sensors.BeamPattern` (``--sensor``, ``--sensor-file``)."""
+    :class:`~slr_ray.sensors.BeamPattern` (``--sensor``, ``--sensor-file``);
+    its errors name the flags (``--zenith-range``), not the library's arguments."""
+    try:
+        return _pattern_from(args)
+    except InputValueError as exc:
+        exc.flags = {**_PATTERN_FLAGS, **exc.flags}
+        raise
+
+
+def _pattern_from(args):
     if getattr(args, "sensor", None) or getattr(args, "sensor_file", None):
         if args.sensor and args.sensor_file:
             raise InputValueError("give --sensor or --sensor-file, not both")

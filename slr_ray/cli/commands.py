@@ -138,9 +138,9 @@ def scan(args):
                     result, sub = _scan_with_effects(args, cloud, origin, pattern, scanner, effects)
         if not said:
             _check_returns(result, bounds)
-        _keep(args, sub, result)
+        kept = _keep(args, sub, result)
         # the range image is made before anything is written: an error there leaves no scan behind
-        image = _range_image(sub, result) if args.range_image or args.png else None
+        image = _range_image(sub, result, skip=kept) if args.range_image or args.png else None
         t1 = time.perf_counter()
         write_cloud(args.output, sub, args.format)
         if image is not None:
@@ -167,8 +167,9 @@ def _scan_with_effects(args, cloud, origin, pattern, scanner, effects):
     return result, effect_cloud(es, cloud)
 
 
-def _keep(args, sub, result) -> None:
-    """--keep-range / --keep-ring as attributes; an input attribute of those names is never replaced."""
+def _keep(args, sub, result) -> set:
+    """--keep-range / --keep-ring as attributes (their names are returned); an input attribute of
+    those names is never replaced."""
     added = {}
     if args.keep_range:
         added["range"] = ("--keep-range", result.ranges)
@@ -182,12 +183,15 @@ def _keep(args, sub, result) -> None:
                               "refusing to replace them (rename them in the input, or drop the flag)")
     for name, (_, values) in added.items():
         sub.attributes[name] = values
+    return set(added)
 
 
-def _range_image(sub, result) -> dict:
-    """The scan's range image with every 1-D attribute of ``sub`` (the scanned subset, in index order)."""
+def _range_image(sub, result, skip=()) -> dict:
+    """The scan's range image with every 1-D attribute of ``sub`` (the scanned subset, in index order)
+    but those in ``skip`` (--keep-range's and --keep-ring's: the image has its own range, ring and column)."""
     local = replace(result, indices=np.arange(len(result)))  # images of the subset's own rows
-    attrs = {k: v for k, v in sub.attributes.items() if np.asarray(v).ndim == 1 and np.asarray(v).dtype.kind in "biuf"}
+    attrs = {k: v for k, v in sub.attributes.items()
+             if k not in skip and np.asarray(v).ndim == 1 and np.asarray(v).dtype.kind in "biuf"}
     image = local.range_image(attrs)
     local_index = image["index"]
     image["index"] = np.full(local_index.shape, -1, dtype=np.asarray(result.indices).dtype)
@@ -356,15 +360,16 @@ def positions(args):
     plan = _plan(args, inputs=[args.input], outputs=[args.output], figures=[args.png])
     ground = ground_from(args)
     with plan:
-        cloud = read_cloud(args.input, args.input_format, allow_empty=False)
-        is_ground = ground_labels(cloud, **ground)
         profile = None if args.profile == "none" else default_profile() if args.profile == "default" \
-            else AzimuthProfile.load(args.profile)
+            else AzimuthProfile.load(args.profile)  # before CSF, which can take a minute
+        cloud = read_cloud(args.input, args.input_format, allow_empty=False)
+        is_ground = ground_labels(cloud, **ground, progress=not args.quiet)
         pos, cells = select_positions(
             cloud.points, is_ground, args.n, seed=args.seed, cell_size=args.cell_size,
             min_ground_points=args.min_ground_points, ground_count_radius=args.ground_count_radius,
             ground_height_radius=args.ground_height_radius, scanner_height=args.scanner_height,
-            profile=profile, allow_fewer=args.allow_fewer, return_cells=True, progress=profile is not None)
+            profile=profile, allow_fewer=args.allow_fewer, return_cells=True,
+            progress=profile is not None and not args.quiet)
         res = {"input": str(args.input), "n_requested": args.n, "seed": args.seed,
                "positions": pos.tolist(), "ground_points": int(is_ground.sum()), **cells.summary()}
         with atomic_path(args.output) as tmp:
