@@ -9,6 +9,7 @@ import json
 import os
 import subprocess
 import sys
+import warnings
 
 import numpy as np
 import pytest
@@ -188,8 +189,12 @@ def test_every_warning_reaches_the_terminal_as_one_line(tmp_path, capsys):
     # was: the library's UserWarnings (a format that loses names) in Python's form, file:line and source
     src = tmp_path / "c.npz"
     np.savez(src, points=_cloud(400, 40)[0], label=np.arange(440))
-    assert main(["scan", str(src), "--origin", "0", "0", "1", "--resolution", "2", "--quiet",
-                 "-o", str(tmp_path / "s.xyz")]) == 0
+    with warnings.catch_warnings():  # as at a terminal: pytest records warnings, a terminal prints them
+        warnings.simplefilter("always")
+        warnings.showwarning = (lambda m, c, f, n, file=None, line=None:
+                                sys.stderr.write(warnings.formatwarning(m, c, f, n, line)))
+        assert main(["scan", str(src), "--origin", "0", "0", "1", "--resolution", "2", "--quiet",
+                     "-o", str(tmp_path / "s.xyz")]) == 0
     err = capsys.readouterr().err.splitlines()
     assert err and all(line.startswith("slr-ray: warning: ") for line in err), err
     assert ".xyz stores columns, not names: ['label']" in err[0]

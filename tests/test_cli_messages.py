@@ -28,7 +28,7 @@ def test_a_missing_or_unknown_command_has_one_prefix_and_names_the_commands(caps
     (line,) = _err(capsys)
     assert line.startswith("slr-ray: error: a command is needed: scan, ") and "slr-ray: slr-ray" not in line
     assert main(["scene"]) == 2
-    assert _err(capsys) == ["slr-ray: error: scene: a command is needed: info, build, scan (see --help)"]
+    assert _err(capsys) == ["slr-ray: error: scene: a command is needed: info, build, scan (see slr-ray scene --help)"]
     assert main(["bogus"]) == 2
     (line,) = _err(capsys)
     assert line.startswith("slr-ray: error: unknown command 'bogus' (choose from 'scan'") and " cmd" not in line

@@ -19,6 +19,7 @@ to report it, and status 1.
 from __future__ import annotations
 
 import argparse
+import functools
 import signal
 import sys
 import threading
@@ -52,10 +53,11 @@ class _Parser(argparse.ArgumentParser):
         for action in self._actions:  # a subcommand by what the user types: 'cmd' is argparse's dest
             if not isinstance(action.choices, dict):
                 continue
-            if action.dest in message.split(": ", 1)[-1].split(", "):
+            if {action.dest, action.metavar} & set(message.split(": ", 1)[-1].split(", ")):
                 message = f"a command is needed: {', '.join(action.choices)}"
-            elif message.startswith(f"argument {action.dest}: invalid choice: "):
-                message = "unknown command " + message.removeprefix(f"argument {action.dest}: invalid choice: ")
+            for name in {action.dest, action.metavar} - {None}:
+                if message.startswith(f"argument {name}: invalid choice: "):
+                    message = "unknown command " + message.removeprefix(f"argument {name}: invalid choice: ")
         self.exit(2, f"slr-ray: error: {where + ': ' if where else ''}{message} (see {self.prog} --help)\n")
 
     def parse_known_args(self, args=None, namespace=None):
@@ -305,21 +307,24 @@ def _on_sigterm(signum, frame):
     raise _Terminated()
 
 
-def _show_warning(message, category, filename, lineno, file=None, line=None):
-    """Every warning as one line on stderr, never Python's ``file:line`` and source:
-    ``slr-ray: warning: ...`` (``note:`` for what slr_ray decided on the user's behalf);
-    one not slr_ray's nor a plain UserWarning (numpy's, say) with its category."""
+def _show_warning(message, category, filename, lineno, file=None, line=None, *, show=None):
+    """slr_ray's own warnings as one line, ``slr-ray: warning: ...`` (``note:`` for what
+    slr_ray decided on the user's behalf); any other (numpy's, Python's) goes to ``show``,
+    the showwarning in place before: at a terminal Python's, which prints through
+    :func:`_one_line_warning`; in a caller that records warnings, its recorder."""
+    if not issubclass(category, SlrWarning):
+        return show(message, category, filename, lineno, file, line)
     kind = "note" if issubclass(category, SlrNote) else "warning"
-    text = " ".join(str(message).split())
-    if not issubclass(category, SlrWarning) and category is not UserWarning:
-        text = f"{category.__name__}: {text}"
-    print(f"slr-ray: {kind}: {text}", file=sys.stderr, flush=True)
+    print(f"slr-ray: {kind}: {' '.join(str(message).split())}", file=sys.stderr, flush=True)
 
 
 def _one_line_warning(message, category, filename, lineno, line=None) -> str:
-    """A warning as the command says it: ``slr-ray: warning: MESSAGE`` on one
-    line, without Python's file, line and category (numpy's included)."""
-    return f"slr-ray: warning: {' '.join(str(message).split())}\n"
+    """A warning as the command says it: ``slr-ray: warning: MESSAGE`` on one line, never
+    Python's file, line and source; one not a plain UserWarning (numpy's, say) with its category."""
+    text = " ".join(str(message).split())
+    if category is not UserWarning and not issubclass(category, SlrWarning):
+        text = f"{category.__name__}: {text}"
+    return f"slr-ray: warning: {text}\n"
 
 
 def main(argv=None) -> int:
@@ -340,7 +345,7 @@ def _main(argv) -> int:
         return int(exc.code or 0)
     with warnings.catch_warnings():
         warnings.simplefilter("always", SlrWarning)  # each said, even when a run says the same twice
-        warnings.showwarning = _show_warning
+        warnings.showwarning = functools.partial(_show_warning, show=warnings.showwarning)
         return _run(args)
 
 
