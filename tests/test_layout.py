@@ -216,3 +216,30 @@ def test_paper_numbers_are_named_once():
                     and node.value in paper_numbers:
                 bad.append(f"{mod}:{node.lineno}: {node.value}")
     assert not bad, "\n".join(bad)
+
+
+#: the names of the shipped backends: outside ``slr_ray.backends`` no module compares against them
+BACKEND_NAMES = {"binning", "embree"}
+
+
+def _backend_identity_tests(tree):
+    """Comparisons on a backend's identity: against ``Backend.X``, a backend's name as a
+    string, or a ``.backend`` attribute (callers read the scanner's capabilities instead)."""
+    def is_identity(node):
+        return ((isinstance(node, ast.Attribute) and isinstance(node.value, ast.Name) and node.value.id == "Backend")
+                or (isinstance(node, ast.Constant) and node.value in BACKEND_NAMES)
+                or (isinstance(node, ast.Attribute) and node.attr == "backend"))
+    return [node.lineno for node in ast.walk(tree) if isinstance(node, ast.Compare)
+            and any(is_identity(x) for x in [node.left, *node.comparators])]
+
+
+def test_no_backend_identity_outside_backends():
+    found = [f"{mod}:{line}" for mod, path in _modules() if not mod.startswith("slr_ray.backends")
+             for line in _backend_identity_tests(ast.parse(path.read_text()))]
+    assert not found, f"compare a backend's name outside slr_ray.backends (read its capabilities): {found}"
+
+
+def test_the_backend_identity_check_sees_comparisons():
+    assert _backend_identity_tests(ast.parse("if scanner.backend == 'embree': pass")) == [1]
+    assert _backend_identity_tests(ast.parse("x = b is not Backend.BINNING")) == [1]
+    assert _backend_identity_tests(ast.parse("if scanner.casts_rays: pass")) == []

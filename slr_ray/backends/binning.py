@@ -79,6 +79,7 @@ class BinningScanner(Scanner):
     """
 
     backend = Backend.BINNING
+    streamable = True  # a file's chunks reduce to the scan of the whole (slr_ray.streaming)
 
     def __init__(self, points: np.ndarray, options: BinningOptions | None = None):
         t0 = time.perf_counter()

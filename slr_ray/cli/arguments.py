@@ -13,7 +13,7 @@ import math
 import re
 
 from .. import paper
-from ..backends import BACKENDS, Backend
+from ..backends import BACKENDS, Backend, require_rays, scanner_class
 from ..effects import Effects
 from ..effects.options import INTENSITY_MODES, RETURN_KINDS
 from ..errors import InputValueError
@@ -147,7 +147,7 @@ def _option_type(name: str, typ: str):
     return str, None
 
 
-_OPTION_CLASSES = {b.value: entry.options for b, entry in BACKENDS.items()}
+_OPTION_CLASSES = {str(b): entry.options for b, entry in BACKENDS.items()}
 
 #: One line of ``--help`` (and a metavar) per backend option. The option classes'
 #: docstrings hold the whole story and docs/backends.md "Options" its figures; a
@@ -324,7 +324,6 @@ def check_effects(eff: Effects | None, backend: str, pattern) -> Effects | None:
     backend; None when no effect is on (a seed alone: the ideal scan)."""
     if eff is None or not eff.any:
         return None
-    if eff.divergence_mrad and Backend(backend) is not Backend.EMBREE:
-        raise InputValueError("--divergence-mrad (divergence_mrad) needs --backend embree: binning keeps one "
-                              "point per pulse bin and has no footprint beyond it")
+    if eff.divergence_mrad:
+        require_rays(scanner_class(backend), "--divergence-mrad (divergence_mrad)")
     return eff.resolve(pattern)

@@ -19,7 +19,7 @@ import numpy as np
 
 from ..augment import AugmentConfig
 from ..augment import augment as run_augment
-from ..backends import Backend, options_for, prepare
+from ..backends import options_for, prepare, scanner_class
 from ..compare import compare_backends
 from ..demo import run_demo
 from ..distances import distance_study, study_files
@@ -88,7 +88,7 @@ def scan(args):
         check_range_image(pattern)  # before the scan, not after it
     options = options_for(args.backend, backend_from(args))  # built once, used below
     effects = check_effects(effects_from(args), args.backend, pattern)
-    if Backend(args.backend) is Backend.EMBREE:  # before reading and preparing: binning answers at once
+    if scanner_class(args.backend).casts_rays:  # before reading and preparing: binning answers at once
         refuse_cast(cast_rays(pattern, effects), "--backend embree",
                     "choose a coarser pattern (--resolution, --columns) or a smaller --divergence-mrad cone")
     if effects is not None and (args.range_image or args.png):
@@ -101,7 +101,7 @@ def scan(args):
               "effects": None if effects is None else effects.to_dict()})
         return
     # LAS/LAZ stream through the uniform binning reduction; beam tables and effects read the file whole
-    streamed = (effects is None and Backend(args.backend) is Backend.BINNING and pattern.streamable
+    streamed = (effects is None and scanner_class(args.backend).streamable and pattern.streamable
                 and check_format(args.input, args.input_format) in STREAMED_FORMATS)
     with plan:
         if streamed:

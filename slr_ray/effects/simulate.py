@@ -25,7 +25,7 @@ from dataclasses import dataclass, field
 import numpy as np
 
 from ..arrays import as_origin
-from ..backends import prepare
+from ..backends import BackendOptions, Scanner, prepare, require_rays
 from ..backends.embree import estimate_normals, refuse_cast
 from ..errors import InputValueError
 from ..io import PointCloud
@@ -175,8 +175,9 @@ def _cast_returns(scanner, origin, pattern, eff: Effects, poses, intensity):
     return {k: v[inside] for k, v in out.items()}
 
 
-def _binning_motion(scanner, pattern, eff: Effects, poses):
-    """Binning with motion: the cloud seen from each sector's pose, one binning scan per sector."""
+def _sector_scans(scanner, pattern, eff: Effects, poses):
+    """Motion on a scanner that casts no rays (binning): the cloud seen from each sector's pose, one scan
+    per sector by the scanner's own backend and options."""
     nh = pattern.shape[1]
     starts, stops, times = _motion.column_sectors(nh, eff.motion_sectors or 72, eff.sweep_start_deg,
                                                    eff.sweep_clockwise)
@@ -184,7 +185,7 @@ def _binning_motion(scanner, pattern, eff: Effects, poses):
     parts = []
     for a, b, rot, o in zip(starts, stops, rots, origins):
         local = (scanner.points - o) @ rot  # the sensor frame of this sector's pose
-        sc = prepare(local, "binning").scan(np.zeros(3), pattern)
+        sc = prepare(local, scanner.backend, scanner.options).scan(np.zeros(3), pattern)
         mine = (sc.pulses[:, 1] >= a) & (sc.pulses[:, 1] < b)
         idx = sc.indices[mine]
         r = sc.ranges[mine]
@@ -215,7 +216,8 @@ def simulate(scanner, origin, pattern, effects=None, *, intensity=None, normals=
     ----------
     scanner : Scanner
         ``slr_ray.prepare(points, backend)``; divergence and per-column motion
-        need the embree backend (``scanner.cast``).
+        need a scanner that casts rays (``scanner.casts_rays``: embree); motion
+        on one that does not scans each sector of columns from its own pose.
     origin : (3,) float or None
         Scanner position (with ``poses``: None; the result's ``origin`` is then
         the end pose's).
@@ -250,10 +252,8 @@ def simulate(scanner, origin, pattern, effects=None, *, intensity=None, normals=
         origin = poses[-1][:3, 3].copy()  # the sensor at the end of the sweep
     else:
         origin = as_origin(origin)
-    embree = scanner.backend == "embree"
-    if eff.divergence_mrad and not embree:
-        raise InputValueError("beam divergence needs the embree backend: binning keeps one point per pulse bin "
-                              "and has no footprint beyond it (docs/effects.md)")
+    if eff.divergence_mrad:
+        require_rays(scanner, "beam divergence (divergence_mrad)")
     secs = {}
     t0 = time.perf_counter()
     ideal = None
@@ -265,10 +265,10 @@ def simulate(scanner, origin, pattern, effects=None, *, intensity=None, normals=
         g = {"v": ideal.pulses[:, 0], "h": ideal.pulses[:, 1], "range": ideal.ranges.copy(), "index": idx,
              "dir": d / np.maximum(ideal.ranges, 1e-300)[:, None], "fire": np.broadcast_to(origin, (m, 3)),
              "share": np.ones(m), "return_number": np.ones(m, np.int64), "number_of_returns": np.ones(m, np.int64)}
-    elif embree:
+    elif scanner.casts_rays:
         g = _cast_returns(scanner, origin, pattern, eff, poses, intensity)
     else:
-        g = _binning_motion(scanner, pattern, eff, poses)
+        g = _sector_scans(scanner, pattern, eff, poses)
     if poses is None:
         order = np.lexsort((g["return_number"], g["h"], g["v"]))
         g = {k: v[order] for k, v in g.items()}
@@ -279,7 +279,7 @@ def simulate(scanner, origin, pattern, effects=None, *, intensity=None, normals=
     def incidence_cos(rows):
         nonlocal normals
         if normals is None:
-            own = getattr(scanner, "normals", None)
+            own = scanner.normals
             normals = (np.asarray(own, np.float64) if own is not None
                        else estimate_normals(scanner.points, k=10, primary_origin=origin))
         nrm = normals[g["index"][rows]]
@@ -337,7 +337,7 @@ def simulate(scanner, origin, pattern, effects=None, *, intensity=None, normals=
     pts = g["fire"] + g["dir"] * g["range"][:, None]
     frame = "world"
     if poses is not None and eff.motion_frame == "firing":
-        sectors = eff.motion_sectors or (pattern.shape[1] if embree else 72)
+        sectors = eff.motion_sectors or (pattern.shape[1] if scanner.casts_rays else 72)
         pts = _motion.to_firing_frames(pts, g["h"], pattern.shape[1], poses, sectors, eff.sweep_start_deg,
                                        eff.sweep_clockwise)
         frame = "firing"
@@ -354,14 +354,14 @@ def simulate(scanner, origin, pattern, effects=None, *, intensity=None, normals=
                       intensity=out_intensity, origin=origin, pattern=pattern, frame=frame, ideal=ideal, info=info)
 
 
-class _GivenScan:
-    """A scan made elsewhere, as the scanner :func:`simulate` starts from."""
+class _GivenScan(Scanner):
+    """A scan made elsewhere, as the scanner :func:`simulate` starts from (no
+    capabilities: it casts no rays, holds no normals)."""
 
     backend = "given"
-    normals = None
 
     def __init__(self, points, scan: Scan):
-        self.points = points
+        super().__init__(points, BackendOptions())
         self._scan = scan
 
     def scan(self, origin, pattern) -> Scan:

@@ -6,7 +6,7 @@ from dataclasses import dataclass, field, fields
 from pathlib import Path
 
 from .. import paper
-from ..backends import Backend, options_for
+from ..backends import Backend, options_for, scanner_class
 from ..errors import InputValueError, refuse_memory
 from ..meshscan import MESH_MODES
 from ..scenes import SCENES_DIR, load_toml_spec, scene_effects
@@ -99,6 +99,11 @@ class ValidationConfig:
                       "row: its plan and results)", "fewer positions")
         return self
 
+    @property
+    def backend_options(self) -> dict:
+        """``{backend: options from this config}`` (``embree_options``), beside what each is told of the primary."""
+        return {Backend.EMBREE: self.embree_options}
+
     def scene_entry(self, entry) -> tuple[str, list]:
         """``(spec, primary resolutions)`` of one ``scenes`` entry."""
         if isinstance(entry, str):
@@ -123,7 +128,7 @@ class ValidationConfig:
         emb_res = self.embree_primary_resolutions
         return [(b, t) for b in (self.backends if backends is None else backends) for t in self.truths
                 if (t != "nearest" or position % self.nearest_every == 0)
-                and (b != Backend.EMBREE or (position % self.embree_every == 0
+                and (not scanner_class(b).costly_prepare or (position % self.embree_every == 0
                                        and (emb_res is None or float(resolution) in map(float, emb_res))))]
 
 
