@@ -69,7 +69,7 @@ from pathlib import Path
 
 import numpy as np
 
-from .arrays import as_points, as_rigid_pose
+from .arrays import as_points, as_rigid_pose, json_safe
 from .backends import BACKENDS, prepare, scanner_class
 from .errors import InputValueError, MissingDependencyError, OutputError
 from .io import atomic_path
@@ -617,16 +617,6 @@ def markdown_table(table: list[dict], columns=None) -> str:
     return "\n".join(lines)
 
 
-def _plain(obj):
-    if isinstance(obj, float):
-        return obj if math.isfinite(obj) else None
-    if isinstance(obj, dict):
-        return {str(k): _plain(v) for k, v in obj.items()}
-    if isinstance(obj, (list, tuple)):
-        return [_plain(v) for v in obj]
-    if isinstance(obj, np.generic):
-        return _plain(obj.item())
-    return obj
 
 
 def compact_json(obj, indent: int = 1, width: int = 1000, _level: int = 0) -> str:
@@ -695,7 +685,7 @@ def write_evaluation(result: dict, directory, force: bool = False, inputs: dict 
     doc = {k: v for k, v in result.items() if k != "images"} | {"table": table, "inputs": inputs or {}}
     paths = {kind: d / name for kind, name in EVALUATION_FILES.items()}
     with atomic_path(paths["json"]) as tmp:
-        tmp.write_text(compact_json(_plain(doc)) + "\n")
+        tmp.write_text(compact_json(json_safe(doc)) + "\n")
     with atomic_path(paths["markdown"]) as tmp:
         tmp.write_text(markdown_table(table) + "\n")
     with atomic_path(paths["csv"]) as tmp:

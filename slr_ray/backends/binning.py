@@ -24,7 +24,7 @@ from dataclasses import dataclass
 import numpy as np
 
 from .. import core, threads
-from ..arrays import as_origin, file_mapping, release_pages
+from ..arrays import as_origin, file_mapping, refuse_nonfinite_rows, release_pages
 from ..core.order import OutputPool
 from ..errors import InputValueError
 from ..pattern import as_pattern
@@ -86,11 +86,7 @@ class BinningScanner(Scanner):
         options = options or BinningOptions()
         n = len(points)
         if n:
-            bad = core.grid.count_nonfinite(points, 0, n)
-            if bad:
-                raise InputValueError(
-                    f"points has {bad} row(s) with NaN or inf out of {n}; "
-                    "remove them first (nothing is dropped silently)")
+            refuse_nonfinite_rows(core.grid.count_nonfinite(points, 0, n), n)
         super().__init__(points, options, time.perf_counter() - t0)
         # the last scan's tables, reused by the next scan with the same pattern
         # (a scan from another thread meanwhile gets its own)

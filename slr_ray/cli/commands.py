@@ -8,7 +8,6 @@ turns flags into arguments and results into files and a JSON line.
 from __future__ import annotations
 
 import json
-import math
 import sys
 import time
 import warnings
@@ -17,6 +16,7 @@ from pathlib import Path
 
 import numpy as np
 
+from ..arrays import json_safe
 from ..augment import AugmentConfig
 from ..augment import augment as run_augment
 from ..backends import options_for, prepare, scanner_class
@@ -42,20 +42,9 @@ from .arguments import backend_from, check_effects, effects_from, ground_from, p
 __all__ = ["emit", "COMMANDS"]
 
 
-def _plain(obj):
-    """``obj`` with non-finite floats as None (JSON has no NaN or Infinity)."""
-    if isinstance(obj, float):
-        return obj if math.isfinite(obj) else None
-    if isinstance(obj, dict):
-        return {k: _plain(v) for k, v in obj.items()}
-    if isinstance(obj, (list, tuple)):
-        return [_plain(v) for v in obj]
-    return obj
-
-
 def emit(obj) -> None:
     """The command's result: one line of strict JSON on stdout (nan and inf as null)."""
-    sys.stdout.write(json.dumps(_plain(obj), allow_nan=False) + "\n")
+    sys.stdout.write(json.dumps(json_safe(obj), allow_nan=False) + "\n")
     sys.stdout.flush()
 
 
