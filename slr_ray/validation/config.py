@@ -6,7 +6,7 @@ from dataclasses import dataclass, field, fields
 from pathlib import Path
 
 from .. import paper
-from ..backends import Backend, options_for, scanner_class
+from ..backends import BACKENDS, Backend, options_for, scanner_class
 from ..errors import InputValueError, refuse_memory
 from ..meshscan import MESH_MODES
 from ..scenes import SCENES_DIR, load_toml_spec, scene_effects
@@ -19,7 +19,10 @@ TRUTHS = ("center", "nearest")
 PRIMARY_SEMANTICS = ("dense", "center")
 assert set(TRUTHS) | set(PRIMARY_SEMANTICS) <= set(MESH_MODES)
 
-_BACKENDS = tuple(b.value for b in Backend)
+
+def _backends() -> tuple:
+    """The registered backends' names (a backend registered later is one too)."""
+    return tuple(str(b) for b in BACKENDS)
 
 
 @dataclass
@@ -70,8 +73,8 @@ class ValidationConfig:
             raise InputValueError(f"primary_semantics must be one of {PRIMARY_SEMANTICS}, "
                                   f"got {self.primary_semantics!r}")
         for b in self.backends:
-            if b not in _BACKENDS:
-                raise InputValueError(f"unknown backend {b!r} in config; choose from {_BACKENDS}")
+            if b not in _backends():
+                raise InputValueError(f"unknown backend {b!r} in config; choose from {_backends()}")
         for t in self.truths:
             if t not in TRUTHS:
                 raise InputValueError(f"unknown truth semantics {t!r} in config; choose from {TRUTHS}")
@@ -86,8 +89,8 @@ class ValidationConfig:
         for entry in self.scenes:
             spec, res = self.scene_entry(entry)
             for b in self.scene_backends(entry):
-                if b not in _BACKENDS:
-                    raise InputValueError(f"unknown backend {b!r} for scene {spec!r}; choose from {_BACKENDS}")
+                if b not in _backends():
+                    raise InputValueError(f"unknown backend {b!r} for scene {spec!r}; choose from {_backends()}")
             if not res or any(not (float(r) > 0) for r in res):
                 raise InputValueError(f"scene {spec!r}: primary_resolutions must be positive numbers")
             if _requires_effects(spec):
