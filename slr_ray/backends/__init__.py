@@ -30,12 +30,12 @@ from ..errors import InputValueError
 from ..pattern import as_pattern
 from ..raycast import embree_available
 from ..scan import Scan
-from .base import Backend, BackendOptions, Scanner, require_rays, require_streamable
+from .base import Backend, BackendOptions, Scanner, require_rays, require_streamable, streams
 from .binning import BinningOptions, BinningScanner
 from .embree import DiscScanner, EmbreeOptions
 
 __all__ = ["Backend", "BACKENDS", "BackendEntry", "Scanner", "BackendOptions", "prepare", "simulate_scan",
-           "options_for", "scanner_class", "require_rays", "require_streamable", "available_backends",
+           "options_for", "scanner_class", "require_rays", "require_streamable", "streams", "available_backends",
            "BinningOptions", "EmbreeOptions"]
 
 

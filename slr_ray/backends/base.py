@@ -21,7 +21,7 @@ import numpy as np
 from ..errors import InputValueError, dataclass_from_mapping
 from ..scan import Scan
 
-__all__ = ["Backend", "Scanner", "BackendOptions", "require_rays", "require_streamable"]
+__all__ = ["Backend", "Scanner", "BackendOptions", "require_rays", "require_streamable", "streams"]
 
 
 class Backend(str, Enum):
@@ -174,10 +174,15 @@ def require_rays(scanner, what: str) -> None:
                               "(docs/effects.md)")
 
 
+def streams(scanner, pattern) -> bool:
+    """The one rule of streamed scans: a scanner (or scanner class) that scans chunk
+    by chunk and a pattern that reduces so (a uniform grid, not a beam table)."""
+    return bool(scanner.streamable and pattern.streamable)
+
+
 def require_streamable(scanner, pattern, what: str) -> None:
-    """The one rule of streamed scans: a scanner that scans chunk by chunk and a
-    pattern that reduces so (a uniform grid, not a beam table)."""
-    if not (scanner.streamable and pattern.streamable):
+    """:func:`streams`, or an error naming ``what`` and why not."""
+    if not streams(scanner, pattern):
         raise InputValueError(f"{what} streams the cloud in chunks: it needs a streamable backend (binning) and a "
                               f"uniform pattern, got backend {scanner.backend!s} and "
                               f"{'a uniform' if pattern.streamable else 'a beam-table'} pattern")

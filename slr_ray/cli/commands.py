@@ -19,7 +19,7 @@ import numpy as np
 from ..arrays import json_safe
 from ..augment import AugmentConfig
 from ..augment import augment as run_augment
-from ..backends import options_for, prepare, scanner_class
+from ..backends import options_for, prepare, scanner_class, streams
 from ..compare import compare_backends
 from ..demo import run_demo
 from ..distances import distance_study, study_files
@@ -90,7 +90,7 @@ def scan(args):
               "effects": None if effects is None else effects.to_dict()})
         return
     # LAS/LAZ stream through the uniform binning reduction; beam tables and effects read the file whole
-    streamed = (effects is None and scanner_class(args.backend).streamable and pattern.streamable
+    streamed = (effects is None and streams(scanner_class(args.backend), pattern)
                 and check_format(args.input, args.input_format) in STREAMED_FORMATS)
     with plan:
         if streamed:
