@@ -7,7 +7,7 @@ import time
 
 import numpy as np
 
-from .arrays import as_origin, as_points
+from .arrays import as_origin, as_points, refuse_nonfinite_rows
 from .errors import InputValueError
 from .backends.base import Backend
 from .core import BinTables
@@ -61,11 +61,7 @@ class ScanAccumulator:
         t0 = time.perf_counter()
         bad = self._tables.add(pts)
         self._seconds += time.perf_counter() - t0
-        if bad:
-            raise InputValueError(
-                f"points has {bad} row(s) with NaN or inf out of {len(pts)}; "
-                "the chunk was not added (nothing is dropped silently)"
-            )
+        refuse_nonfinite_rows(bad, len(pts), then="the chunk was not added (nothing is dropped silently)")
         return self
 
     @property

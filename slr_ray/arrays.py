@@ -7,6 +7,7 @@ expected, what was given and, for non-finite rows, how many.
 
 from __future__ import annotations
 
+import math
 import mmap
 
 import numpy as np
@@ -14,7 +15,7 @@ from numba import njit, prange
 
 from .errors import InputTypeError, InputValueError
 
-__all__ = ["as_points", "as_origin", "as_rigid_pose", "count_nonfinite_rows", "bounds", "file_mapping", "release_pages",
+__all__ = ["json_safe", "refuse_nonfinite_rows", "as_points", "as_origin", "as_rigid_pose", "count_nonfinite_rows", "bounds", "file_mapping", "release_pages",
            "POSE_TOLERANCE", "MAX_POSE_TRANSLATION"]
 
 #: How far a pose's rotation may be from orthonormal (largest entry of |R^T R - I|) and its
@@ -63,13 +64,16 @@ def as_points(points, name: str = "points", check_finite: bool = True) -> np.nda
         arr = arr.astype(np.float64)
     arr = np.ascontiguousarray(arr)
     if check_finite:
-        bad = count_nonfinite_rows(arr)
-        if bad:
-            raise InputValueError(
-                f"{name} has {bad} row(s) with NaN or inf out of {len(arr)}; "
-                "remove them first (nothing is dropped silently)"
-            )
+        refuse_nonfinite_rows(count_nonfinite_rows(arr), len(arr), name)
     return arr
+
+
+def refuse_nonfinite_rows(bad: int, n: int, name: str = "points",
+                          then: str = "remove them first (nothing is dropped silently)") -> None:
+    """The one refusal of rows holding NaN or inf: ``bad`` of ``n`` rows of ``name``
+    (none: nothing happens), and what to do or what was left undone (``then``)."""
+    if bad:
+        raise InputValueError(f"{name} has {bad} row(s) with NaN or inf out of {n}; {then}")
 
 
 def count_nonfinite_rows(points: np.ndarray) -> int:
@@ -238,3 +242,17 @@ def release_pages(a) -> int:
         return 0
     mm.madvise(mmap.MADV_DONTNEED, start, stop - start)
     return stop - start
+
+
+def json_safe(obj):
+    """``obj`` ready for strict JSON: nan and inf as None, numpy scalars as numbers,
+    tuples as lists, mapping keys as strings (the one helper for every JSON written)."""
+    if isinstance(obj, dict):
+        return {str(k): json_safe(v) for k, v in obj.items()}
+    if isinstance(obj, (list, tuple)):
+        return [json_safe(v) for v in obj]
+    if isinstance(obj, np.generic):
+        obj = obj.item()
+    if isinstance(obj, float) and not math.isfinite(obj):
+        return None
+    return obj

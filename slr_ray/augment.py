@@ -37,7 +37,7 @@ from pathlib import Path
 import numpy as np
 
 from . import __version__
-from .backends import Backend, options_for, prepare
+from .backends import options_for, prepare, require_rays, require_streamable, scanner_class
 from .effects import Effects, effect_cloud, simulate
 from .errors import InputValueError, MissingDependencyError, OutputError, SlrError, refuse_memory
 from .io import PointCloud, atomic_path, check_format, read_cloud, write_cloud
@@ -437,8 +437,7 @@ class AugmentConfig:
         pattern = as_pattern(self.sensor) if self.sensor else ScanPattern(self.resolution)
         options = options_for(self.backend, self.backend_options or None)
         if self.chunk_size is not None:
-            if Backend(self.backend) is not Backend.BINNING or not pattern.streamable:
-                raise InputValueError("a streamed augment runs the binning backend with a uniform pattern")
+            require_streamable(scanner_class(self.backend), pattern, "a streamed augment (chunk_size)")
             if self.scheduler:
                 raise InputValueError("a streamed augment runs in this process: chunk_size or scheduler, not both")
         self.effects_for(pattern)
@@ -456,8 +455,8 @@ class AugmentConfig:
         if eff.motion:
             raise InputValueError("augment's scans stand still: effects with motion need poses "
                                   "(slr_ray.effects.simulate)")
-        if eff.divergence_mrad and Backend(self.backend) is not Backend.EMBREE:
-            raise InputValueError("beam divergence (divergence_mrad) needs backend 'embree'")
+        if eff.divergence_mrad:
+            require_rays(scanner_class(self.backend), "beam divergence (divergence_mrad)")
         if self.chunk_size is not None:
             raise InputValueError("a streamed augment (chunk_size) makes ideal scans: no effects")
         return eff.resolve(pattern)

@@ -21,7 +21,7 @@ from pathlib import Path
 import numpy as np
 
 from . import paper
-from .backends import Backend, available_backends, prepare
+from .backends import Backend, available_backends, prepare, scanner_class
 from .errors import refuse_memory
 from .io import PointCloud, atomic_path, write_cloud
 from .meshscan import scan_mesh
@@ -110,10 +110,9 @@ def _run_demo(out, n_rectangles, n_positions, seed, quick, primary_resolution, b
         _log(f"left out (library missing): {missing}")
     scanners = {}
     for b in [b for b in backends if b not in missing]:
-        # embree on a primary of known origin and resolution: discs of the pulse footprint facing the
-        # primary scanner need no neighbour search (the dearest part of preparing discs)
-        options = {"radius": "footprint", "orientation": "primary", "primary_origin": origin,
-                   "primary_resolution": primary_res} if b == Backend.EMBREE else None
+        # a primary of known origin and resolution: the cheapest options that use it (embree: discs of
+        # the pulse footprint facing the primary scanner need no neighbour search, the dearest part)
+        options = scanner_class(b).primary_options(origin, primary_res, fast=True) or None
         with phase(f"{b}: preparing {len(primary):,} points", progress=progress):
             scanners[b] = prepare(primary.points, b, options)
 

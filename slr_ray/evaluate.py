@@ -69,8 +69,8 @@ from pathlib import Path
 
 import numpy as np
 
-from .arrays import as_points, as_rigid_pose
-from .backends import prepare
+from .arrays import as_points, as_rigid_pose, json_safe
+from .backends import BACKENDS, prepare, scanner_class
 from .errors import InputValueError, MissingDependencyError, OutputError
 from .io import atomic_path
 from .metrics import (FIELD_THRESHOLD, LIDAR4D_CODE_THRESHOLD, PAPER_THRESHOLD, point_metrics, range_bands,
@@ -89,6 +89,12 @@ METHODS = ("zbuffer", "binning", "embree-knn", "embree-grid", "embree-beams")
 LABELS = {"zbuffer": "no SLR (z-buffer)", "binning": "binning", "embree-knn": "embree (kNN discs)",
           "embree-grid": "embree (beam-table grid)", "embree-beams": "embree (primary beams)"}
 BASELINE = METHODS[0]
+#: the backend of each SLR method and what it is told of the primary (A): nothing, its origin and
+#: pattern, or those and its beams; any other registered backend is a method of its own name (nothing)
+METHOD_SCANS = {"binning": ("binning", None), "embree-knn": ("embree", None), "embree-grid": ("embree", "pattern"),
+                "embree-beams": ("embree", "beams")}
+#: the method whose range image is checked against the z-buffer's (``images_identical``)
+BINNING_METHOD = "binning"
 #: F-score thresholds of the table: the field's 5 cm, SLR's 10 cm, LiDAR-NeRF/LiDAR4D code's 22.4 cm
 THRESHOLDS = (FIELD_THRESHOLD, PAPER_THRESHOLD, LIDAR4D_CODE_THRESHOLD)
 #: registrations below this fitness are refused by :func:`evaluate_pair` (KITTI's pair: 0.89)
@@ -367,9 +373,9 @@ def evaluate_pair(a_points, b_points, a_beams="auto", b_beams="auto",
         methods = (methods,)
     if not len(methods):
         raise InputValueError(f"methods: none given; choose from {list(METHODS)}")
-    unknown = [m for m in methods if m not in METHODS]
+    unknown = [m for m in methods if m not in METHODS and m not in BACKENDS]
     if unknown:
-        raise InputValueError(f"unknown method(s) {unknown}; choose from {list(METHODS)}")
+        raise InputValueError(f"unknown method(s) {unknown}; choose from {list(METHODS)} or a backend's name")
     twice = sorted({m for m in methods if list(methods).count(m) > 1})
     if twice:
         raise InputValueError(f"methods: {', '.join(twice)} given twice (each method is one row)")
@@ -449,7 +455,7 @@ def evaluate_pair(a_points, b_points, a_beams="auto", b_beams="auto",
 
     rows, images = [], {"real": real_img["range"]}
     binning_img = None
-    todo = [m for m in methods if not (m == "embree-beams" and a_beams is None)]
+    todo = [m for m in methods if not (METHOD_SCANS.get(m, (m, None))[1] == "beams" and a_beams is None)]
     for m in progress_bar(todo, "methods", "method", progress=progress, leave=True):
         t0 = time.perf_counter()
         prep = 0.0
@@ -458,25 +464,24 @@ def evaluate_pair(a_points, b_points, a_beams="auto", b_beams="auto",
             keys, _ = pat_b.pulse_ids(a_in_b, np.zeros(3))
             sim_idx = np.flatnonzero(keys >= 0)  # every point of A in B's view: no visibility rule
         else:
-            opts = {}
-            if m in ("embree-grid", "embree-beams"):
-                opts = {"primary_origin": a_origin, "primary_pattern": pat_a}
-                if m == "embree-beams":
-                    opts["primary_beams"] = a_beams
-            scanner = prepare(a_in_b, "binning" if m == "binning" else "embree", **opts)
+            backend, told = METHOD_SCANS.get(m, (m, None))
+            opts = {} if told is None else scanner_class(backend).primary_options(a_origin, pat_a)
+            if told == "beams":
+                opts["primary_beams"] = a_beams
+            scanner = prepare(a_in_b, backend, **opts)
             prep = scanner.prepare_seconds
             sc = scanner.scan(np.zeros(3), pat_b)
             sim_idx = sc.indices
         img = sc.range_image()["range"]
         images[m] = img
-        if m == "binning":
+        if m == BINNING_METHOD:
             binning_img = img
         sim_ranges = np.where(np.isfinite(real_img["range"]), real_img["range"], img)
         pm = point_metrics(b_in, a_in_b[sim_idx], thresholds=thresholds, groups=point_groups)
         im = range_image_metrics(real_img["range"], img,
                                  groups={"range band": range_bands(sim_ranges), "beam": np.arange(pat_b.n_beams),
                                          "seen": pix_seen.astype(str)})
-        rows.append({"method": m, "label": LABELS[m], "points_out": int(len(sim_idx)),
+        rows.append({"method": m, "label": LABELS.get(m, m), "points_out": int(len(sim_idx)),
                      "pulses_returned": int(len(sc)),
                      "prepare_seconds": round(prep, 3), "seconds": round(time.perf_counter() - t0, 3),
                      "points": pm.to_dict(), "image": im.to_dict()})
@@ -549,16 +554,6 @@ def markdown_table(table: list[dict], columns=None) -> str:
     return "\n".join(lines)
 
 
-def _plain(obj):
-    if isinstance(obj, float):
-        return obj if math.isfinite(obj) else None
-    if isinstance(obj, dict):
-        return {str(k): _plain(v) for k, v in obj.items()}
-    if isinstance(obj, (list, tuple)):
-        return [_plain(v) for v in obj]
-    if isinstance(obj, np.generic):
-        return _plain(obj.item())
-    return obj
 
 
 def compact_json(obj, indent: int = 1, width: int = 1000, _level: int = 0) -> str:
@@ -627,7 +622,7 @@ def write_evaluation(result: dict, directory, force: bool = False, inputs: dict 
     doc = {k: v for k, v in result.items() if k != "images"} | {"table": table, "inputs": inputs or {}}
     paths = {kind: d / name for kind, name in EVALUATION_FILES.items()}
     with atomic_path(paths["json"]) as tmp:
-        tmp.write_text(compact_json(_plain(doc)) + "\n")
+        tmp.write_text(compact_json(json_safe(doc)) + "\n")
     with atomic_path(paths["markdown"]) as tmp:
         tmp.write_text(markdown_table(table) + "\n")
     with atomic_path(paths["csv"]) as tmp:

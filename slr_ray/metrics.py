@@ -89,12 +89,12 @@ import math
 from dataclasses import dataclass, field
 
 import numpy as np
-from scipy.spatial import cKDTree
 
 from .arrays import as_points
 from .cellgrid import CellGrid, GridUnsuitable
 from .errors import InputValueError
 from .paper import SIMILARITY_THRESHOLD
+from .similarity import nearest
 
 __all__ = ["point_metrics", "PointMetrics", "range_image_metrics", "RangeImageMetrics", "seen_from",
            "nearest", "range_bands", "RANGE_BANDS", "FIELD_THRESHOLD", "PAPER_THRESHOLD",
@@ -108,26 +108,6 @@ PAPER_THRESHOLD = SIMILARITY_THRESHOLD
 LIDAR4D_CODE_THRESHOLD = math.sqrt(0.05)
 #: range band edges (metres) of the splits
 RANGE_BANDS = (0.0, 10.0, 20.0, 40.0, 80.0, math.inf)
-
-
-def nearest(query, reference, workers: int = -1) -> tuple[np.ndarray, np.ndarray]:
-    """Distance to and index of each ``query`` point's nearest ``reference`` point.
-
-    Returns
-    -------
-    distances : (m,) float64
-        ``inf`` for every query point when ``reference`` is empty.
-    indices : (m,) intp
-        Into ``reference``; ``len(reference)`` (scipy's sentinel) when empty.
-        Ties go to whichever point the kd-tree meets first.
-    """
-    q = as_points(query, "query").astype(np.float64, copy=False)
-    r = as_points(reference, "reference").astype(np.float64, copy=False)
-    if len(r) == 0 or len(q) == 0:
-        return np.full(len(q), np.inf), np.full(len(q), len(r), np.intp)
-    c = r.mean(axis=0)  # recentred: the tree works on small numbers whatever the coordinates
-    d, i = cKDTree(r - c).query(q - c, k=1, workers=workers)
-    return d, i.astype(np.intp)
 
 
 def seen_from(target, primary, threshold: float = PAPER_THRESHOLD) -> np.ndarray:
@@ -283,7 +263,7 @@ def _thresholds(thresholds) -> list[float]:
 
 
 def point_metrics(target, simulated, thresholds=(FIELD_THRESHOLD, PAPER_THRESHOLD), groups: dict | None = None,
-                  workers: int = -1) -> PointMetrics:
+                  n_threads: int | None = None, *, workers: int | None = None) -> PointMetrics:
     """Chamfer distance and F-scores of ``simulated`` against ``target``, whole and split.
 
     Parameters
@@ -295,8 +275,8 @@ def point_metrics(target, simulated, thresholds=(FIELD_THRESHOLD, PAPER_THRESHOL
     groups : dict of str -> (n,) array, optional
         Labels of the target points; each split reports the same figures per
         label (a simulated point in the label of its nearest target point).
-    workers : int
-        kd-tree threads (-1: all).
+    n_threads : int, optional
+        kd-tree threads (default all; ``workers`` is a deprecated alias).
 
     Returns
     -------
@@ -306,8 +286,8 @@ def point_metrics(target, simulated, thresholds=(FIELD_THRESHOLD, PAPER_THRESHOL
     s = as_points(simulated, "simulated")
     th = _thresholds(thresholds)
     labs = _labels(groups, len(t), "target point")
-    d_t, _ = nearest(t, s, workers)
-    d_s, j = nearest(s, t, workers)
+    d_t, _ = nearest(t, s, n_threads, workers=workers)
+    d_s, j = nearest(s, t, n_threads, workers=workers)
     hits = {tau: (_within(t, s, tau, d_t), _within(s, t, tau, d_s)) for tau in th}
     top = _point_block(d_t, d_s, hits)
     out = {}

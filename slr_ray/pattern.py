@@ -20,6 +20,7 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
+from .arrays import refuse_nonfinite_rows
 from .core.grid import grid_keys
 from .core.protocol import Pattern
 from .core.tables import BinTables
@@ -206,9 +207,7 @@ class ScanPattern(Pattern):
         indices)`` of the occupied pulses, indices ascending."""
         tables = BinTables(origin, self, n_threads=n_threads)
         bad = tables.add(points)
-        if bad:
-            raise InputValueError(f"points has {bad} row(s) with NaN or inf out of {len(points)}; "
-                                  "remove them first (nothing is dropped silently)")
+        refuse_nonfinite_rows(bad, len(points))
         return tables.winners(points)
 
     def rays(self, rows: slice | None = None, k: int = 1):

@@ -23,7 +23,7 @@ from .cellgrid import CellGrid, GridUnsuitable
 from .errors import InputValueError
 from .paper import SIMILARITY_THRESHOLD
 
-__all__ = ["similarity", "agreement", "Agreement", "nearest_distances"]
+__all__ = ["similarity", "agreement", "Agreement", "nearest", "nearest_distances"]
 
 
 def _kdtree_workers(n_threads, workers) -> int:
@@ -33,6 +33,34 @@ def _kdtree_workers(n_threads, workers) -> int:
         warnings.warn("workers= is deprecated; use n_threads= (None: all cores)", DeprecationWarning, stacklevel=3)
         n_threads = workers
     return -1 if n_threads is None or n_threads == -1 else int(n_threads)
+
+
+def nearest(query, reference, n_threads: int | None = None, upper_bound: float = np.inf, *,
+            workers: int | None = None) -> tuple[np.ndarray, np.ndarray]:
+    """Distance to and index of each ``query`` point's nearest ``reference`` point:
+    the one kd-tree lookup of the package (the tree recentred on the reference's
+    mean, so it works on small numbers whatever the coordinates).
+
+    Returns
+    -------
+    distances : (m,) float64
+        ``inf`` for every query point when ``reference`` is empty, and for
+        those with no reference point closer than ``upper_bound``.
+    indices : (m,) intp
+        Into ``reference``; ``len(reference)`` (scipy's sentinel) where the
+        distance is ``inf``. Ties go to whichever point the kd-tree meets first.
+
+    ``n_threads``: threads of the query (default all cores; ``workers``,
+    scipy's name, is a deprecated alias).
+    """
+    kd_workers = _kdtree_workers(n_threads, workers)
+    q = as_points(query, "query").astype(np.float64, copy=False)
+    r = as_points(reference, "reference").astype(np.float64, copy=False)
+    if len(r) == 0 or len(q) == 0:
+        return np.full(len(q), np.inf), np.full(len(q), len(r), np.intp)
+    c = r.mean(axis=0)
+    d, i = cKDTree(r - c).query(q - c, k=1, workers=kd_workers, distance_upper_bound=upper_bound)
+    return d, i.astype(np.intp)
 
 
 def nearest_distances(query, reference, n_threads: int | None = None, upper_bound: float = np.inf, *,
@@ -46,17 +74,7 @@ def nearest_distances(query, reference, n_threads: int | None = None, upper_boun
     ``n_threads``: threads of the kd-tree query (default all cores;
     ``workers``, scipy's name, is a deprecated alias).
     """
-    kd_workers = _kdtree_workers(n_threads, workers)
-    q = as_points(query, "query").astype(np.float64, copy=False)
-    r = as_points(reference, "reference").astype(np.float64, copy=False)
-    if len(r) == 0:
-        return np.full(len(q), np.inf)
-    if len(q) == 0:
-        return np.empty(0)
-    # recentre so the tree works on small numbers whatever the coordinates
-    c = r.mean(axis=0)
-    d, _ = cKDTree(r - c).query(q - c, k=1, workers=kd_workers, distance_upper_bound=upper_bound)
-    return d
+    return nearest(query, reference, n_threads, upper_bound, workers=workers)[0]
 
 
 def similarity(true_points, simulated_points, threshold: float = SIMILARITY_THRESHOLD, n_threads: int | None = None,

@@ -15,6 +15,33 @@ settings.load_profile(os.environ.get("HYPOTHESIS_PROFILE", "ci"))
 from slr_ray.core import BinTables
 
 
+def brute_grid_neighbours(keys, ranges, shape, gate):
+    """The pulse-grid neighbour rule by Python loops, the reference the embree tests share:
+    per point (``keys``: its flat pulse id, -1 outside; ``shape``: ``(nv, nh)``), the
+    neighbour chosen in each adjacent pulse ``(dv, dh)`` (within the range gate, the nearest
+    to the scanner, then the lowest index; azimuth wraps, zenith does not)."""
+    nv, nh = shape
+    by_key = {}
+    for i, k in enumerate(keys):
+        by_key.setdefault(int(k), []).append(i)
+    out = []
+    for i, k in enumerate(keys):
+        chosen = {}
+        out.append(chosen)
+        if k < 0:
+            continue
+        v, h = divmod(int(k), nh)
+        for dv in (-1, 0, 1):
+            for dh in (-1, 0, 1):
+                if (dv, dh) == (0, 0) or not 0 <= v + dv < nv:
+                    continue
+                cand = [q for q in by_key.get((v + dv) * nh + (h + dh) % nh, [])
+                        if abs(ranges[q] - ranges[i]) <= gate * ranges[i]]
+                if cand:
+                    chosen[dv, dh] = min(cand, key=lambda q: (ranges[q], q))
+    return out
+
+
 def brute_force_scan(points, origin, pattern):
     """Nearest-in-pulse by a plain loop: the definition, written the slow way."""
     from slr_ray import pulse_bins

@@ -272,11 +272,13 @@ def test_a_tiny_cell_size_does_not_ask_for_terabytes():
 
 
 def test_results_are_strict_json():
-    from slr_ray.cli.commands import _plain
+    from slr_ray.arrays import json_safe
 
-    out = json.dumps(_plain({"a": float("nan"), "b": [1.0, float("inf")], "c": {"d": -float("inf")}}),
+    out = json.dumps(json_safe({"a": float("nan"), "b": [1.0, float("inf")], "c": {"d": -float("inf")}}),
                      allow_nan=False)
     assert json.loads(out) == {"a": None, "b": [1.0, None], "c": {"d": None}}
+    # numpy scalars and keys as every JSON the package writes takes them (one helper)
+    assert json_safe({1: (np.float32("nan"), np.int64(3))}) == {"1": [None, 3]}
 
 
 # --- issue 26/27: one line for deliberate errors, a traceback for bugs ---------------------------------------------

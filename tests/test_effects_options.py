@@ -60,3 +60,21 @@ def test_an_effects_file_refuses_fields_beside_its_effects_table(tmp_path):
         Effects.load(f)
     f.write_text("seed = 3\nname = 'scene'\n[effects]\nrange_noise = 0.01\n")  # a scene's own keys are fine
     assert Effects.load(f).range_noise == 0.01
+
+
+
+def test_every_effect_option_belongs_to_one_stage_and_the_flags_come_from_the_stages(capsys):
+    """A new effect is one Stage: its fields are its options, its flags generate the command line's."""
+    import dataclasses
+
+    from slr_ray.cli import main
+    from slr_ray.effects.stages import EFFECT_FLAGS, GEOMETRY, STAGES
+
+    owned = [name for stage in (GEOMETRY, *STAGES) for name in stage.fields]
+    assert sorted(owned) == sorted(f.name for f in dataclasses.fields(Effects) if f.name != "seed")
+    assert len(owned) == len(set(owned))
+    assert [s.name for s in STAGES] == ["ray_drop", "range_limits", "range_noise", "intensity"]
+    assert main(["scan", "--help"]) == 0
+    text = capsys.readouterr().out
+    assert all(flag in text for flag in EFFECT_FLAGS.values())
+    assert EFFECT_FLAGS["range_noise"] == "--range-noise" and EFFECT_FLAGS["seed"] == "--effects-seed"

@@ -6,6 +6,8 @@ import pytest
 from slr_ray import InputValueError, ScanPattern, prepare, pulse_directions, simulate_scan
 from slr_ray.backends.embree import disc_radii, estimate_normals
 
+from conftest import brute_grid_neighbours
+
 
 def discs(points, **options):
     return prepare(points, "embree", **options)
@@ -343,27 +345,8 @@ def _grid_brute(pts, origin, res, gate, beams=None):
         row_of_beam = np.argsort(pattern.beam_of_row)
         col = np.floor(np.mod(np.arctan2(rel[:, 1], rel[:, 0]), 2 * np.pi) / (2 * np.pi / nh)).astype(int)
         keys = np.where(beams >= 0, row_of_beam[np.maximum(beams, 0)] * nh + np.minimum(col, nh - 1), -1)
-    nv, nh = pattern.shape
-    by_key = {}
-    for i, k in enumerate(keys):
-        by_key.setdefault(int(k), []).append(i)
-    out = []
-    for i, k in enumerate(keys):
-        v, h = divmod(int(k), nh)
-        nb = set()
-        if k < 0:  # outside the pattern (a beam table's bands): no neighbours
-            out.append(nb)
-            continue
-        for dv in (-1, 0, 1):
-            for dh in (-1, 0, 1):
-                if (dv, dh) == (0, 0) or not 0 <= v + dv < nv:
-                    continue
-                cand = [q for q in by_key.get((v + dv) * nh + (h + dh) % nh, [])
-                        if abs(ranges[q] - ranges[i]) <= gate * ranges[i]]
-                if cand:
-                    nb.add(min(cand, key=lambda q: (ranges[q], q)))
-        out.append(nb)
-    return out
+    # outside the pattern (a beam table's bands): no neighbours
+    return [set(chosen.values()) for chosen in brute_grid_neighbours(keys, ranges, pattern.shape, gate)]
 
 
 def _beam_table():

@@ -13,6 +13,8 @@ from slr_ray.backends.embree import EmbreeOptions, pulse_grid_spacing_normals
 from slr_ray.core import pulse_ids
 from slr_ray.errors import InputValueError
 
+from conftest import brute_grid_neighbours
+
 
 def _step_brute(pts, origin, res, gate):
     """``grid_spacing='step'`` by Python loops: per point, the neighbour of
@@ -23,24 +25,8 @@ def _step_brute(pts, origin, res, gate):
     distance to all neighbours when only diagonals have one, 0 when none."""
     pattern = ScanPattern(res)
     keys, ranges = pulse_ids(pts, origin, pattern)
-    nv, nh = pattern.shape
-    by_key = {}
-    for i, k in enumerate(keys):
-        by_key.setdefault(int(k), []).append(i)
     out = np.zeros(len(pts))
-    for i, k in enumerate(keys):
-        if k < 0:
-            continue
-        v, h = divmod(int(k), nh)
-        chosen = {}
-        for dv in (-1, 0, 1):
-            for dh in (-1, 0, 1):
-                if (dv, dh) == (0, 0) or not 0 <= v + dv < nv:
-                    continue
-                cand = [q for q in by_key.get((v + dv) * nh + (h + dh) % nh, [])
-                        if abs(ranges[q] - ranges[i]) <= gate * ranges[i]]
-                if cand:
-                    chosen[dv, dh] = min(cand, key=lambda q: (ranges[q], q))
+    for i, chosen in enumerate(brute_grid_neighbours(keys, ranges, pattern.shape, gate)):
         if not chosen:
             continue
         d = {s: float(np.linalg.norm(pts[q] - pts[i])) for s, q in chosen.items()}

@@ -216,3 +216,75 @@ def test_paper_numbers_are_named_once():
                     and node.value in paper_numbers:
                 bad.append(f"{mod}:{node.lineno}: {node.value}")
     assert not bad, "\n".join(bad)
+
+
+#: the names of the shipped backends: outside ``slr_ray.backends`` no module compares against them
+BACKEND_NAMES = {"binning", "embree"}
+
+
+def _backend_identity_tests(tree):
+    """Comparisons on a backend's identity: against ``Backend.X``, a backend's name as a
+    string, or a ``.backend`` attribute (callers read the scanner's capabilities instead)."""
+    def is_identity(node):
+        return ((isinstance(node, ast.Attribute) and isinstance(node.value, ast.Name) and node.value.id == "Backend")
+                or (isinstance(node, ast.Constant) and node.value in BACKEND_NAMES)
+                or (isinstance(node, ast.Attribute) and node.attr == "backend"))
+    return [node.lineno for node in ast.walk(tree) if isinstance(node, ast.Compare)
+            and any(is_identity(x) for x in [node.left, *node.comparators])]
+
+
+def test_no_backend_identity_outside_backends():
+    found = [f"{mod}:{line}" for mod, path in _modules() if not mod.startswith("slr_ray.backends")
+             for line in _backend_identity_tests(ast.parse(path.read_text()))]
+    assert not found, f"compare a backend's name outside slr_ray.backends (read its capabilities): {found}"
+
+
+def test_the_backend_identity_check_sees_comparisons():
+    assert _backend_identity_tests(ast.parse("if scanner.backend == 'embree': pass")) == [1]
+    assert _backend_identity_tests(ast.parse("x = b is not Backend.BINNING")) == [1]
+    assert _backend_identity_tests(ast.parse("if scanner.casts_rays: pass")) == []
+
+
+#: The layers of docs/architecture.md, bottom up: a module imports only modules of its own
+#: layer or below (the package's ``__init__`` sits above them all).
+LAYERS = (
+    ("base", {"errors", "arrays", "threads", "paper", "progress"}),
+    ("core", {"core"}),
+    ("patterns", {"pattern", "sensors", "spherical", "scan"}),
+    ("formats", {"io", "las", "e57", "pcd", "outputs"}),
+    ("measures", {"cellgrid", "similarity", "metrics"}),
+    ("ray casting", {"raycast"}),
+    ("backends", {"backends"}),
+    ("uses", {"accumulator", "streaming", "effects", "scenes", "meshscan", "positions", "compare", "distances",
+              "validation", "augment", "plotting", "demo", "evaluate", "sequence"}),
+    ("command line", {"cli"}),
+)
+
+
+def _unit(mod: str) -> str:
+    """A module's unit: its top-level module or package under slr_ray."""
+    return mod.split(".")[1] if "." in mod else ""
+
+
+def test_every_unit_has_a_layer_and_a_place_on_the_map():
+    units = {p.stem for p in PKG.glob("*.py") if p.stem != "__init__"} | {
+        p.parent.name for p in PKG.glob("*/__init__.py")}
+    placed = set().union(*(mods for _, mods in LAYERS))
+    assert units == placed, f"units without a layer: {sorted(units - placed)}; gone: {sorted(placed - units)}"
+    text = (PKG.parent / "docs" / "architecture.md").read_text()
+    missing = sorted(u for u in units if f"`{u}`" not in text and f"`slr_ray.{u}`" not in text)
+    assert not missing, f"docs/architecture.md does not name: {missing}"
+    for name, _ in LAYERS:
+        assert f"| {name} |" in text, f"docs/architecture.md has no layer {name!r}"
+
+
+def test_a_module_imports_only_its_own_layer_or_below():
+    level = {unit: i for i, (_, mods) in enumerate(LAYERS) for unit in mods}
+    up = []
+    for mod, deps in _import_graph().items():
+        if _unit(mod) not in level:  # the package's __init__: above every layer
+            continue
+        for dep in deps:
+            if _unit(dep) in level and level[_unit(dep)] > level[_unit(mod)]:
+                up.append(f"{mod} -> {dep}")
+    assert not up, f"imports up the layers (docs/architecture.md, Layers): {sorted(up)}"

@@ -30,12 +30,13 @@ from ..errors import InputValueError
 from ..pattern import as_pattern
 from ..raycast import embree_available
 from ..scan import Scan
-from .base import Backend, BackendOptions, Scanner
+from .base import Backend, BackendOptions, Scanner, require_rays, require_streamable, streams
 from .binning import BinningOptions, BinningScanner
 from .embree import DiscScanner, EmbreeOptions
 
-__all__ = ["Backend", "BACKENDS", "Scanner", "BackendOptions", "prepare", "simulate_scan", "options_for",
-           "available_backends", "BinningOptions", "EmbreeOptions"]
+__all__ = ["Backend", "BACKENDS", "BackendEntry", "Scanner", "BackendOptions", "prepare", "simulate_scan",
+           "options_for", "scanner_class", "require_rays", "require_streamable", "streams", "available_backends",
+           "BinningOptions", "EmbreeOptions"]
 
 
 class BackendEntry(NamedTuple):
@@ -46,17 +47,23 @@ class BackendEntry(NamedTuple):
 
 
 #: The one registry of backends: what ``prepare``, ``options_for`` and the command line's flags read.
-BACKENDS: dict[Backend, BackendEntry] = {
+#: Keyed by name (a :class:`Backend` is its name); a new backend is one file and one line here.
+BACKENDS: dict[str, BackendEntry] = {
     Backend.BINNING: BackendEntry(BinningScanner, BinningOptions),
     Backend.EMBREE: BackendEntry(DiscScanner, EmbreeOptions),
 }
 
 
-def _backend(name) -> Backend:
-    try:
-        return Backend(name)
-    except ValueError:
-        raise InputValueError(f"unknown backend {name!r}; choose one of {[b.value for b in Backend]}") from None
+def _backend(name) -> str:
+    if isinstance(name, str) and name in BACKENDS:
+        return Backend(name) if name in {b.value for b in Backend} else name
+    raise InputValueError(f"unknown backend {name!r}; choose one of {[str(b) for b in BACKENDS]}")
+
+
+def scanner_class(backend) -> type:
+    """The :class:`Scanner` class of ``backend`` (a name): its capabilities
+    (``casts_rays``, ``streamable``...) before anything is prepared."""
+    return BACKENDS[_backend(backend)].scanner
 
 
 def options_for(backend, options: dict | BackendOptions | None = None, **more) -> BackendOptions:
@@ -64,7 +71,7 @@ def options_for(backend, options: dict | BackendOptions | None = None, **more) -
     cls = BACKENDS[_backend(backend)].options
     if isinstance(options, BackendOptions):
         if not isinstance(options, cls):
-            raise InputValueError(f"{type(options).__name__} given for backend {Backend(backend).value!r}")
+            raise InputValueError(f"{type(options).__name__} given for backend {str(backend)!r}")
         return replace(options, **more) if more else options
     return cls.from_dict(options, **more)
 
@@ -146,14 +153,11 @@ def simulate_scan(points, origin, pattern, backend: str | Backend = Backend.BINN
     scanner = prepare(points, backend, **options)
     scan = scanner.scan(origin, pattern)
     info = dict(scan.info)
-    if scanner.prepare_seconds and scanner.backend is not Backend.BINNING:
+    if scanner.prepare_seconds and scanner.costly_prepare:
         info["prepare_seconds"] = round(scanner.prepare_seconds, 6)
     return replace(scan, seconds=time.perf_counter() - t0, info=info)
 
 
 def available_backends() -> list[str]:
     """Backends whose dependencies load on this machine."""
-    out = [Backend.BINNING.value]
-    if embree_available():
-        out.append(Backend.EMBREE.value)
-    return out
+    return [str(b) for b in BACKENDS if b != Backend.EMBREE or embree_available()]

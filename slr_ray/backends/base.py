@@ -11,15 +11,17 @@ from __future__ import annotations
 
 import dataclasses
 import inspect
+import math
 from abc import ABC, abstractmethod
 from enum import Enum
+from typing import ClassVar
 
 import numpy as np
 
-from ..errors import dataclass_from_mapping
+from ..errors import InputValueError, dataclass_from_mapping
 from ..scan import Scan
 
-__all__ = ["Backend", "Scanner", "BackendOptions"]
+__all__ = ["Backend", "Scanner", "BackendOptions", "require_rays", "require_streamable", "streams"]
 
 
 class Backend(str, Enum):
@@ -110,6 +112,32 @@ class Scanner(ABC):
     backend: Backend
     release_mapped: bool = False
 
+    # --- capabilities: what callers read instead of a backend's name (as patterns have
+    # ``streamable`` and ``has_beams``); readable on the class, before anything is prepared
+
+    #: :meth:`cast` answers rays of any direction (beam divergence, motion: effects that need rays)
+    casts_rays: ClassVar[bool] = False
+    #: :meth:`scan` can be made chunk by chunk of a file (a streamed LAS scan, augment's ``chunk_size``)
+    streamable: ClassVar[bool] = False
+    #: preparing builds something worth timing and doing once (a result reports ``prepare_seconds``;
+    #: a validation runs it every ``embree_every`` positions)
+    costly_prepare: ClassVar[bool] = False
+    #: per-point unit normals the scanner holds, (n, 3), or None (effects then estimate them)
+    normals = None
+
+    @classmethod
+    def primary_options(cls, origin, primary, fast: bool = False) -> dict:
+        """Options telling this backend where and how its cloud was scanned (the
+        primary: ``origin``, and ``primary`` a resolution in degrees or a pattern);
+        ``fast``: also the cheapest such options. None here: ``{}``."""
+        return {}
+
+    def cast(self, origin, directions, max_range: float = math.inf):
+        """First point met by each ray from ``origin`` along unit ``directions``:
+        ``(indices, distances)``, -1 and ``inf`` on a miss. Only where
+        :attr:`casts_rays`; here an :class:`~slr_ray.errors.InputValueError`."""
+        raise InputValueError(f"backend {self.backend!s} casts no rays (casts_rays is False)")
+
     def __init__(self, points: np.ndarray, options: BackendOptions, prepare_seconds: float = 0.0):
         self.points = points
         self.options = options
@@ -135,3 +163,26 @@ class Scanner(ABC):
 
     def __repr__(self) -> str:
         return f"<{type(self).__name__} {self.backend} n={len(self)} {self.options}>"
+
+
+def require_rays(scanner, what: str) -> None:
+    """The one rule of effects that need rays: refuse ``what`` (e.g. 'beam divergence
+    (divergence_mrad)') on a scanner or scanner class that casts none."""
+    if not scanner.casts_rays:
+        raise InputValueError(f"{what} needs a backend that casts rays, e.g. embree (--backend embree): "
+                              f"{scanner.backend!s} keeps one point per pulse bin and has no footprint beyond it "
+                              "(docs/effects.md)")
+
+
+def streams(scanner, pattern) -> bool:
+    """The one rule of streamed scans: a scanner (or scanner class) that scans chunk
+    by chunk and a pattern that reduces so (a uniform grid, not a beam table)."""
+    return bool(scanner.streamable and pattern.streamable)
+
+
+def require_streamable(scanner, pattern, what: str) -> None:
+    """:func:`streams`, or an error naming ``what`` and why not."""
+    if not streams(scanner, pattern):
+        raise InputValueError(f"{what} streams the cloud in chunks: it needs a streamable backend (binning) and a "
+                              f"uniform pattern, got backend {scanner.backend!s} and "
+                              f"{'a uniform' if pattern.streamable else 'a beam-table'} pattern")

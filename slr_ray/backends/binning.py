@@ -24,7 +24,7 @@ from dataclasses import dataclass
 import numpy as np
 
 from .. import core, threads
-from ..arrays import as_origin, file_mapping, release_pages
+from ..arrays import as_origin, file_mapping, refuse_nonfinite_rows, release_pages
 from ..core.order import OutputPool
 from ..errors import InputValueError
 from ..pattern import as_pattern
@@ -79,17 +79,14 @@ class BinningScanner(Scanner):
     """
 
     backend = Backend.BINNING
+    streamable = True  # a file's chunks reduce to the scan of the whole (slr_ray.streaming)
 
     def __init__(self, points: np.ndarray, options: BinningOptions | None = None):
         t0 = time.perf_counter()
         options = options or BinningOptions()
         n = len(points)
         if n:
-            bad = core.grid.count_nonfinite(points, 0, n)
-            if bad:
-                raise InputValueError(
-                    f"points has {bad} row(s) with NaN or inf out of {n}; "
-                    "remove them first (nothing is dropped silently)")
+            refuse_nonfinite_rows(core.grid.count_nonfinite(points, 0, n), n)
         super().__init__(points, options, time.perf_counter() - t0)
         # the last scan's tables, reused by the next scan with the same pattern
         # (a scan from another thread meanwhile gets its own)

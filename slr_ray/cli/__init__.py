@@ -29,6 +29,7 @@ import warnings
 from .. import __version__, paper
 from ..errors import SlrError, SlrNote, SlrWarning
 from ..backends import Backend
+from ..io import FORMATS
 from ..meshscan import MESH_MODES
 from ..scenes import SCENES_DIR
 from ..sensors import SENSORS
@@ -42,7 +43,7 @@ from .sequence_command import add_sequence_parser
 
 __all__ = ["main", "build_parser"]
 
-_FORMATS = ".npy, .npz, .ply, .pcd, .las, .laz, .e57, .bin (KITTI), .xyz, .txt"
+_FORMATS = ", ".join(f"{e} (KITTI)" if e == ".bin" else e for e in FORMATS)  # io.FORMATS: the one list
 
 
 class _Parser(argparse.ArgumentParser):

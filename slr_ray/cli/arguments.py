@@ -13,9 +13,9 @@ import math
 import re
 
 from .. import paper
-from ..backends import BACKENDS, Backend
+from ..backends import BACKENDS, Backend, require_rays, scanner_class
 from ..effects import Effects
-from ..effects.options import INTENSITY_MODES, RETURN_KINDS
+from ..effects.stages import EFFECT_FLAGS, FLAGS as EFFECT_FLAG_SPECS
 from ..errors import InputValueError
 from ..pattern import PRESETS, ScanPattern, preset
 from ..sensors import SENSORS, read_ouster_metadata, read_velodyne_calibration, sensor
@@ -173,7 +173,7 @@ def _option_type(name: str, typ: str):
     return str, None
 
 
-_OPTION_CLASSES = {b.value: entry.options for b, entry in BACKENDS.items()}
+_OPTION_CLASSES = {str(b): entry.options for b, entry in BACKENDS.items()}
 
 #: One line of ``--help`` (and a metavar) per backend option. The option classes'
 #: docstrings hold the whole story and docs/backends.md "Options" its figures; a
@@ -284,11 +284,6 @@ def add_positions(p) -> None:
 
 # --- sensor effects ------------------------------------------------------------------------------------------
 
-#: Effects fields with a flag of their own: field -> flag (the rest through --effects FILE).
-EFFECT_FLAGS = {"range_noise": "--range-noise", "divergence_mrad": "--divergence-mrad", "returns": "--returns",
-                "ray_drop": "--ray-drop", "intensity": "--intensity", "seed": "--effects-seed"}
-
-
 def _number_or_sensor(text: str):
     """An argparse type: a finite number, or 'sensor' (the sensor table's value)."""
     return text if text == "sensor" else finite_float(text)
@@ -298,19 +293,10 @@ def add_effects(p) -> None:
     """Sensor effects (:class:`~slr_ray.effects.Effects`, docs/effects.md): a file and flags for the common ones."""
     g = p.add_argument_group("sensor effects", "all off by default; a flag overrides --effects; docs/effects.md")
     g.add_argument("--effects", metavar="FILE", help="effect options, a TOML or JSON file")
-    g.add_argument("--range-noise", type=_number_or_sensor, metavar="SIGMA",
-                   help="Gaussian range noise (m), or 'sensor'")
-    g.add_argument("--divergence-mrad", type=_number_or_sensor, metavar="MRAD",
-                   help="beam divergence (mrad) or 'sensor' (--backend embree)")
-    g.add_argument("--returns", nargs="+", choices=RETURN_KINDS, metavar="KIND",
-                   help=f"returns a pulse reports with divergence: {', '.join(RETURN_KINDS)} "
-                        "(default first strongest last)")
-    g.add_argument("--ray-drop", metavar="MODEL",
-                   help="a ray-drop model (JSON of 'slr-ray effects fit-drop')")
-    g.add_argument("--intensity", choices=INTENSITY_MODES,
-                   help="the input's intensity carried, or corrected")
-    g.add_argument("--effects-seed", type=int, metavar="N", help="seed of noise and drop (default 0)")
-
+    types = {"number-or-sensor": _number_or_sensor, "int": int, "text": None}
+    for f in EFFECT_FLAG_SPECS:  # generated from the stages' options (slr_ray.effects.stages)
+        g.add_argument(f.flag, metavar=f.metavar, help=f.help, choices=f.choices, nargs=f.nargs,
+                       **({"type": types[f.kind]} if types[f.kind] else {}))
 
 def effects_from(args) -> Effects | None:
     """The effects of the effects group: ``--effects FILE`` with each flag
@@ -350,7 +336,6 @@ def check_effects(eff: Effects | None, backend: str, pattern) -> Effects | None:
     backend; None when no effect is on (a seed alone: the ideal scan)."""
     if eff is None or not eff.any:
         return None
-    if eff.divergence_mrad and Backend(backend) is not Backend.EMBREE:
-        raise InputValueError("--divergence-mrad (divergence_mrad) needs --backend embree: binning keeps one "
-                              "point per pulse bin and has no footprint beyond it")
+    if eff.divergence_mrad:
+        require_rays(scanner_class(backend), "--divergence-mrad (divergence_mrad)")
     return eff.resolve(pattern)

@@ -8,7 +8,6 @@ turns flags into arguments and results into files and a JSON line.
 from __future__ import annotations
 
 import json
-import math
 import sys
 import time
 import warnings
@@ -17,9 +16,10 @@ from pathlib import Path
 
 import numpy as np
 
+from ..arrays import json_safe
 from ..augment import AugmentConfig
 from ..augment import augment as run_augment
-from ..backends import Backend, options_for, prepare
+from ..backends import options_for, prepare, scanner_class, streams
 from ..backends.embree.fit import fit_primary_pattern
 from ..compare import compare_backends
 from ..demo import run_demo
@@ -43,20 +43,9 @@ from .arguments import backend_from, check_effects, effects_from, ground_from, p
 __all__ = ["emit", "COMMANDS"]
 
 
-def _plain(obj):
-    """``obj`` with non-finite floats as None (JSON has no NaN or Infinity)."""
-    if isinstance(obj, float):
-        return obj if math.isfinite(obj) else None
-    if isinstance(obj, dict):
-        return {k: _plain(v) for k, v in obj.items()}
-    if isinstance(obj, (list, tuple)):
-        return [_plain(v) for v in obj]
-    return obj
-
-
 def emit(obj) -> None:
     """The command's result: one line of strict JSON on stdout (nan and inf as null)."""
-    sys.stdout.write(json.dumps(_plain(obj), allow_nan=False) + "\n")
+    sys.stdout.write(json.dumps(json_safe(obj), allow_nan=False) + "\n")
     sys.stdout.flush()
 
 
@@ -89,7 +78,7 @@ def scan(args):
         check_range_image(pattern)  # before the scan, not after it
     options = options_for(args.backend, backend_from(args))  # built once, used below
     effects = check_effects(effects_from(args), args.backend, pattern)
-    if Backend(args.backend) is Backend.EMBREE:  # before reading and preparing: binning answers at once
+    if scanner_class(args.backend).casts_rays:  # before reading and preparing: binning answers at once
         refuse_cast(cast_rays(pattern, effects), "--backend embree",
                     "choose a coarser pattern (--resolution, --columns) or a smaller --divergence-mrad cone")
     if effects is not None and (args.range_image or args.png):
@@ -102,7 +91,7 @@ def scan(args):
               "effects": None if effects is None else effects.to_dict()})
         return
     # LAS/LAZ stream through the uniform binning reduction; beam tables and effects read the file whole
-    streamed = (effects is None and Backend(args.backend) is Backend.BINNING and pattern.streamable
+    streamed = (effects is None and streams(scanner_class(args.backend), pattern)
                 and check_format(args.input, args.input_format) in STREAMED_FORMATS)
     with plan:
         if streamed:
@@ -215,7 +204,8 @@ def _primary_from_file(args, cloud, options):
     scanner was (a KITTI .bin is in its sensor's frame; an .npz origin, PCD VIEWPOINT, E57 pose) and
     its pattern fitted to the points (``primary_pattern='fit'``: a .bin's scan order gives its beams).
     Returns ``(options, what the JSON says about it, or None)``."""
-    if Backend(args.backend) is not Backend.EMBREE or cloud.origin is None:
+    takes = scanner_class(args.backend).primary_options  # {} for a backend that is told nothing of its primary
+    if cloud.origin is None or not takes((0.0, 0.0, 0.0), 1.0):
         return options, None
     given = backend_from(args)
     if any(k in given for k in ("primary_origin", "primary_pattern", "primary_resolution")):
@@ -225,8 +215,7 @@ def _primary_from_file(args, cloud, options):
         fitted, how = fit_primary_pattern(cloud.points, origin)
     except InputValueError as e:  # no grid to fit: the discs go without the primary (kNN), and say why
         return options, {"from_file": False, "why": str(e)}
-    with_primary = options_for(args.backend, {**given, "primary_origin": tuple(origin.tolist()),
-                                              "primary_pattern": fitted})
+    with_primary = options_for(args.backend, {**given, **takes(tuple(origin.tolist()), fitted)})
     return with_primary, {"from_file": True, "origin": origin.tolist(), "pattern": fitted.to_dict(), "fit": how,
                           "why": f"{args.input} records where its scanner was; its pattern is fitted to the points "
                                  "(--primary-origin and --primary-pattern or --primary-resolution choose them)"}

@@ -5,9 +5,9 @@ from __future__ import annotations
 
 import csv
 import io
-import math
 from pathlib import Path
 
+from ..arrays import json_safe
 from ..evaluate import compact_json, markdown_table
 from ..io import atomic_path
 from ..outputs import OutputPlan, resolve
@@ -132,19 +132,6 @@ def _csv(rows) -> str:
     return buf.getvalue()
 
 
-def _plain(obj):
-    """JSON-ready: nan and inf as None, numpy scalars as numbers."""
-    if isinstance(obj, dict):
-        return {str(k): _plain(v) for k, v in obj.items()}
-    if isinstance(obj, (list, tuple)):
-        return [_plain(v) for v in obj]
-    if hasattr(obj, "item") and not hasattr(obj, "__len__"):
-        obj = obj.item()
-    if isinstance(obj, float) and not math.isfinite(obj):
-        return None
-    return obj
-
-
 def _write(path, text) -> None:
     with atomic_path(path) as tmp:
         tmp.write_text(text)
@@ -190,7 +177,7 @@ def _evaluate(args, seq, holdout, out):
     files = {"json": out / "evaluation.json", "markdown": out / "table.md", "csv": out / "table.csv"}
     doc = res | {"protocol": args.protocol, "registration": regs, "pose_source": seq.pose_source,
                  "inputs": [str(p) for p in seq.paths], "table": rows}
-    _write(files["json"], compact_json(_plain(doc)) + "\n")
+    _write(files["json"], compact_json(json_safe(doc)) + "\n")
     cols = LIDAR4D_COLUMNS if args.protocol == "lidar4d" else COLUMNS
     _write(files["markdown"], markdown_table(rows, [c for c in cols if c in rows[0]]) + "\n")
     _write(files["csv"], _csv(rows))

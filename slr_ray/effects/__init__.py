@@ -11,8 +11,10 @@ Modules: :mod:`.options` (:class:`Effects`), :mod:`.returns` (beam
 divergence, multiple returns), :mod:`.noise` (range noise, blind zone,
 maximum range by reflectivity), :mod:`.raydrop` (a drop model fitted from a
 real frame), :mod:`.intensity`, :mod:`.motion` (motion during a sweep) and
-:mod:`.simulate` (the stages in order) and :mod:`.scoring` (a scan with effects
-as range and intensity images, scored against a real frame).
+:mod:`.stages` (each effect after the geometry as a stage: its options, its
+flags, its transform), :mod:`.simulate` (the geometry, then the stages in
+order) and :mod:`.scoring` (a scan with effects as range and intensity images,
+scored against a real frame).
 """
 
 from .motion import deskew, pose

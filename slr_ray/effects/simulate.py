@@ -25,17 +25,16 @@ from dataclasses import dataclass, field
 import numpy as np
 
 from ..arrays import as_origin
-from ..backends import prepare
-from ..backends.embree import estimate_normals, refuse_cast
+from ..backends import BackendOptions, Scanner, prepare, require_rays
+from ..backends.embree import refuse_cast
 from ..errors import InputValueError
 from ..io import PointCloud
 from ..pattern import as_pattern, pulse_rays
 from ..scan import Scan
 from . import motion as _motion
-from .intensity import corrected_intensity
-from .noise import add_range_noise, reflectivity_max_range
 from .options import Effects
 from .returns import footprint_samples, group_returns, select_returns, subray_directions
+from .stages import STAGES, Context, Returns
 
 __all__ = ["cast_rays", "EffectScan", "simulate", "simulate_given", "effect_cloud"]
 
@@ -175,8 +174,9 @@ def _cast_returns(scanner, origin, pattern, eff: Effects, poses, intensity):
     return {k: v[inside] for k, v in out.items()}
 
 
-def _binning_motion(scanner, pattern, eff: Effects, poses):
-    """Binning with motion: the cloud seen from each sector's pose, one binning scan per sector."""
+def _sector_scans(scanner, pattern, eff: Effects, poses):
+    """Motion on a scanner that casts no rays (binning): the cloud seen from each sector's pose, one scan
+    per sector by the scanner's own backend and options."""
     nh = pattern.shape[1]
     starts, stops, times = _motion.column_sectors(nh, eff.motion_sectors or 72, eff.sweep_start_deg,
                                                    eff.sweep_clockwise)
@@ -184,7 +184,7 @@ def _binning_motion(scanner, pattern, eff: Effects, poses):
     parts = []
     for a, b, rot, o in zip(starts, stops, rots, origins):
         local = (scanner.points - o) @ rot  # the sensor frame of this sector's pose
-        sc = prepare(local, "binning").scan(np.zeros(3), pattern)
+        sc = prepare(local, scanner.backend, scanner.options).scan(np.zeros(3), pattern)
         mine = (sc.pulses[:, 1] >= a) & (sc.pulses[:, 1] < b)
         idx = sc.indices[mine]
         r = sc.ranges[mine]
@@ -215,7 +215,8 @@ def simulate(scanner, origin, pattern, effects=None, *, intensity=None, normals=
     ----------
     scanner : Scanner
         ``slr_ray.prepare(points, backend)``; divergence and per-column motion
-        need the embree backend (``scanner.cast``).
+        need a scanner that casts rays (``scanner.casts_rays``: embree); motion
+        on one that does not scans each sector of columns from its own pose.
     origin : (3,) float or None
         Scanner position (with ``poses``: None; the result's ``origin`` is then
         the end pose's).
@@ -250,10 +251,8 @@ def simulate(scanner, origin, pattern, effects=None, *, intensity=None, normals=
         origin = poses[-1][:3, 3].copy()  # the sensor at the end of the sweep
     else:
         origin = as_origin(origin)
-    embree = scanner.backend == "embree"
-    if eff.divergence_mrad and not embree:
-        raise InputValueError("beam divergence needs the embree backend: binning keeps one point per pulse bin "
-                              "and has no footprint beyond it (docs/effects.md)")
+    if eff.divergence_mrad:
+        require_rays(scanner, "beam divergence (divergence_mrad)")
     secs = {}
     t0 = time.perf_counter()
     ideal = None
@@ -265,103 +264,53 @@ def simulate(scanner, origin, pattern, effects=None, *, intensity=None, normals=
         g = {"v": ideal.pulses[:, 0], "h": ideal.pulses[:, 1], "range": ideal.ranges.copy(), "index": idx,
              "dir": d / np.maximum(ideal.ranges, 1e-300)[:, None], "fire": np.broadcast_to(origin, (m, 3)),
              "share": np.ones(m), "return_number": np.ones(m, np.int64), "number_of_returns": np.ones(m, np.int64)}
-    elif embree:
+    elif scanner.casts_rays:
         g = _cast_returns(scanner, origin, pattern, eff, poses, intensity)
     else:
-        g = _binning_motion(scanner, pattern, eff, poses)
+        g = _sector_scans(scanner, pattern, eff, poses)
     if poses is None:
         order = np.lexsort((g["return_number"], g["h"], g["v"]))
         g = {k: v[order] for k, v in g.items()}
+    r = Returns.from_columns(g)
     secs["geometry"] = time.perf_counter() - t0
-    info = {"returns_geometry": int(len(g["v"]))}
+    info = {"returns_geometry": int(len(r))}
     drop_rng, noise_rng = (np.random.default_rng(s) for s in np.random.SeedSequence(eff.seed).spawn(2))
-
-    def incidence_cos(rows):
-        nonlocal normals
-        if normals is None:
-            own = getattr(scanner, "normals", None)
-            normals = (np.asarray(own, np.float64) if own is not None
-                       else estimate_normals(scanner.points, k=10, primary_origin=origin))
-        nrm = normals[g["index"][rows]]
-        return np.abs(np.einsum("ij,ij->i", nrm, g["dir"][rows])) / np.linalg.norm(nrm, axis=1)
-
-    def keep(mask, what):
-        nonlocal g
-        info[f"removed_{what}"] = int(np.count_nonzero(~mask))
-        g = {k: v[mask] for k, v in g.items()}
-
-    if eff.ray_drop is not None:
-        t0 = time.perf_counter()
-        key = g["v"] * pattern.shape[1] + g["h"]  # the returns of a pulse are contiguous
-        first = np.flatnonzero(np.r_[True, key[1:] != key[:-1]])
-        inc = np.degrees(np.arccos(np.clip(incidence_cos(first), 0.0, 1.0)))
-        i_first = None if intensity is None else intensity[g["index"][first]]
-        dropped = eff.ray_drop.sample(g["range"][first], inc, i_first if eff.ray_drop.uses_intensity else None,
-                                      rng=drop_rng)
-        pulse_dropped = np.repeat(dropped, np.diff(np.r_[first, len(key)]))
-        keep(~pulse_dropped, "ray_drop")
-        secs["ray_drop"] = time.perf_counter() - t0
-    if eff.min_range is not None or (eff.max_range_at is not None and intensity is not None):
-        t0 = time.perf_counter()
-        ok = np.ones(len(g["v"]), bool)
-        if eff.min_range is not None:
-            ok &= g["range"] >= eff.min_range
-        if eff.max_range_at is not None and intensity is not None:
-            rho = intensity[g["index"]] / eff.reflectivity_scale * g["share"]
-            ok &= g["range"] <= reflectivity_max_range(rho, *eff.max_range_at)
-        keep(ok, "range_limits")
-        secs["range_limits"] = time.perf_counter() - t0
-    if eff.max_range_at is not None and intensity is None:
-        info["max_range_at"] = "not applied: the cloud has no intensity"
-    if eff.range_noise:
-        t0 = time.perf_counter()
-        g["range"] = add_range_noise(g["range"], eff.range_noise, eff.range_noise_slope, noise_rng)
-        secs["range_noise"] = time.perf_counter() - t0
-    out_intensity = None
-    if intensity is not None and (eff.intensity is not None or eff.divergence_mrad):
-        t0 = time.perf_counter()
-        i0 = intensity[g["index"]]
-        if eff.intensity == "correct":
-            if primary_origin is None:
-                raise InputValueError("intensity='correct' needs primary_origin (where the cloud was scanned from)")
-            po = as_origin(primary_origin, "primary_origin")
-            all_rows = np.arange(len(g["v"]))
-            cos_new = incidence_cos(all_rows)
-            d0 = scanner.points[g["index"]] - po
-            r0 = np.linalg.norm(d0, axis=1)
-            nrm = normals[g["index"]]
-            cos_old = np.abs(np.einsum("ij,ij->i", nrm, d0)) / np.maximum(r0 * np.linalg.norm(nrm, axis=1), 1e-300)
-            i0 = corrected_intensity(i0, g["range"], r0, cos_new, cos_old, ceiling=intensity.max(initial=0.0))
-        out_intensity = i0 * g["share"]
-        secs["intensity"] = time.perf_counter() - t0
-    pts = g["fire"] + g["dir"] * g["range"][:, None]
+    ctx = Context(effects=eff, scanner=scanner, pattern=pattern, origin=origin, intensity=intensity,
+                  normals=normals, primary_origin=primary_origin, rng={"drop": drop_rng, "noise": noise_rng},
+                  info=info)
+    for stage in STAGES:
+        if stage.on(ctx):
+            t0 = time.perf_counter()
+            r = stage.apply(r, ctx)
+            secs[stage.name] = time.perf_counter() - t0
+    pts = r.fire + r.dir * r.range[:, None]
     frame = "world"
     if poses is not None and eff.motion_frame == "firing":
-        sectors = eff.motion_sectors or (pattern.shape[1] if embree else 72)
-        pts = _motion.to_firing_frames(pts, g["h"], pattern.shape[1], poses, sectors, eff.sweep_start_deg,
+        sectors = eff.motion_sectors or (pattern.shape[1] if scanner.casts_rays else 72)
+        pts = _motion.to_firing_frames(pts, r.h, pattern.shape[1], poses, sectors, eff.sweep_start_deg,
                                        eff.sweep_clockwise)
         frame = "firing"
     elif poses is not None:
         pts = _motion.to_frame(pts, poses[-1])
         frame = "sensor-end"
-    if ideal is not None and len(g["v"]) == len(ideal.indices) and not eff.range_noise:
-        pts = scanner.points[g["index"]]  # exactly the ideal scan's points (no rounding through the range)
+    if ideal is not None and len(r) == len(ideal.indices) and not eff.range_noise:
+        pts = scanner.points[r.index]  # exactly the ideal scan's points (no rounding through the range)
     info.update(seconds={k: round(v, 6) for k, v in secs.items()}, effects=eff.to_dict(), backend=scanner.backend)
-    return EffectScan(points=np.ascontiguousarray(pts), indices=g["index"].astype(np.intp), ranges=g["range"],
-                      pulses=np.column_stack([g["v"], g["h"]]).astype(np.int64),
-                      return_number=g["return_number"].astype(np.int64),
-                      number_of_returns=g["number_of_returns"].astype(np.int64), share=g["share"],
-                      intensity=out_intensity, origin=origin, pattern=pattern, frame=frame, ideal=ideal, info=info)
+    return EffectScan(points=np.ascontiguousarray(pts), indices=r.index.astype(np.intp), ranges=r.range,
+                      pulses=np.column_stack([r.v, r.h]).astype(np.int64),
+                      return_number=r.return_number.astype(np.int64),
+                      number_of_returns=r.number_of_returns.astype(np.int64), share=r.share,
+                      intensity=r.intensity, origin=origin, pattern=pattern, frame=frame, ideal=ideal, info=info)
 
 
-class _GivenScan:
-    """A scan made elsewhere, as the scanner :func:`simulate` starts from."""
+class _GivenScan(Scanner):
+    """A scan made elsewhere, as the scanner :func:`simulate` starts from (no
+    capabilities: it casts no rays, holds no normals)."""
 
     backend = "given"
-    normals = None
 
     def __init__(self, points, scan: Scan):
-        self.points = points
+        super().__init__(points, BackendOptions())
         self._scan = scan
 
     def scan(self, origin, pattern) -> Scan:

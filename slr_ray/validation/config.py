@@ -6,7 +6,7 @@ from dataclasses import dataclass, field, fields
 from pathlib import Path
 
 from .. import paper
-from ..backends import Backend, options_for
+from ..backends import BACKENDS, Backend, options_for, scanner_class
 from ..errors import InputValueError, refuse_memory
 from ..meshscan import MESH_MODES
 from ..scenes import SCENES_DIR, load_toml_spec, scene_effects
@@ -19,7 +19,10 @@ TRUTHS = ("center", "nearest")
 PRIMARY_SEMANTICS = ("dense", "center")
 assert set(TRUTHS) | set(PRIMARY_SEMANTICS) <= set(MESH_MODES)
 
-_BACKENDS = tuple(b.value for b in Backend)
+
+def _backends() -> tuple:
+    """The registered backends' names (a backend registered later is one too)."""
+    return tuple(str(b) for b in BACKENDS)
 
 
 @dataclass
@@ -70,8 +73,8 @@ class ValidationConfig:
             raise InputValueError(f"primary_semantics must be one of {PRIMARY_SEMANTICS}, "
                                   f"got {self.primary_semantics!r}")
         for b in self.backends:
-            if b not in _BACKENDS:
-                raise InputValueError(f"unknown backend {b!r} in config; choose from {_BACKENDS}")
+            if b not in _backends():
+                raise InputValueError(f"unknown backend {b!r} in config; choose from {_backends()}")
         for t in self.truths:
             if t not in TRUTHS:
                 raise InputValueError(f"unknown truth semantics {t!r} in config; choose from {TRUTHS}")
@@ -86,8 +89,8 @@ class ValidationConfig:
         for entry in self.scenes:
             spec, res = self.scene_entry(entry)
             for b in self.scene_backends(entry):
-                if b not in _BACKENDS:
-                    raise InputValueError(f"unknown backend {b!r} for scene {spec!r}; choose from {_BACKENDS}")
+                if b not in _backends():
+                    raise InputValueError(f"unknown backend {b!r} for scene {spec!r}; choose from {_backends()}")
             if not res or any(not (float(r) > 0) for r in res):
                 raise InputValueError(f"scene {spec!r}: primary_resolutions must be positive numbers")
             if _requires_effects(spec):
@@ -98,6 +101,11 @@ class ValidationConfig:
         refuse_memory(1024.0 * rows, f"a validation of {self.positions:,} positions ({rows:,} rows, about 1 KB a "
                       "row: its plan and results)", "fewer positions")
         return self
+
+    @property
+    def backend_options(self) -> dict:
+        """``{backend: options from this config}`` (``embree_options``), beside what each is told of the primary."""
+        return {Backend.EMBREE: self.embree_options}
 
     def scene_entry(self, entry) -> tuple[str, list]:
         """``(spec, primary resolutions)`` of one ``scenes`` entry."""
@@ -123,7 +131,7 @@ class ValidationConfig:
         emb_res = self.embree_primary_resolutions
         return [(b, t) for b in (self.backends if backends is None else backends) for t in self.truths
                 if (t != "nearest" or position % self.nearest_every == 0)
-                and (b != Backend.EMBREE or (position % self.embree_every == 0
+                and (not scanner_class(b).costly_prepare or (position % self.embree_every == 0
                                        and (emb_res is None or float(resolution) in map(float, emb_res))))]
 
 

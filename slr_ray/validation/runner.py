@@ -18,7 +18,7 @@ from pathlib import Path
 
 import numpy as np
 
-from ..backends import Backend, prepare
+from ..backends import Backend, prepare, scanner_class
 from ..io import atomic_path
 from ..meshscan import scan_mesh
 from ..outputs import OutputPlan
@@ -216,7 +216,7 @@ def _run_scene(config, p: ScenePlan, out: Path, done, results, stages, bar) -> i
         ground = None  # only the positions need it (1 B a point through the pairs otherwise)
         if wanted_here:
             # only when embree rows remain to be made (a resumed run whose discs are done does not spill)
-            if any(b == Backend.EMBREE and row_key(p.spec, res, i, b, t) not in done
+            if any(scanner_class(b).costly_prepare and row_key(p.spec, res, i, b, t) not in done
                    for i in range(len(positions)) for b, t in config.wanted(res, i, p.backends)):
                 t0 = time.perf_counter()
                 spilled = spill_primary(primary, out, EMBREE_BYTES_PER_POINT)
@@ -251,16 +251,14 @@ def _pairs(config, p: ScenePlan, scene, res, primary, positions, secondary, trut
     def scanner(backend):
         if backend not in scanners:
             t0 = time.perf_counter()
-            options = None
-            if backend == Backend.EMBREE:
-                # the primary was scanned from the origin at ``res``: footprint radii,
-                # pulse-grid neighbours and degenerate normals use that
-                options = {"primary_origin": [0.0, 0.0, 0.0], "primary_resolution": res,
-                           **config.embree_options}
+            # the primary was scanned from the origin at ``res``: footprint radii,
+            # pulse-grid neighbours and degenerate normals use that
+            options = {**scanner_class(backend).primary_options([0.0, 0.0, 0.0], res),
+                       **config.backend_options.get(backend, {})} or None
             scanners[backend] = prepare(primary, backend, options)
             scanners[backend].release_mapped = True  # a spilled primary's pages: not kept beside the discs
-            if backend == Backend.EMBREE:
-                stages.add(p.spec, res, "embree discs", time.perf_counter() - t0, len(primary))
+            if scanner_class(backend).costly_prepare:
+                stages.add(p.spec, res, f"{backend} discs", time.perf_counter() - t0, len(primary))
             else:
                 spent[part(backend)] += time.perf_counter() - t0
         return scanners[backend]

@@ -53,6 +53,14 @@ class DiscScanner(Scanner):
     """
 
     backend = Backend.EMBREE
+    casts_rays = costly_prepare = True  # capabilities (slr_ray.backends.base.Scanner)
+
+    @classmethod
+    def primary_options(cls, origin, primary, fast: bool = False) -> dict:
+        """The primary's origin and resolution or pattern; ``fast``: footprint discs facing it (no neighbours)."""
+        key = "primary_resolution" if isinstance(primary, (int, float)) else "primary_pattern"
+        return {**({"radius": "footprint", "orientation": "primary"} if fast else {}),
+                "primary_origin": origin, key: primary}
 
     def __init__(self, points, options: EmbreeOptions | None = None):
         t0 = time.perf_counter()

@@ -1,0 +1,242 @@
+"""The effects after the geometry as stages: each a small object that owns its
+options (fields of :class:`~slr_ray.effects.Effects`), its command-line flags,
+and one method that transforms the scan's returns.
+
+:func:`~slr_ray.effects.simulate` makes the geometry (the ideal scan, or rays
+cast for divergence and motion), then runs :data:`STAGES` in their order, each
+one that is on; the command line's effect flags and their help are generated
+from the stages' :class:`Flag` s (:data:`EFFECT_FLAGS`). A new effect is a
+:class:`Stage` subclass in its own module and one line in :data:`STAGES`.
+"""
+
+from __future__ import annotations
+
+import dataclasses
+from dataclasses import dataclass
+from typing import NamedTuple
+
+import numpy as np
+
+from ..arrays import as_origin
+from ..backends.embree import estimate_normals
+from ..errors import InputValueError
+from .intensity import corrected_intensity
+from .noise import add_range_noise, reflectivity_max_range
+from .options import INTENSITY_MODES, RETURN_KINDS, Effects
+
+__all__ = ["Returns", "Flag", "Stage", "Context", "Geometry", "RayDrop", "RangeLimits", "RangeNoise", "Intensity",
+           "GEOMETRY", "STAGES", "SEED_FLAG", "FLAGS", "EFFECT_FLAGS"]
+
+
+@dataclass
+class Returns:
+    """The returns of a scan as they pass through the stages: one row per return,
+    in pulse order (the returns of a pulse contiguous)."""
+
+    v: np.ndarray
+    h: np.ndarray
+    range: np.ndarray
+    index: np.ndarray
+    dir: np.ndarray
+    fire: np.ndarray
+    share: np.ndarray
+    return_number: np.ndarray
+    number_of_returns: np.ndarray
+    intensity: np.ndarray | None = None
+
+    @classmethod
+    def from_columns(cls, columns: dict) -> "Returns":
+        """From the geometry's columns (extra ones, as ``strength``, are left out)."""
+        return cls(**{f.name: columns[f.name] for f in dataclasses.fields(cls) if f.name in columns})
+
+    def __len__(self) -> int:
+        return len(self.v)
+
+    def take(self, rows) -> "Returns":
+        """The returns at ``rows`` (a mask or indices)."""
+        return Returns(**{f.name: None if getattr(self, f.name) is None else getattr(self, f.name)[rows]
+                          for f in dataclasses.fields(self)})
+
+
+class Flag(NamedTuple):
+    """A command-line flag of one :class:`~slr_ray.effects.Effects` field.
+
+    ``kind``: ``'number-or-sensor'``, ``'int'`` or ``'text'``; ``choices`` and
+    ``nargs`` as argparse's."""
+
+    field: str
+    flag: str
+    metavar: str | None
+    help: str
+    kind: str = "text"
+    choices: tuple | None = None
+    nargs: str | None = None
+
+
+@dataclass
+class Context:
+    """What the stages read beside the returns (the scan's settings, resolved once)."""
+
+    effects: Effects
+    scanner: object
+    pattern: object
+    origin: np.ndarray
+    intensity: np.ndarray | None
+    normals: np.ndarray | None
+    primary_origin: object
+    rng: dict
+    info: dict
+
+    def incidence_cos(self, r: Returns, rows) -> np.ndarray:
+        """|cos| of each return's incidence on its point's normal (the given normals,
+        the scanner's own, or estimated once)."""
+        if self.normals is None:
+            own = self.scanner.normals
+            self.normals = (np.asarray(own, np.float64) if own is not None
+                            else estimate_normals(self.scanner.points, k=10, primary_origin=self.origin))
+        nrm = self.normals[r.index[rows]]
+        return np.abs(np.einsum("ij,ij->i", nrm, r.dir[rows])) / np.linalg.norm(nrm, axis=1)
+
+    def keep(self, r: Returns, mask, what: str) -> Returns:
+        """The returns of ``mask``; the number removed goes to ``info`` as ``removed_{what}``."""
+        self.info[f"removed_{what}"] = int(np.count_nonzero(~mask))
+        return r.take(mask)
+
+
+class Stage:
+    """One effect after the geometry: its options (``fields``), its flags, and
+    :meth:`apply`. ``name`` keys its seconds in the result's ``info``."""
+
+    name: str = ""
+    #: the Effects fields it owns
+    fields: tuple = ()
+    #: its command-line flags (the rest of its fields through --effects FILE)
+    flags: tuple = ()
+
+    def on(self, ctx: Context) -> bool:
+        """Whether the stage runs with these effects."""
+        raise NotImplementedError
+
+    def apply(self, r: Returns, ctx: Context) -> Returns:
+        """The returns after this effect."""
+        raise NotImplementedError
+
+
+class RayDrop(Stage):
+    """One draw per pulse, from its first return's range, incidence and intensity
+    (:mod:`.raydrop`); a dropped pulse loses all its returns."""
+
+    name = "ray_drop"
+    fields = ("ray_drop",)
+    flags = (Flag("ray_drop", "--ray-drop", "MODEL", "a ray-drop model (JSON of 'slr-ray effects fit-drop')"),)
+
+    def on(self, ctx):
+        return ctx.effects.ray_drop is not None
+
+    def apply(self, r, ctx):
+        model = ctx.effects.ray_drop
+        key = r.v * ctx.pattern.shape[1] + r.h  # the returns of a pulse are contiguous
+        first = np.flatnonzero(np.r_[True, key[1:] != key[:-1]])
+        inc = np.degrees(np.arccos(np.clip(ctx.incidence_cos(r, first), 0.0, 1.0)))
+        i_first = None if ctx.intensity is None else ctx.intensity[r.index[first]]
+        dropped = model.sample(r.range[first], inc, i_first if model.uses_intensity else None, rng=ctx.rng["drop"])
+        return ctx.keep(r, ~np.repeat(dropped, np.diff(np.r_[first, len(key)])), "ray_drop")
+
+
+class RangeLimits(Stage):
+    """The blind zone and the maximum range of each return's reflectivity (:mod:`.noise`)."""
+
+    name = "range_limits"
+    fields = ("min_range", "max_range_at", "reflectivity_scale")
+
+    def on(self, ctx):
+        eff = ctx.effects
+        if eff.max_range_at is not None and ctx.intensity is None:
+            ctx.info["max_range_at"] = "not applied: the cloud has no intensity"
+        return eff.min_range is not None or (eff.max_range_at is not None and ctx.intensity is not None)
+
+    def apply(self, r, ctx):
+        eff = ctx.effects
+        ok = np.ones(len(r), bool)
+        if eff.min_range is not None:
+            ok &= r.range >= eff.min_range
+        if eff.max_range_at is not None and ctx.intensity is not None:
+            rho = ctx.intensity[r.index] / eff.reflectivity_scale * r.share
+            ok &= r.range <= reflectivity_max_range(rho, *eff.max_range_at)
+        return ctx.keep(r, ok, "range_limits")
+
+
+class RangeNoise(Stage):
+    """Gaussian noise along each return's ray, sigma growing with range (:mod:`.noise`)."""
+
+    name = "range_noise"
+    fields = ("range_noise", "range_noise_slope")
+    flags = (Flag("range_noise", "--range-noise", "SIGMA", "Gaussian range noise (m), or 'sensor'",
+                  "number-or-sensor"),)
+
+    def on(self, ctx):
+        return bool(ctx.effects.range_noise)
+
+    def apply(self, r, ctx):
+        r.range = add_range_noise(r.range, ctx.effects.range_noise, ctx.effects.range_noise_slope, ctx.rng["noise"])
+        return r
+
+
+class Intensity(Stage):
+    """Intensity carried or corrected for the new range and incidence (:mod:`.intensity`),
+    times each return's share of its footprint (``Returns.intensity``)."""
+
+    name = "intensity"
+    fields = ("intensity",)
+    flags = (Flag("intensity", "--intensity", None, "the input's intensity carried, or corrected",
+                  choices=INTENSITY_MODES),)
+
+    def on(self, ctx):
+        return ctx.intensity is not None and (ctx.effects.intensity is not None or bool(ctx.effects.divergence_mrad))
+
+    def apply(self, r, ctx):
+        i0 = ctx.intensity[r.index]
+        if ctx.effects.intensity == "correct":
+            if ctx.primary_origin is None:
+                raise InputValueError("intensity='correct' needs primary_origin (where the cloud was scanned from)")
+            po = as_origin(ctx.primary_origin, "primary_origin")
+            cos_new = ctx.incidence_cos(r, np.arange(len(r)))
+            d0 = ctx.scanner.points[r.index] - po
+            r0 = np.linalg.norm(d0, axis=1)
+            nrm = ctx.normals[r.index]
+            cos_old = np.abs(np.einsum("ij,ij->i", nrm, d0)) / np.maximum(r0 * np.linalg.norm(nrm, axis=1), 1e-300)
+            i0 = corrected_intensity(i0, r.range, r0, cos_new, cos_old, ceiling=ctx.intensity.max(initial=0.0))
+        r.intensity = i0 * r.share
+        return r
+
+
+class Geometry(Stage):
+    """The returns themselves: the ideal scan, or with beam divergence or motion rays
+    cast by :func:`~slr_ray.effects.simulate` (sub-rays of each pulse's cone,
+    :mod:`.returns`; each column from its own pose, :mod:`.motion`). Made first, by
+    ``simulate`` (it needs the scanner and the poses); listed for its options and flags."""
+
+    name = "geometry"
+    fields = ("divergence_mrad", "beam_rings", "returns", "return_separation", "min_share", "motion",
+              "motion_sectors", "sweep_start_deg", "sweep_clockwise", "motion_frame")
+    flags = (
+        Flag("divergence_mrad", "--divergence-mrad", "MRAD", "beam divergence (mrad) or 'sensor' (--backend embree)",
+             "number-or-sensor"),
+        Flag("returns", "--returns", "KIND", f"returns a pulse reports with divergence: {', '.join(RETURN_KINDS)} "
+             "(default first strongest last)", choices=RETURN_KINDS, nargs="+"),
+    )
+
+    def on(self, ctx):
+        return True
+
+
+#: The geometry, made first by :func:`~slr_ray.effects.simulate`.
+GEOMETRY = Geometry()
+#: The stages after the geometry, in the order :func:`~slr_ray.effects.simulate` runs them.
+STAGES: tuple[Stage, ...] = (RayDrop(), RangeLimits(), RangeNoise(), Intensity())
+#: The seed of every random draw: no stage's own.
+SEED_FLAG = Flag("seed", "--effects-seed", "N", "seed of noise and drop (default 0)", "int")
+#: Every effect flag, in the order ``--help`` lists them (generated from the stages).
+FLAGS: tuple[Flag, ...] = (*(f for stage in (GEOMETRY, *STAGES) for f in stage.flags), SEED_FLAG)
+#: Effects fields with a flag of their own: field -> flag (the rest through --effects FILE).
+EFFECT_FLAGS = {f.field: f.flag for f in FLAGS}
