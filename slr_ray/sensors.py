@@ -56,7 +56,7 @@ import numpy as np
 import yaml
 
 from .arrays import as_origin
-from .core.beams import beam_keys, beam_keys_given, beam_reduce
+from .core.beams import beam_keys, beam_keys_given, beam_reduce, beam_reduce_serial
 from .core.protocol import Pattern
 from .errors import FormatError, InputValueError, SlrError
 from .threads import default_threads
@@ -283,8 +283,12 @@ class BeamPattern(Pattern):
         best_r = np.full((t, self.n_pulses), np.inf)
         best_i = np.full((t, self.n_pulses), -1, np.int64)
         rmin, rmax = self.range_limits
-        beam_reduce(pts, o[0], o[1], o[2], self._cos_edges, self.row_offsets, self.columns, rmin, rmax,
-                     best_r, best_i)
+        if t == 1:  # no parallel region for one thread's share (beam_reduce_serial: its cost)
+            beam_reduce_serial(pts, o[0], o[1], o[2], self._cos_edges, self.row_offsets, self.columns, rmin, rmax,
+                               best_r[0], best_i[0])
+        else:
+            beam_reduce(pts, o[0], o[1], o[2], self._cos_edges, self.row_offsets, self.columns, rmin, rmax,
+                        best_r, best_i)
         r, i = best_r[0], best_i[0]
         for j in range(1, t):
             better = (best_r[j] < r) | ((best_r[j] == r) & (best_i[j] >= 0) & ((i < 0) | (best_i[j] < i)))
