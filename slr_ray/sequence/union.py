@@ -160,10 +160,17 @@ def nearest_of_frames(seq: Sequence, frames, pose, pattern, drop_moving: bool = 
     The same returns as ``estimate(to_frame(accumulate(...).points, pose), pattern)``, without the
     union in memory. Returns them and the attributes carried (every frame's), by return."""
     cache = cache or FrameCache(seq, len(frames))
+    posed = getattr(pattern, "reduce_posed", None)  # a beam table's (slr_ray.sensors.BeamPattern)
     parts, attrs, offset = [], [], 0
     for i in frames:
         w, a = cache.kept(int(i), drop_moving)
-        ret = estimate(to_frame(w, pose), pattern, "nearest")
+        if posed is not None:  # each point moved in the kernel: no moved copy of the frame
+            keys, ranges, idx = posed(w, pose)
+            order = np.argsort(keys, kind="stable")
+            keys, ranges, idx = keys[order], ranges[order], idx[order]
+            ret = PulseReturns(keys, ranges, to_frame(w[idx], pose), idx)
+        else:
+            ret = estimate(to_frame(w, pose), pattern, "nearest")
         parts.append(PulseReturns(ret.keys, ret.ranges, ret.points, ret.index + offset))
         attrs.append({n: v[ret.index] for n, v in a.items()})
         offset += len(w)
