@@ -8,6 +8,7 @@ start included: on a shared machine, CPU seconds / workers is what 2 free cores 
 writes benchmarks/results/bench_sequence.json.
 
     python benchmarks/bench_sequence.py [--frames 100] [--half 30] [--workers 2] [--runs 3] [--drive DIR]
+                                        [--estimator nearest]  (another: saved as bench_sequence_NAME.json)
 """
 
 from __future__ import annotations
@@ -35,6 +36,7 @@ def main() -> None:
     ap.add_argument("--workers", type=int, default=2)
     ap.add_argument("--runs", type=int, default=3)
     ap.add_argument("--drive", help="an existing drive (KITTI layout) instead of making one")
+    ap.add_argument("--estimator", default="nearest", help="convert's --estimator (default nearest)")
     a = ap.parse_args()
     env = dict(os.environ, PYTHONPATH=str(Path(__file__).resolve().parents[1]))
     with tempfile.TemporaryDirectory() as tmp:
@@ -46,7 +48,8 @@ def main() -> None:
         runs = []
         for k in range(a.runs):
             cmd = [sys.executable, "-m", "slr_ray.cli", "sequence", "convert", str(drive),
-                   "--sensor", "velodyne_vlp16", "--half", str(a.half), "--workers", str(a.workers),
+                   "--sensor", "velodyne_vlp16", "--estimator", a.estimator, "--half", str(a.half),
+                   "--workers", str(a.workers),
                    "-o", str(Path(tmp) / f"out{k}"), "--quiet"]
             t0, ru0 = time.perf_counter(), resource.getrusage(resource.RUSAGE_CHILDREN)
             res = subprocess.run(cmd, capture_output=True, text=True, env=env)
@@ -60,13 +63,13 @@ def main() -> None:
                          "load_average": os.getloadavg()[0], "points": doc["points"]})
             print(runs[-1], flush=True)
     peak = resource.getrusage(resource.RUSAGE_CHILDREN).ru_maxrss / 2**20  # KiB -> GiB
-    out = {"machine": machine(), "frames": a.frames, "half": a.half, "workers": a.workers,
+    out = {"machine": machine(), "frames": a.frames, "half": a.half, "workers": a.workers, "estimator": a.estimator,
            "drive_seconds": round(made, 1), "runs": runs,
            "median_seconds_per_frame": statistics.median(r["seconds_per_frame"] for r in runs),
            "median_cpu_seconds_per_frame": statistics.median(r["cpu_seconds_per_frame"] for r in runs),
            "largest_process_peak_gib": round(peak, 3)}
     print(json.dumps({k: v for k, v in out.items() if k != "machine"}))
-    save("bench_sequence", out)
+    save("bench_sequence" if a.estimator == "nearest" else f"bench_sequence_{a.estimator}", out)
 
 
 if __name__ == "__main__":

@@ -56,7 +56,7 @@ import numpy as np
 import yaml
 
 from .arrays import as_origin, as_points
-from .core.beams import beam_keys, beam_keys_given, beam_reduce
+from .core.beams import beam_keys, beam_keys_given, beam_reduce, beam_reduce_posed, beam_reduce_serial
 from .core.protocol import Pattern
 from .errors import FormatError, InputValueError, SlrError
 from .threads import default_threads
@@ -283,8 +283,12 @@ class BeamPattern(Pattern):
         best_r = np.full((t, self.n_pulses), np.inf)
         best_i = np.full((t, self.n_pulses), -1, np.int64)
         rmin, rmax = self.range_limits
-        beam_reduce(pts, o[0], o[1], o[2], self._cos_edges, self.row_offsets, self.columns, rmin, rmax,
-                     best_r, best_i)
+        if t == 1:  # no parallel region for one thread's share (beam_reduce_serial: its cost)
+            beam_reduce_serial(pts, o[0], o[1], o[2], self._cos_edges, self.row_offsets, self.columns, rmin, rmax,
+                               best_r[0], best_i[0])
+        else:
+            beam_reduce(pts, o[0], o[1], o[2], self._cos_edges, self.row_offsets, self.columns, rmin, rmax,
+                        best_r, best_i)
         r, i = best_r[0], best_i[0]
         for j in range(1, t):
             better = (best_r[j] < r) | ((best_r[j] == r) & (best_i[j] >= 0) & ((i < 0) | (best_i[j] < i)))
@@ -292,6 +296,24 @@ class BeamPattern(Pattern):
             i = np.where(better, best_i[j], i)
         keys = np.flatnonzero(i >= 0)
         idx, ranges = i[keys], r[keys]
+        order = np.argsort(idx, kind="stable")
+        return keys[order], ranges[order], idx[order]
+
+    def reduce_posed(self, points, pose):
+        """:meth:`reduce` of world points ``points`` ((n, 3) float64) seen by the sensor at ``pose``
+        (4 x 4, the sensor's axes and origin in the world): the same returns as
+        ``reduce(slr_ray.sequence.union.to_frame(points, pose), zeros(3))``, one thread, each point
+        moved in the kernel (no moved copy). Returns ``(keys, ranges, indices)``, indices ascending."""
+        pts = np.ascontiguousarray(points, dtype=np.float64)
+        T = np.asarray(pose, dtype=np.float64)
+        rot = np.ascontiguousarray(T[:3, :3].T)
+        best_r = np.full(self.n_pulses, np.inf)
+        best_i = np.full(self.n_pulses, -1, np.int64)
+        rmin, rmax = self.range_limits
+        beam_reduce_posed(pts, rot, T[0, 3], T[1, 3], T[2, 3], self._cos_edges, self.row_offsets, self.columns,
+                          rmin, rmax, best_r, best_i)
+        keys = np.flatnonzero(best_i >= 0)
+        idx, ranges = best_i[keys], best_r[keys]
         order = np.argsort(idx, kind="stable")
         return keys[order], ranges[order], idx[order]
 

@@ -114,6 +114,7 @@ class FrameCache:
     def __init__(self, seq: Sequence, size: int = 64, local: bool = True):
         self.seq, self.size, self.local = seq, max(1, int(size)), local
         self._held: OrderedDict = OrderedDict()
+        self._kept: dict = {}
 
     def get(self, i: int) -> tuple[Frame, np.ndarray]:
         if i in self._held:
@@ -125,8 +126,24 @@ class FrameCache:
             f.points = np.zeros((0, 3))
         self._held[i] = item
         while len(self._held) > self.size:
-            self._held.popitem(last=False)
+            gone, _ = self._held.popitem(last=False)
+            self._kept.pop(gone, None)
         return item
+
+    def kept(self, i: int, drop_moving: bool) -> tuple[np.ndarray, dict]:
+        """Frame ``i``'s world points and 1-d attributes less its labelled moving points (with
+        ``drop_moving``), selected once while the frame is held: a window of 61 frames slid over
+        a drive selects each frame once, not 61 times."""
+        f, w = self.get(i)
+        held = self._kept.setdefault(i, {})
+        if drop_moving not in held:
+            keep = _kept(f, drop_moving)
+            a = {n: np.asarray(v) for n, v in f.attributes.items() if np.ndim(v) == 1}
+            if keep is not None and not keep.all():
+                w = w[keep]
+                a = {n: v[keep] for n, v in a.items()}
+            held[drop_moving] = (w, a)
+        return held[drop_moving]
 
 
 def _kept(f: Frame, drop_moving: bool):
@@ -143,15 +160,17 @@ def nearest_of_frames(seq: Sequence, frames, pose, pattern, drop_moving: bool = 
     The same returns as ``estimate(to_frame(accumulate(...).points, pose), pattern)``, without the
     union in memory. Returns them and the attributes carried (every frame's), by return."""
     cache = cache or FrameCache(seq, len(frames))
+    posed = getattr(pattern, "reduce_posed", None)  # a beam table's (slr_ray.sensors.BeamPattern)
     parts, attrs, offset = [], [], 0
     for i in frames:
-        f, w = cache.get(int(i))
-        keep = _kept(f, drop_moving)
-        a = {n: np.asarray(v) for n, v in f.attributes.items() if np.ndim(v) == 1}
-        if keep is not None:
-            w = w[keep]
-            a = {n: v[keep] for n, v in a.items()}
-        ret = estimate(to_frame(w, pose), pattern, "nearest")
+        w, a = cache.kept(int(i), drop_moving)
+        if posed is not None:  # each point moved in the kernel: no moved copy of the frame
+            keys, ranges, idx = posed(w, pose)
+            order = np.argsort(keys, kind="stable")
+            keys, ranges, idx = keys[order], ranges[order], idx[order]
+            ret = PulseReturns(keys, ranges, to_frame(w[idx], pose), idx)
+        else:
+            ret = estimate(to_frame(w, pose), pattern, "nearest")
         parts.append(PulseReturns(ret.keys, ret.ranges, ret.points, ret.index + offset))
         attrs.append({n: v[ret.index] for n, v in a.items()})
         offset += len(w)
