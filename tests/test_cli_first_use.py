@@ -179,12 +179,6 @@ def test_an_unknown_flag_is_named_with_the_command_that_refused_it(argv, command
     assert f"slr-ray {command} --help" in err[0]
 
 
-def test_an_unknown_command_is_one_plain_line(capsys):
-    assert main(["bogus"]) == 2
-    err = capsys.readouterr().err.strip()
-    assert err.startswith("slr-ray: error: argument command: invalid choice: 'bogus'") and "slr-ray: error: slr-ray" not in err
-
-
 def test_every_warning_reaches_the_terminal_as_one_line(tmp_path, capsys):
     # was: the library's UserWarnings (a format that loses names) in Python's form, file:line and source
     src = tmp_path / "c.npz"
