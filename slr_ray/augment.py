@@ -28,6 +28,7 @@ import os
 import re
 import signal
 import tempfile
+import threading
 import time
 import warnings
 from concurrent.futures import ThreadPoolExecutor
@@ -144,11 +145,22 @@ class _WorkerProcess(multiprocessing.context.SpawnProcess):
     sends a worker its start-up data, and arrive once it is sent."""
 
     def start(self):
+        # the mask holds for this thread only: a signal another thread (numba's, tqdm's) takes still runs
+        # the parent's Python handler in the main thread, which raised KeyboardInterrupt in the middle of
+        # sending the start-up data (the worker then printed EOFError). In the main thread the handlers
+        # are deferred too, and the signals said once the worker has all it needs.
+        deferred, handlers = [], {}
+        if threading.current_thread() is threading.main_thread():
+            handlers = {s: signal.signal(s, lambda signum, frame: deferred.append(signum)) for s in _STOP_SIGNALS}
         old = signal.pthread_sigmask(signal.SIG_BLOCK, _STOP_SIGNALS)
         try:
             super().start()
         finally:
             signal.pthread_sigmask(signal.SIG_SETMASK, old)
+            for s, h in handlers.items():
+                signal.signal(s, h)
+            for s in dict.fromkeys(deferred):
+                signal.raise_signal(s)
 
 
 class _WorkerContext(multiprocessing.context.SpawnContext):
