@@ -44,7 +44,7 @@ from .io import PointCloud, atomic_path, check_format, read_cloud, write_cloud
 from .outputs import OutputPlan, content_digest, label_destinations, link_new, output_sidecars, part_prefix
 from .paper import MIN_GROUND_POINTS, SCANNER_HEIGHT, SECONDARY_RESOLUTION
 from .pattern import ScanPattern, as_pattern
-from .positions import CLI_FLAGS, ground_labels, select_positions
+from .positions import ground_labels, require_positions, select_positions
 from .progress import bar as progress_bar
 from .streaming import STREAMED_FORMATS, las_positions, scan_las_many
 
@@ -552,11 +552,7 @@ def _augment(input_path, out, config, pattern, options, ext, names, ground, prog
                                             min_ground_points=config.min_ground_points,
                                             scanner_height=config.scanner_height,
                                             allow_fewer=config.allow_fewer, return_cells=True)
-    if config.n and not len(positions):  # allow_fewer is fewer, not none: nothing to write, an error
-        raise InputValueError(f"{input_path}: no scanner position found ("
-                              + ", ".join(f"{s['stage']} removed {s['removed']}" for s in cells.stages
-                                          if not s.get("skipped")) + "): lower min_ground_points, or check the ground",
-                              flags=CLI_FLAGS)
+    require_positions(positions, config.n, cells, input_path)  # allow_fewer is fewer, not none
     settings = {"input": str(input_path.resolve()), "input_bytes": input_path.stat().st_size,
                 "input_digest": content_digest(input_path), "seed": config.seed,
                 "pattern": pattern.to_dict(), "backend": backend, "backend_options": options.to_dict(),

@@ -158,6 +158,15 @@ def test_allow_fewer_accepts_fewer_with_a_warning_in_both_commands(labelled_ply,
     assert out.err.startswith("slr-ray: warning: 16 positions of the 20 asked: 16 candidate cells")
 
 
+def test_no_position_at_all_is_an_error_in_both_commands_even_with_allow_fewer(labelled_ply, tmp_path, capsys):
+    # was: positions exited 0 writing an empty list while augment refused
+    common = ["--n", "2", "--min-ground-points", "100000", "--allow-fewer"]
+    assert main(["positions", str(labelled_ply), *common, "-o", str(tmp_path / "p.json")]) == 2
+    assert "no scanner position found" in capsys.readouterr().err and not (tmp_path / "p.json").exists()
+    assert main(["augment", str(labelled_ply), *common, "--quiet", "-o", str(tmp_path / "aug")]) == 2
+    assert "no scanner position found" in capsys.readouterr().err
+
+
 def test_augments_effects_error_names_the_flags_typed(labelled_ply, tmp_path, capsys):
     assert main(["augment", str(labelled_ply), "--n", "2", "--min-ground-points", "500", "--intensity", "correct",
                  "--quiet", "-o", str(tmp_path / "aug")]) == 2

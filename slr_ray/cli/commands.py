@@ -33,7 +33,8 @@ from ..outputs import OutputPlan
 from ..paper import Q1_SCENES, Q2_SCENES
 from ..progress import phase
 from ..plotting import check_figure_path, cells_figure, comparison_figure, paper_figure, range_image_figure, save_figure, validation_figure
-from ..positions import AzimuthProfile, build_synthetic_profile, default_profile, ground_labels, select_positions
+from ..positions import (AzimuthProfile, build_synthetic_profile, default_profile, ground_labels, require_positions,
+                         select_positions)
 from ..scan import Scan, check_range_image
 from ..scenes import MESH_FORMATS, scene_effects, scene_from_spec
 from ..streaming import STREAMED_FORMATS, las_bounds, scan_las
@@ -359,6 +360,7 @@ def positions(args):
             ground_height_radius=args.ground_height_radius, scanner_height=args.scanner_height,
             profile=profile, allow_fewer=args.allow_fewer, return_cells=True,
             progress=profile is not None and not args.quiet)
+        require_positions(pos, args.n, cells, args.input)  # --allow-fewer is fewer, not none: as augment
         res = {"input": str(args.input), "n_requested": args.n, "seed": args.seed,
                "positions": pos.tolist(), "ground_points": int(is_ground.sum()), **cells.summary()}
         with atomic_path(args.output) as tmp:
