@@ -424,10 +424,12 @@ class AugmentConfig:
             raise InputValueError(f"n must be an integer >= 1, got {self.n!r}")
         heights = self.scan_heights
         if not heights or not all(np.isfinite(heights)) or min(heights) <= 0:
-            raise InputValueError(f"heights must be finite numbers > 0, got {list(heights)}")
+            raise InputValueError(f"heights must be finite numbers > 0, got {list(heights)}",
+                                  flags={"heights must": "--heights must"})
         repeated = sorted({h for h in heights if heights.count(h) > 1})
         if repeated:
-            raise InputValueError(f"heights repeat {repeated}: each height is one scan per position")
+            raise InputValueError(f"heights repeat {repeated}: each height is one scan per position",
+                                  flags={"heights repeat": "--heights repeats"})
         if not (np.isfinite(self.scanner_height) and self.scanner_height > 0):
             raise InputValueError(f"scanner_height must be a finite number > 0, got {self.scanner_height!r}")
         if self.chunk_size is not None and (int(self.chunk_size) != self.chunk_size or self.chunk_size < 1

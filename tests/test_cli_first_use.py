@@ -259,3 +259,19 @@ def test_keep_range_and_ring_go_with_a_range_image(labelled_ply, tmp_path, capsy
                  "--keep-ring", "--range-image", str(image), "--quiet", "-o", str(tmp_path / "s.ply")]) == 0
     with np.load(image) as z:
         assert {"range", "ring", "classification"} <= set(z.files) and z["ring"].ndim == 1  # columns: its own
+
+
+def test_an_input_attribute_the_range_image_keeps_is_refused_naming_the_flag(tmp_path, capsys):
+    # was: "attribute name 'ring' is taken by the range image", naming no flag
+    pts, cls = _cloud(200, 20)
+    write_cloud(tmp_path / "r.ply", PointCloud(pts, {"ring": np.zeros(len(pts), np.uint16)}))
+    assert main(["scan", str(tmp_path / "r.ply"), "--origin", "0", "0", "1", "--resolution", "8", "--range-image",
+                 str(tmp_path / "ri.npz"), "--quiet", "-o", str(tmp_path / "s.ply")]) == 2
+    err = capsys.readouterr().err
+    assert "'ring'" in err and "drop --range-image" in err and not (tmp_path / "s.ply").exists()
+
+
+def test_repeated_heights_name_the_flag(labelled_ply, tmp_path, capsys):
+    assert main(["augment", str(labelled_ply), "--n", "1", "--heights", "2", "2", "--quiet",
+                 "-o", str(tmp_path / "aug")]) == 2
+    assert "--heights repeats [2.0]" in capsys.readouterr().err

@@ -130,7 +130,7 @@ def scan(args):
             _check_returns(result, bounds)
         kept = _keep(args, sub, result)
         # the range image is made before anything is written: an error there leaves no scan behind
-        image = _range_image(sub, result, skip=kept) if args.range_image or args.png else None
+        image = _range_image(args, sub, result, skip=kept) if args.range_image or args.png else None
         t1 = time.perf_counter()
         write_cloud(args.output, sub, args.format)
         if image is not None:
@@ -176,12 +176,17 @@ def _keep(args, sub, result) -> set:
     return set(added)
 
 
-def _range_image(sub, result, skip=()) -> dict:
+def _range_image(args, sub, result, skip=()) -> dict:
     """The scan's range image with every 1-D attribute of ``sub`` (the scanned subset, in index order)
     but those in ``skip`` (--keep-range's and --keep-ring's: the image has its own range, ring and column)."""
     local = replace(result, indices=np.arange(len(result)))  # images of the subset's own rows
     attrs = {k: v for k, v in sub.attributes.items()
              if k not in skip and np.asarray(v).ndim == 1 and np.asarray(v).dtype.kind in "biuf"}
+    taken = sorted(set(attrs) & {"range", "ring", "index"})  # the image's own arrays
+    if taken:
+        flags = " and ".join(f for f, on in (("--range-image", args.range_image), ("--png", args.png)) if on)
+        raise InputValueError(f"{args.input} has its own attribute(s) {', '.join(map(repr, taken))}, names the range "
+                              f"image of {flags} keeps for its own arrays: rename them in the input, or drop {flags}")
     image = local.range_image(attrs)
     local_index = image["index"]
     image["index"] = np.full(local_index.shape, -1, dtype=np.asarray(result.indices).dtype)
