@@ -275,3 +275,35 @@ def test_repeated_heights_name_the_flag(labelled_ply, tmp_path, capsys):
     assert main(["augment", str(labelled_ply), "--n", "1", "--heights", "2", "2", "--quiet",
                  "-o", str(tmp_path / "aug")]) == 2
     assert "--heights repeats [2.0]" in capsys.readouterr().err
+
+
+# --- 6. augment's output directory ------------------------------------------------------------------------
+
+_AUG = ["--n", "1", "--min-ground-points", "500", "--resolution", "8", "--workers", "1", "--quiet"]
+
+
+def test_augment_into_a_directory_of_other_files_is_refused_naming_them_unless_force(labelled_ply, tmp_path,
+                                                                                      capsys):
+    # was: a fresh run scattered its scans and manifest among a user's unrelated files
+    out = tmp_path / "mine"
+    out.mkdir()
+    (out / "notes.txt").write_text("keep")
+    assert main(["augment", str(labelled_ply), *_AUG, "-o", str(out)]) == 2
+    err = capsys.readouterr().err
+    assert "notes.txt" in err and "--force" in err and sorted(p.name for p in out.iterdir()) == ["notes.txt"]
+    assert main(["augment", str(labelled_ply), *_AUG, "--force", "-o", str(out)]) == 0
+    assert (out / "notes.txt").read_text() == "keep" and (out / "manifest.json").exists()
+    assert main(["augment", str(labelled_ply), *_AUG, "-o", str(out)]) == 0  # a resume needs no --force
+    assert json.loads(capsys.readouterr().out.splitlines()[-1])["new_scans"] == 0
+
+
+def test_an_augment_rerun_with_other_settings_is_refused_before_csf(labelled_ply, tmp_path, capsys, monkeypatch):
+    # was: refused only after CSF had labelled the ground (minutes on an airborne tile)
+    assert main(["augment", str(labelled_ply), *_AUG, "-o", str(tmp_path / "aug")]) == 0
+
+    def no_csf(*a, **k):
+        raise AssertionError("CSF ran")
+
+    monkeypatch.setattr("slr_ray.positions.label_ground", no_csf)
+    assert main(["augment", str(labelled_ply), *_AUG, "--csf", "--seed", "1", "-o", str(tmp_path / "aug")]) == 2
+    assert "holds a run with other settings" in capsys.readouterr().err

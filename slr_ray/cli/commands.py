@@ -460,7 +460,7 @@ def augment(args):
     # the files its settings came from are inputs: no file of the run may be one of them
     reads = [getattr(args, f, None) for f in ("sensor_file", "profile_file", "effects", "ray_drop")]
     res = run_augment(args.input, args.output, config, ground=ground if args.csf or args.ground_attribute else None,
-                      progress=not args.quiet, reads=reads)
+                      progress=not args.quiet, reads=reads, force=args.force)
     emit({k: res[k] for k in ("input", "n_requested", "new_scans", "seconds", "software")}
          | {"scans": len(res["scans"]), "positions": len(res["positions"]),
             "points_out": sum(s["points"] for s in res["scans"]), "output_dir": str(args.output)})
