@@ -42,10 +42,10 @@ from .backends import options_for, prepare, require_rays, require_streamable, sc
 from .effects import Effects, effect_cloud, simulate
 from .errors import InputValueError, MissingDependencyError, OutputError, SlrError, refuse_memory
 from .io import PointCloud, atomic_path, check_format, read_cloud, write_cloud
-from .outputs import OutputPlan, content_digest, label_destinations, link_new, output_sidecars, part_prefix
+from .outputs import LOCK_NAME, OutputPlan, content_digest, label_destinations, link_new, output_sidecars, part_prefix
 from .paper import MIN_GROUND_POINTS, SCANNER_HEIGHT, SECONDARY_RESOLUTION
 from .pattern import ScanPattern, as_pattern
-from .positions import CLI_FLAGS, ground_labels, select_positions
+from .positions import ground_labels, require_positions, select_positions
 from .progress import bar as progress_bar
 from .streaming import STREAMED_FORMATS, las_positions, scan_las_many
 
@@ -84,16 +84,12 @@ def _differences(before: dict, now: dict, prefix: str = "") -> list:
     return out
 
 
-def _resumable(manifest_path: Path, settings: dict, positions, out: Path) -> dict:
-    """The scans of an earlier run into ``out`` that this run may keep.
-
-    A run resumes only one with the same settings (input, seed, pattern,
-    backend and options, ground threshold, format, effects) whose positions agree with
-    this run's as far as both go (a run for more positions extends one for
-    fewer; a run for fewer is refused, as its manifest could not describe the
-    scans already there). Anything else is refused with the differences named:
-    a rerun with other settings never mixes its scans with the old ones.
-    """
+def _same_settings(manifest_path: Path, settings: dict, out: Path) -> dict:
+    """The manifest of an earlier run into ``out``, refused unless its settings
+    are this run's (input, seed, pattern, backend and options, ground
+    threshold, format, effects): a rerun with other settings never mixes its
+    scans with the old ones. Checked before the long steps; the positions,
+    once drawn, by :func:`_resumable`."""
     try:
         old = json.loads(manifest_path.read_text())
     except ValueError:
@@ -105,17 +101,29 @@ def _resumable(manifest_path: Path, settings: dict, positions, out: Path) -> dic
         raise InputValueError(f"{manifest_path} was written by an older slr_ray without its settings: "
                               "write elsewhere (or remove the directory)")
     diff = _differences(before, settings)
+    if diff:
+        raise InputValueError(f"{out} holds a run with other settings ({'; '.join(diff)}): "
+                              "write elsewhere, or remove it to start again")
+    return old
+
+
+def _resumable(old: dict, positions, out: Path) -> dict:
+    """The scans of an earlier run into ``out`` (its manifest ``old``, of the
+    same settings: :func:`_same_settings`) that this run may keep.
+
+    A run resumes one whose positions agree with this run's as far as both go
+    (a run for more positions extends one for fewer; a run for fewer is
+    refused, as its manifest could not describe the scans already there).
+    """
     held = len(old.get("positions", []))
-    if len(positions) < held and not diff:
+    if len(positions) < held:
         # its manifest would list the old run's scans past this run's positions, without them
         raise InputValueError(f"{out} holds a run of {held} positions and this run asks {len(positions)}: "
                               f"ask n={held} (or more) to resume or extend it, or write elsewhere",
                               flags={f"ask n={held}": f"ask --n {held}"})
     k = min(len(positions), held)
     if not np.array_equal(np.asarray(old.get("positions", []))[:k].reshape(-1, 3), positions[:k]):
-        diff.append("positions differ")
-    if diff:
-        raise InputValueError(f"{out} holds a run with other settings ({'; '.join(diff)}): "
+        raise InputValueError(f"{out} holds a run with other settings (positions differ): "
                               "write elsewhere, or remove it to start again")
     scans = {s["file"]: s for s in old.get("scans", [])}
     journal = out / JOURNAL
@@ -242,8 +250,8 @@ def _write_job(job, sub, entry, t0):
         with warnings.catch_warnings(record=True) as said:
             warnings.simplefilter("always")
             write_cloud(stage, sub)
-        for w in said:  # about the scan the user will see, not its staging name
-            warnings.warn(str(w.message).replace(str(stage), str(final)), w.category, stacklevel=2)
+        # about the scan the user will see, not its staging name; said by the run, once for all scans
+        told = [(str(w.message).replace(str(stage), str(final)), w.category) for w in said]
     except BaseException as exc:
         for p in (stage, labels):
             if p is not None:
@@ -256,7 +264,7 @@ def _write_job(job, sub, entry, t0):
     staged = [(str(stage), str(final))]
     if labels is not None and labels.exists():
         staged.insert(0, (str(labels), str(label_destinations(final)[0])))
-    return {**entry, "seconds": round(time.perf_counter() - t0, 4), "_staged": staged}
+    return {**entry, "seconds": round(time.perf_counter() - t0, 4), "_staged": staged, "_warnings": told}
 
 
 def _publish(staged, ext) -> list:
@@ -293,7 +301,27 @@ def _scan_one(job, cloud=None):
     with warnings.catch_warnings(record=True) as said:
         warnings.simplefilter("always")
         entry = _write_job(job, *_scan_job(job, cloud if cloud is not None else _WORKER["cloud"]))
-    return {**entry, "_warnings": [(str(w.message), w.category) for w in said]}
+    return {**entry, "_warnings": [(str(w.message), w.category) for w in said] + entry["_warnings"]}
+
+
+class _Told:
+    """What the scans warned, each distinct warning said once: a scan's own
+    name in it stands for all of them (``.../scan_*.xyz: ... (in 2,000 scans)``),
+    where one line a scan would bury the rest of stderr."""
+
+    def __init__(self, out: Path, ext: str):
+        self.every = str(out / f"scan_*{ext}")
+        self.seen = {}  # (message with the scan's name replaced, category) -> [first message, count]
+
+    def add(self, warned, final) -> None:
+        for message, category in warned:
+            key = (message.replace(str(final), self.every), category)
+            self.seen.setdefault(key, [message, 0])[1] += 1
+
+    def say(self) -> None:
+        for (general, category), (first, count) in self.seen.items():
+            warnings.warn(first if count == 1 else f"{general} (in {count:,} scans)", category, stacklevel=3)
+        self.seen.clear()
 
 
 def _run_streamed(jobs, path, pattern, chunk, per_pass, done, progress=False) -> None:
@@ -436,10 +464,12 @@ class AugmentConfig:
             raise InputValueError(f"n must be an integer >= 1, got {self.n!r}")
         heights = self.scan_heights
         if not heights or not all(np.isfinite(heights)) or min(heights) <= 0:
-            raise InputValueError(f"heights must be finite numbers > 0, got {list(heights)}")
+            raise InputValueError(f"heights must be finite numbers > 0, got {list(heights)}",
+                                  flags={"heights must": "--heights must"})
         repeated = sorted({h for h in heights if heights.count(h) > 1})
         if repeated:
-            raise InputValueError(f"heights repeat {repeated}: each height is one scan per position")
+            raise InputValueError(f"heights repeat {repeated}: each height is one scan per position",
+                                  flags={"heights repeat": "--heights repeats"})
         if not (np.isfinite(self.scanner_height) and self.scanner_height > 0):
             raise InputValueError(f"scanner_height must be a finite number > 0, got {self.scanner_height!r}")
         if self.chunk_size is not None and (int(self.chunk_size) != self.chunk_size or self.chunk_size < 1
@@ -484,7 +514,7 @@ def _scan_name(i: int, h: float, ext: str) -> str:
 
 
 def augment(input_path, outdir, config: AugmentConfig, *, ground=None, progress: bool = True,
-            reads=()) -> dict:
+            reads=(), force: bool = False) -> dict:
     """Write ``config.n`` positions x heights SLR scans of ``input_path`` into ``outdir``.
 
     Parameters
@@ -494,7 +524,10 @@ def augment(input_path, outdir, config: AugmentConfig, *, ground=None, progress:
         can be streamed, ``config.chunk_size``).
     outdir : path
         Created if missing, and locked while the run writes there (a second
-        run into it is refused). A rerun with the same settings and the same
+        run into it is refused). A fresh run goes into a new or empty
+        directory: one holding files of no augment run is refused, naming a
+        few, unless ``force`` (then it writes among them, never over one). A
+        rerun with the same settings and the same
         input *content* (:func:`~slr_ray.outputs.content_digest`) resumes;
         anything else is refused with the differences named. A run that
         fails before its first scan leaves nothing behind.
@@ -512,6 +545,8 @@ def augment(input_path, outdir, config: AugmentConfig, *, ground=None, progress:
         Other files the caller read the settings from (an effects file, a
         ray-drop model): planned as inputs, so that no file of the run
         (its manifest included) may be one of them.
+    force : bool
+        Write a fresh run into a directory of other files (never over one).
 
     Returns
     -------
@@ -540,14 +575,41 @@ def augment(input_path, outdir, config: AugmentConfig, *, ground=None, progress:
     plan.write(out / MANIFEST, resumed=True)
     plan.write(out / JOURNAL, resumed=True)
     with plan:
-        return _augment(input_path, out, config, pattern, options, ext, names, ground, progress)
+        return _augment(input_path, out, config, pattern, options, ext, names, ground, progress, force)
 
 
-def _augment(input_path, out, config, pattern, options, ext, names, ground, progress) -> dict:
+def _augment(input_path, out, config, pattern, options, ext, names, ground, progress, force) -> dict:
     """:func:`augment` in its locked directory."""
     heights = config.scan_heights
     backend, backend_options = config.backend, dict(config.backend_options or {})
     ground_setting = "from the input" if ground is None else dict(ground) if isinstance(ground, dict) else "given"
+    settings = {"input": str(input_path.resolve()), "input_bytes": input_path.stat().st_size,
+                "input_digest": content_digest(input_path), "seed": config.seed,
+                "pattern": pattern.to_dict(), "backend": backend, "backend_options": options.to_dict(),
+                "min_ground_points": config.min_ground_points, "format": ext, "heights": list(heights),
+                "ground": ground_setting}
+    effects = config.effects_for(pattern)
+    if effects is not None:  # only then: a manifest without effects resumes as before
+        settings["effects"] = effects.to_dict()
+    # what is in the directory is checked before the long steps (CSF takes minutes on an airborne tile)
+    manifest_path = out / MANIFEST
+    fresh = not manifest_path.exists()
+    if not fresh:
+        old = _same_settings(manifest_path, settings, out)
+    else:
+        # a scan's sidecars too (a .bin's .label): written over, or removed as stale, by a fresh run
+        strays = sorted(str(p if p.parent != out else p.name) for n in names
+                        for p in [out / n, *output_sidecars(out / n, ext)] if os.path.lexists(p))
+        if strays:
+            raise OutputError(f"{out} holds {strays[0]}{f' and {len(strays) - 1} more' if len(strays) > 1 else ''} "
+                              f"but no {MANIFEST}: not a run this one can resume; write elsewhere")
+        others = sorted(p.name for p in out.iterdir() if p.name != LOCK_NAME
+                        and not (p.name.startswith(".") and p.name.endswith(".part")))  # a killed run's
+        if others and not force:
+            raise OutputError(f"{out} holds {len(others):,} file(s) of no augment run ({', '.join(others[:3])}"
+                              f"{', ...' if len(others) > 3 else ''}): a fresh run writes into an empty directory "
+                              "or a new one; write elsewhere, or pass force=True to write among them "
+                              "(never over one)", flags={"pass force=True": "give --force"})
     if isinstance(ground, dict) and config.chunk_size is not None:  # labels (CSF) need the whole cloud
         ground = ground_labels(read_cloud(input_path, allow_empty=False), **ground, progress=progress)
     if config.chunk_size is not None:
@@ -558,42 +620,19 @@ def _augment(input_path, out, config, pattern, options, ext, names, ground, prog
                                             progress=progress)
     else:
         cloud = read_cloud(input_path, allow_empty=False)
+        if effects is not None and effects.intensity == "correct" and cloud.origin is None:  # before CSF
+            raise InputValueError(f"intensity='correct' needs where {input_path} was scanned from, and it records "
+                                  "no scanner origin (use intensity='carry')",
+                                  flags={"intensity='correct'": "--intensity correct",
+                                         "intensity='carry'": "--intensity carry"})
         if ground is None or isinstance(ground, dict):
             ground = ground_labels(cloud, **(ground or {}), progress=progress)
         positions, cells = select_positions(cloud.points, ground, config.n, seed=config.seed,
                                             min_ground_points=config.min_ground_points,
                                             scanner_height=config.scanner_height,
                                             allow_fewer=config.allow_fewer, return_cells=True)
-    if config.n and not len(positions):  # allow_fewer is fewer, not none: nothing to write, an error
-        raise InputValueError(f"{input_path}: no scanner position found ("
-                              + ", ".join(f"{s['stage']} removed {s['removed']}" for s in cells.stages
-                                          if not s.get("skipped")) + "): lower min_ground_points, or check the ground",
-                              flags=CLI_FLAGS)
-    settings = {"input": str(input_path.resolve()), "input_bytes": input_path.stat().st_size,
-                "input_digest": content_digest(input_path), "seed": config.seed,
-                "pattern": pattern.to_dict(), "backend": backend, "backend_options": options.to_dict(),
-                "min_ground_points": config.min_ground_points, "format": ext, "heights": list(heights),
-                "ground": ground_setting}
-    effects = config.effects_for(pattern)
-    if effects is not None:  # only then: a manifest without effects resumes as before
-        settings["effects"] = effects.to_dict()
-        if effects.intensity == "correct" and cloud is not None and cloud.origin is None:
-            raise InputValueError(f"intensity='correct' needs where {input_path} was scanned from, and it records "
-                                  "no scanner origin (use intensity='carry')",
-                                  flags={"intensity='correct'": "--intensity correct",
-                                         "intensity='carry'": "--intensity carry"})
-    manifest_path = out / MANIFEST
-    done = {}
-    fresh = not manifest_path.exists()
-    if not fresh:
-        done = _resumable(manifest_path, settings, positions, out)
-    else:
-        # a scan's sidecars too (a .bin's .label): written over, or removed as stale, by a fresh run
-        strays = sorted(str(p if p.parent != out else p.name) for n in names
-                        for p in [out / n, *output_sidecars(out / n, ext)] if os.path.lexists(p))
-        if strays:
-            raise OutputError(f"{out} holds {strays[0]}{f' and {len(strays) - 1} more' if len(strays) > 1 else ''} "
-                              f"but no {MANIFEST}: not a run this one can resume; write elsewhere")
+    require_positions(positions, config.n, cells, input_path)  # allow_fewer is fewer, not none
+    done = {} if fresh else _resumable(old, positions, out)
     if not os.access(out, os.W_OK):
         raise PermissionError(f"cannot write to {out}")
     jobs = []
@@ -651,13 +690,13 @@ def _augment(input_path, out, config, pattern, options, ext, names, ground, prog
     bar = None
     if progress:
         bar = progress_bar(total=len(jobs), desc="augment", unit="scan", leave=True)
+    told = _Told(out, ext)
 
     def done_one(entry):
         # recorded, then published: a scan under its final name is always one the journal lists (an
         # interruption between the two leaves a recorded scan whose file is absent: it is made again)
         staged = entry.pop("_staged")
-        for message, category in entry.pop("_warnings", ()):  # a worker's, said here
-            warnings.warn(message, category, stacklevel=2)
+        told.add(entry.pop("_warnings", ()), staged[-1][1])  # said once each at the end
         entry = record(entry)
         try:
             _publish(staged, ext)
@@ -710,6 +749,7 @@ def _augment(input_path, out, config, pattern, options, ext, names, ground, prog
     finally:
         if bar is not None:
             bar.close()
+        told.say()
         if failed and fresh and not manifest["scans"]:
             # an error before any scan was recorded: leave nothing (none of these files existed before
             # this run; the plan then removes the directory if it created it)

@@ -398,6 +398,19 @@ def select_positions(points, is_ground, n: int, seed=None, cell_size: float = CE
     return (positions, cells) if return_cells else positions
 
 
+def require_positions(positions, n: int, cells: CandidateCells, name) -> None:
+    """Raise :class:`InputValueError` when ``n`` positions were asked and none found.
+
+    ``allow_fewer`` accepts fewer, never none: with no position there is
+    nothing to write (the ``positions`` and ``augment`` commands alike).
+    """
+    if n and not len(positions):
+        raise InputValueError(f"{name}: no scanner position found ("
+                              + ", ".join(f"{s['stage']} removed {s['removed']}" for s in cells.stages
+                                          if not s.get("skipped")) + "): lower min_ground_points, or check the ground",
+                              flags=CLI_FLAGS)
+
+
 # --- resolution -------------------------------------------------------------------
 
 def suggest_resolution(points, position, *, radius: float = 30.0, k: int = 8, quantile: float = 0.5,

@@ -33,9 +33,21 @@ PHASE_AFTER = 2.0
 def bar(iterable=None, desc: str = "", unit: str = "it", *, total=None, progress: bool = True,
         leave: bool = False, unit_scale: bool = False) -> tqdm:
     """A tqdm bar on stderr over ``iterable`` (or of ``total`` steps, advanced by
-    ``update``); disabled, and silent, when ``progress`` is false."""
+    ``update``); disabled, and silent, when ``progress`` is false.
+
+    ``leave=False`` clears the bar on a terminal only: elsewhere (a log, a
+    pipe) clearing writes a line of blanks, so the bar's last state is kept
+    there, ended by a newline."""
+    leave = leave or not _is_terminal(sys.stderr)
     return tqdm(iterable, total=total, desc=desc, unit=unit, leave=leave, disable=not progress, file=sys.stderr,
                 unit_scale=unit_scale)
+
+
+def _is_terminal(stream) -> bool:
+    try:
+        return stream.isatty()
+    except (AttributeError, ValueError):  # no isatty, or closed
+        return False
 
 
 @contextmanager

@@ -473,3 +473,16 @@ def test_a_scan_that_cannot_be_written_is_named_by_its_own_name_not_its_hidden_o
     (line,) = capsys.readouterr().err.strip().splitlines()
     assert line.endswith(f"cannot write {out / 'scan_0000_h1.65.npz'}: File too large"), line
     assert not out.exists()
+
+
+def test_a_warning_every_scan_gives_is_said_once_with_its_count(tmp_path):
+    # was: one line a scan (2,000 scans, 2,000 lines), each naming its own file
+    rng = np.random.default_rng(0)
+    g = np.column_stack([rng.uniform(-4, 4, (8000, 2)), rng.normal(0, 0.005, 8000)])
+    src = tmp_path / "c.ply"
+    write_cloud(src, PointCloud(g, {"classification": np.full(len(g), 2, np.uint8)}))
+    with pytest.warns(UserWarning) as said:
+        _run(src, tmp_path / "aug", 3, min_ground_points=500, resolution=8, fmt="xyz", workers=1)
+    columns = [str(w.message) for w in said if "stores columns" in str(w.message)]
+    assert columns == [f"{tmp_path / 'aug' / 'scan_*.xyz'}: .xyz stores columns, not names: ['classification'] "
+                       "will read back as ['intensity'] (in 3 scans)"]

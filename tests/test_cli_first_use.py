@@ -158,6 +158,15 @@ def test_allow_fewer_accepts_fewer_with_a_warning_in_both_commands(labelled_ply,
     assert out.err.startswith("slr-ray: warning: 16 positions of the 20 asked: 16 candidate cells")
 
 
+def test_no_position_at_all_is_an_error_in_both_commands_even_with_allow_fewer(labelled_ply, tmp_path, capsys):
+    # was: positions exited 0 writing an empty list while augment refused
+    common = ["--n", "2", "--min-ground-points", "100000", "--allow-fewer"]
+    assert main(["positions", str(labelled_ply), *common, "-o", str(tmp_path / "p.json")]) == 2
+    assert "no scanner position found" in capsys.readouterr().err and not (tmp_path / "p.json").exists()
+    assert main(["augment", str(labelled_ply), *common, "--quiet", "-o", str(tmp_path / "aug")]) == 2
+    assert "no scanner position found" in capsys.readouterr().err
+
+
 def test_augments_effects_error_names_the_flags_typed(labelled_ply, tmp_path, capsys):
     assert main(["augment", str(labelled_ply), "--n", "2", "--min-ground-points", "500", "--intensity", "correct",
                  "--quiet", "-o", str(tmp_path / "aug")]) == 2
@@ -250,3 +259,51 @@ def test_keep_range_and_ring_go_with_a_range_image(labelled_ply, tmp_path, capsy
                  "--keep-ring", "--range-image", str(image), "--quiet", "-o", str(tmp_path / "s.ply")]) == 0
     with np.load(image) as z:
         assert {"range", "ring", "classification"} <= set(z.files) and z["ring"].ndim == 1  # columns: its own
+
+
+def test_an_input_attribute_the_range_image_keeps_is_refused_naming_the_flag(tmp_path, capsys):
+    # was: "attribute name 'ring' is taken by the range image", naming no flag
+    pts, cls = _cloud(200, 20)
+    write_cloud(tmp_path / "r.ply", PointCloud(pts, {"ring": np.zeros(len(pts), np.uint16)}))
+    assert main(["scan", str(tmp_path / "r.ply"), "--origin", "0", "0", "1", "--resolution", "8", "--range-image",
+                 str(tmp_path / "ri.npz"), "--quiet", "-o", str(tmp_path / "s.ply")]) == 2
+    err = capsys.readouterr().err
+    assert "'ring'" in err and "drop --range-image" in err and not (tmp_path / "s.ply").exists()
+
+
+def test_repeated_heights_name_the_flag(labelled_ply, tmp_path, capsys):
+    assert main(["augment", str(labelled_ply), "--n", "1", "--heights", "2", "2", "--quiet",
+                 "-o", str(tmp_path / "aug")]) == 2
+    assert "--heights repeats [2.0]" in capsys.readouterr().err
+
+
+# --- 6. augment's output directory ------------------------------------------------------------------------
+
+_AUG = ["--n", "1", "--min-ground-points", "500", "--resolution", "8", "--workers", "1", "--quiet"]
+
+
+def test_augment_into_a_directory_of_other_files_is_refused_naming_them_unless_force(labelled_ply, tmp_path,
+                                                                                      capsys):
+    # was: a fresh run scattered its scans and manifest among a user's unrelated files
+    out = tmp_path / "mine"
+    out.mkdir()
+    (out / "notes.txt").write_text("keep")
+    assert main(["augment", str(labelled_ply), *_AUG, "-o", str(out)]) == 2
+    err = capsys.readouterr().err
+    assert "notes.txt" in err and "--force" in err and sorted(p.name for p in out.iterdir()) == ["notes.txt"]
+    assert main(["augment", str(labelled_ply), *_AUG, "--force", "-o", str(out)]) == 0
+    assert (out / "notes.txt").read_text() == "keep" and (out / "manifest.json").exists()
+    assert main(["augment", str(labelled_ply), *_AUG, "-o", str(out)]) == 0  # a resume needs no --force
+    assert json.loads(capsys.readouterr().out.splitlines()[-1])["new_scans"] == 0
+
+
+def test_an_augment_rerun_with_other_settings_is_refused_before_csf(labelled_ply, tmp_path, capsys, monkeypatch):
+    # was: refused only after CSF had labelled the ground (minutes on an airborne tile)
+    assert main(["augment", str(labelled_ply), *_AUG, "-o", str(tmp_path / "aug")]) == 0
+
+    def no_csf(*a, **k):
+        raise AssertionError("CSF ran")
+
+    monkeypatch.setattr("slr_ray.positions.label_ground", no_csf)
+    assert main(["augment", str(labelled_ply), *_AUG, "--csf", "--seed", "1", "-o", str(tmp_path / "aug")]) == 2
+    assert "holds a run with other settings" in capsys.readouterr().err

@@ -186,7 +186,7 @@ def test_cli_evaluate(tmp_path, capsys):
     assert res["registration"]["fitness"] > 0.5
     assert abs(res["registration"]["translation_m"][0] - 0.5) < 0.05
     assert [r["method"] for r in res["table"]] == ["no SLR (z-buffer)", "binning"]
-    assert main(argv) == 2 and "not empty (5 entries); --force" in capsys.readouterr().err
+    assert main(argv) == 2 and "not empty (5 entries: evaluation.json, " in capsys.readouterr().err
     assert main(argv + ["--force"]) == 0
 
 

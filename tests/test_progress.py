@@ -30,3 +30,13 @@ def test_a_quiet_bar_still_iterates_and_says_nothing(capsys):
     assert list(bar(range(2), "scans", "scan")) == [0, 1]
     out, err = capsys.readouterr()
     assert out == "" and "scans" in err
+
+
+def test_a_bar_closed_outside_a_terminal_leaves_its_last_state_not_a_line_of_blanks(capsys):
+    # was: a streamed scan's bar ended its stderr with spaces and '\r' (a blank line in a log)
+    b = bar(total=4, desc="1 scan", unit="pt")
+    b.update(4)
+    b.close()
+    err = capsys.readouterr().err
+    assert err.endswith("\n") and "4/4" in err.splitlines()[-1]
+    assert all(line.strip() for line in err.replace("\r", "\n").split("\n")[1:-1])

@@ -210,6 +210,8 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("--per-pass", type=A.positive_int, default=8, metavar="N",
                    help="positions per pass over a streamed input (default 8)")
     p.add_argument("--allow-fewer", action="store_true", help="accept fewer positions than --n (a warning names both)")
+    p.add_argument("--force", action="store_true",
+                   help="a fresh run into a directory of other files (written among them, never over one)")
     p.add_argument("--quiet", action="store_true", help="no progress bars")
     A.add_effects(p)
 

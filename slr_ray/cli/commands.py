@@ -33,7 +33,8 @@ from ..outputs import OutputPlan
 from ..paper import Q1_SCENES, Q2_SCENES
 from ..progress import phase
 from ..plotting import check_figure_path, cells_figure, comparison_figure, paper_figure, range_image_figure, save_figure, validation_figure
-from ..positions import AzimuthProfile, build_synthetic_profile, default_profile, ground_labels, select_positions
+from ..positions import (AzimuthProfile, build_synthetic_profile, default_profile, ground_labels, require_positions,
+                         select_positions)
 from ..scan import Scan, check_range_image
 from ..scenes import MESH_FORMATS, scene_effects, scene_from_spec
 from ..streaming import STREAMED_FORMATS, las_bounds, scan_las
@@ -129,7 +130,7 @@ def scan(args):
             _check_returns(result, bounds)
         kept = _keep(args, sub, result)
         # the range image is made before anything is written: an error there leaves no scan behind
-        image = _range_image(sub, result, skip=kept) if args.range_image or args.png else None
+        image = _range_image(args, sub, result, skip=kept) if args.range_image or args.png else None
         t1 = time.perf_counter()
         write_cloud(args.output, sub, args.format)
         if image is not None:
@@ -175,12 +176,17 @@ def _keep(args, sub, result) -> set:
     return set(added)
 
 
-def _range_image(sub, result, skip=()) -> dict:
+def _range_image(args, sub, result, skip=()) -> dict:
     """The scan's range image with every 1-D attribute of ``sub`` (the scanned subset, in index order)
     but those in ``skip`` (--keep-range's and --keep-ring's: the image has its own range, ring and column)."""
     local = replace(result, indices=np.arange(len(result)))  # images of the subset's own rows
     attrs = {k: v for k, v in sub.attributes.items()
              if k not in skip and np.asarray(v).ndim == 1 and np.asarray(v).dtype.kind in "biuf"}
+    taken = sorted(set(attrs) & {"range", "ring", "index"})  # the image's own arrays
+    if taken:
+        flags = " and ".join(f for f, on in (("--range-image", args.range_image), ("--png", args.png)) if on)
+        raise InputValueError(f"{args.input} has its own attribute(s) {', '.join(map(repr, taken))}, names the range "
+                              f"image of {flags} keeps for its own arrays: rename them in the input, or drop {flags}")
     image = local.range_image(attrs)
     local_index = image["index"]
     image["index"] = np.full(local_index.shape, -1, dtype=np.asarray(result.indices).dtype)
@@ -359,6 +365,7 @@ def positions(args):
             ground_height_radius=args.ground_height_radius, scanner_height=args.scanner_height,
             profile=profile, allow_fewer=args.allow_fewer, return_cells=True,
             progress=profile is not None and not args.quiet)
+        require_positions(pos, args.n, cells, args.input)  # --allow-fewer is fewer, not none: as augment
         res = {"input": str(args.input), "n_requested": args.n, "seed": args.seed,
                "positions": pos.tolist(), "ground_points": int(is_ground.sum()), **cells.summary()}
         with atomic_path(args.output) as tmp:
@@ -453,7 +460,7 @@ def augment(args):
     # the files its settings came from are inputs: no file of the run may be one of them
     reads = [getattr(args, f, None) for f in ("sensor_file", "profile_file", "effects", "ray_drop")]
     res = run_augment(args.input, args.output, config, ground=ground if args.csf or args.ground_attribute else None,
-                      progress=not args.quiet, reads=reads)
+                      progress=not args.quiet, reads=reads, force=args.force)
     emit({k: res[k] for k in ("input", "n_requested", "new_scans", "seconds", "software")}
          | {"scans": len(res["scans"]), "positions": len(res["positions"]),
             "points_out": sum(s["points"] for s in res["scans"]), "output_dir": str(args.output)})

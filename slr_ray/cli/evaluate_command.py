@@ -70,8 +70,9 @@ def evaluate(args):
     held = [p for p in (out.iterdir() if out.is_dir() else ()) if p.name != LOCK_NAME
             and not (p.name.startswith(".") and p.name.endswith(".part"))]  # a killed run's: the plan removes them
     if held and not args.force:
-        raise OutputError(f"-o {args.output} exists and is not empty ({len(held)} entries); --force replaces its "
-                          "evaluation files")
+        names = sorted(p.name for p in held)
+        raise OutputError(f"-o {args.output} exists and is not empty ({len(held)} entries: {', '.join(names[:3])}"
+                          f"{', ...' if len(names) > 3 else ''}); --force replaces its evaluation files")
     with plan:
         _evaluate(args, out)
 
