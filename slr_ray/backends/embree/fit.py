@@ -3,9 +3,12 @@
 A KITTI-like frame (points stored beam by beam, 64 rings: :func:`slr_ray.sensors.scan_order_beams`)
 gets the HDL-64E S2 table fitted to it as :mod:`slr_ray.evaluate` fits it (each beam's elevation the
 median of its points', columns from the azimuth step along a beam). Any other cloud gets a uniform
-grid: its zenith and azimuth steps are the typical angular offsets between a point and its nearest
-neighbours straight above or below it and beside it (four azimuth sectors of at most 65,536 points
-each, seen from the origin), the zenith rows placed so that the points lie mid-row. The azimuth
+grid: its zenith and azimuth steps are the typical angular offsets between a point and the next point
+above it in its column and right of it in its row (four azimuth sectors of at most 65,536 points
+each, seen from the origin; one neighbour on one side, so jittered angles do not shorten the steps),
+the zenith rows placed so that the points lie mid-row. A scan whose steps are within
+:data:`FIT_STEP_TOLERANCE` of a uniform fit's is taken for the primary's own pattern
+(:func:`fitted_grid_holds`). The azimuth
 columns of a :class:`~slr_ray.ScanPattern` start at 0: a scanner whose columns do not is fitted with
 its own steps but columns split between its points. The scanner's axes are taken to be the cloud's
 (a levelled scan; a tilted one needs its points in the scanner's frame).
