@@ -70,7 +70,12 @@ def main(argv=None) -> None:
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     ap.add_argument("--data", type=Path, default=DATA)
     ap.add_argument("--frames", nargs="*", default=[f"kitti_hdl64_00000{i}.bin" for i in range(4)])
+    ap.add_argument("--terrestrial-only", action="store_true",
+                    help="part 2 only (results/bench_self_view_terrestrial.json)")
     args = ap.parse_args(argv)
+    if args.terrestrial_only:
+        save("bench_self_view_terrestrial", {"machine": machine(), "terrestrial": terrestrial(args.data)})
+        return
     rows = []
     print("| frame | primary_image | method | points | depth RMSE (m) | ray-drop accuracy | recall @ 5 cm |")
     print("|---|---|---|---|---|---|---|")

@@ -8,7 +8,8 @@ runs one process of ``OTHER_CHECKOUT`` (e.g. ``git worktree add /tmp/main main``
 checkout, in turn (after one uncounted pair that fills numba's caches): ``prepare(cloud, "embree",
 primary_origin=0, primary_resolution=RES)`` (the pulse-grid default), then two 0.144 deg scans from
 (12.3, -7.1, 0) (the second timed). Reports medians of prepare and cast seconds, peak RSS above the
-loaded cloud, and the ratios this / other. Saves results/compare_embree_checkouts.json.
+loaded cloud, and the ratios this / other; also the CPU seconds of each (all threads: steadier than
+wall seconds on a shared machine). Saves results/compare_embree_checkouts.json.
 """
 
 from __future__ import annotations
@@ -23,6 +24,8 @@ import time
 from pathlib import Path
 
 HERE = Path(__file__).resolve().parent
+# wall seconds move with the load on a shared machine; the process's CPU seconds (all threads) much less
+METRICS = ("prepare_s", "cast_s", "prepare_cpu_s", "cast_cpu_s", "peak_above_cloud_gib")
 
 
 def measure(resolution: float) -> dict:
@@ -37,16 +40,17 @@ def measure(resolution: float) -> dict:
     pts = np.ascontiguousarray(realistic_cloud(resolution))
     grid = {"primary_origin": [0.0, 0.0, 0.0], "primary_resolution": resolution}
     base = resource.getrusage(resource.RUSAGE_SELF).ru_maxrss / 2**20  # the cloud loaded
-    t0 = time.perf_counter()
+    t0, c0 = time.perf_counter(), time.process_time()
     sc = slr_ray.prepare(pts, "embree", **grid)
-    prep = time.perf_counter() - t0
+    prep, prep_cpu = time.perf_counter() - t0, time.process_time() - c0
     sc.scan([12.3, -7.1, 0.0], 0.144)
-    t0 = time.perf_counter()
+    t0, c0 = time.perf_counter(), time.process_time()
     s = sc.scan([12.3, -7.1, 0.0], 0.144)
-    cast = time.perf_counter() - t0
+    cast, cast_cpu = time.perf_counter() - t0, time.process_time() - c0
     peak = resource.getrusage(resource.RUSAGE_SELF).ru_maxrss / 2**20
     return {"checkout": str(Path(slr_ray.__file__).resolve().parents[1]), "points": len(pts),
-            "prepare_s": prep, "cast_s": cast, "peak_above_cloud_gib": peak - base, "points_out": len(s)}
+            "prepare_s": prep, "cast_s": cast, "prepare_cpu_s": prep_cpu, "cast_cpu_s": cast_cpu,
+            "peak_above_cloud_gib": peak - base, "points_out": len(s)}
 
 
 def main(argv=None) -> None:
@@ -60,9 +64,13 @@ def main(argv=None) -> None:
     if args.measure:
         print(json.dumps(measure(args.resolution)))
         return
-    from common import machine, realistic_cloud, save
+    from common import machine, save
 
-    realistic_cloud(args.resolution)  # made and cached once
+    # made and cached once, in a process of its own: a child forked from a parent that made it would
+    # start from the parent's peak RSS (Linux keeps the high-water mark across fork and exec), and
+    # its peak above the cloud read 0
+    subprocess.run([sys.executable, "-c", f"import sys; sys.path.insert(0, {str(HERE)!r}); "
+                    f"from common import realistic_cloud; realistic_cloud({args.resolution!r})"], check=True)
     runs = {"other": [], "this": []}
     for i in range(args.pairs + 1):  # the first pair fills numba's caches (compiles): not counted
         for label, root in (("other", Path(args.other).resolve()), ("this", HERE.parent)):
@@ -75,7 +83,7 @@ def main(argv=None) -> None:
             print(label, row, "(warm-up)" if i == 0 else "", flush=True)
             if i:
                 runs[label].append(row)
-    med = {k: {m: statistics.median(r[m] for r in v) for m in ("prepare_s", "cast_s", "peak_above_cloud_gib")}
+    med = {k: {m: statistics.median(r[m] for r in v) for m in METRICS}
            for k, v in runs.items()}
     ratio = {m: med["this"][m] / med["other"][m] if med["other"][m] else None for m in med["this"]}
     print(json.dumps({"median": med, "this_over_other": ratio}))

@@ -162,7 +162,8 @@ class EmbreeOptions(BackendOptions):
         ground".
     primary_image : bool
         A scan from ``primary_origin`` (within a micrometre) with the
-        primary's own pattern returns, pulse for pulse, the primary's own
+        primary's own pattern (with ``primary_pattern='fit'``: steps within
+        2 % of the fitted ones) returns, pulse for pulse, the primary's own
         return in each pulse (the nearest point in it: binning's image):
         the first surface along a pulse is the one the primary recorded in
         it. Default True; False casts the discs there too (a near point's

@@ -17,7 +17,7 @@ from ...pattern import as_pattern, pulse_rays
 from ...raycast import Open3DScene, RayScene, disc_vertices, padded_rows
 from ...scan import Scan
 from ..base import Backend, Scanner
-from .fit import fit_primary_pattern
+from .fit import fit_primary_pattern, fitted_grid_holds
 from .discs import chunk_normals, disc_radii, fallback_directions, fan_polygons, limit_incidence, neighbourhoods
 from .options import EmbreeOptions, refuse_cast
 from .pulsegrid import pulse_grid_spacing_normals
@@ -175,15 +175,17 @@ class DiscScanner(Scanner):
     def primary_view(self, origin, pattern) -> bool:
         """Whether a scan from ``origin`` with ``pattern`` is the primary's own view:
         ``primary_image`` on, ``origin`` within :data:`PRIMARY_VIEW_TOLERANCE` of
-        ``primary_origin`` and ``pattern`` the primary's pulse grid (range limits aside).
-        Each pulse then returns the primary's own return in it (:meth:`scan`)."""
+        ``primary_origin`` and ``pattern`` the primary's pulse grid (range limits aside; a
+        uniform grid fitted by ``primary_pattern='fit'``: within what the fit can tell,
+        :func:`~.fit.fitted_grid_holds`). Each pulse then returns the primary's own return in it (:meth:`scan`)."""
         o = self.options
         if not o.primary_image or o.primary_origin is None or o.primary_grid is None:
             return False
         po = as_origin(o.primary_origin, "primary_origin")
         if not float(np.max(np.abs(as_origin(origin) - po))) <= PRIMARY_VIEW_TOLERANCE:
             return False
-        return same_pulse_grid(as_pattern(pattern), as_pattern(o.primary_grid))
+        p, g = as_pattern(pattern), as_pattern(o.primary_grid)
+        return same_pulse_grid(p, g) or (self.primary_fit is not None and fitted_grid_holds(p, g))
 
     def _hits(self, origin, pattern, rays_per_batch=1 << 21):
         """Every ray that hits a disc: (point index, t, v, h) arrays."""
