@@ -288,3 +288,29 @@ def test_a_module_imports_only_its_own_layer_or_below():
             if _unit(dep) in level and level[_unit(dep)] > level[_unit(mod)]:
                 up.append(f"{mod} -> {dep}")
     assert not up, f"imports up the layers (docs/architecture.md, Layers): {sorted(up)}"
+
+
+#: The longest chain of imports between slr_ray's modules (edges: a module -> a module it imports,
+#: a package's own submodules not counted), and the most it may be (issue #39 aims at 12). The chain
+#: today: cli.effects_command -> cli.commands -> augment -> streaming -> positions -> backends -> scan
+#: -> pattern -> core.tables -> core.slots -> core.grid -> arrays -> errors.
+MAX_IMPORT_CHAIN = 12
+
+
+def _longest_chain(graph) -> list:
+    """The longest path of ``graph`` (acyclic once a package's edges to its own submodules are dropped)."""
+    graph = {m: {d for d in ds if not (m.startswith(d + ".") or d.startswith(m + "."))} for m, ds in graph.items()}
+    memo = {}
+
+    def longest(m):
+        if m not in memo:
+            memo[m] = max(([m, *longest(d)] for d in sorted(graph.get(m, ()))), key=len, default=[m])
+        return memo[m]
+
+    return max((longest(m) for m in sorted(graph)), key=len, default=[])
+
+
+def test_the_longest_import_chain_is_short():
+    assert _longest_chain({"a": {"b"}, "b": {"c"}, "c": set(), "p": {"p.x"}, "p.x": {"p"}}) == ["a", "b", "c"]
+    chain = _longest_chain(_import_graph())
+    assert len(chain) - 1 <= MAX_IMPORT_CHAIN, " -> ".join(chain)

@@ -37,7 +37,7 @@ import numpy as np
 from ..errors import FormatError
 from .atomic import atomic_path
 from .cloud import PointCloud
-from .formats import FORMATS, REGISTRY
+from .formats import REGISTRY
 
 __all__ = ["read_cloud", "write_cloud", "check_format"]
 
@@ -55,8 +55,8 @@ def check_format(path, fmt=None) -> str:
     ext = (fmt if fmt else Path(path).suffix).lower()
     if not ext.startswith("."):
         ext = "." + ext
-    if ext not in FORMATS:
-        raise FormatError(f"unknown point-cloud format {ext!r} for {path}; supported: {', '.join(FORMATS)}")
+    if ext not in REGISTRY:
+        raise FormatError(f"unknown point-cloud format {ext!r} for {path}; supported: {', '.join(REGISTRY)}")
     return ext
 
 
