@@ -314,3 +314,32 @@ def test_the_longest_import_chain_is_short():
     assert _longest_chain({"a": {"b"}, "b": {"c"}, "c": set(), "p": {"p.x"}, "p.x": {"p"}}) == ["a", "b", "c"]
     chain = _longest_chain(_import_graph())
     assert len(chain) - 1 <= MAX_IMPORT_CHAIN, " -> ".join(chain)
+
+
+#: Ordinary functions (not methods, not numba kernels, whose arguments are flat arrays) with more
+#: than 8 parameters: at most this many (16 when counted; issue #39 aims at 3, with options objects
+#: that still accept the old keywords). The count may fall, never rise.
+MAX_LONG_SIGNATURES = 16
+
+
+def _long_signatures(tree, most: int = 8) -> list:
+    methods = {id(f) for c in ast.walk(tree) if isinstance(c, ast.ClassDef) for f in c.body}
+    found = []
+    for f in ast.walk(tree):
+        if not isinstance(f, (ast.FunctionDef, ast.AsyncFunctionDef)) or id(f) in methods:
+            continue
+        if any("jit" in ast.unparse(d) or "numba" in ast.unparse(d) for d in f.decorator_list):
+            continue
+        a = f.args
+        if len(a.posonlyargs) + len(a.args) + len(a.kwonlyargs) > most:
+            found.append(f.name)
+    return found
+
+
+def test_few_functions_take_long_parameter_lists():
+    assert _long_signatures(ast.parse("def f(a, b, c, d, e, f, g, h, *, i): pass\n"
+                                      "@numba.njit\ndef k(a, b, c, d, e, f, g, h, i): pass\n"
+                                      "class C:\n    def m(self, a, b, c, d, e, f, g, h, i): pass\n")) == ["f"]
+    found = [f"{mod}.{name}" for mod, path in _modules() for name in _long_signatures(ast.parse(path.read_text()))]
+    assert len(found) <= MAX_LONG_SIGNATURES, f"{len(found)} functions over 8 parameters (use an options object): " \
+                                              f"{found}"
