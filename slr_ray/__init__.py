@@ -4,6 +4,8 @@ From one LiDAR scan of a scene, produce the scans an ideal static scanner would
 have recorded from other positions, using only points of the original cloud.
 """
 
+import sys as _sys
+
 from .accumulator import ScanAccumulator
 from .errors import FormatError, InputTypeError, InputValueError, MissingDependencyError, SlrError, SlrNote, SlrWarning
 from .pattern import PRESETS, ScanPattern, as_pattern, preset, pulse_directions, pulse_rays
@@ -16,6 +18,13 @@ from .positions import (AzimuthProfile, candidate_cells, label_ground, minimum_p
 from .similarity import Agreement, agreement, similarity
 from .sensors import SENSORS, BeamPattern, sensor
 from .spherical import pulse_bins, spherical_coordinates
+from .io import e57, las, outputs, pcd
+
+#: modules that moved into :mod:`slr_ray.io`, importable under their old paths too
+#: (``from slr_ray.outputs import OutputPlan``): the same module objects, not copies
+for _module in (outputs, las, pcd, e57):
+    _sys.modules[f"{__name__}.{_module.__name__.rsplit('.', 1)[1]}"] = _module
+del _module
 
 __version__ = "0.1.0"
 

@@ -9,7 +9,7 @@ import numpy as np
 
 from .arrays import as_origin, as_points, refuse_nonfinite_rows
 from .errors import InputValueError
-from .backends.base import Backend
+from .backends.names import Backend
 from .core import BinTables
 from .pattern import as_pattern
 from .scan import Scan

@@ -42,12 +42,13 @@ from .backends import options_for, prepare, require_rays, require_streamable, sc
 from .effects import Effects, effect_cloud, simulate
 from .errors import InputValueError, MissingDependencyError, OutputError, SlrError, refuse_memory
 from .io import PointCloud, atomic_path, check_format, read_cloud, write_cloud
-from .outputs import LOCK_NAME, OutputPlan, content_digest, label_destinations, link_new, output_sidecars, part_prefix
+from .io.outputs import LOCK_NAME, OutputPlan, content_digest, label_destinations, link_new, output_sidecars, part_prefix
 from .paper import MIN_GROUND_POINTS, SCANNER_HEIGHT, SECONDARY_RESOLUTION
 from .pattern import ScanPattern, as_pattern
 from .positions import ground_labels, require_positions, select_positions
 from .progress import bar as progress_bar
-from .streaming import STREAMED_FORMATS, las_positions, scan_las_many
+from .io.streaming import STREAMED_FORMATS, scan_las_many
+from .streaming import las_positions
 
 __all__ = ["augment", "AugmentConfig", "MANIFEST", "JOURNAL"]
 

@@ -25,7 +25,7 @@ from .backends import Backend, available_backends, prepare, scanner_class
 from .errors import refuse_memory
 from .io import PointCloud, atomic_path, write_cloud
 from .meshscan import scan_mesh
-from .outputs import OutputPlan
+from .io.outputs import OutputPlan
 from .pattern import ScanPattern, preset
 from .plotting import demo_figure, save_figure
 from .positions import select_positions

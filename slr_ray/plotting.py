@@ -43,7 +43,7 @@ def check_figure_path(path) -> str:
     ------
     InputValueError
         for an extension matplotlib cannot write: checked before any work
-        (:class:`~slr_ray.outputs.OutputPlan` runs it), not after it.
+        (:class:`~slr_ray.io.outputs.OutputPlan` runs it), not after it.
     """
     fmt = Path(path).suffix[1:].lower() or "png"
     known = FigureCanvasBase.get_supported_filetypes()

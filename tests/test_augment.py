@@ -1,3 +1,4 @@
+import dataclasses
 import json
 import signal
 import subprocess
@@ -462,12 +463,12 @@ def test_ctrl_c_while_workers_start_prints_one_line_and_no_worker_traceback(laz,
 def test_a_scan_that_cannot_be_written_is_named_by_its_own_name_not_its_hidden_one(tmp_path, monkeypatch, capsys):
     import errno
 
-    from slr_ray import io as sio
+    from slr_ray.io import REGISTRY
 
     def full(path, *a):
         raise OSError(errno.EFBIG, "File too large")
 
-    monkeypatch.setitem(sio._WRITERS, ".npz", full)
+    monkeypatch.setitem(REGISTRY, ".npz", dataclasses.replace(REGISTRY[".npz"], write=full))
     out = tmp_path / "out"
     assert main(["augment", str(_ground(tmp_path)), *_SMALL, "--n", "2", "-o", str(out)]) == 2
     (line,) = capsys.readouterr().err.strip().splitlines()

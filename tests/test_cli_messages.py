@@ -1,5 +1,6 @@
 """What a user sees: one line of our own for every error and warning (issue #40's messages)."""
 
+import dataclasses
 import errno
 import sys
 import warnings
@@ -60,14 +61,14 @@ def test_a_file_named_with_a_trailing_slash_is_refused_not_written_without_it(cl
 def test_a_write_that_runs_out_of_room_names_the_file_and_leaves_nothing(cloud, tmp_path, capsys, monkeypatch,
                                                                        fmt, failure):
     # was 'slr-ray: error: [Errno 27] File too large': which file, of a run's many?
-    from slr_ray import io as sio
+    from slr_ray.io import REGISTRY
 
     def full(path, *a):
         with open(path, "wb") as f:
             f.write(b"x" * 10)
         raise failure
 
-    monkeypatch.setitem(sio._WRITERS, fmt, full)
+    monkeypatch.setitem(REGISTRY, fmt, dataclasses.replace(REGISTRY[fmt], write=full))
     out = tmp_path / f"o{fmt}"
     assert main(["scan", str(cloud), "--origin", "0", "0", "1", "--resolution", "2", "--quiet", "-o", str(out)]) == 2
     (line,) = _err(capsys)

@@ -978,3 +978,27 @@ def test_format_laz_compresses_whatever_the_name_and_las_does_not(tmp_path):
         with laspy.open(tmp_path / name) as f:
             assert f.header.are_points_compressed == (fmt == "laz"), (fmt, name)
         assert len(read_cloud(tmp_path / name, fmt)) == 2000
+
+
+def test_a_format_is_one_registry_entry(tmp_path, monkeypatch):
+    """A new format is its reader, its writer and one line in slr_ray.io.formats.REGISTRY:
+    check_format, read_cloud and write_cloud take it as they are (the architecture page's recipe)."""
+    from slr_ray.io import REGISTRY, check_format, read_cloud, write_cloud
+    from slr_ray.io.format import Format
+
+    def read(path):
+        return PointCloud(np.load(path).reshape(-1, 3))
+
+    def write(path, cloud, binary):
+        with open(path, "wb") as f:
+            np.save(f, cloud.points)
+
+    with pytest.raises(FormatError, match="unknown point-cloud format '.toy'"):
+        check_format("a.toy")
+    monkeypatch.setitem(REGISTRY, ".toy", Format(".toy", read, write, reserved=frozenset({"x"})))
+    pts = np.arange(12.0).reshape(4, 3)
+    with pytest.warns(UserWarning, match="keeps these names for itself"):
+        write_cloud(tmp_path / "a.toy", PointCloud(pts, {"x": np.zeros(4)}))
+    assert check_format(tmp_path / "a.toy") == ".toy"
+    np.testing.assert_array_equal(read_cloud(tmp_path / "a.toy").points, pts)
+

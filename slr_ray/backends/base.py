@@ -13,25 +13,15 @@ import dataclasses
 import inspect
 import math
 from abc import ABC, abstractmethod
-from enum import Enum
 from typing import ClassVar
 
 import numpy as np
 
 from ..errors import InputValueError, dataclass_from_mapping
 from ..scan import Scan
+from .names import Backend
 
 __all__ = ["Backend", "Scanner", "BackendOptions", "require_rays", "require_streamable", "streams"]
-
-
-class Backend(str, Enum):
-    """Names of the subsampling backends: a scanner's identity (:attr:`Scanner.backend`)."""
-
-    BINNING = "binning"
-    EMBREE = "embree"
-
-    def __str__(self) -> str:  # "binning" in f-strings and file names, as enum.StrEnum (Python 3.11+)
-        return self.value
 
 
 @dataclasses.dataclass(frozen=True)

@@ -29,7 +29,7 @@ from ..effects import cast_rays, effect_cloud, simulate, simulate_given
 from ..errors import InputValueError, SlrWarning
 from ..io import PointCloud, atomic_path, check_format, read_cloud, write_cloud
 from ..meshscan import scan_mesh
-from ..outputs import OutputPlan
+from ..io.outputs import OutputPlan
 from ..paper import Q1_SCENES, Q2_SCENES
 from ..progress import phase
 from ..plotting import check_figure_path, cells_figure, comparison_figure, paper_figure, range_image_figure, save_figure, validation_figure
@@ -37,7 +37,7 @@ from ..positions import (AzimuthProfile, build_synthetic_profile, default_profil
                          select_positions)
 from ..scan import Scan, check_range_image
 from ..scenes import MESH_FORMATS, scene_effects, scene_from_spec
-from ..streaming import STREAMED_FORMATS, las_bounds, scan_las
+from ..io.streaming import STREAMED_FORMATS, las_bounds, scan_las
 from ..validation import load_config, load_rows, paper_report, paper_report_markdown, run_validation, stage_summary
 from .arguments import backend_from, check_effects, effects_from, ground_from, pattern_from
 

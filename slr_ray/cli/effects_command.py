@@ -18,7 +18,7 @@ from ..effects import fit_ray_drop, frame_pulses
 from ..effects.raydrop import COLUMN_STEP_RANGE_DEG, INTENSITY_SCALE_RANGE, NORMAL_K_RANGE
 from ..errors import InputValueError
 from ..io import atomic_path, read_cloud
-from ..outputs import OutputPlan
+from ..io.outputs import OutputPlan
 from .commands import emit
 
 __all__ = ["effects", "RING_SOURCES"]

@@ -13,7 +13,7 @@ from ..arrays import as_rigid_pose
 from ..errors import InputValueError, OutputError
 from ..evaluate import EVALUATION_FILES, evaluate_pair, evaluation_table, write_evaluation
 from ..io import read_cloud
-from ..outputs import LOCK_NAME, OutputPlan
+from ..io.outputs import LOCK_NAME, OutputPlan
 from .commands import emit
 
 __all__ = ["evaluate", "read_matrix"]

@@ -10,7 +10,7 @@ from pathlib import Path
 from ..arrays import json_safe
 from ..evaluate import compact_json, markdown_table
 from ..io import atomic_path
-from ..outputs import OutputPlan, resolve
+from ..io.outputs import OutputPlan, resolve
 from ..errors import InputValueError, OutputError
 from ..sensors import SENSORS
 from ..sequence import (ESTIMATORS, FPA_GAP, METHODS, convert_sequence, evaluate_sequence, read_sequence,

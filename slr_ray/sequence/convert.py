@@ -31,7 +31,7 @@ from tqdm import tqdm
 
 from ..errors import InputValueError, OutputError
 from ..io import PointCloud, atomic_path, check_format, write_cloud
-from ..outputs import LOCK_NAME, clean_stale_parts
+from ..io.outputs import LOCK_NAME, clean_stale_parts
 from ..sensors import sensor as shipped_sensor
 from .estimators import FPA_GAP, estimate
 from .frames import Sequence, write_kitti_poses

@@ -21,7 +21,7 @@ import numpy as np
 from ..backends import Backend, prepare, scanner_class
 from ..io import atomic_path
 from ..meshscan import scan_mesh
-from ..outputs import OutputPlan
+from ..io.outputs import OutputPlan
 from ..pattern import ScanPattern
 from ..positions import select_positions
 from ..scenes import scene_from_spec

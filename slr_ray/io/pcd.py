@@ -13,9 +13,11 @@ import warnings
 
 import numpy as np
 
-from .errors import FormatError
+from ..errors import FormatError
+from .cloud import PointCloud
+from .format import Format, spellable_ascii
 
-__all__ = ["read", "write"]
+__all__ = ["read", "write", "FORMATS"]
 
 _PCD_TYPES = {("F", 4): "f4", ("F", 8): "f8", ("I", 1): "i1", ("I", 2): "i2", ("I", 4): "i4", ("I", 8): "i8",
               ("U", 1): "u1", ("U", 2): "u2", ("U", 4): "u4", ("U", 8): "u8"}
@@ -112,3 +114,11 @@ def write(path, cloud, binary: bool = True) -> None:
             f.write(data.astype(data.dtype.newbyteorder("<")).tobytes())
         else:
             np.savetxt(f, np.column_stack([a.astype(np.float64) for a in arrays]), fmt="%.10g")
+
+
+def _read_pcd(path):
+    return PointCloud(*read(path))
+
+
+FORMATS = (Format(".pcd", _read_pcd, write, reserved=frozenset({"x", "y", "z"}), booleans=False,
+                  spellable=spellable_ascii, spelling="ASCII without blanks"),)

@@ -22,9 +22,11 @@ import lazrs
 import numpy as np
 from laspy.vlrs.vlrlist import VLRList
 
-from .errors import FormatError
+from ..errors import FormatError
+from .cloud import LasRecords, PointCloud
+from .format import Format
 
-__all__ = ["read", "write", "check_las_size"]
+__all__ = ["read", "write", "check_las_size", "FORMATS"]
 
 
 def check_las_size(path, header) -> None:
@@ -428,3 +430,30 @@ def _set_las_field(las, name, values, path):
     warnings.warn(f"{path}: {name!r} values do not fit the LAS field ({field_dtype}); kept as extra "
                   f"dimension {alt!r}, the field left at 0", stacklevel=5)
     _add_las_extra(las, alt, v, path)
+
+
+def _read_las(path):
+    pts, attrs, meta, (header, evlrs, array) = read(path)
+    return PointCloud(pts, attrs, None, {**meta, "las": LasRecords(header, evlrs, array)})
+
+
+def _write_las(path, cloud, binary, compress=False):
+    src = cloud.meta.get("las")
+    write(path, cloud, src if isinstance(src, LasRecords) else None, compress=compress)
+
+
+def _write_laz(path, cloud, binary):  # the format asked for, not the name's extension (-o x.dat --format laz)
+    _write_las(path, cloud, binary, compress=True)
+
+
+def _las_name(name: str) -> bool:
+    """32 bytes at most (a LAS extra dimension's name)."""
+    return 0 < len(name.encode()) <= 32
+
+
+#: attribute names LAS keeps for itself (its coordinate fields, and names laspy's LasData answers itself)
+_RESERVED = frozenset({"x", "y", "z", "X", "Y", "Z", "points", "header", "point_format"})
+#: LAS's own one-bit fields, which take booleans as they are
+_FLAGS = frozenset({"synthetic", "key_point", "withheld", "overlap", "scan_direction_flag", "edge_of_flight_line"})
+FORMATS = tuple(Format(ext, _read_las, writer, reserved=_RESERVED, booleans=False, flags=_FLAGS, spellable=_las_name,
+                       spelling="32 bytes at most") for ext, writer in ((".las", _write_las), (".laz", _write_laz)))

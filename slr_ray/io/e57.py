@@ -13,9 +13,11 @@ import warnings
 
 import numpy as np
 
-from .errors import FormatError, MissingDependencyError
+from ..errors import FormatError, MissingDependencyError
+from .cloud import PointCloud
+from .format import Format
 
-__all__ = ["read_scans", "write"]
+__all__ = ["read_scans", "read_e57_scans", "write", "FORMATS"]
 
 
 def _pye57():
@@ -188,3 +190,21 @@ def _e57_scan(e57, data: dict, translation) -> None:
             writer.write(m)
     finally:
         writer.close()
+
+
+def read_e57_scans(path) -> list:
+    """Every scan of an E57 file as a :class:`~slr_ray.io.PointCloud` (global frame; origin =
+    the scan's pose translation, None for a scan without a pose: the caller
+    decides, e.g. ``--origin 0 0 0``); points flagged invalid are left out,
+    their number in ``meta['e57_invalid']`` (:func:`slr_ray.io.e57.read_scans`)."""
+    return [PointCloud(*scan) for scan in read_scans(path)]
+
+
+def _read_e57(path):
+    scans = read_e57_scans(path)
+    if len(scans) != 1:
+        raise FormatError(f"{path} holds {len(scans)} scans: read them with slr_ray.io.read_e57_scans")
+    return scans[0]
+
+
+FORMATS = (Format(".e57", _read_e57, write),)

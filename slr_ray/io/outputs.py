@@ -42,7 +42,7 @@ import socket
 import stat
 from pathlib import Path
 
-from .errors import OutputError
+from ..errors import OutputError
 
 __all__ = ["OutputPlan", "resolve", "output_sidecars", "input_sidecars", "label_targets", "content_digest",
            "clean_stale_parts", "part_prefix", "label_path", "label_destinations", "link_new", "LOCK_NAME"]
