@@ -199,6 +199,14 @@ def _reduce_block(pts, s, e, ox, oy, oz, edges, lut, scale, offsets, columns, rm
             best_i[k] = base + s + i
 
 
+@njit(cache=True)
+def _block_buffers():
+    """The scratch arrays :func:`_reduce_block` fills for one block of points: x, y, z,
+    azimuth, range, -z / r (the elevation's table coordinate) and the row-table cell (int32)."""
+    return (np.empty(BLOCK), np.empty(BLOCK), np.empty(BLOCK), np.empty(BLOCK), np.empty(BLOCK),
+            np.empty(BLOCK), np.empty(BLOCK, np.int32))
+
+
 @njit(cache=True, error_model="numpy")
 def beam_reduce_serial(pts, ox, oy, oz, edges, offsets, columns, rmin, rmax, best_r, best_i):
     """:func:`beam_reduce` for one thread (``best_r``, ``best_i`` of one row), outside a parallel
@@ -207,13 +215,7 @@ def beam_reduce_serial(pts, ox, oy, oz, edges, offsets, columns, rmin, rmax, bes
     reduces one frame at a time (a sequence's window: 61 frames a target) pays it every call."""
     n = len(pts)
     lut, scale = row_table(edges, ROW_CELLS)
-    x = np.empty(BLOCK)
-    y = np.empty(BLOCK)
-    z = np.empty(BLOCK)
-    phi = np.empty(BLOCK)
-    ranges = np.empty(BLOCK)
-    qs = np.empty(BLOCK)
-    cells = np.empty(BLOCK, np.int32)
+    x, y, z, phi, ranges, qs, cells = _block_buffers()
     for s in range(0, n, BLOCK):
         _reduce_block(pts, s, min(n, s + BLOCK), ox, oy, oz, edges, lut, scale, offsets, columns, rmin, rmax,
                       x, y, z, phi, ranges, qs, cells, best_r, best_i)
@@ -229,13 +231,7 @@ def beam_reduce_posed(pts, rot, tx, ty, tz, edges, offsets, columns, rmin, rmax,
     n = len(pts)
     lut, scale = row_table(edges, ROW_CELLS)
     buf = np.empty((BLOCK, 3))
-    x = np.empty(BLOCK)
-    y = np.empty(BLOCK)
-    z = np.empty(BLOCK)
-    phi = np.empty(BLOCK)
-    ranges = np.empty(BLOCK)
-    qs = np.empty(BLOCK)
-    cells = np.empty(BLOCK, np.int32)
+    x, y, z, phi, ranges, qs, cells = _block_buffers()
     for s in range(0, n, BLOCK):
         m = min(n, s + BLOCK) - s
         for i in range(m):
@@ -259,13 +255,7 @@ def beam_reduce(pts, ox, oy, oz, edges, offsets, columns, rmin, rmax, best_r, be
     for t in prange(t_count):
         lo = n * t // t_count
         hi = n * (t + 1) // t_count
-        x = np.empty(BLOCK)
-        y = np.empty(BLOCK)
-        z = np.empty(BLOCK)
-        phi = np.empty(BLOCK)
-        ranges = np.empty(BLOCK)
-        qs = np.empty(BLOCK)
-        cells = np.empty(BLOCK, np.int32)
+        x, y, z, phi, ranges, qs, cells = _block_buffers()  # each thread its own
         for s in range(lo, hi, BLOCK):
             _reduce_block(pts, s, min(hi, s + BLOCK), ox, oy, oz, edges, lut, scale, offsets, columns, rmin,
                           rmax, x, y, z, phi, ranges, qs, cells, best_r[t], best_i[t])
