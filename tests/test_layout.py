@@ -251,12 +251,13 @@ LAYERS = (
     ("base", {"errors", "arrays", "threads", "paper", "progress"}),
     ("core", {"core"}),
     ("patterns", {"pattern", "sensors", "spherical", "scan"}),
-    ("measures", {"cellgrid", "similarity", "metrics"}),
+    ("measures", {"metrics"}),
     ("ray casting", {"raycast"}),
     ("backends", {"backends", "accumulator"}),
     ("input/output", {"io"}),
-    ("uses", {"streaming", "effects", "scenes", "meshscan", "positions", "compare", "distances",
-              "validation", "augment", "plotting", "demo", "evaluate", "sequence"}),
+    ("uses", {"streaming", "effects", "scenes", "meshscan", "positions", "compare", "distances", "validation",
+              "augment", "evaluate", "sequence"}),
+    ("figures", {"plotting", "demo"}),
     ("command line", {"cli"}),
 )
 
@@ -343,3 +344,4 @@ def test_few_functions_take_long_parameter_lists():
     found = [f"{mod}.{name}" for mod, path in _modules() for name in _long_signatures(ast.parse(path.read_text()))]
     assert len(found) <= MAX_LONG_SIGNATURES, f"{len(found)} functions over 8 parameters (use an options object): " \
                                               f"{found}"
+

@@ -32,7 +32,8 @@ from ..meshscan import scan_mesh
 from ..io.outputs import OutputPlan
 from ..paper import Q1_SCENES, Q2_SCENES
 from ..progress import phase
-from ..plotting import check_figure_path, cells_figure, comparison_figure, paper_figure, range_image_figure, save_figure, validation_figure
+from ..plotting import (check_figure_path, cells_figure, comparison_figure, distances_figure, paper_figure,
+                        range_image_figure, save_figure, validation_figure)
 from ..positions import (AzimuthProfile, build_synthetic_profile, default_profile, ground_labels, require_positions,
                          select_positions)
 from ..scan import Scan, check_range_image
@@ -443,7 +444,8 @@ def distances(args):
                                seed=args.seed, resolution=args.resolution, max_range=args.max_range,
                                scanner_height=args.scanner_height, min_ground_points=args.min_ground_points,
                                ground=ground, progress=not args.quiet)
-        files = study.write(args.output)
+        files = study.write(args.output) + ["distances.png"]
+        save_figure(distances_figure(study.original, study.slr, study.sweep), out / "distances.png")
     emit({"output_dir": str(args.output), **study.summary(), "files": files})
 
 
