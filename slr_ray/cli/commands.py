@@ -34,12 +34,14 @@ from ..paper import Q1_SCENES, Q2_SCENES
 from ..progress import phase
 from ..plotting import (check_figure_path, cells_figure, comparison_figure, distances_figure, paper_figure,
                         range_image_figure, save_figure, validation_figure)
-from ..positions import (AzimuthProfile, build_synthetic_profile, default_profile, ground_labels, require_positions,
+from ..positions import (AzimuthProfile, default_profile, ground_labels, require_positions,
                          select_positions)
 from ..scan import Scan, check_range_image
 from ..scenes import MESH_FORMATS, scene_effects, scene_from_spec
-from ..io.streaming import STREAMED_FORMATS, las_bounds, scan_las
-from ..validation import load_config, load_rows, paper_report, paper_report_markdown, run_validation, stage_summary
+from ..io.streaming import STREAMED_FORMATS, las_bounds
+from ..streaming import scan_las
+from ..validation import (build_synthetic_profile, load_config, load_rows, paper_report, paper_report_markdown,
+                          run_validation, stage_summary)
 from .arguments import backend_from, check_effects, effects_from, ground_from, pattern_from
 
 __all__ = ["emit", "COMMANDS"]
