@@ -360,8 +360,10 @@ def evaluate_pair(a_points, b_points, a_beams="auto", b_beams="auto",
     -------
     dict
         ``registration``, ``patterns``, ``unseen_share`` (of B's points),
-        ``rows`` (one per method: counts, :class:`~slr_ray.metrics.PointMetrics`
-        and :class:`~slr_ray.metrics.RangeImageMetrics` as dicts, seconds),
+        ``rows`` (one per method: counts, seconds, and a block per registered
+        metric, :data:`slr_ray.metrics.REGISTRY`: ``points``, a
+        :class:`~slr_ray.metrics.PointMetrics`, and ``image``, a
+        :class:`~slr_ray.metrics.RangeImageMetrics`, as dicts),
         ``images`` (range images, not JSON: ``real`` and per method) and
         ``seconds`` per stage.
     """
@@ -546,7 +548,7 @@ def splits_table(result: dict) -> list[dict]:
     F-scores as ``P@5cm``, ``R@5cm``, ``F@5cm``...): the JSON's ``groups`` as a long table."""
     out = []
     for r in result["rows"]:
-        for part in METRICS:
+        for part in (m for m in METRICS if m in r):
             for split, labels in r[part].get("groups", {}).items():
                 for label, block in labels.items():
                     row = {"method": r["method"], "part": part, "split": split, "label": label}

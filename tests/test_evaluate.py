@@ -337,6 +337,9 @@ def test_a_new_metric_is_one_module_and_its_registry_entry(tmp_path, monkeypatch
     table = evaluation_table(res)
     assert [r["sim/real points"] for r in table] == [want["zbuffer"], want["binning"]]
     assert list(table[0])[-1] == "sim/real points" and "depth_rmse_m" in table[0]  # after the field's columns
+    # rows scored without it (before it was registered; the sequence's holdout scores the field's two) still table
+    older = res | {"rows": [{k: v for k, v in r.items() if k != "ratio"} for r in res["rows"]]}
+    assert [list(r) for r in evaluation_table(older)] == [list(r)[:-1] for r in table]
     paths = write_evaluation(res, tmp_path / "ev")
     with open(paths["splits"], newline="") as f:
         parts = {r["part"] for r in csv.DictReader(f)}

@@ -25,8 +25,10 @@ def score_pair(pair: Pair) -> dict:
 
 
 def metric_columns(row: dict, result: dict) -> dict:
-    """The table's columns of one evaluation row (``row[name]`` the blocks), metric by metric."""
+    """The table's columns of one evaluation row (``row[name]`` the blocks), metric by metric; a metric
+    the row was not scored by (rows made before it was registered, or by another scorer) has none."""
     out = {}
     for name, metric in REGISTRY.items():
-        out |= metric.columns(row[name], result)
+        if name in row:
+            out |= metric.columns(row[name], result)
     return out
