@@ -76,7 +76,7 @@ def _rows_of(rows):
     if isinstance(rows, (str, Path)):
         raise InputTypeError(f"a validation figure takes a run's rows, not a file ({rows}): "
                              "slr_ray.validation.load_rows(path) reads them")
-    rows = list(rows)
+    rows = list(rows.values() if isinstance(rows, dict) else rows)  # read_rows' dict by key, or the rows
     if not rows:
         raise InputValueError("no rows to plot")
     return rows

@@ -8,7 +8,7 @@ import pytest
 from slr_ray import InputTypeError, InputValueError
 from slr_ray.cli import main
 from slr_ray.plotting import paper_figure, save_figure, validation_figure
-from slr_ray.validation import load_config, load_rows, run_validation, stage_summary
+from slr_ray.validation import load_config, load_rows, read_rows, run_validation, stage_summary
 
 
 @pytest.fixture(scope="module")
@@ -62,6 +62,7 @@ def test_figure(quick, tmp_path):
     # figures read no files (slr_ray.plotting imports no computation): a path is refused, saying what reads it
     with pytest.raises(InputTypeError, match="load_rows"):
         validation_figure(out / "results.csv")
+    assert validation_figure(read_rows(out / "results.csv")).axes  # read_rows' rows by key: the same rows
 
 
 def test_a_resume_with_settings_that_change_rows_is_refused(quick, tmp_path, capsys):
