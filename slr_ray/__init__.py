@@ -19,7 +19,7 @@ from .metrics import Agreement, agreement, similarity
 from .sensors import SENSORS, BeamPattern, sensor
 from .spherical import pulse_bins, spherical_coordinates
 from .io import e57, las, outputs, pcd
-from .metrics import cellgrid as _cellgrid, coverage as _coverage
+from .metrics import cellgrid, coverage as _coverage
 
 #: modules that moved into :mod:`slr_ray.io`, importable under their old paths too
 #: (``from slr_ray.outputs import OutputPlan``): the same module objects, not copies
@@ -28,7 +28,7 @@ for _module in (outputs, las, pcd, e57):
 del _module
 #: and modules that moved into :mod:`slr_ray.metrics` (``from slr_ray.similarity import nearest``)
 _sys.modules[f"{__name__}.similarity"] = _coverage
-_sys.modules[f"{__name__}.cellgrid"] = _cellgrid
+_sys.modules[f"{__name__}.cellgrid"] = cellgrid  # and slr_ray.cellgrid, as before
 
 __version__ = "0.1.0"
 
