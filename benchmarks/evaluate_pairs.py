@@ -41,6 +41,7 @@ from slr_ray import scan_mesh, sensor  # noqa: E402
 from slr_ray.cli import main as cli  # noqa: E402
 from slr_ray.evaluate import evaluate_pair, evaluation_table, markdown_table, write_evaluation  # noqa: E402
 from slr_ray.io import read_cloud  # noqa: E402
+from slr_ray.plotting import evaluation_figure, save_figure  # noqa: E402
 from slr_ray.scenes import rectangle_scene  # noqa: E402
 from slr_ray.sensors import miscalibrated, sensor_noise  # noqa: E402
 
@@ -144,6 +145,7 @@ def synthetic(repeat, out):
                      inputs={"scene": "rectangle_scene(500, seed=0, xy_range=(-40, 40), ground_z=-1.73)",
                              "sensor": "miscalibrated(velodyne_hdl64e_s2, seed=0) with sensor_noise",
                              "pose_a": POSE_A.tolist(), "pose_b": POSE_B.tolist()})
+    save_figure(evaluation_figure(syn), ROOT / "docs" / "evaluate_synthetic" / "evaluation.png")  # as the command
     (ROOT / "docs" / "evaluate_synthetic" / "table_true_pose.md").write_text(
         markdown_table(evaluation_table(truth)) + "\n")
     out["synthetic"] = {"scan_seconds": t_scan, "seconds_runs": times, "seconds_median_warm": statistics.median(times[1:]),

@@ -15,16 +15,20 @@ from .distances import DistanceHistogram, distance_histogram, height_sweep, puls
 from .meshscan import MeshScan, scan_mesh
 from .positions import (AzimuthProfile, candidate_cells, label_ground, minimum_profile, select_positions,
                         suggest_resolution)
-from .similarity import Agreement, agreement, similarity
+from .metrics import Agreement, agreement, similarity
 from .sensors import SENSORS, BeamPattern, sensor
 from .spherical import pulse_bins, spherical_coordinates
 from .io import e57, las, outputs, pcd
+from .metrics import cellgrid, coverage as _coverage
 
 #: modules that moved into :mod:`slr_ray.io`, importable under their old paths too
 #: (``from slr_ray.outputs import OutputPlan``): the same module objects, not copies
 for _module in (outputs, las, pcd, e57):
     _sys.modules[f"{__name__}.{_module.__name__.rsplit('.', 1)[1]}"] = _module
 del _module
+#: and modules that moved into :mod:`slr_ray.metrics` (``from slr_ray.similarity import nearest``)
+_sys.modules[f"{__name__}.similarity"] = _coverage
+_sys.modules[f"{__name__}.cellgrid"] = cellgrid  # and slr_ray.cellgrid, as before
 
 __version__ = "0.1.0"
 

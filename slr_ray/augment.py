@@ -47,8 +47,8 @@ from .paper import MIN_GROUND_POINTS, SCANNER_HEIGHT, SECONDARY_RESOLUTION
 from .pattern import ScanPattern, as_pattern
 from .positions import ground_labels, require_positions, select_positions
 from .progress import bar as progress_bar
-from .io.streaming import STREAMED_FORMATS, scan_las_many
-from .streaming import las_positions
+from .io.streaming import STREAMED_FORMATS
+from .streaming import las_positions, scan_las_many
 
 __all__ = ["augment", "AugmentConfig", "MANIFEST", "JOURNAL"]
 

@@ -31,7 +31,7 @@ from .plotting import demo_figure, save_figure
 from .positions import select_positions
 from .progress import bar, phase
 from .scenes import rectangle_scene
-from .similarity import agreement
+from .metrics import agreement
 
 __all__ = ["run_demo", "demo_files"]
 

@@ -26,7 +26,6 @@ from .errors import InputValueError
 from .io import PointCloud, atomic_path, read_cloud
 from .paper import MIN_GROUND_POINTS, SCANNER_HEIGHT, SECONDARY_RESOLUTION, SWEEP_HEIGHTS
 from .pattern import ScanPattern, as_pattern
-from .plotting import distances_figure, save_figure
 from .positions import ground_labels, select_positions
 from .progress import bar as progress_bar
 
@@ -269,14 +268,16 @@ class DistanceStudy:
         return dict(zip(study_files(self.sweep)[:-1], [self.original, self.slr, *self.sweep.values()]))
 
     def write(self, outdir) -> list:
-        """CSV tables and ``distances.png`` (the paper's Figure 4) into ``outdir``; returns the file names."""
+        """The CSV tables into ``outdir``; returns their names, sorted. The paper's Figure 4,
+        ``distances.png``, is drawn by the figures' layer, as the ``distances`` command does:
+        ``save_figure(distances_figure(study.original, study.slr, study.sweep), outdir / "distances.png")``
+        (:mod:`slr_ray.plotting`)."""
         out = Path(outdir)
         out.mkdir(parents=True, exist_ok=True)
         for name, hist in self.tables().items():
             with atomic_path(out / name) as tmp:
                 hist.to_csv(tmp)
-        save_figure(distances_figure(self.original, self.slr, self.sweep), out / "distances.png")
-        return sorted(self.tables()) + ["distances.png"]
+        return sorted(self.tables())
 
     def summary(self) -> dict:
         return {"inputs": self.inputs, "original": self.original.summary(), "slr": self.slr.summary(),
@@ -285,7 +286,8 @@ class DistanceStudy:
 
 
 def study_files(heights) -> list:
-    """The files :meth:`DistanceStudy.write` writes for a sweep over ``heights``."""
+    """The files of the ``distances`` command for a sweep over ``heights``: the tables
+    :meth:`DistanceStudy.write` writes, and its figure ``distances.png`` (last)."""
     return ["original.csv", "slr.csv", *(f"height_{float(h):g}m.csv" for h in heights), "distances.png"]
 
 

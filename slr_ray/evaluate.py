@@ -73,9 +73,8 @@ from .arrays import as_points, as_rigid_pose, json_safe
 from .backends import BACKENDS, prepare, scanner_class
 from .errors import InputValueError, MissingDependencyError, OutputError
 from .io import atomic_path
-from .metrics import (FIELD_THRESHOLD, LIDAR4D_CODE_THRESHOLD, PAPER_THRESHOLD, point_metrics, range_bands,
-                      range_image_metrics, seen_from)
-from .plotting import evaluation_figure, save_figure
+from .metrics import (FIELD_THRESHOLD, LIDAR4D_CODE_THRESHOLD, PAPER_THRESHOLD, REGISTRY as METRICS, Pair,
+                      metric_columns, range_bands, score_pair, seen_from)
 from .progress import bar as progress_bar, phase
 from .scan import Scan
 from .sensors import BeamPattern, fitted_pattern, scan_order_beams, sensor
@@ -361,8 +360,10 @@ def evaluate_pair(a_points, b_points, a_beams="auto", b_beams="auto",
     -------
     dict
         ``registration``, ``patterns``, ``unseen_share`` (of B's points),
-        ``rows`` (one per method: counts, :class:`~slr_ray.metrics.PointMetrics`
-        and :class:`~slr_ray.metrics.RangeImageMetrics` as dicts, seconds),
+        ``rows`` (one per method: counts, seconds, and a block per registered
+        metric, :data:`slr_ray.metrics.REGISTRY`: ``points``, a
+        :class:`~slr_ray.metrics.PointMetrics`, and ``image``, a
+        :class:`~slr_ray.metrics.RangeImageMetrics`, as dicts),
         ``images`` (range images, not JSON: ``real`` and per method) and
         ``seconds`` per stage.
     """
@@ -477,14 +478,12 @@ def evaluate_pair(a_points, b_points, a_beams="auto", b_beams="auto",
         if m == BINNING_METHOD:
             binning_img = img
         sim_ranges = np.where(np.isfinite(real_img["range"]), real_img["range"], img)
-        pm = point_metrics(b_in, a_in_b[sim_idx], thresholds=thresholds, groups=point_groups)
-        im = range_image_metrics(real_img["range"], img,
-                                 groups={"range band": range_bands(sim_ranges), "beam": np.arange(pat_b.n_beams),
-                                         "seen": pix_seen.astype(str)})
+        blocks = score_pair(Pair(b_in, a_in_b[sim_idx], real_img["range"], img, tuple(thresholds), point_groups,
+                                 {"range band": range_bands(sim_ranges), "beam": np.arange(pat_b.n_beams),
+                                  "seen": pix_seen.astype(str)}))
         rows.append({"method": m, "label": LABELS.get(m, m), "points_out": int(len(sim_idx)),
                      "pulses_returned": int(len(sc)),
-                     "prepare_seconds": round(prep, 3), "seconds": round(time.perf_counter() - t0, 3),
-                     "points": pm.to_dict(), "image": im.to_dict()})
+                     "prepare_seconds": round(prep, 3), "seconds": round(time.perf_counter() - t0, 3)} | blocks)
         seconds[m] = time.perf_counter() - t0
     if BASELINE in images and binning_img is not None:
         identical = bool(np.array_equal(images[BASELINE], binning_img, equal_nan=True))
@@ -505,37 +504,10 @@ def evaluate_pair(a_points, b_points, a_beams="auto", b_beams="auto",
 
 # --- tables and files ---------------------------------------------------------------------------------------
 
-def _cm(x):
-    return f"{100 * x:g}cm"
-
-
 def evaluation_table(result: dict) -> list[dict]:
-    """One flat row per method: the figures of the table (JSON-ready)."""
-    out = []
-    for r in result["rows"]:
-        p, im = r["points"], r["image"]
-        row = {"method": r["label"], "points": r["points_out"],
-               "cd_sum_m2": p["chamfer_sum"], "cd_to_real_m": p["to_target_distance"],
-               "cd_to_sim_m": p["to_simulated_distance"]}
-        for tau in result["thresholds"]:
-            f = p["fscore"][_cm(tau)]
-            row[f"P@{_cm(tau)}"], row[f"R@{_cm(tau)}"], row[f"F@{_cm(tau)}"] = (f["precision"], f["recall"],
-                                                                              f["fscore"])
-        seen = p["groups"]["seen"]
-        tau = result["seen_threshold"]
-        row[f"R@{_cm(tau)} seen"] = seen.get("seen", {}).get("fscore", {}).get(_cm(tau), {}).get("recall", math.nan)
-        n_t = p["target_points"]
-        un = seen.get("unseen", {})
-        row["unseen share of real->sim CD"] = (un.get("to_simulated", 0.0) * un.get("target_points", 0)
-                                              / (p["to_simulated"] * n_t)) if n_t and p["to_simulated"] else math.nan
-        row |= {"depth_rmse_m": im["rmse"], "depth_medae_m": im["medae"], "both_return": im["both_return"],
-                "drop_accuracy": im["accuracy"], "drop_recall": im["drop_recall"],
-                "drop_precision": im["drop_precision"]}
-        sse_un = im["groups"]["seen"].get("unseen", {}).get("sse", 0.0)
-        row["unseen share of depth SSE"] = sse_un / im["sse"] if im["sse"] else math.nan
-        row["rmse seen pulses"] = im["groups"]["seen"].get("seen", {}).get("rmse", math.nan)
-        out.append(row)
-    return out
+    """One flat row per method: the figures of the table (JSON-ready), each registered metric's columns
+    in the registry's order (:data:`slr_ray.metrics.REGISTRY`)."""
+    return [{"method": r["label"], "points": r["points_out"]} | metric_columns(r, result) for r in result["rows"]]
 
 
 def _fmt(v):
@@ -576,8 +548,8 @@ def splits_table(result: dict) -> list[dict]:
     F-scores as ``P@5cm``, ``R@5cm``, ``F@5cm``...): the JSON's ``groups`` as a long table."""
     out = []
     for r in result["rows"]:
-        for part in ("points", "image"):
-            for split, labels in r[part]["groups"].items():
+        for part in (m for m in METRICS if m in r):
+            for split, labels in r[part].get("groups", {}).items():
                 for label, block in labels.items():
                     row = {"method": r["method"], "part": part, "split": split, "label": label}
                     for k, v in block.items():
@@ -599,18 +571,21 @@ def _csv_text(rows: list[dict]) -> str:
     return buf.getvalue()
 
 
-#: the files :func:`write_evaluation` writes, by kind
+#: the files of an evaluation (the ``evaluate`` command's), by kind: :func:`write_evaluation` writes all
+#: but ``figure``, which :func:`slr_ray.plotting.evaluation_figure` draws (figures are not computed here)
 EVALUATION_FILES = {"json": "evaluation.json", "markdown": "table.md", "csv": "table.csv",
                     "splits": "splits.csv", "figure": "evaluation.png"}
 
 
 def write_evaluation(result: dict, directory, force: bool = False, inputs: dict | None = None) -> dict:
     """Write ``evaluation.json`` (everything, splits included; one line per figure block),
-    ``table.md``, ``table.csv``, ``splits.csv`` (every split, one row each) and
-    ``evaluation.png`` into a new ``directory``.
+    ``table.md``, ``table.csv`` and ``splits.csv`` (every split, one row each) into a new ``directory``.
 
     Refuses an existing non-empty directory unless ``force`` (then only these
-    five files are replaced). Returns the paths written.
+    files are replaced). Returns the paths written, by kind. The figure,
+    ``evaluation.png``, is drawn by the figures' layer, as the ``evaluate``
+    command does: ``save_figure(evaluation_figure(result), directory / "evaluation.png")``
+    (:mod:`slr_ray.plotting`).
     """
     d = Path(directory)
     if d.exists() and not d.is_dir():
@@ -620,7 +595,7 @@ def write_evaluation(result: dict, directory, force: bool = False, inputs: dict 
     d.mkdir(parents=True, exist_ok=True)
     table = evaluation_table(result)
     doc = {k: v for k, v in result.items() if k != "images"} | {"table": table, "inputs": inputs or {}}
-    paths = {kind: d / name for kind, name in EVALUATION_FILES.items()}
+    paths = {kind: d / name for kind, name in EVALUATION_FILES.items() if kind != "figure"}
     with atomic_path(paths["json"]) as tmp:
         tmp.write_text(compact_json(json_safe(doc)) + "\n")
     with atomic_path(paths["markdown"]) as tmp:
@@ -629,5 +604,4 @@ def write_evaluation(result: dict, directory, force: bool = False, inputs: dict 
         tmp.write_text(_csv_text(table))
     with atomic_path(paths["splits"]) as tmp:
         tmp.write_text(_csv_text(splits_table(result)))
-    save_figure(evaluation_figure(result), paths["figure"])
     return {k: str(v) for k, v in paths.items()}

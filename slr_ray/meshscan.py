@@ -40,7 +40,6 @@ from .io import atomic_path
 from .pattern import ScanPattern, as_pattern, pulse_rays
 from .progress import bar as progress_bar
 from .raycast import RayScene
-from .scenes import RectangleScene, dense_samples
 
 __all__ = ["MeshScan", "scan_mesh", "scan_mesh_to_file", "load_meshscan", "MESH_MODES"]
 
@@ -139,8 +138,8 @@ def _check_mesh_args(scene_or_mesh, origin, pattern, mode, supersample, face_lab
         refuse_memory(100.0 * pattern.shape[1] * (int(supersample) ** 2 + 1),
                       f"a 'nearest' scan of {int(supersample)} x {int(supersample)} rays a pulse "
                       f"({pattern.shape[1]:,} pulses a row)", "use a smaller supersample")
-    if mode == "dense":
-        if not isinstance(scene_or_mesh, RectangleScene):
+    if mode == "dense":  # a capability, not a class: the scene samples its own surfaces
+        if not callable(getattr(scene_or_mesh, "dense_samples", None)):
             raise InputValueError("mode='dense' needs a RectangleScene (planar polygons to sample)")
     return mesh, faces, labels, origin, pattern
 
@@ -343,7 +342,7 @@ def _dense_scan(scene, origin, pattern, spacing, band_pulses=None):
     lab = np.empty(n, np.int64)
     rng = np.empty(n)
     start = 0
-    for chunk, labels in dense_samples(scene, spacing, copy=False):
+    for chunk, labels in scene.dense_samples(spacing, copy=False):
         lo, hi = np.searchsorted(want, [start, start + len(chunk)])
         if hi > lo:
             local = want[lo:hi] - start
@@ -376,7 +375,7 @@ def _dense_winners(scene, origin, pattern, spacing, band_pulses=None):
         # samples in 38 s instead of 46 s through hash tables; finer patterns hash
         tables = BinTables(origin, pattern, key_range=band if len(bands) > 1 else None,
                            slot_bytes=_DENSE_SLOT_BYTES)
-        for pts, _ in dense_samples(scene, spacing, copy=False):
+        for pts, _ in scene.dense_samples(spacing, copy=False):
             tables.add(pts)
         k, _, w = tables.winners(with_ranges=False, release=True)
         del tables
@@ -394,7 +393,7 @@ def _dense_chunks(scene, origin, pattern, spacing):
     keys, want = _dense_winners(scene, origin, pattern, spacing)
     nh = pattern.n_azimuth
     start = 0
-    for pts, lab in dense_samples(scene, spacing, copy=False):
+    for pts, lab in scene.dense_samples(spacing, copy=False):
         lo, hi = np.searchsorted(want, [start, start + len(pts)])
         if hi > lo:
             local = want[lo:hi] - start

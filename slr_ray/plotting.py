@@ -21,10 +21,10 @@ from matplotlib.figure import Figure
 from matplotlib.lines import Line2D
 from matplotlib.patches import Patch
 
-from .errors import InputValueError
+from .errors import InputTypeError, InputValueError
 from .io import atomic_path
+from .metrics import full_pairs, series
 from .paper import NEAR_DISTANCE, PRIMARY_RESOLUTION, PRIMARY_RESOLUTION_FINE, Q1_SCENES, Q2_SCENES
-from .validation import full_pairs, load_rows, series
 
 __all__ = ["save_figure", "check_figure_path", "validation_figure", "paper_figure", "comparison_figure", "demo_figure",
            "distances_figure", "cells_figure", "range_image_figure", "evaluation_figure"]
@@ -71,12 +71,15 @@ def _binned_means(d, s, edges):
     return mids, means
 
 
-def _rows_of(rows_or_csv):
-    if isinstance(rows_or_csv, list):
-        if not rows_or_csv:
-            raise InputValueError("no rows to plot")
-        return rows_or_csv
-    return load_rows(rows_or_csv)
+def _rows_of(rows):
+    """The records a validation figure draws (figures read no files: :mod:`slr_ray.validation` reads them)."""
+    if isinstance(rows, (str, Path)):
+        raise InputTypeError(f"a validation figure takes a run's rows, not a file ({rows}): "
+                             "slr_ray.validation.load_rows(path) reads them")
+    rows = list(rows.values() if isinstance(rows, dict) else rows)  # read_rows' dict by key, or the rows
+    if not rows:
+        raise InputValueError("no rows to plot")
+    return rows
 
 
 def validation_figure(rows):
@@ -89,8 +92,8 @@ def validation_figure(rows):
 
     Parameters
     ----------
-    rows : list of dict or path
-        Rows of a ``results.csv`` (:func:`slr_ray.validation.load_rows`) or its path.
+    rows : list of dict
+        Rows of a ``results.csv``, as :func:`slr_ray.validation.load_rows` reads them.
     """
     rows = _rows_of(rows)
     have_precision = any(r.get("precision") not in (None, "") for r in rows)
@@ -133,6 +136,7 @@ def paper_figure(rows, backend: str = "binning", truth: str = "center"):
     0.0144 deg ones (dotted); (d) every backend and truth semantics on the
     positions where all were run; (e) precision against distance for the
     series of (a) and (b), where the rows record it. Lines are means in 5 m bins.
+    ``rows``: a run's rows, as :func:`slr_ray.validation.load_rows` reads them.
     """
     rows = _rows_of(rows)
     have_precision = any(r.get("precision") not in (None, "") for r in rows)

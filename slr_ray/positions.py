@@ -36,16 +36,14 @@ from scipy.spatial import cKDTree
 from .arrays import as_points
 from .backends import prepare
 from .errors import InputValueError, MissingDependencyError, SlrNote, SlrWarning
-from .meshscan import scan_mesh
 from .paper import (CELL_SIZE, GROUND_COUNT_RADIUS, GROUND_HEIGHT_RADIUS, MIN_GROUND_POINTS, SCANNER_HEIGHT,
                     SECONDARY_RESOLUTION)
 from .pattern import ScanPattern
 from .progress import bar as progress_bar
 from .progress import phase
-from .scenes import scene_from_spec
 
 __all__ = ["CandidateCells", "AzimuthProfile", "candidate_cells", "select_positions",
-           "azimuth_histogram", "minimum_profile", "default_profile", "build_synthetic_profile", "suggest_resolution",
+           "azimuth_histogram", "minimum_profile", "default_profile", "suggest_resolution",
            "label_ground", "ground_labels", "DEFAULT_PROFILE_PATH"]
 
 #: Words of this module's messages that name arguments, and the flags of ``slr-ray`` that set them.
@@ -125,30 +123,6 @@ def minimum_profile(scans, pattern: ScanPattern | None = None, bins: int = 360, 
         raise InputValueError("minimum_profile needs at least one scan")
     return AzimuthProfile(np.min(hists, axis=0), pattern or ScanPattern(SECONDARY_RESOLUTION),
                           {"n_scans": len(hists), **(meta or {})})
-
-
-def build_synthetic_profile(scenes=("distance-1", "distance-2", "distance-3", "distance-4", "distance-5"),
-                            positions_per_scene: int = 4, seed: int = 0,
-                            pattern: ScanPattern | None = None) -> AzimuthProfile:
-    """The minimum profile of true scans of synthetic scenes (how the shipped one was made).
-
-    For each scene, ``positions_per_scene`` scanner positions 2-15 m from the
-    scene centre at 1.65 m above the ground, each scanned exactly (pulse
-    centres) at ``pattern`` (0.144 deg): these stand in for the paper's
-    reference scans (Yang and Purves' dataset, 0.144 deg).
-    """
-    pattern = pattern or ScanPattern(SECONDARY_RESOLUTION)
-    rng = np.random.default_rng(seed)
-    scans = []
-    for name in scenes:
-        scene = scene_from_spec(name)
-        for _ in range(positions_per_scene):
-            r, a = rng.uniform(2, 15), rng.uniform(0, 2 * np.pi)
-            o = np.array([r * np.cos(a), r * np.sin(a), 0.0])
-            scans.append((scan_mesh(scene, o, pattern).points, o))
-    return minimum_profile(scans, pattern, meta={
-        "name": "synthetic", "scenes": list(scenes), "positions_per_scene": positions_per_scene,
-        "seed": seed, "made_by": "slr-ray profile build (slr_ray.positions.build_synthetic_profile)"})
 
 
 def default_profile() -> AzimuthProfile:

@@ -67,6 +67,11 @@ class RectangleScene:
     n_present: int
     params: dict = field(default_factory=dict)
 
+    def dense_samples(self, spacing: float = 0.005, chunk: int = 1 << 22, copy: bool = True):
+        """:func:`dense_samples` of this scene: what a dense mesh scan (``scan_mesh(..., mode='dense')``)
+        asks of a scene, so that :mod:`slr_ray.meshscan` needs no scene class."""
+        return dense_samples(self, spacing, chunk, copy)
+
     def info(self) -> dict:
         return {
             "n_rectangles": self.n_rectangles,

@@ -146,7 +146,8 @@ def test_write_evaluation_refuses_a_non_empty_directory(pair, tmp_path):
     assert len(doc["table"]) == len(METHODS) and "images" not in doc
     assert (out / "table.csv").read_text().count("\n") == len(METHODS) + 1
     assert (out / "table.md").read_text().startswith("| method |")
-    assert set(paths) == {"json", "markdown", "csv", "splits", "figure"}
+    assert set(paths) == {"json", "markdown", "csv", "splits"}
+    assert not (out / "evaluation.png").exists()  # figures are drawn by slr_ray.plotting (the command draws it)
     # compact: one line per figure block (a split's figures), not one per number
     lines = (out / "evaluation.json").read_text().splitlines()
     blocks = sum(len(g) for r in res["rows"] for part in ("points", "image") for g in r[part]["groups"].values())
@@ -186,6 +187,8 @@ def test_cli_evaluate(tmp_path, capsys):
     assert res["registration"]["fitness"] > 0.5
     assert abs(res["registration"]["translation_m"][0] - 0.5) < 0.05
     assert [r["method"] for r in res["table"]] == ["no SLR (z-buffer)", "binning"]
+    assert set(res["files"]) == {"json", "markdown", "csv", "splits", "figure"}  # the command draws its figure
+    assert (out / "evaluation.png").stat().st_size > 0
     assert main(argv) == 2 and "not empty (5 entries: evaluation.json, " in capsys.readouterr().err
     assert main(argv + ["--force"]) == 0
 
@@ -294,3 +297,50 @@ def test_cli_evaluate_refuses_to_write_over_its_inputs(tmp_path, capsys):
     for force in ([], ["--force"]):
         assert main(["evaluate", str(p), str(p), "-o", str(other), "--quiet", *force]) == 2
         assert "not a directory" in capsys.readouterr().err and other.read_text() == "mine"
+
+
+TOY_METRIC = '''
+"""A toy metric, as a new one would be written: one module of slr_ray/metrics/ (docs/architecture.md)."""
+from slr_ray.metrics import Metric
+
+
+def score(pair):
+    return {"ratio": len(pair.simulated) / len(pair.target),
+            "groups": {"seen": {"all": {"pulses": int(pair.image.size)}}}}
+
+
+def columns(block, result):
+    return {"sim/real points": block["ratio"]}
+
+
+METRIC = Metric("ratio", score, columns)
+'''
+
+
+def test_a_new_metric_is_one_module_and_its_registry_entry(tmp_path, monkeypatch):
+    """The recipe of docs/architecture.md followed once: the file, the registry line, and nothing else:
+    the evaluation scores it, its table has its column and splits.csv its groups."""
+    import importlib
+
+    from slr_ray.metrics import REGISTRY
+
+    (tmp_path / "toy_metric.py").write_text(TOY_METRIC)
+    monkeypatch.syspath_prepend(str(tmp_path))
+    toy = importlib.import_module("toy_metric")
+    monkeypatch.setitem(REGISTRY, toy.METRIC.name, toy.METRIC)  # the registry line
+    pts, beams = offset_beams_frame()
+    res = evaluate_pair(pts, pts, a_beams=beams, b_beams=beams, sensor=SMALL, transform=np.eye(4),
+                        methods=("zbuffer", "binning"))
+    rows = {r["method"]: r for r in res["rows"]}
+    want = {m: rows[m]["points_out"] / rows[m]["points"]["target_points"] for m in rows}
+    assert {m: r["ratio"]["ratio"] for m, r in rows.items()} == want
+    table = evaluation_table(res)
+    assert [r["sim/real points"] for r in table] == [want["zbuffer"], want["binning"]]
+    assert list(table[0])[-1] == "sim/real points" and "depth_rmse_m" in table[0]  # after the field's columns
+    # rows scored without it (before it was registered; the sequence's holdout scores the field's two) still table
+    older = res | {"rows": [{k: v for k, v in r.items() if k != "ratio"} for r in res["rows"]]}
+    assert [list(r) for r in evaluation_table(older)] == [list(r)[:-1] for r in table]
+    paths = write_evaluation(res, tmp_path / "ev")
+    with open(paths["splits"], newline="") as f:
+        parts = {r["part"] for r in csv.DictReader(f)}
+    assert parts == {"points", "image", "ratio"}

@@ -249,14 +249,15 @@ def test_the_backend_identity_check_sees_comparisons():
 #: layer or below (the package's ``__init__`` sits above them all).
 LAYERS = (
     ("base", {"errors", "arrays", "threads", "paper", "progress"}),
+    ("input/output", {"io"}),
     ("core", {"core"}),
     ("patterns", {"pattern", "sensors", "spherical", "scan"}),
-    ("measures", {"cellgrid", "similarity", "metrics"}),
+    ("measures", {"metrics"}),
     ("ray casting", {"raycast"}),
     ("backends", {"backends", "accumulator"}),
-    ("input/output", {"io"}),
-    ("uses", {"streaming", "effects", "scenes", "meshscan", "positions", "compare", "distances",
-              "validation", "augment", "plotting", "demo", "evaluate", "sequence"}),
+    ("simulation", {"effects", "scenes", "meshscan"}),
+    ("uses", {"streaming", "positions", "compare", "distances", "validation", "augment", "evaluate", "sequence"}),
+    ("figures", {"plotting", "demo"}),
     ("command line", {"cli"}),
 )
 
@@ -343,3 +344,51 @@ def test_few_functions_take_long_parameter_lists():
     found = [f"{mod}.{name}" for mod, path in _modules() for name in _long_signatures(ast.parse(path.read_text()))]
     assert len(found) <= MAX_LONG_SIGNATURES, f"{len(found)} functions over 8 parameters (use an options object): " \
                                               f"{found}"
+
+
+def _unit_graph(graph) -> dict:
+    """``{unit: units it imports}`` from the module graph: a unit is a top-level module or a subpackage
+    (all its modules one unit); imports within a unit and the package's ``__init__`` are not counted."""
+    units = {}
+    for mod, deps in graph.items():
+        if _unit(mod):
+            units.setdefault(_unit(mod), set()).update(_unit(d) for d in deps if _unit(d) and _unit(d) != _unit(mod))
+    return units
+
+
+def _chain_within(units, members) -> list:
+    """The longest chain of imports among ``members`` only."""
+    return _longest_chain({u: ds & members for u, ds in units.items() if u in members})
+
+
+#: The longest chain of imports between units (docs/architecture.md, "Chains"): issue #39's aim is 12.
+#: Today 10: cli -> augment -> streaming -> accumulator -> backends -> scan -> pattern -> sensors -> core
+#: -> arrays -> errors.
+MAX_UNIT_CHAIN = 12
+#: The deepest "uses" chain: units of the computation layers (simulation and uses), each importing the
+#: next, counted in units (issue #39: no more than three deep). Today: augment -> streaming -> positions
+#: and validation -> scenes -> effects.
+MAX_USES_DEPTH = 3
+#: the layers whose chains are "uses" chains (the foundations below them and the figures and command line
+#: above them are not counted)
+COMPUTATION_LAYERS = ("simulation", "uses")
+
+
+def test_the_chain_measures_find_a_planted_chain():
+    graph = {"slr_ray": {"slr_ray.a"}, "slr_ray.a": {"slr_ray.b.x"}, "slr_ray.b.x": {"slr_ray.b.y"},
+             "slr_ray.b.y": {"slr_ray.c"}, "slr_ray.c": {"slr_ray.d"}, "slr_ray.d": set()}
+    units = _unit_graph(graph)
+    assert units == {"a": {"b"}, "b": {"c"}, "c": {"d"}, "d": set()}  # b.x -> b.y is within one unit
+    assert _longest_chain(units) == ["a", "b", "c", "d"]
+    assert _chain_within(units, {"a", "b", "d"}) == ["a", "b"]  # d is reached through c only
+
+
+def test_the_longest_chain_between_units_is_short():
+    chain = _longest_chain(_unit_graph(_import_graph()))
+    assert len(chain) - 1 <= MAX_UNIT_CHAIN, " -> ".join(chain)
+
+
+def test_uses_chains_are_shallow():
+    units, layers = _unit_graph(_import_graph()), dict(LAYERS)
+    chain = _chain_within(units, set().union(*(layers[name] for name in COMPUTATION_LAYERS)))
+    assert len(chain) <= MAX_USES_DEPTH, " -> ".join(chain)

@@ -5,10 +5,10 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from slr_ray import InputValueError
+from slr_ray import InputTypeError, InputValueError
 from slr_ray.cli import main
 from slr_ray.plotting import paper_figure, save_figure, validation_figure
-from slr_ray.validation import load_config, run_validation, stage_summary
+from slr_ray.validation import load_config, load_rows, read_rows, run_validation, stage_summary
 
 
 @pytest.fixture(scope="module")
@@ -57,8 +57,12 @@ def test_resume_adds_only_missing_rows_and_same_seed_same_numbers(quick, tmp_pat
 
 def test_figure(quick, tmp_path):
     _, out, _ = quick
-    save_figure(validation_figure(out / "results.csv"), tmp_path / "f.png")
+    save_figure(validation_figure(load_rows(out / "results.csv")), tmp_path / "f.png")
     assert (tmp_path / "f.png").stat().st_size > 5000
+    # figures read no files (slr_ray.plotting imports no computation): a path is refused, saying what reads it
+    with pytest.raises(InputTypeError, match="load_rows"):
+        validation_figure(out / "results.csv")
+    assert validation_figure(read_rows(out / "results.csv")).axes  # read_rows' rows by key: the same rows
 
 
 def test_a_resume_with_settings_that_change_rows_is_refused(quick, tmp_path, capsys):
@@ -337,7 +341,7 @@ def test_paper_report_groups_the_questions(tmp_path):
     md = paper_report_markdown(rep)
     assert md.count("| distance-") == 5 + 10 and "0.00576° primaries" in md and "embree/nearest" in md
     assert "| all, embree | 28 |" in md
-    save_figure(paper_figure(tmp_path / "r.csv", backend="embree"), tmp_path / "f.png")
+    save_figure(paper_figure(load_rows(tmp_path / "r.csv"), backend="embree"), tmp_path / "f.png")
     assert (tmp_path / "f.png").stat().st_size > 5000
 
 

@@ -32,13 +32,16 @@ from ..meshscan import scan_mesh
 from ..io.outputs import OutputPlan
 from ..paper import Q1_SCENES, Q2_SCENES
 from ..progress import phase
-from ..plotting import check_figure_path, cells_figure, comparison_figure, paper_figure, range_image_figure, save_figure, validation_figure
-from ..positions import (AzimuthProfile, build_synthetic_profile, default_profile, ground_labels, require_positions,
+from ..plotting import (check_figure_path, cells_figure, comparison_figure, distances_figure, paper_figure,
+                        range_image_figure, save_figure, validation_figure)
+from ..positions import (AzimuthProfile, default_profile, ground_labels, require_positions,
                          select_positions)
 from ..scan import Scan, check_range_image
 from ..scenes import MESH_FORMATS, scene_effects, scene_from_spec
-from ..io.streaming import STREAMED_FORMATS, las_bounds, scan_las
-from ..validation import load_config, load_rows, paper_report, paper_report_markdown, run_validation, stage_summary
+from ..io.streaming import STREAMED_FORMATS, las_bounds
+from ..streaming import scan_las
+from ..validation import (build_synthetic_profile, load_config, load_rows, paper_report, paper_report_markdown,
+                          run_validation, stage_summary)
 from .arguments import backend_from, check_effects, effects_from, ground_from, pattern_from
 
 __all__ = ["emit", "COMMANDS"]
@@ -443,7 +446,8 @@ def distances(args):
                                seed=args.seed, resolution=args.resolution, max_range=args.max_range,
                                scanner_height=args.scanner_height, min_ground_points=args.min_ground_points,
                                ground=ground, progress=not args.quiet)
-        files = study.write(args.output)
+        files = study.write(args.output) + ["distances.png"]
+        save_figure(distances_figure(study.original, study.slr, study.sweep), out / "distances.png")
     emit({"output_dir": str(args.output), **study.summary(), "files": files})
 
 

@@ -14,6 +14,7 @@ from ..errors import InputValueError, OutputError
 from ..evaluate import EVALUATION_FILES, evaluate_pair, evaluation_table, write_evaluation
 from ..io import read_cloud
 from ..io.outputs import LOCK_NAME, OutputPlan
+from ..plotting import evaluation_figure, save_figure
 from .commands import emit
 
 __all__ = ["evaluate", "read_matrix"]
@@ -123,6 +124,8 @@ def _evaluate(args, out):
                              inputs={"a": str(args.a), "b": str(args.b), "sensor": args.sensor, "beams": args.beams,
                                      "origins": [None if c.origin is None else np.asarray(c.origin).tolist()
                                                  for c in clouds], "other_files_in_directory": foreign})
+    paths["figure"] = str(out / EVALUATION_FILES["figure"])
+    save_figure(evaluation_figure(res), paths["figure"])
     emit({"a": str(args.a), "b": str(args.b), "output_dir": str(out), "files": paths,
           "registration": res["registration"], "unseen_share": res["unseen_share"], "seconds": res["seconds"],
           "other_files_in_directory": foreign, "table": evaluation_table(res)})

@@ -9,7 +9,8 @@
 - :mod:`~slr_ray.io.atomic`: :func:`atomic_path`, the atomic write;
 - :mod:`~slr_ray.io.outputs`: :class:`~slr_ray.io.outputs.OutputPlan`, every
   path a command reads and writes (``slr_ray.outputs`` names it too);
-- :mod:`~slr_ray.io.streaming`: LAS/LAZ scans in one pass of chunks.
+- :mod:`~slr_ray.io.streaming`: LAS/LAZ files read in chunks (the streamed
+  scans built on them are :mod:`slr_ray.streaming`'s).
 """
 
 from .atomic import atomic_path

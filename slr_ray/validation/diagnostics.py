@@ -14,7 +14,7 @@ import numpy as np
 
 from ..paper import SIMILARITY_THRESHOLD
 from ..raycast import RayScene
-from ..similarity import nearest_distances
+from ..metrics import nearest_distances
 
 __all__ = ["hidden_from", "miss_breakdown"]
 

@@ -2,7 +2,9 @@
 
 Every statistic here is computed from ``results.csv`` rows (see
 :mod:`slr_ray.validation.results`), so a report can be remade from a
-finished or partial run at any time. Coverage is the paper's similarity;
+finished or partial run at any time; the statistics themselves
+(:func:`headline`, :func:`series`, :func:`series_stats`, :func:`full_pairs`)
+live in :mod:`slr_ray.metrics.runs`, the home of every metric. Coverage is the paper's similarity;
 precision (the share of SLR points near a true point) is reported next to it
 where the rows have it.
 """
@@ -12,14 +14,13 @@ from __future__ import annotations
 import math
 from pathlib import Path
 
-import numpy as np
-
 from ..errors import InputValueError
+from ..metrics import full_pairs, headline, series, series_stats
 from ..paper import DISTANCE_BANDS, NEAR_DISTANCE, Q1_SCENES, Q2_SCENES
 from .results import read_rows
 
 __all__ = ["headline", "series", "series_stats", "full_pairs", "paper_report", "paper_report_markdown",
-           "load_rows"]
+           "load_rows"]  # the statistics live in slr_ray.metrics.runs, named here too
 
 
 def load_rows(csv_path) -> list:
@@ -28,85 +29,6 @@ def load_rows(csv_path) -> list:
     if not rows:
         raise InputValueError(f"{csv_path}: no rows")
     return rows
-
-
-def _float(v) -> float:
-    return float(v) if v not in (None, "") else math.nan
-
-
-def headline(rows) -> dict:
-    """The paper's two headline figures, per backend and truth semantics."""
-    out = {}
-    for b in sorted({r["backend"] for r in rows}):
-        for t in sorted({r["truth"] for r in rows}):
-            rr = [r for r in rows if r["backend"] == b and r["truth"] == t]
-            sim = np.array([float(r["similarity"]) for r in rr])
-            dist = np.array([float(r["distance_m"]) for r in rr])
-            prec = np.array([_float(r.get("precision")) for r in rr])
-            near = dist < NEAR_DISTANCE
-            out[f"{b}/{t}"] = {
-                "pairs": len(rr),
-                f"mean_similarity_below_{NEAR_DISTANCE:g}m": float(sim[near].mean()) if near.any() else None,
-                f"min_similarity_below_{NEAR_DISTANCE:g}m": float(sim[near].min()) if near.any() else None,
-                "fraction_pairs_above_0.8": float((sim > 0.8).mean()) if len(sim) else None,
-                f"mean_precision_below_{NEAR_DISTANCE:g}m": _nanmean(prec[near]),
-            }
-    return out
-
-
-def _nanmean(x):
-    x = np.asarray(x, float)
-    x = x[np.isfinite(x)]
-    return float(x.mean()) if len(x) else None
-
-
-def series(rows, scenes=None, resolution=None, backend="binning", truth="center", positions=None):
-    """``(distance_m, similarity, precision)`` arrays of the rows selected (precision nan where absent)."""
-    out = [r for r in rows if r["backend"] == backend and r["truth"] == truth
-           and (scenes is None or r["scene"] in scenes)
-           and (resolution is None or float(r["primary_resolution"]) == float(resolution))
-           and (positions is None or (r["scene"], r["position"]) in positions)]
-    return (np.array([float(r["distance_m"]) for r in out]), np.array([float(r["similarity"]) for r in out]),
-            np.array([_float(r.get("precision")) for r in out]))
-
-
-def series_stats(distance, similarity, precision=None) -> dict:
-    """The paper's figures for one series of pairs.
-
-    The mean (and min) similarity below 17.5 m, the share of those above 90 %,
-    the share of all pairs above 80 %, the mean per distance band and the
-    least-squares slope per 10 m; with ``precision``, its mean overall, below
-    17.5 m and per band (``None`` where no row has it).
-    """
-    d, s = np.asarray(distance, float), np.asarray(similarity, float)
-    p = np.full(len(d), np.nan) if precision is None else np.asarray(precision, float)
-    near = d < NEAR_DISTANCE
-    bands = {}
-    for lo, hi in DISTANCE_BANDS:
-        m = (d >= lo) & (d < hi)
-        if m.any():
-            bands[f"{lo:g}-{hi:g}"] = {"pairs": int(m.sum()), "mean": float(s[m].mean()),
-                                       "precision": _nanmean(p[m])}
-    slope = float(np.polyfit(d, s, 1)[0] * 10) if len(d) > 2 and np.ptp(d) > 0 else None
-    sn = s[near]
-    return {"pairs": int(len(s)), "mean": float(s.mean()) if len(s) else None, "precision": _nanmean(p),
-            "below_17.5m": {"pairs": int(len(sn)), "mean": float(sn.mean()) if len(sn) else None,
-                            "min": float(sn.min()) if len(sn) else None,
-                            "share_above_0.9": float((sn > 0.9).mean()) if len(sn) else None,
-                            "precision": _nanmean(p[near])},
-            "share_above_0.8": float((s > 0.8).mean()) if len(s) else None,
-            "bands": bands, "slope_per_10m": slope}
-
-
-def full_pairs(rows, resolution, series_names, exact: bool = True) -> set:
-    """The (scene, position) pairs at one primary that have a row for every (backend, truth) series
-    (``exact``: and no other series)."""
-    have: dict = {}
-    for r in rows:
-        if float(r["primary_resolution"]) == float(resolution):
-            have.setdefault((r["scene"], r["position"]), set()).add((r["backend"], r["truth"]))
-    want = set(series_names)
-    return {k for k, v in have.items() if (v == want if exact else v >= want)}
 
 
 def paper_report(csv_path) -> dict:

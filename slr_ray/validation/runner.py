@@ -3,7 +3,7 @@
 For each scene of a config: the scene's primary scan from the origin, the
 secondary positions drawn on it (the paper's grid method), and at each
 position the true scan (one per truth semantics) and the SLR scan of the
-primary (one per backend), compared by :func:`~slr_ray.similarity.agreement`
+primary (one per backend), compared by :func:`~slr_ray.metrics.agreement`
 (coverage, the paper's similarity, with precision and F-score). The same
 config and seed give the same rows.
 """
@@ -25,7 +25,7 @@ from ..io.outputs import OutputPlan
 from ..pattern import ScanPattern
 from ..positions import select_positions
 from ..scenes import scene_from_spec
-from ..similarity import agreement
+from ..metrics import agreement
 from .config import ValidationConfig
 from .planning import ScenePlan, load_positions, plan, positions_file, positions_tag
 from .report import headline

@@ -18,10 +18,10 @@ from dataclasses import asdict, dataclass
 import numpy as np
 from scipy.spatial import cKDTree
 
-from .arrays import as_points
+from ..arrays import as_points
+from ..errors import InputValueError
+from ..paper import SIMILARITY_THRESHOLD
 from .cellgrid import CellGrid, GridUnsuitable
-from .errors import InputValueError
-from .paper import SIMILARITY_THRESHOLD
 
 __all__ = ["similarity", "agreement", "Agreement", "nearest", "nearest_distances"]
 
@@ -148,7 +148,7 @@ def agreement(true_points, simulated_points, threshold: float = SIMILARITY_THRES
     n_threads : int, optional
         Threads of the kd-tree queries (default all cores; ``workers``, scipy's
         name, is a deprecated alias), where a kd-tree is used:
-        the test runs on a :class:`~slr_ray.cellgrid.CellGrid` of cells of the
+        the test runs on a :class:`~slr_ray.metrics.cellgrid.CellGrid` of cells of the
         threshold's size (numba's threads) unless the cloud spans more than
         2e6 such cells along an axis.
 

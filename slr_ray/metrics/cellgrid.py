@@ -29,8 +29,8 @@ import math
 import numpy as np
 from numba import njit, prange
 
-from .arrays import as_points, bounds
-from .errors import InputValueError
+from ..arrays import as_points, bounds
+from ..errors import InputValueError
 
 __all__ = ["CellGrid", "GridUnsuitable"]
 

@@ -4,7 +4,7 @@ The novel-view LiDAR papers (LiDAR-NeRF, Tao et al. 2023; Neural LiDAR Fields,
 Huang et al. 2023; LiDAR4D, Zheng et al. 2024) score a synthesised frame against
 the real one by its points (Chamfer distance, F-score) and by its range image
 (depth RMSE and median absolute error, ray-drop accuracy). This module computes
-those numbers exactly (float64, a kd-tree or :class:`~slr_ray.cellgrid.CellGrid`,
+those numbers exactly (float64, a kd-tree or :class:`~slr_ray.metrics.cellgrid.CellGrid`,
 no sampling), and splits each by range band, by beam (row of the range image)
 and by whether the target point was *seen from the primary* (below).
 
@@ -29,7 +29,7 @@ F-score at a threshold ``tau``
     ``precision = |{s: d(s, T) < tau}| / |S|``, ``recall = |{t: d(t, S) < tau}| /
     |T|``, ``F = 2PR / (P + R)`` (0 when both are 0), **strictly closer** and
     on **distances**, tested from the input coordinates on a cell grid (as
-    :func:`~slr_ray.similarity.agreement`, which it equals). The field quotes 5 cm; SLR's paper 10 cm. LiDAR-NeRF and
+    :func:`~slr_ray.metrics.agreement`, which it equals). The field quotes 5 cm; SLR's paper 10 cm. LiDAR-NeRF and
     LiDAR4D's code compare *squared* distances with 0.05, i.e. a distance
     threshold of sqrt(0.05) = 22.4 cm; pass ``thresholds=(..., 0.05 ** 0.5)``
     to reproduce their number.
@@ -90,15 +90,16 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
-from .arrays import as_points
+from ..arrays import as_points
+from ..errors import InputValueError
+from ..paper import SIMILARITY_THRESHOLD
 from .cellgrid import CellGrid, GridUnsuitable
-from .errors import InputValueError
-from .paper import SIMILARITY_THRESHOLD
-from .similarity import nearest
+from .coverage import nearest
+from .metric import Metric, Pair
 
 __all__ = ["point_metrics", "PointMetrics", "range_image_metrics", "RangeImageMetrics", "seen_from",
            "nearest", "range_bands", "RANGE_BANDS", "FIELD_THRESHOLD", "PAPER_THRESHOLD",
-           "LIDAR4D_CODE_THRESHOLD"]
+           "LIDAR4D_CODE_THRESHOLD", "POINTS", "IMAGE"]
 
 #: the novel-view field's F-score threshold (metres)
 FIELD_THRESHOLD = 0.05
@@ -402,3 +403,51 @@ def range_image_metrics(real, simulated, groups: dict | None = None) -> RangeIma
     out = {name: {u.item(): _image_block(a[inv == k], b[inv == k]) for k, u in enumerate(uniq)}
            for name, (uniq, inv) in labs.items()}
     return RangeImageMetrics(groups=out, **top)
+
+
+# --- the registry's entries: a pair's blocks and their table columns ---------------------------------------
+
+def _cm(x) -> str:
+    return f"{100 * x:g}cm"
+
+
+def _points_entry(pair: Pair) -> dict:
+    return point_metrics(pair.target, pair.simulated, thresholds=pair.thresholds, groups=pair.point_groups).to_dict()
+
+
+def _points_columns(p: dict, result: dict) -> dict:
+    """Chamfer distances, P/R/F per threshold, the recall of the seen part and the unseen part's share of
+    the real -> simulated Chamfer term."""
+    row = {"cd_sum_m2": p["chamfer_sum"], "cd_to_real_m": p["to_target_distance"],
+           "cd_to_sim_m": p["to_simulated_distance"]}
+    for tau in result["thresholds"]:
+        f = p["fscore"][_cm(tau)]
+        row[f"P@{_cm(tau)}"], row[f"R@{_cm(tau)}"], row[f"F@{_cm(tau)}"] = f["precision"], f["recall"], f["fscore"]
+    seen = p["groups"].get("seen", {})
+    tau = result["seen_threshold"]
+    row[f"R@{_cm(tau)} seen"] = seen.get("seen", {}).get("fscore", {}).get(_cm(tau), {}).get("recall", math.nan)
+    n_t = p["target_points"]
+    un = seen.get("unseen", {})
+    row["unseen share of real->sim CD"] = (un.get("to_simulated", 0.0) * un.get("target_points", 0)
+                                          / (p["to_simulated"] * n_t)) if n_t and p["to_simulated"] else math.nan
+    return row
+
+
+def _image_entry(pair: Pair) -> dict:
+    return range_image_metrics(pair.real_image, pair.image, groups=pair.pulse_groups).to_dict()
+
+
+def _image_columns(im: dict, result: dict) -> dict:
+    """Depth errors, ray drop, and the unseen pulses' share of the squared depth error."""
+    row = {"depth_rmse_m": im["rmse"], "depth_medae_m": im["medae"], "both_return": im["both_return"],
+           "drop_accuracy": im["accuracy"], "drop_recall": im["drop_recall"], "drop_precision": im["drop_precision"]}
+    seen = im["groups"].get("seen", {})
+    row["unseen share of depth SSE"] = seen.get("unseen", {}).get("sse", 0.0) / im["sse"] if im["sse"] else math.nan
+    row["rmse seen pulses"] = seen.get("seen", {}).get("rmse", math.nan)
+    return row
+
+
+#: the field's point metrics (:func:`point_metrics`) as a registered metric: block ``points``
+POINTS = Metric("points", _points_entry, _points_columns)
+#: the field's range-image metrics (:func:`range_image_metrics`) as a registered metric: block ``image``
+IMAGE = Metric("image", _image_entry, _image_columns)
