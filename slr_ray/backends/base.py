@@ -21,7 +21,7 @@ from ..errors import InputValueError, dataclass_from_mapping
 from ..scan import Scan
 from .names import Backend
 
-__all__ = ["Backend", "Scanner", "BackendOptions", "require_rays", "require_streamable", "streams"]
+__all__ = ["Backend", "Scanner", "BackendOptions", "require_streamable", "streams"]
 
 
 @dataclasses.dataclass(frozen=True)
@@ -153,15 +153,6 @@ class Scanner(ABC):
 
     def __repr__(self) -> str:
         return f"<{type(self).__name__} {self.backend} n={len(self)} {self.options}>"
-
-
-def require_rays(scanner, what: str) -> None:
-    """The one rule of effects that need rays: refuse ``what`` (e.g. 'beam divergence
-    (divergence_mrad)') on a scanner or scanner class that casts none."""
-    if not scanner.casts_rays:
-        raise InputValueError(f"{what} needs a backend that casts rays, e.g. embree (--backend embree): "
-                              f"{scanner.backend!s} keeps one point per pulse bin and has no footprint beyond it "
-                              "(docs/effects.md)")
 
 
 def streams(scanner, pattern) -> bool:

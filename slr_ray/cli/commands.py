@@ -19,7 +19,7 @@ import numpy as np
 from ..arrays import json_safe
 from ..augment import AugmentConfig
 from ..augment import augment as run_augment
-from ..backends import options_for, prepare, scanner_class, streams
+from ..backends import backends_with, options_for, prepare, scanner_class, streams
 from ..backends.embree.fit import fit_primary_pattern
 from ..compare import compare_backends
 from ..demo import run_demo
@@ -80,7 +80,8 @@ def scan(args):
     options = options_for(args.backend, backend_from(args))  # built once, used below
     effects = check_effects(effects_from(args), args.backend, pattern)
     if scanner_class(args.backend).casts_rays:  # before reading and preparing: binning answers at once
-        refuse_cast(cast_rays(pattern, effects), "--backend embree",
+        refuse_cast(cast_rays(pattern, effects), f"--backend {args.backend} (it casts rays, as do the backends "
+                    f"with casts_rays: {', '.join(backends_with('casts_rays'))})",
                     "choose a coarser pattern (--resolution, --columns) or a smaller --divergence-mrad cone")
     if effects is not None and (args.range_image or args.png):
         raise InputValueError("--range-image and --png draw an ideal scan (one point a pulse): drop them, or the "

@@ -286,14 +286,33 @@ class Effects:
             out[f.name] = v.to_dict() if hasattr(v, "to_dict") else list(v) if isinstance(v, tuple) else v
         return out
 
+    @property
+    def resolved(self) -> bool:
+        """Whether these are the settings a scan runs with: made by :meth:`resolve`
+        (checked, no 'sensor' value left), which :func:`~slr_ray.effects.simulate`
+        then takes as they are instead of resolving them again."""
+        return getattr(self, "_resolved", False)
+
+    def with_seed(self, seed: int) -> "Effects":
+        """A copy with another ``seed`` (one scan's own stream), still :attr:`resolved` if this is."""
+        out = dataclasses.replace(self, seed=seed)
+        if self.resolved:
+            object.__setattr__(out, "_resolved", True)
+        return out
+
     def resolve(self, pattern) -> "Effects":
-        """A copy with every 'sensor' value read from ``pattern``'s table.
+        """The settings a scan of ``pattern`` runs with, done once: :meth:`check_needs`, then a
+        copy with every 'sensor' value read from ``pattern``'s table, marked :attr:`resolved`.
 
         Raises
         ------
         InputValueError
-            when the pattern is not a sensor's or its table lacks the field.
+            an option that needs another, off; or a 'sensor' value when the pattern is not a
+            sensor's or its table lacks the field.
         """
+        if self.resolved:
+            return self
+        self.check_needs()
         meta = getattr(pattern, "meta", None)
         fields = {"divergence_mrad": "beam_divergence_mrad", "range_noise": "range_accuracy_m",
                   "max_range_at": "max_range_at_reflectivity"}
@@ -307,4 +326,6 @@ class Effects:
                                       f"give {name} as a number")
             v = meta[key]
             changes[name] = tuple(v[0]) if name == "max_range_at" else float(v)
-        return dataclasses.replace(self, **changes) if changes else self
+        out = dataclasses.replace(self, **changes)
+        object.__setattr__(out, "_resolved", True)  # not a field: equality and to_dict are the same
+        return out

@@ -1,12 +1,24 @@
-"""The effects after the geometry as stages: each a small object that owns its
-options (fields of :class:`~slr_ray.effects.Effects`), its command-line flags,
-and one method that transforms the scan's returns.
+"""Every sensor effect as a stage: a small object that owns its options (fields
+of :class:`~slr_ray.effects.Effects`), its command-line flags, whether it is
+on, and what it changes.
 
-:func:`~slr_ray.effects.simulate` makes the geometry (the ideal scan, or rays
-cast for divergence and motion), then runs :data:`STAGES` in their order, each
-one that is on; the command line's effect flags and their help are generated
-from the stages' :class:`Flag` s (:data:`EFFECT_FLAGS`). A new effect is a
-:class:`Stage` subclass in its own module and one line in :data:`STAGES`.
+A stage acts at one or more of three points of :func:`~slr_ray.effects.simulate`:
+
+* :meth:`Stage.rays`, before the geometry: what is cast, and from where (beam
+  divergence: each pulse's sub-rays and which returns a pulse reports; motion:
+  the poses each sector of columns fires from), a :class:`Rays` plan;
+* :meth:`Stage.apply`, on the returns the geometry made (ray drop, range
+  limits, noise, intensity);
+* :meth:`Stage.place`, on where the returns land (motion: the sensor's frame).
+
+``simulate`` resolves the effects once (:meth:`~slr_ray.effects.Effects.resolve`),
+asks each stage of :data:`STAGES` whether it is :meth:`~Stage.on`, runs the
+``rays`` of those that are, makes the geometry the plan asks for (the ideal
+scan when it asks for nothing, or rays cast), then their ``apply`` and
+``place`` in the same order. The command line's effect flags and their help
+are generated from the stages' :class:`Flag` s (:data:`EFFECT_FLAGS`). A new
+effect is a :class:`Stage` subclass in its own module and one line in
+:data:`STAGES`.
 """
 
 from __future__ import annotations
@@ -18,14 +30,20 @@ from typing import NamedTuple
 import numpy as np
 
 from ..arrays import as_origin
+from ..backends import backends_with, require_rays
 from ..backends.embree import estimate_normals
 from ..errors import InputValueError
 from .intensity import corrected_intensity
+from .motion import column_sectors, interpolate_poses, to_firing_frames, to_frame
 from .noise import add_range_noise, reflectivity_max_range
 from .options import INTENSITY_MODES, RETURN_KINDS, Effects
+from .returns import footprint_samples
 
-__all__ = ["Returns", "Flag", "Stage", "Context", "Geometry", "RayDrop", "RangeLimits", "RangeNoise", "Intensity",
-           "GEOMETRY", "STAGES", "SEED_FLAG", "FLAGS", "EFFECT_FLAGS"]
+__all__ = ["Returns", "Rays", "Flag", "Stage", "Context", "Divergence", "Motion", "RayDrop", "RangeLimits",
+           "RangeNoise", "Intensity", "STAGES", "SEED_FLAG", "FLAGS", "EFFECT_FLAGS"]
+
+#: Sectors of columns a scanner that casts no rays scans one by one under motion (each a whole scan).
+SCAN_SECTORS = 72
 
 
 @dataclass
@@ -58,6 +76,35 @@ class Returns:
                           for f in dataclasses.fields(self)})
 
 
+@dataclass
+class Rays:
+    """What the geometry casts, as the stages' :meth:`Stage.rays` leave it: by
+    default nothing beyond the ideal scan (one ray a pulse from the origin).
+
+    ``offsets``, ``weights``: each pulse's sub-rays and their shares of the
+    footprint (:func:`~slr_ray.effects.returns.footprint_samples`); ``subrays``:
+    whether they replace the pulse's own ray; ``separation``, ``min_share``,
+    ``returns``: how a pulse's hits group into returns and which it reports.
+    ``sectors``: ``(starts, stops, rotations, origins)`` of the column sectors
+    that fire from their own poses, and ``n_sectors`` the number asked for (the
+    firing frames are made with it).
+    """
+
+    offsets: np.ndarray = dataclasses.field(default_factory=lambda: np.zeros((1, 2)))
+    weights: np.ndarray = dataclasses.field(default_factory=lambda: np.ones(1))
+    subrays: bool = False
+    separation: float = 1.0
+    min_share: float = 0.0
+    returns: tuple = ("all",)
+    sectors: tuple | None = None
+    n_sectors: int | None = None
+
+    @property
+    def ideal(self) -> bool:
+        """Nothing to cast here: the scanner's own scan is the geometry."""
+        return not self.subrays and self.sectors is None
+
+
 class Flag(NamedTuple):
     """A command-line flag of one :class:`~slr_ray.effects.Effects` field.
 
@@ -86,6 +133,12 @@ class Context:
     primary_origin: object
     rng: dict
     info: dict
+    #: sensor-to-world poses over the sweep (motion), or None
+    poses: np.ndarray | None = None
+    #: what the geometry cast (the stages' :meth:`Stage.rays`), once made
+    rays: Rays | None = None
+    #: the frame the returns' points are in (:class:`~slr_ray.effects.EffectScan`'s ``frame``)
+    frame: str = "world"
 
     def incidence_cos(self, r: Returns, rows) -> np.ndarray:
         """|cos| of each return's incidence on its point's normal (the given normals,
@@ -104,8 +157,9 @@ class Context:
 
 
 class Stage:
-    """One effect after the geometry: its options (``fields``), its flags, and
-    :meth:`apply`. ``name`` keys its seconds in the result's ``info``."""
+    """One effect: its options (``fields``), its flags, :meth:`on`, and what it
+    changes (module docstring: :meth:`rays`, :meth:`apply`, :meth:`place`; each
+    unchanged by default). ``name`` keys its seconds in the result's ``info``."""
 
     name: str = ""
     #: the Effects fields it owns
@@ -117,9 +171,77 @@ class Stage:
         """Whether the stage runs with these effects."""
         raise NotImplementedError
 
+    def rays(self, plan: Rays, ctx: Context) -> Rays:
+        """What the geometry casts after this effect (before any work: refusals go here)."""
+        return plan
+
     def apply(self, r: Returns, ctx: Context) -> Returns:
         """The returns after this effect."""
-        raise NotImplementedError
+        return r
+
+    def place(self, points: np.ndarray, r: Returns, ctx: Context) -> np.ndarray:
+        """Where the returns land after this effect (``(m, 3)``, one row a return)."""
+        return points
+
+
+def _cast_by() -> str:
+    """The backends that cast rays, from the registry (for help and messages)."""
+    return ", ".join(backends_with("casts_rays")) or "none registered"
+
+
+class Divergence(Stage):
+    """Beam divergence: each pulse is a cone of sub-rays, its hits grouped into
+    returns of which a few are reported (:mod:`.returns`). Needs a scanner that
+    casts rays (``casts_rays``)."""
+
+    name = "divergence"
+    fields = ("divergence_mrad", "beam_rings", "returns", "return_separation", "min_share")
+    flags = (
+        Flag("divergence_mrad", "--divergence-mrad", "MRAD",
+             f"beam divergence (mrad) or 'sensor' (a backend that casts rays: {_cast_by()})", "number-or-sensor"),
+        Flag("returns", "--returns", "KIND", f"returns a pulse reports with divergence: {', '.join(RETURN_KINDS)} "
+             "(default first strongest last)", choices=RETURN_KINDS, nargs="+"),
+    )
+
+    def on(self, ctx):
+        return bool(ctx.effects.divergence_mrad)
+
+    def rays(self, plan, ctx):
+        require_rays(ctx.scanner, "beam divergence (divergence_mrad)")
+        eff = ctx.effects
+        offsets, weights = footprint_samples(eff.divergence_mrad * 1e-3, eff.beam_rings)
+        return dataclasses.replace(plan, offsets=offsets, weights=weights, subrays=True,
+                                   separation=eff.return_separation, min_share=eff.min_share, returns=eff.returns)
+
+
+class Motion(Stage):
+    """Motion during the sweep (:mod:`.motion`): each sector of columns fires from
+    its own pose (every column, where the scanner casts rays; else
+    :data:`SCAN_SECTORS` sectors, each scanned whole), and the returns are written
+    in the sensor's frame at the sweep's end, or each in its firing pose's. On
+    when ``simulate`` is given poses."""
+
+    name = "motion"
+    fields = ("motion", "motion_sectors", "sweep_start_deg", "sweep_clockwise", "motion_frame")
+
+    def on(self, ctx):
+        return ctx.poses is not None
+
+    def rays(self, plan, ctx):
+        eff, nh = ctx.effects, ctx.pattern.shape[1]
+        n = eff.motion_sectors or (nh if ctx.scanner.casts_rays else SCAN_SECTORS)
+        starts, stops, times = column_sectors(nh, n, eff.sweep_start_deg, eff.sweep_clockwise)
+        rotations, origins = interpolate_poses(ctx.poses, times)
+        return dataclasses.replace(plan, sectors=(starts, stops, rotations, origins), n_sectors=n)
+
+    def place(self, points, r, ctx):
+        eff = ctx.effects
+        if eff.motion_frame == "firing":
+            ctx.frame = "firing"
+            return to_firing_frames(points, r.h, ctx.pattern.shape[1], ctx.poses, ctx.rays.n_sectors,
+                                    eff.sweep_start_deg, eff.sweep_clockwise)
+        ctx.frame = "sensor-end"
+        return to_frame(points, ctx.poses[-1])
 
 
 class RayDrop(Stage):
@@ -210,33 +332,11 @@ class Intensity(Stage):
         return r
 
 
-class Geometry(Stage):
-    """The returns themselves: the ideal scan, or with beam divergence or motion rays
-    cast by :func:`~slr_ray.effects.simulate` (sub-rays of each pulse's cone,
-    :mod:`.returns`; each column from its own pose, :mod:`.motion`). Made first, by
-    ``simulate`` (it needs the scanner and the poses); listed for its options and flags."""
-
-    name = "geometry"
-    fields = ("divergence_mrad", "beam_rings", "returns", "return_separation", "min_share", "motion",
-              "motion_sectors", "sweep_start_deg", "sweep_clockwise", "motion_frame")
-    flags = (
-        Flag("divergence_mrad", "--divergence-mrad", "MRAD", "beam divergence (mrad) or 'sensor' (--backend embree)",
-             "number-or-sensor"),
-        Flag("returns", "--returns", "KIND", f"returns a pulse reports with divergence: {', '.join(RETURN_KINDS)} "
-             "(default first strongest last)", choices=RETURN_KINDS, nargs="+"),
-    )
-
-    def on(self, ctx):
-        return True
-
-
-#: The geometry, made first by :func:`~slr_ray.effects.simulate`.
-GEOMETRY = Geometry()
-#: The stages after the geometry, in the order :func:`~slr_ray.effects.simulate` runs them.
-STAGES: tuple[Stage, ...] = (RayDrop(), RangeLimits(), RangeNoise(), Intensity())
+#: Every effect, in the order :func:`~slr_ray.effects.simulate` runs them: a new effect is one line here.
+STAGES: tuple[Stage, ...] = (Divergence(), Motion(), RayDrop(), RangeLimits(), RangeNoise(), Intensity())
 #: The seed of every random draw: no stage's own.
 SEED_FLAG = Flag("seed", "--effects-seed", "N", "seed of noise and drop (default 0)", "int")
 #: Every effect flag, in the order ``--help`` lists them (generated from the stages).
-FLAGS: tuple[Flag, ...] = (*(f for stage in (GEOMETRY, *STAGES) for f in stage.flags), SEED_FLAG)
+FLAGS: tuple[Flag, ...] = (*(f for stage in STAGES for f in stage.flags), SEED_FLAG)
 #: Effects fields with a flag of their own: field -> flag (the rest through --effects FILE).
 EFFECT_FLAGS = {f.field: f.flag for f in FLAGS}
