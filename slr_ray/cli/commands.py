@@ -21,7 +21,7 @@ from ..augment import AugmentConfig
 from ..augment import augment as run_augment
 from ..backends import backends_with, options_for, prepare, scanner_class, streams
 from ..backends.embree.fit import fit_primary_pattern
-from ..compare import compare_backends
+from ..compare import compare_backends, compared_backends
 from ..demo import run_demo
 from ..distances import distance_study, study_files
 from ..backends.embree import refuse_cast
@@ -337,14 +337,15 @@ def scene(args):
 def compare(args):
     plan = _plan(args, inputs=[args.input], figures=[args.png])
     pattern = pattern_from(args)
-    embree_options = backend_from(args, "embree")
+    ray_backend = compared_backends()[1]  # the pair from the registry's capabilities (binning, embree)
+    ray_options = backend_from(args, ray_backend)
     with plan:
         cloud = read_cloud(args.input, args.input_format, allow_empty=False)
         bounds = (cloud.points.min(axis=0), cloud.points.max(axis=0))
         for origin in args.origin:  # each reaches the cloud (a local origin for a UTM cloud does not)
             _check_origin(origin, bounds, pattern, relative=False)
         res = compare_backends(cloud.points, np.array(args.origin, float).reshape(-1, 3), pattern,
-                               tolerance=args.tolerance, embree_options=embree_options, progress=not args.quiet)
+                               tolerance=args.tolerance, ray_options=ray_options, progress=not args.quiet)
         if args.png:
             save_figure(comparison_figure(res), args.png)
             res["png"] = args.png
