@@ -1,6 +1,6 @@
 """Ground-truth scans of meshes: what an ideal scanner records of real surfaces.
 
-Three semantics (README, "Two definitions of a pulse's return"):
+Three semantics (docs/scenes.md, "Synthetic scenes and ground truth"):
 
 ``"center"``
     One ray per pulse, through the pulse centre: the first surface hit. This

@@ -68,7 +68,8 @@ class Effects:
     ----------
     divergence_mrad : float or 'sensor', optional
         Full beam divergence angle, milliradians: each pulse is a cone sampled
-        by sub-rays (embree backend only; :mod:`slr_ray.effects.returns`).
+        by sub-rays (a backend that casts rays, ``casts_rays``: embree;
+        :mod:`slr_ray.effects.returns`).
         'sensor': the table's ``beam_divergence_mrad``.
     beam_rings : int
         Rings of sub-rays across the footprint (HELIOS++'s
@@ -105,8 +106,9 @@ class Effects:
         The scan needs poses (motion during the sweep): :func:`simulate`
         refuses a call without them.
     motion_sectors : int, optional
-        Azimuth sectors with one pose each (default: every column with the
-        embree backend, 72 with binning, which scans once per sector).
+        Azimuth sectors with one pose each (default: every column with a
+        backend that casts rays, 72 with one that does not, as binning,
+        which scans once per sector).
     sweep_start_deg : float
         Azimuth (``atan2(y, x)``, degrees) where the sweep starts (KITTI: 180).
     sweep_clockwise : bool
