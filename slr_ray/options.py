@@ -61,20 +61,30 @@ class Options:
 
     @classmethod
     def describe(cls) -> dict:
-        """``{field: (type, description)}`` from the class docstring's Attributes
-        section (numpydoc): the one description the command line's help shows."""
-        doc = inspect.getdoc(cls) or ""
-        lines = doc.split("Attributes\n----------\n", 1)[-1].splitlines() if "Attributes" in doc else []
-        out, name = {}, None
-        for line in lines:
-            if line and not line.startswith(" ") and " : " in line:
-                name, typ = line.split(" : ", 1)
-                out[name.strip()] = [typ.strip(), ""]
-            elif line.startswith(" ") and name is not None:
-                out[name][1] = (out[name][1] + " " + line.strip()).strip()
-            elif not line.strip() and name is not None and out[name][1]:
-                name = None
-        return {k: tuple(v) for k, v in out.items()}
+        """``{field: (type, description)}`` from the Attributes section (numpydoc) of the
+        class docstring, and of its bases' for the fields it inherits: the one description
+        the command line's help shows."""
+        out = {}
+        for klass in reversed(cls.__mro__):
+            doc = klass.__dict__.get("__doc__")
+            if doc and issubclass(klass, Options):
+                out.update(_attributes(inspect.cleandoc(doc)))
+        return out
+
+
+def _attributes(doc: str) -> dict:
+    """``{field: (type, description)}`` of a docstring's Attributes section."""
+    lines = doc.split("Attributes\n----------\n", 1)[-1].splitlines() if "Attributes" in doc else []
+    out, name = {}, None
+    for line in lines:
+        if line and not line.startswith(" ") and " : " in line:
+            name, typ = line.split(" : ", 1)
+            out[name.strip()] = [typ.strip(), ""]
+        elif line.startswith(" ") and name is not None:
+            out[name][1] = (out[name][1] + " " + line.strip()).strip()
+        elif not line.strip() and name is not None and out[name][1]:
+            name = None
+    return {k: tuple(v) for k, v in out.items()}
 
     def to_dict(self) -> dict:
         """The fields, as a plain dict (shallow)."""
