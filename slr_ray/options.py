@@ -39,7 +39,9 @@ class Options:
     @classmethod
     def of(cls, options=None, /, **keywords):
         """The options of one call: ``options`` (an instance, a mapping or None for the
-        defaults) with ``keywords`` (the call's old keyword arguments) over it.
+        defaults; or options of a base class, as :class:`~slr_ray.positions.CellOptions`
+        given for :class:`~slr_ray.positions.PositionOptions`, whose fields it takes) with
+        ``keywords`` (the call's old keyword arguments) over it.
 
         Raises
         ------
@@ -54,6 +56,8 @@ class Options:
             kind = type(options)  # a subclass stays one
             fields = {f.name: getattr(options, f.name) for f in dataclasses.fields(options)}
             return dataclass_from_mapping(kind, fields, keywords, f"option(s) for {kind.__name__}:")
+        if isinstance(options, Options) and issubclass(cls, type(options)):  # a base's: its fields
+            options = {f.name: getattr(options, f.name) for f in dataclasses.fields(options)}
         if options is not None and not isinstance(options, Mapping):
             raise InputTypeError(f"options must be a {cls.__name__}, a mapping of its fields or None, "
                                  f"got {type(options).__name__}")

@@ -55,6 +55,10 @@ def test_options_of_merges_keywords_and_refuses_unknown_names():
     assert PositionOptions.of(base, cell_size=4.0) == PositionOptions(min_ground_points=50, cell_size=4.0)
     assert PositionOptions.of({"allow_fewer": True}).allow_fewer
     assert type(CellOptions.of(base, cell_size=3.0)) is PositionOptions  # a subclass stays one
+    assert PositionOptions.of(CellOptions(cell_size=3.0), allow_fewer=True) == PositionOptions(cell_size=3.0,
+                                                                                              allow_fewer=True)
+    with pytest.raises(InputTypeError, match="CellOptions"):
+        CellOptions.of(EvaluateOptions())  # another call's options
     with pytest.raises(InputValueError, match="min_ground_point.*known.*min_ground_points"):
         PositionOptions.of(None, min_ground_point=1)
     with pytest.raises(InputTypeError, match="PositionOptions"):
