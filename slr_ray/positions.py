@@ -46,8 +46,8 @@ from .progress import phase
 from .scenes import scene_from_spec
 
 __all__ = ["CandidateCells", "AzimuthProfile", "CellOptions", "PositionOptions", "candidate_cells",
-           "select_positions", "azimuth_histogram", "minimum_profile", "default_profile", "build_synthetic_profile", "suggest_resolution",
-           "label_ground", "ground_labels", "DEFAULT_PROFILE_PATH"]
+           "select_positions", "azimuth_histogram", "minimum_profile", "default_profile", "build_synthetic_profile",
+           "suggest_resolution", "label_ground", "ground_labels", "DEFAULT_PROFILE_PATH"]
 
 #: Words of this module's messages that name arguments, and the flags of ``slr-ray`` that set them.
 CLI_FLAGS = {"pass allow_fewer=True": "give --allow-fewer", "min_ground_points": "--min-ground-points"}

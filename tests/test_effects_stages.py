@@ -1,6 +1,7 @@
-"""An effect is one Stage and one line in STAGES: a toy effect registered here
-runs inside simulate, between the geometry and the other stages, with its own
-option and flag; and divergence and motion are stages like the others."""
+"""An effect is one Stage (with its options) and one line in STAGES: a toy effect
+registered here runs inside simulate, its options fields of the Effects its
+registry makes, with its own flag; and divergence and motion are stages like the
+others."""
 
 import dataclasses
 
@@ -10,21 +11,33 @@ import pytest
 import slr_ray
 from slr_ray.effects import Effects, simulate
 from slr_ray.effects import stages as registry
+from slr_ray.effects.settings import EffectOptions, effects_class, positive
 from slr_ray.effects.stages import Flag, Stage
 
 
 @dataclasses.dataclass(frozen=True)
-class ToyEffects(Effects):
-    """Effects with the toy's option (a new effect's options are new fields of Effects)."""
+class RangeBiasOptions(EffectOptions):
+    """A constant range bias.
+
+    Attributes
+    ----------
+    range_bias : float
+        Metres added to every range.
+    """
+
+    SIZE_BOUNDS = {"range_bias": 1.0}
 
     range_bias: float = 0.0
+
+    def check(self):
+        positive("range_bias", self.range_bias, allow_zero=True, bounds=self.SIZE_BOUNDS)
 
 
 class RangeBias(Stage):
     """A constant bias added to every range (a toy: one file's worth)."""
 
     name = "range_bias"
-    fields = ("range_bias",)
+    options = RangeBiasOptions
     flags = (Flag("range_bias", "--range-bias", "M", "a constant range bias (m)"),)
 
     def on(self, ctx):
@@ -39,7 +52,14 @@ def test_a_registered_toy_effect_runs_in_simulate(monkeypatch):
     pts = np.random.default_rng(0).uniform(-5, 5, (400, 3))
     scanner = slr_ray.prepare(pts)
     ideal = simulate(scanner, [0, 0, 0], 2.0)
-    monkeypatch.setattr(registry, "STAGES", (*registry.STAGES, RangeBias()))  # the one registry line
+    stages = (*registry.STAGES, RangeBias())  # the one registry line...
+    monkeypatch.setattr(registry, "STAGES", stages)
+    ToyEffects = effects_class(stages)  # ...and the Effects it makes (registry.Effects, at import)
+    assert RangeBias.fields == ("range_bias",) and "range_bias" in {f.name for f in dataclasses.fields(ToyEffects)}
+    assert ToyEffects.from_dict({"range_bias": 0.5, "range_noise": 0.01}).range_bias == 0.5  # a scene table
+    with pytest.raises(slr_ray.InputValueError, match="range_bias must be at most 1"):
+        ToyEffects(range_bias=2.0)  # its checks and bounds are its own
+    assert not ToyEffects().any and ToyEffects(range_bias=0.5).any
     es = simulate(scanner, [0, 0, 0], 2.0, ToyEffects(range_bias=0.5))
     assert np.array_equal(es.indices, ideal.indices)
     assert np.allclose(es.ranges, ideal.ranges + 0.5)

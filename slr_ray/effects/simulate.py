@@ -39,9 +39,9 @@ from ..pattern import as_pattern, pulse_rays
 from ..scan import Scan
 from . import stages as registry  # its STAGES read at each call: a stage registered there runs
 from .motion import as_poses
-from .options import Effects
 from .returns import group_returns, select_returns, subray_directions
-from .stages import Context, Rays, Returns, Stage
+from .settings import EffectsBase
+from .stages import Context, Effects, Rays, Returns, Stage
 
 __all__ = ["cast_rays", "EffectScan", "simulate", "simulate_given", "effect_cloud"]
 
@@ -263,7 +263,7 @@ def simulate(scanner, origin, pattern, effects=None, *, intensity=None, normals=
     EffectScan
     """
     pattern = as_pattern(pattern)
-    eff = (effects if isinstance(effects, Effects) else Effects.from_dict(effects)).resolve(pattern)  # once
+    eff = (effects if isinstance(effects, EffectsBase) else Effects.from_dict(effects)).resolve(pattern)  # once
     n = len(scanner.points)
     intensity = _check_per_point("intensity", intensity, n)
     normals = _check_per_point("normals", normals, n, 3)
@@ -342,7 +342,7 @@ def simulate_given(scan: Scan, points, effects=None, *, intensity=None, normals=
     InputValueError
         effects that need rays cast here: beam divergence, motion.
     """
-    eff = (effects if isinstance(effects, Effects) else Effects.from_dict(effects)).resolve(scan.pattern)
+    eff = (effects if isinstance(effects, EffectsBase) else Effects.from_dict(effects)).resolve(scan.pattern)
     if eff.divergence_mrad or eff.motion:
         raise InputValueError("beam divergence and motion cast their own rays: they apply to a prepared cloud "
                               "(simulate), not to a scan made elsewhere")
