@@ -34,6 +34,7 @@ import warnings
 from concurrent.futures import ThreadPoolExecutor
 from dataclasses import dataclass, field
 from pathlib import Path
+from typing import NamedTuple
 
 import numpy as np
 
@@ -222,7 +223,7 @@ def _scan_job(job, cloud):
     scanner = _scanner(cloud, job["backend"], job["options"])
     if job.get("effects"):
         intensity = cloud.attributes.get("intensity")
-        scan = simulate(scanner, job["origin"], pattern, Effects.from_dict(job["effects"]),
+        scan = simulate(scanner, job["origin"], pattern, job["effects"],  # resolved once, by the parent
                         intensity=intensity if intensity is not None and np.ndim(intensity) == 1 else None,
                         primary_origin=cloud.origin)
         sub = effect_cloud(scan, cloud)
@@ -460,7 +461,12 @@ class AugmentConfig:
     def check(self):
         """Raise :class:`~slr_ray.errors.InputValueError` on a bad field; return
         ``(pattern, options)``: the scan pattern and the backend's options object,
-        each built once."""
+        each built once (:meth:`settings` also gives the resolved effects)."""
+        return self.settings()[:2]
+
+    def settings(self) -> tuple:
+        """:meth:`check`, and ``(pattern, options, effects)``: the effects resolved once
+        for the pattern (:meth:`effects_for`), which every scan then runs with."""
         if not (isinstance(self.n, (int, np.integer)) and self.n >= 1):
             raise InputValueError(f"n must be an integer >= 1, got {self.n!r}")
         heights = self.scan_heights
@@ -483,8 +489,7 @@ class AugmentConfig:
             require_streamable(scanner_class(self.backend), pattern, "a streamed augment (chunk_size)")
             if self.scheduler:
                 raise InputValueError("a streamed augment runs in this process: chunk_size or scheduler, not both")
-        self.effects_for(pattern)
-        return pattern, options
+        return pattern, options, self.effects_for(pattern)
 
     def effects_for(self, pattern) -> Effects | None:
         """The scans' effects, their 'sensor' values read from ``pattern``; None
@@ -554,7 +559,7 @@ def augment(input_path, outdir, config: AugmentConfig, *, ground=None, progress:
     dict
         The manifest.
     """
-    pattern, options = config.check()  # bad settings fail before any work or file
+    pattern, options, effects = config.settings()  # bad settings fail before any work or file
     if config.scheduler:
         if importlib.util.find_spec("dask") is None or importlib.util.find_spec("dask.distributed") is None:
             raise MissingDependencyError('augment on a scheduler needs dask: pip install "slr_ray[dask]"')
@@ -576,11 +581,24 @@ def augment(input_path, outdir, config: AugmentConfig, *, ground=None, progress:
     plan.write(out / MANIFEST, resumed=True)
     plan.write(out / JOURNAL, resumed=True)
     with plan:
-        return _augment(input_path, out, config, pattern, options, ext, names, ground, progress, force)
+        return _augment(input_path, out, config, ground, _Run(pattern, options, effects, ext, names, progress, force))
 
 
-def _augment(input_path, out, config, pattern, options, ext, names, ground, progress, force) -> dict:
+class _Run(NamedTuple):
+    """What :func:`augment` settled before its directory was locked."""
+
+    pattern: object
+    options: object
+    effects: Effects | None
+    ext: str
+    names: list
+    progress: bool
+    force: bool
+
+
+def _augment(input_path, out, config, ground, run: _Run) -> dict:
     """:func:`augment` in its locked directory."""
+    pattern, options, effects, ext, names, progress, force = run
     heights = config.scan_heights
     backend, backend_options = config.backend, dict(config.backend_options or {})
     ground_setting = "from the input" if ground is None else dict(ground) if isinstance(ground, dict) else "given"
@@ -589,7 +607,6 @@ def _augment(input_path, out, config, pattern, options, ext, names, ground, prog
                 "pattern": pattern.to_dict(), "backend": backend, "backend_options": options.to_dict(),
                 "min_ground_points": config.min_ground_points, "format": ext, "heights": list(heights),
                 "ground": ground_setting}
-    effects = config.effects_for(pattern)
     if effects is not None:  # only then: a manifest without effects resumes as before
         settings["effects"] = effects.to_dict()
     # what is in the directory is checked before the long steps (CSF takes minutes on an airborne tile)
@@ -647,8 +664,7 @@ def _augment(input_path, out, config, pattern, options, ext, names, ground, prog
                          "origin": [float(p[0]), float(p[1]), float(ground_z + h)],
                          "pattern": pattern.to_dict(), "sensor": config.sensor, "backend": backend,
                          "options": backend_options,
-                         "effects": None if effects is None else {**effects.to_dict(),
-                                                                  "seed": _scan_seed(effects.seed, i, k)}})
+                         "effects": None if effects is None else effects.with_seed(_scan_seed(effects.seed, i, k))})
     if not fresh:  # an extension or a resume writes only names no run recorded: any file there is another's
         theirs = sorted(str(p if p.parent != out else p.name) for j in jobs
                         for p in [Path(j["path"]), *output_sidecars(j["path"], ext)] if os.path.lexists(p))

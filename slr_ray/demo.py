@@ -16,6 +16,7 @@ from __future__ import annotations
 import json
 import sys
 import time
+from dataclasses import dataclass
 from pathlib import Path
 
 import numpy as np
@@ -26,6 +27,7 @@ from .errors import refuse_memory
 from .io import PointCloud, atomic_path, write_cloud
 from .meshscan import scan_mesh
 from .io.outputs import OutputPlan
+from .options import Options
 from .pattern import ScanPattern, preset
 from .plotting import demo_figure, save_figure
 from .positions import select_positions
@@ -33,34 +35,55 @@ from .progress import bar, phase
 from .scenes import rectangle_scene
 from .metrics import agreement
 
-__all__ = ["run_demo", "demo_files"]
+__all__ = ["DemoOptions", "run_demo", "demo_files"]
 
 
 def _log(msg):
     print(msg, file=sys.stderr, flush=True)
 
 
-def run_demo(outdir="slr_ray_demo", n_rectangles: int = 200, n_positions: int = 4, seed: int = 0,
-             quick: bool = False, primary_resolution: float | None = None,
-             backends=None, force: bool = False, progress: bool | None = None) -> dict:
+@dataclass(frozen=True)
+class DemoOptions(Options):
+    """What :func:`run_demo` runs.
+
+    Attributes
+    ----------
+    n_rectangles : int
+        The scene's rectangles (:func:`~slr_ray.scenes.rectangle_scene`).
+    n_positions : int
+        Secondary positions drawn by the grid method (fewer when the scene has
+        fewer valid cells).
+    seed : int
+        The scene's and the positions' seed.
+    quick : bool
+        A coarse primary (0.12 deg) and secondary (0.36 deg): seconds, for tests.
+    primary_resolution : float or None
+        Degrees (default 0.036, the SYNS scans'; 0.12 with ``quick``).
+    backends : sequence of str or None
+        Backends run at every position (default: every :class:`~slr_ray.backends.Backend`;
+        one whose library is missing is left out, with a note).
+    """
+
+    n_rectangles: int = 200
+    n_positions: int = 4
+    seed: int = 0
+    quick: bool = False
+    primary_resolution: float | None = None
+    backends: tuple | None = None
+
+
+def run_demo(outdir="slr_ray_demo", options: DemoOptions | None = None, *, force: bool = False,
+             progress: bool | None = None, **keywords) -> dict:
     """Run the demo and return its summary (the full report is written to ``outdir/report.json``).
 
     Parameters
     ----------
     outdir : path
         Created if missing; the demo writes only its own files there.
-    n_rectangles, seed : int
-        The scene (:func:`~slr_ray.scenes.rectangle_scene`).
-    n_positions : int
-        Secondary positions drawn by the grid method (fewer when the scene has
-        fewer valid cells).
-    quick : bool
-        A coarse primary (0.12 deg) and secondary (0.36 deg): seconds, for tests.
-    primary_resolution : float, optional
-        Degrees (default 0.036, the SYNS scans'; 0.12 with ``quick``).
-    backends : sequence of {'binning', 'embree'}, optional
-        Backends run at every position (default: every :class:`~slr_ray.backends.Backend`;
-        one whose library is missing is left out, with a note).
+    options : DemoOptions or dict, optional
+        The scene, the positions, the resolutions and the backends
+        (:class:`DemoOptions`); each field may also be given as a keyword
+        (``n_positions=2, quick=True``).
     force : bool
         Replace the files of an earlier demo in ``outdir`` (without it, an
         existing one is an :class:`~slr_ray.errors.OutputError` before any work).
@@ -68,7 +91,9 @@ def run_demo(outdir="slr_ray_demo", n_rectangles: int = 200, n_positions: int = 
         Progress on stderr (scans, preparing the backends; default: not ``quick``).
         The report table is printed either way.
     """
-    backends = [b.value for b in Backend] if backends is None else list(backends)
+    o = DemoOptions.of(options, **keywords)
+    n_positions = o.n_positions
+    backends = [b.value for b in Backend] if o.backends is None else list(o.backends)
     refuse_memory(1024.0 * n_positions * (1 + len(backends)), f"a demo of {n_positions:,} positions "
                   "(about 1 KB a file: its file plan)", "ask for fewer positions")
     plan = OutputPlan(force=force)
@@ -76,8 +101,7 @@ def run_demo(outdir="slr_ray_demo", n_rectangles: int = 200, n_positions: int = 
     for name in demo_files(n_positions, backends):
         plan.write(out / name)
     with plan:
-        return _run_demo(Path(outdir), n_rectangles, n_positions, seed, quick, primary_resolution, backends,
-                         not quick if progress is None else bool(progress))
+        return _run_demo(Path(outdir), o, backends, not o.quick if progress is None else bool(progress))
 
 
 def demo_files(n_positions: int, backends) -> list:
@@ -87,7 +111,9 @@ def demo_files(n_positions: int, backends) -> list:
                                          for kind in ["true", *(f"slr_{b}" for b in backends)]]
 
 
-def _run_demo(out, n_rectangles, n_positions, seed, quick, primary_resolution, backends, progress) -> dict:
+def _run_demo(out, o: DemoOptions, backends, progress) -> dict:
+    n_rectangles, n_positions, seed, quick, primary_resolution = (o.n_rectangles, o.n_positions, o.seed, o.quick,
+                                                                  o.primary_resolution)
     t_all = time.perf_counter()
     primary_res = float(primary_resolution or (0.12 if quick else paper.SYNS_RESOLUTION))
     secondary = ScanPattern(0.36) if quick else preset("slr")

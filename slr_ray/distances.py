@@ -24,13 +24,14 @@ from .arrays import as_origin, as_points
 from .backends import prepare
 from .errors import InputValueError
 from .io import PointCloud, atomic_path, read_cloud
+from .options import Options
 from .paper import MIN_GROUND_POINTS, SCANNER_HEIGHT, SECONDARY_RESOLUTION, SWEEP_HEIGHTS
 from .pattern import ScanPattern, as_pattern
 from .positions import ground_labels, select_positions
 from .progress import bar as progress_bar
 
 __all__ = ["pulse_sized_bins", "DistanceHistogram", "distance_histogram", "height_sweep", "DistanceStudy",
-           "distance_study", "study_files"]
+           "StudyOptions", "distance_study", "study_files"]
 
 KINDS = ("all", "ground", "non_ground")
 
@@ -291,10 +292,43 @@ def study_files(heights) -> list:
     return ["original.csv", "slr.csv", *(f"height_{float(h):g}m.csv" for h in heights), "distances.png"]
 
 
-def distance_study(inputs, *, origin=None, heights=SWEEP_HEIGHTS, positions: int = 20, seed: int = 0,
-                   resolution: float = SECONDARY_RESOLUTION, max_range: float = 120.0,
-                   scanner_height: float = SCANNER_HEIGHT, min_ground_points: int = MIN_GROUND_POINTS,
-                   ground: dict | None = None, progress: bool = False) -> DistanceStudy:
+@dataclass(frozen=True)
+class StudyOptions(Options):
+    """The settings of :func:`distance_study`.
+
+    Attributes
+    ----------
+    heights : sequence of float
+        The heights of the sweep (m above the ground).
+    positions : int
+        Secondary positions drawn in each input.
+    seed : int
+        Seed of the positions.
+    resolution : float
+        The SLR scans' angular resolution (degrees).
+    max_range : float
+        Their maximum range (m).
+    scanner_height : float
+        Metres above the ground the SLR scanner stands.
+    min_ground_points : int
+        The candidate cells' ground support (:class:`~slr_ray.positions.CellOptions`).
+    ground : dict or None
+        Keywords of :func:`~slr_ray.positions.ground_labels` (``attribute``,
+        ``value``, ``csf``, ``cloth_resolution``).
+    """
+
+    heights: tuple = SWEEP_HEIGHTS
+    positions: int = 20
+    seed: int = 0
+    resolution: float = SECONDARY_RESOLUTION
+    max_range: float = 120.0
+    scanner_height: float = SCANNER_HEIGHT
+    min_ground_points: int = MIN_GROUND_POINTS
+    ground: dict | None = None
+
+
+def distance_study(inputs, options: StudyOptions | None = None, *, origin=None, progress: bool = False,
+                   **keywords) -> DistanceStudy:
     """The paper's Experiment 2: distance distributions of real scans and of their SLR scans.
 
     For each input scan: its own distances from its origin; ``positions``
@@ -310,10 +344,15 @@ def distance_study(inputs, *, origin=None, heights=SWEEP_HEIGHTS, positions: int
         The scanner origin of inputs that record none. An explicit origin is
         used for every input, over any the files record (a file's recorded
         origin may be a format default, e.g. PCD's ``VIEWPOINT 0 0 0``).
-    ground : dict, optional
-        Keywords of :func:`~slr_ray.positions.ground_labels` (``attribute``,
-        ``value``, ``csf``, ``cloth_resolution``).
+    options : StudyOptions or dict, optional
+        The heights, positions, seed, resolution, range, scanner height,
+        ground support and ground labels (:class:`StudyOptions`); each field
+        may also be given as a keyword (``positions=5``).
     """
+    opts = StudyOptions.of(options, **keywords)
+    heights, positions, seed, resolution = opts.heights, opts.positions, opts.seed, opts.resolution
+    max_range, scanner_height, min_ground_points, ground = (opts.max_range, opts.scanner_height,
+                                                            opts.min_ground_points, opts.ground)
     bins = pulse_sized_bins(scanner_height, resolution, max_range, from_zero=True)
     original, slr, sweep, per_input = DistanceHistogram(bins), DistanceHistogram(bins), {}, []
     pattern = ScanPattern(resolution, max_range=max_range)

@@ -75,12 +75,13 @@ from .errors import InputValueError, MissingDependencyError, OutputError
 from .io import atomic_path
 from .metrics import (FIELD_THRESHOLD, LIDAR4D_CODE_THRESHOLD, PAPER_THRESHOLD, REGISTRY as METRICS, Pair,
                       metric_columns, range_bands, score_pair, seen_from)
+from .options import Options
 from .progress import bar as progress_bar, phase
 from .scan import Scan
 from .sensors import BeamPattern, fitted_pattern, scan_order_beams, sensor
 
 __all__ = ["METHODS", "BEAM_SOURCES", "EVALUATION_FILES", "LABELS", "Registration", "register", "scan_order_beams", "fitted_pattern", "zbuffer",
-           "evaluate_pair", "evaluation_table", "markdown_table", "splits_table", "compact_json",
+           "EvaluateOptions", "evaluate_pair", "evaluation_table", "markdown_table", "splits_table", "compact_json",
            "write_evaluation"]
 
 #: the methods scored, in table order, and their names in tables and figures
@@ -305,10 +306,43 @@ def _split_labels(rows_of_points, ranges, seen):
             "seen": np.where(seen, "seen", "unseen")}
 
 
-def evaluate_pair(a_points, b_points, a_beams="auto", b_beams="auto",
-                  sensor: str | BeamPattern = "velodyne_hdl64e_s2", methods=METHODS,
-                  transform=None, seen_threshold: float = PAPER_THRESHOLD, thresholds=THRESHOLDS,
-                  min_fitness: float = MIN_FITNESS, max_rmse: float | None = None, progress: bool = False) -> dict:
+@dataclass(frozen=True)
+class EvaluateOptions(Options):
+    """How :func:`evaluate_pair` re-simulates and scores a pair of frames.
+
+    Attributes
+    ----------
+    sensor : str or BeamPattern
+        The sensor's shipped table (columns, range limits; the elevations
+        where a frame's beams are unknown).
+    methods : sequence of str
+        A subset of :data:`METHODS`, or registered backends' names.
+    seen_threshold : float
+        A point of B is seen from A when an A point lies strictly closer (m).
+    thresholds : sequence of float
+        F-score thresholds (m).
+    min_fitness : float
+        A registration whose fitness (share of B's points with an A point
+        within 0.2 m after the fit) is below this is refused: the pose is not
+        to be trusted (frames that do not overlap, too few points). 0 accepts
+        any; ignored with ``transform``. Registering also needs
+        :data:`MIN_REGISTRATION_POINTS` points in each frame.
+    max_rmse : float or None
+        A registration whose inlier RMSE exceeds this (m; default
+        :data:`MAX_RMSE_SHARE` of the 0.2 m correspondence distance) is
+        refused; ignored with ``transform``.
+    """
+
+    sensor: str | BeamPattern = "velodyne_hdl64e_s2"
+    methods: tuple | str = METHODS
+    seen_threshold: float = PAPER_THRESHOLD
+    thresholds: tuple = THRESHOLDS
+    min_fitness: float = MIN_FITNESS
+    max_rmse: float | None = None
+
+
+def evaluate_pair(a_points, b_points, a_beams="auto", b_beams="auto", options: EvaluateOptions | None = None, *,
+                  transform=None, progress: bool = False, **keywords) -> dict:
     """Re-simulate frame B from frame A at B's pose and score every method against the real B.
 
     Parameters
@@ -322,6 +356,10 @@ def evaluate_pair(a_points, b_points, a_beams="auto", b_beams="auto",
         none there (``patterns``' ``beams`` in the result says which, and
         why). Beams, given or derived, whose points do not lie at one
         elevation a beam (a random or shuffled ring field) are refused.
+    options : EvaluateOptions or dict, optional
+        The sensor, the methods, the thresholds and the registration's
+        bounds (:class:`EvaluateOptions`); each field may also be given as a
+        keyword (``sensor="velodyne_vlp16"``, ``methods=("binning",)``).
     sensor : str or BeamPattern
         The sensor's shipped table (columns, range limits; the elevations
         where a frame's beams are unknown).
@@ -346,6 +384,8 @@ def evaluate_pair(a_points, b_points, a_beams="auto", b_beams="auto",
         A registration whose inlier RMSE exceeds this (m; default
         :data:`MAX_RMSE_SHARE` of the 0.2 m correspondence distance) is
         refused; ignored with ``transform``.
+    progress : bool
+        Progress on stderr.
 
     Raises
     ------
@@ -368,6 +408,9 @@ def evaluate_pair(a_points, b_points, a_beams="auto", b_beams="auto",
         ``seconds`` per stage.
     """
     t_all = time.perf_counter()
+    o = EvaluateOptions.of(options, **keywords)
+    sensor, methods, seen_threshold, thresholds = o.sensor, o.methods, o.seen_threshold, o.thresholds
+    min_fitness, max_rmse = o.min_fitness, o.max_rmse
     if not (isinstance(min_fitness, (int, float)) and 0 <= min_fitness <= 1):
         raise InputValueError(f"min_fitness must be a number in [0, 1] (a share of B's points), got {min_fitness!r}")
     if isinstance(methods, str):

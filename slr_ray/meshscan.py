@@ -1,6 +1,6 @@
 """Ground-truth scans of meshes: what an ideal scanner records of real surfaces.
 
-Three semantics (README, "Two definitions of a pulse's return"):
+Three semantics (docs/scenes.md, "Synthetic scenes and ground truth"):
 
 ``"center"``
     One ray per pulse, through the pulse centre: the first surface hit. This
@@ -37,11 +37,12 @@ from .arrays import as_origin, unravel_ids
 from .core import BinTables, ranges_of
 from .errors import InputValueError, refuse_memory
 from .io import atomic_path
+from .options import Options
 from .pattern import ScanPattern, as_pattern, pulse_rays
 from .progress import bar as progress_bar
 from .raycast import RayScene
 
-__all__ = ["MeshScan", "scan_mesh", "scan_mesh_to_file", "load_meshscan", "MESH_MODES"]
+__all__ = ["MeshScan", "MeshOptions", "scan_mesh", "scan_mesh_to_file", "load_meshscan", "MESH_MODES"]
 
 MESH_MODES = ("center", "nearest", "dense")
 
@@ -144,13 +145,46 @@ def _check_mesh_args(scene_or_mesh, origin, pattern, mode, supersample, face_lab
     return mesh, faces, labels, origin, pattern
 
 
-def _hit_chunks(scene_or_mesh, origin, pattern, mode, supersample=4, spacing=0.005,
-                face_labels=None, rays_per_batch=1 << 21, progress=False):
+@dataclass(frozen=True, eq=False)
+class MeshOptions(Options):
+    """How :func:`scan_mesh` samples each pulse and casts its rays.
+
+    Attributes
+    ----------
+    supersample : int
+        ``k`` for ``'nearest'``: k x k sub-rays per pulse at the centres of a
+        k x k grid, plus the centre ray when k is even (k = 1 is ``'center'``).
+        Cost grows as k^2.
+    spacing : float
+        Grid spacing in metres for ``'dense'``.
+    face_labels : (f,) int or None
+        Labels per face for a bare mesh (default: the face index).
+    rays_per_batch : int
+        Rays cast at once (bounds memory).
+    band_pulses : int or None
+        ``'dense'``: reduce in bands of whole zenith rows of at most this many
+        pulses, one pass over the samples each: the tables hold one band's
+        occupied pulses at a time, for the time of a pass per band. The same
+        scan (tested). Occupancy is rarely even: 73 % of the 0.00576 deg
+        rect-1000 primary's pulses lie within 10 deg of the horizon, so two
+        equal bands did not lower its peak (18.4 GiB); bands must be narrow
+        there. Default: one pass.
+    """
+
+    supersample: int = 4
+    spacing: float = 0.005
+    face_labels: object = None
+    rays_per_batch: int = 1 << 21
+    band_pulses: int | None = None
+
+
+def _hit_chunks(scene_or_mesh, origin, pattern, mode, o: MeshOptions, progress=False):
     """Yield the scan chunk by chunk: (offsets (k, 3) f8, labels (k,), ranges (k,), pulses (k, 2))."""
+    supersample, rays_per_batch = o.supersample, o.rays_per_batch
     mesh, faces, labels, origin, pattern = _check_mesh_args(
-        scene_or_mesh, origin, pattern, mode, supersample, face_labels)
+        scene_or_mesh, origin, pattern, mode, supersample, o.face_labels)
     if mode == "dense":
-        yield from _dense_chunks(scene_or_mesh, origin, pattern, spacing)
+        yield from _dense_chunks(scene_or_mesh, origin, pattern, o.spacing)
         return
     k = 1 if mode == "center" else int(supersample)
     caster = RayScene.triangles(np.asarray(mesh.vertices, np.float64), faces, centre=origin)
@@ -188,9 +222,8 @@ def _hit_chunks(scene_or_mesh, origin, pattern, mode, supersample=4, spacing=0.0
             bar.close()
 
 
-def scan_mesh(scene_or_mesh, origin, pattern, mode: str = "center", *, supersample: int = 4,
-              spacing: float = 0.005, face_labels=None, rays_per_batch: int = 1 << 21,
-              progress: bool = False, band_pulses: int | None = None) -> MeshScan:
+def scan_mesh(scene_or_mesh, origin, pattern, mode: str = "center", options: MeshOptions | None = None, *,
+              progress: bool = False, **keywords) -> MeshScan:
     """Scan a mesh (or a :class:`~slr_ray.scenes.RectangleScene`) from ``origin``.
 
     Parameters
@@ -200,24 +233,10 @@ def scan_mesh(scene_or_mesh, origin, pattern, mode: str = "center", *, supersamp
     pattern : ScanPattern, str or float
     mode : {'center', 'nearest', 'dense'}
         Truth semantics (module docstring).
-    supersample : int
-        ``k`` for ``'nearest'``: k x k sub-rays per pulse at the centres of a
-        k x k grid, plus the centre ray when k is even (k = 1 is ``'center'``).
-        Cost grows as k^2.
-    spacing : float
-        Grid spacing in metres for ``'dense'``.
-    face_labels : (f,) int, optional
-        Labels per face for a bare mesh (default: the face index).
-    band_pulses : int, optional
-        ``'dense'``: reduce in bands of whole zenith rows of at most this many
-        pulses, one pass over the samples each: the tables hold one band's
-        occupied pulses at a time, for the time of a pass per band. The same
-        scan (tested). Occupancy is rarely even: 73 % of the 0.00576 deg
-        rect-1000 primary's pulses lie within 10 deg of the horizon, so two
-        equal bands did not lower its peak (18.4 GiB); bands must be narrow
-        there. Default: one pass.
-    rays_per_batch : int
-        Rays cast at once (bounds memory).
+    options : MeshOptions or dict, optional
+        ``supersample``, ``spacing``, ``face_labels``, ``rays_per_batch``,
+        ``band_pulses`` (:class:`MeshOptions`); each may also be given as a
+        keyword (``supersample=2``).
     progress : bool
         Show a progress bar (tqdm) on stderr.
 
@@ -228,14 +247,14 @@ def scan_mesh(scene_or_mesh, origin, pattern, mode: str = "center", *, supersamp
         and more, :func:`scan_mesh_to_file` streams to a compact file instead.
     """
     t0 = time.perf_counter()
+    o = MeshOptions.of(options, **keywords)
     origin = as_origin(origin)
     if mode == "dense":
-        _check_mesh_args(scene_or_mesh, origin, pattern, mode, supersample, face_labels)
+        _check_mesh_args(scene_or_mesh, origin, pattern, mode, o.supersample, o.face_labels)
         pattern = as_pattern(pattern)
-        pts, lab, rng, pulses = _dense_scan(scene_or_mesh, origin, pattern, spacing, band_pulses)
+        pts, lab, rng, pulses = _dense_scan(scene_or_mesh, origin, pattern, o.spacing, o.band_pulses)
         return MeshScan(pts, lab, rng, pulses, origin, pattern, mode, time.perf_counter() - t0)
-    parts = list(_hit_chunks(scene_or_mesh, origin, pattern, mode, supersample, spacing,
-                             face_labels, rays_per_batch, progress))
+    parts = list(_hit_chunks(scene_or_mesh, origin, pattern, mode, o, progress))
     pattern = as_pattern(pattern)
     if parts:
         # fill preallocated arrays, freeing each chunk once copied: the peak stays
@@ -266,10 +285,12 @@ def scan_mesh_to_file(scene_or_mesh, origin, pattern, path, mode: str = "center"
     are those of :func:`scan_mesh`. Returns a summary (points, seconds, bytes).
     """
     t0 = time.perf_counter()
+    progress = options.pop("progress", False)
+    o = MeshOptions.of(options.pop("options", None), **options)
     origin = as_origin(origin)
     pattern = as_pattern(pattern)
     with _CompactWriter(path, origin, pattern, mode) as w:
-        for chunk in _hit_chunks(scene_or_mesh, origin, pattern, mode, **options):
+        for chunk in _hit_chunks(scene_or_mesh, origin, pattern, mode, o, progress):
             w.write(*chunk)
         w.seconds = time.perf_counter() - t0
     return {"path": str(path), "mode": mode, "points_out": w.count, "seconds": round(w.seconds, 3),

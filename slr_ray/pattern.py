@@ -3,7 +3,7 @@
 A pattern is a regular grid of pulses in (zenith, azimuth). Angles are given in
 degrees in the public API and converted to radians once here.
 
-Pulse bin of a direction (README, "The ideal scanner")::
+Pulse bin of a direction (docs/backends.md, "What a scan returns (the ideal scanner)")::
 
     v = floor((theta - theta_min) / d_theta)      zenith bin, 0 .. n_zenith - 1
     h = floor(phi / d_phi)                        azimuth bin, 0 .. n_azimuth - 1

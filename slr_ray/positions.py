@@ -36,13 +36,14 @@ from scipy.spatial import cKDTree
 from .arrays import as_points
 from .backends import prepare
 from .errors import InputValueError, MissingDependencyError, SlrNote, SlrWarning
+from .options import Options
 from .paper import (CELL_SIZE, GROUND_COUNT_RADIUS, GROUND_HEIGHT_RADIUS, MIN_GROUND_POINTS, SCANNER_HEIGHT,
                     SECONDARY_RESOLUTION)
 from .pattern import ScanPattern
 from .progress import bar as progress_bar
 from .progress import phase
 
-__all__ = ["CandidateCells", "AzimuthProfile", "candidate_cells", "select_positions",
+__all__ = ["CandidateCells", "AzimuthProfile", "CellOptions", "PositionOptions", "candidate_cells", "select_positions",
            "azimuth_histogram", "minimum_profile", "default_profile", "suggest_resolution",
            "label_ground", "ground_labels", "DEFAULT_PROFILE_PATH"]
 
@@ -204,30 +205,68 @@ def _ground_z(tree, g, centre, xy, radius):
     return out
 
 
-def candidate_cells(points, is_ground, *, cell_size: float = CELL_SIZE, min_ground_points: int = MIN_GROUND_POINTS,
-                    ground_count_radius: float = 5.0, profile: AzimuthProfile | None = None,
-                    scanner_height: float = SCANNER_HEIGHT, ground_height_radius: float = GROUND_HEIGHT_RADIUS,
-                    progress: bool = False) -> CandidateCells:
-    """Grid cells where a secondary scanner may stand (paper §2.1).
+@dataclass(frozen=True)
+class CellOptions(Options):
+    """Where a secondary scanner may stand: the rules of a candidate cell (paper §2.1).
 
-    Parameters
+    Attributes
     ----------
-    points : (n, 3) float
-    is_ground : (n,) bool
     cell_size : float
         Cell side in metres (2).
     min_ground_points : int
         Cells with fewer ground points within ``ground_count_radius`` (5 m) of
         their centre are dropped (50,000: the paper's, for a dense TLS cloud;
         scale it with your cloud's density).
-    profile : AzimuthProfile, optional
+    ground_count_radius : float
+        Metres around a cell's centre its ground points are counted in.
+    ground_height_radius : float
+        A scanner stands on the mean ground height within this many metres.
+    scanner_height : float
+        Metres above the ground a scanner stands.
+    profile : AzimuthProfile or None
         Minimum profile of the azimuth test; None skips the test.
-    scanner_height, ground_height_radius : float
-        For the azimuth test's scans: the scanner stands ``scanner_height``
-        above the mean ground height within ``ground_height_radius`` of the centre.
+    """
+
+    cell_size: float = CELL_SIZE
+    min_ground_points: int = MIN_GROUND_POINTS
+    ground_count_radius: float = GROUND_COUNT_RADIUS
+    ground_height_radius: float = GROUND_HEIGHT_RADIUS
+    scanner_height: float = SCANNER_HEIGHT
+    profile: AzimuthProfile | None = None
+
+
+@dataclass(frozen=True)
+class PositionOptions(CellOptions):
+    """:class:`CellOptions`, and what :func:`select_positions` does with too few cells.
+
+    Attributes
+    ----------
+    allow_fewer : bool
+        With fewer candidates than ``n``: False (default) raises, True returns
+        all the positions there are and warns (:class:`~slr_ray.errors.SlrWarning`)
+        naming both counts.
+    """
+
+    allow_fewer: bool = False
+
+
+def candidate_cells(points, is_ground, options: CellOptions | None = None, *, progress: bool = False,
+                    **keywords) -> CandidateCells:
+    """Grid cells where a secondary scanner may stand (paper §2.1).
+
+    Parameters
+    ----------
+    points : (n, 3) float
+    is_ground : (n,) bool
+    options : CellOptions or dict, optional
+        The rules of a cell; its fields may also be given as keywords
+        (``candidate_cells(pts, g, min_ground_points=1000)``).
     progress : bool
         Progress bar over the azimuth test (one simulated scan per cell).
     """
+    o = CellOptions.of(options, **keywords)
+    cell_size, min_ground_points, ground_count_radius = o.cell_size, o.min_ground_points, o.ground_count_radius
+    profile, scanner_height, ground_height_radius = o.profile, o.scanner_height, o.ground_height_radius
     t0 = time.perf_counter()
     pts, g = _check_ground(points, is_ground)
     if cell_size <= 0 or ground_count_radius <= 0 or ground_height_radius <= 0:
@@ -295,11 +334,9 @@ def candidate_cells(points, is_ground, *, cell_size: float = CELL_SIZE, min_grou
                           time.perf_counter() - t0, ground_index=(tree, gpts, gcentre))
 
 
-def select_positions(points, is_ground, n: int, seed=None, cell_size: float = CELL_SIZE,
-                     min_ground_points: int = MIN_GROUND_POINTS, ground_count_radius: float = GROUND_COUNT_RADIUS,
-                     ground_height_radius: float = GROUND_HEIGHT_RADIUS, scanner_height: float = SCANNER_HEIGHT,
-                     profile: AzimuthProfile | None = None, *, allow_fewer: bool = False,
-                     cells: CandidateCells | None = None, return_cells: bool = False, progress: bool = False):
+def select_positions(points, is_ground, n: int, seed=None, options: PositionOptions | None = None, *,
+                     cells: CandidateCells | None = None, return_cells: bool = False, progress: bool = False,
+                     **keywords):
     """Draw ``n`` secondary scanner positions (paper §2.1-2.2).
 
     Cells that pass :func:`candidate_cells` are drawn at random without
@@ -313,10 +350,10 @@ def select_positions(points, is_ground, n: int, seed=None, cell_size: float = CE
     n : int
     seed : int or numpy Generator
         Same seed, same positions.
-    allow_fewer : bool
-        With fewer candidates than ``n``: False (default) raises, True returns
-        all the positions there are and warns (:class:`~slr_ray.errors.SlrWarning`)
-        naming both counts.
+    options : PositionOptions or dict, optional
+        The rules of a cell (:class:`CellOptions`) and ``allow_fewer``; its
+        fields may also be given as keywords (``min_ground_points=1000``,
+        ``allow_fewer=True``).
     cells : CandidateCells, optional
         Reuse a :func:`candidate_cells` result (its parameters win).
     return_cells : bool
@@ -329,14 +366,14 @@ def select_positions(points, is_ground, n: int, seed=None, cell_size: float = CE
     positions : (m, 3) float64
         ``m == n`` unless ``allow_fewer``.
     """
+    o = PositionOptions.of(options, **keywords)
+    ground_count_radius, ground_height_radius = o.ground_count_radius, o.ground_height_radius
+    scanner_height, allow_fewer = o.scanner_height, o.allow_fewer
     if int(n) != n or n < 0:
         raise InputValueError(f"n must be a non-negative integer, got {n!r}")
     pts, g = _check_ground(points, is_ground)
     if cells is None:
-        cells = candidate_cells(pts, g, cell_size=cell_size, min_ground_points=min_ground_points,
-                                ground_count_radius=ground_count_radius, profile=profile,
-                                scanner_height=scanner_height, ground_height_radius=ground_height_radius,
-                                progress=progress)
+        cells = candidate_cells(pts, g, o, progress=progress)
     rng = np.random.default_rng(seed)
     final = cells.final
     removed = ", ".join(f"{s['stage']} removed {s['removed']}" for s in cells.stages if not s.get("skipped"))

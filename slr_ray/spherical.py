@@ -1,7 +1,8 @@
 """Spherical coordinates and pulse bins of points seen from a scanner (numpy).
 
-These are the readable definitions of the ideal scanner (README, "The ideal scanner"); the pulse keys of
-:mod:`slr_ray.core` compute the same quantities fused in a compiled loop. Everything is done in float64
+These are the readable definitions of the ideal scanner (docs/backends.md,
+"What a scan returns (the ideal scanner)"); the pulse keys of :mod:`slr_ray.core`
+compute the same quantities fused in a compiled loop. Everything is done in float64
 after subtracting the scanner origin, so a cloud in UTM coordinates (10^6 m)
 bins exactly like the same cloud near 0.
 """

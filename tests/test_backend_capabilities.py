@@ -106,3 +106,37 @@ def test_a_registered_toy_backend_is_an_evaluate_method(toy):
     def same(row):
         return repr({k: v for k, v in row.items() if k not in ("method", "label") and "seconds" not in k})
     assert same(toy_row) == same(binning)
+
+
+class RayToy(Scanner):
+    """A backend that casts rays (embree's discs behind another name), with only the protocol's
+    scan_and_rays: the default one, from scan and cast."""
+
+    backend = "raytoy"
+    casts_rays = True
+
+    def __init__(self, points, options=None):
+        super().__init__(points, options or ToyOptions())
+        self._inner = prepare(points, "embree", radius=0.05)
+
+    def scan(self, origin, pattern):
+        return self._inner.scan(origin, pattern)
+
+    def cast(self, origin, directions, max_range=math.inf):
+        return self._inner.cast(origin, directions, max_range)
+
+
+def test_a_registered_ray_caster_is_compared_and_named_by_its_capability(monkeypatch):
+    from slr_ray.compare import compare_backends, compared_backends
+
+    monkeypatch.setitem(BACKENDS, "raytoy", BackendEntry(RayToy, ToyOptions))
+    rng = np.random.default_rng(0)
+    pts = np.vstack([np.column_stack([np.full(3000, 5.0), rng.uniform(-1, 1, (3000, 2))]),
+                     np.column_stack([np.full(3000, 9.0), rng.uniform(-2, 2, (3000, 2))])])
+    assert compared_backends() == ("binning", "embree")  # the first of each kind in the registry
+    ref = compare_backends(pts, [0, 0, 0], 2.0, ray_options={"radius": 0.05})["positions"][0]
+    toy = compare_backends(pts, [0, 0, 0], 2.0, backends=("binning", "raytoy"))["positions"][0]
+    assert toy["raytoy"] == ref["embree"] and toy["see_through"] == ref["see_through"]
+    assert [b["only_raytoy"] for b in toy["bands"]] == [b["only_embree"] for b in ref["bands"]]
+    with pytest.raises(InputValueError, match="casts rays .casts_rays: embree, raytoy"):
+        simulate(prepare(pts), [0, 0, 0], 2.0, {"divergence_mrad": 2.0})

@@ -30,13 +30,13 @@ from ..errors import InputValueError
 from ..pattern import as_pattern
 from ..raycast import embree_available
 from ..scan import Scan
-from .base import Backend, BackendOptions, Scanner, require_rays, require_streamable, streams
+from .base import Backend, BackendOptions, Scanner, require_streamable, streams
 from .binning import BinningOptions, BinningScanner
 from .embree import DiscScanner, EmbreeOptions
 
 __all__ = ["Backend", "BACKENDS", "BackendEntry", "Scanner", "BackendOptions", "prepare", "simulate_scan",
-           "options_for", "scanner_class", "require_rays", "require_streamable", "streams", "available_backends",
-           "BinningOptions", "EmbreeOptions"]
+           "options_for", "scanner_class", "backends_with", "require_rays", "require_streamable", "streams",
+           "available_backends", "BinningOptions", "EmbreeOptions"]
 
 
 class BackendEntry(NamedTuple):
@@ -64,6 +64,24 @@ def scanner_class(backend) -> type:
     """The :class:`Scanner` class of ``backend`` (a name): its capabilities
     (``casts_rays``, ``streamable``...) before anything is prepared."""
     return BACKENDS[_backend(backend)].scanner
+
+
+def backends_with(capability: str) -> list[str]:
+    """Names of the registered backends whose scanner class has ``capability`` (a
+    :class:`Scanner` capability, as ``'casts_rays'``), in the registry's order:
+    what a message names instead of one backend."""
+    return [str(b) for b, entry in BACKENDS.items() if getattr(entry.scanner, capability, False)]
+
+
+def require_rays(scanner, what: str) -> None:
+    """The one rule of effects that need rays: refuse ``what`` (e.g. 'beam divergence
+    (divergence_mrad)') on a scanner or scanner class that casts none, naming the
+    backends that do (:func:`backends_with`)."""
+    if not scanner.casts_rays:
+        them = backends_with("casts_rays")
+        which = f"casts_rays: {', '.join(them)}; --backend {them[0]}" if them else "none is registered"
+        raise InputValueError(f"{what} needs a backend that casts rays ({which}): {scanner.backend!s} keeps one "
+                              "point per pulse and has no footprint beyond it (docs/effects.md)")
 
 
 def options_for(backend, options: dict | BackendOptions | None = None, **more) -> BackendOptions:

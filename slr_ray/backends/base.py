@@ -10,51 +10,25 @@ command line, and an unknown option is an error that lists the known ones.
 from __future__ import annotations
 
 import dataclasses
-import inspect
 import math
 from abc import ABC, abstractmethod
 from typing import ClassVar
 
 import numpy as np
 
-from ..errors import InputValueError, dataclass_from_mapping
+from ..errors import InputValueError
+from ..options import Options
+from ..pattern import pulse_rays
 from ..scan import Scan
 from .names import Backend
 
-__all__ = ["Backend", "Scanner", "BackendOptions", "require_rays", "require_streamable", "streams"]
+__all__ = ["Backend", "Scanner", "BackendOptions", "require_streamable", "streams"]
 
 
 @dataclasses.dataclass(frozen=True)
-class BackendOptions:
-    """Base of every backend's options (frozen; unknown keys rejected)."""
-
-    @classmethod
-    def from_dict(cls, options: dict | None = None, **more) -> "BackendOptions":
-        """Options from a mapping (a config file's table, CLI flags) and keywords.
-
-        Raises
-        ------
-        InputValueError
-            naming unknown keys and listing the known ones.
-        """
-        return dataclass_from_mapping(cls, options, more, f"option(s) for {cls.__name__}:")
-
-    @classmethod
-    def describe(cls) -> dict:
-        """``{field: (type, description)}`` from the class docstring's Attributes
-        section (numpydoc): the one description the command line's help shows."""
-        doc = inspect.getdoc(cls) or ""
-        lines = doc.split("Attributes\n----------\n", 1)[-1].splitlines() if "Attributes" in doc else []
-        out, name = {}, None
-        for line in lines:
-            if line and not line.startswith(" ") and " : " in line:
-                name, typ = line.split(" : ", 1)
-                out[name.strip()] = [typ.strip(), ""]
-            elif line.startswith(" ") and name is not None:
-                out[name][1] = (out[name][1] + " " + line.strip()).strip()
-            elif not line.strip() and name is not None and out[name][1]:
-                name = None
-        return {k: tuple(v) for k, v in out.items()}
+class BackendOptions(Options):
+    """Base of every backend's options (frozen; unknown keys rejected; :class:`~slr_ray.options.Options`'
+    ``from_dict`` and ``describe``, whose Attributes generate the command line's flags)."""
 
     @classmethod
     def choices(cls) -> dict:
@@ -128,6 +102,17 @@ class Scanner(ABC):
         :attr:`casts_rays`; here an :class:`~slr_ray.errors.InputValueError`."""
         raise InputValueError(f"backend {self.backend!s} casts no rays (casts_rays is False)")
 
+    def scan_and_rays(self, origin, pattern):
+        """:meth:`scan`, and where each pulse's centre ray met the cloud first: ``(scan,
+        (pulses (k, 2), indices (k,), distances (k,)))`` for the ``k`` rays that hit. Only
+        where :attr:`casts_rays`: here the pulse centres cast by :meth:`cast` (a backend may
+        give both from one cast)."""
+        scan = self.scan(origin, pattern)
+        directions, rows, columns = pulse_rays(pattern)
+        idx, t = self.cast(origin, directions, max_range=pattern.range_limits[1])
+        hit = idx >= 0
+        return scan, (np.column_stack([rows[hit], columns[hit]]).astype(np.int64), idx[hit].astype(np.intp), t[hit])
+
     def __init__(self, points: np.ndarray, options: BackendOptions, prepare_seconds: float = 0.0):
         self.points = points
         self.options = options
@@ -153,15 +138,6 @@ class Scanner(ABC):
 
     def __repr__(self) -> str:
         return f"<{type(self).__name__} {self.backend} n={len(self)} {self.options}>"
-
-
-def require_rays(scanner, what: str) -> None:
-    """The one rule of effects that need rays: refuse ``what`` (e.g. 'beam divergence
-    (divergence_mrad)') on a scanner or scanner class that casts none."""
-    if not scanner.casts_rays:
-        raise InputValueError(f"{what} needs a backend that casts rays, e.g. embree (--backend embree): "
-                              f"{scanner.backend!s} keeps one point per pulse bin and has no footprint beyond it "
-                              "(docs/effects.md)")
 
 
 def streams(scanner, pattern) -> bool:

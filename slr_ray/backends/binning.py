@@ -1,8 +1,9 @@
 """The binning backend: keep the closest point in every pulse bin (exact).
 
 This is the reference implementation of the paper's nearest-in-pulse rule
-(README, "The ideal scanner"). Per occupied pulse bin ``(v, h)`` the point with
-the smallest range wins; ties go to the lowest input index.
+(docs/backends.md, "What a scan returns (the ideal scanner)"). Per occupied
+pulse bin ``(v, h)`` the point with the smallest range wins; ties go to the
+lowest input index.
 
 The paper sorts all points by ``(h, v, R)``: O(N log N). Here a per-bin
 minimum needs no sort: the pulse keys come from the compiled angle kernels of

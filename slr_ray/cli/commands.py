@@ -19,9 +19,9 @@ import numpy as np
 from ..arrays import json_safe
 from ..augment import AugmentConfig
 from ..augment import augment as run_augment
-from ..backends import options_for, prepare, scanner_class, streams
+from ..backends import backends_with, options_for, prepare, scanner_class, streams
 from ..backends.embree.fit import fit_primary_pattern
-from ..compare import compare_backends
+from ..compare import compare_backends, compared_backends
 from ..demo import run_demo
 from ..distances import distance_study, study_files
 from ..backends.embree import refuse_cast
@@ -83,7 +83,8 @@ def scan(args):
     options = options_for(args.backend, backend_from(args))  # built once, used below
     effects = check_effects(effects_from(args), args.backend, pattern)
     if scanner_class(args.backend).casts_rays:  # before reading and preparing: binning answers at once
-        refuse_cast(cast_rays(pattern, effects), "--backend embree",
+        refuse_cast(cast_rays(pattern, effects), f"--backend {args.backend} (it casts rays, as do the backends "
+                    f"with casts_rays: {', '.join(backends_with('casts_rays'))})",
                     "choose a coarser pattern (--resolution, --columns) or a smaller --divergence-mrad cone")
     if effects is not None and (args.range_image or args.png):
         raise InputValueError("--range-image and --png draw an ideal scan (one point a pulse): drop them, or the "
@@ -339,14 +340,15 @@ def scene(args):
 def compare(args):
     plan = _plan(args, inputs=[args.input], figures=[args.png])
     pattern = pattern_from(args)
-    embree_options = backend_from(args, "embree")
+    ray_backend = compared_backends()[1]  # the pair from the registry's capabilities (binning, embree)
+    ray_options = backend_from(args, ray_backend)
     with plan:
         cloud = read_cloud(args.input, args.input_format, allow_empty=False)
         bounds = (cloud.points.min(axis=0), cloud.points.max(axis=0))
         for origin in args.origin:  # each reaches the cloud (a local origin for a UTM cloud does not)
             _check_origin(origin, bounds, pattern, relative=False)
         res = compare_backends(cloud.points, np.array(args.origin, float).reshape(-1, 3), pattern,
-                               tolerance=args.tolerance, embree_options=embree_options, progress=not args.quiet)
+                               tolerance=args.tolerance, ray_options=ray_options, progress=not args.quiet)
         if args.png:
             save_figure(comparison_figure(res), args.png)
             res["png"] = args.png

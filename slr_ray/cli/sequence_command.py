@@ -193,8 +193,8 @@ def _evaluate(args, seq, holdout, out):
 def _convert(args, seq, out):
     seq, regs = _poses_of(args, seq)
     target = read_trajectory(args.target_poses, len(seq)) if args.target_poses else None
-    res = convert_sequence(seq, out, args.sensor, args.estimator, args.half, args.radius, args.offset, target,
-                           drop_moving=not args.keep_moving, fmt=args.format, fpa_gap=args.fpa_gap,
+    res = convert_sequence(seq, out, args.sensor, estimator=args.estimator, half=args.half, radius=args.radius,
+                           offset=tuple(args.offset), poses=target, drop_moving=not args.keep_moving, fmt=args.format, fpa_gap=args.fpa_gap,
                            workers=args.workers, progress=not args.quiet,
                            inputs={"sequence": [str(p) for p in seq.paths], "poses": args.poses,
                                    "register": bool(args.register)})

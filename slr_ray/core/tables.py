@@ -1,8 +1,8 @@
 """Per-pulse minimum of (range, index): the tables of the nearest-in-pulse rule.
 
 Per occupied pulse bin the point with the smallest range wins; ties go to the
-lowest input index (README, "The ideal scanner"). Each point goes into a table
-that keeps, per pulse key ``v * n_azimuth + h`` (:mod:`slr_ray.core.grid`),
+lowest input index (docs/backends.md, "What a scan returns (the ideal
+scanner)"). Each point goes into a table that keeps, per pulse key ``v * n_azimuth + h`` (:mod:`slr_ray.core.grid`),
 the smallest ``(range, index)``. Non-finite rows are counted first and
 refused, so a bad chunk leaves the state untouched.
 

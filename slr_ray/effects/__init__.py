@@ -7,13 +7,15 @@
 >>> len(es), es.return_number.tolist()
 (2, [1, 1])
 
-Modules: :mod:`.options` (:class:`Effects`), :mod:`.returns` (beam
+Modules: :mod:`.options` (:class:`Effects`, made from the stages' options
+on :mod:`.settings`' base), :mod:`.returns` (beam
 divergence, multiple returns), :mod:`.noise` (range noise, blind zone,
 maximum range by reflectivity), :mod:`.raydrop` (a drop model fitted from a
 real frame), :mod:`.intensity`, :mod:`.motion` (motion during a sweep) and
-:mod:`.stages` (each effect after the geometry as a stage: its options, its
-flags, its transform), :mod:`.simulate` (the geometry, then the stages in
-order) and :mod:`.scoring` (a scan with effects as range and intensity images,
+:mod:`.stages` (every effect as a stage: its options, its flags, what it
+changes before the geometry, on the returns and on where they land),
+:mod:`.simulate` (the stages' plan, the geometry, then the stages in order)
+and :mod:`.scoring` (a scan with effects as range and intensity images,
 scored against a real frame).
 """
 

@@ -1,17 +1,23 @@
 """A simulated scan with sensor effects: :func:`simulate` and its result :class:`EffectScan`.
 
-Order of the stages (each skipped when its effect is off):
+The effects are resolved once (:meth:`~slr_ray.effects.Effects.resolve`), and
+every one is a stage of :data:`~slr_ray.effects.stages.STAGES`, run in this
+order where it is on:
 
-1. geometry: the ideal scan (``scanner.scan``), or, with beam divergence or
-   motion, rays cast by this module: sub-rays of each pulse's cone
-   (:mod:`.returns`), from each column's own pose (:mod:`.motion`);
-2. ray drop (:mod:`.raydrop`): one draw per pulse, from its first return's
-   range, incidence and intensity; a dropped pulse loses all its returns;
-3. blind zone and the maximum range of each return's reflectivity (:mod:`.noise`);
-4. range noise along each return's ray (:mod:`.noise`);
-5. intensity, carried or corrected (:mod:`.intensity`);
-6. with motion, the frame: the sensor's at the sweep's end, or each column's
-   firing pose (``motion_frame='firing'``, a raw frame).
+1. what is cast (:meth:`~slr_ray.effects.stages.Stage.rays`): beam divergence's
+   sub-rays of each pulse's cone (:mod:`.returns`), motion's pose for each
+   sector of columns (:mod:`.motion`);
+2. the geometry this module makes: the ideal scan (``scanner.scan``) where
+   nothing is asked, or the rays cast (by a scanner that casts rays; motion on
+   one that does not scans each sector from its pose);
+3. the returns (:meth:`~slr_ray.effects.stages.Stage.apply`): ray drop (one draw
+   per pulse, from its first return's range, incidence and intensity; a
+   dropped pulse loses all its returns), blind zone and the maximum range of
+   each return's reflectivity, range noise along each return's ray, intensity
+   carried or corrected;
+4. where they land (:meth:`~slr_ray.effects.stages.Stage.place`): with motion,
+   the sensor's frame at the sweep's end, or each column's firing pose
+   (``motion_frame='firing'``, a raw frame).
 
 With every effect off the result is the ideal scan: the same points, the
 same indices (``EffectScan.ideal`` holds it).
@@ -25,16 +31,17 @@ from dataclasses import dataclass, field
 import numpy as np
 
 from ..arrays import as_origin
-from ..backends import BackendOptions, Scanner, prepare, require_rays
+from ..backends import BackendOptions, Scanner, backends_with, prepare
 from ..backends.embree import refuse_cast
 from ..errors import InputValueError
 from ..io import PointCloud
 from ..pattern import as_pattern, pulse_rays
 from ..scan import Scan
-from . import motion as _motion
-from .options import Effects
-from .returns import footprint_samples, group_returns, select_returns, subray_directions
-from .stages import STAGES, Context, Returns
+from . import stages as registry  # its STAGES read at each call: a stage registered there runs
+from .motion import as_poses
+from .returns import group_returns, select_returns, subray_directions
+from .settings import EffectsBase
+from .stages import Context, Effects, Rays, Returns, Stage
 
 __all__ = ["cast_rays", "EffectScan", "simulate", "simulate_given", "effect_cloud"]
 
@@ -127,29 +134,27 @@ def effect_cloud(es: EffectScan, cloud: PointCloud) -> PointCloud:
 
 
 def cast_rays(pattern, effects: Effects | None = None) -> int:
-    """The rays an embree scan of ``pattern`` with ``effects`` casts: one a pulse, or each pulse's
-    sub-rays with beam divergence (``1 + 3 beam_rings (beam_rings - 1)``)."""
+    """The rays a scan of ``pattern`` with ``effects`` casts on a scanner that casts rays: one a pulse,
+    or each pulse's sub-rays with beam divergence (``1 + 3 beam_rings (beam_rings - 1)``)."""
     n = int(as_pattern(pattern).n_pulses)
     if effects is not None and effects.divergence_mrad and effects.divergence_mrad != "sensor":
         n *= 1 + 3 * effects.beam_rings * (effects.beam_rings - 1)
     return n
 
 
-def _cast_returns(scanner, origin, pattern, eff: Effects, poses, intensity):
-    """Rays cast here (embree): sub-rays of every pulse from its column's pose."""
+def _cast_returns(scanner, origin, pattern, plan: Rays, intensity):
+    """Rays cast here (a scanner that casts rays): the plan's sub-rays of every pulse, from its
+    sector's pose."""
     nv, nh = pattern.shape
-    div = eff.divergence_mrad
-    offsets, weights = footprint_samples(div * 1e-3, eff.beam_rings) if div else (np.zeros((1, 2)), np.ones(1))
-    s = len(weights)
-    refuse_cast(nv * nh * s, "the embree scan with its sub-rays",
+    s = len(plan.weights)
+    refuse_cast(nv * nh * s, f"the rays {scanner.backend!s} casts{' with their sub-rays' if plan.subrays else ''} "
+                f"(a backend with casts_rays: {', '.join(backends_with('casts_rays'))})",
                 "choose a coarser pattern (--resolution) or fewer sub-rays (beam_rings)")
     rmin, rmax = pattern.range_limits
-    if poses is None:
+    if plan.sectors is None:
         starts, stops, rots, origins = [0], [nh], np.eye(3)[None], origin[None]
     else:
-        starts, stops, times = _motion.column_sectors(nh, eff.motion_sectors or nh, eff.sweep_start_deg,
-                                                       eff.sweep_clockwise)
-        rots, origins = _motion.interpolate_poses(poses, times)
+        starts, stops, rots, origins = plan.sectors
     dirs_all, vv, hh = pulse_rays(pattern)
     dirs_all = dirs_all.reshape(nv, nh, 3)
     parts = []
@@ -158,31 +163,27 @@ def _cast_returns(scanner, origin, pattern, eff: Effects, poses, intensity):
         for r0 in range(0, nv, rows_per):
             r1 = min(nv, r0 + rows_per)
             d = dirs_all[r0:r1, a:b].reshape(-1, 3) @ rot.T
-            idx, t = scanner.cast(o, subray_directions(d, offsets) if div else d, max_range=rmax)
-            g = group_returns(idx.reshape(-1, s), t.reshape(-1, s), weights, eff.return_separation,
-                              eff.min_share if div else 0.0, intensity)
+            idx, t = scanner.cast(o, subray_directions(d, plan.offsets) if plan.subrays else d, max_range=rmax)
+            g = group_returns(idx.reshape(-1, s), t.reshape(-1, s), plan.weights, plan.separation, plan.min_share,
+                              intensity)
             v = r0 + g["pulse"] // (b - a)
             h = a + g["pulse"] % (b - a)
             g.update(v=v, h=h, dir=d[g["pulse"]], fire=np.broadcast_to(o, (len(v), 3)))
             parts.append(g)
     keys = ("v", "h", "range", "share", "index", "strength", "return_number", "number_of_returns", "dir", "fire")
     out = {k: np.concatenate([p[k] for p in parts]) for k in keys}
-    if div:
-        keep = select_returns({**out, "pulse": out["v"] * nh + out["h"]}, eff.returns)
+    if "all" not in plan.returns:
+        keep = select_returns({**out, "pulse": out["v"] * nh + out["h"]}, plan.returns)
         out = {k: v[keep] for k, v in out.items()}
     inside = (out["range"] >= rmin) & (out["range"] <= rmax)
     return {k: v[inside] for k, v in out.items()}
 
 
-def _sector_scans(scanner, pattern, eff: Effects, poses):
+def _sector_scans(scanner, pattern, plan: Rays):
     """Motion on a scanner that casts no rays (binning): the cloud seen from each sector's pose, one scan
     per sector by the scanner's own backend and options."""
-    nh = pattern.shape[1]
-    starts, stops, times = _motion.column_sectors(nh, eff.motion_sectors or 72, eff.sweep_start_deg,
-                                                   eff.sweep_clockwise)
-    rots, origins = _motion.interpolate_poses(poses, times)
     parts = []
-    for a, b, rot, o in zip(starts, stops, rots, origins):
+    for a, b, rot, o in zip(*plan.sectors):
         local = (scanner.points - o) @ rot  # the sensor frame of this sector's pose
         sc = prepare(local, scanner.backend, scanner.options).scan(np.zeros(3), pattern)
         mine = (sc.pulses[:, 1] >= a) & (sc.pulses[:, 1] < b)
@@ -195,6 +196,28 @@ def _sector_scans(scanner, pattern, eff: Effects, poses):
     m = len(out["v"])
     out.update(share=np.ones(m), return_number=np.ones(m, np.int64), number_of_returns=np.ones(m, np.int64))
     return out
+
+
+def _geometry(scanner, origin, pattern, plan: Rays, intensity):
+    """The returns the plan asks for, in pulse order unless sectors fire from their own poses;
+    and the ideal scan where the plan asks for nothing beyond it (else None)."""
+    ideal = None
+    if plan.ideal:
+        ideal = scanner.scan(origin, pattern)
+        idx = ideal.indices
+        d = scanner.points[idx] - origin
+        m = len(idx)
+        g = {"v": ideal.pulses[:, 0], "h": ideal.pulses[:, 1], "range": ideal.ranges.copy(), "index": idx,
+             "dir": d / np.maximum(ideal.ranges, 1e-300)[:, None], "fire": np.broadcast_to(origin, (m, 3)),
+             "share": np.ones(m), "return_number": np.ones(m, np.int64), "number_of_returns": np.ones(m, np.int64)}
+    elif scanner.casts_rays:
+        g = _cast_returns(scanner, origin, pattern, plan, intensity)
+    else:
+        g = _sector_scans(scanner, pattern, plan)
+    if plan.sectors is None:
+        order = np.lexsort((g["return_number"], g["h"], g["v"]))
+        g = {k: v[order] for k, v in g.items()}
+    return Returns.from_columns(g), ideal
 
 
 def _check_per_point(name, a, n, width=None):
@@ -222,7 +245,8 @@ def simulate(scanner, origin, pattern, effects=None, *, intensity=None, normals=
         the end pose's).
     pattern : ScanPattern, BeamPattern, str or float
     effects : Effects or dict, optional
-        Default none: the ideal scan.
+        Default none: the ideal scan. Resolved here (:meth:`Effects.resolve`)
+        unless they already are.
     intensity : (n,) float, optional
         The cloud's intensity (strongest return, maximum range by
         reflectivity, the drop model's intensity term, carried intensity).
@@ -239,60 +263,40 @@ def simulate(scanner, origin, pattern, effects=None, *, intensity=None, normals=
     EffectScan
     """
     pattern = as_pattern(pattern)
-    eff = (effects if isinstance(effects, Effects) else Effects.from_dict(effects)).check_needs()
-    eff = eff.resolve(pattern)
+    eff = (effects if isinstance(effects, EffectsBase) else Effects.from_dict(effects)).resolve(pattern)  # once
     n = len(scanner.points)
     intensity = _check_per_point("intensity", intensity, n)
     normals = _check_per_point("normals", normals, n, 3)
     if eff.motion and poses is None:
         raise InputValueError("these effects include motion: give poses (start and end of the sweep, or a trajectory)")
     if poses is not None:
-        poses = _motion.as_poses(poses)
+        poses = as_poses(poses)
         origin = poses[-1][:3, 3].copy()  # the sensor at the end of the sweep
     else:
         origin = as_origin(origin)
-    if eff.divergence_mrad:
-        require_rays(scanner, "beam divergence (divergence_mrad)")
-    secs = {}
-    t0 = time.perf_counter()
-    ideal = None
-    if poses is None and not eff.divergence_mrad:
-        ideal = scanner.scan(origin, pattern)
-        idx = ideal.indices
-        d = scanner.points[idx] - origin
-        m = len(idx)
-        g = {"v": ideal.pulses[:, 0], "h": ideal.pulses[:, 1], "range": ideal.ranges.copy(), "index": idx,
-             "dir": d / np.maximum(ideal.ranges, 1e-300)[:, None], "fire": np.broadcast_to(origin, (m, 3)),
-             "share": np.ones(m), "return_number": np.ones(m, np.int64), "number_of_returns": np.ones(m, np.int64)}
-    elif scanner.casts_rays:
-        g = _cast_returns(scanner, origin, pattern, eff, poses, intensity)
-    else:
-        g = _sector_scans(scanner, pattern, eff, poses)
-    if poses is None:
-        order = np.lexsort((g["return_number"], g["h"], g["v"]))
-        g = {k: v[order] for k, v in g.items()}
-    r = Returns.from_columns(g)
-    secs["geometry"] = time.perf_counter() - t0
-    info = {"returns_geometry": int(len(r))}
     drop_rng, noise_rng = (np.random.default_rng(s) for s in np.random.SeedSequence(eff.seed).spawn(2))
+    info = {"returns_geometry": 0}
     ctx = Context(effects=eff, scanner=scanner, pattern=pattern, origin=origin, intensity=intensity,
                   normals=normals, primary_origin=primary_origin, rng={"drop": drop_rng, "noise": noise_rng},
-                  info=info)
-    for stage in STAGES:
-        if stage.on(ctx):
-            t0 = time.perf_counter()
-            r = stage.apply(r, ctx)
-            secs[stage.name] = time.perf_counter() - t0
+                  info=info, poses=poses)
+    stages = [stage for stage in registry.STAGES if stage.on(ctx)]
+    t0 = time.perf_counter()
+    plan = Rays()
+    for stage in stages:  # what to cast, before any work
+        plan = stage.rays(plan, ctx)
+    ctx.rays = plan
+    r, ideal = _geometry(scanner, origin, pattern, plan, intensity)
+    secs = {"geometry": time.perf_counter() - t0}
+    info["returns_geometry"] = int(len(r))
+    for stage in stages:
+        if type(stage).apply is Stage.apply:  # acts before the geometry or on the points only (their time: geometry)
+            continue
+        t0 = time.perf_counter()
+        r = stage.apply(r, ctx)
+        secs[stage.name] = time.perf_counter() - t0
     pts = r.fire + r.dir * r.range[:, None]
-    frame = "world"
-    if poses is not None and eff.motion_frame == "firing":
-        sectors = eff.motion_sectors or (pattern.shape[1] if scanner.casts_rays else 72)
-        pts = _motion.to_firing_frames(pts, r.h, pattern.shape[1], poses, sectors, eff.sweep_start_deg,
-                                       eff.sweep_clockwise)
-        frame = "firing"
-    elif poses is not None:
-        pts = _motion.to_frame(pts, poses[-1])
-        frame = "sensor-end"
+    for stage in stages:
+        pts = stage.place(pts, r, ctx)
     if ideal is not None and len(r) == len(ideal.indices) and not eff.range_noise:
         pts = scanner.points[r.index]  # exactly the ideal scan's points (no rounding through the range)
     info.update(seconds={k: round(v, 6) for k, v in secs.items()}, effects=eff.to_dict(), backend=scanner.backend)
@@ -300,7 +304,7 @@ def simulate(scanner, origin, pattern, effects=None, *, intensity=None, normals=
                       pulses=np.column_stack([r.v, r.h]).astype(np.int64),
                       return_number=r.return_number.astype(np.int64),
                       number_of_returns=r.number_of_returns.astype(np.int64), share=r.share,
-                      intensity=r.intensity, origin=origin, pattern=pattern, frame=frame, ideal=ideal, info=info)
+                      intensity=r.intensity, origin=origin, pattern=pattern, frame=ctx.frame, ideal=ideal, info=info)
 
 
 class _GivenScan(Scanner):
@@ -338,7 +342,7 @@ def simulate_given(scan: Scan, points, effects=None, *, intensity=None, normals=
     InputValueError
         effects that need rays cast here: beam divergence, motion.
     """
-    eff = (effects if isinstance(effects, Effects) else Effects.from_dict(effects)).check_needs()
+    eff = (effects if isinstance(effects, EffectsBase) else Effects.from_dict(effects)).resolve(scan.pattern)
     if eff.divergence_mrad or eff.motion:
         raise InputValueError("beam divergence and motion cast their own rays: they apply to a prepared cloud "
                               "(simulate), not to a scan made elsewhere")

@@ -10,6 +10,7 @@ import math
 import time
 from concurrent.futures import ThreadPoolExecutor
 from dataclasses import dataclass
+from typing import NamedTuple
 
 import numpy as np
 from numba import njit, prange
@@ -64,6 +65,19 @@ class RayHits:
         return self.owners >= 0
 
 
+class Owners(NamedTuple):
+    """The points a scene's primitives stand for (the tie rule's): their float64 centres, their
+    radii, primitives per owner, the reach, their normals (or None); ``present`` False for a
+    scene with none (a bare mesh)."""
+
+    centres: np.ndarray
+    radii: np.ndarray
+    per_primitive: int = 1
+    reach: float = 1.0
+    normals: np.ndarray | None = None
+    present: bool = True
+
+
 class RayScene:
     """One Embree scene of triangles or discs, built once and queried many times.
 
@@ -81,8 +95,8 @@ class RayScene:
         Bytes of the buffers shared with Embree (the BVH comes on top).
     """
 
-    def __init__(self, kind, geometry_type, buffers, n_primitives, centre, owner_centres, owner_radii,
-                 prims_per_owner=1, reach=1.0, owner_normals=None, has_owners=True, compact=False):
+    def __init__(self, kind, geometry_type, buffers, n_primitives, centre, owners: Owners, compact=False):
+        owner_centres, owner_radii, prims_per_owner, reach, owner_normals, has_owners = owners
         self.kind = kind
         self.centre = centre
         self.n_primitives = int(n_primitives)
@@ -170,7 +184,7 @@ class RayScene:
         cls.__init__(scene, "triangles", GEOMETRY_TRIANGLE,
                      [(BUFFER_VERTEX, 0, FORMAT_FLOAT3, 12, vbuf, len(v)),
                       (BUFFER_INDEX, 0, FORMAT_UINT3, 12, fbuf, len(f))],
-                     len(f), centre, oc, orad, per, reach, onrm, has_owners)
+                     len(f), centre, Owners(oc, orad, per, reach, onrm, has_owners))
         return scene
 
     @classmethod
@@ -232,7 +246,7 @@ class RayScene:
         # the tie rule reads the float32 normals Embree has (12 B a point), not a float64 copy (24 B)
         owner_normals = buffers[1][4] if normals is not None else None
         del r  # the radii live on in the vertex buffer, which the tie rule reads
-        cls.__init__(scene, kind, gtype, buffers, len(c), centre, c, vbuf[:, 3], 1, 1.0, owner_normals,
+        cls.__init__(scene, kind, gtype, buffers, len(c), centre, Owners(c, vbuf[:, 3], 1, 1.0, owner_normals),
                      compact=compact)
         return scene
 

@@ -23,6 +23,7 @@ from __future__ import annotations
 import json
 import time
 import multiprocessing
+from dataclasses import dataclass
 from functools import partial
 from pathlib import Path
 
@@ -32,12 +33,13 @@ from tqdm import tqdm
 from ..errors import InputValueError, OutputError
 from ..io import PointCloud, atomic_path, check_format, write_cloud
 from ..io.outputs import LOCK_NAME, clean_stale_parts
+from ..options import Options
 from ..sensors import sensor as shipped_sensor
 from .estimators import FPA_GAP, estimate
 from .frames import Sequence, write_kitti_poses
 from .union import FrameCache, accumulate, nearest_of_frames, to_frame, window
 
-__all__ = ["convert_sequence", "target_poses", "MANIFEST", "JOURNAL"]
+__all__ = ["ConvertOptions", "convert_sequence", "target_poses", "MANIFEST", "JOURNAL"]
 
 MANIFEST = "manifest.json"
 JOURNAL = "journal.jsonl"
@@ -116,12 +118,52 @@ def _resume(out: Path, settings: dict) -> dict:
     return done
 
 
-def convert_sequence(seq: Sequence, out, sensor: str, estimator: str = "nearest", half: int | None = 2,
-                     radius: float | None = None, offset=(0.0, 0.0, 0.0), poses=None, drop_moving: bool = True,
-                     fmt: str = "bin", fpa_gap: float = FPA_GAP, workers: int = 1, block: int = 4,
-                     progress: bool = False, inputs: dict | None = None) -> dict:
+@dataclass(frozen=True)
+class ConvertOptions(Options):
+    """How :func:`convert_sequence` re-simulates and writes a sequence.
+
+    Attributes
+    ----------
+    estimator : str
+        The return of each pulse (:mod:`~slr_ray.sequence.estimators`: 'nearest', 'fpa'...).
+    half : int or None
+        Frames each side of a frame accumulated with it (its window).
+    radius : float or None
+        Or the frames whose poses lie within this many metres.
+    offset : (3,) float
+        A translation of the target sensor in each frame's own axes.
+    drop_moving : bool
+        Leave out the points of moving objects (SemanticKITTI's labels).
+    fmt : str
+        The frames' file format ('bin': KITTI's).
+    fpa_gap : float
+        The first-peak average's gap (m).
+    workers : int
+        Processes converting frames.
+    block : int
+        Frames a worker converts at a time.
+    """
+
+    estimator: str = "nearest"
+    half: int | None = 2
+    radius: float | None = None
+    offset: tuple = (0.0, 0.0, 0.0)
+    drop_moving: bool = True
+    fmt: str = "bin"
+    fpa_gap: float = FPA_GAP
+    workers: int = 1
+    block: int = 4
+
+
+def convert_sequence(seq: Sequence, out, sensor: str, options: ConvertOptions | None = None, *, poses=None,
+                     progress: bool = False, inputs: dict | None = None, **keywords) -> dict:
     """Write ``seq`` re-simulated as ``sensor`` into the directory ``out`` (module docstring).
-    ``out`` must exist (the caller plans and locks it). Returns a summary."""
+    ``out`` must exist (the caller plans and locks it). ``options``: a :class:`ConvertOptions`
+    (or its fields as keywords); ``poses``: a target trajectory, one pose a frame (default the
+    sequence's). Returns a summary."""
+    o = ConvertOptions.of(options, **keywords)
+    estimator, half, radius, offset, drop_moving, fmt, fpa_gap = (o.estimator, o.half, o.radius, o.offset,
+                                                                  o.drop_moving, o.fmt, o.fpa_gap)
     if seq.poses is None:
         raise InputValueError("the sequence has no poses: give a trajectory (--poses) or --register")
     out = Path(out)
@@ -138,7 +180,7 @@ def convert_sequence(seq: Sequence, out, sensor: str, estimator: str = "nearest"
     fresh = not (out / MANIFEST).exists()
     done = _resume(out, settings)
     try:
-        return _convert(seq, out, P, settings, done, workers, block, progress, inputs)
+        return _convert(seq, out, P, settings, done, o, progress, inputs)
     except BaseException:
         if fresh and not done:  # nothing converted: leave nothing (none of these files was there before)
             for name in (MANIFEST, JOURNAL, "poses.txt", "calib.txt"):
@@ -151,7 +193,8 @@ def convert_sequence(seq: Sequence, out, sensor: str, estimator: str = "nearest"
         _STATE.clear()  # the serial run's frames
 
 
-def _convert(seq, out, P, settings, done, workers, block, progress, inputs) -> dict:
+def _convert(seq, out, P, settings, done, o: ConvertOptions, progress, inputs) -> dict:
+    workers, block = o.workers, o.block
     (out / "velodyne").mkdir(exist_ok=True)
     clean_stale_parts(out / "velodyne", locked=True)  # a killed run's temporaries (the caller holds out's lock)
     probe = seq.read(0)

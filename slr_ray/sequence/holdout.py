@@ -15,6 +15,7 @@ from __future__ import annotations
 
 import math
 import time
+from dataclasses import dataclass
 
 import numpy as np
 from tqdm import tqdm
@@ -22,12 +23,14 @@ from tqdm import tqdm
 from ..errors import InputValueError
 from ..evaluate import THRESHOLDS, evaluation_table, fitted_pattern, scan_order_beams, zbuffer
 from ..metrics import PAPER_THRESHOLD, point_metrics, range_image_metrics, seen_from
+from ..options import Options
 from ..sensors import sensor as shipped_sensor
 from .estimators import FPA_GAP, estimate
 from .frames import Sequence
 from .union import FrameCache, accumulate, to_frame, window
 
-__all__ = ["METHODS", "LABELS", "evaluate_holdout", "evaluate_sequence", "mean_rows", "DEFAULT_METHODS",
+__all__ = ["METHODS", "LABELS", "HoldoutOptions", "evaluate_holdout", "evaluate_sequence", "mean_rows",
+           "DEFAULT_METHODS",
            "clamped_depth_errors", "lidar4d_holdout", "LIDAR4D_MAX_DEPTH"]
 
 #: LiDAR4D's depth clamp (utils/metrics.py, compute_depth_errors: min 1e-6, max 80 m)
@@ -74,11 +77,47 @@ def _adjacent(frames, target):
     return min(frames, key=lambda i: (abs(i - target), i > target))
 
 
-def evaluate_holdout(seq: Sequence, target: int, sensor: str = "velodyne_hdl64e_s2", methods=DEFAULT_METHODS,
-                     half: int | None = 2, radius: float | None = None, drop_moving: bool = True,
-                     thresholds=THRESHOLDS, seen_threshold: float = PAPER_THRESHOLD,
-                     gap: float = FPA_GAP, cache: FrameCache | None = None) -> dict:
-    """Frame ``target`` re-simulated from the other frames of its window by every method."""
+@dataclass(frozen=True)
+class HoldoutOptions(Options):
+    """How :func:`evaluate_holdout` re-simulates a held-out frame and scores it.
+
+    Attributes
+    ----------
+    sensor : str or BeamPattern
+        The frames' sensor (its shipped table, or the pattern).
+    methods : sequence of str
+        A subset of :data:`METHODS`.
+    half : int or None
+        Frames each side of the held-out one accumulated (its window).
+    radius : float or None
+        Or the frames whose poses lie within this many metres.
+    drop_moving : bool
+        Leave out the points of moving objects (SemanticKITTI's labels).
+    thresholds : sequence of float
+        F-score thresholds (m).
+    seen_threshold : float
+        A point of the frame is seen when a point of the union lies strictly closer (m).
+    gap : float
+        The first-peak average's gap (m).
+    """
+
+    sensor: object = "velodyne_hdl64e_s2"
+    methods: tuple = DEFAULT_METHODS
+    half: int | None = 2
+    radius: float | None = None
+    drop_moving: bool = True
+    thresholds: tuple = THRESHOLDS
+    seen_threshold: float = PAPER_THRESHOLD
+    gap: float = FPA_GAP
+
+
+def evaluate_holdout(seq: Sequence, target: int, options: HoldoutOptions | None = None, *,
+                     cache: FrameCache | None = None, **keywords) -> dict:
+    """Frame ``target`` re-simulated from the other frames of its window by every method
+    (``options``: a :class:`HoldoutOptions`, or its fields as keywords)."""
+    o = HoldoutOptions.of(options, **keywords)
+    sensor, methods, half, radius, drop_moving = o.sensor, o.methods, o.half, o.radius, o.drop_moving
+    thresholds, seen_threshold, gap = o.thresholds, o.seen_threshold, o.gap
     unknown = [m for m in methods if m not in METHODS]
     if unknown:
         raise InputValueError(f"unknown method(s) {unknown}; choose from {list(METHODS)}")
@@ -171,7 +210,9 @@ def evaluate_sequence(seq: Sequence, holdout, sensor: str = "velodyne_hdl64e_s2"
         raise InputValueError(f"held-out frame(s) {bad} not in a sequence of {len(seq)} frames")
     t0 = time.perf_counter()
     cache = FrameCache(seq, size=2 * (half or 2) + 3)
-    frames = [evaluate_holdout(seq, h, sensor, methods, half, radius, drop_moving, cache=cache, **kw)
+    options = HoldoutOptions.of(None, sensor=sensor, methods=methods, half=half, radius=radius,
+                                drop_moving=drop_moving, **kw)
+    frames = [evaluate_holdout(seq, h, options, cache=cache)
               for h in tqdm(holdout, desc="held-out frames", disable=not progress)]
     return {"frames": frames, "mean": mean_rows([f["table"] for f in frames]),
             "methods": list(methods), "window": {"half": half, "radius": radius}, "drop_moving": drop_moving,

@@ -82,10 +82,12 @@ class ValidationConfig:
             raise InputValueError("positions must be >= 1 and threshold > 0")
         if self.nearest_every < 1 or self.embree_every < 1:
             raise InputValueError("nearest_every and embree_every must be >= 1")
-        # unknown keys named here, not after the primaries; the runner gives the discs
-        # the primary's origin and resolution, so options that need them are valid
-        options_for(Backend.EMBREE, {"primary_origin": [0.0, 0.0, 0.0],
-                                     "primary_resolution": self.primary_resolutions[0], **self.embree_options})
+        # unknown keys named here, not after the primaries; the runner gives each backend what it
+        # declares of the primary (its primary_options: embree's origin and resolution), so options
+        # that need them are valid
+        for b, given in self.backend_options.items():
+            options_for(b, {**scanner_class(b).primary_options([0.0, 0.0, 0.0], self.primary_resolutions[0]),
+                            **given})
         for entry in self.scenes:
             spec, res = self.scene_entry(entry)
             for b in self.scene_backends(entry):
@@ -104,7 +106,9 @@ class ValidationConfig:
 
     @property
     def backend_options(self) -> dict:
-        """``{backend: options from this config}`` (``embree_options``), beside what each is told of the primary."""
+        """``{backend: options from this config}`` (``embree_options``), beside what each is told of the
+        primary (:meth:`~slr_ray.backends.Scanner.primary_options`): the one place the config's keys
+        meet backends' names."""
         return {Backend.EMBREE: self.embree_options}
 
     def scene_entry(self, entry) -> tuple[str, list]:

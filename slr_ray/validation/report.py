@@ -32,7 +32,7 @@ def load_rows(csv_path) -> list:
 
 
 def paper_report(csv_path) -> dict:
-    """The figures behind the README's "Reproducing the paper", from a
+    """The figures behind docs/validation.md, "Reproducing the paper (Experiment 1)", from a
     ``results.csv`` of ``validate-paper`` (or of the single-question configs).
 
     ``q1[res]``: the five 1000-rectangle scenes (``all`` and ``by_scene``);

@@ -15,6 +15,7 @@ import shutil
 import time
 from dataclasses import asdict
 from pathlib import Path
+from typing import NamedTuple
 
 import numpy as np
 
@@ -224,16 +225,26 @@ def _run_scene(config, p: ScenePlan, out: Path, done, results, stages, bar) -> i
                     primary = spilled
                     stages.add(p.spec, res, "primary to a mapped file", time.perf_counter() - t0, len(primary))
                 del spilled
-            n_new += _pairs(config, p, scene, res, primary, positions, secondary, truths, done, results, stages,
-                            bar)
+            n_new += _pairs(config, p, _Primary(scene, res, primary, positions, secondary, truths), done, results,
+                            stages, bar)
             _advance(bar, config.positions - len(positions))
         del primary, ground
     truths.clear()
     return n_new
 
 
-def _pairs(config, p: ScenePlan, scene, res, primary, positions, secondary, truths, done, results, stages,
-           bar) -> int:
+class _Primary(NamedTuple):
+    """One primary scan and what its rows are made from."""
+
+    scene: object
+    resolution: float
+    points: np.ndarray
+    positions: np.ndarray
+    secondary: object
+    truths: object
+
+
+def _pairs(config, p: ScenePlan, primary_scan: _Primary, done, results, stages, bar) -> int:
     """The rows of one primary (its ``(n, 3)`` points): every wanted (backend, truth) at every position.
 
     Logs two stages: ``pairs`` (the paper's rows: binning against the
@@ -242,6 +253,7 @@ def _pairs(config, p: ScenePlan, scene, res, primary, positions, secondary, trut
     and comparisons, so the paper's part of a run is timed apart from what
     this project adds.
     """
+    scene, res, primary, positions, secondary, truths = primary_scan
     scanners = {}
     spent = {"pairs": 0.0, "extras": 0.0}
 

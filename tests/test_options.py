@@ -1,0 +1,74 @@
+"""Long calls take an options object or their old keywords (issue #39): the
+same call either way, an unknown name refused with the known ones listed."""
+
+import dataclasses
+import inspect
+
+import numpy as np
+import pytest
+
+import slr_ray
+from slr_ray.compare import CompareOptions, compare_backends
+from slr_ray.demo import DemoOptions, run_demo
+from slr_ray.distances import StudyOptions, distance_study
+from slr_ray.errors import InputTypeError, InputValueError
+from slr_ray.evaluate import EvaluateOptions, evaluate_pair
+from slr_ray.meshscan import MeshOptions, scan_mesh
+from slr_ray.options import Options
+from slr_ray.positions import CellOptions, PositionOptions, candidate_cells, select_positions
+from slr_ray.sequence.convert import ConvertOptions, convert_sequence
+from slr_ray.sequence.holdout import HoldoutOptions, evaluate_holdout
+
+#: each function's keywords before its options object (issue #39), and the class that now holds them
+OLD_KEYWORDS = {
+    select_positions: (PositionOptions, "seed cell_size min_ground_points ground_count_radius ground_height_radius "
+                                        "scanner_height profile allow_fewer cells return_cells progress"),
+    candidate_cells: (CellOptions, "cell_size min_ground_points ground_count_radius profile scanner_height "
+                                   "ground_height_radius progress"),
+    evaluate_pair: (EvaluateOptions, "a_beams b_beams sensor methods transform seen_threshold thresholds "
+                                     "min_fitness max_rmse progress"),
+    distance_study: (StudyOptions, "origin heights positions seed resolution max_range scanner_height "
+                                   "min_ground_points ground progress"),
+    compare_backends: (CompareOptions, "tolerance bands progress"),
+    run_demo: (DemoOptions, "n_rectangles n_positions seed quick primary_resolution backends force progress"),
+    scan_mesh: (MeshOptions, "mode supersample spacing face_labels rays_per_batch progress band_pulses"),
+    convert_sequence: (ConvertOptions, "estimator half radius offset poses drop_moving fmt fpa_gap workers block "
+                                       "progress inputs"),
+    evaluate_holdout: (HoldoutOptions, "sensor methods half radius drop_moving thresholds seen_threshold gap cache"),
+}
+
+
+@pytest.mark.parametrize("fn", list(OLD_KEYWORDS), ids=lambda f: f.__name__)
+def test_every_old_keyword_is_still_a_parameter_or_an_option(fn):
+    cls, old = OLD_KEYWORDS[fn]
+    params = inspect.signature(fn).parameters
+    fields = {f.name for f in dataclasses.fields(cls)}
+    assert issubclass(cls, Options) and cls.__dataclass_params__.frozen
+    assert "options" in params and any(p.kind is p.VAR_KEYWORD for p in params.values())
+    assert [k for k in old.split() if k not in params and k not in fields] == []
+    assert set(cls.describe()) == fields  # every field described in the docstring's Attributes
+
+
+def test_options_of_merges_keywords_and_refuses_unknown_names():
+    base = PositionOptions(min_ground_points=50)
+    assert PositionOptions.of(base) is base
+    assert PositionOptions.of(base, cell_size=4.0) == PositionOptions(min_ground_points=50, cell_size=4.0)
+    assert PositionOptions.of({"allow_fewer": True}).allow_fewer
+    assert type(CellOptions.of(base, cell_size=3.0)) is PositionOptions  # a subclass stays one
+    assert PositionOptions.of(CellOptions(cell_size=3.0), allow_fewer=True) == PositionOptions(cell_size=3.0,
+                                                                                              allow_fewer=True)
+    with pytest.raises(InputTypeError, match="CellOptions"):
+        CellOptions.of(EvaluateOptions())  # another call's options
+    with pytest.raises(InputValueError, match="min_ground_point.*known.*min_ground_points"):
+        PositionOptions.of(None, min_ground_point=1)
+    with pytest.raises(InputTypeError, match="PositionOptions"):
+        PositionOptions.of(2.0)  # an old positional cell_size lands here: said, not misread
+
+
+def test_an_options_object_and_the_old_keywords_are_the_same_call():
+    pts = np.random.default_rng(0).uniform(0, 20, (2000, 3))
+    pts[:, 2] = 0.0
+    g = np.ones(len(pts), bool)
+    a = select_positions(pts, g, 3, 0, PositionOptions(min_ground_points=50))
+    assert np.array_equal(a, select_positions(pts, g, 3, seed=0, min_ground_points=50))
+    assert np.array_equal(a, slr_ray.select_positions(pts, g, 3, 0, {"min_ground_points": 50}))
