@@ -3,7 +3,7 @@
 Used to re-run a backend's rows of a shipped validation with today's defaults
 and show old and new together (#38: the embree rows of ``validate-paper-hour``)::
 
-    slr-ray validate /path/embree-hour.toml -o runs/embree-hour
+    slr-ray validate benchmarks/validate_embree_hour.toml -o runs/embree-hour
     python benchmarks/compare_validation_rows.py \\
         docs/validate_paper_hour/results.csv runs/embree-hour/results.csv \\
         --backend embree --truth center
