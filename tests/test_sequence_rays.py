@@ -1,0 +1,91 @@
+"""The ``rays`` estimator (slr_ray.sequence.rays): the sensor's rays fitted from frames' own points,
+each beam cast along its ray onto the union's planes; it must never read the held-out frame's points."""
+
+import math
+import shutil
+
+import numpy as np
+import pytest
+
+from slr_ray.io import PointCloud, read_cloud, write_cloud
+from slr_ray.sequence import estimate, read_sequence
+from slr_ray.sequence.holdout import mean_rows, simulate_holdout
+from slr_ray.sequence.rays import cast_rays, fit_ray_model, pattern_ray_model, sweep_offsets
+from slr_ray.sequence.synthetic import synthetic_drive
+from slr_ray.sensors import sensor
+
+
+@pytest.fixture(scope="module")
+def drive(tmp_path_factory):
+    root = tmp_path_factory.mktemp("rays") / "seq"
+    synthetic_drive(root, n_frames=3, sensor="velodyne_vlp16", step=0.8, moving=False)
+    return root
+
+
+def test_the_held_out_frames_points_never_change_what_rays_return(drive, tmp_path):
+    """Its points moved along their own rays (its table, beams and pose unchanged) must not move a
+    single return: the sensor's rays come from the other frames only."""
+    seq = read_sequence(drive)
+    pat = sensor("velodyne_vlp16")
+    before = simulate_holdout(seq, 1, "rays", sensor="velodyne_vlp16", half=1, pattern=pat)
+    moved = tmp_path / "seq"
+    shutil.copytree(drive, moved)
+    f = moved / "velodyne" / "000001.bin"
+    c = read_cloud(f)
+    scale = np.random.default_rng(1).uniform(0.6, 1.4, len(c.points))[:, None]
+    write_cloud(f, PointCloud(c.points * scale, c.attributes, c.origin))
+    after = simulate_holdout(read_sequence(moved), 1, "rays", sensor="velodyne_vlp16", half=1, pattern=pat)
+    assert len(before) > 1000
+    assert np.array_equal(before.keys, after.keys) and np.array_equal(before.ranges, after.ranges)
+
+
+def _scan(elev, z0, skew, motion, n_az=720):
+    """Lasers at ``elev`` crossing the axis at ``z0`` fired from a sensor moving ``motion`` a sweep
+    onto a road 1.73 m below walled in 24 by 10 m, stored motion-compensated as KITTI's are."""
+    pts, rings = [], []
+    for j, (e, h) in enumerate(zip(elev, z0)):
+        a = np.linspace(-math.pi, math.pi, n_az, endpoint=False)
+        fire = (skew * ((a + math.pi) / (2 * math.pi) - 0.5))[:, None] * motion  # the origin when firing
+        o = fire + [0.0, 0.0, h]
+        d = np.column_stack([np.cos(e) * np.cos(a), np.cos(e) * np.sin(a), np.full(n_az, np.sin(e))])
+        t = np.where(d[:, 2] < -1e-3, (-1.73 - o[:, 2]) / np.minimum(d[:, 2], -1e-3), np.inf)
+        for axis, wall in ((0, 12.0), (1, 5.0)):  # a walled yard 24 by 10 m: ranges vary along each ring
+            with np.errstate(divide="ignore", invalid="ignore"):
+                tw = (np.sign(d[:, axis]) * wall - o[:, axis]) / d[:, axis]
+            t = np.minimum(t, tw)
+        pts.append(o + t[:, None] * d)
+        rings.append(np.full(n_az, j))
+    return np.vstack(pts), np.concatenate(rings)
+
+
+def test_a_ray_model_recovers_heights_elevations_and_the_sweeps_skew():
+    elev = np.radians([2.0, -1.0, -4.0, -7.0, -10.0, -14.0])
+    z0 = np.array([0.21, 0.20, 0.19, 0.10, -0.05, -0.15])
+    v = np.array([0.7, 0.02, 0.0])
+    frames = [_scan(elev, z0, -1.2, v * s) + (v * s,) for s in (0.9, 1.0, 1.1)]
+    m = fit_ray_model(frames, len(elev), stride=1)
+    assert m.skew == pytest.approx(-1.2, abs=0.051) and m.source == "fitted"
+    assert np.abs(m.height - z0).max() < 0.02 and np.degrees(np.abs(m.elevation - elev)).max() < 0.02
+    still = fit_ray_model([f[:2] + (np.zeros(3),) for f in frames], len(elev), stride=1)
+    assert still.residual_deg > 10 * m.residual_deg  # the skew not undone: lines no longer fit
+
+
+def test_rays_meet_the_plane_not_the_near_edge_of_a_pulse():
+    """A dense flat road: each pulse's return lies where the beam's own ray meets the road."""
+    pat = sensor("velodyne_vlp16")
+    g = np.random.default_rng(0).uniform(-20, 20, (200_000, 2))
+    road = np.column_stack([g, np.full(len(g), -1.73)])
+    ret = cast_rays(road, pat)
+    model = pattern_ray_model(pat)
+    row = ret.keys // pat.columns
+    exact = 1.73 / np.sin(-model.elevation[row])
+    near = exact < 15  # well inside the road
+    assert near.sum() > 1000 and np.median(np.abs(ret.ranges - exact)[near]) < 0.005
+    fpa_err = np.abs(estimate(road, pat, "fpa").ranges - 1.73 / np.sin(-model.elevation[row]))
+    assert np.median(fpa_err[near]) > 0.02  # the pulse's footprint averaged, not its ray
+    assert np.allclose(sweep_offsets(road[:3], np.zeros(3), -1.2), 0)
+
+
+def test_mean_row_counts_points_in_whole_points():
+    rows = mean_rows([[{"method": "a", "points": 3, "F": 0.5}], [{"method": "a", "points": 4, "F": 0.25}]])
+    assert rows[0]["points"] == 4 and isinstance(rows[0]["points"], int) and rows[0]["F"] == 0.375
