@@ -9,7 +9,8 @@ is worth:
   other frames' own points, the sweep's skew held at 0;
 - ``rays`` (shipped): the same with the skew fitted too (the frames are motion-compensated: a point fired
   from the back of the sweep was fired up to half a frame's motion from the frame's origin);
-- the plane's neighbour count (16, 32, 64 shipped, 128).
+- the plane's neighbour count (16, 32, 64 shipped, 128);
+- ``rays`` with the pulses it leaves empty filled by fpa's returns (not shipped).
 
 And the sensor model's fit, measured on the held-out frames' own points (a check of the model, never
 an input of the estimator): the median |angle| of each point off its laser's line ``z = z0 + rho tan e``
@@ -33,6 +34,7 @@ from slr_ray.evaluate import fitted_pattern, markdown_table, scan_order_beams, z
 from slr_ray.metrics import point_metrics, range_image_metrics
 from slr_ray.sensors import sensor
 from slr_ray.sequence import FrameCache, accumulate, estimate, read_sequence, register_chain, to_frame, window
+from slr_ray.sequence.estimators import PulseReturns
 from slr_ray.sequence.rays import cast_rays, fit_ray_model, frame_motion, pattern_ray_model, sweep_offsets
 
 DATA = Path(__file__).resolve().parents[2] / "shared" / "data"
@@ -45,6 +47,15 @@ def residuals(points, beams, motion, model):
     rho = np.hypot(q[:, 0], q[:, 1])
     z0, e = model.height[beams], model.elevation[beams]
     return np.degrees(np.arctan2(q[:, 2] - z0, rho) - e)
+
+
+def filled(rays, fpa):
+    """``rays``' returns and fpa's on the pulses ``rays`` leaves empty."""
+    miss = ~np.isin(fpa.keys, rays.keys)
+    keys = np.r_[rays.keys, fpa.keys[miss]]
+    o = np.argsort(keys, kind="stable")
+    return PulseReturns(keys[o], np.r_[rays.ranges, fpa.ranges[miss]][o], np.r_[rays.points, fpa.points[miss]][o],
+                        np.r_[rays.index, fpa.index[miss]][o])
 
 
 def main() -> None:
@@ -80,6 +91,8 @@ def main() -> None:
             "rays, 16 neighbours": lambda: cast_rays(u, pat, fitted, v, neighbours=16),
             "rays, 32 neighbours": lambda: cast_rays(u, pat, fitted, v, neighbours=32),
             "rays, 128 neighbours": lambda: cast_rays(u, pat, fitted, v, neighbours=128),
+            "rays, the pulses it leaves empty filled by fpa's": lambda: filled(cast_rays(u, pat, fitted, v),
+                                                                                estimate(u, pat, "fpa")),
         }
         for name, run in methods.items():
             t0 = time.perf_counter()
@@ -89,7 +102,8 @@ def main() -> None:
             im = range_image_metrics(real, ret.image(pat))
             per.setdefault(name, []).append({"points": len(ret), "F@5cm": pm.fscore[0.05]["fscore"],
                                              "depth_medae_m": im.medae, "depth_rmse_m": im.rmse,
-                                             "drop_accuracy": im.accuracy, "seconds": sec})
+                                             "drop_accuracy": im.accuracy, "cd_sum_m2": pm.chamfer_sum,
+                                             "seconds": sec})
         fit = {"frame": h, "skew": fitted.skew, "fit_seconds": round(fit_s, 2)}
         az = np.degrees(np.arctan2(b[:, 1], b[:, 0])) % 360
         for label, model in (("skew fitted", fitted), ("no skew", still)):

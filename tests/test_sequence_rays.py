@@ -8,7 +8,8 @@ import numpy as np
 import pytest
 
 from slr_ray.io import PointCloud, read_cloud, write_cloud
-from slr_ray.sequence import estimate, read_sequence
+from slr_ray.errors import InputValueError
+from slr_ray.sequence import convert_sequence, estimate, read_sequence
 from slr_ray.sequence.holdout import mean_rows, simulate_holdout
 from slr_ray.sequence.rays import cast_rays, fit_ray_model, pattern_ray_model, sweep_offsets
 from slr_ray.sequence.synthetic import synthetic_drive
@@ -89,3 +90,23 @@ def test_rays_meet_the_plane_not_the_near_edge_of_a_pulse():
 def test_mean_row_counts_points_in_whole_points():
     rows = mean_rows([[{"method": "a", "points": 3, "F": 0.5}], [{"method": "a", "points": 4, "F": 0.25}]])
     assert rows[0]["points"] == 4 and isinstance(rows[0]["points"], int) and rows[0]["F"] == 0.375
+
+
+def test_convert_casts_the_target_tables_own_rays(drive, tmp_path):
+    """``convert --estimator rays``: every return of a frame lies on its pulse's centre ray (a simulated
+    target's rays), where nearest's lie anywhere in the pulse."""
+    seq = read_sequence(drive)
+    out = tmp_path / "out"
+    out.mkdir()
+    summary = convert_sequence(seq, out, "velodyne_vlp16", estimator="rays", half=0)
+    assert summary["written"] == 3
+    pat = sensor("velodyne_vlp16")
+    p = read_cloud(out / "velodyne" / "000001.bin").points.astype(np.float64)
+    keys, _ = pat.pulse_ids(p, np.zeros(3))
+    dirs, _, _ = pat.rays()
+    off = np.degrees(np.arccos(np.clip(np.einsum("ij,ij->i", p / np.linalg.norm(p, axis=1)[:, None], dirs[keys]),
+                                       -1, 1)))
+    assert len(p) > 1000 and np.median(off) < 0.001  # float32 storage: a micro-degree
+    with pytest.raises(InputValueError, match="unknown estimator"):
+        convert_sequence(seq, tmp_path / "no", "velodyne_vlp16", estimator="ray")
+    assert not (tmp_path / "no").exists()

@@ -247,23 +247,32 @@ def cast_rays(points, pattern, model: RayModel | None = None, motion=(0.0, 0.0, 
     return PulseReturns(keys[win].astype(np.int64), ranges[win], hit[win], sel[first][win].astype(np.int64))
 
 
+def _plane_hit(pts, tree, origin, d, t, lo, k):
+    """Where each ray meets the plane of the ``k`` points nearest ``origin + t d``; whether that plane
+    is usable (flat, its points within 0.5 m, met no nearer than ``lo``) and the hit lies within them."""
+    dist, nn = tree.query(origin + t[:, None] * d, k=k)
+    Q = pts[nn]
+    c = Q.mean(axis=1)
+    x = Q - c[:, None]
+    w, v = np.linalg.eigh(np.matmul(x.transpose(0, 2, 1), x))
+    nrm = v[:, :, 0]
+    nd = np.einsum("mi,mi->m", nrm, d)
+    tt = np.einsum("mi,mi->m", nrm, c - origin) / np.where(np.abs(nd) > 0.05, nd, np.nan)
+    ok = (w[:, 0] < 0.05 * w[:, 1]) & (dist[:, -1] < 0.5) & np.isfinite(tt) & (tt >= lo)
+    within = np.linalg.norm(origin + np.nan_to_num(tt)[:, None] * d - c, axis=1) <= dist[:, -1]
+    return tt, ok, within
+
+
 def _onto_plane(pts, tree, origin, d, t0, lo, k):
     """Where each ray meets the plane of the ``k`` points nearest its first guess (``t0`` along it),
-    then of those nearest that hit: taken where both are flat, meet the ray no nearer than ``lo``
-    (before the first cluster) and the second hit lies within its own neighbourhood; else ``t0``."""
-    t = t0
-    for step in range(2):
-        dist, nn = tree.query(origin + t[:, None] * d, k=k)
-        Q = pts[nn]
-        c = Q.mean(axis=1)
-        x = Q - c[:, None]
-        w, v = np.linalg.eigh(np.matmul(x.transpose(0, 2, 1), x))
-        nrm = v[:, :, 0]
-        nd = np.einsum("mi,mi->m", nrm, d)
-        tt = np.einsum("mi,mi->m", nrm, c - origin) / np.where(np.abs(nd) > 0.05, nd, np.nan)
-        ok = (w[:, 0] < 0.05 * w[:, 1]) & (dist[:, -1] < 0.5) & np.isfinite(tt) & (tt >= lo)
-        if step == 0:
-            t = np.where(ok, tt, t0)
-    hit = origin + np.nan_to_num(tt)[:, None] * d
-    ok &= np.linalg.norm(hit - c, axis=1) <= dist[:, -1]
-    return np.where(ok, tt, t0)
+    then of those nearest that hit: taken where both are usable and the second hit lies within its
+    own neighbourhood; else ``t0``. (A ray whose first plane is not usable would ask the same
+    neighbourhood again: it keeps ``t0`` without the second query.)"""
+    tt, ok, _ = _plane_hit(pts, tree, origin, d, t0, lo, k)
+    t = t0.copy()
+    m = np.flatnonzero(ok)
+    if len(m):
+        tt2, ok2, within = _plane_hit(pts, tree, origin[m], d[m], tt[m], lo[m], k)
+        take = ok2 & within
+        t[m[take]] = tt2[take]
+    return t
