@@ -9,7 +9,8 @@ is worth:
   other frames' own points, the sweep's skew held at 0;
 - ``rays`` (shipped): the same with the skew fitted too (the frames are motion-compensated: a point fired
   from the back of the sweep was fired up to half a frame's motion from the frame's origin);
-- the plane's neighbour count (16, 32, 64 shipped, 128);
+- the plane's neighbour count (16, 32, 64 shipped, 128) and how far and how flat its points may be
+  (within 0.5 m or a tenth of the range, shipped, or 0.5 m, or 0.05 r; flat at 0.1, shipped, 0.05, 0.2);
 - ``rays`` with the pulses it leaves empty filled by fpa's returns (not shipped).
 
 And the sensor model's fit, measured on the held-out frames' own points (a check of the model, never
@@ -22,7 +23,6 @@ Writes benchmarks/results/sequence_rays.json and sequence_rays.png (docs/sequenc
 from __future__ import annotations
 
 import json
-import math
 import sys
 import time
 from pathlib import Path
@@ -34,6 +34,7 @@ from slr_ray.evaluate import fitted_pattern, markdown_table, scan_order_beams, z
 from slr_ray.metrics import point_metrics, range_image_metrics
 from slr_ray.sensors import sensor
 from slr_ray.sequence import FrameCache, accumulate, estimate, read_sequence, register_chain, to_frame, window
+import slr_ray.sequence.rays as rays_module
 from slr_ray.sequence.estimators import PulseReturns
 from slr_ray.sequence.rays import cast_rays, fit_ray_model, frame_motion, pattern_ray_model, sweep_offsets
 
@@ -47,6 +48,16 @@ def residuals(points, beams, motion, model):
     rho = np.hypot(q[:, 0], q[:, 1])
     z0, e = model.height[beams], model.elevation[beams]
     return np.degrees(np.arctan2(q[:, 2] - z0, rho) - e)
+
+
+def with_planes(per_m, flat, run):
+    """``run()`` with the planes' radius ``max(0.5, per_m r)`` and flatness ``flat``, then the defaults again."""
+    keep = rays_module.PLANE_RADIUS_PER_M, rays_module.FLAT
+    rays_module.PLANE_RADIUS_PER_M, rays_module.FLAT = per_m, flat
+    try:
+        return run()
+    finally:
+        rays_module.PLANE_RADIUS_PER_M, rays_module.FLAT = keep
 
 
 def filled(rays, fpa):
@@ -87,10 +98,16 @@ def main() -> None:
             "fpa": lambda: estimate(u, pat, "fpa"),
             "rays, the table's pulse centres": lambda: cast_rays(u, pat, pattern_ray_model(pat)),
             "rays, lasers fitted, no motion": lambda: cast_rays(u, pat, still, v),
-            "rays (shipped: lasers and motion fitted, 64 neighbours)": lambda: cast_rays(u, pat, fitted, v),
+            "rays (shipped: lasers and motion fitted, 64 neighbours, planes within 0.5 m or 0.1 r, flat at 0.1)": lambda: cast_rays(u, pat, fitted, v),
             "rays, 16 neighbours": lambda: cast_rays(u, pat, fitted, v, neighbours=16),
             "rays, 32 neighbours": lambda: cast_rays(u, pat, fitted, v, neighbours=32),
             "rays, 128 neighbours": lambda: cast_rays(u, pat, fitted, v, neighbours=128),
+            "rays, planes within 0.5 m, flat at 0.05 (the first version)":
+                lambda: with_planes(0.0, 0.05, lambda: cast_rays(u, pat, fitted, v)),
+            "rays, planes within 0.5 m or 0.05 r, flat at 0.05":
+                lambda: with_planes(0.05, 0.05, lambda: cast_rays(u, pat, fitted, v)),
+            "rays, planes within 0.5 m or 0.1 r, flat at 0.2":
+                lambda: with_planes(0.1, 0.2, lambda: cast_rays(u, pat, fitted, v)),
             "rays, the pulses it leaves empty filled by fpa's": lambda: filled(cast_rays(u, pat, fitted, v),
                                                                                 estimate(u, pat, "fpa")),
         }

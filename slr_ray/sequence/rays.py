@@ -54,6 +54,11 @@ MAX_SHIFT = 0.3
 #: a laser's ray crosses the spin axis within this of the origin (m); a fit beyond it (one range only)
 #: takes the height of the lasers fitted before it and its elevation from its points
 MAX_HEIGHT = 0.5
+#: a plane's points lie within this of where it is asked (m), or this share of the range if more (the
+#: union is sparse far off); chosen on the KITTI frames (benchmarks/sequence_rays.py)
+PLANE_RADIUS, PLANE_RADIUS_PER_M = 0.5, 0.1
+#: a plane's points are flat: their least variance under this share of the next
+FLAT = 0.1
 #: rays a block (bounds the memory of the plane fits: ~ 64 neighbours x 3 x 8 bytes a ray)
 _BLOCK = 32_768
 
@@ -249,7 +254,8 @@ def cast_rays(points, pattern, model: RayModel | None = None, motion=(0.0, 0.0, 
 
 def _plane_hit(pts, tree, origin, d, t, lo, k):
     """Where each ray meets the plane of the ``k`` points nearest ``origin + t d``; whether that plane
-    is usable (flat, its points within 0.5 m, met no nearer than ``lo``) and the hit lies within them."""
+    is usable (flat, its points near: :data:`PLANE_RADIUS`, met no nearer than ``lo``) and the hit
+    lies within them."""
     dist, nn = tree.query(origin + t[:, None] * d, k=k)
     Q = pts[nn]
     c = Q.mean(axis=1)
@@ -258,7 +264,8 @@ def _plane_hit(pts, tree, origin, d, t, lo, k):
     nrm = v[:, :, 0]
     nd = np.einsum("mi,mi->m", nrm, d)
     tt = np.einsum("mi,mi->m", nrm, c - origin) / np.where(np.abs(nd) > 0.05, nd, np.nan)
-    ok = (w[:, 0] < 0.05 * w[:, 1]) & (dist[:, -1] < 0.5) & np.isfinite(tt) & (tt >= lo)
+    ok = (w[:, 0] < FLAT * w[:, 1]) & (dist[:, -1] < np.maximum(PLANE_RADIUS, PLANE_RADIUS_PER_M * t)) & \
+        np.isfinite(tt) & (tt >= lo)
     within = np.linalg.norm(origin + np.nan_to_num(tt)[:, None] * d - c, axis=1) <= dist[:, -1]
     return tt, ok, within
 
