@@ -11,7 +11,9 @@ is worth:
   from the back of the sweep was fired up to half a frame's motion from the frame's origin);
 - the plane's neighbour count (16, 32, 64 shipped, 128) and how far and how flat its points may be
   (within 0.5 m or a tenth of the range, shipped, or 0.5 m, or 0.05 r; flat at 0.1, shipped, 0.05, 0.2);
-- ``rays`` with the pulses it leaves empty filled by fpa's returns (not shipped).
+- ``rays`` with the pulses it leaves empty filled by fpa's returns (not shipped);
+- and, as a check of choices made on frames 1 and 2, the main variants with frames 0 and 3 held out
+  (the sequence's ends: the other frames all on one side), the adjacent frame alone beside them.
 
 And the sensor model's fit, measured on the held-out frames' own points (a check of the model, never
 an input of the estimator): the median |angle| of each point off its laser's line ``z = z0 + rho tan e``
@@ -69,6 +71,18 @@ def filled(rays, fpa):
                         np.r_[rays.index, fpa.index[miss]][o])
 
 
+SHIPPED = "rays (shipped: lasers and motion fitted, 64 neighbours, planes within 0.5 m or 0.1 r, flat at 0.1)"
+CHECK = ("adjacent frame alone (binning)", "fpa", "rays, the table's pulse centres", "rays, lasers fitted, no motion",
+         SHIPPED, "rays, planes within 0.5 m, flat at 0.05 (the first version)")
+
+
+def mean(per):
+    rows = [{"method": m} | {k: float(np.mean([r[k] for r in rs])) for k in rs[0]} for m, rs in per.items()]
+    for r in rows:
+        r["points"] = int(round(r["points"]))
+    return rows
+
+
 def main() -> None:
     frames = [DATA / f"kitti_hdl64_00000{i}.bin" for i in range(4)]
     if not all(f.is_file() for f in frames):
@@ -76,8 +90,9 @@ def main() -> None:
     seq, _ = register_chain(read_sequence(frames))
     base = sensor("velodyne_hdl64e_s2")
     cache = FrameCache(seq)
-    per, fits, sectors = {}, [], {}
-    for h in (1, 2):
+    per, check, fits, sectors = {}, {}, [], {}
+    for h in (1, 2, 0, 3):  # 1 and 2 the study; 0 and 3 (the ends: every other frame on one side) a check
+        main_frame = h in (1, 2)
         fb, _ = cache.get(h)
         b = fb.points
         beams = scan_order_beams(b, base.n_beams)
@@ -94,11 +109,14 @@ def main() -> None:
         fit_s = time.perf_counter() - t0
         still = fit_ray_model(own, base.n_beams, skews=[0.0])
         v = frame_motion(seq.poses, h)
+        adjacent = to_frame(accumulate(seq, [min(others, key=lambda i: (abs(i - h), i > h))], cache=cache).points,
+                            fb.pose)
         methods = {
+            "adjacent frame alone (binning)": lambda: estimate(adjacent, pat, "nearest"),
             "fpa": lambda: estimate(u, pat, "fpa"),
             "rays, the table's pulse centres": lambda: cast_rays(u, pat, pattern_ray_model(pat)),
             "rays, lasers fitted, no motion": lambda: cast_rays(u, pat, still, v),
-            "rays (shipped: lasers and motion fitted, 64 neighbours, planes within 0.5 m or 0.1 r, flat at 0.1)": lambda: cast_rays(u, pat, fitted, v),
+            SHIPPED: lambda: cast_rays(u, pat, fitted, v),
             "rays, 16 neighbours": lambda: cast_rays(u, pat, fitted, v, neighbours=16),
             "rays, 32 neighbours": lambda: cast_rays(u, pat, fitted, v, neighbours=32),
             "rays, 128 neighbours": lambda: cast_rays(u, pat, fitted, v, neighbours=128),
@@ -112,15 +130,19 @@ def main() -> None:
                                                                                 estimate(u, pat, "fpa")),
         }
         for name, run in methods.items():
+            if not main_frame and name not in CHECK:
+                continue
             t0 = time.perf_counter()
             ret = run()
             sec = time.perf_counter() - t0
             pm = point_metrics(b_in, ret.points, thresholds=(0.05,))
             im = range_image_metrics(real, ret.image(pat))
-            per.setdefault(name, []).append({"points": len(ret), "F@5cm": pm.fscore[0.05]["fscore"],
+            (per if main_frame else check).setdefault(name, []).append({"points": len(ret), "F@5cm": pm.fscore[0.05]["fscore"],
                                              "depth_medae_m": im.medae, "depth_rmse_m": im.rmse,
                                              "drop_accuracy": im.accuracy, "cd_sum_m2": pm.chamfer_sum,
                                              "seconds": sec})
+        if not main_frame:
+            continue
         fit = {"frame": h, "skew": fitted.skew, "fit_seconds": round(fit_s, 2)}
         az = np.degrees(np.arctan2(b[:, 1], b[:, 0])) % 360
         for label, model in (("skew fitted", fitted), ("no skew", still)):
@@ -130,10 +152,10 @@ def main() -> None:
             m = beams == LASER
             sectors.setdefault(label, []).append([float(np.median(a[m][(az[m] // 30) == k])) for k in range(12)])
         fits.append(fit)
-    rows = [{"method": m} | {k: float(np.mean([r[k] for r in rs])) for k in rs[0]} for m, rs in per.items()]
-    for r in rows:
-        r["points"] = int(round(r["points"]))
+    rows, check_rows = mean(per), mean(check)
     print(markdown_table(rows))
+    print("\nthe check: frames 0 and 3 held out (the parameters were chosen on 1 and 2)")
+    print(markdown_table(check_rows))
     for f in fits:
         print(f"frame {f['frame']}: skew {f['skew']} (fitted in {f['fit_seconds']} s); its own points off the "
               f"lines fitted on the other frames, median |angle| upper / lower block: skew fitted "
@@ -141,7 +163,8 @@ def main() -> None:
               f"{f['no skew']['upper_block_deg']:.4f} / {f['no skew']['lower_block_deg']:.4f} deg")
     RESULTS.mkdir(exist_ok=True)
     (RESULTS / "sequence_rays.json").write_text(json.dumps(
-        {"machine": machine(), "rows": rows, "per_frame": per, "fits": fits,
+        {"machine": machine(), "rows": rows, "per_frame": per, "check_frames_0_3": check_rows,
+         "check_per_frame": check, "fits": fits,
          "laser_sectors_deg": {"laser": LASER, "sector_deg": 30, **sectors}}, indent=1))
     try:
         import matplotlib
