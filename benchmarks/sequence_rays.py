@@ -7,8 +7,9 @@ is worth:
   (from the origin, each row's median elevation: :func:`pattern_ray_model`);
 - ``rays, lasers fitted, no motion``: each laser's height on the spin axis and elevation fitted from the
   other frames' own points, the sweep's skew held at 0;
-- ``rays`` (shipped): the same with the skew fitted too (the frames are motion-compensated: a point fired
-  from the back of the sweep was fired up to half a frame's motion from the frame's origin);
+- ``rays, no range bias``: the same with the skew fitted too (the frames are motion-compensated: a point
+  fired from the back of the sweep was fired up to half a frame's motion from the frame's origin);
+- ``rays`` (shipped): and each laser's range bias against the other frames' planes;
 - the plane's neighbour count (16, 32, 64 shipped, 128) and how far and how flat its points may be
   (within 0.5 m or a tenth of the range, shipped, or 0.5 m, or 0.05 r; flat at 0.1, shipped, 0.05, 0.2);
 - ``rays`` with the pulses it leaves empty filled by fpa's returns (not shipped);
@@ -38,7 +39,7 @@ from slr_ray.sensors import sensor
 from slr_ray.sequence import FrameCache, accumulate, estimate, read_sequence, register_chain, to_frame, window
 import slr_ray.sequence.rays as rays_module
 from slr_ray.sequence.estimators import PulseReturns
-from slr_ray.sequence.rays import cast_rays, fit_ray_model, frame_motion, pattern_ray_model, sweep_offsets
+from slr_ray.sequence.rays import cast_rays, fit_range_bias, fit_ray_model, frame_motion, pattern_ray_model, sweep_offsets
 
 DATA = Path(__file__).resolve().parents[2] / "shared" / "data"
 LASER = 50  # a lower-block laser for the figure
@@ -71,9 +72,11 @@ def filled(rays, fpa):
                         np.r_[rays.index, fpa.index[miss]][o])
 
 
-SHIPPED = "rays (shipped: lasers and motion fitted, 64 neighbours, planes within 0.5 m or 0.1 r, flat at 0.1)"
+SHIPPED = "rays (shipped: lasers, motion and range biases fitted, 64 neighbours, planes within 0.5 m or 0.1 r, " \
+          "flat at 0.1)"
 CHECK = ("adjacent frame alone (binning)", "fpa", "rays, the table's pulse centres", "rays, lasers fitted, no motion",
-         SHIPPED, "rays, planes within 0.5 m, flat at 0.05 (the first version)")
+         "rays, lasers and motion fitted, no range bias", SHIPPED,
+         "rays, planes within 0.5 m, flat at 0.05")
 
 
 def mean(per):
@@ -105,7 +108,8 @@ def main() -> None:
         own = [(cache.get(i)[0].points, scan_order_beams(cache.get(i)[0].points, base.n_beams),
                 frame_motion(seq.poses, i)) for i in others]
         t0 = time.perf_counter()
-        fitted = fit_ray_model(own, base.n_beams)
+        lines = fit_ray_model(own, base.n_beams)
+        fitted = fit_range_bias(lines, [(cache.get(i)[1], b_, seq.poses[i], v_) for i, (_, b_, v_) in zip(others, own)])
         fit_s = time.perf_counter() - t0
         still = fit_ray_model(own, base.n_beams, skews=[0.0])
         v = frame_motion(seq.poses, h)
@@ -116,11 +120,12 @@ def main() -> None:
             "fpa": lambda: estimate(u, pat, "fpa"),
             "rays, the table's pulse centres": lambda: cast_rays(u, pat, pattern_ray_model(pat)),
             "rays, lasers fitted, no motion": lambda: cast_rays(u, pat, still, v),
+            "rays, lasers and motion fitted, no range bias": lambda: cast_rays(u, pat, lines, v),
             SHIPPED: lambda: cast_rays(u, pat, fitted, v),
             "rays, 16 neighbours": lambda: cast_rays(u, pat, fitted, v, neighbours=16),
             "rays, 32 neighbours": lambda: cast_rays(u, pat, fitted, v, neighbours=32),
             "rays, 128 neighbours": lambda: cast_rays(u, pat, fitted, v, neighbours=128),
-            "rays, planes within 0.5 m, flat at 0.05 (the first version)":
+            "rays, planes within 0.5 m, flat at 0.05":
                 lambda: with_planes(0.0, 0.05, lambda: cast_rays(u, pat, fitted, v)),
             "rays, planes within 0.5 m or 0.05 r, flat at 0.05":
                 lambda: with_planes(0.05, 0.05, lambda: cast_rays(u, pat, fitted, v)),

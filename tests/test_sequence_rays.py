@@ -11,7 +11,7 @@ from slr_ray.io import PointCloud, read_cloud, write_cloud
 from slr_ray.errors import InputValueError
 from slr_ray.sequence import convert_sequence, estimate, read_sequence
 from slr_ray.sequence.holdout import mean_rows, simulate_holdout
-from slr_ray.sequence.rays import cast_rays, fit_ray_model, pattern_ray_model, sweep_offsets
+from slr_ray.sequence.rays import cast_rays, fit_range_bias, fit_ray_model, pattern_ray_model, sweep_offsets
 from slr_ray.sequence.synthetic import synthetic_drive
 from slr_ray.sensors import sensor
 
@@ -40,7 +40,7 @@ def test_the_held_out_frames_points_never_change_what_rays_return(drive, tmp_pat
     assert np.array_equal(before.keys, after.keys) and np.array_equal(before.ranges, after.ranges)
 
 
-def _scan(elev, z0, skew, motion, n_az=720):
+def _scan(elev, z0, skew, motion, n_az=720, bias=None):
     """Lasers at ``elev`` crossing the axis at ``z0`` fired from a sensor moving ``motion`` a sweep
     onto a road 1.73 m below walled in 24 by 10 m, stored motion-compensated as KITTI's are."""
     pts, rings = [], []
@@ -52,8 +52,9 @@ def _scan(elev, z0, skew, motion, n_az=720):
         t = np.where(d[:, 2] < -1e-3, (-1.73 - o[:, 2]) / np.minimum(d[:, 2], -1e-3), np.inf)
         for axis, wall in ((0, 12.0), (1, 5.0)):  # a walled yard 24 by 10 m: ranges vary along each ring
             with np.errstate(divide="ignore", invalid="ignore"):
-                tw = (np.sign(d[:, axis]) * wall - o[:, axis]) / d[:, axis]
+                tw = np.where(d[:, axis] != 0, (np.sign(d[:, axis]) * wall - o[:, axis]) / d[:, axis], np.inf)
             t = np.minimum(t, tw)
+        t = t + (0.0 if bias is None else bias[j])  # the laser reads its ranges long or short
         pts.append(o + t[:, None] * d)
         rings.append(np.full(n_az, j))
     return np.vstack(pts), np.concatenate(rings)
@@ -69,6 +70,24 @@ def test_a_ray_model_recovers_heights_elevations_and_the_sweeps_skew():
     assert np.abs(m.height - z0).max() < 0.02 and np.degrees(np.abs(m.elevation - elev)).max() < 0.02
     still = fit_ray_model([f[:2] + (np.zeros(3),) for f in frames], len(elev), stride=1)
     assert still.residual_deg > 10 * m.residual_deg  # the skew not undone: lines no longer fit
+
+
+def test_a_laser_that_reads_long_or_short_is_found_against_the_other_frames():
+    elev = np.radians(np.linspace(2.0, -14.0, 12))
+    z0 = np.zeros(12)
+    bias = np.zeros(12)
+    bias[[2, 7]] = 0.04, -0.03
+    frames = []
+    for x in (0.0, 0.5, 1.0):
+        pts, rings = _scan(elev, z0, 0.0, np.zeros(3), n_az=1440, bias=bias)
+        pose = np.eye(4)
+        pose[0, 3] = x
+        frames.append((pts + [x, 0, 0], rings, pose, np.zeros(3)))
+    model = fit_ray_model([(f[0] - f[2][:3, 3], f[1], f[3]) for f in frames], 12, skews=[0.0], stride=1)
+    found = fit_range_bias(model, frames, stride=2).range_bias
+    # against planes that hold its own points of the other frames too (as the union's do): a part of it
+    assert np.argmax(found) == 2 and np.argmin(found) == 7 and found[2] > 0.01 and found[7] < -0.008, found
+    assert fit_range_bias(model, frames[:1]).range_bias is None  # one frame: nothing to compare with
 
 
 def test_rays_meet_the_plane_not_the_near_edge_of_a_pulse():

@@ -33,7 +33,7 @@ from ..metrics import PAPER_THRESHOLD, point_metrics, range_image_metrics, seen_
 from ..sensors import sensor as shipped_sensor
 from .estimators import FPA_GAP, estimate
 from .frames import Sequence
-from .rays import RayModel, cast_rays, fit_ray_model, frame_motion, pattern_ray_model
+from .rays import RayModel, cast_rays, fit_range_bias, fit_ray_model, frame_motion, pattern_ray_model
 from .union import FrameCache, Union, accumulate, to_frame, window
 
 __all__ = ["METHODS", "LABELS", "evaluate_holdout", "evaluate_sequence", "mean_rows", "DEFAULT_METHODS",
@@ -81,16 +81,18 @@ def _beams(frame, base):
 def holdout_ray_model(seq: Sequence, others, base, pattern, cache: FrameCache) -> RayModel:
     """The sensor's rays fitted from the frames ``others`` (never the held-out frame): their own points,
     their beams (a ``ring`` field or the scan order) and their motion from the poses
-    (:func:`~slr_ray.sequence.rays.fit_ray_model`). Where a frame's beams are not known, the pattern's
-    own rays."""
-    frames = []
+    (:func:`~slr_ray.sequence.rays.fit_ray_model`), and each laser's range bias against the others'
+    frames (:func:`~slr_ray.sequence.rays.fit_range_bias`). Where a frame's beams are not known, the
+    pattern's own rays."""
+    frames, worlds = [], []
     for i in others:
-        f, _ = cache.get(i)
+        f, w = cache.get(i)
         beams = _beams(f, base)
         if beams is None or len(f.points) == 0:
             return pattern_ray_model(pattern)
         frames.append((f.points, beams, frame_motion(seq.poses, i)))
-    return fit_ray_model(frames, base.n_beams)
+        worlds.append((w, beams, seq.poses[i], frames[-1][2]))
+    return fit_range_bias(fit_ray_model(frames, base.n_beams), worlds)
 
 
 def _adjacent(frames, target):

@@ -17,23 +17,27 @@ counter-clockwise; ``v`` the frame's motion per frame from its poses). It is
 fitted by :func:`fit_ray_model` from frames' *own* points and beams (rings),
 never the target's: in :mod:`~slr_ray.sequence.holdout` from the other frames
 of the window. The skew is the value on a grid that makes the frames' rings
-fit their lines best. :func:`pattern_ray_model` is the ideal sensor of a beam
-table (each beam from the origin at its table elevation, no motion), for a
-simulated target.
+fit their lines best. :func:`fit_range_bias` adds each laser's range bias (a
+real unit's lasers read their ranges centimetres long or short), measured
+against the planes of the other frames. :func:`pattern_ray_model` is the ideal
+sensor of a beam table (each beam from the origin at its table elevation, no
+motion, no bias), for a simulated target.
 
 :func:`cast_rays` then, for each laser and column: the union's points in the
 laser's band (seen from its firing origin, nearest laser in elevation) and
 column, their first cluster by range (the first-peak average's rule: the
 first surface), the laser's ray through the column's centre azimuth, and
 where that ray meets the plane of the union's ``neighbours`` points nearest to
-the cluster (when they are flat and the plane is within ``max_shift`` of the
-cluster; else the cluster's centroid projected onto the ray). Each hit is
-binned into the target's range image as a real point is (its direction from
-the origin), nearest per pulse.
+the cluster, then to that hit (when they are flat and near, the hit lies
+within them and not more than ``max_shift`` before the cluster; else the
+cluster's centroid projected onto the ray), moved by the laser's range bias.
+Each hit is binned into the target's range image as a real point is (its
+direction from the origin), nearest per pulse.
 """
 
 from __future__ import annotations
 
+import dataclasses
 import math
 from dataclasses import dataclass
 
@@ -43,7 +47,7 @@ from scipy.spatial import cKDTree
 from ..errors import InputValueError
 from .estimators import FPA_GAP, PulseReturns
 
-__all__ = ["RayModel", "fit_ray_model", "pattern_ray_model", "frame_motion", "sweep_offsets", "cast_rays",
+__all__ = ["RayModel", "fit_ray_model", "fit_range_bias", "pattern_ray_model", "frame_motion", "sweep_offsets", "cast_rays",
            "RAY_NEIGHBOURS"]
 
 #: the plane's points (the union's nearest to the first cluster); chosen on the KITTI frames
@@ -73,12 +77,14 @@ class RayModel:
     skew: float = 0.0           # the firing origin's displacement over a sweep, in frames' motion
     source: str = "pattern"     # "fitted" (from frames' own points) or "pattern" (a beam table's ideal rays)
     residual_deg: float = math.nan  # median |angle| of the fitting frames' points off their laser's line
+    range_bias: np.ndarray | None = None  # (L,) m: what each laser's ranges add to the union's surface
 
     def to_dict(self) -> dict:
         return {"source": self.source, "skew": self.skew, "lasers": int(len(self.elevation)),
                 "median_residual_deg": self.residual_deg,
                 "height_m": [round(float(x), 4) for x in self.height],
-                "elevation_deg": [round(math.degrees(x), 4) for x in self.elevation]}
+                "elevation_deg": [round(math.degrees(x), 4) for x in self.elevation],
+                "range_bias_m": None if self.range_bias is None else [round(float(x), 4) for x in self.range_bias]}
 
 
 def frame_motion(poses, i: int) -> np.ndarray:
@@ -156,6 +162,45 @@ def fit_ray_model(frames, n_lasers: int, skews=None, stride: int = 2) -> RayMode
     z0 = np.where(np.isfinite(z0), z0, np.nanmean(z0))
     el = np.where(np.isfinite(el), el, np.nanmean(el))  # an empty laser: somewhere (it returns little)
     return RayModel(el, z0, np.zeros(n_lasers), float(k), "fitted", round(res, 5))
+
+
+def fit_range_bias(model: RayModel, frames, k: int = 32, stride: int = 8) -> RayModel:
+    """``model`` with each laser's range bias: how far, along its own rays, a laser's points lie beyond
+    the plane of the *other* frames' points (median over every ``stride``-th point, where the plane of
+    its ``k`` nearest is flat). ``frames``: ``(world points, beams, pose, motion)`` of two or more
+    frames; one frame: no bias. A real unit's lasers each read their ranges a few centimetres long or
+    short (KITTI's: -4 to +7 cm), and a union's planes mix its lasers: the bias is measured
+    against such planes (its own laser's points in other frames included), as :func:`cast_rays` uses
+    them."""
+    L = len(model.elevation)
+    if len(frames) < 2:
+        return model
+    found = [[] for _ in range(L)]
+    for j, (w, beams, pose, motion) in enumerate(frames):
+        rest = np.concatenate([f[0] for i, f in enumerate(frames) if i != j])
+        tree = cKDTree(rest)
+        P = np.asarray(pose, np.float64)
+        pw = np.asarray(w[::stride], np.float64)
+        local = (pw - P[:3, 3]) @ P[:3, :3]  # into frame j
+        lasers = np.asarray(beams, np.int64)[::stride]
+        origin = sweep_offsets(local, motion, model.skew)
+        origin[:, 2] += model.height[lasers]
+        d = local - origin
+        dw = (d / np.linalg.norm(d, axis=1)[:, None]) @ P[:3, :3].T
+        dist, nn = tree.query(pw, k=k)
+        Q = rest[nn]
+        c = Q.mean(axis=1)
+        x = Q - c[:, None]
+        ev, vec = np.linalg.eigh(np.matmul(x.transpose(0, 2, 1), x))
+        nrm = vec[:, :, 0]
+        nd = np.einsum("mi,mi->m", nrm, dw)
+        along = np.einsum("mi,mi->m", nrm, pw - c) / np.where(np.abs(nd) > 0.2, nd, np.nan)  # + : beyond
+        ok = (ev[:, 0] < FLAT * ev[:, 1]) & (dist[:, -1] < PLANE_RADIUS) & np.isfinite(along) & \
+            (np.abs(along) < 0.2)
+        for laser in range(L):
+            found[laser].append(along[ok & (lasers == laser)])
+    bias = np.array([float(np.median(np.concatenate(a))) if sum(map(len, a)) >= 50 else 0.0 for a in found])
+    return dataclasses.replace(model, range_bias=bias)
 
 
 def pattern_ray_model(pattern) -> RayModel:
@@ -243,6 +288,8 @@ def cast_rays(points, pattern, model: RayModel | None = None, motion=(0.0, 0.0, 
         for s in range(0, len(t), _BLOCK):
             b = slice(s, s + _BLOCK)
             t[b] = _onto_plane(pts, tree, origin[b], d[b], t[b], lo[b], int(neighbours))
+    if model.range_bias is not None:
+        t = t + model.range_bias[L]
     hit = origin + t[:, None] * d
     keys, ranges = pattern.pulse_ids(hit, np.zeros(3))
     ok = np.flatnonzero(keys >= 0)
