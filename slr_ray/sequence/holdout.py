@@ -90,8 +90,10 @@ def holdout_ray_model(seq: Sequence, others, base, pattern, cache: FrameCache) -
         beams = _beams(f, base)
         if beams is None or len(f.points) == 0:
             return pattern_ray_model(pattern)
-        frames.append((f.points, beams, frame_motion(seq.poses, i)))
-        worlds.append((w, beams, seq.poses[i], frames[-1][2]))
+        base.rows_of_beams(beams, len(f.points))  # beam ids outside the sensor's table: refused, named
+        known = beams >= 0  # -1: a point whose beam is not known
+        frames.append((f.points[known], beams[known], frame_motion(seq.poses, i)))
+        worlds.append((w[known], beams[known], seq.poses[i], frames[-1][2]))
     return fit_range_bias(fit_ray_model(frames, base.n_beams), worlds)
 
 
