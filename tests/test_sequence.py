@@ -137,7 +137,7 @@ def test_leave_one_out_scores_every_method_and_union_beats_adjacent(drive):
     seq = read_sequence(root)
     res = evaluate_sequence(seq, [2], sensor="velodyne_vlp16", half=2)
     rows = {r["method"]: r for r in res["frames"][0]["table"]}
-    assert len(rows) == 4 and [r["frame"] for r in res["mean"]] == ["mean"] * 4
+    assert len(rows) == 5 and [r["frame"] for r in res["mean"]] == ["mean"] * 5
     for r in rows.values():
         assert {"points", "F@5cm", "depth_medae_m", "drop_accuracy"} <= set(r)
     union, adj = rows["nearest (binning of the union)"], rows["binning, adjacent frame alone"]
@@ -153,7 +153,7 @@ def test_cli_evaluate_and_convert_resume(tmp_path, drive, capsys):
              "--half", "1", "-o", out, "--quiet")
     assert r.returncode == 0, r.stderr
     doc = json.loads(r.stdout)
-    assert len(doc["mean"]) == 4 and doc["holdout"] == ["000001", "000004"] and (out / "table.md").is_file()
+    assert len(doc["mean"]) == 5 and doc["holdout"] == ["000001", "000004"] and (out / "table.md").is_file()
     conv = tmp_path / "conv"
     args = ["sequence", "convert", root, "--sensor", "velodyne_vlp16", "--half", "1", "-o", conv, "--quiet",
             "--offset", "0", "0", "0.5"]

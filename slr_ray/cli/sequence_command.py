@@ -13,8 +13,9 @@ from ..io import atomic_path
 from ..io.outputs import OutputPlan, resolve
 from ..errors import InputValueError, OutputError
 from ..sensors import SENSORS
-from ..sequence import (ESTIMATORS, FPA_GAP, METHODS, convert_sequence, evaluate_sequence, read_sequence,
+from ..sequence import (FPA_GAP, METHODS, convert_sequence, evaluate_sequence, read_sequence,
                         read_trajectory, register_chain, write_kitti_poses)
+from ..sequence.convert import CONVERT_ESTIMATORS
 from ..sequence.holdout import DEFAULT_METHODS, lidar4d_holdout
 from . import arguments as A
 from .commands import emit
@@ -77,7 +78,8 @@ def add_sequence_parser(sub) -> None:
     _common(q)
     q.add_argument("-o", "--output", required=True, help="output directory (a rerun with the same settings resumes)")
     q.add_argument("--sensor", required=True, choices=list(SENSORS), help="the target sensor")
-    q.add_argument("--estimator", default="nearest", choices=list(ESTIMATORS), help="per-pulse rule (default nearest)")
+    q.add_argument("--estimator", default="nearest", choices=list(CONVERT_ESTIMATORS),
+                   help="per-pulse rule (default nearest; rays: the target table's own rays onto the union's planes)")
     q.add_argument("--offset", nargs=3, type=A.finite_float, default=[0.0, 0.0, 0.0], metavar=("DX", "DY", "DZ"),
                    help="the target sensor's offset in each frame's own axes (m)")
     q.add_argument("--target-poses", help="a trajectory of target poses (one a frame) instead of the frames' poses")

@@ -9,6 +9,9 @@
 ``estimators``
     one return per pulse from a union: nearest (SLR's rule), first-peak
     average, embree discs.
+``rays``
+    the ``rays`` estimator: the sensor's own rays (each laser's height and elevation, the sweep's
+    motion) fitted from frames' points, each beam cast along its ray onto the union's planes.
 ``holdout``
     leave-one-out evaluation: each held-out frame re-simulated from the others.
 ``convert``

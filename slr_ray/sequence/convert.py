@@ -35,11 +35,16 @@ from ..io import PointCloud, atomic_path, check_format, write_cloud
 from ..io.outputs import LOCK_NAME, clean_stale_parts
 from ..options import Options
 from ..sensors import sensor as shipped_sensor
-from .estimators import FPA_GAP, estimate
+from .estimators import ESTIMATORS, FPA_GAP, estimate
 from .frames import Sequence, write_kitti_poses
+from .rays import cast_rays
 from .union import FrameCache, accumulate, nearest_of_frames, to_frame, window
 
-__all__ = ["ConvertOptions", "convert_sequence", "target_poses", "MANIFEST", "JOURNAL"]
+__all__ = ["ConvertOptions", "convert_sequence", "target_poses", "MANIFEST", "JOURNAL", "CONVERT_ESTIMATORS"]
+
+#: the per-pulse rules of ``convert``: :data:`~slr_ray.sequence.estimators.ESTIMATORS` and ``rays``,
+#: the target table's own rays (a simulated sensor's pulse centres, no motion) onto the union's planes
+CONVERT_ESTIMATORS = (*ESTIMATORS, "rays")
 
 MANIFEST = "manifest.json"
 JOURNAL = "journal.jsonl"
@@ -62,7 +67,11 @@ def _frame_cloud(seq, i, pose, pattern, settings, cache) -> PointCloud:
         ret, carried = nearest_of_frames(seq, frames, pose, pattern, settings["drop_moving"], cache)
     else:
         union = accumulate(seq, frames, drop_moving=settings["drop_moving"], cache=cache)
-        ret = estimate(to_frame(union.points, pose), pattern, settings["estimator"], gap=settings["fpa_gap"])
+        u = to_frame(union.points, pose)
+        if settings["estimator"] == "rays":
+            ret = cast_rays(u, pattern, gap=settings["fpa_gap"])
+        else:
+            ret = estimate(u, pattern, settings["estimator"], gap=settings["fpa_gap"])
         carried = {n: v[ret.index] for n, v in union.attributes.items()}
     attrs = {n: carried[n] for n in ("intensity", "semantic", "instance") if n in carried}
     if settings["format"] != "bin":
@@ -171,6 +180,8 @@ def convert_sequence(seq: Sequence, out, sensor: str, options: ConvertOptions | 
     if base.shape != (len(seq), 4, 4):
         raise InputValueError(f"{len(base)} target poses for {len(seq)} frames")
     P = target_poses(base, offset)
+    if estimator not in CONVERT_ESTIMATORS:
+        raise InputValueError(f"unknown estimator {estimator!r}; choose from {list(CONVERT_ESTIMATORS)}")
     settings = {"sensor": sensor, "estimator": estimator, "half": half, "radius": radius,
                 "offset": [float(x) for x in offset], "drop_moving": bool(drop_moving), "format": fmt.lstrip("."),
                 "fpa_gap": float(fpa_gap), "frames": [str(p) for p in seq.paths],

@@ -9,6 +9,13 @@ then scored against the real B with :mod:`slr_ray.metrics` exactly as
 view, its range image by the nearest-per-pulse rule), the same table keys
 (:func:`slr_ray.evaluate.evaluation_table`), one row per method per frame and a
 mean over the frames.
+
+No method reads the held-out frame's points: they give its fitted table (the
+grid every method fills and is scored on) and the target it is scored
+against. ``rays`` fits the sensor's rays on the *other* frames of the window
+(:func:`holdout_ray_model`) and takes the target's motion from the poses;
+``tests/test_sequence_rays.py`` moves the held-out frame's points along their
+rays and checks that not one return changes.
 """
 
 from __future__ import annotations
@@ -27,11 +34,11 @@ from ..options import Options
 from ..sensors import sensor as shipped_sensor
 from .estimators import FPA_GAP, estimate
 from .frames import Sequence
-from .union import FrameCache, accumulate, to_frame, window
+from .rays import RayModel, cast_rays, fit_range_bias, fit_ray_model, frame_motion, pattern_ray_model
+from .union import FrameCache, Union, accumulate, to_frame, window
 
-__all__ = ["METHODS", "LABELS", "HoldoutOptions", "evaluate_holdout", "evaluate_sequence", "mean_rows",
-           "DEFAULT_METHODS",
-           "clamped_depth_errors", "lidar4d_holdout", "LIDAR4D_MAX_DEPTH"]
+__all__ = ["METHODS", "LABELS", "HoldoutOptions", "evaluate_holdout", "evaluate_sequence", "mean_rows", "DEFAULT_METHODS",
+           "clamped_depth_errors", "lidar4d_holdout", "LIDAR4D_MAX_DEPTH", "holdout_ray_model", "simulate_holdout"]
 
 #: LiDAR4D's depth clamp (utils/metrics.py, compute_depth_errors: min 1e-6, max 80 m)
 LIDAR4D_MAX_DEPTH = 80.0
@@ -58,11 +65,11 @@ def lidar4d_holdout(n_frames: int) -> list[int]:
                               f"{n_frames}: pick 51 frames, or hold out frames by --holdout / --every")
     return [10, 20, 30, 40]
 
-METHODS = ("zbuffer", "adjacent", "nearest", "fpa", "embree-knn")
-DEFAULT_METHODS = ("zbuffer", "adjacent", "nearest", "fpa")
+METHODS = ("zbuffer", "adjacent", "nearest", "fpa", "rays", "embree-knn")
+DEFAULT_METHODS = ("zbuffer", "adjacent", "nearest", "fpa", "rays")
 LABELS = {"zbuffer": "no SLR (z-buffer of the union)", "adjacent": "binning, adjacent frame alone",
           "nearest": "nearest (binning of the union)", "fpa": "first-peak average (union)",
-          "embree-knn": "embree kNN discs (union)"}
+          "rays": "beam rays onto the union's planes", "embree-knn": "embree kNN discs (union)"}
 
 
 def _beams(frame, base):
@@ -70,6 +77,25 @@ def _beams(frame, base):
     if ring is not None:
         return np.asarray(ring, np.int64)
     return scan_order_beams(frame.points, base.n_beams)
+
+
+def holdout_ray_model(seq: Sequence, others, base, pattern, cache: FrameCache) -> RayModel:
+    """The sensor's rays fitted from the frames ``others`` (never the held-out frame): their own points,
+    their beams (a ``ring`` field or the scan order) and their motion from the poses
+    (:func:`~slr_ray.sequence.rays.fit_ray_model`), and each laser's range bias against the others'
+    frames (:func:`~slr_ray.sequence.rays.fit_range_bias`). Where a frame's beams are not known, the
+    pattern's own rays."""
+    frames, worlds = [], []
+    for i in others:
+        f, w = cache.get(i)
+        beams = _beams(f, base)
+        if beams is None or len(f.points) == 0:
+            return pattern_ray_model(pattern)
+        base.rows_of_beams(beams, len(f.points))  # beam ids outside the sensor's table: refused, named
+        known = beams >= 0  # -1: a point whose beam is not known
+        frames.append((f.points[known], beams[known], frame_motion(seq.poses, i)))
+        worlds.append((w[known], beams[known], seq.poses[i], frames[-1][2]))
+    return fit_range_bias(fit_ray_model(frames, base.n_beams), worlds)
 
 
 def _adjacent(frames, target):
@@ -148,26 +174,18 @@ def evaluate_holdout(seq: Sequence, target: int, options: HoldoutOptions | None 
     pix[filled] = np.where(seen_all[real_img["index"][filled]], "seen", "unseen")
     adj = _adjacent(others, target)
     rows, extra = [], {}
+    models = {}
+    held = _Held(seq, target, others, union, u, pat, base, gap, cache)
     for m in methods:
         t0 = time.perf_counter()
-        if m == "zbuffer":
-            ret = estimate(u, pat, "nearest")
-            keys, _ = pat.pulse_ids(u, np.zeros(3))
-            sim = u[keys >= 0]
-        elif m == "adjacent":
-            a = u[union.frame_of_point == adj]
-            ret = estimate(a, pat, "nearest")
-            sim = ret.points
-        else:
-            ret = estimate(u, pat, m, gap=gap)
-            sim = ret.points
+        ret, sim = _simulate(m, held, models)
         img = ret.image(pat)
         pm = point_metrics(b_in, sim, thresholds=thresholds, groups=groups)
         im = range_image_metrics(real_img["range"], img, groups={"seen": pix.astype(str)})
         extra[m] = clamped_depth_errors(real_img["range"], img)
         rows.append({"method": m, "label": LABELS[m], "points_out": int(len(sim)), "pulses_returned": int(len(ret)),
                      "seconds": round(time.perf_counter() - t0, 3), "points": pm.to_dict(), "image": im.to_dict()})
-    res = {"frame": seq.names[target], "fpa_gap_m": gap, "index": int(target), "window": [seq.names[i] for i in others],
+    res = {"frame": seq.names[target], "fpa_gap_m": gap, "ray_model": models.get("rays"), "index": int(target), "window": [seq.names[i] for i in others],
            "adjacent": seq.names[adj], "union_points": int(len(union)), "removed": union.removed,
            "target_points_in_view": int(len(b_in)), "unseen_share": float(np.mean(~seen)),
            "pattern": pat.to_dict() | {"beams_known": beams is not None},
@@ -178,8 +196,64 @@ def evaluate_holdout(seq: Sequence, target: int, options: HoldoutOptions | None 
     return res
 
 
+@dataclass
+class _Held:
+    """What a method may use for a held-out frame: never its points (its pattern is the table
+    fitted to them, as every method's grid)."""
+
+    seq: Sequence
+    target: int
+    others: list
+    union: Union
+    u: np.ndarray       # the union in the target's frame
+    pattern: object
+    base: object
+    gap: float
+    cache: FrameCache
+
+
+def _simulate(m, held: _Held, models: dict):
+    """Method ``m``'s returns and points out for the held-out frame."""
+    u, pat = held.u, held.pattern
+    if m == "zbuffer":
+        ret = estimate(u, pat, "nearest")
+        keys, _ = pat.pulse_ids(u, np.zeros(3))
+        return ret, u[keys >= 0]
+    if m == "adjacent":
+        ret = estimate(u[held.union.frame_of_point == _adjacent(held.others, held.target)], pat, "nearest")
+    elif m == "rays":
+        model = holdout_ray_model(held.seq, held.others, held.base, pat, held.cache)
+        models["rays"] = model.to_dict()
+        ret = cast_rays(u, pat, model, frame_motion(held.seq.poses, held.target), gap=held.gap)
+    else:
+        ret = estimate(u, pat, m, gap=held.gap)
+    return ret, ret.points
+
+
+def simulate_holdout(seq: Sequence, target: int, method: str = "rays", sensor: str = "velodyne_hdl64e_s2",
+                     half: int | None = 2, drop_moving: bool = True, gap: float = FPA_GAP, pattern=None):
+    """What ``method`` returns for the held-out frame ``target`` (a :class:`PulseReturns` in ``pattern``,
+    default the target's fitted table as :func:`evaluate_holdout` fits it). The held-out frame's points
+    are read for its table only: every method's returns depend on its pose and the other frames."""
+    if method not in METHODS:
+        raise InputValueError(f"unknown method {method!r}; choose from {list(METHODS)}")
+    base = shipped_sensor(sensor) if isinstance(sensor, str) else sensor
+    cache = FrameCache(seq)
+    others = window(seq, target, half)
+    if not others:
+        raise InputValueError(f"frame {seq.names[target]}: no other frame in its window")
+    fb, _ = cache.get(target)
+    if pattern is None:
+        beams = _beams(fb, base)
+        pattern = fitted_pattern(fb.points, beams, base) if beams is not None else base
+    union = accumulate(seq, others, drop_moving=drop_moving, cache=cache)
+    held = _Held(seq, target, others, union, to_frame(union.points, fb.pose), pattern, base, gap, cache)
+    return _simulate(method, held, {})[0]
+
+
 def mean_rows(tables: list[list[dict]]) -> list[dict]:
-    """Per method, the mean over frames of every numeric column (``frame``: ``"mean"``)."""
+    """Per method, the mean over frames of every numeric column (``frame``: ``"mean"``); a column of
+    counts (integers in every frame: ``points``) takes its mean rounded to an integer."""
     by_method: dict = {}
     for table in tables:
         for r in table:
@@ -194,6 +268,8 @@ def mean_rows(tables: list[list[dict]]) -> list[dict]:
             if all(isinstance(v, (int, float)) and not isinstance(v, bool) for v in vals):
                 finite = [float(v) for v in vals if math.isfinite(v)]
                 row[k] = sum(finite) / len(finite) if finite else math.nan
+                if finite and all(isinstance(v, int) for v in vals):
+                    row[k] = int(round(row[k]))
         out.append(row)
     return out
 

@@ -1,0 +1,332 @@
+"""The ``rays`` estimator: each beam of the target cast along its own modelled ray onto the union's surface.
+
+A real spinning unit's pulse is not the centre of its range-image pixel. Each
+laser of an HDL-64E has its own elevation *and* sits above or below the
+origin (its ray crosses the spin axis at its own height ``z0``: seen from the
+origin its elevation changes with range, by degrees at a few metres), and a
+KITTI frame's points were moved after the fact as if measured at the frame's
+time (motion-compensated: a point fired at azimuth ``a`` from the back of the
+sweep was fired from where the sensor was then, up to half a frame's motion,
+~0.35 m, from the frame's origin). Where on the road a pulse lands depends on
+both by decimetres at grazing incidence.
+
+:class:`RayModel` is that sensor: per laser ``z = z0 + rho tan(e)`` in the
+frame the laser fired from, the firing origin displaced by
+``skew (phi - 1/2) v`` (``phi`` the share of the sweep from the back,
+counter-clockwise; ``v`` the frame's motion per frame from its poses). It is
+fitted by :func:`fit_ray_model` from frames' *own* points and beams (rings),
+never the target's: in :mod:`~slr_ray.sequence.holdout` from the other frames
+of the window. The skew is the value on a grid that makes the frames' rings
+fit their lines best. :func:`fit_range_bias` adds each laser's range bias (a
+real unit's lasers read their ranges centimetres long or short), measured
+against the planes of the other frames. :func:`pattern_ray_model` is the ideal
+sensor of a beam table (each beam from the origin at its table elevation, no
+motion, no bias), for a simulated target.
+
+:func:`cast_rays` then, for each laser and column: the union's points in the
+laser's band (seen from its firing origin, nearest laser in elevation) and
+column, their first cluster by range (the first-peak average's rule: the
+first surface), the laser's ray through the column's centre azimuth, and
+where that ray meets the plane of the union's ``neighbours`` points nearest to
+the cluster, then to that hit (when they are flat and near, the hit lies
+within them and not more than ``max_shift`` before the cluster; else the
+cluster's centroid projected onto the ray), moved by the laser's range bias.
+Each hit is binned into the target's range image as a real point is (its
+direction from the origin), nearest per pulse.
+"""
+
+from __future__ import annotations
+
+import dataclasses
+import math
+from dataclasses import dataclass
+
+import numpy as np
+from scipy.spatial import cKDTree
+
+from ..errors import InputValueError
+from .estimators import FPA_GAP, PulseReturns
+
+__all__ = ["RayModel", "fit_ray_model", "fit_range_bias", "pattern_ray_model", "frame_motion", "sweep_offsets", "cast_rays",
+           "RAY_NEIGHBOURS"]
+
+#: the plane's points (the union's nearest to the first cluster); chosen on the KITTI frames
+#: (benchmarks/sequence_rays.py)
+RAY_NEIGHBOURS = 64
+#: the plane is not used where it meets the ray more than this before the first cluster's start (m)
+MAX_SHIFT = 0.3
+#: a laser's ray crosses the spin axis within this of the origin (m); a fit beyond it (one range only)
+#: takes the height of the lasers fitted before it and its elevation from its points
+MAX_HEIGHT = 0.5
+#: a plane's points lie within this of where it is asked (m), or this share of the range if more (the
+#: union is sparse far off); chosen on the KITTI frames (benchmarks/sequence_rays.py)
+PLANE_RADIUS, PLANE_RADIUS_PER_M = 0.5, 0.1
+#: a plane's points are flat: their least variance under this share of the next
+FLAT = 0.1
+#: rays a block (bounds the memory of the plane fits: ~ 64 neighbours x 3 x 8 bytes a ray)
+_BLOCK = 32_768
+
+
+@dataclass(frozen=True)
+class RayModel:
+    """Each laser's ray (arrays by laser) and the sweep's skew (module docstring)."""
+
+    elevation: np.ndarray       # (L,) radians
+    height: np.ndarray          # (L,) m: where the laser's ray crosses the spin axis
+    azimuth_offset: np.ndarray  # (L,) radians: a column's centre is offset + (h + 1/2) 2 pi / columns
+    skew: float = 0.0           # the firing origin's displacement over a sweep, in frames' motion
+    source: str = "pattern"     # "fitted" (from frames' own points) or "pattern" (a beam table's ideal rays)
+    residual_deg: float = math.nan  # median |angle| of the fitting frames' points off their laser's line
+    range_bias: np.ndarray | None = None  # (L,) m: what each laser's ranges add to the union's surface
+
+    def to_dict(self) -> dict:
+        return {"source": self.source, "skew": self.skew, "lasers": int(len(self.elevation)),
+                "median_residual_deg": self.residual_deg,
+                "height_m": [round(float(x), 4) for x in self.height],
+                "elevation_deg": [round(math.degrees(x), 4) for x in self.elevation],
+                "range_bias_m": None if self.range_bias is None else [round(float(x), 4) for x in self.range_bias]}
+
+
+def frame_motion(poses, i: int) -> np.ndarray:
+    """Frame ``i``'s motion per frame in its own axes, from the poses of its neighbours (the central
+    difference; one-sided at the ends; zeros for a sequence of one frame)."""
+    P = np.asarray(poses, np.float64)
+    a, b = max(i - 1, 0), min(i + 1, len(P) - 1)
+    if a == b:
+        return np.zeros(3)
+    t = (P[b][:3, 3] - P[a][:3, 3]) / (b - a)  # world
+    return P[i][:3, :3].T @ t
+
+
+def sweep_offsets(points, motion, skew: float) -> np.ndarray:
+    """``(n, 3)``: where the sensor was, in the frame, when it fired at each point's azimuth:
+    ``skew (phi - 1/2) motion``, ``phi`` the share of the sweep from the back (counter-clockwise)."""
+    p = np.asarray(points, np.float64)
+    phi = (np.arctan2(p[:, 1], p[:, 0]) + math.pi) / (2 * math.pi)
+    return (skew * (phi - 0.5))[:, None] * np.asarray(motion, np.float64)[None, :]
+
+
+def _lines(P, R, n_lasers):
+    """Per laser the robust line ``z = z0 + rho tan(e)``; the median |angular residual| (degrees)."""
+    rho = np.hypot(P[:, 0], P[:, 1])
+    z0, el = np.full(n_lasers, np.nan), np.full(n_lasers, np.nan)
+    res_all = []
+    for laser in range(n_lasers):
+        m = (R == laser) & (rho > 2.0)
+        if m.sum() < 20:
+            continue
+        A = np.column_stack([np.ones(m.sum()), rho[m]])
+        z = P[m, 2]
+        c = np.linalg.lstsq(A, z, rcond=None)[0]
+        for _ in range(3):  # drop what is not on the laser's line (mixed pixels, another laser's)
+            res = z - A @ c
+            keep = np.abs(res) < 3 * np.median(np.abs(res)) + 1e-3
+            c = np.linalg.lstsq(A[keep], z[keep], rcond=None)[0]
+        if abs(c[0]) > MAX_HEIGHT:  # one range only (a laser that sees only the road): no height in it
+            c[0] = 0.0 if laser == 0 else float(np.nanmedian(z0[:laser])) if np.isfinite(z0[:laser]).any() else 0.0
+            c[1] = np.median((z - c[0]) / rho[m])
+        z0[laser], el[laser] = c[0], math.atan(c[1])
+        res_all.append(np.degrees(np.abs(z - A @ c) / np.hypot(rho[m], z - c[0])))
+    return z0, el, float(np.median(np.concatenate(res_all))) if res_all else math.inf
+
+
+def fit_ray_model(frames, n_lasers: int, skews=None, stride: int = 2) -> RayModel:
+    """The sensor's rays from frames' own points: ``frames`` a list of ``(points, beams, motion)``
+    (each frame's points in its own frame, each point's laser, the frame's motion per frame by
+    :func:`frame_motion`). The skew is the one of ``skews`` (default: -2 to 1 by 0.25, then the
+    best's neighbourhood by 0.05) whose undone offsets let the lasers' lines fit best; every
+    ``stride``-th point is used. Lasers with too few points take the mean line of the others'."""
+    if not frames:
+        raise InputValueError("no frame to fit the sensor's rays on")
+    pts = [np.asarray(p, np.float64)[::stride] for p, _, _ in frames]
+    rings = [np.asarray(r, np.int64)[::stride] for _, r, _ in frames]
+    motions = [np.asarray(v, np.float64) for _, _, v in frames]
+    R = np.concatenate(rings)
+
+    def fit(k):
+        P = np.concatenate([p - sweep_offsets(p, v, k) for p, v in zip(pts, motions)])
+        return _lines(P, R, n_lasers)
+
+    def best_of(grid):
+        fits = {float(k): fit(k) for k in grid}
+        k = min(fits, key=lambda s: fits[s][2])
+        return k, fits[k]
+
+    if skews is None:
+        k, _ = best_of(np.arange(-2.0, 1.01, 0.25))
+        k, (z0, el, res) = best_of(np.round(np.arange(k - 0.2, k + 0.21, 0.05), 2))
+    else:
+        k, (z0, el, res) = best_of(skews)
+    if not np.isfinite(el).any():
+        raise InputValueError("the frames' lasers have too few points to fit their rays")
+    z0 = np.where(np.isfinite(z0), z0, np.nanmean(z0))
+    el = np.where(np.isfinite(el), el, np.nanmean(el))  # an empty laser: somewhere (it returns little)
+    return RayModel(el, z0, np.zeros(n_lasers), float(k), "fitted", round(res, 5))
+
+
+def fit_range_bias(model: RayModel, frames, k: int = 32, stride: int = 8) -> RayModel:
+    """``model`` with each laser's range bias: how far, along its own rays, a laser's points lie beyond
+    the plane of the *other* frames' points (median over every ``stride``-th point, where the plane of
+    its ``k`` nearest is flat). ``frames``: ``(world points, beams, pose, motion)`` of two or more
+    frames; one frame: no bias. A real unit's lasers each read their ranges a few centimetres long or
+    short (KITTI's: -4 to +7 cm), and a union's planes mix its lasers: the bias is measured
+    against such planes (its own laser's points in other frames included), as :func:`cast_rays` uses
+    them."""
+    L = len(model.elevation)
+    if len(frames) < 2:
+        return model
+    found = [[] for _ in range(L)]
+    for j, (w, beams, pose, motion) in enumerate(frames):
+        rest = np.concatenate([f[0] for i, f in enumerate(frames) if i != j])
+        tree = cKDTree(rest)
+        P = np.asarray(pose, np.float64)
+        pw = np.asarray(w[::stride], np.float64)
+        local = (pw - P[:3, 3]) @ P[:3, :3]  # into frame j
+        lasers = np.asarray(beams, np.int64)[::stride]
+        origin = sweep_offsets(local, motion, model.skew)
+        origin[:, 2] += model.height[lasers]
+        d = local - origin
+        dw = (d / np.linalg.norm(d, axis=1)[:, None]) @ P[:3, :3].T
+        dist, nn = tree.query(pw, k=k)
+        Q = rest[nn]
+        c = Q.mean(axis=1)
+        x = Q - c[:, None]
+        ev, vec = np.linalg.eigh(np.matmul(x.transpose(0, 2, 1), x))
+        nrm = vec[:, :, 0]
+        nd = np.einsum("mi,mi->m", nrm, dw)
+        along = np.einsum("mi,mi->m", nrm, pw - c) / np.where(np.abs(nd) > 0.2, nd, np.nan)  # + : beyond
+        ok = (ev[:, 0] < FLAT * ev[:, 1]) & (dist[:, -1] < PLANE_RADIUS) & np.isfinite(along) & \
+            (np.abs(along) < 0.2)
+        for laser in range(L):
+            found[laser].append(along[ok & (lasers == laser)])
+    bias = np.array([float(np.median(np.concatenate(a))) if sum(map(len, a)) >= 50 else 0.0 for a in found])
+    return dataclasses.replace(model, range_bias=bias)
+
+
+def pattern_ray_model(pattern) -> RayModel:
+    """A beam table's ideal rays: each row's beam from the origin at its elevation, its azimuth
+    offset, no motion."""
+    return RayModel(math.pi / 2 - np.asarray(pattern.row_zenith, np.float64), np.zeros(pattern.n_beams),
+                    np.asarray(pattern.row_offsets, np.float64), 0.0, "pattern")
+
+
+def _first_clusters(key, r, gap):
+    new = np.r_[True, key[1:] != key[:-1]]
+    cl = np.cumsum(new | np.r_[False, np.diff(r) > gap]) - 1
+    pno = np.cumsum(new) - 1
+    first = np.flatnonzero(new)
+    return cl == cl[first][pno], pno, first
+
+
+def _bands(points, model, motion):
+    """Each point's laser (nearest in elevation seen from the laser's firing origin; -1: outside
+    every band) and its position in the laser's firing frame."""
+    q = points - sweep_offsets(points, motion, model.skew)
+    rho = np.hypot(q[:, 0], q[:, 1])
+    el = model.elevation
+    best = np.full(len(q), np.inf)
+    laser = np.full(len(q), -1, np.int64)
+    signed = np.zeros(len(q))
+    for j in range(len(el)):
+        g = np.arctan2(q[:, 2] - model.height[j], rho) - el[j]
+        b = np.abs(g) < best
+        best[b], laser[b], signed[b] = np.abs(g[b]), j, g[b]
+    order = np.argsort(el)
+    gaps = np.diff(el[order])
+    up = np.empty(len(el))
+    down = np.empty(len(el))
+    if len(el) > 1:
+        up[order[:-1]], up[order[-1]] = gaps, gaps[-1]
+        down[order[1:]], down[order[0]] = gaps, gaps[0]
+    else:
+        up[:] = down[:] = math.radians(1.0)
+    half = 0.5 * np.where(signed > 0, up[laser], down[laser])
+    laser[best > half] = -1
+    return laser, q
+
+
+def cast_rays(points, pattern, model: RayModel | None = None, motion=(0.0, 0.0, 0.0), gap: float = FPA_GAP,
+              neighbours: int = RAY_NEIGHBOURS, max_shift: float = MAX_SHIFT) -> PulseReturns:
+    """One return per pulse of ``pattern`` from ``points`` (float64, the target's frame) along
+    ``model``'s rays (default: the pattern's own, :func:`pattern_ray_model`); ``motion`` the
+    target's motion per frame (:func:`frame_motion`). Module docstring."""
+    pts = np.ascontiguousarray(points, np.float64)
+    model = model or pattern_ray_model(pattern)
+    if not gap > 0:
+        raise InputValueError(f"the fpa gap must be > 0 m, got {gap}")
+    if int(neighbours) < 3:
+        raise InputValueError(f"a plane takes 3 or more neighbours, got {neighbours}")
+    motion = np.asarray(motion, np.float64)
+    C = pattern.columns
+    D = 2 * math.pi / C
+    laser, q = _bands(pts, model, motion)
+    sel = np.flatnonzero(laser >= 0)
+    las = laser[sel]
+    az = np.mod(np.arctan2(q[sel, 1], q[sel, 0]) - model.azimuth_offset[las], 2 * math.pi)
+    col = np.minimum((az / D).astype(np.int64), C - 1)
+    key = las * C + col
+    r = np.hypot(np.hypot(q[sel, 0], q[sel, 1]), q[sel, 2] - model.height[las])
+    o = np.lexsort((sel, r, key))
+    key, r, sel, las, col = key[o], r[o], sel[o], las[o], col[o]
+    if not len(key):
+        return PulseReturns(np.zeros(0, np.int64), np.zeros(0), np.zeros((0, 3)), np.zeros(0, np.int64))
+    member, pno, first = _first_clusters(key, r, gap)
+    n = np.bincount(pno[member]).astype(np.float64)
+    cen = np.column_stack([np.bincount(pno[member], weights=pts[sel[member], j]) for j in range(3)]) / n[:, None]
+    L, H = las[first], col[first]
+    th = model.azimuth_offset[L] + (H + 0.5) * D  # the column's centre: where in it the beam fired is not known
+    ce = np.cos(model.elevation[L])
+    d = np.column_stack([ce * np.cos(th), ce * np.sin(th), np.sin(model.elevation[L])])
+    phi = np.mod(th, 2 * math.pi)
+    phi = np.where(phi > math.pi, phi - 2 * math.pi, phi)
+    origin = (model.skew * ((phi + math.pi) / (2 * math.pi) - 0.5))[:, None] * motion[None, :]
+    origin[:, 2] += model.height[L]
+    t = np.einsum("mi,mi->m", cen - origin, d)  # the cluster's centroid projected onto the ray
+    lo = r[first] - max_shift  # the plane is taken where it meets the ray past the cluster's start
+    if len(pts) >= neighbours:
+        tree = cKDTree(pts)
+        for s in range(0, len(t), _BLOCK):
+            b = slice(s, s + _BLOCK)
+            t[b] = _onto_plane(pts, tree, origin[b], d[b], t[b], lo[b], int(neighbours))
+    if model.range_bias is not None:
+        t = t + model.range_bias[L]
+    hit = origin + t[:, None] * d
+    keys, ranges = pattern.pulse_ids(hit, np.zeros(3))
+    ok = np.flatnonzero(keys >= 0)
+    o = np.lexsort((ok, ranges[ok], keys[ok]))
+    kk = keys[ok][o]
+    win = ok[o][np.r_[True, kk[1:] != kk[:-1]]] if len(kk) else ok[:0]
+    return PulseReturns(keys[win].astype(np.int64), ranges[win], hit[win], sel[first][win].astype(np.int64))
+
+
+def _plane_hit(pts, tree, origin, d, t, lo, k):
+    """Where each ray meets the plane of the ``k`` points nearest ``origin + t d``; whether that plane
+    is usable (flat, its points near: :data:`PLANE_RADIUS`, met no nearer than ``lo``) and the hit
+    lies within them."""
+    dist, nn = tree.query(origin + t[:, None] * d, k=k)
+    Q = pts[nn]
+    c = Q.mean(axis=1)
+    x = Q - c[:, None]
+    w, v = np.linalg.eigh(np.matmul(x.transpose(0, 2, 1), x))
+    nrm = v[:, :, 0]
+    nd = np.einsum("mi,mi->m", nrm, d)
+    tt = np.einsum("mi,mi->m", nrm, c - origin) / np.where(np.abs(nd) > 0.05, nd, np.nan)
+    ok = (w[:, 0] < FLAT * w[:, 1]) & (dist[:, -1] < np.maximum(PLANE_RADIUS, PLANE_RADIUS_PER_M * t)) & \
+        np.isfinite(tt) & (tt >= lo)
+    within = np.linalg.norm(origin + np.nan_to_num(tt)[:, None] * d - c, axis=1) <= dist[:, -1]
+    return tt, ok, within
+
+
+def _onto_plane(pts, tree, origin, d, t0, lo, k):
+    """Where each ray meets the plane of the ``k`` points nearest its first guess (``t0`` along it),
+    then of those nearest that hit: taken where both are usable and the second hit lies within its
+    own neighbourhood; else ``t0``. (A ray whose first plane is not usable would ask the same
+    neighbourhood again: it keeps ``t0`` without the second query.)"""
+    tt, ok, _ = _plane_hit(pts, tree, origin, d, t0, lo, k)
+    t = t0.copy()
+    m = np.flatnonzero(ok)
+    if len(m):
+        tt2, ok2, within = _plane_hit(pts, tree, origin[m], d[m], tt[m], lo[m], k)
+        take = ok2 & within
+        t[m[take]] = tt2[take]
+    return t

@@ -1,0 +1,131 @@
+"""The ``rays`` estimator (slr_ray.sequence.rays): the sensor's rays fitted from frames' own points,
+each beam cast along its ray onto the union's planes; it must never read the held-out frame's points."""
+
+import math
+import shutil
+
+import numpy as np
+import pytest
+
+from slr_ray.io import PointCloud, read_cloud, write_cloud
+from slr_ray.errors import InputValueError
+from slr_ray.sequence import convert_sequence, estimate, read_sequence
+from slr_ray.sequence.holdout import mean_rows, simulate_holdout
+from slr_ray.sequence.rays import cast_rays, fit_range_bias, fit_ray_model, pattern_ray_model, sweep_offsets
+from slr_ray.sequence.synthetic import synthetic_drive
+from slr_ray.sensors import sensor
+
+
+@pytest.fixture(scope="module")
+def drive(tmp_path_factory):
+    root = tmp_path_factory.mktemp("rays") / "seq"
+    synthetic_drive(root, n_frames=3, sensor="velodyne_vlp16", step=0.8, moving=False)
+    return root
+
+
+def test_the_held_out_frames_points_never_change_what_rays_return(drive, tmp_path):
+    """Its points moved along their own rays (its table, beams and pose unchanged) must not move a
+    single return: the sensor's rays come from the other frames only."""
+    seq = read_sequence(drive)
+    pat = sensor("velodyne_vlp16")
+    before = simulate_holdout(seq, 1, "rays", sensor="velodyne_vlp16", half=1, pattern=pat)
+    moved = tmp_path / "seq"
+    shutil.copytree(drive, moved)
+    f = moved / "velodyne" / "000001.bin"
+    c = read_cloud(f)
+    scale = np.random.default_rng(1).uniform(0.6, 1.4, len(c.points))[:, None]
+    write_cloud(f, PointCloud(c.points * scale, c.attributes, c.origin))
+    after = simulate_holdout(read_sequence(moved), 1, "rays", sensor="velodyne_vlp16", half=1, pattern=pat)
+    assert len(before) > 1000
+    assert np.array_equal(before.keys, after.keys) and np.array_equal(before.ranges, after.ranges)
+
+
+def _scan(elev, z0, skew, motion, n_az=720, bias=None):
+    """Lasers at ``elev`` crossing the axis at ``z0`` fired from a sensor moving ``motion`` a sweep
+    onto a road 1.73 m below walled in 24 by 10 m, stored motion-compensated as KITTI's are."""
+    pts, rings = [], []
+    for j, (e, h) in enumerate(zip(elev, z0)):
+        a = np.linspace(-math.pi, math.pi, n_az, endpoint=False)
+        fire = (skew * ((a + math.pi) / (2 * math.pi) - 0.5))[:, None] * motion  # the origin when firing
+        o = fire + [0.0, 0.0, h]
+        d = np.column_stack([np.cos(e) * np.cos(a), np.cos(e) * np.sin(a), np.full(n_az, np.sin(e))])
+        t = np.where(d[:, 2] < -1e-3, (-1.73 - o[:, 2]) / np.minimum(d[:, 2], -1e-3), np.inf)
+        for axis, wall in ((0, 12.0), (1, 5.0)):  # a walled yard 24 by 10 m: ranges vary along each ring
+            with np.errstate(divide="ignore", invalid="ignore"):
+                tw = np.where(d[:, axis] != 0, (np.sign(d[:, axis]) * wall - o[:, axis]) / d[:, axis], np.inf)
+            t = np.minimum(t, tw)
+        t = t + (0.0 if bias is None else bias[j])  # the laser reads its ranges long or short
+        pts.append(o + t[:, None] * d)
+        rings.append(np.full(n_az, j))
+    return np.vstack(pts), np.concatenate(rings)
+
+
+def test_a_ray_model_recovers_heights_elevations_and_the_sweeps_skew():
+    elev = np.radians([2.0, -1.0, -4.0, -7.0, -10.0, -14.0])
+    z0 = np.array([0.21, 0.20, 0.19, 0.10, -0.05, -0.15])
+    v = np.array([0.7, 0.02, 0.0])
+    frames = [_scan(elev, z0, -1.2, v * s) + (v * s,) for s in (0.9, 1.0, 1.1)]
+    m = fit_ray_model(frames, len(elev), stride=1)
+    assert m.skew == pytest.approx(-1.2, abs=0.051) and m.source == "fitted"
+    assert np.abs(m.height - z0).max() < 0.02 and np.degrees(np.abs(m.elevation - elev)).max() < 0.02
+    still = fit_ray_model([f[:2] + (np.zeros(3),) for f in frames], len(elev), stride=1)
+    assert still.residual_deg > 10 * m.residual_deg  # the skew not undone: lines no longer fit
+
+
+def test_a_laser_that_reads_long_or_short_is_found_against_the_other_frames():
+    elev = np.radians(np.linspace(2.0, -14.0, 12))
+    z0 = np.zeros(12)
+    bias = np.zeros(12)
+    bias[[2, 7]] = 0.04, -0.03
+    frames = []
+    for x in (0.0, 0.5, 1.0):
+        pts, rings = _scan(elev, z0, 0.0, np.zeros(3), n_az=1440, bias=bias)
+        pose = np.eye(4)
+        pose[0, 3] = x
+        frames.append((pts + [x, 0, 0], rings, pose, np.zeros(3)))
+    model = fit_ray_model([(f[0] - f[2][:3, 3], f[1], f[3]) for f in frames], 12, skews=[0.0], stride=1)
+    found = fit_range_bias(model, frames, stride=2).range_bias
+    # against planes that hold its own points of the other frames too (as the union's do): a part of it
+    assert np.argmax(found) == 2 and np.argmin(found) == 7 and found[2] > 0.01 and found[7] < -0.008, found
+    assert fit_range_bias(model, frames[:1]).range_bias is None  # one frame: nothing to compare with
+
+
+def test_rays_meet_the_plane_not_the_near_edge_of_a_pulse():
+    """A dense flat road: each pulse's return lies where the beam's own ray meets the road."""
+    pat = sensor("velodyne_vlp16")
+    g = np.random.default_rng(0).uniform(-20, 20, (200_000, 2))
+    road = np.column_stack([g, np.full(len(g), -1.73)])
+    ret = cast_rays(road, pat)
+    model = pattern_ray_model(pat)
+    row = ret.keys // pat.columns
+    exact = 1.73 / np.sin(-model.elevation[row])
+    near = exact < 15  # well inside the road
+    assert near.sum() > 1000 and np.median(np.abs(ret.ranges - exact)[near]) < 0.005
+    fpa_err = np.abs(estimate(road, pat, "fpa").ranges - 1.73 / np.sin(-model.elevation[row]))
+    assert np.median(fpa_err[near]) > 0.02  # the pulse's footprint averaged, not its ray
+    assert np.allclose(sweep_offsets(road[:3], np.zeros(3), -1.2), 0)
+
+
+def test_mean_row_counts_points_in_whole_points():
+    rows = mean_rows([[{"method": "a", "points": 3, "F": 0.5}], [{"method": "a", "points": 4, "F": 0.25}]])
+    assert rows[0]["points"] == 4 and isinstance(rows[0]["points"], int) and rows[0]["F"] == 0.375
+
+
+def test_convert_casts_the_target_tables_own_rays(drive, tmp_path):
+    """``convert --estimator rays``: every return of a frame lies on its pulse's centre ray (a simulated
+    target's rays), where nearest's lie anywhere in the pulse."""
+    seq = read_sequence(drive)
+    out = tmp_path / "out"
+    out.mkdir()
+    summary = convert_sequence(seq, out, "velodyne_vlp16", estimator="rays", half=0)
+    assert summary["written"] == 3
+    pat = sensor("velodyne_vlp16")
+    p = read_cloud(out / "velodyne" / "000001.bin").points.astype(np.float64)
+    keys, _ = pat.pulse_ids(p, np.zeros(3))
+    dirs, _, _ = pat.rays()
+    off = np.degrees(np.arccos(np.clip(np.einsum("ij,ij->i", p / np.linalg.norm(p, axis=1)[:, None], dirs[keys]),
+                                       -1, 1)))
+    assert len(p) > 1000 and np.median(off) < 0.001  # float32 storage: a micro-degree
+    with pytest.raises(InputValueError, match="unknown estimator"):
+        convert_sequence(seq, tmp_path / "no", "velodyne_vlp16", estimator="ray")
+    assert not (tmp_path / "no").exists()
