@@ -33,15 +33,18 @@ from ..errors import InputValueError, OutputError
 from ..io import PointCloud, atomic_path, check_format, write_cloud
 from ..io.outputs import LOCK_NAME, clean_stale_parts
 from ..sensors import sensor as shipped_sensor
-from .estimators import FPA_GAP, estimate
+from .estimators import ESTIMATORS, FPA_GAP, estimate
 from .frames import Sequence, write_kitti_poses
-from .union import FrameCache, accumulate, nearest_of_frames, to_frame, window
+from .sources import SeeThrough, base_pattern
+from .union import FrameCache, accumulate, discs_of_frames, nearest_of_frames, to_frame, window
 
-__all__ = ["convert_sequence", "target_poses", "MANIFEST", "JOURNAL"]
+__all__ = ["convert_sequence", "target_poses", "MANIFEST", "JOURNAL", "CONVERT_ESTIMATORS"]
 
 MANIFEST = "manifest.json"
 JOURNAL = "journal.jsonl"
 _STATE: dict = {}
+#: convert's per-pulse rules: those of a union, and discs from each source frame's own pulse grid
+CONVERT_ESTIMATORS = ESTIMATORS + ("embree-sources",)
 
 
 def target_poses(poses, offset=(0.0, 0.0, 0.0)) -> np.ndarray:
@@ -56,10 +59,14 @@ def target_poses(poses, offset=(0.0, 0.0, 0.0)) -> np.ndarray:
 
 def _frame_cloud(seq, i, pose, pattern, settings, cache) -> PointCloud:
     frames = window(seq, i, settings["half"], settings["radius"], include_target=True)
+    st = _see_through(settings)
     if settings["estimator"] == "nearest":  # a frame at a time: the union is never held whole
-        ret, carried = nearest_of_frames(seq, frames, pose, pattern, settings["drop_moving"], cache)
+        ret, carried = nearest_of_frames(seq, frames, pose, pattern, settings["drop_moving"], cache, st)
+    elif settings["estimator"] == "embree-sources":  # a scene a frame, reused by the targets that hold it
+        ret, carried = discs_of_frames(cache, frames, pose, pattern, base_pattern(settings["source_sensor"]),
+                                       settings["drop_moving"], st)
     else:
-        union = accumulate(seq, frames, drop_moving=settings["drop_moving"], cache=cache)
+        union = accumulate(seq, frames, drop_moving=settings["drop_moving"], cache=cache, see_through=st)
         ret = estimate(to_frame(union.points, pose), pattern, settings["estimator"], gap=settings["fpa_gap"])
         carried = {n: v[ret.index] for n, v in union.attributes.items()}
     attrs = {n: carried[n] for n in ("intensity", "semantic", "instance") if n in carried}
@@ -68,9 +75,15 @@ def _frame_cloud(seq, i, pose, pattern, settings, cache) -> PointCloud:
     return PointCloud(ret.points, attrs, np.zeros(3))
 
 
+def _see_through(settings) -> SeeThrough | None:
+    st = settings.get("see_through")
+    return None if st is None else SeeThrough(settings["source_sensor"], st["margin_m"], st["votes"], st["half"])
+
+
 def _init(seq, poses, settings):
+    st = _see_through(settings)
     _STATE.update(seq=seq, poses=poses, settings=settings, pattern=shipped_sensor(settings["sensor"]),
-                  cache=FrameCache(seq, 2 * settings["cache"] + 16, local=False))
+                  cache=FrameCache(seq, 2 * settings["cache"] + 16 + (2 * st.half if st else 0), local=False))
 
 
 def _job(block, out) -> list:
@@ -119,9 +132,13 @@ def _resume(out: Path, settings: dict) -> dict:
 def convert_sequence(seq: Sequence, out, sensor: str, estimator: str = "nearest", half: int | None = 2,
                      radius: float | None = None, offset=(0.0, 0.0, 0.0), poses=None, drop_moving: bool = True,
                      fmt: str = "bin", fpa_gap: float = FPA_GAP, workers: int = 1, block: int = 4,
-                     progress: bool = False, inputs: dict | None = None) -> dict:
+                     progress: bool = False, inputs: dict | None = None, see_through: SeeThrough | None = None,
+                     source_sensor: str | None = None) -> dict:
     """Write ``seq`` re-simulated as ``sensor`` into the directory ``out`` (module docstring).
-    ``out`` must exist (the caller plans and locks it). Returns a summary."""
+    ``out`` must exist (the caller plans and locks it). Returns a summary. ``see_through``: points
+    other frames saw through are left out of the unions (its sensor is the frames' own);
+    ``source_sensor``: the frames' own sensor (a shipped name), which ``estimator='embree-sources'``
+    needs (``see_through``'s when not given)."""
     if seq.poses is None:
         raise InputValueError("the sequence has no poses: give a trajectory (--poses) or --register")
     out = Path(out)
@@ -133,6 +150,21 @@ def convert_sequence(seq: Sequence, out, sensor: str, estimator: str = "nearest"
                 "offset": [float(x) for x in offset], "drop_moving": bool(drop_moving), "format": fmt.lstrip("."),
                 "fpa_gap": float(fpa_gap), "frames": [str(p) for p in seq.paths],
                 "poses": np.round(P, 12).reshape(len(P), -1).tolist(), "cache": int(half or 8)}
+    if see_through is not None:
+        if source_sensor is not None and source_sensor != see_through.sensor:
+            raise InputValueError(f"two source sensors: {source_sensor!r} and see_through's {see_through.sensor!r}")
+        if not isinstance(see_through.sensor, str):
+            raise InputValueError("convert names the source sensor (a shipped sensor's name), not a table")
+        source_sensor = see_through.sensor
+        settings["see_through"] = see_through.to_dict()
+    if estimator not in CONVERT_ESTIMATORS:
+        raise InputValueError(f"unknown estimator {estimator!r}; choose from {list(CONVERT_ESTIMATORS)}")
+    if estimator == "embree-sources" and source_sensor is None:
+        raise InputValueError("the embree-sources estimator needs the frames' own sensor (source_sensor, "
+                              "--source-sensor): their discs come from their own pulse grids")
+    if source_sensor is not None:
+        shipped_sensor(source_sensor)
+        settings["source_sensor"] = source_sensor
     shipped_sensor(sensor)  # an unknown name or format is refused before anything is written
     check_format(out / "velodyne" / f"000000.{settings['format']}", settings["format"])
     fresh = not (out / MANIFEST).exists()

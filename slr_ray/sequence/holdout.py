@@ -25,7 +25,8 @@ from ..metrics import PAPER_THRESHOLD, point_metrics, range_image_metrics, seen_
 from ..sensors import sensor as shipped_sensor
 from .estimators import FPA_GAP, estimate
 from .frames import Sequence
-from .union import FrameCache, accumulate, to_frame, window
+from .sources import SeeThrough
+from .union import FrameCache, accumulate, discs_of_frames, to_frame, window
 
 __all__ = ["METHODS", "LABELS", "evaluate_holdout", "evaluate_sequence", "mean_rows", "DEFAULT_METHODS",
            "clamped_depth_errors", "lidar4d_holdout", "LIDAR4D_MAX_DEPTH"]
@@ -55,11 +56,12 @@ def lidar4d_holdout(n_frames: int) -> list[int]:
                               f"{n_frames}: pick 51 frames, or hold out frames by --holdout / --every")
     return [10, 20, 30, 40]
 
-METHODS = ("zbuffer", "adjacent", "nearest", "fpa", "embree-knn")
+METHODS = ("zbuffer", "adjacent", "nearest", "fpa", "embree-knn", "embree-sources")
 DEFAULT_METHODS = ("zbuffer", "adjacent", "nearest", "fpa")
 LABELS = {"zbuffer": "no SLR (z-buffer of the union)", "adjacent": "binning, adjacent frame alone",
           "nearest": "nearest (binning of the union)", "fpa": "first-peak average (union)",
-          "embree-knn": "embree kNN discs (union)"}
+          "embree-knn": "embree kNN discs (union)",
+          "embree-sources": "embree discs from each source frame's pulse grid"}
 
 
 def _beams(frame, base):
@@ -77,8 +79,11 @@ def _adjacent(frames, target):
 def evaluate_holdout(seq: Sequence, target: int, sensor: str = "velodyne_hdl64e_s2", methods=DEFAULT_METHODS,
                      half: int | None = 2, radius: float | None = None, drop_moving: bool = True,
                      thresholds=THRESHOLDS, seen_threshold: float = PAPER_THRESHOLD,
-                     gap: float = FPA_GAP, cache: FrameCache | None = None) -> dict:
-    """Frame ``target`` re-simulated from the other frames of its window by every method."""
+                     gap: float = FPA_GAP, cache: FrameCache | None = None,
+                     see_through: SeeThrough | None = None) -> dict:
+    """Frame ``target`` re-simulated from the other frames of its window by every method; with
+    ``see_through`` the union leaves out what other frames saw through (the target itself does
+    not vote: it is what is scored)."""
     unknown = [m for m in methods if m not in METHODS]
     if unknown:
         raise InputValueError(f"unknown method(s) {unknown}; choose from {list(METHODS)}")
@@ -98,7 +103,7 @@ def evaluate_holdout(seq: Sequence, target: int, sensor: str = "velodyne_hdl64e_
                               "its origin (is the frame in its sensor's frame?)")
     real_img = zbuffer(b, pat, backend="real").range_image()
     b_in = b[in_view]
-    union = accumulate(seq, others, drop_moving=drop_moving, cache=cache)
+    union = accumulate(seq, others, drop_moving=drop_moving, cache=cache, see_through=see_through, exclude=(target,))
     u = to_frame(union.points, fb.pose)
     seen = seen_from(b_in, u, seen_threshold)
     groups = {"seen": np.where(seen, "seen", "unseen")}
@@ -119,6 +124,9 @@ def evaluate_holdout(seq: Sequence, target: int, sensor: str = "velodyne_hdl64e_
             a = u[union.frame_of_point == adj]
             ret = estimate(a, pat, "nearest")
             sim = ret.points
+        elif m == "embree-sources":
+            ret, _ = discs_of_frames(cache, others, fb.pose, pat, base, drop_moving, see_through, (target,))
+            sim = ret.points
         else:
             ret = estimate(u, pat, m, gap=gap)
             sim = ret.points
@@ -130,6 +138,7 @@ def evaluate_holdout(seq: Sequence, target: int, sensor: str = "velodyne_hdl64e_
                      "seconds": round(time.perf_counter() - t0, 3), "points": pm.to_dict(), "image": im.to_dict()})
     res = {"frame": seq.names[target], "fpa_gap_m": gap, "index": int(target), "window": [seq.names[i] for i in others],
            "adjacent": seq.names[adj], "union_points": int(len(union)), "removed": union.removed,
+           "see_through": see_through.to_dict() if see_through else None,
            "target_points_in_view": int(len(b_in)), "unseen_share": float(np.mean(~seen)),
            "pattern": pat.to_dict() | {"beams_known": beams is not None},
            "thresholds": [float(x) for x in thresholds], "seen_threshold": seen_threshold, "rows": rows}
@@ -170,9 +179,11 @@ def evaluate_sequence(seq: Sequence, holdout, sensor: str = "velodyne_hdl64e_s2"
     if bad:
         raise InputValueError(f"held-out frame(s) {bad} not in a sequence of {len(seq)} frames")
     t0 = time.perf_counter()
-    cache = FrameCache(seq, size=2 * (half or 2) + 3)
+    st = kw.get("see_through")
+    cache = FrameCache(seq, size=2 * (half or 2) + 3 + (2 * st.half if st else 0))
     frames = [evaluate_holdout(seq, h, sensor, methods, half, radius, drop_moving, cache=cache, **kw)
               for h in tqdm(holdout, desc="held-out frames", disable=not progress)]
     return {"frames": frames, "mean": mean_rows([f["table"] for f in frames]),
             "methods": list(methods), "window": {"half": half, "radius": radius}, "drop_moving": drop_moving,
+            "see_through": st.to_dict() if st else None,
             "seconds": round(time.perf_counter() - t0, 3)}

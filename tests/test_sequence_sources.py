@@ -1,0 +1,91 @@
+"""Each source frame's own sensor (slr_ray.sequence.sources): see-through removal of moving objects
+without labels, embree discs from each frame's own pulse grid; their CLI options."""
+
+import json
+from types import SimpleNamespace
+
+import numpy as np
+import pytest
+
+from slr_ray.cli import main
+from slr_ray.errors import InputValueError
+from slr_ray.sequence import MOVING_CLASSES, FrameCache, SeeThrough, accumulate, evaluate_sequence, read_sequence
+from slr_ray.sequence.synthetic import synthetic_drive
+
+
+@pytest.fixture(scope="module")
+def drive(tmp_path_factory):
+    root = tmp_path_factory.mktemp("drive") / "seq"
+    synthetic_drive(root, n_frames=5, sensor="velodyne_vlp16", step=0.8)
+    return root
+
+
+@pytest.fixture
+def run(capsys):
+    def call(*args):
+        capsys.readouterr()
+        rc = main([str(a) for a in args])
+        out = capsys.readouterr()
+        return SimpleNamespace(returncode=rc, stdout=out.out, stderr=out.err)
+    return call
+
+
+def test_see_through_removes_the_moving_box_without_its_labels(drive):
+    seq = read_sequence(drive)
+    cache = FrameCache(seq)
+    st = SeeThrough("velodyne_vlp16")
+    flagged = moving = hits = 0
+    for i in range(3):  # frames whose neighbours drove past the box's places
+        f, _ = cache.get(i)
+        keep, removed = cache.selection(i, False, st)  # labels not used
+        gone = np.zeros(len(f.points), bool) if keep is None else ~keep
+        mv = np.isin(f.attributes["semantic"], MOVING_CLASSES)
+        flagged, moving, hits = flagged + gone.sum(), moving + mv.sum(), hits + (gone & mv).sum()
+        assert removed["seen_through"] == gone.sum()
+    assert hits / flagged > 0.9 and hits / moving > 0.3
+    u = accumulate(seq, [0, 1, 2], drop_moving=False, see_through=st, cache=cache)
+    assert u.removed["seen_through"] == flagged and len(u) == sum(len(cache.get(i)[1]) for i in range(3)) - flagged
+
+
+def test_a_held_out_frame_does_not_vote(drive):
+    seq = read_sequence(drive)
+    cache = FrameCache(seq)
+    # frame 1's neighbours within 1 are 0 and 2 (frame 2, ahead, saw through the box's old place)
+    st = SeeThrough("velodyne_vlp16", votes=1, half=1)
+    assert cache.selection(1, False, st)[1]["seen_through"] > 0
+    for held_out in ((2,), (0, 2)):
+        assert cache.selection(1, False, st, exclude=held_out) == (None, {"moving": 0, "seen_through": 0})
+    with pytest.raises(InputValueError, match="votes"):
+        SeeThrough("velodyne_vlp16", votes=0)
+
+
+def test_discs_from_each_source_frame_meet_the_exact_surfaces(drive):
+    seq = read_sequence(drive)
+    res = evaluate_sequence(seq, [2], "velodyne_vlp16", ["nearest", "embree-sources"], half=1)
+    rows = {r["method"]: r for r in res["mean"]}
+    own = rows["embree discs from each source frame's pulse grid"]
+    near = rows["nearest (binning of the union)"]
+    # exact scans: a pulse's centre ray meets the discs of its own surface, where the nearest point
+    # of a pulse is its footprint's near edge
+    assert own["depth_medae_m"] < 0.5 * near["depth_medae_m"] and own["F@5cm"] > near["F@5cm"]
+
+
+def test_convert_with_see_through_and_source_discs(drive, run, tmp_path):
+    out = tmp_path / "out"
+    r = run("sequence", "convert", drive, "--sensor", "velodyne_vlp16", "--estimator", "embree-sources",
+            "--remove-moving", "visibility", "-o", out, "--quiet")
+    assert r.returncode == 2 and "--source-sensor" in r.stderr and not out.exists()
+    r = run("sequence", "convert", drive, "--sensor", "velodyne_vlp16", "--keep-moving", "--remove-moving", "both",
+            "--source-sensor", "velodyne_vlp16", "-o", out, "--quiet")
+    assert r.returncode == 2 and "--keep-moving" in r.stderr and not out.exists()
+    r = run("sequence", "convert", drive, "--sensor", "velodyne_vlp16", "--estimator", "embree-sources",
+            "--source-sensor", "velodyne_vlp16", "--remove-moving", "both", "--half", "1", "-o", out, "--quiet")
+    assert r.returncode == 0, r.stderr
+    doc = json.loads(r.stdout)
+    assert doc["written"] == 5 and doc["settings"]["see_through"]["votes"] == 2
+    labels = np.fromfile(out / "labels" / "000002.label", np.uint32)
+    assert len(labels) > 1000 and not np.isin(labels & 0xFFFF, MOVING_CLASSES).any()
+    # a rerun with another removal is refused (it would mix with these frames)
+    r = run("sequence", "convert", drive, "--sensor", "velodyne_vlp16", "--estimator", "embree-sources",
+            "--source-sensor", "velodyne_vlp16", "--half", "1", "-o", out, "--quiet")
+    assert r.returncode == 2 and "see_through" in r.stderr
