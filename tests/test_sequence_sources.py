@@ -89,3 +89,30 @@ def test_convert_with_see_through_and_source_discs(drive, run, tmp_path):
     r = run("sequence", "convert", drive, "--sensor", "velodyne_vlp16", "--estimator", "embree-sources",
             "--source-sensor", "velodyne_vlp16", "--half", "1", "-o", out, "--quiet")
     assert r.returncode == 2 and "see_through" in r.stderr
+
+
+def test_an_e57_scans_rotation_is_its_frames(tmp_path):
+    pye57 = pytest.importorskip("pye57")
+    from slr_ray.sequence import accumulate
+    path, local, world, R = tmp_path / "rotated.e57", [], [], []
+    e = pye57.E57(str(path), mode="w")
+    for k in range(2):
+        axis = np.array([0.1, 0.2 * k - 0.1, 1.0])  # mostly a yaw, a little tilt
+        axis /= np.linalg.norm(axis)
+        angle = np.radians(30.0 + 90.0 * k)
+        q = np.r_[np.cos(angle / 2), np.sin(angle / 2) * axis]  # w, x, y, z
+        K = np.array([[0, -axis[2], axis[1]], [axis[2], 0, -axis[0]], [-axis[1], axis[0], 0]])
+        rot = np.eye(3) + np.sin(angle) * K + (1 - np.cos(angle)) * K @ K  # Rodrigues
+        p = np.random.default_rng(k).normal(size=(50, 3)) * 5
+        t = np.array([10.0 * k, 2.0, 0.5])
+        local.append(p), world.append(p @ rot.T + t), R.append(rot)
+        e.write_scan_raw({"cartesianX": p[:, 0], "cartesianY": p[:, 1], "cartesianZ": p[:, 2]}, name=f"s{k}",
+                         translation=t, rotation=q)
+    e.close()
+    seq = read_sequence(path)
+    for k in range(2):
+        assert np.abs(seq.poses[k, :3, :3] - R[k]).max() < 1e-6 and not np.allclose(R[k], np.eye(3))
+        f = seq.read(k)
+        assert np.abs(f.points - local[k]).max() < 1e-4  # the scanner's own axes (pye57 stores float32)
+        assert np.abs(f.world() - world[k]).max() < 1e-4
+    assert np.abs(accumulate(seq, [0, 1]).points - np.vstack(world)).max() < 1e-4

@@ -207,7 +207,9 @@ class Sequence:
                 raise InputValueError(f"{self.paths[i]}: rings up to {beams - 1} ({beams} beams) where {first[1]} "
                                       f"has {first[0]}: frames of different sensors in one sequence")
         pts = c.points
-        if self.meta.get("world"):  # one world frame: each frame moved to its scanner's origin
+        if self.meta.get("layout") == "e57":  # into the scan's own axes at its origin: R^T (p - t)
+            pts = (pts - self.poses[i][:3, 3]) @ self.poses[i][:3, :3]
+        elif self.meta.get("world"):  # one world frame: each frame moved to its scanner's origin
             pts = pts - self.poses[i][:3, 3]
         elif c.origin is not None and np.any(np.asarray(c.origin) != 0):
             pts = pts - np.asarray(c.origin, np.float64)
@@ -225,9 +227,9 @@ def _e57_scans(path: str, mtime: float) -> list:
 
 
 def read_e57_sequence(path) -> Sequence:
-    """The scans of one E57 file as a sequence: each scan a frame, in the world (the file's) frame,
-    its pose's translation as its origin (the frame's axes are the world's: a scan's rotation is
-    not used). A scan without a pose is refused."""
+    """The scans of one E57 file as a sequence: each scan a frame, its pose (rotation quaternion and
+    translation) its frame's: a frame's points are in its scanner's own axes at its origin, as
+    the scanner recorded them. A scan without a pose is refused."""
     p = Path(path)
     scans = _e57_scans(str(p), os.path.getmtime(p))
     poses = np.repeat(np.eye(4)[None], len(scans), 0)
@@ -235,7 +237,10 @@ def read_e57_sequence(path) -> Sequence:
         if c.origin is None:
             raise InputValueError(f"{p}: scan {i} has no pose (no scanner origin): a sequence needs each scan's")
         poses[i, :3, 3] = c.origin
-    return Sequence([p] * len(scans), poses, [f"{i:06d}" for i in range(len(scans))], "e57 scan origins", None,
+        if "e57_rotation" in c.meta:
+            rot = np.column_stack([c.meta["e57_rotation"], np.zeros(3)])
+            poses[i, :3, :3] = _pose(rot, f"{p}, scan {i}'s pose")[:3, :3]
+    return Sequence([p] * len(scans), poses, [f"{i:06d}" for i in range(len(scans))], "e57 scan poses", None,
                     None, {"layout": "e57"})
 
 

@@ -132,7 +132,8 @@ def source_discs(world, local, view: SourceView, pose, keep=None):
     """An embree scanner of one frame's points (``world``, ``local`` the same in its own axes; ``keep``
     the points kept) with discs from the frame's own pulse grid at its origin (module docstring)."""
     spacing, normals = pulse_grid_spacing_normals(local, np.zeros(3), view.pattern, None, True, True, np.float64,
-                                                  max_incidence=DEFAULT_MAX_INCIDENCE, beams=view.beams, spacing_kind="mean")
+                                                  max_incidence=DEFAULT_MAX_INCIDENCE, beams=view.beams,
+                                                  spacing_kind="mean")
     radii = disc_radii(local, "spacing", spacing=spacing)
     R = np.asarray(pose, np.float64)[:3, :3]
     nw = normals @ R.T

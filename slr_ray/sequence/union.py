@@ -214,7 +214,8 @@ def _kept(f: Frame, drop_moving: bool):
 
 
 def nearest_of_frames(seq: Sequence, frames, pose, pattern, drop_moving: bool = True,
-                      cache: FrameCache | None = None, see_through: SeeThrough | None = None) -> tuple[PulseReturns, dict]:
+                      cache: FrameCache | None = None,
+                      see_through: SeeThrough | None = None) -> tuple[PulseReturns, dict]:
     """The nearest rule over the union of ``frames`` seen from ``pose``, a frame at a time: each
     frame reduced on its own, the winners merged (:func:`~slr_ray.sequence.estimators.merge_nearest`).
     The same returns as ``estimate(to_frame(accumulate(...).points, pose), pattern)``, without the
