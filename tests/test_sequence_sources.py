@@ -116,3 +116,28 @@ def test_an_e57_scans_rotation_is_its_frames(tmp_path):
         assert np.abs(f.points - local[k]).max() < 1e-4  # the scanner's own axes (pye57 stores float32)
         assert np.abs(f.world() - world[k]).max() < 1e-4
     assert np.abs(accumulate(seq, [0, 1]).points - np.vstack(world)).max() < 1e-4
+
+
+def test_one_las_of_several_scans_is_a_sequence(tmp_path, run):
+    from slr_ray.io import PointCloud, write_cloud
+    rng = np.random.default_rng(0)
+    origins = np.array([[100.0, 200.0, 10.0], [110.0, 200.0, 10.0], [120.0, 201.0, 10.5]])
+    parts = [o + rng.normal(size=(200, 3)) * 4 for o in origins]
+    ids = np.repeat(np.array([9, 3, 5], np.uint16), 200)  # scans in the file in another order than their ids
+    order = rng.permutation(600)
+    cloud = PointCloud(np.vstack(parts)[order], {"point_source_id": ids[order]})
+    write_cloud(tmp_path / "campaign.las", cloud)
+    (tmp_path / "origins.txt").write_text("\n".join(" ".join(map(str, o)) for o in origins[[1, 2, 0]]) + "\n")
+    seq = read_sequence(tmp_path / "campaign.las", origins=tmp_path / "origins.txt", scan_field="point_source_id")
+    assert len(seq) == 3 and seq.meta["scan_ids"] == [3, 5, 9]
+    for k, part in enumerate((1, 2, 0)):  # ids 3, 5, 9 ascending
+        f = seq.read(k)
+        assert len(f.points) == 200 and np.all(f.attributes["point_source_id"] == seq.meta["scan_ids"][k])
+        assert np.abs(np.sort(f.world(), axis=0) - np.sort(parts[part], axis=0)).max() < 1e-3  # LAS: mm
+        assert np.allclose(f.pose[:3, 3], origins[part])
+    (tmp_path / "two.txt").write_text("0 0 0\n1 1 1\n")
+    with pytest.raises(InputValueError, match="2 origins for 3 frames.*3 scans by its field"):
+        read_sequence(tmp_path / "campaign.las", origins=tmp_path / "two.txt", scan_field="point_source_id")
+    r = run("sequence", "evaluate", tmp_path / "campaign.las", "--origins", tmp_path / "origins.txt",
+            "--scan-field", "nope", "--holdout", "1", "-o", tmp_path / "out")
+    assert r.returncode == 2 and "no per-point field 'nope'" in r.stderr and not (tmp_path / "out").exists()

@@ -38,6 +38,9 @@ def _common(p):
                                               "with its scanner's origin (.npz, .pcd, .e57)")
     p.add_argument("--origins", help="the frames are in one world frame (LAS/LAZ of a campaign): a text file of "
                                      "each one's scanner origin, x y z a line")
+    p.add_argument("--scan-field", nargs="?", const="point_source_id", metavar="FIELD",
+                   help="one file holding several scans in one world frame (a campaign's LAS/LAZ): each value of "
+                        "this per-point field a scan (default point_source_id), with --origins in ascending order")
     p.add_argument("--register", action="store_true",
                    help="no poses: register each frame to the one before (ICP) and write the poses found")
     p.add_argument("--half", type=int, default=2, help="window: frames either side of the target (default 2)")
@@ -140,7 +143,7 @@ def _moving(args, source_sensor) -> tuple[bool, SeeThrough | None]:
 
 def _load(args):
     seq = read_sequence(args.sequence if len(args.sequence) > 1 else args.sequence[0], args.poses,
-                        args.input_format, args.origins)
+                        args.input_format, args.origins, args.scan_field)
     if args.register and (args.poses or args.origins):
         raise InputValueError("--register with --poses or --origins: give one")
     if seq.poses is None and not args.register:
