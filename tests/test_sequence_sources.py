@@ -141,3 +141,21 @@ def test_one_las_of_several_scans_is_a_sequence(tmp_path, run):
     r = run("sequence", "evaluate", tmp_path / "campaign.las", "--origins", tmp_path / "origins.txt",
             "--scan-field", "nope", "--holdout", "1", "-o", tmp_path / "out")
     assert r.returncode == 2 and "no per-point field 'nope'" in r.stderr and not (tmp_path / "out").exists()
+
+
+def test_convert_on_a_dask_scheduler_writes_what_local_workers_write(drive, tmp_path):
+    distributed = pytest.importorskip("dask.distributed")
+    from slr_ray.sequence import convert_sequence
+    seq = read_sequence(drive)
+    for name in ("local", "dask"):
+        (tmp_path / name).mkdir()
+    convert_sequence(seq, tmp_path / "local", "velodyne_vlp16", half=1, block=2)
+    # one worker thread in this process (worker processes would start numba anew: 30 s under load)
+    with distributed.LocalCluster(n_workers=1, threads_per_worker=1, processes=False,
+                                  dashboard_address=None) as cluster:
+        res = convert_sequence(seq, tmp_path / "dask", "velodyne_vlp16", half=1, block=2,
+                               scheduler=cluster.scheduler_address)
+    assert res["written"] == 5
+    for i in range(5):
+        a, b = (np.fromfile(tmp_path / d / "velodyne" / f"{i:06d}.bin", np.float32) for d in ("local", "dask"))
+        assert len(a) > 1000 and np.array_equal(a, b)

@@ -101,6 +101,9 @@ def add_sequence_parser(sub) -> None:
     q.add_argument("--target-poses", help="a trajectory of target poses (one a frame) instead of the frames' poses")
     q.add_argument("--format", default="bin", help="frame format (default bin: KITTI; others carry a ring field)")
     q.add_argument("--workers", type=A.positive_int, default=1, help="worker processes (default 1)")
+    q.add_argument("--scheduler", metavar="ADDRESS",
+                   help="a dask.distributed scheduler whose workers convert the frames (they write into -o: a "
+                        "file system they share) instead of --workers")
 
 
 def _plan_inputs(plan: OutputPlan, args, seq) -> None:
@@ -238,7 +241,7 @@ def _convert(args, seq, out):
     res = convert_sequence(seq, out, args.sensor, args.estimator, args.half, args.radius, args.offset, target,
                            drop_moving=drop, fmt=args.format, fpa_gap=args.fpa_gap,
                            workers=args.workers, progress=not args.quiet, see_through=st,
-                           source_sensor=args.source_sensor,
+                           source_sensor=args.source_sensor, scheduler=args.scheduler,
                            inputs={"sequence": [str(p) for p in seq.paths], "poses": args.poses,
                                    "register": bool(args.register)})
     emit(res | {"pose_source": seq.pose_source, "registration": regs})

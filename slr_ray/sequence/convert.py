@@ -20,16 +20,18 @@ frames a journal records as written are kept; other settings are refused.
 
 from __future__ import annotations
 
+import importlib.util
 import json
-import time
 import multiprocessing
+import time
+import uuid
 from functools import partial
 from pathlib import Path
 
 import numpy as np
 from tqdm import tqdm
 
-from ..errors import InputValueError, OutputError
+from ..errors import InputValueError, MissingDependencyError, OutputError
 from ..io import PointCloud, atomic_path, check_format, write_cloud
 from ..io.outputs import LOCK_NAME, clean_stale_parts
 from ..sensors import sensor as shipped_sensor
@@ -86,6 +88,16 @@ def _init(seq, poses, settings):
                   cache=FrameCache(seq, 2 * settings["cache"] + 16 + (2 * st.half if st else 0), local=False))
 
 
+def _dask_job(block, out, seq, poses, settings, token) -> list:
+    """A block on a Dask worker: the worker's state set up by its first block of this conversion
+    (``token``), then kept (its frames cache) for the next blocks it gets."""
+    if _STATE.get("token") != token:
+        _STATE.clear()
+        _init(seq, poses, settings)
+        _STATE["token"] = token
+    return _job(block, out)
+
+
 def _job(block, out) -> list:
     s = _STATE
     done = []
@@ -133,12 +145,17 @@ def convert_sequence(seq: Sequence, out, sensor: str, estimator: str = "nearest"
                      radius: float | None = None, offset=(0.0, 0.0, 0.0), poses=None, drop_moving: bool = True,
                      fmt: str = "bin", fpa_gap: float = FPA_GAP, workers: int = 1, block: int = 4,
                      progress: bool = False, inputs: dict | None = None, see_through: SeeThrough | None = None,
-                     source_sensor: str | None = None) -> dict:
+                     source_sensor: str | None = None, scheduler: str | None = None) -> dict:
     """Write ``seq`` re-simulated as ``sensor`` into the directory ``out`` (module docstring).
     ``out`` must exist (the caller plans and locks it). Returns a summary. ``see_through``: points
     other frames saw through are left out of the unions (its sensor is the frames' own);
     ``source_sensor``: the frames' own sensor (a shipped name), which ``estimator='embree-sources'``
-    needs (``see_through``'s when not given)."""
+    needs (``see_through``'s when not given). ``scheduler``: the address of a ``dask.distributed``
+    scheduler whose workers convert the blocks of frames (they write the frames into ``out``: a
+    file system they share), instead of ``workers`` local processes."""
+    if scheduler and (importlib.util.find_spec("dask") is None
+                      or importlib.util.find_spec("dask.distributed") is None):
+        raise MissingDependencyError('convert on a scheduler needs dask: pip install "slr_ray[dask]"')
     if seq.poses is None:
         raise InputValueError("the sequence has no poses: give a trajectory (--poses) or --register")
     out = Path(out)
@@ -170,7 +187,7 @@ def convert_sequence(seq: Sequence, out, sensor: str, estimator: str = "nearest"
     fresh = not (out / MANIFEST).exists()
     done = _resume(out, settings)
     try:
-        return _convert(seq, out, P, settings, done, workers, block, progress, inputs)
+        return _convert(seq, out, P, settings, done, (workers, scheduler), block, progress, inputs)
     except BaseException:
         if fresh and not done:  # nothing converted: leave nothing (none of these files was there before)
             for name in (MANIFEST, JOURNAL, "poses.txt", "calib.txt"):
@@ -183,7 +200,8 @@ def convert_sequence(seq: Sequence, out, sensor: str, estimator: str = "nearest"
         _STATE.clear()  # the serial run's frames
 
 
-def _convert(seq, out, P, settings, done, workers, block, progress, inputs) -> dict:
+def _convert(seq, out, P, settings, done, runner, block, progress, inputs) -> dict:
+    workers, scheduler = runner
     (out / "velodyne").mkdir(exist_ok=True)
     clean_stale_parts(out / "velodyne", locked=True)  # a killed run's temporaries (the caller holds out's lock)
     probe = seq.read(0)
@@ -208,7 +226,16 @@ def _convert(seq, out, P, settings, done, workers, block, progress, inputs) -> d
             bar.update(len(entries))
 
         try:
-            if workers <= 1 or len(blocks) <= 1:
+            if scheduler:
+                from dask.distributed import Client, as_completed
+
+                with Client(scheduler) as client:
+                    token = uuid.uuid4().hex
+                    shared = client.scatter([seq, P, settings], broadcast=True)  # once, not once a block
+                    futures = [client.submit(_dask_job, b, str(out), *shared, token, pure=False) for b in blocks]
+                    for fut in as_completed(futures):
+                        record(fut.result())
+            elif workers <= 1 or len(blocks) <= 1:
                 _init(seq, P, settings)
                 for b in blocks:
                     record(_job(b, str(out)))
