@@ -21,10 +21,11 @@ the five-pulse test and the two votes keep rare
 the ``embree-sources`` estimator): each frame's points get the embree
 backend's pulse-grid spacing and normals from *that frame's* grid at *its*
 origin (:func:`slr_ray.backends.embree.pulse_grid_spacing_normals`, as the
-backend does for its one primary), in the frame's own axes, then moved into
-the world. Each frame is one Embree scene, built once while the frame is held
-and cast from every target whose window holds it (:func:`cast_sources`): the
-first disc met along a target pulse's centre ray over the window's frames.
+backend does for its one primary; radii half the backend's,
+:data:`SOURCE_RADIUS_SCALE`), in the frame's own axes, then moved into the
+world. Each frame is one Embree scene, built once while the frame is held and
+cast from every target whose window holds it (:func:`cast_sources`): the first
+disc met along a target pulse's centre ray over the window's frames.
 """
 
 from __future__ import annotations
@@ -43,12 +44,18 @@ from ..sensors import sensor as shipped_sensor
 from .estimators import PulseReturns
 
 __all__ = ["SeeThrough", "SourceView", "source_view", "seen_through_votes", "source_discs", "cast_sources",
-           "REMOVE_MOVING", "SOURCE_TIES"]
+           "REMOVE_MOVING", "SOURCE_TIES",
+           "SOURCE_RADIUS_SCALE"]
 
 #: ``--remove-moving``: labelled moving classes, see-through, both, neither
 REMOVE_MOVING = ("labels", "visibility", "both", "none")
 #: the tie window of per-source discs (in radii): the embree backend's for a beam-table primary
 SOURCE_TIES = 3.0
+#: per-source discs' radius: this times the backend's (the mean distance to the pulse-grid
+#: neighbours). A frame's discs of the backend's size cover its own gaps; in a union the other
+#: frames' discs fill them, and full-size discs of foliage and thin things stand in front of what the
+#: target saw through (benchmarks/sequence_sources.py: 0.3, 0.5, 0.7, 1 measured; 0.5 best on both)
+SOURCE_RADIUS_SCALE = 0.5
 
 
 @dataclass(frozen=True)
@@ -134,7 +141,7 @@ def source_discs(world, local, view: SourceView, pose, keep=None):
     spacing, normals = pulse_grid_spacing_normals(local, np.zeros(3), view.pattern, None, True, True, np.float64,
                                                   max_incidence=DEFAULT_MAX_INCIDENCE, beams=view.beams,
                                                   spacing_kind="mean")
-    radii = disc_radii(local, "spacing", spacing=spacing)
+    radii = disc_radii(local, "spacing", spacing=spacing, radius_scale=SOURCE_RADIUS_SCALE)
     R = np.asarray(pose, np.float64)[:3, :3]
     nw = normals @ R.T
     if keep is not None:
