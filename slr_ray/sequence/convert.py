@@ -16,6 +16,14 @@ The output directory holds ``velodyne/NNNNNN.EXT``, ``labels/NNNNNN.label``
 frame), ``calib.txt`` (``Tr`` the identity: the poses are the velodyne's) and
 ``manifest.json`` (the settings). A rerun with the same settings resumes: the
 frames a journal records as written are kept; other settings are refused.
+
+Estimators: those of a union (:data:`~slr_ray.sequence.estimators.ESTIMATORS`)
+and ``embree-sources`` (discs from each source frame's own pulse grid, one
+scene a frame reused by the targets that hold it:
+:func:`~slr_ray.sequence.union.discs_of_frames`); moving objects left out by
+their labels and/or by see-through (:class:`~slr_ray.sequence.sources.SeeThrough`,
+which needs the frames' own sensor). Blocks of frames run in local worker
+processes or on a ``dask.distributed`` scheduler's workers.
 """
 
 from __future__ import annotations
