@@ -2,6 +2,7 @@
 without labels, embree discs from each frame's own pulse grid; their CLI options."""
 
 import json
+import sys
 from types import SimpleNamespace
 
 import numpy as np
@@ -159,3 +160,14 @@ def test_convert_on_a_dask_scheduler_writes_what_local_workers_write(drive, tmp_
     for i in range(5):
         a, b = (np.fromfile(tmp_path / d / "velodyne" / f"{i:06d}.bin", np.float32) for d in ("local", "dask"))
         assert len(a) > 1000 and np.array_equal(a, b)
+
+
+def test_convert_on_a_scheduler_without_dask(drive, tmp_path, monkeypatch):
+    from slr_ray.errors import MissingDependencyError
+    from slr_ray.sequence import convert_sequence
+    for name in ("dask", "dask.distributed"):
+        monkeypatch.setitem(sys.modules, name, None)  # "import dask" now raises ImportError
+    (tmp_path / "out").mkdir()
+    with pytest.raises(MissingDependencyError, match=r'pip install "slr_ray\[dask\]"'):
+        convert_sequence(read_sequence(drive), tmp_path / "out", "velodyne_vlp16", scheduler="tcp://127.0.0.1:1")
+    assert not any((tmp_path / "out").iterdir())
