@@ -145,9 +145,11 @@ class FrameCache:
     def view(self, i: int, base) -> SourceView:
         """Frame ``i``'s own sensor (``base`` fitted to it), its range image at its origin."""
         f, _ = self.get(i)
-        if i not in self._views:
-            self._views[i] = source_view(self.own_points(i), f.attributes, base)
-        return self._views[i]
+        held = self._views.setdefault(i, {})
+        key = (base.name, base.shape, tuple(base.elevation_deg))  # one view a table
+        if key not in held:
+            held[key] = source_view(self.own_points(i), f.attributes, base)
+        return held[key]
 
     def selection(self, i: int, drop_moving: bool, see_through: SeeThrough | None = None,
                   exclude=()) -> tuple[np.ndarray | None, dict]:
@@ -200,6 +202,7 @@ class FrameCache:
         keep, _ = self.selection(i, drop_moving, see_through, exclude)
         key = (bool(drop_moving), see_through.key if see_through else None,
                tuple(sorted(int(e) for e in exclude if e != i)))
+        key += (base.name, base.shape, tuple(base.elevation_deg))
         held = self._discs.setdefault(i, {})
         if key not in held:
             held[key] = source_discs(w, self.own_points(i), self.view(i, base), f.pose, keep)
