@@ -8,7 +8,10 @@ start included: on a shared machine, CPU seconds / workers is what 2 free cores 
 writes benchmarks/results/bench_sequence.json.
 
     python benchmarks/bench_sequence.py [--frames 100] [--half 30] [--workers 2] [--runs 3] [--drive DIR]
-                                        [--estimator nearest]  (another: saved as bench_sequence_NAME.json)
+                                        [--estimator nearest [embree-sources ...]]
+                                        (each in turn on the same drive; another than nearest is saved as
+                                        bench_sequence_NAME.json; embree-sources gets --source-sensor, the
+                                        drive's HDL-64E S2)
 """
 
 from __future__ import annotations
@@ -17,6 +20,7 @@ import argparse
 import json
 import os
 import resource
+import shutil
 import statistics
 import subprocess
 import sys
@@ -36,7 +40,7 @@ def main() -> None:
     ap.add_argument("--workers", type=int, default=2)
     ap.add_argument("--runs", type=int, default=3)
     ap.add_argument("--drive", help="an existing drive (KITTI layout) instead of making one")
-    ap.add_argument("--estimator", default="nearest", help="convert's --estimator (default nearest)")
+    ap.add_argument("--estimator", nargs="+", default=["nearest"], help="convert's --estimator (default nearest)")
     a = ap.parse_args()
     env = dict(os.environ, PYTHONPATH=str(Path(__file__).resolve().parents[1]))
     with tempfile.TemporaryDirectory() as tmp:
@@ -45,31 +49,42 @@ def main() -> None:
         if not a.drive:
             synthetic_drive(drive, n_frames=a.frames, sensor="velodyne_hdl64e_s2")
         made = time.perf_counter() - t0
-        runs = []
-        for k in range(a.runs):
-            cmd = [sys.executable, "-m", "slr_ray.cli", "sequence", "convert", str(drive),
-                   "--sensor", "velodyne_vlp16", "--estimator", a.estimator, "--half", str(a.half),
-                   "--workers", str(a.workers),
-                   "-o", str(Path(tmp) / f"out{k}"), "--quiet"]
-            t0, ru0 = time.perf_counter(), resource.getrusage(resource.RUSAGE_CHILDREN)
-            res = subprocess.run(cmd, capture_output=True, text=True, env=env)
-            wall, ru = time.perf_counter() - t0, resource.getrusage(resource.RUSAGE_CHILDREN)
-            cpu = (ru.ru_utime + ru.ru_stime) - (ru0.ru_utime + ru0.ru_stime)
-            if res.returncode:
-                sys.exit(res.stderr)
-            doc = json.loads(res.stdout)
-            runs.append({"wall_s": round(wall, 2), "seconds_per_frame": doc["seconds_per_frame"],
-                         "cpu_seconds": round(cpu, 1), "cpu_seconds_per_frame": round(cpu / a.frames, 4),
-                         "load_average": os.getloadavg()[0], "points": doc["points"]})
-            print(runs[-1], flush=True)
+        for est in a.estimator:
+            one(a, est, drive, tmp, env, made)
+
+
+def one(a, estimator, drive, tmp, env, made) -> None:
+    """`--runs` runs of one estimator. Its peak is the largest of any child so far (the estimators run
+    before it included): run the one of larger memory last, or alone."""
+    runs = []
+    extra = ["--source-sensor", "velodyne_hdl64e_s2"] if estimator == "embree-sources" else []
+    for k in range(a.runs):
+        out = Path(tmp) / f"out_{estimator}_{k}"
+        cmd = [sys.executable, "-m", "slr_ray.cli", "sequence", "convert", str(drive),
+               "--sensor", "velodyne_vlp16", "--estimator", estimator, "--half", str(a.half),
+               "--workers", str(a.workers), *extra, "-o", str(out), "--quiet"]
+        t0, ru0 = time.perf_counter(), resource.getrusage(resource.RUSAGE_CHILDREN)
+        res = subprocess.run(cmd, capture_output=True, text=True, env=env)
+        wall, ru = time.perf_counter() - t0, resource.getrusage(resource.RUSAGE_CHILDREN)
+        cpu = (ru.ru_utime + ru.ru_stime) - (ru0.ru_utime + ru0.ru_stime)
+        if res.returncode:
+            sys.exit(res.stderr)
+        doc = json.loads(res.stdout)
+        runs.append({"wall_s": round(wall, 2), "seconds_per_frame": doc["seconds_per_frame"],
+                     "cpu_seconds": round(cpu, 1), "cpu_seconds_per_frame": round(cpu / a.frames, 4),
+                     "load_average": os.getloadavg()[0], "points": doc["points"]})
+        print(estimator, runs[-1], flush=True)
+        shutil.rmtree(out)
     peak = resource.getrusage(resource.RUSAGE_CHILDREN).ru_maxrss / 2**20  # KiB -> GiB
-    out = {"machine": machine(), "frames": a.frames, "half": a.half, "workers": a.workers, "estimator": a.estimator,
+    out = {"machine": machine(), "frames": a.frames, "half": a.half, "workers": a.workers, "estimator": estimator,
            "drive_seconds": round(made, 1), "runs": runs,
            "median_seconds_per_frame": statistics.median(r["seconds_per_frame"] for r in runs),
            "median_cpu_seconds_per_frame": statistics.median(r["cpu_seconds_per_frame"] for r in runs),
-           "largest_process_peak_gib": round(peak, 3)}
+           "largest_process_peak_gib": round(peak, 3), "peak_of": "every process so far, earlier estimators included"}
     print(json.dumps({k: v for k, v in out.items() if k != "machine"}))
-    save("bench_sequence" if a.estimator == "nearest" else f"bench_sequence_{a.estimator}", out)
+    save("bench_sequence" if estimator == "nearest" else f"bench_sequence_{estimator}", out)
+
+
 
 
 if __name__ == "__main__":

@@ -254,7 +254,7 @@ def test_an_e57_files_scans_are_a_sequence(tmp_path):
                          name=f"s{k}", translation=np.array([10.0 * k, 0, 0]), rotation=np.array([1.0, 0, 0, 0]))
     e.close()
     seq = read_sequence(path)
-    assert len(seq) == 3 and seq.pose_source == "e57 scan origins"
+    assert len(seq) == 3 and seq.pose_source == "e57 scan poses"
     assert np.array_equal(seq.poses[:, 0, 3], [0, 10, 20])
     u = accumulate(seq, [0, 2])
     assert np.abs(u.points - np.vstack([world[0], world[2]])).max() < 1e-5  # pye57 stores float32

@@ -13,9 +13,8 @@ from ..io import atomic_path
 from ..io.outputs import OutputPlan, resolve
 from ..errors import InputValueError, OutputError
 from ..sensors import SENSORS
-from ..sequence import (FPA_GAP, METHODS, convert_sequence, evaluate_sequence, read_sequence,
-                        read_trajectory, register_chain, write_kitti_poses)
-from ..sequence.convert import CONVERT_ESTIMATORS
+from ..sequence import (CONVERT_ESTIMATORS, FPA_GAP, METHODS, REMOVE_MOVING, SeeThrough, convert_sequence,
+                        evaluate_sequence, read_sequence, read_trajectory, register_chain, write_kitti_poses)
 from ..sequence.holdout import DEFAULT_METHODS, lidar4d_holdout
 from . import arguments as A
 from .commands import emit
@@ -39,12 +38,26 @@ def _common(p):
                                               "with its scanner's origin (.npz, .pcd, .e57)")
     p.add_argument("--origins", help="the frames are in one world frame (LAS/LAZ of a campaign): a text file of "
                                      "each one's scanner origin, x y z a line")
+    p.add_argument("--scan-field", nargs="?", const="point_source_id", metavar="FIELD",
+                   help="one file holding several scans in one world frame (a campaign's LAS/LAZ): each value of "
+                        "this per-point field a scan (default point_source_id), with --origins in ascending order")
     p.add_argument("--register", action="store_true",
                    help="no poses: register each frame to the one before (ICP) and write the poses found")
     p.add_argument("--half", type=int, default=2, help="window: frames either side of the target (default 2)")
     p.add_argument("--radius", type=A.positive_float, help="window: frames whose origin is within this (m)")
     p.add_argument("--keep-moving", action="store_true",
-                   help="keep SemanticKITTI's moving classes (252-259) in the union (default: left out)")
+                   help="keep SemanticKITTI's moving classes (252-259) in the union (default: left out); the "
+                        "same as --remove-moving none")
+    p.add_argument("--remove-moving", choices=list(REMOVE_MOVING),
+                   help="moving objects left out of the union: 'labels' (SemanticKITTI's moving classes, where "
+                        "the frames have labels; the default), 'visibility' (points that other frames saw "
+                        "through, no labels needed: the frames' own sensor casts their rays), 'both', 'none'")
+    p.add_argument("--visibility-margin", type=A.finite_float, default=SeeThrough.margin,
+                   help=f"visibility removal: a frame saw through a point where its pulse and the four beside it "
+                        f"return from this far beyond it (m, default {SeeThrough.margin})")
+    p.add_argument("--visibility-votes", type=A.positive_int, default=SeeThrough.votes,
+                   help=f"visibility removal: frames (of the {SeeThrough.half} either side) that must have seen "
+                        f"through a point (default {SeeThrough.votes})")
     p.add_argument("--fpa-gap", type=A.positive_float, default=FPA_GAP,
                    help=f"first-peak average: largest step between ranges in the first cluster (m, default {FPA_GAP})")
     A.add_input_format(p)
@@ -79,12 +92,19 @@ def add_sequence_parser(sub) -> None:
     q.add_argument("-o", "--output", required=True, help="output directory (a rerun with the same settings resumes)")
     q.add_argument("--sensor", required=True, choices=list(SENSORS), help="the target sensor")
     q.add_argument("--estimator", default="nearest", choices=list(CONVERT_ESTIMATORS),
-                   help="per-pulse rule (default nearest; rays: the target table's own rays onto the union's planes)")
+                   help="per-pulse rule (default nearest; rays: the target table's own rays onto the union's "
+                        "planes; embree-sources needs --source-sensor)")
+    q.add_argument("--source-sensor", choices=list(SENSORS),
+                   help="the input frames' own sensor (fitted to each frame whose beams are known: a ring field "
+                        "or a KITTI .bin's order), for --remove-moving visibility and --estimator embree-sources")
     q.add_argument("--offset", nargs=3, type=A.finite_float, default=[0.0, 0.0, 0.0], metavar=("DX", "DY", "DZ"),
                    help="the target sensor's offset in each frame's own axes (m)")
     q.add_argument("--target-poses", help="a trajectory of target poses (one a frame) instead of the frames' poses")
     q.add_argument("--format", default="bin", help="frame format (default bin: KITTI; others carry a ring field)")
     q.add_argument("--workers", type=A.positive_int, default=1, help="worker processes (default 1)")
+    q.add_argument("--scheduler", metavar="ADDRESS",
+                   help="a dask.distributed scheduler whose workers convert the frames (they write into -o: a "
+                        "file system they share) instead of --workers")
 
 
 def _plan_inputs(plan: OutputPlan, args, seq) -> None:
@@ -108,9 +128,26 @@ def _check_apart(out: Path, seq) -> None:
             raise OutputError(f"{out} is, holds or lies in the input directory {d}: write the output elsewhere")
 
 
+def _moving(args, source_sensor) -> tuple[bool, SeeThrough | None]:
+    """``--remove-moving`` (and ``--keep-moving``) as the labels rule and the see-through rule."""
+    how = args.remove_moving
+    if args.keep_moving and how in ("labels", "both"):
+        raise InputValueError(f"--keep-moving with --remove-moving {how}: give one")
+    how = how or ("none" if args.keep_moving else "labels")
+    st = None
+    if how in ("visibility", "both"):
+        if source_sensor is None:
+            raise InputValueError(f"--remove-moving {how} casts the frames' own rays: name their sensor "
+                                  "(--source-sensor)")
+        if not args.visibility_margin >= 0:
+            raise InputValueError(f"--visibility-margin must be metres >= 0, got {args.visibility_margin}")
+        st = SeeThrough(source_sensor, args.visibility_margin, args.visibility_votes)
+    return how in ("labels", "both"), st
+
+
 def _load(args):
     seq = read_sequence(args.sequence if len(args.sequence) > 1 else args.sequence[0], args.poses,
-                        args.input_format, args.origins)
+                        args.input_format, args.origins, args.scan_field)
     if args.register and (args.poses or args.origins):
         raise InputValueError("--register with --poses or --origins: give one")
     if seq.poses is None and not args.register:
@@ -140,6 +177,11 @@ def _write(path, text) -> None:
 
 
 def sequence(args):
+    # refused before anything is read or written
+    args.moving = _moving(args, args.sensor if args.sequence_cmd == "evaluate" else args.source_sensor)
+    if args.sequence_cmd == "convert" and args.estimator == "embree-sources" and args.source_sensor is None:
+        raise InputValueError("--estimator embree-sources sizes discs from each frame's own pulse grid: name "
+                              "the frames' sensor (--source-sensor)")
     seq = _load(args)
     plan = OutputPlan(force=args.force)
     _plan_inputs(plan, args, seq)
@@ -173,8 +215,9 @@ def sequence(args):
 
 def _evaluate(args, seq, holdout, out):
     seq, regs = _poses_of(args, seq)
+    drop, st = args.moving
     res = evaluate_sequence(seq, holdout, args.sensor, args.methods, args.half, args.radius,
-                            drop_moving=not args.keep_moving, progress=not args.quiet, gap=args.fpa_gap)
+                            drop_moving=drop, progress=not args.quiet, gap=args.fpa_gap, see_through=st)
     rows = [r for f in res["frames"] for r in f["table"]] + res["mean"]
     files = {"json": out / "evaluation.json", "markdown": out / "table.md", "csv": out / "table.csv"}
     doc = res | {"protocol": args.protocol, "registration": regs, "pose_source": seq.pose_source,
@@ -195,9 +238,11 @@ def _evaluate(args, seq, holdout, out):
 def _convert(args, seq, out):
     seq, regs = _poses_of(args, seq)
     target = read_trajectory(args.target_poses, len(seq)) if args.target_poses else None
+    drop, st = args.moving
     res = convert_sequence(seq, out, args.sensor, estimator=args.estimator, half=args.half, radius=args.radius,
-                           offset=tuple(args.offset), poses=target, drop_moving=not args.keep_moving, fmt=args.format, fpa_gap=args.fpa_gap,
-                           workers=args.workers, progress=not args.quiet,
+                           offset=tuple(args.offset), poses=target, drop_moving=drop, fmt=args.format,
+                           fpa_gap=args.fpa_gap, workers=args.workers, progress=not args.quiet, see_through=st,
+                           source_sensor=args.source_sensor, scheduler=args.scheduler,
                            inputs={"sequence": [str(p) for p in seq.paths], "poses": args.poses,
                                    "register": bool(args.register)})
     emit(res | {"pose_source": seq.pose_source, "registration": regs})

@@ -30,7 +30,8 @@ def _pye57():
 
 def read_scans(path) -> list:
     """Every scan of an E57 file as ``(points, attributes, origin, meta)`` (global frame; origin =
-    the scan's pose translation). A scan without a pose gets origin None: the
+    the scan's pose translation; a pose's rotation other than the identity in
+    ``meta['e57_rotation']``, 3 x 3). A scan without a pose gets origin None: the
     E57 standard reads an absent pose as identity (scanner at the file's
     origin), but a missing pose is as often a lost one, so the caller decides
     (``--origin 0 0 0``). Points flagged
@@ -59,8 +60,10 @@ def read_scans(path) -> list:
             if not valid.all():
                 warnings.warn(f"{path}: scan {i} has {int((~valid).sum())} invalid points (no coordinates, "
                               "cartesianInvalidState != 0): left out", stacklevel=3)
-            out.append((pts, attrs, origin,
-                        {"e57_scan": i, "e57_invalid": int((~valid).sum()), "e57_pose": has_pose}))
+            meta = {"e57_scan": i, "e57_invalid": int((~valid).sum()), "e57_pose": has_pose}
+            if has_pose and not np.array_equal(rot, np.eye(3)):  # the scan's own axes (a sequence's frame)
+                meta["e57_rotation"] = rot.tolist()
+            out.append((pts, attrs, origin, meta))
         return out
     except FormatError:
         raise

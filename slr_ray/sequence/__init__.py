@@ -14,18 +14,24 @@
     motion) fitted from frames' points, each beam cast along its ray onto the union's planes.
 ``holdout``
     leave-one-out evaluation: each held-out frame re-simulated from the others.
+``sources``
+    each source frame's own sensor: see-through removal of moving objects
+    without labels, embree discs from each frame's own pulse grid.
 ``convert``
     a sequence re-simulated as another sensor, written in the SemanticKITTI layout.
 """
 
-from .convert import convert_sequence, target_poses
+from .convert import CONVERT_ESTIMATORS, convert_sequence, target_poses
 from .estimators import ESTIMATORS, FPA_GAP, PulseReturns, estimate
 from .frames import (Frame, Sequence, kitti_velodyne_poses, read_calib_tr, read_file_list,
                      read_kitti_layout, read_sequence, read_trajectory, register_chain, write_kitti_poses)
 from .holdout import METHODS, evaluate_holdout, evaluate_sequence, mean_rows
-from .union import MOVING_CLASSES, FrameCache, Union, accumulate, nearest_of_frames, to_frame, window
+from .sources import REMOVE_MOVING, SeeThrough
+from .union import (MOVING_CLASSES, FrameCache, Union, accumulate, discs_of_frames, nearest_of_frames, to_frame,
+                    window)
 
-__all__ = ["convert_sequence", "target_poses", "ESTIMATORS", "FPA_GAP", "PulseReturns", "estimate", "Frame",
+__all__ = ["CONVERT_ESTIMATORS", "REMOVE_MOVING", "SeeThrough", "discs_of_frames", "convert_sequence", "target_poses",
+           "ESTIMATORS", "FPA_GAP", "PulseReturns", "estimate", "Frame",
            "Sequence", "kitti_velodyne_poses", "read_calib_tr", "read_file_list",
            "read_kitti_layout", "read_sequence", "read_trajectory", "register_chain", "write_kitti_poses",
            "METHODS", "evaluate_holdout", "evaluate_sequence", "mean_rows", "MOVING_CLASSES", "FrameCache",

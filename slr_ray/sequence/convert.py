@@ -16,21 +16,31 @@ The output directory holds ``velodyne/NNNNNN.EXT``, ``labels/NNNNNN.label``
 frame), ``calib.txt`` (``Tr`` the identity: the poses are the velodyne's) and
 ``manifest.json`` (the settings). A rerun with the same settings resumes: the
 frames a journal records as written are kept; other settings are refused.
+
+Estimators: those of a union (:data:`~slr_ray.sequence.estimators.ESTIMATORS`)
+and ``embree-sources`` (discs from each source frame's own pulse grid, one
+scene a frame reused by the targets that hold it:
+:func:`~slr_ray.sequence.union.discs_of_frames`); moving objects left out by
+their labels and/or by see-through (:class:`~slr_ray.sequence.sources.SeeThrough`,
+which needs the frames' own sensor). Blocks of frames run in local worker
+processes or on a ``dask.distributed`` scheduler's workers.
 """
 
 from __future__ import annotations
 
+import importlib.util
 import json
-import time
 import multiprocessing
 from dataclasses import dataclass
+import time
+import uuid
 from functools import partial
 from pathlib import Path
 
 import numpy as np
 from tqdm import tqdm
 
-from ..errors import InputValueError, OutputError
+from ..errors import InputValueError, MissingDependencyError, OutputError
 from ..io import PointCloud, atomic_path, check_format, write_cloud
 from ..io.outputs import LOCK_NAME, clean_stale_parts
 from ..options import Options
@@ -38,13 +48,15 @@ from ..sensors import sensor as shipped_sensor
 from .estimators import ESTIMATORS, FPA_GAP, estimate
 from .frames import Sequence, write_kitti_poses
 from .rays import cast_rays
-from .union import FrameCache, accumulate, nearest_of_frames, to_frame, window
+from .sources import SeeThrough, base_pattern
+from .union import FrameCache, accumulate, discs_of_frames, nearest_of_frames, to_frame, window
 
 __all__ = ["ConvertOptions", "convert_sequence", "target_poses", "MANIFEST", "JOURNAL", "CONVERT_ESTIMATORS"]
 
-#: the per-pulse rules of ``convert``: :data:`~slr_ray.sequence.estimators.ESTIMATORS` and ``rays``,
-#: the target table's own rays (a simulated sensor's pulse centres, no motion) onto the union's planes
-CONVERT_ESTIMATORS = (*ESTIMATORS, "rays")
+#: convert's per-pulse rules: those of a union (:data:`~slr_ray.sequence.estimators.ESTIMATORS`),
+#: ``rays`` (the target table's own rays, a simulated sensor's pulse centres, no motion, onto the
+#: union's planes) and ``embree-sources`` (discs from each source frame's own pulse grid)
+CONVERT_ESTIMATORS = (*ESTIMATORS, "rays", "embree-sources")
 
 MANIFEST = "manifest.json"
 JOURNAL = "journal.jsonl"
@@ -63,10 +75,14 @@ def target_poses(poses, offset=(0.0, 0.0, 0.0)) -> np.ndarray:
 
 def _frame_cloud(seq, i, pose, pattern, settings, cache) -> PointCloud:
     frames = window(seq, i, settings["half"], settings["radius"], include_target=True)
+    st = _see_through(settings)
     if settings["estimator"] == "nearest":  # a frame at a time: the union is never held whole
-        ret, carried = nearest_of_frames(seq, frames, pose, pattern, settings["drop_moving"], cache)
+        ret, carried = nearest_of_frames(seq, frames, pose, pattern, settings["drop_moving"], cache, st)
+    elif settings["estimator"] == "embree-sources":  # a scene a frame, reused by the targets that hold it
+        ret, carried = discs_of_frames(cache, frames, pose, pattern, base_pattern(settings["source_sensor"]),
+                                       settings["drop_moving"], st)
     else:
-        union = accumulate(seq, frames, drop_moving=settings["drop_moving"], cache=cache)
+        union = accumulate(seq, frames, drop_moving=settings["drop_moving"], cache=cache, see_through=st)
         u = to_frame(union.points, pose)
         if settings["estimator"] == "rays":
             ret = cast_rays(u, pattern, gap=settings["fpa_gap"])
@@ -79,9 +95,25 @@ def _frame_cloud(seq, i, pose, pattern, settings, cache) -> PointCloud:
     return PointCloud(ret.points, attrs, np.zeros(3))
 
 
+def _see_through(settings) -> SeeThrough | None:
+    st = settings.get("see_through")
+    return None if st is None else SeeThrough(settings["source_sensor"], st["margin_m"], st["votes"], st["half"])
+
+
 def _init(seq, poses, settings):
+    st = _see_through(settings)
     _STATE.update(seq=seq, poses=poses, settings=settings, pattern=shipped_sensor(settings["sensor"]),
-                  cache=FrameCache(seq, 2 * settings["cache"] + 16, local=False))
+                  cache=FrameCache(seq, 2 * settings["cache"] + 16 + (2 * st.half if st else 0), local=False))
+
+
+def _dask_job(block, out, seq, poses, settings, token) -> list:
+    """A block on a Dask worker: the worker's state set up by its first block of this conversion
+    (``token``), then kept (its frames cache) for the next blocks it gets."""
+    if _STATE.get("token") != token:
+        _STATE.clear()
+        _init(seq, poses, settings)
+        _STATE["token"] = token
+    return _job(block, out)
 
 
 def _job(block, out) -> list:
@@ -151,6 +183,15 @@ class ConvertOptions(Options):
         Processes converting frames.
     block : int
         Frames a worker converts at a time.
+    see_through : SeeThrough or None
+        Leave out of the unions the points other frames saw through (its sensor is the frames' own).
+    source_sensor : str or None
+        The frames' own sensor (a shipped name), which ``estimator='embree-sources'`` needs
+        (``see_through``'s when not given).
+    scheduler : str or None
+        The address of a ``dask.distributed`` scheduler whose workers convert the blocks of
+        frames (they write the frames into ``out``: a file system they share), instead of
+        ``workers`` local processes.
     """
 
     estimator: str = "nearest"
@@ -162,6 +203,9 @@ class ConvertOptions(Options):
     fpa_gap: float = FPA_GAP
     workers: int = 1
     block: int = 4
+    see_through: SeeThrough | None = None
+    source_sensor: str | None = None
+    scheduler: str | None = None
 
 
 def convert_sequence(seq: Sequence, out, sensor: str, options: ConvertOptions | None = None, *, poses=None,
@@ -173,6 +217,10 @@ def convert_sequence(seq: Sequence, out, sensor: str, options: ConvertOptions | 
     o = ConvertOptions.of(options, **keywords)
     estimator, half, radius, offset, drop_moving, fmt, fpa_gap = (o.estimator, o.half, o.radius, o.offset,
                                                                   o.drop_moving, o.fmt, o.fpa_gap)
+    see_through, source_sensor, scheduler = o.see_through, o.source_sensor, o.scheduler
+    if scheduler and (importlib.util.find_spec("dask") is None
+                      or importlib.util.find_spec("dask.distributed") is None):
+        raise MissingDependencyError('convert on a scheduler needs dask: pip install "slr_ray[dask]"')
     if seq.poses is None:
         raise InputValueError("the sequence has no poses: give a trajectory (--poses) or --register")
     out = Path(out)
@@ -186,6 +234,19 @@ def convert_sequence(seq: Sequence, out, sensor: str, options: ConvertOptions | 
                 "offset": [float(x) for x in offset], "drop_moving": bool(drop_moving), "format": fmt.lstrip("."),
                 "fpa_gap": float(fpa_gap), "frames": [str(p) for p in seq.paths],
                 "poses": np.round(P, 12).reshape(len(P), -1).tolist(), "cache": int(half or 8)}
+    if see_through is not None:
+        if source_sensor is not None and source_sensor != see_through.sensor:
+            raise InputValueError(f"two source sensors: {source_sensor!r} and see_through's {see_through.sensor!r}")
+        if not isinstance(see_through.sensor, str):
+            raise InputValueError("convert names the source sensor (a shipped sensor's name), not a table")
+        source_sensor = see_through.sensor
+        settings["see_through"] = see_through.to_dict()
+    if estimator == "embree-sources" and source_sensor is None:
+        raise InputValueError("the embree-sources estimator needs the frames' own sensor (source_sensor, "
+                              "--source-sensor): their discs come from their own pulse grids")
+    if source_sensor is not None:
+        shipped_sensor(source_sensor)
+        settings["source_sensor"] = source_sensor
     shipped_sensor(sensor)  # an unknown name or format is refused before anything is written
     check_format(out / "velodyne" / f"000000.{settings['format']}", settings["format"])
     fresh = not (out / MANIFEST).exists()
@@ -205,7 +266,7 @@ def convert_sequence(seq: Sequence, out, sensor: str, options: ConvertOptions | 
 
 
 def _convert(seq, out, P, settings, done, o: ConvertOptions, progress, inputs) -> dict:
-    workers, block = o.workers, o.block
+    workers, block, scheduler = o.workers, o.block, o.scheduler
     (out / "velodyne").mkdir(exist_ok=True)
     clean_stale_parts(out / "velodyne", locked=True)  # a killed run's temporaries (the caller holds out's lock)
     probe = seq.read(0)
@@ -230,7 +291,16 @@ def _convert(seq, out, P, settings, done, o: ConvertOptions, progress, inputs) -
             bar.update(len(entries))
 
         try:
-            if workers <= 1 or len(blocks) <= 1:
+            if scheduler:
+                from dask.distributed import Client, as_completed
+
+                with Client(scheduler) as client:
+                    token = uuid.uuid4().hex
+                    shared = client.scatter([seq, P, settings], broadcast=True)  # once, not once a block
+                    futures = [client.submit(_dask_job, b, str(out), *shared, token, pure=False) for b in blocks]
+                    for fut in as_completed(futures):
+                        record(fut.result())
+            elif workers <= 1 or len(blocks) <= 1:
                 _init(seq, P, settings)
                 for b in blocks:
                     record(_job(b, str(out)))

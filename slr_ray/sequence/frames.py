@@ -38,10 +38,10 @@ from tqdm import tqdm
 from ..arrays import as_rigid_pose
 from ..errors import FormatError, InputValueError
 from ..evaluate import register
-from ..io import read_cloud, read_e57_scans
+from ..io import PointCloud, read_cloud, read_e57_scans
 
 __all__ = ["Sequence", "Frame", "read_sequence", "read_kitti_layout", "read_file_list", "read_trajectory",
-           "read_calib_tr", "read_pose_files", "read_e57_sequence", "read_origins",
+           "read_calib_tr", "read_pose_files", "read_e57_sequence", "read_origins", "read_split_scans",
            "kitti_velodyne_poses", "write_kitti_poses", "register_chain", "POSE_TOLERANCE"]
 
 #: largest departure of a pose's rotation from orthonormal (|R^T R - I|, |det R - 1|): KITTI's poses
@@ -197,6 +197,11 @@ class Sequence:
             raise InputValueError("the sequence has no poses: give a trajectory or register the frames")
         if self.meta.get("layout") == "e57":
             c = _e57_scans(str(self.paths[i]), os.path.getmtime(self.paths[i]))[i]
+        elif "split" in self.meta:  # one file of several scans: this one's points
+            whole = _whole_cloud(str(self.paths[i]), os.path.getmtime(self.paths[i]), self.input_format)
+            mine = np.asarray(whole.attributes[self.meta["split"]]) == self.meta["scan_ids"][i]
+            c = PointCloud(whole.points[mine], {k: np.asarray(v)[mine] for k, v in whole.attributes.items()},
+                           whole.origin, dict(whole.meta))
         else:
             c = read_cloud(self.paths[i], self.input_format, allow_empty=False)
         ring = c.attributes.get("ring")
@@ -207,7 +212,9 @@ class Sequence:
                 raise InputValueError(f"{self.paths[i]}: rings up to {beams - 1} ({beams} beams) where {first[1]} "
                                       f"has {first[0]}: frames of different sensors in one sequence")
         pts = c.points
-        if self.meta.get("world"):  # one world frame: each frame moved to its scanner's origin
+        if self.meta.get("layout") == "e57":  # into the scan's own axes at its origin: R^T (p - t)
+            pts = (pts - self.poses[i][:3, 3]) @ self.poses[i][:3, :3]
+        elif self.meta.get("world"):  # one world frame: each frame moved to its scanner's origin
             pts = pts - self.poses[i][:3, 3]
         elif c.origin is not None and np.any(np.asarray(c.origin) != 0):
             pts = pts - np.asarray(c.origin, np.float64)
@@ -225,9 +232,9 @@ def _e57_scans(path: str, mtime: float) -> list:
 
 
 def read_e57_sequence(path) -> Sequence:
-    """The scans of one E57 file as a sequence: each scan a frame, in the world (the file's) frame,
-    its pose's translation as its origin (the frame's axes are the world's: a scan's rotation is
-    not used). A scan without a pose is refused."""
+    """The scans of one E57 file as a sequence: each scan a frame, its pose (rotation quaternion and
+    translation) its frame's: a frame's points are in its scanner's own axes at its origin, as
+    the scanner recorded them. A scan without a pose is refused."""
     p = Path(path)
     scans = _e57_scans(str(p), os.path.getmtime(p))
     poses = np.repeat(np.eye(4)[None], len(scans), 0)
@@ -235,8 +242,38 @@ def read_e57_sequence(path) -> Sequence:
         if c.origin is None:
             raise InputValueError(f"{p}: scan {i} has no pose (no scanner origin): a sequence needs each scan's")
         poses[i, :3, 3] = c.origin
-    return Sequence([p] * len(scans), poses, [f"{i:06d}" for i in range(len(scans))], "e57 scan origins", None,
+        if "e57_rotation" in c.meta:
+            rot = np.column_stack([c.meta["e57_rotation"], np.zeros(3)])
+            poses[i, :3, :3] = _pose(rot, f"{p}, scan {i}'s pose")[:3, :3]
+    return Sequence([p] * len(scans), poses, [f"{i:06d}" for i in range(len(scans))], "e57 scan poses", None,
                     None, {"layout": "e57"})
+
+
+@lru_cache(maxsize=1)
+def _whole_cloud(path: str, mtime: float, input_format):
+    """A file of several scans, read once a process (each frame is a part of it)."""
+    return read_cloud(path, input_format, allow_empty=False)
+
+
+def read_split_scans(path, field: str, origins, input_format: str | None = None) -> Sequence:
+    """One file holding several scans in one world frame (a campaign's LAS/LAZ): each value of the
+    per-point ``field`` (LAS ``point_source_id``, or any attribute the reader gives) a frame, in
+    ascending order of the value; each scan's scanner origin a line of the text file ``origins``,
+    in that order. A frame's points are moved to its origin when read (its axes the world's)."""
+    p = Path(path)
+    c = _whole_cloud(str(p), os.path.getmtime(p), input_format)
+    if field not in c.attributes or np.ndim(c.attributes[field]) != 1:
+        have = sorted(k for k, v in c.attributes.items() if np.ndim(v) == 1)
+        raise InputValueError(f"{p}: no per-point field {field!r} to split its scans by (it has: "
+                              f"{', '.join(have) or 'none'})")
+    ids = np.unique(np.asarray(c.attributes[field]))
+    poses = np.repeat(np.eye(4)[None], len(ids), 0)
+    try:
+        poses[:, :3, 3] = read_origins(origins, len(ids))
+    except InputValueError as exc:
+        raise InputValueError(f"{exc} ({p} holds {len(ids)} scans by its field {field!r})") from None
+    return Sequence([p] * len(ids), poses, [f"{i:06d}" for i in range(len(ids))], "origins file", None, input_format,
+                    {"world": True, "split": field, "scan_ids": ids.tolist(), "pose_files": [str(origins)]})
 
 
 _NUMBERED = re.compile(r"^(\d+)\.bin$")
@@ -350,11 +387,18 @@ def read_file_list(paths, trajectory=None, input_format: str | None = None, orig
     return Sequence(files, poses, names, source, None, input_format, meta)
 
 
-def read_sequence(source, trajectory=None, input_format: str | None = None, origins=None) -> Sequence:
+def read_sequence(source, trajectory=None, input_format: str | None = None, origins=None,
+                  scan_field: str | None = None) -> Sequence:
     """A KITTI layout directory (one path), an E57 file of several scans, or a list of frame files
     (with a trajectory, pose files, or ``origins``: a text file of each frame's scanner origin for
-    files in one world frame)."""
+    files in one world frame); or one file of several scans in one world frame, split by the
+    per-point ``scan_field`` with ``origins`` (:func:`read_split_scans`)."""
     src = [source] if isinstance(source, (str, os.PathLike)) else list(source)
+    if scan_field is not None:
+        if len(src) != 1 or origins is None or trajectory is not None:
+            raise InputValueError("a scan field splits one file of several scans: give one file and --origins "
+                                  "(each scan's scanner origin), no --poses")
+        return read_split_scans(src[0], scan_field, origins, input_format)
     if len(src) == 1 and (Path(src[0]).is_dir() or Path(src[0]).suffix.lower() == ".e57") and origins is not None:
         raise InputValueError(f"{src[0]}: its frames carry their poses: origins are for files in one world frame")
     if len(src) == 1 and Path(src[0]).is_dir():

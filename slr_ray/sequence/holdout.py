@@ -35,7 +35,8 @@ from ..sensors import sensor as shipped_sensor
 from .estimators import FPA_GAP, estimate
 from .frames import Sequence
 from .rays import RayModel, cast_rays, fit_range_bias, fit_ray_model, frame_motion, pattern_ray_model
-from .union import FrameCache, Union, accumulate, to_frame, window
+from .sources import SeeThrough
+from .union import FrameCache, Union, accumulate, discs_of_frames, to_frame, window
 
 __all__ = ["METHODS", "LABELS", "HoldoutOptions", "evaluate_holdout", "evaluate_sequence", "mean_rows", "DEFAULT_METHODS",
            "clamped_depth_errors", "lidar4d_holdout", "LIDAR4D_MAX_DEPTH", "holdout_ray_model", "simulate_holdout"]
@@ -65,11 +66,12 @@ def lidar4d_holdout(n_frames: int) -> list[int]:
                               f"{n_frames}: pick 51 frames, or hold out frames by --holdout / --every")
     return [10, 20, 30, 40]
 
-METHODS = ("zbuffer", "adjacent", "nearest", "fpa", "rays", "embree-knn")
+METHODS = ("zbuffer", "adjacent", "nearest", "fpa", "rays", "embree-knn", "embree-sources")
 DEFAULT_METHODS = ("zbuffer", "adjacent", "nearest", "fpa", "rays")
 LABELS = {"zbuffer": "no SLR (z-buffer of the union)", "adjacent": "binning, adjacent frame alone",
           "nearest": "nearest (binning of the union)", "fpa": "first-peak average (union)",
-          "rays": "beam rays onto the union's planes", "embree-knn": "embree kNN discs (union)"}
+          "rays": "beam rays onto the union's planes", "embree-knn": "embree kNN discs (union)",
+          "embree-sources": "embree discs from each source frame's pulse grid"}
 
 
 def _beams(frame, base):
@@ -125,6 +127,9 @@ class HoldoutOptions(Options):
         A point of the frame is seen when a point of the union lies strictly closer (m).
     gap : float
         The first-peak average's gap (m).
+    see_through : SeeThrough or None
+        Leave out of the union what other frames saw through (the held-out frame does not vote:
+        it is what is scored).
     """
 
     sensor: object = "velodyne_hdl64e_s2"
@@ -135,6 +140,7 @@ class HoldoutOptions(Options):
     thresholds: tuple = THRESHOLDS
     seen_threshold: float = PAPER_THRESHOLD
     gap: float = FPA_GAP
+    see_through: SeeThrough | None = None
 
 
 def evaluate_holdout(seq: Sequence, target: int, options: HoldoutOptions | None = None, *,
@@ -143,7 +149,7 @@ def evaluate_holdout(seq: Sequence, target: int, options: HoldoutOptions | None 
     (``options``: a :class:`HoldoutOptions`, or its fields as keywords)."""
     o = HoldoutOptions.of(options, **keywords)
     sensor, methods, half, radius, drop_moving = o.sensor, o.methods, o.half, o.radius, o.drop_moving
-    thresholds, seen_threshold, gap = o.thresholds, o.seen_threshold, o.gap
+    thresholds, seen_threshold, gap, see_through = o.thresholds, o.seen_threshold, o.gap, o.see_through
     unknown = [m for m in methods if m not in METHODS]
     if unknown:
         raise InputValueError(f"unknown method(s) {unknown}; choose from {list(METHODS)}")
@@ -163,7 +169,7 @@ def evaluate_holdout(seq: Sequence, target: int, options: HoldoutOptions | None 
                               "its origin (is the frame in its sensor's frame?)")
     real_img = zbuffer(b, pat, backend="real").range_image()
     b_in = b[in_view]
-    union = accumulate(seq, others, drop_moving=drop_moving, cache=cache)
+    union = accumulate(seq, others, drop_moving=drop_moving, cache=cache, see_through=see_through, exclude=(target,))
     u = to_frame(union.points, fb.pose)
     seen = seen_from(b_in, u, seen_threshold)
     groups = {"seen": np.where(seen, "seen", "unseen")}
@@ -175,7 +181,7 @@ def evaluate_holdout(seq: Sequence, target: int, options: HoldoutOptions | None 
     adj = _adjacent(others, target)
     rows, extra = [], {}
     models = {}
-    held = _Held(seq, target, others, union, u, pat, base, gap, cache)
+    held = _Held(seq, target, others, union, u, pat, base, gap, cache, fb.pose, drop_moving, see_through)
     for m in methods:
         t0 = time.perf_counter()
         ret, sim = _simulate(m, held, models)
@@ -187,6 +193,7 @@ def evaluate_holdout(seq: Sequence, target: int, options: HoldoutOptions | None 
                      "seconds": round(time.perf_counter() - t0, 3), "points": pm.to_dict(), "image": im.to_dict()})
     res = {"frame": seq.names[target], "fpa_gap_m": gap, "ray_model": models.get("rays"), "index": int(target), "window": [seq.names[i] for i in others],
            "adjacent": seq.names[adj], "union_points": int(len(union)), "removed": union.removed,
+           "see_through": see_through.to_dict() if see_through else None,
            "target_points_in_view": int(len(b_in)), "unseen_share": float(np.mean(~seen)),
            "pattern": pat.to_dict() | {"beams_known": beams is not None},
            "thresholds": [float(x) for x in thresholds], "seen_threshold": seen_threshold, "rows": rows}
@@ -210,6 +217,9 @@ class _Held:
     base: object
     gap: float
     cache: FrameCache
+    pose: np.ndarray                 # the held-out frame's pose (where its pulses start)
+    drop_moving: bool = True
+    see_through: SeeThrough | None = None
 
 
 def _simulate(m, held: _Held, models: dict):
@@ -225,6 +235,9 @@ def _simulate(m, held: _Held, models: dict):
         model = holdout_ray_model(held.seq, held.others, held.base, pat, held.cache)
         models["rays"] = model.to_dict()
         ret = cast_rays(u, pat, model, frame_motion(held.seq.poses, held.target), gap=held.gap)
+    elif m == "embree-sources":
+        ret, _ = discs_of_frames(held.cache, held.others, held.pose, pat, held.base, held.drop_moving,
+                                 held.see_through, (held.target,))
     else:
         ret = estimate(u, pat, m, gap=held.gap)
     return ret, ret.points
@@ -247,7 +260,8 @@ def simulate_holdout(seq: Sequence, target: int, method: str = "rays", sensor: s
         beams = _beams(fb, base)
         pattern = fitted_pattern(fb.points, beams, base) if beams is not None else base
     union = accumulate(seq, others, drop_moving=drop_moving, cache=cache)
-    held = _Held(seq, target, others, union, to_frame(union.points, fb.pose), pattern, base, gap, cache)
+    held = _Held(seq, target, others, union, to_frame(union.points, fb.pose), pattern, base, gap, cache,
+                 fb.pose, drop_moving)
     return _simulate(method, held, {})[0]
 
 
@@ -285,11 +299,13 @@ def evaluate_sequence(seq: Sequence, holdout, sensor: str = "velodyne_hdl64e_s2"
     if bad:
         raise InputValueError(f"held-out frame(s) {bad} not in a sequence of {len(seq)} frames")
     t0 = time.perf_counter()
-    cache = FrameCache(seq, size=2 * (half or 2) + 3)
+    st = kw.get("see_through")
+    cache = FrameCache(seq, size=2 * (half or 2) + 3 + (2 * st.half if st else 0))
     options = HoldoutOptions.of(None, sensor=sensor, methods=methods, half=half, radius=radius,
                                 drop_moving=drop_moving, **kw)
     frames = [evaluate_holdout(seq, h, options, cache=cache)
               for h in tqdm(holdout, desc="held-out frames", disable=not progress)]
     return {"frames": frames, "mean": mean_rows([f["table"] for f in frames]),
             "methods": list(methods), "window": {"half": half, "radius": radius}, "drop_moving": drop_moving,
+            "see_through": st.to_dict() if st else None,
             "seconds": round(time.perf_counter() - t0, 3)}

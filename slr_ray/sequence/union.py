@@ -24,8 +24,11 @@ import numpy as np
 from ..errors import InputValueError
 from .estimators import PulseReturns, estimate, merge_nearest
 from .frames import Frame, Sequence
+from .sources import (SeeThrough, SourceView, base_pattern, cast_sources, seen_through_votes, source_discs,
+                      source_view)
 
-__all__ = ["Union", "rotate", "MOVING_CLASSES", "window", "accumulate", "nearest_of_frames", "FrameCache", "to_frame"]
+__all__ = ["Union", "rotate", "MOVING_CLASSES", "window", "accumulate", "nearest_of_frames", "discs_of_frames",
+           "FrameCache", "to_frame"]
 
 #: SemanticKITTI's moving classes (semantic-kitti.yaml: 252 moving-car ... 259 moving-other-vehicle)
 MOVING_CLASSES = tuple(range(252, 260))
@@ -109,12 +112,15 @@ def window(seq: Sequence, target: int, half: int | None = 2, radius: float | Non
 
 class FrameCache:
     """The last ``size`` frames read, in the world frame (a sliding window reads each frame once);
-    ``local=False`` keeps the world coordinates only (not the frame's own)."""
+    ``local=False`` keeps the world coordinates only (not the frame's own). What is derived from a
+    frame (its kept points, its own view, its discs) is held with it and goes with it."""
 
     def __init__(self, seq: Sequence, size: int = 64, local: bool = True):
         self.seq, self.size, self.local = seq, max(1, int(size)), local
         self._held: OrderedDict = OrderedDict()
         self._kept: dict = {}
+        self._views: dict = {}
+        self._discs: dict = {}
 
     def get(self, i: int) -> tuple[Frame, np.ndarray]:
         if i in self._held:
@@ -127,23 +133,80 @@ class FrameCache:
         self._held[i] = item
         while len(self._held) > self.size:
             gone, _ = self._held.popitem(last=False)
-            self._kept.pop(gone, None)
+            for d in (self._kept, self._views, self._discs):
+                d.pop(gone, None)
         return item
 
-    def kept(self, i: int, drop_moving: bool) -> tuple[np.ndarray, dict]:
-        """Frame ``i``'s world points and 1-d attributes less its labelled moving points (with
-        ``drop_moving``), selected once while the frame is held: a window of 61 frames slid over
-        a drive selects each frame once, not 61 times."""
+    def own_points(self, i: int) -> np.ndarray:
+        """Frame ``i``'s points in its own axes (float64; from the world ones where not kept)."""
         f, w = self.get(i)
+        return f.points if len(f.points) == len(w) else to_frame(w, f.pose)
+
+    def view(self, i: int, base) -> SourceView:
+        """Frame ``i``'s own sensor (``base`` fitted to it), its range image at its origin."""
+        f, _ = self.get(i)
+        held = self._views.setdefault(i, {})
+        key = (base.name, base.shape, tuple(base.elevation_deg))  # one view a table
+        if key not in held:
+            held[key] = source_view(self.own_points(i), f.attributes, base)
+        return held[key]
+
+    def selection(self, i: int, drop_moving: bool, see_through: SeeThrough | None = None,
+                  exclude=()) -> tuple[np.ndarray | None, dict]:
+        """Which points of frame ``i`` the union keeps (None: all) and how many each rule removed:
+        ``moving`` (labelled moving classes, with ``drop_moving``), ``seen_through`` (other frames
+        of ``see_through``'s neighbourhood, less ``exclude``, saw through them)."""
+        f, w = self.get(i)
+        exclude = tuple(sorted(int(e) for e in exclude if e != i))
+        key = ("sel", bool(drop_moving), see_through.key if see_through else None, exclude)
         held = self._kept.setdefault(i, {})
-        if drop_moving not in held:
+        if key not in held:
             keep = _kept(f, drop_moving)
+            removed = {"moving": 0 if keep is None else int(len(keep) - keep.sum())}
+            if see_through is not None:
+                base = base_pattern(see_through.sensor)
+                others = [j for j in window(self.seq, i, see_through.half) if j not in exclude]
+                views = [(self.get(j)[0].pose, self.view(j, base)) for j in others]
+                votes = seen_through_votes(len(w), lambda pose: to_frame(w, pose), views, see_through.margin)
+                through = votes >= see_through.votes
+                removed["seen_through"] = int((through if keep is None else through & keep).sum())
+                keep = ~through if keep is None else keep & ~through
+            if keep is not None and keep.all():
+                keep = None
+            held[key] = (keep, removed)
+        return held[key]
+
+    def kept(self, i: int, drop_moving: bool, see_through: SeeThrough | None = None,
+             exclude=()) -> tuple[np.ndarray, dict]:
+        """Frame ``i``'s world points and 1-d attributes less its labelled moving points (with
+        ``drop_moving``) and those other frames saw through (with ``see_through``), selected once
+        while the frame is held: a window of 61 frames slid over a drive selects each frame once,
+        not 61 times."""
+        f, w = self.get(i)
+        keep, _ = self.selection(i, drop_moving, see_through, exclude)
+        held = self._kept.setdefault(i, {})
+        key = ("pts", bool(drop_moving), see_through.key if see_through else None,
+               tuple(sorted(int(e) for e in exclude if e != i)))
+        if key not in held:
             a = {n: np.asarray(v) for n, v in f.attributes.items() if np.ndim(v) == 1}
-            if keep is not None and not keep.all():
+            if keep is not None:
                 w = w[keep]
                 a = {n: v[keep] for n, v in a.items()}
-            held[drop_moving] = (w, a)
-        return held[drop_moving]
+            held[key] = (w, a)
+        return held[key]
+
+    def discs(self, i: int, base, drop_moving: bool, see_through: SeeThrough | None = None, exclude=()):
+        """An embree scanner of frame ``i``'s kept points, discs from its own pulse grid
+        (:func:`~slr_ray.sequence.sources.source_discs`), built once while the frame is held."""
+        f, w = self.get(i)
+        keep, _ = self.selection(i, drop_moving, see_through, exclude)
+        key = (bool(drop_moving), see_through.key if see_through else None,
+               tuple(sorted(int(e) for e in exclude if e != i)))
+        key += (base.name, base.shape, tuple(base.elevation_deg))
+        held = self._discs.setdefault(i, {})
+        if key not in held:
+            held[key] = source_discs(w, self.own_points(i), self.view(i, base), f.pose, keep)
+        return held[key]
 
 
 def _kept(f: Frame, drop_moving: bool):
@@ -154,16 +217,18 @@ def _kept(f: Frame, drop_moving: bool):
 
 
 def nearest_of_frames(seq: Sequence, frames, pose, pattern, drop_moving: bool = True,
-                      cache: FrameCache | None = None) -> tuple[PulseReturns, dict]:
+                      cache: FrameCache | None = None,
+                      see_through: SeeThrough | None = None) -> tuple[PulseReturns, dict]:
     """The nearest rule over the union of ``frames`` seen from ``pose``, a frame at a time: each
     frame reduced on its own, the winners merged (:func:`~slr_ray.sequence.estimators.merge_nearest`).
     The same returns as ``estimate(to_frame(accumulate(...).points, pose), pattern)``, without the
-    union in memory. Returns them and the attributes carried (every frame's), by return."""
+    union in memory. Returns them and the attributes carried (every frame's), by return.
+    ``see_through``: points other frames saw through are left out too (:class:`FrameCache.selection`)."""
     cache = cache or FrameCache(seq, len(frames))
     posed = getattr(pattern, "reduce_posed", None)  # a beam table's (slr_ray.sensors.BeamPattern)
     parts, attrs, offset = [], [], 0
     for i in frames:
-        w, a = cache.kept(int(i), drop_moving)
+        w, a = cache.kept(int(i), drop_moving, see_through)
         if posed is not None:  # each point moved in the kernel: no moved copy of the frame
             keys, ranges, idx = posed(w, pose)
             order = np.argsort(keys, kind="stable")
@@ -180,25 +245,22 @@ def nearest_of_frames(seq: Sequence, frames, pose, pattern, drop_moving: bool = 
     return merged, carried
 
 
-def accumulate(seq: Sequence, frames, drop_moving: bool = True, cache: FrameCache | None = None) -> Union:
-    """The union of ``frames`` of ``seq`` in the world frame (module docstring)."""
+def accumulate(seq: Sequence, frames, drop_moving: bool = True, cache: FrameCache | None = None,
+               see_through: SeeThrough | None = None, exclude=()) -> Union:
+    """The union of ``frames`` of ``seq`` in the world frame (module docstring); with ``see_through``
+    the points other frames saw through are left out too, the frames of ``exclude`` (a held-out
+    target) not among those that vote."""
     frames = [int(i) for i in frames]
     if not frames:
         raise InputValueError("no frame to accumulate: the window holds none but the target")
-    cache = cache or FrameCache(seq, len(frames))
+    cache = cache or FrameCache(seq, len(frames) + (2 * see_through.half if see_through else 0))
     pts, src, attrs, origins = [], [], [], []
-    removed = {"moving": 0}
+    removed = {"moving": 0} | ({"seen_through": 0} if see_through else {})
     for k, i in enumerate(frames):
-        f, w = cache.get(i)
-        keep = None
-        sem = f.attributes.get("semantic")
-        if drop_moving and sem is not None:
-            keep = ~np.isin(np.asarray(sem), MOVING_CLASSES)
-            removed["moving"] += int(len(keep) - keep.sum())
-        a = {n: np.asarray(v) for n, v in f.attributes.items() if np.ndim(v) == 1}
-        if keep is not None:
-            w = w[keep]
-            a = {n: v[keep] for n, v in a.items()}
+        f, _ = cache.get(i)
+        w, a = cache.kept(i, drop_moving, see_through, exclude)
+        for name, count in cache.selection(i, drop_moving, see_through, exclude)[1].items():
+            removed[name] += count
         pts.append(w)
         src.append(np.full(len(w), k, np.int32))
         attrs.append(a)
@@ -207,3 +269,22 @@ def accumulate(seq: Sequence, frames, drop_moving: bool = True, cache: FrameCach
     carried = {n: np.concatenate([a[n] for a in attrs]) for n in sorted(common)}
     return Union(np.concatenate(pts), np.concatenate(src), np.asarray(frames), np.asarray(origins),
                  carried, removed)
+
+
+def discs_of_frames(cache: FrameCache, frames, pose, pattern, base, drop_moving: bool = True,
+                    see_through: SeeThrough | None = None, exclude=()) -> tuple[PulseReturns, dict]:
+    """The ``embree-sources`` estimator over ``frames`` seen from ``pose``: each frame's discs from its
+    own pulse grid (``base`` fitted to it), one scene a frame held by ``cache`` and reused by every
+    target whose window holds the frame (:func:`~slr_ray.sequence.sources.cast_sources`). Returns
+    the returns and the attributes carried (every frame's), by return (``cache``: the sequence's
+    frames, ``FrameCache(seq)``)."""
+    scanners, attrs, offset = [], [], 0
+    for i in frames:
+        w, a = cache.kept(int(i), drop_moving, see_through, exclude)
+        scanners.append((cache.discs(int(i), base, drop_moving, see_through, exclude), offset))
+        attrs.append(a)
+        offset += len(w)
+    ret = cast_sources(scanners, pose, pattern)
+    common = set(attrs[0]).intersection(*attrs[1:]) if attrs else set()
+    carried = {n: np.concatenate([a[n] for a in attrs])[ret.index] for n in sorted(common)}
+    return ret, carried
