@@ -8,9 +8,10 @@ import numpy as np
 import pytest
 
 from slr_ray.io import PointCloud, read_cloud, write_cloud
-from slr_ray.errors import InputValueError
+from slr_ray.errors import InputValueError, SlrWarning
 from slr_ray.sequence import convert_sequence, estimate, read_sequence
-from slr_ray.sequence.holdout import mean_rows, simulate_holdout
+from slr_ray.sequence.holdout import evaluate_holdout, holdout_ray_model, mean_rows, simulate_holdout
+from slr_ray.sequence.union import FrameCache
 from slr_ray.sequence.rays import cast_rays, fit_range_bias, fit_ray_model, pattern_ray_model, sweep_offsets
 from slr_ray.sequence.synthetic import synthetic_drive
 from slr_ray.sensors import sensor
@@ -129,3 +130,49 @@ def test_convert_casts_the_target_tables_own_rays(drive, tmp_path):
     with pytest.raises(InputValueError, match="unknown estimator"):
         convert_sequence(seq, tmp_path / "no", "velodyne_vlp16", estimator="ray")
     assert not (tmp_path / "no").exists()
+
+
+def test_frames_that_never_moved_fit_no_skew():
+    """No motion in the fitting frames: every skew fits as well, so none is taken (a skew fitted on
+    still frames would be applied to a moving target's motion)."""
+    elev, z0 = np.radians([2.0, -4.0, -10.0]), np.array([0.2, 0.1, -0.1])
+    p, r = _scan(elev, z0, 0.0, np.zeros(3), n_az=180)
+    assert fit_ray_model([(p, r, np.zeros(3))] * 2, len(elev), stride=1).skew == 0.0
+
+
+def test_one_frame_of_unknown_beams_does_not_discard_the_others_fit(drive, tmp_path):
+    """A window frame out of scan order (its beams not known) is left out of the ray fit, with a warning;
+    the others' fit is kept. The held-out frame out of order: a warning that its grid is the shipped table."""
+    moved = tmp_path / "seq"
+    shutil.copytree(drive, moved)
+    for i in (0, 1):
+        f = moved / "velodyne" / f"00000{i}.bin"
+        c = read_cloud(f)
+        o = np.random.default_rng(i).permutation(len(c.points))
+        write_cloud(f, PointCloud(c.points[o], {k: v[o] for k, v in c.attributes.items()}, c.origin))
+    seq = read_sequence(moved)
+    with pytest.warns(SlrWarning, match="000000.*not known.*left out"):
+        model = holdout_ray_model(seq, [0, 2], sensor("velodyne_vlp16"), None, FrameCache(seq))
+    assert model.source == "fitted"
+    with pytest.warns(SlrWarning, match="000001.*not known.*shipped table"):
+        simulate_holdout(seq, 1, "fpa", sensor="velodyne_vlp16", half=1)
+
+
+def test_a_grid_from_the_other_frames_reads_nothing_of_the_held_out_frame(drive, tmp_path):
+    """``grid_from="others"``: the held-out frame's rows tilted (its points' z scaled) leave its scoring
+    grid as it was; the default grid (fitted to the frame) moves with them."""
+    moved = tmp_path / "seq"
+    shutil.copytree(drive, moved)
+    f = moved / "velodyne" / "000001.bin"
+    c = read_cloud(f)
+    write_cloud(f, PointCloud(c.points * [1.0, 1.0, 1.1], c.attributes, c.origin))
+    grids = {}
+    for name, root in (("before", drive), ("after", moved)):
+        for source in ("target", "others"):
+            res = evaluate_holdout(read_sequence(root), 1, sensor="velodyne_vlp16", half=1, methods=("nearest",),
+                                   grid_from=source)
+            grids[name, source] = res["pattern"]["elevation_range_deg"]
+    assert grids["before", "others"] == grids["after", "others"]
+    assert grids["before", "target"] != grids["after", "target"]
+    with pytest.raises(InputValueError, match="grid_from"):
+        evaluate_holdout(read_sequence(drive), 1, sensor="velodyne_vlp16", grid_from="self")

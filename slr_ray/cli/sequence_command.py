@@ -16,7 +16,7 @@ from ..sensors import SENSORS
 from ..sequence import (FPA_GAP, METHODS, convert_sequence, evaluate_sequence, read_sequence,
                         read_trajectory, register_chain, write_kitti_poses)
 from ..sequence.convert import CONVERT_ESTIMATORS
-from ..sequence.holdout import DEFAULT_METHODS, lidar4d_holdout
+from ..sequence.holdout import DEFAULT_METHODS, GRID_SOURCES, lidar4d_holdout
 from . import arguments as A
 from .commands import emit
 
@@ -72,6 +72,9 @@ def add_sequence_parser(sub) -> None:
                    help="the frames' sensor (default velodyne_hdl64e_s2, KITTI's); fitted to each held-out frame")
     q.add_argument("--methods", nargs="+", default=list(DEFAULT_METHODS), choices=list(METHODS),
                    help=f"methods (default {' '.join(DEFAULT_METHODS)})")
+    q.add_argument("--grid-from", choices=list(GRID_SOURCES), default="target",
+                   help="where each held-out frame's scoring grid (row elevations, column count) is fitted: target "
+                        "(default) its own points, others the other frames of its window (strictly leak-free)")
     q = ssub.add_parser("convert", help="re-simulate every frame as another sensor (SemanticKITTI layout)",
                         description="each frame re-simulated from the union of its window as another sensor, at "
                                     "its pose (and --offset); resumable, parallel")
@@ -174,10 +177,11 @@ def sequence(args):
 def _evaluate(args, seq, holdout, out):
     seq, regs = _poses_of(args, seq)
     res = evaluate_sequence(seq, holdout, args.sensor, args.methods, args.half, args.radius,
-                            drop_moving=not args.keep_moving, progress=not args.quiet, gap=args.fpa_gap)
+                            drop_moving=not args.keep_moving, progress=not args.quiet, gap=args.fpa_gap,
+                            grid_from=args.grid_from)
     rows = [r for f in res["frames"] for r in f["table"]] + res["mean"]
     files = {"json": out / "evaluation.json", "markdown": out / "table.md", "csv": out / "table.csv"}
-    doc = res | {"protocol": args.protocol, "registration": regs, "pose_source": seq.pose_source,
+    doc = res | {"protocol": args.protocol, "grid_from": args.grid_from, "registration": regs, "pose_source": seq.pose_source,
                  "inputs": [str(p) for p in seq.paths], "table": rows}
     _write(files["json"], compact_json(json_safe(doc)) + "\n")
     cols = LIDAR4D_COLUMNS if args.protocol == "lidar4d" else COLUMNS

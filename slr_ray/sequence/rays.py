@@ -149,9 +149,11 @@ def fit_ray_model(frames, n_lasers: int, skews=None, stride: int = 2) -> RayMode
 
     def best_of(grid):
         fits = {float(k): fit(k) for k in grid}
-        k = min(fits, key=lambda s: fits[s][2])
+        k = min(fits, key=lambda s: (fits[s][2], abs(s)))  # a tie (no motion: every skew alike): the least
         return k, fits[k]
 
+    if skews is None and not any(np.any(v != 0) for v in motions):
+        skews = [0.0]  # frames that never moved: no skew in them to fit
     if skews is None:
         k, _ = best_of(np.arange(-2.0, 1.01, 0.25))
         k, (z0, el, res) = best_of(np.round(np.arange(k - 0.2, k + 0.21, 0.05), 2))
