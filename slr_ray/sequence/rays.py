@@ -163,7 +163,7 @@ def fit_ray_model(frames, n_lasers: int, skews=None, stride: int = 2) -> RayMode
         raise InputValueError("the frames' lasers have too few points to fit their rays")
     z0 = np.where(np.isfinite(z0), z0, np.nanmean(z0))
     el = np.where(np.isfinite(el), el, np.nanmean(el))  # an empty laser: somewhere (it returns little)
-    return RayModel(el, z0, np.zeros(n_lasers), float(k), "fitted", round(res, 5))
+    return RayModel(el, z0, np.zeros(n_lasers), float(k) + 0.0, "fitted", round(res, 5))  # + 0.0: no -0.0
 
 
 def fit_range_bias(model: RayModel, frames, k: int = 32, stride: int = 8) -> RayModel:
