@@ -1,6 +1,7 @@
 """The ``rays`` estimator (slr_ray.sequence.rays): the sensor's rays fitted from frames' own points,
 each beam cast along its ray onto the union's planes; it must never read the held-out frame's points."""
 
+import dataclasses
 import math
 import shutil
 
@@ -24,12 +25,18 @@ def drive(tmp_path_factory):
     return root
 
 
-def test_the_held_out_frames_points_never_change_what_rays_return(drive, tmp_path):
+@pytest.fixture(scope="module")
+def rays_of_frame_1(drive):
+    """``rays``' returns for the drive's frame 1 held out (±1 frame, the shipped table's grid)."""
+    return simulate_holdout(read_sequence(drive), 1, "rays", sensor="velodyne_vlp16", half=1,
+                            pattern=sensor("velodyne_vlp16"))
+
+
+def test_the_held_out_frames_points_never_change_what_rays_return(drive, rays_of_frame_1, tmp_path):
     """Its points moved along their own rays (its table, beams and pose unchanged) must not move a
     single return: the sensor's rays come from the other frames only."""
-    seq = read_sequence(drive)
     pat = sensor("velodyne_vlp16")
-    before = simulate_holdout(seq, 1, "rays", sensor="velodyne_vlp16", half=1, pattern=pat)
+    before = rays_of_frame_1
     moved = tmp_path / "seq"
     shutil.copytree(drive, moved)
     f = moved / "velodyne" / "000001.bin"
@@ -176,3 +183,14 @@ def test_a_grid_from_the_other_frames_reads_nothing_of_the_held_out_frame(drive,
     assert grids["before", "target"] != grids["after", "target"]
     with pytest.raises(InputValueError, match="grid_from"):
         evaluate_holdout(read_sequence(drive), 1, sensor="velodyne_vlp16", grid_from="self")
+
+
+def test_rays_are_the_same_a_thousand_kilometres_away(drive, rays_of_frame_1):
+    """The poses translated by 1e6 m (a projected CRS): the same returns to float tolerance."""
+    seq = read_sequence(drive)
+    far = seq.poses.copy()
+    far[:, :3, 3] += [1e6, -2e6, 300.0]
+    pat = sensor("velodyne_vlp16")
+    a = rays_of_frame_1
+    b = simulate_holdout(dataclasses.replace(seq, poses=far), 1, "rays", sensor="velodyne_vlp16", half=1, pattern=pat)
+    assert len(a) > 1000 and np.array_equal(a.keys, b.keys) and np.allclose(a.ranges, b.ranges, atol=1e-6)
