@@ -1,6 +1,7 @@
 """The ``rays`` estimator (slr_ray.sequence.rays): the sensor's rays fitted from frames' own points,
 each beam cast along its ray onto the union's planes; it must never read the held-out frame's points."""
 
+import dataclasses
 import math
 import shutil
 
@@ -8,9 +9,10 @@ import numpy as np
 import pytest
 
 from slr_ray.io import PointCloud, read_cloud, write_cloud
-from slr_ray.errors import InputValueError
+from slr_ray.errors import InputValueError, SlrWarning
 from slr_ray.sequence import convert_sequence, estimate, read_sequence
-from slr_ray.sequence.holdout import mean_rows, simulate_holdout
+from slr_ray.sequence.holdout import evaluate_holdout, holdout_ray_model, mean_rows, simulate_holdout
+from slr_ray.sequence.union import FrameCache
 from slr_ray.sequence.rays import cast_rays, fit_range_bias, fit_ray_model, pattern_ray_model, sweep_offsets
 from slr_ray.sequence.synthetic import synthetic_drive
 from slr_ray.sensors import sensor
@@ -23,12 +25,18 @@ def drive(tmp_path_factory):
     return root
 
 
-def test_the_held_out_frames_points_never_change_what_rays_return(drive, tmp_path):
+@pytest.fixture(scope="module")
+def rays_of_frame_1(drive):
+    """``rays``' returns for the drive's frame 1 held out (±1 frame, the shipped table's grid)."""
+    return simulate_holdout(read_sequence(drive), 1, "rays", sensor="velodyne_vlp16", half=1,
+                            pattern=sensor("velodyne_vlp16"))
+
+
+def test_the_held_out_frames_points_never_change_what_rays_return(drive, rays_of_frame_1, tmp_path):
     """Its points moved along their own rays (its table, beams and pose unchanged) must not move a
     single return: the sensor's rays come from the other frames only."""
-    seq = read_sequence(drive)
     pat = sensor("velodyne_vlp16")
-    before = simulate_holdout(seq, 1, "rays", sensor="velodyne_vlp16", half=1, pattern=pat)
+    before = rays_of_frame_1
     moved = tmp_path / "seq"
     shutil.copytree(drive, moved)
     f = moved / "velodyne" / "000001.bin"
@@ -129,3 +137,60 @@ def test_convert_casts_the_target_tables_own_rays(drive, tmp_path):
     with pytest.raises(InputValueError, match="unknown estimator"):
         convert_sequence(seq, tmp_path / "no", "velodyne_vlp16", estimator="ray")
     assert not (tmp_path / "no").exists()
+
+
+def test_frames_that_never_moved_fit_no_skew():
+    """No motion in the fitting frames: every skew fits as well, so none is taken (a skew fitted on
+    still frames would be applied to a moving target's motion)."""
+    elev, z0 = np.radians([2.0, -4.0, -10.0]), np.array([0.2, 0.1, -0.1])
+    p, r = _scan(elev, z0, 0.0, np.zeros(3), n_az=180)
+    assert fit_ray_model([(p, r, np.zeros(3))] * 2, len(elev), stride=1).skew == 0.0
+
+
+def test_one_frame_of_unknown_beams_does_not_discard_the_others_fit(drive, tmp_path):
+    """A window frame out of scan order (its beams not known) is left out of the ray fit, with a warning;
+    the others' fit is kept. The held-out frame out of order: a warning that its grid is the shipped table."""
+    moved = tmp_path / "seq"
+    shutil.copytree(drive, moved)
+    for i in (0, 1):
+        f = moved / "velodyne" / f"00000{i}.bin"
+        c = read_cloud(f)
+        o = np.random.default_rng(i).permutation(len(c.points))
+        write_cloud(f, PointCloud(c.points[o], {k: v[o] for k, v in c.attributes.items()}, c.origin))
+    seq = read_sequence(moved)
+    with pytest.warns(SlrWarning, match="000000.*not known.*left out"):
+        model = holdout_ray_model(seq, [0, 2], sensor("velodyne_vlp16"), None, FrameCache(seq))
+    assert model.source == "fitted"
+    with pytest.warns(SlrWarning, match="000001.*not known.*shipped table"):
+        simulate_holdout(seq, 1, "fpa", sensor="velodyne_vlp16", half=1)
+
+
+def test_a_grid_from_the_other_frames_reads_nothing_of_the_held_out_frame(drive, tmp_path):
+    """``grid_from="others"``: the held-out frame's rows tilted (its points' z scaled) leave its scoring
+    grid as it was; the default grid (fitted to the frame) moves with them."""
+    moved = tmp_path / "seq"
+    shutil.copytree(drive, moved)
+    f = moved / "velodyne" / "000001.bin"
+    c = read_cloud(f)
+    write_cloud(f, PointCloud(c.points * [1.0, 1.0, 1.1], c.attributes, c.origin))
+    grids = {}
+    for name, root in (("before", drive), ("after", moved)):
+        for source in ("target", "others"):
+            res = evaluate_holdout(read_sequence(root), 1, sensor="velodyne_vlp16", half=1, methods=("nearest",),
+                                   grid_from=source)
+            grids[name, source] = res["pattern"]["elevation_range_deg"]
+    assert grids["before", "others"] == grids["after", "others"]
+    assert grids["before", "target"] != grids["after", "target"]
+    with pytest.raises(InputValueError, match="grid_from"):
+        evaluate_holdout(read_sequence(drive), 1, sensor="velodyne_vlp16", grid_from="self")
+
+
+def test_rays_are_the_same_a_thousand_kilometres_away(drive, rays_of_frame_1):
+    """The poses translated by 1e6 m (a projected CRS): the same returns to float tolerance."""
+    seq = read_sequence(drive)
+    far = seq.poses.copy()
+    far[:, :3, 3] += [1e6, -2e6, 300.0]
+    pat = sensor("velodyne_vlp16")
+    a = rays_of_frame_1
+    b = simulate_holdout(dataclasses.replace(seq, poses=far), 1, "rays", sensor="velodyne_vlp16", half=1, pattern=pat)
+    assert len(a) > 1000 and np.array_equal(a.keys, b.keys) and np.allclose(a.ranges, b.ranges, atol=1e-6)

@@ -15,7 +15,7 @@ from ..errors import InputValueError, OutputError
 from ..sensors import SENSORS
 from ..sequence import (CONVERT_ESTIMATORS, FPA_GAP, METHODS, REMOVE_MOVING, SeeThrough, convert_sequence,
                         evaluate_sequence, read_sequence, read_trajectory, register_chain, write_kitti_poses)
-from ..sequence.holdout import DEFAULT_METHODS, lidar4d_holdout
+from ..sequence.holdout import DEFAULT_METHODS, GRID_SOURCES, lidar4d_holdout
 from . import arguments as A
 from .commands import emit
 
@@ -85,6 +85,9 @@ def add_sequence_parser(sub) -> None:
                    help="the frames' sensor (default velodyne_hdl64e_s2, KITTI's); fitted to each held-out frame")
     q.add_argument("--methods", nargs="+", default=list(DEFAULT_METHODS), choices=list(METHODS),
                    help=f"methods (default {' '.join(DEFAULT_METHODS)})")
+    q.add_argument("--grid-from", choices=list(GRID_SOURCES), default="target",
+                   help="where each held-out frame's scoring grid (row elevations, column count) is fitted: target "
+                        "(default) its own points, others the other frames of its window (strictly leak-free)")
     q = ssub.add_parser("convert", help="re-simulate every frame as another sensor (SemanticKITTI layout)",
                         description="each frame re-simulated from the union of its window as another sensor, at "
                                     "its pose (and --offset); resumable, parallel")
@@ -217,10 +220,11 @@ def _evaluate(args, seq, holdout, out):
     seq, regs = _poses_of(args, seq)
     drop, st = args.moving
     res = evaluate_sequence(seq, holdout, args.sensor, args.methods, args.half, args.radius,
-                            drop_moving=drop, progress=not args.quiet, gap=args.fpa_gap, see_through=st)
+                            drop_moving=drop, progress=not args.quiet, gap=args.fpa_gap, see_through=st,
+                            grid_from=args.grid_from)
     rows = [r for f in res["frames"] for r in f["table"]] + res["mean"]
     files = {"json": out / "evaluation.json", "markdown": out / "table.md", "csv": out / "table.csv"}
-    doc = res | {"protocol": args.protocol, "registration": regs, "pose_source": seq.pose_source,
+    doc = res | {"protocol": args.protocol, "grid_from": args.grid_from, "registration": regs, "pose_source": seq.pose_source,
                  "inputs": [str(p) for p in seq.paths], "table": rows}
     _write(files["json"], compact_json(json_safe(doc)) + "\n")
     cols = LIDAR4D_COLUMNS if args.protocol == "lidar4d" else COLUMNS

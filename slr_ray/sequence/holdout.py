@@ -22,12 +22,13 @@ from __future__ import annotations
 
 import math
 import time
+import warnings
 from dataclasses import dataclass
 
 import numpy as np
 from tqdm import tqdm
 
-from ..errors import InputValueError
+from ..errors import InputValueError, SlrWarning
 from ..evaluate import THRESHOLDS, evaluation_table, fitted_pattern, scan_order_beams, zbuffer
 from ..metrics import PAPER_THRESHOLD, point_metrics, range_image_metrics, seen_from
 from ..options import Options
@@ -39,7 +40,8 @@ from .sources import SeeThrough
 from .union import FrameCache, Union, accumulate, discs_of_frames, to_frame, window
 
 __all__ = ["METHODS", "LABELS", "HoldoutOptions", "evaluate_holdout", "evaluate_sequence", "mean_rows", "DEFAULT_METHODS",
-           "clamped_depth_errors", "lidar4d_holdout", "LIDAR4D_MAX_DEPTH", "holdout_ray_model", "simulate_holdout"]
+           "clamped_depth_errors", "lidar4d_holdout", "LIDAR4D_MAX_DEPTH", "holdout_ray_model", "simulate_holdout",
+           "GRID_SOURCES", "others_pattern"]
 
 #: LiDAR4D's depth clamp (utils/metrics.py, compute_depth_errors: min 1e-6, max 80 m)
 LIDAR4D_MAX_DEPTH = 80.0
@@ -81,22 +83,40 @@ def _beams(frame, base):
     return scan_order_beams(frame.points, base.n_beams)
 
 
+def _held_beams(seq: Sequence, target: int, frame, base):
+    """The held-out frame's beams (:func:`_beams`), or ``None`` with a warning: its grid is then the
+    shipped table, not fitted to it (a frame out of scan order, or of another sensor)."""
+    beams = _beams(frame, base)
+    if beams is None:
+        warnings.warn(f"frame {seq.names[target]}: beams not known (no ring field, not in {base.name}'s scan order "
+                      f"of {base.n_beams} rings: another sensor, or shuffled points?): scored on the shipped "
+                      "table's grid, not one fitted to the frame", SlrWarning, stacklevel=3)
+    return beams
+
+
 def holdout_ray_model(seq: Sequence, others, base, pattern, cache: FrameCache) -> RayModel:
     """The sensor's rays fitted from the frames ``others`` (never the held-out frame): their own points,
     their beams (a ``ring`` field or the scan order) and their motion from the poses
     (:func:`~slr_ray.sequence.rays.fit_ray_model`), and each laser's range bias against the others'
     frames (:func:`~slr_ray.sequence.rays.fit_range_bias`). Where a frame's beams are not known, the
     pattern's own rays."""
-    frames, worlds = [], []
+    frames, worlds, unknown = [], [], []
     for i in others:
         f, w = cache.get(i)
         beams = _beams(f, base)
         if beams is None or len(f.points) == 0:
-            return pattern_ray_model(pattern)
+            unknown.append(seq.names[i])
+            continue
         base.rows_of_beams(beams, len(f.points))  # beam ids outside the sensor's table: refused, named
         known = beams >= 0  # -1: a point whose beam is not known
         frames.append((f.points[known], beams[known], frame_motion(seq.poses, i)))
         worlds.append((w[known], beams[known], seq.poses[i], frames[-1][2]))
+    if unknown:
+        warnings.warn(f"frame(s) {', '.join(unknown)}: beams not known (no ring field, not in {base.name}'s scan "
+                      f"order of {base.n_beams} rings): left out of the rays' fit"
+                      + ("" if frames else "; rays casts the table's ideal rays"), SlrWarning, stacklevel=2)
+    if not frames:
+        return pattern_ray_model(pattern)
     return fit_range_bias(fit_ray_model(frames, base.n_beams), worlds)
 
 
@@ -130,6 +150,10 @@ class HoldoutOptions(Options):
     see_through : SeeThrough or None
         Leave out of the union what other frames saw through (the held-out frame does not vote:
         it is what is scored).
+    grid_from : str
+        Where the held-out frame's scoring grid (each row's elevation, the column count) is fitted:
+        ``"target"`` its own points (the default, as ``slr-ray evaluate`` fits a pair's), or
+        ``"others"`` the other frames of its window (strictly leak-free: :func:`others_pattern`).
     """
 
     sensor: object = "velodyne_hdl64e_s2"
@@ -141,6 +165,29 @@ class HoldoutOptions(Options):
     seen_threshold: float = PAPER_THRESHOLD
     gap: float = FPA_GAP
     see_through: SeeThrough | None = None
+    grid_from: str = "target"
+
+
+#: where a held-out frame's scoring grid may be fitted (HoldoutOptions.grid_from)
+GRID_SOURCES = ("target", "others")
+
+
+def others_pattern(others, base, cache: FrameCache):
+    """``base`` fitted (:func:`~slr_ray.sensors.fitted_pattern`) to the frames ``others`` together, each
+    in its own frame: each row's elevation the median of the others' points of its beam, the column
+    count from their azimuth steps. ``base`` itself where no frame's beams are known."""
+    pts, beams = [], []
+    for i in others:
+        f, _ = cache.get(i)
+        b = _beams(f, base)
+        if b is None or len(f.points) == 0:
+            continue
+        known = b >= 0
+        pts.append(f.points[known])
+        beams.append(b[known])
+    if not pts:
+        return base
+    return fitted_pattern(np.concatenate(pts), np.concatenate(beams), base)
 
 
 def evaluate_holdout(seq: Sequence, target: int, options: HoldoutOptions | None = None, *,
@@ -150,6 +197,8 @@ def evaluate_holdout(seq: Sequence, target: int, options: HoldoutOptions | None 
     o = HoldoutOptions.of(options, **keywords)
     sensor, methods, half, radius, drop_moving = o.sensor, o.methods, o.half, o.radius, o.drop_moving
     thresholds, seen_threshold, gap, see_through = o.thresholds, o.seen_threshold, o.gap, o.see_through
+    if o.grid_from not in GRID_SOURCES:
+        raise InputValueError(f"grid_from {o.grid_from!r}: choose from {list(GRID_SOURCES)}")
     unknown = [m for m in methods if m not in METHODS]
     if unknown:
         raise InputValueError(f"unknown method(s) {unknown}; choose from {list(METHODS)}")
@@ -160,8 +209,11 @@ def evaluate_holdout(seq: Sequence, target: int, options: HoldoutOptions | None 
         raise InputValueError(f"frame {seq.names[target]}: no other frame in its window")
     fb, _ = cache.get(target)
     b = fb.points
-    beams = _beams(fb, base)
-    pat = fitted_pattern(b, beams, base) if beams is not None else base
+    beams = _held_beams(seq, target, fb, base) if o.grid_from == "target" else _beams(fb, base)
+    if o.grid_from == "others":
+        pat = others_pattern(others, base, cache)
+    else:
+        pat = fitted_pattern(b, beams, base) if beams is not None else base
     band_keys, _ = pat.pulse_ids(b, np.zeros(3))
     in_view = band_keys >= 0
     if not in_view.any():
@@ -195,7 +247,7 @@ def evaluate_holdout(seq: Sequence, target: int, options: HoldoutOptions | None 
            "adjacent": seq.names[adj], "union_points": int(len(union)), "removed": union.removed,
            "see_through": see_through.to_dict() if see_through else None,
            "target_points_in_view": int(len(b_in)), "unseen_share": float(np.mean(~seen)),
-           "pattern": pat.to_dict() | {"beams_known": beams is not None},
+           "pattern": pat.to_dict() | {"beams_known": beams is not None, "grid_from": o.grid_from},
            "thresholds": [float(x) for x in thresholds], "seen_threshold": seen_threshold, "rows": rows}
     res["table"] = [{"frame": res["frame"]} | r
                     | {"lidar4d_depth_rmse_m": extra[m][0], "lidar4d_depth_medae_m": extra[m][1]}
@@ -257,7 +309,7 @@ def simulate_holdout(seq: Sequence, target: int, method: str = "rays", sensor: s
         raise InputValueError(f"frame {seq.names[target]}: no other frame in its window")
     fb, _ = cache.get(target)
     if pattern is None:
-        beams = _beams(fb, base)
+        beams = _held_beams(seq, target, fb, base)
         pattern = fitted_pattern(fb.points, beams, base) if beams is not None else base
     union = accumulate(seq, others, drop_moving=drop_moving, cache=cache)
     held = _Held(seq, target, others, union, to_frame(union.points, fb.pose), pattern, base, gap, cache,

@@ -149,9 +149,11 @@ def fit_ray_model(frames, n_lasers: int, skews=None, stride: int = 2) -> RayMode
 
     def best_of(grid):
         fits = {float(k): fit(k) for k in grid}
-        k = min(fits, key=lambda s: fits[s][2])
+        k = min(fits, key=lambda s: (fits[s][2], abs(s)))  # a tie (no motion: every skew alike): the least
         return k, fits[k]
 
+    if skews is None and not any(np.any(v != 0) for v in motions):
+        skews = [0.0]  # frames that never moved: no skew in them to fit
     if skews is None:
         k, _ = best_of(np.arange(-2.0, 1.01, 0.25))
         k, (z0, el, res) = best_of(np.round(np.arange(k - 0.2, k + 0.21, 0.05), 2))
@@ -161,7 +163,7 @@ def fit_ray_model(frames, n_lasers: int, skews=None, stride: int = 2) -> RayMode
         raise InputValueError("the frames' lasers have too few points to fit their rays")
     z0 = np.where(np.isfinite(z0), z0, np.nanmean(z0))
     el = np.where(np.isfinite(el), el, np.nanmean(el))  # an empty laser: somewhere (it returns little)
-    return RayModel(el, z0, np.zeros(n_lasers), float(k), "fitted", round(res, 5))
+    return RayModel(el, z0, np.zeros(n_lasers), float(k) + 0.0, "fitted", round(res, 5))  # + 0.0: no -0.0
 
 
 def fit_range_bias(model: RayModel, frames, k: int = 32, stride: int = 8) -> RayModel:
