@@ -13,7 +13,7 @@ cast seconds, and prepare seconds (medians over positions / runs). Saves results
 First, the step edge of tests/test_embree_silhouettes.py (a wall 5 m in front of one 10 m away, 0.5 deg,
 zenith 70-110, scanned exactly with ``scan_mesh`` from the origin): pulses returned more than 0.5 m off
 the exact scan of the mesh at the origin and 1 m away, binning and embree with ``primary_image=False``
-(the discs themselves) with and without ``silhouettes``.
+(the discs themselves) with and without ``silhouettes``; then the same for the scene mirrored across y.
 """
 
 from __future__ import annotations
@@ -43,24 +43,32 @@ def step_edge() -> list[dict]:
     import trimesh
 
     mesh = trimesh.util.concatenate([_quad(5.0, -1.0, 0.0, -1.0, 1.0), _quad(10.0, -4.0, 4.0, -3.0, 3.0)])
+    rows = _step_edge(mesh, "")
+    # the scene mirrored across y: the rule has no side (its counts at +y and -y swap)
+    mirror = trimesh.Trimesh(mesh.vertices * [1, -1, 1], mesh.faces[:, ::-1], process=False)
+    return rows + _step_edge(mirror, "mirrored scene, ")
+
+
+def _step_edge(mesh, scene: str) -> list[dict]:
     pat = ScanPattern(resolution=0.5, zenith_range=(70, 110))
     pts = scan_mesh(mesh, [0, 0, 0], pat).points
     grid = {"primary_origin": [0.0, 0.0, 0.0], "primary_resolution": 0.5, "primary_image": False}
     scanners = {"binning": prepare(pts, "binning"), "embree, silhouettes": prepare(pts, "embree", **grid),
                 "embree, no silhouettes": prepare(pts, "embree", silhouettes=False, **grid)}
     rows = []
-    print("| position | " + " | ".join(scanners) + " |")
+    if not scene:
+        print("| position | " + " | ".join(scanners) + " |")
     for label, off in (("origin", (0, 0, 0)), ("1 m above", (0, 0, 1)), ("1 m aside +y", (0, 1, 0)),
                        ("1 m aside -y", (0, -1, 0)), ("1 m forward", (1, 0, 0))):
         truth = scan_mesh(mesh, off, pat)
         t = dict(zip(map(tuple, truth.pulses.tolist()), truth.ranges))
-        row = {"position": label, "pulses": len(pts)}
+        row = {"position": scene + label, "pulses": len(pts)}
         for name, sc in scanners.items():
             s = sc.scan(off, pat)
             row[name] = int(sum(abs(r - t[p]) > 0.5 for p, r in zip(map(tuple, s.pulses.tolist()), s.ranges)
                                 if p in t))
         rows.append(row)
-        print(f"| {label} | " + " | ".join(str(row[n]) for n in scanners) + " |", flush=True)
+        print(f"| {scene}{label} | " + " | ".join(str(row[n]) for n in scanners) + " |", flush=True)
     return rows
 
 

@@ -355,14 +355,14 @@ def test_scene_specs_that_would_exhaust_memory_or_hold_nan_are_refused_first(tmp
 
 def test_embree_settings_that_would_exhaust_memory_are_refused_with_the_figure(tmp_path, capsys):
     src = tmp_path / "big.npz"
-    np.savez(src, points=np.random.default_rng(0).uniform(-5, 5, (100_000, 3)), origin=np.zeros(3))
+    np.savez(src, points=np.random.default_rng(0).uniform(-5, 5, (100_000, 3)))  # no origin: no fit, no warning
     # a row of 3.6e9 rays (a 1e-7 deg band of 50 rows: 1.8e11 rays, a cast short enough to be tried);
     # a whole 2e-7 deg pattern is refused sooner, for the hours its cast would take
     for settings, says in ((["--resolution", "5", "--engine", "fan", "--segments", "1000000"], "GiB"),
                            (["--resolution", "1e-7", "--zenith-range", "90", "90.000005"], "GiB"),
                            (["--resolution", "2e-7"], "hours")):
-        rc = main(["scan", str(src), "--backend", "embree", "--radius", "0.1", *settings, "--quiet",
-                   "-o", str(tmp_path / "o.npz")])  # --quiet: a slow prepare is named on stderr otherwise
+        rc = main(["scan", str(src), "--origin", "0", "0", "0", "--backend", "embree", "--radius", "0.1", *settings,
+                   "--quiet", "-o", str(tmp_path / "o.npz")])  # --quiet: a slow prepare is named on stderr otherwise
         err = capsys.readouterr().err
         assert rc == 2 and says in err and len(err.strip().splitlines()) == 1, err
         assert not (tmp_path / "o.npz").exists()

@@ -222,11 +222,14 @@ def _primary_from_file(args, cloud, options):
         return options, None
     origin = np.asarray(cloud.origin, np.float64)
     try:
-        fitted, how = fit_primary_pattern(cloud.points, origin)
-    except InputValueError as e:  # no grid to fit: the discs go without the primary (kNN), and say why
+        fitted, how, quality = fit_primary_pattern(cloud.points, origin)
+    except InputValueError as e:  # no grid, or not a scan's: the discs go without the primary (kNN), and say why
+        warnings.warn(f"{args.input}: its pattern is not fitted, the discs take kNN neighbours: {e}", SlrWarning,
+                      stacklevel=2)
         return options, {"from_file": False, "why": str(e)}
     with_primary = options_for(args.backend, {**given, **takes(tuple(origin.tolist()), fitted)})
     return with_primary, {"from_file": True, "origin": origin.tolist(), "pattern": fitted.to_dict(), "fit": how,
+                          "fit_quality": round(quality, 4),
                           "why": f"{args.input} records where its scanner was; its pattern is fitted to the points "
                                  "(--primary-origin and --primary-pattern or --primary-resolution choose them)"}
 

@@ -44,7 +44,9 @@ _C_NORMALS, _C_NBYTES, _C_TIES, _C_VERTICES, _C_LOCAL = 13, 14, 15, 16, 17
 # the silhouette rule: each owner's silhouette bits (uint8, 0: none), the primary's grid (float64:
 # origin xyz, zenith min, zenith step (a beam table: its largest row gap), azimuth step, rows, columns) and its band edges (-cos, ascending)
 _C_CLIP, _C_CLIP_GEO, _C_CLIP_EDGES, _C_CLIP_NEDGES = 20, 21, 22, 23
-_C_LANES = 24
+# and the primary's origin in the scene frame (float64 xyz: against the float32 vertices)
+_C_CLIP_PO = 24
+_C_LANES = 27
 # a lane: its mode and direction (float64); tie mode's best so far (owner, score, t, primitive);
 # one pass: the nearest hit so far (t, owner, primitive), where the ray is cut, the candidates
 _L_MODE, _L_DIR, _L_BEST, _L_SCORE, _L_BEST_T, _L_BEST_PRIM = 0, 1, 4, 5, 6, 7
@@ -196,28 +198,41 @@ def _clipped(ctx, ctxf, owner, t, dx, dy, dz):
     a silhouette; for the others (nearly all) by the hit's angular offset, 1.5 pulses."""
     bits = np.int64(carray(_as_pointer(ctx[_C_CLIP] + owner), 1, dtype=np.uint8)[0])
     geo = carray(_as_pointer(ctx[_C_CLIP_GEO]), 8, dtype=np.float64)
-    n_edges = ctx[_C_CLIP_NEDGES]
-    edges = carray(_as_pointer(ctx[_C_CLIP_EDGES]), max(n_edges, 1), dtype=np.float64)
-    cen = carray(_as_pointer(ctx[_C_CENTRES] + owner * 24), 3, dtype=np.float64)
     hx_, hy_, hz_ = ctxf[_C_ORG] + t * dx, ctxf[_C_ORG + 1] + t * dy, ctxf[_C_ORG + 2] + t * dz
     if bits == 0:
         # an inner point: no angles, its pulse offset in the tangent frame of its direction: a hit
         # 1.5 rows off, or 1.5 columns (or where columns are narrower than a row, half a column
-        # more than a row's height) is beyond the pulses next to its own
-        ax, ay, az = cen[0] - geo[0], cen[1] - geo[1], cen[2] - geo[2]
+        # more than a row's height) is beyond the pulses next to its own. For discs, its direction
+        # from the float32 centre Embree has just read (in cache; 1e-7 of its distance from the
+        # scene's centre: a thousandth of a pulse of 0.01 deg at a tenth of that distance), not from
+        # the float64 one (a read from memory, most of the rule's cost)
+        if ctx[_C_VERTICES]:
+            v = carray(_as_pointer(ctx[_C_VERTICES] + owner * 16), 3, dtype=np.float32)
+            ax = np.float64(v[0]) - ctxf[_C_CLIP_PO]
+            ay = np.float64(v[1]) - ctxf[_C_CLIP_PO + 1]
+            az = np.float64(v[2]) - ctxf[_C_CLIP_PO + 2]
+        else:
+            cen = carray(_as_pointer(ctx[_C_CENTRES] + owner * 24), 3, dtype=np.float64)
+            ax, ay, az = cen[0] - geo[0], cen[1] - geo[1], cen[2] - geo[2]
         bx, by, bz = hx_ - geo[0], hy_ - geo[1], hz_ - geo[2]
-        rho = math.sqrt(ax * ax + ay * ay)
-        ra = math.sqrt(rho * rho + az * az)
-        rb = math.sqrt(bx * bx + by * by + bz * bz)
-        if rho * 1e6 <= ra or rb == 0.0:
+        rho2 = ax * ax + ay * ay
+        ra2 = rho2 + az * az
+        rb2 = bx * bx + by * by + bz * bz
+        if rho2 * 1e12 <= ra2 or rb2 == 0.0:
             return False  # on the pole's axis (or at the primary): any column
-        ex, ey, ez = bx / rb - ax / ra, by / rb - ay / ra, bz / rb - az / ra
-        u_theta = (ex * ax * az + ey * ay * az) / (rho * ra) - ez * rho / ra
-        u_phi = (ey * ax - ex * ay) / rho
+        rho = math.sqrt(rho2)
+        inv_ra = 1.0 / math.sqrt(ra2)
+        inv_rb = 1.0 / math.sqrt(rb2)
+        ex, ey, ez = bx * inv_rb - ax * inv_ra, by * inv_rb - ay * inv_ra, bz * inv_rb - az * inv_ra
+        sin_theta = rho * inv_ra
+        u_theta = ((ex * ax + ey * ay) * az / rho - ez * rho) * inv_ra
         if abs(u_theta) >= 1.5 * geo[4]:
             return True
-        sin_theta = rho / ra
+        u_phi = (ey * ax - ex * ay) / rho
         return abs(u_phi) >= max(1.5 * geo[5] * sin_theta, 0.5 * geo[5] * sin_theta + geo[4])
+    n_edges = ctx[_C_CLIP_NEDGES]
+    edges = carray(_as_pointer(ctx[_C_CLIP_EDGES]), max(n_edges, 1), dtype=np.float64)
+    cen = carray(_as_pointer(ctx[_C_CENTRES] + owner * 24), 3, dtype=np.float64)
     vc, hc = _primary_cell(geo, edges, n_edges, cen[0], cen[1], cen[2])
     vx, hx = _primary_cell(geo, edges, n_edges, hx_, hy_, hz_)
     nh = np.int64(geo[7])
@@ -524,6 +539,8 @@ def cast_rays(isect, width, scene, filt, org32, org64, dirs, tnear, tfar, mode_f
         ctx[_C_CLIP_GEO] = clip_geo.ctypes.data
         ctx[_C_CLIP_EDGES] = clip_edges.ctypes.data
         ctx[_C_CLIP_NEDGES] = clip_edges.shape[0]
+        for k in range(3):  # the scene frame: that of the ray origin ``local``
+            ctxf[_C_CLIP_PO + k] = clip_geo[k] - org64[k] + local[k]
         mode_first |= _MODE_CLIP
     has_normals = normals.shape[0] > 0
     if has_normals:

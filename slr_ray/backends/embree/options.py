@@ -89,7 +89,10 @@ class EmbreeOptions(BackendOptions):
         scanner is prepared (a frame stored beam by beam: its fitted
         HDL-64E table; any other cloud: a uniform grid of its angular
         spacing; ``slr_ray.backends.embree.fit``), reported in each scan's
-        ``info`` (``primary_pattern``, ``primary_pattern_fit``). The pulse
+        ``info`` (``primary_pattern``, ``primary_pattern_fit``,
+        ``primary_pattern_fit_quality``); refused (InputValueError) where the
+        cloud is no scan from there (under 80 % of the fitted grid's occupied
+        pulses hold one point: ``fit.FIT_MIN_SINGLE``). The pulse
         grid is then its rows (beams) and columns, and the footprint angle
         the root mean square of its row gap and column step.
     primary_beams : (n,) int, optional

@@ -66,10 +66,11 @@ class DiscScanner(Scanner):
         t0 = time.perf_counter()
         options = options or EmbreeOptions()
         pts = as_points(points).astype(np.float64, copy=False)
-        #: how ``primary_pattern='fit'`` was fitted (None: given)
-        self.primary_fit = None
+        #: how ``primary_pattern='fit'`` was fitted (None: given), and the fit's quality
+        #: (:func:`~.fit.fit_quality`: the share of its occupied pulses that hold one point)
+        self.primary_fit = self.primary_fit_quality = None
         if options.fit_pending:
-            fitted, self.primary_fit = fit_primary_pattern(pts, options.primary_origin)
+            fitted, self.primary_fit, self.primary_fit_quality = fit_primary_pattern(pts, options.primary_origin)
             options = dataclasses.replace(options, primary_pattern=fitted)
         super().__init__(pts, options)
         o = options
@@ -293,7 +294,9 @@ class DiscScanner(Scanner):
                     seconds=time.perf_counter() - t_start,
                     info={"cast_seconds": round(cast, 6), "rays": int(pattern.n_pulses),
                           "primary_view": self.primary_view(origin, pattern),
-                          **({"primary_pattern_fit": self.primary_fit} if self.primary_fit else {}),
+                          **({"primary_pattern_fit": self.primary_fit,
+                              "primary_pattern_fit_quality": round(self.primary_fit_quality, 4)}
+                             if self.primary_fit else {}),
                           "ray_hits": int(n_ray_hits), **self.options.to_dict()})
         # a file-mapped cloud (a validation's spilled primary): one scan's tie rule and gathers touch
         # nearly every page of it (the hits are spread over the whole cloud); released here, they do
