@@ -84,3 +84,14 @@ def test_options_travel_pickled_and_round_trip_through_json(cls):
     assert dataclasses.replace(o) == o and repr(o).startswith(cls.__name__)
     back = cls.from_dict(json.loads(json.dumps(o.to_dict())))  # a config file's lists: the same options
     assert back == o and hash(back) == hash(o)
+
+
+def test_options_holding_a_profile_compare_and_hash_by_value():
+    import pickle
+
+    from slr_ray.positions import default_profile
+
+    o = PositionOptions(profile=default_profile())
+    back = pickle.loads(pickle.dumps(o))  # as a worker process gets it
+    assert back == o and hash(back) == hash(o)  # was: ValueError (the profile's counts compared as arrays)
+    assert PositionOptions(profile=dataclasses.replace(o.profile, counts=o.profile.counts + 1)) != o
