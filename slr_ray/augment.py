@@ -596,6 +596,17 @@ class _Run(NamedTuple):
     force: bool
 
 
+def share_threads(jobs: list, options, backend_options: dict, n_workers: int) -> list:
+    """The jobs of ``n_workers`` processes, the cores shared out between them through
+    ``n_threads`` (W processes of W-fold threads on the same cores only contend; results
+    do not depend on it): unless the user set it, and only for a backend whose options
+    (``options``, typed) have the field."""
+    if "n_threads" in backend_options or not hasattr(options, "n_threads"):
+        return jobs
+    per = max(1, (os.cpu_count() or 1) // n_workers)
+    return [{**j, "options": {**j["options"], "n_threads": per}} for j in jobs]
+
+
 def _augment(input_path, out, config, ground, run: _Run) -> dict:
     """:func:`augment` in its locked directory."""
     pattern, options, effects, ext, names, progress, force = run
@@ -741,12 +752,7 @@ def _augment(input_path, out, config, ground, run: _Run) -> dict:
                     done_one(fut.result())
         elif (config.workers or os.cpu_count() or 1) > 1 and len(jobs) > 1:
             n_workers = min(len(jobs), config.workers or os.cpu_count() or 1)
-            if "n_threads" not in backend_options:
-                # the cores shared out between the workers: W processes of W-fold
-                # threads on the same cores only contend (results do not depend on it)
-                per = max(1, (os.cpu_count() or 1) // n_workers)
-                for j in jobs:
-                    j["options"] = {**j["options"], "n_threads": per}
+            jobs = share_threads(jobs, options, backend_options, n_workers)
             # spawn, not fork: a forked child inherits the parent's thread pools
             # (numba's, the binning backend's) in whatever state they were and can hang.
             # multiprocessing.Pool, not ProcessPoolExecutor: on an interrupt (SIGINT, or

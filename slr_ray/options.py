@@ -23,7 +23,18 @@ __all__ = ["Options"]
 
 @dataclasses.dataclass(frozen=True)
 class Options:
-    """Base of every options class (frozen; unknown keys rejected)."""
+    """Base of every options class (frozen; unknown keys rejected; a list given for a
+    field is kept as a tuple, so that options read from JSON or TOML equal and hash as
+    the defaults do)."""
+
+    def __post_init__(self):
+        for f in dataclasses.fields(self):
+            if isinstance(getattr(self, f.name), list):
+                object.__setattr__(self, f.name, tuple(getattr(self, f.name)))
+
+    def to_dict(self) -> dict:
+        """The fields, as a plain dict (shallow): JSON-ready where the fields are."""
+        return {f.name: getattr(self, f.name) for f in dataclasses.fields(self)}
 
     @classmethod
     def from_dict(cls, options: dict | None = None, **more):
@@ -59,8 +70,9 @@ class Options:
         if isinstance(options, Options) and issubclass(cls, type(options)):  # a base's: its fields
             options = {f.name: getattr(options, f.name) for f in dataclasses.fields(options)}
         if options is not None and not isinstance(options, Mapping):
-            raise InputTypeError(f"options must be a {cls.__name__}, a mapping of its fields or None, "
-                                 f"got {type(options).__name__}")
+            raise InputTypeError(f"options must be {cls.__name__} (or a mapping of its fields, or None), got "
+                                 f"{type(options).__name__}: the settings after the required arguments are "
+                                 f"keywords or {cls.__name__}'s fields, no longer positions")
         return cls.from_dict(options, **keywords)
 
     @classmethod
@@ -89,7 +101,3 @@ def _attributes(doc: str) -> dict:
         elif not line.strip() and name is not None and out[name][1]:
             name = None
     return {k: tuple(v) for k, v in out.items()}
-
-    def to_dict(self) -> dict:
-        """The fields, as a plain dict (shallow)."""
-        return {f.name: getattr(self, f.name) for f in dataclasses.fields(self)}

@@ -67,9 +67,11 @@ def azimuth_histogram(points, origin, bins: int = 360) -> np.ndarray:
     return np.sort(np.bincount(h, minlength=bins))
 
 
-@dataclass
+@dataclass(eq=False)
 class AzimuthProfile:
     """A minimum profile: sorted per-degree counts a scan must reach everywhere.
+    A value: equal (and hashed) by its counts, pattern and meta, so that options
+    holding one (:class:`CellOptions`) compare and hash.
 
     Attributes
     ----------
@@ -85,6 +87,15 @@ class AzimuthProfile:
     counts: np.ndarray
     pattern: ScanPattern
     meta: dict = field(default_factory=dict)
+
+    def __eq__(self, other):
+        if not isinstance(other, AzimuthProfile):
+            return NotImplemented
+        return (np.array_equal(self.counts, other.counts) and self.pattern == other.pattern
+                and self.meta == other.meta)
+
+    def __hash__(self):
+        return hash((np.asarray(self.counts).tobytes(), self.pattern))
 
     def passes(self, histogram) -> bool:
         """True when a sorted histogram is >= the profile in every bin."""

@@ -140,3 +140,14 @@ def test_a_registered_ray_caster_is_compared_and_named_by_its_capability(monkeyp
     assert [b["only_raytoy"] for b in toy["bands"]] == [b["only_embree"] for b in ref["bands"]]
     with pytest.raises(InputValueError, match="casts rays .casts_rays: embree, raytoy"):
         simulate(prepare(pts), [0, 0, 0], 2.0, {"divergence_mrad": 2.0})
+
+
+def test_augment_shares_threads_only_with_backends_that_take_them(toy):
+    """augment's workers share the cores through ``n_threads``: a backend whose options
+    have no such field (the recipe asks for none) gets its options as given."""
+    from slr_ray.augment import share_threads
+
+    jobs = [{"options": {}}, {"options": {}}]
+    assert share_threads(jobs, ToyOptions(), {}, 2) == jobs
+    assert {j["options"]["n_threads"] for j in share_threads(jobs, BinningOptions(), {}, 2)} >= {1}
+    assert share_threads(jobs, BinningOptions(), {"n_threads": 3}, 2) == jobs  # the user's count kept

@@ -269,6 +269,7 @@ def test_an_input_attribute_the_range_image_keeps_is_refused_naming_the_flag(tmp
                  str(tmp_path / "ri.npz"), "--quiet", "-o", str(tmp_path / "s.ply")]) == 2
     err = capsys.readouterr().err
     assert "'ring'" in err and "drop --range-image" in err and not (tmp_path / "s.ply").exists()
+    assert "attribute(s) 'ring': names the range image of --range-image keeps" in err  # one sentence that parses
 
 
 def test_repeated_heights_name_the_flag(labelled_ply, tmp_path, capsys):

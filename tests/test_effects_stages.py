@@ -63,6 +63,8 @@ def test_a_registered_toy_effect_runs_in_simulate(monkeypatch):
     es = simulate(scanner, [0, 0, 0], 2.0, ToyEffects(range_bias=0.5))
     assert np.array_equal(es.indices, ideal.indices)
     assert np.allclose(es.ranges, ideal.ranges + 0.5)
+    # the points land at the new ranges (not the ideal scan's points kept because the count is the same)
+    assert np.allclose(np.linalg.norm(es.points, axis=1), ideal.ranges + 0.5)
     assert "range_bias" in es.info["seconds"] and es.info["effects"]["range_bias"] == 0.5
     # off, the toy leaves the scan as it was
     assert np.array_equal(simulate(scanner, [0, 0, 0], 2.0, ToyEffects()).ranges, ideal.ranges)

@@ -61,8 +61,8 @@ def test_options_of_merges_keywords_and_refuses_unknown_names():
         CellOptions.of(EvaluateOptions())  # another call's options
     with pytest.raises(InputValueError, match="min_ground_point.*known.*min_ground_points"):
         PositionOptions.of(None, min_ground_point=1)
-    with pytest.raises(InputTypeError, match="PositionOptions"):
-        PositionOptions.of(2.0)  # an old positional cell_size lands here: said, not misread
+    with pytest.raises(InputTypeError, match="PositionOptions.*got float.*keywords"):
+        PositionOptions.of(2.0)  # an old positional cell_size lands here: said, not misread, the way out named
 
 
 def test_an_options_object_and_the_old_keywords_are_the_same_call():
@@ -72,3 +72,26 @@ def test_an_options_object_and_the_old_keywords_are_the_same_call():
     a = select_positions(pts, g, 3, 0, PositionOptions(min_ground_points=50))
     assert np.array_equal(a, select_positions(pts, g, 3, seed=0, min_ground_points=50))
     assert np.array_equal(a, slr_ray.select_positions(pts, g, 3, 0, {"min_ground_points": 50}))
+
+
+@pytest.mark.parametrize("cls", [v[0] for v in OLD_KEYWORDS.values()], ids=lambda c: c.__name__)
+def test_options_travel_pickled_and_round_trip_through_json(cls):
+    import json
+    import pickle
+
+    o = cls()
+    assert pickle.loads(pickle.dumps(o)) == o and hash(pickle.loads(pickle.dumps(o))) == hash(o)
+    assert dataclasses.replace(o) == o and repr(o).startswith(cls.__name__)
+    back = cls.from_dict(json.loads(json.dumps(o.to_dict())))  # a config file's lists: the same options
+    assert back == o and hash(back) == hash(o)
+
+
+def test_options_holding_a_profile_compare_and_hash_by_value():
+    import pickle
+
+    from slr_ray.positions import default_profile
+
+    o = PositionOptions(profile=default_profile())
+    back = pickle.loads(pickle.dumps(o))  # as a worker process gets it
+    assert back == o and hash(back) == hash(o)  # was: ValueError (the profile's counts compared as arrays)
+    assert PositionOptions(profile=dataclasses.replace(o.profile, counts=o.profile.counts + 1)) != o

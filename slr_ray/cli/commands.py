@@ -189,7 +189,7 @@ def _range_image(args, sub, result, skip=()) -> dict:
     taken = sorted(set(attrs) & {"range", "ring", "index"})  # the image's own arrays
     if taken:
         flags = " and ".join(f for f, on in (("--range-image", args.range_image), ("--png", args.png)) if on)
-        raise InputValueError(f"{args.input} has its own attribute(s) {', '.join(map(repr, taken))}, names the range "
+        raise InputValueError(f"{args.input} has its own attribute(s) {', '.join(map(repr, taken))}: names the range "
                               f"image of {flags} keeps for its own arrays: rename them in the input, or drop {flags}")
     image = local.range_image(attrs)
     local_index = image["index"]

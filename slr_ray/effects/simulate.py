@@ -286,6 +286,7 @@ def simulate(scanner, origin, pattern, effects=None, *, intensity=None, normals=
         plan = stage.rays(plan, ctx)
     ctx.rays = plan
     r, ideal = _geometry(scanner, origin, pattern, plan, intensity)
+    ranges = r.range.copy() if ideal is not None else None  # a stage that changes them moves the points
     secs = {"geometry": time.perf_counter() - t0}
     info["returns_geometry"] = int(len(r))
     for stage in stages:
@@ -297,7 +298,8 @@ def simulate(scanner, origin, pattern, effects=None, *, intensity=None, normals=
     pts = r.fire + r.dir * r.range[:, None]
     for stage in stages:
         pts = stage.place(pts, r, ctx)
-    if ideal is not None and len(r) == len(ideal.indices) and not eff.range_noise:
+    if (ideal is not None and len(r) == len(ideal.indices) and np.array_equal(r.range, ranges)
+            and all(type(stage).place is Stage.place for stage in stages)):
         pts = scanner.points[r.index]  # exactly the ideal scan's points (no rounding through the range)
     info.update(seconds={k: round(v, 6) for k, v in secs.items()}, effects=eff.to_dict(), backend=scanner.backend)
     return EffectScan(points=np.ascontiguousarray(pts), indices=r.index.astype(np.intp), ranges=r.range,

@@ -18,8 +18,10 @@ asks each stage of :data:`STAGES` whether it is :meth:`~Stage.on`, runs the
 scan when it asks for nothing, or rays cast), then their ``apply`` and
 ``place`` in the same order. The command line's effect flags and their help
 are generated from the stages' :class:`Flag` s (:data:`EFFECT_FLAGS`). A new
-effect is a :class:`Stage` subclass with its options in its own module and
-one line in :data:`STAGES`.
+effect is a :class:`Stage` subclass here (its options, and any long
+computation, may live in a module of their own; the stage may not: that module
+would import this one, which imports it for :data:`STAGES`) and one line in
+:data:`STAGES`.
 """
 
 from __future__ import annotations
