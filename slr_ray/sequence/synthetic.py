@@ -37,7 +37,8 @@ from ..sensors import miscalibrated, sensor_noise
 from ..sensors import sensor as shipped_sensor
 from .frames import write_kitti_poses
 
-__all__ = ["synthetic_drive", "street_mesh", "KITTI_TR", "ROAD", "BUILDING", "CAR", "MOVING_CAR", "REAL_UNIT", "UNITS"]
+__all__ = ["synthetic_drive", "street_mesh", "KITTI_TR", "ROAD", "BUILDING", "CAR", "MOVING_CAR", "REAL_UNIT", "UNITS",
+           "MOVING_SPEED"]
 
 ROAD, BUILDING, CAR, MOVING_CAR = 40, 50, 10, 252
 #: velodyne to camera: x forward, y left, z up -> camera x right, y down, z forward
@@ -48,6 +49,8 @@ KITTI_TR = np.array([[0.0, -1, 0, 0.0], [0, 0, -1, -0.08], [1, 0, 0, -0.27], [0,
 #: HDL-64E's datasheet: distance accuracy 2 cm, one sigma, offsets included), 10 % of pulses lost
 REAL_UNIT = {"elevation_sd": 0.1, "azimuth_sd": 0.1, "beam_range_sd": 0.03, "range_sd": 0.01, "dropout": 0.1}
 UNITS = ("exact", "real")
+#: the moving box's metres a frame
+MOVING_SPEED = 1.5
 
 
 def _box(lo, hi) -> trimesh.Trimesh:
@@ -84,11 +87,10 @@ def _scan_order(local, rows) -> np.ndarray:
 
 
 def synthetic_drive(out, n_frames: int = 24, step: float = 0.8, sensor: str = "velodyne_hdl64e_s2",
-                    moving: bool = True, moving_speed: float = 1.5, seed: int = 0, unit: str = "exact",
-                    truth=None) -> np.ndarray:
+                    moving: bool = True, seed: int = 0, unit: str = "exact", truth=None) -> np.ndarray:
     """Write the drive to the new directory ``out`` (module docstring); returns the exact
     velodyne poses ``(n, 4, 4)``. The vehicle drives along x with a slow yaw; the moving box
-    starts 12 m ahead and drives ``moving_speed`` m a frame. ``unit``: ``"exact"`` (the table's
+    starts 12 m ahead and drives :data:`MOVING_SPEED` m a frame. ``unit``: ``"exact"`` (the table's
     pulse centres) or ``"real"`` (:data:`REAL_UNIT`'s departures, ``seed`` the unit's; frame
     ``i``'s noise seeded ``seed + 1 + i``); ``truth``: a new directory for the noiseless scan of
     the same pulses (``unit="real"`` only)."""
@@ -110,7 +112,7 @@ def synthetic_drive(out, n_frames: int = 24, step: float = 0.8, sensor: str = "v
         yaw = 0.01 * np.sin(i / 5)
         c, s = np.cos(yaw), np.sin(yaw)
         poses[i] = [[c, -s, 0, i * step], [s, c, 0, 0.05 * np.sin(i / 3)], [0, 0, 1, 0], [0, 0, 0, 1]]
-        mesh, labels = street_mesh(12.0 + moving_speed * i if moving else None, length=n_frames * step + 60)
+        mesh, labels = street_mesh(12.0 + MOVING_SPEED * i if moving else None, length=n_frames * step + 60)
         o = poses[i][:3, 3]
         sc = scan_mesh(mesh, o, pattern, "center", face_labels=labels)
         world, sem = sc.points, np.asarray(sc.labels, np.uint16)
