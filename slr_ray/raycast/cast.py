@@ -23,7 +23,7 @@ from numba.extending import intrinsic
 from .cull import could_hit
 from .library import FEATURE_FLAGS_ALL, INVALID_ID, RAY_QUERY_FLAG_INVOKE_ARGUMENT_FILTER
 
-__all__ = ["cast_rays", "FILTER", "MODE_SKIP", "PACKET_WIDTHS", "silhouette_bit", "NO_CLIP"]
+__all__ = ["cast_rays", "FILTER", "MODE_SKIP", "PACKET_WIDTHS", "silhouette_bit", "NO_CLIP", "SILHOUETTE_PARALLAX"]
 
 #: the packet widths Embree has (rtcIntersect1, 4, 8, 16)
 PACKET_WIDTHS = (1, 4, 8, 16)
@@ -46,7 +46,10 @@ _C_NORMALS, _C_NBYTES, _C_TIES, _C_VERTICES, _C_LOCAL = 13, 14, 15, 16, 17
 _C_CLIP, _C_CLIP_GEO, _C_CLIP_EDGES, _C_CLIP_NEDGES = 20, 21, 22, 23
 # and the primary's origin in the scene frame (float64 xyz: against the float32 vertices)
 _C_CLIP_PO = 24
-_C_LANES = 27
+# where the rule holds: a hit at t from the ray origin, when t**2 >= this (the squared distance of the
+# ray origin from the primary's, over SILHOUETTE_PARALLAX squared)
+_C_CLIP_T2 = 27
+_C_LANES = 28
 # a lane: its mode and direction (float64); tie mode's best so far (owner, score, t, primitive);
 # one pass: the nearest hit so far (t, owner, primitive), where the ray is cut, the candidates
 _L_MODE, _L_DIR, _L_BEST, _L_SCORE, _L_BEST_T, _L_BEST_PRIM = 0, 1, 4, 5, 6, 7
@@ -157,6 +160,13 @@ def silhouette_bit(slot):
     return slot if slot < 4 else slot - 1
 
 
+#: the silhouette rule holds for a hit at least 1 / SILHOUETTE_PARALLAX times as far from the ray's
+#: origin as that origin lies from the primary's: seen from further aside, the primary's pulse cells
+#: say little of what a ray meets, and cutting discs there lets rays through to points behind
+#: (Experiment 1's embree rows lost 0.6 points of precision with the rule everywhere, rect-1000's
+#: grazing ground 0.7; docs/backends.md, "The primary's own view and silhouettes")
+SILHOUETTE_PARALLAX = 0.25
+
 #: no silhouette rule (cast_rays' clip arguments)
 NO_CLIP = (np.zeros(0, np.uint8), np.zeros(8), np.zeros(0))
 
@@ -196,6 +206,8 @@ def _clipped(ctx, ctxf, owner, t, dx, dy, dz):
     row, as far as a row's height), or in a pulse next to it where the owner stands at a silhouette
     (its bit set: that pulse's own return lies behind). Pulses are counted exactly for the owners at
     a silhouette; for the others (nearly all) by the hit's angular offset, 1.5 pulses."""
+    if t * t < ctxf[_C_CLIP_T2]:
+        return False  # seen from too far aside of the primary's origin: its pulses are no guide here
     bits = np.int64(carray(_as_pointer(ctx[_C_CLIP] + owner), 1, dtype=np.uint8)[0])
     geo = carray(_as_pointer(ctx[_C_CLIP_GEO]), 8, dtype=np.float64)
     hx_, hy_, hz_ = ctxf[_C_ORG] + t * dx, ctxf[_C_ORG + 1] + t * dy, ctxf[_C_ORG + 2] + t * dz
@@ -541,6 +553,8 @@ def cast_rays(isect, width, scene, filt, org32, org64, dirs, tnear, tfar, mode_f
         ctx[_C_CLIP_NEDGES] = clip_edges.shape[0]
         for k in range(3):  # the scene frame: that of the ray origin ``local``
             ctxf[_C_CLIP_PO + k] = clip_geo[k] - org64[k] + local[k]
+        d2 = (org64[0] - clip_geo[0]) ** 2 + (org64[1] - clip_geo[1]) ** 2 + (org64[2] - clip_geo[2]) ** 2
+        ctxf[_C_CLIP_T2] = d2 / (SILHOUETTE_PARALLAX * SILHOUETTE_PARALLAX)
         mode_first |= _MODE_CLIP
     has_normals = normals.shape[0] > 0
     if has_normals:
