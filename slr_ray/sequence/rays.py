@@ -189,12 +189,7 @@ def fit_range_bias(model: RayModel, frames, k: int = 32, stride: int = 8) -> Ray
         origin[:, 2] += model.height[lasers]
         d = local - origin
         dw = (d / np.linalg.norm(d, axis=1)[:, None]) @ P[:3, :3].T
-        dist, nn = tree.query(pw, k=k)
-        Q = rest[nn]
-        c = Q.mean(axis=1)
-        x = Q - c[:, None]
-        ev, vec = np.linalg.eigh(np.matmul(x.transpose(0, 2, 1), x))
-        nrm = vec[:, :, 0]
+        dist, c, ev, nrm = _local_planes(rest, tree, pw, k)
         nd = np.einsum("mi,mi->m", nrm, dw)
         along = np.einsum("mi,mi->m", nrm, pw - c) / np.where(np.abs(nd) > 0.2, nd, np.nan)  # + : beyond
         ok = (ev[:, 0] < FLAT * ev[:, 1]) & (dist[:, -1] < PLANE_RADIUS) & np.isfinite(along) & \
@@ -301,16 +296,23 @@ def cast_rays(points, pattern, model: RayModel | None = None, motion=(0.0, 0.0, 
     return PulseReturns(keys[win].astype(np.int64), ranges[win], hit[win], sel[first][win].astype(np.int64))
 
 
-def _plane_hit(pts, tree, origin, d, t, lo, k):
-    """Where each ray meets the plane of the ``k`` points nearest ``origin + t d``; whether that plane
-    is usable (flat, its points near: :data:`PLANE_RADIUS`, met no nearer than ``lo``) and the hit
-    lies within them."""
-    dist, nn = tree.query(origin + t[:, None] * d, k=k)
+def _local_planes(pts, tree, queries, k):
+    """The plane of the ``k`` points of ``pts`` (kd-tree ``tree``) nearest each query: the distances
+    to them ``(m, k)``, their centroid, their scatter's eigenvalues (ascending) and
+    the plane's normal (the eigenvector of the smallest)."""
+    dist, nn = tree.query(queries, k=k)
     Q = pts[nn]
     c = Q.mean(axis=1)
     x = Q - c[:, None]
     w, v = np.linalg.eigh(np.matmul(x.transpose(0, 2, 1), x))
-    nrm = v[:, :, 0]
+    return dist, c, w, v[:, :, 0]
+
+
+def _plane_hit(pts, tree, origin, d, t, lo, k):
+    """Where each ray meets the plane of the ``k`` points nearest ``origin + t d``; whether that plane
+    is usable (flat, its points near: :data:`PLANE_RADIUS`, met no nearer than ``lo``) and the hit
+    lies within them."""
+    dist, c, w, nrm = _local_planes(pts, tree, origin + t[:, None] * d, k)
     nd = np.einsum("mi,mi->m", nrm, d)
     tt = np.einsum("mi,mi->m", nrm, c - origin) / np.where(np.abs(nd) > 0.05, nd, np.nan)
     ok = (w[:, 0] < FLAT * w[:, 1]) & (dist[:, -1] < np.maximum(PLANE_RADIUS, PLANE_RADIUS_PER_M * t)) & \
