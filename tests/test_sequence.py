@@ -258,3 +258,20 @@ def test_an_e57_files_scans_are_a_sequence(tmp_path):
     assert np.array_equal(seq.poses[:, 0, 3], [0, 10, 20])
     u = accumulate(seq, [0, 2])
     assert np.abs(u.points - np.vstack([world[0], world[2]])).max() < 1e-5  # pye57 stores float32
+
+
+def test_a_registered_metric_reaches_the_sequence_tables(drive, monkeypatch):
+    """Held-out frames are scored by every registered metric (slr_ray.metrics.REGISTRY), as `slr-ray
+    evaluate` scores a pair: a new metric's column reaches the per-frame and mean rows."""
+    from slr_ray.metrics import REGISTRY, Metric
+
+    def score(pair):
+        return {"ratio": len(pair.simulated) / len(pair.target)}
+
+    monkeypatch.setitem(REGISTRY, "ratio", Metric("ratio", score, lambda block, result: {"sim/real": block["ratio"]}))
+    root, _ = drive
+    res = evaluate_sequence(read_sequence(root), [2], sensor="velodyne_vlp16", half=1, methods=("nearest", "fpa"))
+    rows = res["frames"][0]["rows"]
+    assert [r["ratio"]["ratio"] for r in rows] == [r["points_out"] / r["points"]["target_points"] for r in rows]
+    assert [r["sim/real"] for r in res["frames"][0]["table"]] == [r["ratio"]["ratio"] for r in rows]
+    assert all("sim/real" in r for r in res["mean"])

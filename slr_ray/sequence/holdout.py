@@ -30,7 +30,7 @@ from tqdm import tqdm
 
 from ..errors import InputValueError, SlrWarning
 from ..evaluate import THRESHOLDS, evaluation_table, fitted_pattern, scan_order_beams, zbuffer
-from ..metrics import PAPER_THRESHOLD, point_metrics, range_image_metrics, seen_from
+from ..metrics import PAPER_THRESHOLD, Pair, score_pair, seen_from
 from ..options import Options
 from ..sensors import sensor as shipped_sensor
 from .estimators import FPA_GAP, estimate
@@ -238,11 +238,12 @@ def evaluate_holdout(seq: Sequence, target: int, options: HoldoutOptions | None 
         t0 = time.perf_counter()
         ret, sim = _simulate(m, held, models)
         img = ret.image(pat)
-        pm = point_metrics(b_in, sim, thresholds=thresholds, groups=groups)
-        im = range_image_metrics(real_img["range"], img, groups={"seen": pix.astype(str)})
+        # every registered metric's block (slr_ray.metrics.REGISTRY), as slr-ray evaluate scores a pair
+        blocks = score_pair(Pair(b_in, sim, real_img["range"], img, tuple(thresholds), groups,
+                                 {"seen": pix.astype(str)}))
         extra[m] = clamped_depth_errors(real_img["range"], img)
         rows.append({"method": m, "label": LABELS[m], "points_out": int(len(sim)), "pulses_returned": int(len(ret)),
-                     "seconds": round(time.perf_counter() - t0, 3), "points": pm.to_dict(), "image": im.to_dict()})
+                     "seconds": round(time.perf_counter() - t0, 3)} | blocks)
     res = {"frame": seq.names[target], "fpa_gap_m": gap, "ray_model": models.get("rays"), "index": int(target), "window": [seq.names[i] for i in others],
            "adjacent": seq.names[adj], "union_points": int(len(union)), "removed": union.removed,
            "see_through": see_through.to_dict() if see_through else None,
