@@ -358,32 +358,15 @@ def evaluate_pair(a_points, b_points, a_beams="auto", b_beams="auto", options: E
         elevation a beam (a random or shuffled ring field) are refused.
     options : EvaluateOptions or dict, optional
         The sensor, the methods, the thresholds and the registration's
-        bounds (:class:`EvaluateOptions`); each field may also be given as a
-        keyword (``sensor="velodyne_vlp16"``, ``methods=("binning",)``).
-    sensor : str or BeamPattern
-        The sensor's shipped table (columns, range limits; the elevations
-        where a frame's beams are unknown).
-    methods : sequence of str
-        A subset of :data:`METHODS`.
+        bounds (``sensor``, ``methods``, ``seen_threshold``, ``thresholds``,
+        ``min_fitness``, ``max_rmse``: described once, in
+        :class:`EvaluateOptions`); each field may also be given as a keyword
+        (``sensor="velodyne_vlp16"``, ``methods=("binning",)``).
     transform : (4, 4) float, optional
         B's pose in A's frame (``a = R b + t``), instead of registering: a
         rigid pose (:func:`slr_ray.arrays.as_rigid_pose`: a rotation to
         1e-5, last row ``0 0 0 1``, finite), which must put some of A's
-        points in B's view.
-    seen_threshold : float
-        A point of B is seen from A when an A point lies strictly closer (m).
-    thresholds : sequence of float
-        F-score thresholds (m).
-    min_fitness : float
-        A registration whose fitness (share of B's points with an A point
-        within 0.2 m after the fit) is below this is refused: the pose is not
-        to be trusted (frames that do not overlap, too few points). 0 accepts
-        any; ignored with ``transform``. Registering also needs
-        :data:`MIN_REGISTRATION_POINTS` points in each frame.
-    max_rmse : float, optional
-        A registration whose inlier RMSE exceeds this (m; default
-        :data:`MAX_RMSE_SHARE` of the 0.2 m correspondence distance) is
-        refused; ignored with ``transform``.
+        points in B's view. ``min_fitness`` and ``max_rmse`` are then ignored.
     progress : bool
         Progress on stderr.
 
