@@ -229,3 +229,21 @@ def test_a_toy_layout_is_one_class_and_its_registry_line(tmp_path, monkeypatch):
     assert len(u.points) == 16 and np.allclose(u.points[:8].mean(axis=0), [10, 0, 0])
     with pytest.raises(InputValueError, match="toy sequence takes no poses"):
         read_sequence(d, tmp_path / "t.txt")
+
+
+def test_a_tum_trajectory_gives_frames_named_by_time_the_pose_of_their_time(tmp_path):
+    """TUM with timestamps: a SLAM trajectory of more poses than frames (frames dropped, or poses at
+    another rate), the frames named by their times: each frame the pose of its time (within 1 ms)."""
+    rng = np.random.default_rng(2)
+    stamps = [100.0, 100.2, 100.4]
+    files = []
+    for t in stamps:
+        files.append(tmp_path / f"{t:.6f}.npy")
+        write_cloud(files[-1], PointCloud(rng.normal(size=(10, 3)), {}))
+    tum = tmp_path / "traj.tum"
+    tum.write_text("".join(f"{100 + 0.1 * k:.6f} {k} 0 0 0 0 0 1\n" for k in range(6)))  # 10 Hz poses, 5 Hz frames
+    seq = read_sequence(files, tum)
+    assert np.allclose(seq.poses[:, 0, 3], [0, 2, 4])
+    tum.write_text("".join(f"{100 + 0.1 * k + 0.05:.6f} {k} 0 0 0 0 0 1\n" for k in range(6)))  # 50 ms off
+    with pytest.raises(InputValueError, match=r"traj\.tum: 6 poses for 3 frames, and frame 0 \(time 100\.000000 s"):
+        read_sequence(files, tum)

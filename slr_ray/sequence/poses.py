@@ -15,7 +15,7 @@ from ..errors import FormatError, InputValueError
 
 __all__ = ["POSE_TOLERANCE", "read_trajectory", "trajectory_form", "read_pose_files", "read_calib_tr",
            "kitti_velodyne_poses", "write_kitti_poses", "read_origins", "read_pose_blocks", "check_pose",
-           "quaternion_rotation"]
+           "quaternion_rotation", "frame_stamps", "STAMP_TOLERANCE"]
 
 #: largest departure of a pose's rotation from orthonormal (|R^T R - I|, |det R - 1|): KITTI's poses
 #: are written with 6-7 significant digits, whose rounding leaves ~1e-6
@@ -70,12 +70,17 @@ def trajectory_form(path) -> str:
     return "kitti" if len(_numbers(p, rows[0][0], rows[0][1], (12, 8))) == 12 else "tum"
 
 
-def read_trajectory(path, n_frames: int | None = None) -> np.ndarray:
+def read_trajectory(path, n_frames: int | None = None, stamps=None) -> np.ndarray:
     """``(n, 4, 4)`` poses from a trajectory file: KITTI form (12 numbers a line, the 3 x 4 pose
     row by row) or TUM form (8 numbers: time, x, y, z, qx, qy, qz, qw). With ``n_frames`` the
-    file must hold exactly that many poses."""
+    file must hold exactly that many poses, one line a frame; unless ``stamps`` (each frame's
+    time, s: its file's name) are given and a TUM file holds another number of poses: then each
+    frame takes the pose of its time (:data:`STAMP_TOLERANCE`), one missing refused."""
     p = Path(path)
     rows = _lines(p)
+    if stamps is not None and n_frames is not None and len(rows) != n_frames and rows \
+            and trajectory_form(p) == "tum":
+        return _by_time(p, rows, np.asarray(stamps, np.float64))
     if n_frames is not None and len(rows) != n_frames:
         at = f"line {rows[n_frames][0]}" if len(rows) > n_frames else f"line {rows[-1][0] + 1 if rows else 1}"
         raise InputValueError(f"{p}, {at}: {len(rows)} poses for {n_frames} frames (one line a frame)")
@@ -99,6 +104,27 @@ def read_trajectory(path, n_frames: int | None = None) -> np.ndarray:
             T[:3, 3] = v[1:4]
             out[k] = check_pose(T, where)
     return out
+
+
+#: the most a frame's time (its file's name) and its pose's in a TUM trajectory may differ (s)
+STAMP_TOLERANCE = 1e-3
+
+
+def _by_time(p: Path, rows, stamps) -> np.ndarray:
+    """The poses of a TUM file at the frames' ``stamps``: each the line of the nearest time, within
+    :data:`STAMP_TOLERANCE`."""
+    times = np.array([_numbers(p, line_no, s, (12, 8))[0] for line_no, s in rows])
+    order = np.argsort(times, kind="stable")
+    ts = times[order]
+    hi = np.clip(np.searchsorted(ts, stamps), 0, len(ts) - 1)
+    lo = np.clip(hi - 1, 0, len(ts) - 1)
+    pick = order[np.where(np.abs(ts[lo] - stamps) <= np.abs(ts[hi] - stamps), lo, hi)]
+    for k, i in enumerate(pick):
+        if not abs(times[i] - stamps[k]) <= STAMP_TOLERANCE:
+            raise InputValueError(f"{p}: {len(rows)} poses for {len(stamps)} frames, and frame {k} (time "
+                                  f"{stamps[k]:.6f} s by its name) has none within {STAMP_TOLERANCE:g} s (nearest: "
+                                  f"line {rows[i][0]}, {times[i]:.6f} s)")
+    return read_trajectory(p)[pick]
 
 
 def read_pose_files(paths) -> np.ndarray:
@@ -169,4 +195,19 @@ def read_pose_blocks(path) -> np.ndarray:
     for k in range(len(out)):
         block = np.array([_numbers(p, line_no, s, 4) for line_no, s in rows[4 * k: 4 * k + 4]])
         out[k] = check_pose(block[:3], f"{p}, line {rows[4 * k][0]}")
+    return out
+
+
+def frame_stamps(paths) -> list | None:
+    """Each frame's time (s) by its file's name (``1630577758.569490.pcd``), or None where a name is not
+    a number."""
+    out = []
+    for f in paths:
+        name = Path(f).name
+        for suffix in Path(f).suffixes:
+            name = name[: -len(suffix)] if name.endswith(suffix) and not suffix[1:].isdigit() else name
+        try:
+            out.append(float(name))
+        except ValueError:
+            return None
     return out

@@ -21,7 +21,7 @@ import numpy as np
 
 from ...errors import InputValueError
 from ...io import read_cloud
-from ..poses import read_trajectory
+from ..poses import frame_stamps, read_trajectory
 
 __all__ = ["Frame", "Sequence", "FrameSource", "SequenceInputs", "REGISTRY", "detect", "layout_class",
            "sensor_frame_points", "files_in", "trailing_number"]
@@ -124,7 +124,7 @@ class FrameSource:
     def trajectory(self, seq: "Sequence", path) -> tuple[np.ndarray, str]:
         """The poses of a trajectory file given for ``seq`` (its sensor's, one a frame) and how they
         were taken (the sequence's ``pose_source``)."""
-        return read_trajectory(path, len(seq)), "trajectory"
+        return read_trajectory(path, len(seq), frame_stamps(seq.paths)), "trajectory"
 
     def to_dict(self) -> dict:
         """What the layout read once (JSON-ready)."""

@@ -1,7 +1,9 @@
 """A list of frame files, in the order given: any format :func:`slr_ray.io.read_cloud` reads.
 
 Each frame in its own sensor's frame, with a trajectory file in KITTI form (12 numbers a line) or
-TUM form (``time x y z qx qy qz qw``), one pose a frame, or one pose file a frame
+TUM form (``time x y z qx qy qz qw``), one pose a frame (a TUM file of more or fewer poses than
+frames named by their times, ``1630577758.569490.pcd``: each frame the pose of its time, within
+1 ms), or one pose file a frame
 (:func:`~slr_ray.sequence.poses.read_pose_files`); or no poses at all, to be found by registration.
 
 Or the files in one world frame (:class:`WorldFiles`), each frame moved to its scanner's origin
@@ -18,7 +20,7 @@ import numpy as np
 
 from ...errors import InputValueError
 from ...io import read_cloud
-from ..poses import read_origins, read_pose_files, read_trajectory
+from ..poses import frame_stamps, read_origins, read_pose_files, read_trajectory
 from .base import FrameSource, Sequence, SequenceInputs
 
 __all__ = ["FileList", "WorldFiles", "LAYOUT", "read_file_list", "frame_files"]
@@ -115,7 +117,7 @@ def read_file_list(paths, trajectory=None, input_format: str | None = None, orig
         return Sequence(files, read_pose_files(trajectory), names, "pose files", None, input_format, FileList(),
                         trajectory)
     if trajectory is not None:
-        return Sequence(files, read_trajectory(trajectory, len(files)), names, "trajectory", None, input_format,
+        return Sequence(files, read_trajectory(trajectory, len(files), frame_stamps(files)), names, "trajectory", None, input_format,
                         FileList(), [trajectory])
     return Sequence(files, None, names, "none", None, input_format, FileList())
 

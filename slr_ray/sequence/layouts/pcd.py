@@ -12,7 +12,7 @@ from __future__ import annotations
 from pathlib import Path
 
 from ...errors import InputValueError
-from ..poses import read_pose_blocks, read_trajectory
+from ..poses import frame_stamps, read_pose_blocks, read_trajectory
 from .base import FrameSource, Sequence, SequenceInputs, files_in, trailing_number
 
 __all__ = ["PcdDirectory", "LAYOUT", "read_pcd_directory"]
@@ -66,7 +66,7 @@ def read_pcd_directory(root, trajectory=None, input_format=None) -> Sequence:
         raise InputValueError(f"{root}: its frames are each in their sensor's frame: poses 'origins' is for files "
                               "in one world frame")
     if trajectory is not None:
-        return Sequence(frames, read_trajectory(trajectory, len(frames)), names, "trajectory", root, input_format,
+        return Sequence(frames, read_trajectory(trajectory, len(frames), frame_stamps(frames)), names, "trajectory", root, input_format,
                         PcdDirectory(), [trajectory])
     if csvs:
         poses, source = _csv_poses(csvs[0], frames)
