@@ -22,8 +22,9 @@ from .commands import emit
 
 __all__ = ["add_sequence_parser", "sequence"]
 
-_SEQ_HELP = ("the sequence: a KITTI / SemanticKITTI directory (velodyne/, labels/, poses.txt, calib.txt) or "
-             "frame files in order, each in its sensor's frame")
+_SEQ_HELP = ("the sequence: a directory in a layout it recognises (KITTI / SemanticKITTI: velodyne/, labels/, "
+             "poses.txt, calib.txt; PCD frames and a CSV of poses; Ouster .npz frames, metadata .json and "
+             "*poses*.txt), an E57 file of several scans, or frame files in order, each in its sensor's frame")
 #: the table's columns in table.md (every column is in table.csv and the JSON)
 COLUMNS = ("frame", "method", "points", "F@5cm", "F@10cm", "depth_medae_m", "depth_rmse_m", "drop_accuracy",
            "drop_recall", "cd_sum_m2", "R@10cm seen")
