@@ -16,15 +16,14 @@ from ..sensors import SENSORS
 from ..sequence import (CONVERT_ESTIMATORS, FPA_GAP, METHODS, REMOVE_MOVING, SeeThrough, convert_sequence,
                         evaluate_sequence, read_sequence, read_trajectory, register_chain, write_kitti_poses)
 from ..sequence.holdout import DEFAULT_METHODS, GRID_SOURCES, lidar4d_holdout
-from ..sequence.layouts import LAYOUTS
 from . import arguments as A
 from .commands import emit
+from ..sequence.layouts import LAYOUTS
 
 __all__ = ["add_sequence_parser", "sequence"]
 
-_SEQ_HELP = ("the sequence: a directory in a layout it recognises (KITTI / SemanticKITTI: velodyne/, labels/, "
-             "poses.txt, calib.txt; PCD frames and a CSV of poses; Ouster .npz frames, metadata .json and "
-             "*poses*.txt), an E57 file of several scans, or frame files in order, each in its sensor's frame")
+_SEQ_HELP = ("the sequence: a KITTI / SemanticKITTI directory (velodyne/, labels/, poses.txt, calib.txt) or "
+             "frame files in order, each in its sensor's frame")
 #: the table's columns in table.md (every column is in table.csv and the JSON)
 COLUMNS = ("frame", "method", "points", "F@5cm", "F@10cm", "depth_medae_m", "depth_rmse_m", "drop_accuracy",
            "drop_recall", "cd_sum_m2", "R@10cm seen")
@@ -45,7 +44,9 @@ def _common(p):
                    help="one file holding several scans in one world frame (a campaign's LAS/LAZ): each value of "
                         "this per-point field a scan (default point_source_id), with --origins in ascending order")
     p.add_argument("--layout", choices=list(LAYOUTS),
-                   help="the sequence's layout, where its path could be two (default: the one it is in)")
+                   help="the sequence's layout where its path could be two (default: the one it is in; directories: "
+                        "KITTI / SemanticKITTI, PCD frames and a CSV of poses, Ouster .npz frames with their "
+                        "metadata .json and *poses*.txt)")
     p.add_argument("--register", action="store_true",
                    help="no poses: register each frame to the one before (ICP) and write the poses found")
     p.add_argument("--half", type=int, default=2, help="window: frames either side of the target (default 2)")
