@@ -172,6 +172,8 @@ def test_a_sequence_says_its_layout_not_in_a_meta_dict(kitti):
     assert isinstance(seq.layout, REGISTRY["kitti"]) and np.allclose(seq.layout.tr, KITTI_TR)
     assert [p.name for p in seq.inputs()][-2:] == ["poses.txt", "calib.txt"]
     assert seq.meta["layout"] == "kitti"  # the old dict, read from them
+    with pytest.raises(TypeError, match="no longer a meta dict"):
+        Sequence(seq.paths, seq.poses, seq.names, "x", None, None, {"layout": "kitti"})
     from slr_ray.sequence.frames import (POSE_TOLERANCE, read_e57_sequence, read_file_list,  # noqa: F401
                                          read_kitti_layout, read_split_scans)
     assert read_kitti_layout(root).layout.name == "kitti"

@@ -20,6 +20,7 @@ Poses by registration: :func:`register_chain`.
 from __future__ import annotations
 
 import os
+
 import numpy as np
 from tqdm import tqdm
 

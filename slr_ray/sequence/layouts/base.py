@@ -19,7 +19,7 @@ from pathlib import Path
 
 import numpy as np
 
-from ...errors import InputValueError
+from ...errors import InputTypeError, InputValueError
 from ...io import read_cloud
 from ..poses import frame_stamps, read_trajectory
 
@@ -150,6 +150,9 @@ class Sequence:
     def __post_init__(self):
         if self.layout is None:
             self.layout = FrameSource()
+        if not isinstance(self.layout, FrameSource):  # the seventh field was a meta dict
+            raise InputTypeError(f"Sequence's layout must be a FrameSource (slr_ray.sequence.layouts), got "
+                                 f"{type(self.layout).__name__}: the layout is no longer a meta dict")
         self.pose_files = tuple(str(p) for p in self.pose_files)
 
     def __len__(self) -> int:
