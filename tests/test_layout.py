@@ -394,3 +394,36 @@ def test_uses_chains_are_shallow():
     units, layers = _unit_graph(_import_graph()), dict(LAYERS)
     chain = _chain_within(units, set().union(*(layers[name] for name in COMPUTATION_LAYERS)))
     assert len(chain) <= MAX_USES_DEPTH, " -> ".join(chain)
+
+
+#: the names of the shipped sequence layouts: outside ``slr_ray.sequence.layouts`` no module compares against them
+LAYOUT_NAMES = {"kitti", "files", "world-files", "e57", "scan-field", "pcd-directory", "ouster-directory"}
+
+
+def _layout_identity_tests(tree):
+    """Comparisons on a sequence's layout: its ``.layout`` (or ``.layout.name``), a ``meta`` dict's
+    ``"layout"``, or a layout's name as a string (callers ask the layout, ``seq.layout.frame`` /
+    ``trajectory``, or add a capability to ``FrameSource``)."""
+    def is_identity(node):
+        for sub in ast.walk(node):
+            if (isinstance(sub, ast.Attribute) and sub.attr == "layout") \
+                    or (isinstance(sub, ast.Constant) and sub.value in LAYOUT_NAMES | {"layout"}):
+                return True
+        return False
+    return [node.lineno for node in ast.walk(tree) if isinstance(node, ast.Compare)
+            and any(is_identity(x) for x in [node.left, *node.comparators])]
+
+
+def test_no_layout_identity_outside_the_layouts():
+    found = [f"{mod}:{line}" for mod, path in _modules() if not mod.startswith("slr_ray.sequence.layouts")
+             for line in _layout_identity_tests(ast.parse(path.read_text()))]
+    assert not found, f"compare a sequence's layout outside slr_ray.sequence.layouts (ask the layout): {found}"
+    from slr_ray.sequence.layouts import REGISTRY
+    assert set(REGISTRY) <= LAYOUT_NAMES, "a new shipped layout: add its name to LAYOUT_NAMES"
+
+
+def test_the_layout_identity_check_sees_comparisons():
+    assert _layout_identity_tests(ast.parse("if seq.layout.name == 'x': pass")) == [1]
+    assert _layout_identity_tests(ast.parse("x = seq.meta.get('layout') == 'e57'")) == [1]
+    assert _layout_identity_tests(ast.parse("if name != 'kitti': pass")) == [1]
+    assert _layout_identity_tests(ast.parse("if seq.poses is None: pass")) == []

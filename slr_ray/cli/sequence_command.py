@@ -18,6 +18,7 @@ from ..sequence import (CONVERT_ESTIMATORS, FPA_GAP, METHODS, REMOVE_MOVING, See
 from ..sequence.holdout import DEFAULT_METHODS, GRID_SOURCES, lidar4d_holdout
 from . import arguments as A
 from .commands import emit
+from ..sequence.layouts import LAYOUTS
 
 __all__ = ["add_sequence_parser", "sequence"]
 
@@ -33,14 +34,19 @@ LIDAR4D_COLUMNS = ("frame", "method", "points", "cd_sum_m2", "F@22.3607cm", "lid
 def _common(p):
     p.add_argument("sequence", nargs="+", help=_SEQ_HELP)
     p.add_argument("--poses", nargs="+", help="a trajectory (KITTI 12 numbers or TUM 8 numbers a line, one a frame) "
-                                              "instead of the sequence's own poses; or one pose file a frame (a 4 x 4 "
-                                              "matrix each); or 'origins': the files are in one world frame, each "
+                                              "instead of the sequence's own poses (for a KITTI directory with "
+                                              "calib.txt, KITTI form is the camera's, as its poses.txt); or one pose "
+                                              "file a frame (a 4 x 4 matrix each); or 'origins': the files are in one world frame, each "
                                               "with its scanner's origin (.npz, .pcd, .e57)")
     p.add_argument("--origins", help="the frames are in one world frame (LAS/LAZ of a campaign): a text file of "
                                      "each one's scanner origin, x y z a line")
     p.add_argument("--scan-field", nargs="?", const="point_source_id", metavar="FIELD",
                    help="one file holding several scans in one world frame (a campaign's LAS/LAZ): each value of "
                         "this per-point field a scan (default point_source_id), with --origins in ascending order")
+    p.add_argument("--layout", choices=list(LAYOUTS),
+                   help="the sequence's layout where its path could be two (default: the one it is in; directories: "
+                        "KITTI / SemanticKITTI, PCD frames and a CSV of poses, Ouster .npz frames with their "
+                        "metadata .json and *poses*.txt)")
     p.add_argument("--register", action="store_true",
                    help="no poses: register each frame to the one before (ICP) and write the poses found")
     p.add_argument("--half", type=int, default=2, help="window: frames either side of the target (default 2)")
@@ -102,7 +108,8 @@ def add_sequence_parser(sub) -> None:
                         "or a KITTI .bin's order), for --remove-moving visibility and --estimator embree-sources")
     q.add_argument("--offset", nargs=3, type=A.finite_float, default=[0.0, 0.0, 0.0], metavar=("DX", "DY", "DZ"),
                    help="the target sensor's offset in each frame's own axes (m)")
-    q.add_argument("--target-poses", help="a trajectory of target poses (one a frame) instead of the frames' poses")
+    q.add_argument("--target-poses", help="a trajectory of target poses (one a frame) instead of the frames' poses "
+                                           "(for a KITTI directory, KITTI form is the camera's, as its poses.txt)")
     q.add_argument("--format", default="bin", help="frame format (default bin: KITTI; others carry a ring field)")
     q.add_argument("--workers", type=A.positive_int, default=1, help="worker processes (default 1)")
     q.add_argument("--scheduler", metavar="ADDRESS",
@@ -150,7 +157,7 @@ def _moving(args, source_sensor) -> tuple[bool, SeeThrough | None]:
 
 def _load(args):
     seq = read_sequence(args.sequence if len(args.sequence) > 1 else args.sequence[0], args.poses,
-                        args.input_format, args.origins, args.scan_field)
+                        args.input_format, args.origins, args.scan_field, args.layout)
     if args.register and (args.poses or args.origins):
         raise InputValueError("--register with --poses or --origins: give one")
     if seq.poses is None and not args.register:
@@ -241,7 +248,7 @@ def _evaluate(args, seq, holdout, out):
 
 def _convert(args, seq, out):
     seq, regs = _poses_of(args, seq)
-    target = read_trajectory(args.target_poses, len(seq)) if args.target_poses else None
+    target = seq.trajectory(args.target_poses)[0] if args.target_poses else None  # a KITTI directory's Tr
     drop, st = args.moving
     res = convert_sequence(seq, out, args.sensor, estimator=args.estimator, half=args.half, radius=args.radius,
                            offset=tuple(args.offset), poses=target, drop_moving=drop, fmt=args.format,
