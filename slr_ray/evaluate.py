@@ -82,7 +82,7 @@ from .sensors import BeamPattern, fitted_pattern, scan_order_beams, sensor
 
 __all__ = ["METHODS", "BEAM_SOURCES", "EVALUATION_FILES", "LABELS", "Registration", "register", "scan_order_beams", "fitted_pattern", "zbuffer",
            "EvaluateOptions", "evaluate_pair", "evaluation_table", "markdown_table", "splits_table", "compact_json",
-           "write_evaluation"]
+           "write_evaluation", "write_sequence_evaluation", "SEQUENCE_COLUMNS", "sequence_summary"]
 
 #: the methods scored, in table order, and their names in tables and figures
 METHODS = ("zbuffer", "binning", "embree-knn", "embree-grid", "embree-beams")
@@ -631,3 +631,52 @@ def write_evaluation(result: dict, directory, force: bool = False, inputs: dict 
     with atomic_path(paths["splits"]) as tmp:
         tmp.write_text(_csv_text(splits_table(result)))
     return {k: str(v) for k, v in paths.items()}
+
+
+#: the columns of a sequence evaluation's ``table.md`` by protocol (every column is in ``table.csv`` and
+#: the JSON): the default, and LiDAR4D's (its clamped depth errors, Chamfer and 22.4 cm F-score)
+SEQUENCE_COLUMNS = {
+    "slr": ("frame", "method", "points", "F@5cm", "F@10cm", "depth_medae_m", "depth_rmse_m", "drop_accuracy",
+            "drop_recall", "cd_sum_m2", "R@10cm seen"),
+    "lidar4d": ("frame", "method", "points", "cd_sum_m2", "F@22.3607cm", "lidar4d_depth_rmse_m",
+                "lidar4d_depth_medae_m", "drop_accuracy")}
+
+
+def _sequence_rows(result: dict) -> list[dict]:
+    return [r for f in result["frames"] for r in f["table"]] + result["mean"]
+
+
+def _sequence_columns(result: dict, rows: list[dict]) -> list[str]:
+    cols = SEQUENCE_COLUMNS.get(result.get("protocol", "slr"), SEQUENCE_COLUMNS["slr"])
+    return [c for c in cols if c in rows[0]]
+
+
+def write_sequence_evaluation(result: dict, directory, force: bool = False) -> dict:
+    """Write a sequence evaluation (:func:`slr_ray.sequence.evaluate_sequence`'s result, with what the
+    caller adds: ``protocol``, ``inputs``...) into ``directory``: ``evaluation.json`` (everything, its
+    ``table`` every frame's rows and the means), ``table.md`` (the columns of its protocol,
+    :data:`SEQUENCE_COLUMNS`) and ``table.csv`` (every column). Refuses an existing non-empty
+    directory unless ``force`` (then only these files are replaced). Returns the paths, by kind."""
+    d = Path(directory)
+    if d.exists() and not d.is_dir():
+        raise OutputError(f"{d} exists and is not a directory")
+    if d.is_dir() and any(d.iterdir()) and not force:
+        raise OutputError(f"{d} exists and is not empty (use --force to replace its evaluation files)")
+    d.mkdir(parents=True, exist_ok=True)
+    rows = _sequence_rows(result)
+    paths = {kind: d / EVALUATION_FILES[kind] for kind in ("json", "markdown", "csv")}
+    with atomic_path(paths["json"]) as tmp:
+        tmp.write_text(compact_json(json_safe(result | {"table": rows})) + "\n")
+    with atomic_path(paths["markdown"]) as tmp:
+        tmp.write_text(markdown_table(rows, _sequence_columns(result, rows)) + "\n")
+    with atomic_path(paths["csv"]) as tmp:
+        tmp.write_text(_csv_text(rows))
+    return {k: str(v) for k, v in paths.items()}
+
+
+def sequence_summary(result: dict) -> tuple[str, list[dict]]:
+    """A sequence evaluation in short: the mean rows as a markdown table of its protocol's columns, and
+    the same rows (those columns only) for a summary."""
+    rows = result["mean"]
+    cols = [c for c in _sequence_columns(result, rows) if c != "frame"]
+    return markdown_table(rows, cols), [{c: r.get(c) for c in cols} for r in rows]

@@ -43,7 +43,7 @@ from ..sensors import fitted_pattern, scan_order_beams
 from ..sensors import sensor as shipped_sensor
 from .estimators import PulseReturns
 
-__all__ = ["SeeThrough", "SourceView", "source_view", "seen_through_votes", "source_discs", "cast_sources",
+__all__ = ["SeeThrough", "known_beams", "SourceView", "source_view", "seen_through_votes", "source_discs", "cast_sources",
            "REMOVE_MOVING", "SOURCE_TIES",
            "SOURCE_RADIUS_SCALE"]
 
@@ -101,6 +101,15 @@ class SourceView:
     pattern: object
     beams: np.ndarray | None
     image: np.ndarray
+
+
+def known_beams(points, attributes, base):
+    """Each point's beam in ``base``'s table: a ``ring`` field, else the file's scan order
+    (:func:`~slr_ray.sensors.scan_order_beams`); ``None`` where neither tells."""
+    ring = attributes.get("ring")
+    if ring is not None:
+        return np.asarray(ring, np.int64)
+    return scan_order_beams(points, base.n_beams)
 
 
 def source_view(local, attributes, base) -> SourceView:
