@@ -30,8 +30,8 @@ import numpy as np
 from tqdm import tqdm
 
 from ..errors import InputValueError, SlrWarning
-from ..evaluate import THRESHOLDS, evaluation_table, fitted_pattern, zbuffer
-from ..metrics import PAPER_THRESHOLD, Pair, score_pair, seen_from
+from ..evaluate import THRESHOLDS, evaluation_table, fitted_pattern, frame_beams, score_simulation, scoring_target
+from ..metrics import PAPER_THRESHOLD
 from ..options import Options
 from ..sensors import sensor as shipped_sensor
 from .estimators import FPA_GAP
@@ -83,13 +83,23 @@ def _beams(frame, base):
 
 
 def _held_beams(seq: Sequence, target: int, frame, base):
-    """The held-out frame's beams (:func:`_beams`), or ``None`` with a warning: its grid is then the
-    shipped table, not fitted to it (a frame out of scan order, or of another sensor)."""
-    beams = _beams(frame, base)
+    """The held-out frame's beams as ``slr-ray evaluate`` takes a frame's
+    (:func:`slr_ray.evaluate.frame_beams`: a ``ring`` field checked, else the scan order), or ``None``
+    with a warning: its grid is then the shipped table, not fitted to it (a frame out of scan order,
+    or of another sensor). Beams that fill under half the table's rows: a warning that the sensor
+    may not be the frames' (``--source-sensor``)."""
+    ring = frame.attributes.get("ring")
+    beams, how = frame_beams(frame.points, "auto" if ring is None else ring, base,
+                             f"frame {seq.names[target]}'s ring field")
     if beams is None:
         warnings.warn(f"frame {seq.names[target]}: beams not known (no ring field, not in {base.name}'s scan order "
-                      f"of {base.n_beams} rings: another sensor, or shuffled points?): scored on the shipped "
-                      "table's grid, not one fitted to the frame", SlrWarning, stacklevel=3)
+                      f"of {base.n_beams} rings: another sensor (--source-sensor), or shuffled points?): scored on "
+                      "the shipped table's grid, not one fitted to the frame", SlrWarning, stacklevel=3)
+        return None
+    used = len(np.unique(beams[beams >= 0]))
+    if 2 * used < base.n_beams:
+        warnings.warn(f"frame {seq.names[target]}: its points lie on {used} of {base.name}'s {base.n_beams} beams: "
+                      "are the frames of this sensor (--source-sensor)?", SlrWarning, stacklevel=3)
     return beams
 
 
@@ -160,6 +170,9 @@ class HoldoutOptions(Options):
         return {name: REGISTRY[name].options.from_flat(flat) for name in names}
 
 
+#: the splits of a held-out frame's scores (:data:`slr_ray.evaluate.SPLITS`: seen from the union or not)
+HOLDOUT_SPLITS = ("seen",)
+
 #: where a held-out frame's scoring grid may be fitted (HoldoutOptions.grid_from)
 GRID_SOURCES = ("target", "others")
 
@@ -210,17 +223,12 @@ def evaluate_holdout(seq: Sequence, target: int, options: HoldoutOptions | None 
     if not in_view.any():
         raise InputValueError(f"{seq.paths[target]}: none of its points lies within {pat.name}'s view about "
                               "its origin (is the frame in its sensor's frame?)")
-    real_img = zbuffer(b, pat, backend="real").range_image()
-    b_in = b[in_view]
     union = accumulate(seq, others, drop_moving=drop_moving, cache=cache, see_through=see_through, exclude=(target,))
     u = to_frame(union.points, fb.pose)
-    seen = seen_from(b_in, u, seen_threshold)
-    groups = {"seen": np.where(seen, "seen", "unseen")}
-    seen_all = np.zeros(len(b), bool)
-    seen_all[in_view] = seen
-    pix = np.full(real_img["range"].shape, "no return", dtype=object)
-    filled = real_img["index"] >= 0
-    pix[filled] = np.where(seen_all[real_img["index"][filled]], "seen", "unseen")
+    # scored as slr-ray evaluate scores a pair (the same target, every registered metric's block), split
+    # by seen / unseen only
+    scored = scoring_target(b, pat, beams, u, seen_threshold, splits=HOLDOUT_SPLITS)
+    real_img, b_in, seen = scored.image, scored.points, scored.seen
     adj = adjacent_frame(others, target)
     rows, extra = [], {}
     infos = {REGISTRY[m].info: None for m in REGISTRY if REGISTRY[m].info}  # every key, run or not
@@ -231,9 +239,7 @@ def evaluate_holdout(seq: Sequence, target: int, options: HoldoutOptions | None 
         if REGISTRY[m].info:
             infos[REGISTRY[m].info] = info
         img = ret.image(pat)
-        # every registered metric's block (slr_ray.metrics.REGISTRY), as slr-ray evaluate scores a pair
-        blocks = score_pair(Pair(b_in, sim, real_img["range"], img, tuple(thresholds), groups,
-                                 {"seen": pix.astype(str)}))
+        blocks = score_simulation(scored, sim, img, thresholds)
         extra[m] = clamped_depth_errors(real_img["range"], img)
         rows.append({"method": m, "label": LABELS[m], "points_out": int(len(sim)), "pulses_returned": int(len(ret)),
                      "seconds": round(time.perf_counter() - t0, 3)} | blocks)
