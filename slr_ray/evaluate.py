@@ -726,7 +726,8 @@ def write_sequence_evaluation(result: dict, directory, force: bool = False) -> d
 
 def sequence_summary(result: dict) -> tuple[str, list[dict]]:
     """A sequence evaluation in short: the mean rows as a markdown table of its protocol's columns, and
-    the same rows (those columns only) for a summary."""
+    the same rows (those columns only, figures to 4 decimals) for a summary."""
     rows = result["mean"]
     cols = [c for c in _sequence_columns(result, rows) if c != "frame"]
-    return markdown_table(rows, cols), [{c: r.get(c) for c in cols} for r in rows]
+    short = [{c: round(v, 4) if isinstance(v, float) else v for c, v in ((c, r.get(c)) for c in cols)} for r in rows]
+    return markdown_table(rows, cols), short
