@@ -4,7 +4,6 @@
 from __future__ import annotations
 
 import argparse
-import dataclasses
 import sys
 import warnings
 from pathlib import Path
@@ -17,7 +16,7 @@ from ..sensors import SENSORS
 from ..sequence import (REMOVE_MOVING, SeeThrough, convert_sequence, evaluate_sequence, read_sequence,
                         read_trajectory, register_chain, write_kitti_poses)
 from ..sequence.holdout import GRID_SOURCES, lidar4d_holdout
-from ..sequence.methods import REGISTRY, methods_with, options_classes
+from ..sequence.methods import REGISTRY, method_options, methods_with, option_keys
 from . import arguments as A
 from .commands import emit
 
@@ -70,15 +69,14 @@ _TYPES = {"float": A.finite_float, "int": int, "str": str}
 
 def add_method_options(p) -> None:
     """Every registered method's options as flags (``--PREFIX-FIELD``), generated from their options
-    classes (:func:`slr_ray.sequence.methods.options_classes`): a class two methods share is one flag."""
-    for cls, names in options_classes().items():
-        described = cls.describe()
-        for f in dataclasses.fields(cls):
-            typ, text = described.get(f.name, ("str", ""))
-            key = f"{cls.PREFIX}_{f.name}"
-            p.add_argument("--" + key.replace("_", "-"), dest=f"mopt_{key}", type=_TYPES.get(typ.split()[0], str),
-                           metavar=f.name.upper(),
-                           help=f"{', '.join(names)}: {text.rstrip('.')} (default {f.default})".replace("%", "%%"))
+    classes (:func:`slr_ray.sequence.methods.option_keys`): a setting two methods share is one flag."""
+    for key, (cls, name, methods) in option_keys().items():
+        typ, text = cls.describe().get(name, ("str", ""))
+        default = getattr(cls(), name)
+        p.add_argument("--" + key.replace("_", "-"), dest=f"mopt_{key}", type=_TYPES.get(typ.split()[0], str),
+                       metavar=name.split("_")[-1].upper(),
+                       help=f"{', '.join(methods)}: {text[:1].lower()}{text[1:].rstrip('.')} (default {default})"
+                       .replace("%", "%%"))
 
 
 def method_options_from(args) -> dict:
@@ -241,6 +239,7 @@ def sequence(args):
             raise InputValueError("--half / --radius with --protocol lidar4d: its scene is every other frame of the "
                                   "51 (no window)")
     args.method_options = method_options_from(args)
+    method_options(args.method_options)  # every method's options checked, before anything is read
     if args.half is None and not (args.sequence_cmd == "evaluate" and args.protocol == "lidar4d"):
         args.half = HALF
     seq = _load(args)

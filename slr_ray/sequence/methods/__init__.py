@@ -15,11 +15,11 @@ from collections.abc import Mapping
 from ...errors import InputValueError
 from . import adjacent, embree_knn, embree_sources, fpa, nearest, rays, zbuffer
 from .adjacent import adjacent_frame
-from .base import FirstPeakOptions, HeldOut, MethodOptions, NoOptions, SequenceMethod, TargetFrame
+from .base import FirstPeakOptions, HeldOut, MethodOptions, NoOptions, RaysOptions, SequenceMethod, TargetFrame
 from .rays import holdout_ray_model
 
-__all__ = ["REGISTRY", "LABELS", "SequenceMethod", "MethodOptions", "NoOptions", "FirstPeakOptions", "HeldOut",
-           "TargetFrame", "method", "methods_with", "check_methods", "method_options", "options_classes",
+__all__ = ["REGISTRY", "LABELS", "SequenceMethod", "MethodOptions", "NoOptions", "FirstPeakOptions", "RaysOptions", "HeldOut",
+           "TargetFrame", "method", "methods_with", "check_methods", "method_options", "options_classes", "option_keys",
            "adjacent_frame", "holdout_ray_model"]
 
 #: name -> method, in the order of the tables' rows
@@ -83,14 +83,27 @@ def options_classes() -> dict:
     return out
 
 
+def option_keys() -> dict:
+    """Every flat key of the registered methods' options (a key two classes share once): ``{key: (options
+    class, field, the methods that take it)}``, in the registry's order."""
+    out: dict = {}
+    for cls, names in options_classes().items():
+        for key, field in cls.keys().items():
+            if key in out:
+                out[key][2].extend(names)
+            else:
+                out[key] = (cls, field, list(names))
+    return out
+
+
 def method_options(values: Mapping | None = None) -> dict:
     """The flat keys of every registered method's options (``fpa_gap``...) and their values in ``values``
     (default: the defaults); an unknown key is refused naming the known ones."""
-    known = {}
-    for cls in options_classes():
-        defaults = cls()
-        known |= {key: getattr(defaults, name) for key, name in cls.keys().items()}
+    known = {key: getattr(cls(), field) for key, (cls, field, _) in option_keys().items()}
     unknown = sorted(set(values or {}) - set(known))
     if unknown:
         raise InputValueError(f"unknown method option(s) {unknown}; known: {sorted(known)}")
-    return known | {k: v for k, v in (values or {}).items() if v is not None}
+    flat = known | {k: v for k, v in (values or {}).items() if v is not None}
+    for cls in options_classes():
+        cls.from_flat(flat)  # each class's check(): a bad value refused whichever method is run
+    return flat

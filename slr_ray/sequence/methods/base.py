@@ -19,8 +19,8 @@ name):
 
 Its settings are a frozen :class:`MethodOptions` subclass (``options``): the docstring's
 Attributes describe each field; ``PREFIX`` names its flags (``--PREFIX-FIELD``) and the flat
-keys of the callers' ``method_options`` (``PREFIX_FIELD``). Two methods may share one
-options class (``fpa`` and ``rays`` share the first peak's ``gap``: one flag).
+keys of the callers' ``method_options`` (``PREFIX_FIELD``); a field two classes share names one
+key in ``KEYS`` (``rays`` takes the first peak's ``gap`` as ``fpa`` does, ``fpa_gap``: one flag).
 """
 
 from __future__ import annotations
@@ -36,10 +36,12 @@ from ...errors import InputValueError
 from ...options import Options
 from ..estimators import FPA_GAP, PulseReturns
 from ..frames import Sequence
+from ..rays import MAX_SHIFT, RAY_NEIGHBOURS
 from ..sources import SeeThrough
 from ..union import FrameCache, Union, accumulate, to_frame
 
-__all__ = ["MethodOptions", "NoOptions", "FirstPeakOptions", "HeldOut", "TargetFrame", "SequenceMethod"]
+__all__ = ["MethodOptions", "NoOptions", "FirstPeakOptions", "RaysOptions", "HeldOut", "TargetFrame",
+           "SequenceMethod"]
 
 
 @dataclass(frozen=True)
@@ -47,14 +49,16 @@ class MethodOptions(Options):
     """Base of a sequence method's options (module docstring): ``PREFIX`` names the flags and keys."""
 
     PREFIX: ClassVar[str] = ""
+    #: a field's flat key where it is not ``PREFIX_FIELD``: a setting two classes share (one flag)
+    KEYS: ClassVar[dict] = {}
 
     def check(self) -> None:
         """Refuse impossible values (``InputValueError`` naming the flag)."""
 
     @classmethod
     def keys(cls) -> dict:
-        """``{flat key: field}``: ``PREFIX_FIELD`` for each field."""
-        return {f"{cls.PREFIX}_{f.name}": f.name for f in dataclasses.fields(cls)}
+        """``{flat key: field}``: ``PREFIX_FIELD`` for each field (or its entry of ``KEYS``)."""
+        return {cls.KEYS.get(f.name, f"{cls.PREFIX}_{f.name}"): f.name for f in dataclasses.fields(cls)}
 
     @classmethod
     def from_flat(cls, values: Mapping):
@@ -86,6 +90,34 @@ class FirstPeakOptions(MethodOptions):
     def check(self) -> None:
         if not (isinstance(self.gap, (int, float)) and self.gap > 0):
             raise InputValueError(f"the fpa gap must be > 0 m, got {self.gap}")
+
+
+@dataclass(frozen=True)
+class RaysOptions(MethodOptions):
+    """The ``rays`` method's settings (:func:`~slr_ray.sequence.rays.cast_rays`).
+
+    Attributes
+    ----------
+    gap : float
+        The first cluster's gap along each ray (m): ``--fpa-gap``, the one fpa takes.
+    neighbours : int
+        Union points whose plane a ray meets (3 or more).
+    max_shift : float
+        How far before the first cluster a ray's hit on the plane may lie (m).
+    """
+
+    PREFIX: ClassVar[str] = "rays"
+    KEYS: ClassVar[dict] = {"gap": "fpa_gap"}
+    gap: float = FPA_GAP
+    neighbours: int = RAY_NEIGHBOURS
+    max_shift: float = MAX_SHIFT
+
+    def check(self) -> None:
+        FirstPeakOptions(self.gap).check()
+        if not (isinstance(self.neighbours, (int, np.integer)) and self.neighbours >= 3):
+            raise InputValueError(f"--rays-neighbours: a plane takes 3 or more neighbours, got {self.neighbours}")
+        if not (isinstance(self.max_shift, (int, float)) and self.max_shift >= 0):
+            raise InputValueError(f"--rays-max-shift must be metres >= 0, got {self.max_shift}")
 
 
 @dataclass

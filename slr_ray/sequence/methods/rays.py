@@ -9,7 +9,7 @@ import warnings
 from ...errors import SlrWarning
 from ..rays import RayModel, cast_rays, fit_range_bias, fit_ray_model, frame_motion, pattern_ray_model
 from ..sources import known_beams
-from .base import FirstPeakOptions, HeldOut, SequenceMethod
+from .base import HeldOut, RaysOptions, SequenceMethod
 
 __all__ = ["Rays", "METHOD", "holdout_ray_model"]
 
@@ -46,16 +46,17 @@ class Rays(SequenceMethod):
 
     name = "rays"
     label = "beam rays onto the union's planes"
-    options = FirstPeakOptions
+    options = RaysOptions
     default = True
     info = "ray_model"
 
-    def returns(self, points, pattern, options: FirstPeakOptions):
-        return cast_rays(points, pattern, gap=options.gap)
+    def returns(self, points, pattern, options: RaysOptions):
+        return cast_rays(points, pattern, gap=options.gap, neighbours=options.neighbours, max_shift=options.max_shift)
 
-    def simulate(self, held: HeldOut, options: FirstPeakOptions):
+    def simulate(self, held: HeldOut, options: RaysOptions):
         model = holdout_ray_model(held.seq, held.others, held.base, held.pattern, held.cache)
-        ret = cast_rays(held.u, held.pattern, model, frame_motion(held.seq.poses, held.target), gap=options.gap)
+        ret = cast_rays(held.u, held.pattern, model, frame_motion(held.seq.poses, held.target), gap=options.gap,
+                        neighbours=options.neighbours, max_shift=options.max_shift)
         return ret, ret.points, model.to_dict()
 
 
