@@ -158,3 +158,15 @@ def test_the_old_sensor_flag_works_with_a_line_and_a_wrong_source_sensor_is_said
     assert r.returncode == 0, r.stderr
     # a VLP-16's frames named an HDL-64E's: not in its scan order (a ring field: on 16 of its 64 beams)
     assert "warning: frame 000001" in r.stderr and "another sensor (--source-sensor)" in r.stderr
+
+
+def test_convert_says_when_the_frames_seem_not_of_the_source_sensor(drive, tmp_path, capsys):
+    r = _Run(capsys)("sequence", "convert", drive, "--target-sensor", "velodyne_vlp16", "--half", "1",
+                     "--source-sensor", "velodyne_hdl64e_s2", "--remove-moving", "visibility", "-o", tmp_path / "c",
+                     "--quiet")
+    assert r.returncode == 0, r.stderr
+    assert "warning: frame 000000: not in velodyne_hdl64e_s2's scan order" in r.stderr and "--source-sensor" in r.stderr
+    r = _Run(capsys)("sequence", "convert", drive, "--target-sensor", "velodyne_hdl64e_s2", "--half", "1",
+                     "--source-sensor", "velodyne_vlp16", "--remove-moving", "visibility", "-o", tmp_path / "d",
+                     "--quiet")
+    assert r.returncode == 0 and "warning" not in r.stderr, r.stderr   # the right one: nothing said

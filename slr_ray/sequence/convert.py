@@ -35,6 +35,7 @@ import multiprocessing
 from dataclasses import dataclass
 import time
 import uuid
+import warnings
 from collections.abc import Sequence as SequenceABC
 from functools import partial
 from pathlib import Path
@@ -42,7 +43,7 @@ from pathlib import Path
 import numpy as np
 from tqdm import tqdm
 
-from ..errors import InputValueError, MissingDependencyError, OutputError
+from ..errors import InputValueError, MissingDependencyError, OutputError, SlrWarning
 from ..io import PointCloud, atomic_path, check_format, write_cloud
 from ..io.outputs import LOCK_NAME, clean_stale_parts
 from ..options import Options
@@ -50,7 +51,7 @@ from ..sensors import sensor as shipped_sensor
 from .estimators import FPA_GAP
 from .frames import Sequence, write_kitti_poses
 from .methods import REGISTRY, TargetFrame, method, method_options, methods_with
-from .sources import SeeThrough, base_pattern
+from .sources import SeeThrough, base_pattern, source_sensor_problem
 from .union import FrameCache, window
 
 __all__ = ["ConvertOptions", "convert_sequence", "target_poses", "MANIFEST", "JOURNAL", "CONVERT_ESTIMATORS"]
@@ -269,7 +270,11 @@ def convert_sequence(seq: Sequence, out, sensor: str, options: ConvertOptions | 
         raise InputValueError(f"the {estimator} estimator needs the frames' own sensor (source_sensor, "
                               f"--source-sensor): {m.source_why}")
     if source_sensor is not None:
-        shipped_sensor(source_sensor)
+        probe = seq.read(0)
+        why = source_sensor_problem(probe.points, probe.attributes, shipped_sensor(source_sensor))
+        if why is not None:  # its rays (see-through) and pulse grids (embree-sources) are then the table's
+            warnings.warn(f"frame {seq.names[0]}: {why}: are the frames of this sensor (source_sensor, "
+                          "--source-sensor)?", SlrWarning, stacklevel=2)
         settings["source_sensor"] = source_sensor
     shipped_sensor(sensor)  # an unknown name or format is refused before anything is written
     check_format(out / "velodyne" / f"000000.{settings['format']}", settings["format"])
