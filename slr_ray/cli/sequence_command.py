@@ -124,7 +124,7 @@ def add_sequence_parser(sub) -> None:
     _deprecated_sensor(q)
     q.add_argument("--estimator", default="nearest", choices=methods_with("convert"),
                    help="per-pulse rule (default nearest; rays: the target table's own rays onto the union's "
-                        "planes; embree-sources needs --source-sensor)")
+                        f"planes; {', '.join(methods_with('needs_source_sensor'))} need(s) --source-sensor)")
     q.add_argument("--source-sensor", choices=list(SENSORS),
                    help="the input frames' own sensor (fitted to each frame whose beams are known: a ring field "
                         "or a KITTI .bin's order), for --remove-moving visibility and --estimator embree-sources")
