@@ -170,3 +170,14 @@ def test_convert_says_when_the_frames_seem_not_of_the_source_sensor(drive, tmp_p
                      "--source-sensor", "velodyne_vlp16", "--remove-moving", "visibility", "-o", tmp_path / "d",
                      "--quiet")
     assert r.returncode == 0 and "warning" not in r.stderr, r.stderr   # the right one: nothing said
+
+
+def test_a_ring_field_on_few_of_the_sensors_beams_is_a_problem_of_the_named_sensor():
+    from slr_ray.sensors import sensor
+    from slr_ray.sequence.sources import source_sensor_problem
+    rng = np.random.default_rng(0)
+    pts = rng.normal(size=(320, 3)) * 10
+    ring = {"ring": np.repeat(np.arange(16), 20)}
+    assert "on 16 of velodyne_hdl64e_s2's 64 beams" in source_sensor_problem(pts, ring, sensor("velodyne_hdl64e_s2"))
+    assert source_sensor_problem(pts, ring, sensor("velodyne_vlp16")) is None
+    assert "scan order" in source_sensor_problem(pts, {}, sensor("velodyne_vlp16"))
