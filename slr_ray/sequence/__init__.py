@@ -19,6 +19,9 @@
 ``rays``
     the ``rays`` estimator: the sensor's own rays (each laser's height and elevation, the sweep's
     motion) fitted from frames' points, each beam cast along its ray onto the union's planes.
+``methods``
+    the registry of sequence methods (one module a method: its options, its capabilities), which
+    ``holdout`` and ``convert`` loop over.
 ``holdout``
     leave-one-out evaluation: each held-out frame re-simulated from the others.
 ``sources``
