@@ -18,7 +18,7 @@ from numba import njit, prange
 from ..arrays import as_origin, bounds, release_pages
 from ..errors import InputValueError
 from ..threads import default_threads
-from .cast import FILTER, MODE_SKIP, NO_CLIP, PACKET_WIDTHS, cast_rays
+from .cast import FILTER, MODE_SKIP, NO_CLIP, PACKET_WIDTHS, cast_packets
 from .cull import FACE, direction_map, float32_margin, voxel_boxes
 from .library import (BUFFER_INDEX, BUFFER_NORMAL, BUFFER_VERTEX, FORMAT_FLOAT3, FORMAT_FLOAT4, FORMAT_UINT3,
                       GEOMETRY_DISC_POINT, GEOMETRY_ORIENTED_DISC_POINT, GEOMETRY_TRIANGLE, SCENE_FLAG_COMPACT,
@@ -379,12 +379,12 @@ class RayScene:
         def run(a):
             # one task: rays a .. a + task (threads take tasks in turn)
             e = min(m, a + task)
-            cast_rays(lib.intersect[width], width, self._scene, FILTER.address, org32, o, d[a:e],
-                        np.float32(tnear), np.float32(tf), mode, float(ties), bool(one_pass),
-                        float(pulse_aspect or 0.0),
-                        self._owner_centres, self._owner_radii, self._owner_normals, self.prims_per_owner,
-                        self.reach, self._box, prim[a:e], owner[a:e], t[a:e], self._vertex_centres, local, dmap, FACE,
-                        *clip)
+            cast_packets(lib.intersect[width], width, self._scene, FILTER.address, org32, o, d[a:e],
+                           np.float32(tnear), np.float32(tf), mode, float(ties), bool(one_pass),
+                           float(pulse_aspect or 0.0),
+                           self._owner_centres, self._owner_radii, self._owner_normals, self.prims_per_owner,
+                           self.reach, self._box, prim[a:e], owner[a:e], t[a:e], self._vertex_centres, local, dmap,
+                           FACE, *clip)
 
         starts = range(0, m, task)
         if n_threads == 1:
