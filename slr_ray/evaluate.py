@@ -408,8 +408,8 @@ def evaluate_pair(a_points, b_points, a_beams="auto", b_beams="auto", options: E
     real, real_img, b_in, seen, point_groups, pix_seen, filled = _target(b, b_beams, pat_b, a_in_b,
                                                                          seen_threshold)
     seconds["target"] = time.perf_counter() - t0
-    rows, images, identical = _score_methods(methods, a_in_b, a_origin, a_beams, pat_a, pat_b, real_img, b_in,
-                                             point_groups, pix_seen, thresholds, seconds, progress)
+    rows, images, identical = _score_methods(methods, (a_in_b, a_origin, a_beams, pat_a), pat_b,
+                                             (real_img, b_in, point_groups, pix_seen), thresholds, seconds, progress)
     seconds["total"] = time.perf_counter() - t_all
     return {"registration": registration,
             "patterns": {"a": pat_a.to_dict() | {"beams_known": a_beams is not None, "beams": a_how},
@@ -528,10 +528,13 @@ def _target(b, b_beams, pat_b, a_in_b, seen_threshold) -> tuple:
     return real, real_img, b_in, seen, point_groups, pix_seen, filled
 
 
-def _score_methods(methods, a_in_b, a_origin, a_beams, pat_a, pat_b, real_img, b_in, point_groups, pix_seen,
-                   thresholds, seconds, progress) -> tuple:
-    """``(rows, images, identical)``: each method's simulation of B from A's points in B's frame,
-    scored by every registered metric (its seconds into ``seconds``)."""
+def _score_methods(methods, frame_a, pat_b, target, thresholds, seconds, progress) -> tuple:
+    """``(rows, images, identical)``: each method's simulation of B from A's points in B's frame
+    (``frame_a``: ``(a_in_b, a_origin, a_beams, pat_a)``), scored against the real B (``target``:
+    ``(real_img, b_in, point_groups, pix_seen)``) by every registered metric (its seconds into
+    ``seconds``)."""
+    a_in_b, a_origin, a_beams, pat_a = frame_a
+    real_img, b_in, point_groups, pix_seen = target
     rows, images = [], {"real": real_img["range"]}
     binning_img = None
     todo = [m for m in methods if not (METHOD_SCANS.get(m, (m, None))[1] == "beams" and a_beams is None)]
