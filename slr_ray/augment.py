@@ -43,7 +43,9 @@ from .backends import options_for, prepare, require_rays, require_streamable, sc
 from .effects import Effects, effect_cloud, simulate
 from .errors import InputValueError, MissingDependencyError, OutputError, SlrError, refuse_memory
 from .io import PointCloud, atomic_path, check_format, read_cloud, write_cloud
-from .io.outputs import LOCK_NAME, OutputPlan, content_digest, label_destinations, link_new, output_sidecars, part_prefix
+from .io.manifest import (JOURNAL, MANIFEST, append_journal, refuse_strangers, refuse_theirs, resumable,
+                          same_settings)
+from .io.outputs import OutputPlan, content_digest, label_destinations, link_new, output_sidecars, part_prefix
 from .paper import MIN_GROUND_POINTS, SCANNER_HEIGHT, SECONDARY_RESOLUTION
 from .pattern import ScanPattern, as_pattern
 from .positions import ground_labels, require_positions, select_positions
@@ -56,90 +58,8 @@ __all__ = ["augment", "AugmentConfig", "MANIFEST", "JOURNAL"]
 _WORKER = {}
 
 
-#: The run's record in its output directory.
-MANIFEST = "manifest.json"
-#: Scans finished since the manifest was last written, one JSON line each (removed when a run completes).
-JOURNAL = "manifest.scans.jsonl"
 #: Seconds between rewrites of manifest.json during a run.
 MANIFEST_EVERY = 10.0
-
-
-def _short(value, limit: int = 200) -> str:
-    """``repr(value)``, cut to ``limit`` characters (a drop model's table is long)."""
-    text = repr(value)
-    return text if len(text) <= limit else text[:limit - 3] + "..."
-
-
-def _differences(before: dict, now: dict, prefix: str = "") -> list:
-    """``'key: old -> new'`` for every key of either mapping whose values differ
-    (a setting only one run has differs too); within two mappings
-    (``effects``), the keys that differ, as ``effects.range_noise``."""
-    out = []
-    for k in [*now, *(k for k in before if k not in now)]:
-        old, new = before.get(k), now.get(k)
-        if old == new:
-            continue
-        if isinstance(old, dict) and isinstance(new, dict):
-            out += _differences(old, new, f"{prefix}{k}.")
-        else:
-            out.append(f"{prefix}{k}: {_short(old)} -> {_short(new)}")
-    return out
-
-
-def _same_settings(manifest_path: Path, settings: dict, out: Path) -> dict:
-    """The manifest of an earlier run into ``out``, refused unless its settings
-    are this run's (input, seed, pattern, backend and options, ground
-    threshold, format, effects): a rerun with other settings never mixes its
-    scans with the old ones. Checked before the long steps; the positions,
-    once drawn, by :func:`_resumable`."""
-    try:
-        old = json.loads(manifest_path.read_text())
-    except ValueError:
-        old = None
-    if not isinstance(old, dict) or not isinstance(old.get("settings", {}), dict):  # valid JSON of another shape
-        raise InputValueError(f"{manifest_path} is not a manifest slr_ray can read: write elsewhere") from None
-    before = old.get("settings")
-    if before is None:
-        raise InputValueError(f"{manifest_path} was written by an older slr_ray without its settings: "
-                              "write elsewhere (or remove the directory)")
-    diff = _differences(before, settings)
-    if diff:
-        raise InputValueError(f"{out} holds a run with other settings ({'; '.join(diff)}): "
-                              "write elsewhere, or remove it to start again")
-    return old
-
-
-def _resumable(old: dict, positions, out: Path) -> dict:
-    """The scans of an earlier run into ``out`` (its manifest ``old``, of the
-    same settings: :func:`_same_settings`) that this run may keep.
-
-    A run resumes one whose positions agree with this run's as far as both go
-    (a run for more positions extends one for fewer; a run for fewer is
-    refused, as its manifest could not describe the scans already there).
-    """
-    held = len(old.get("positions", []))
-    if len(positions) < held:
-        # its manifest would list the old run's scans past this run's positions, without them
-        raise InputValueError(f"{out} holds a run of {held} positions and this run asks {len(positions)}: "
-                              f"ask n={held} (or more) to resume or extend it, or write elsewhere",
-                              flags={f"ask n={held}": f"ask --n {held}"})
-    k = min(len(positions), held)
-    if not np.array_equal(np.asarray(old.get("positions", []))[:k].reshape(-1, 3), positions[:k]):
-        raise InputValueError(f"{out} holds a run with other settings (positions differ): "
-                              "write elsewhere, or remove it to start again")
-    scans = {s["file"]: s for s in old.get("scans", [])}
-    journal = out / JOURNAL
-    if journal.exists():  # scans recorded since the manifest was last written (an interrupted run)
-        for line in journal.read_text().splitlines():
-            try:
-                entry = json.loads(line)
-            except ValueError:
-                continue  # a line cut short by the interruption
-            if entry.get("withdrawn"):  # recorded, then found another's file at its name (_publish)
-                scans.pop(entry["file"], None)
-            else:
-                scans[entry["file"]] = entry
-    return {k: v for k, v in scans.items() if (out / k).exists()}
 
 
 #: the signals that stop a run: the parent's to act on (it terminates its workers), never a worker's
@@ -610,83 +530,24 @@ def share_threads(jobs: list, options, backend_options: dict, n_workers: int) ->
 def _augment(input_path, out, config, ground, run: _Run) -> dict:
     """:func:`augment` in its locked directory."""
     pattern, options, effects, ext, names, progress, force = run
-    heights = config.scan_heights
-    backend, backend_options = config.backend, dict(config.backend_options or {})
-    ground_setting = "from the input" if ground is None else dict(ground) if isinstance(ground, dict) else "given"
-    settings = {"input": str(input_path.resolve()), "input_bytes": input_path.stat().st_size,
-                "input_digest": content_digest(input_path), "seed": config.seed,
-                "pattern": pattern.to_dict(), "backend": backend, "backend_options": options.to_dict(),
-                "min_ground_points": config.min_ground_points, "format": ext, "heights": list(heights),
-                "ground": ground_setting}
-    if effects is not None:  # only then: a manifest without effects resumes as before
-        settings["effects"] = effects.to_dict()
+    backend_options = dict(config.backend_options or {})
+    settings = _settings(input_path, config, ground, run)
     # what is in the directory is checked before the long steps (CSF takes minutes on an airborne tile)
     manifest_path = out / MANIFEST
     fresh = not manifest_path.exists()
     if not fresh:
-        old = _same_settings(manifest_path, settings, out)
+        old = same_settings(manifest_path, settings, out)
     else:
-        # a scan's sidecars too (a .bin's .label): written over, or removed as stale, by a fresh run
-        strays = sorted(str(p if p.parent != out else p.name) for n in names
-                        for p in [out / n, *output_sidecars(out / n, ext)] if os.path.lexists(p))
-        if strays:
-            raise OutputError(f"{out} holds {strays[0]}{f' and {len(strays) - 1} more' if len(strays) > 1 else ''} "
-                              f"but no {MANIFEST}: not a run this one can resume; write elsewhere")
-        others = sorted(p.name for p in out.iterdir() if p.name != LOCK_NAME
-                        and not (p.name.startswith(".") and p.name.endswith(".part")))  # a killed run's
-        if others and not force:
-            raise OutputError(f"{out} holds {len(others):,} file(s) of no augment run ({', '.join(others[:3])}"
-                              f"{', ...' if len(others) > 3 else ''}): a fresh run writes into an empty directory "
-                              "or a new one; write elsewhere, or pass force=True to write among them "
-                              "(never over one)", flags={"pass force=True": "give --force"})
-    if isinstance(ground, dict) and config.chunk_size is not None:  # labels (CSF) need the whole cloud
-        ground = ground_labels(read_cloud(input_path, allow_empty=False), **ground, progress=progress)
-    if config.chunk_size is not None:
-        cloud = None
-        positions, cells, _ = las_positions(input_path, config.n, seed=config.seed, ground=ground,
-                                            chunk=int(config.chunk_size), min_ground_points=config.min_ground_points,
-                                            allow_fewer=config.allow_fewer, scanner_height=config.scanner_height,
-                                            progress=progress)
-    else:
-        cloud = read_cloud(input_path, allow_empty=False)
-        if effects is not None and effects.intensity == "correct" and cloud.origin is None:  # before CSF
-            raise InputValueError(f"intensity='correct' needs where {input_path} was scanned from, and it records "
-                                  "no scanner origin (use intensity='carry')",
-                                  flags={"intensity='correct'": "--intensity correct",
-                                         "intensity='carry'": "--intensity carry"})
-        if ground is None or isinstance(ground, dict):
-            ground = ground_labels(cloud, **(ground or {}), progress=progress)
-        positions, cells = select_positions(cloud.points, ground, config.n, seed=config.seed,
-                                            min_ground_points=config.min_ground_points,
-                                            scanner_height=config.scanner_height,
-                                            allow_fewer=config.allow_fewer, return_cells=True)
+        refuse_strangers(out, names, ext, force)
+    cloud, positions, cells = _positions(input_path, config, ground, effects, progress)
     require_positions(positions, config.n, cells, input_path)  # allow_fewer is fewer, not none
-    done = {} if fresh else _resumable(old, positions, out)
+    done = {} if fresh else resumable(old, positions, out)
     if not os.access(out, os.W_OK):
         raise PermissionError(f"cannot write to {out}")
-    jobs = []
-    for i, p in enumerate(positions):
-        ground_z = p[2] - config.scanner_height  # select_positions puts them scanner_height above ground
-        for k, h in enumerate(heights):
-            name = _scan_name(i, h, ext)
-            if name in done:
-                continue
-            jobs.append({"path": str(out / name), "position": i, "height": float(h),
-                         "origin": [float(p[0]), float(p[1]), float(ground_z + h)],
-                         "pattern": pattern.to_dict(), "sensor": config.sensor, "backend": backend,
-                         "options": backend_options,
-                         "effects": None if effects is None else effects.with_seed(_scan_seed(effects.seed, i, k))})
+    jobs = _jobs(positions, done, out, config, run, backend_options)
     if not fresh:  # an extension or a resume writes only names no run recorded: any file there is another's
-        theirs = sorted(str(p if p.parent != out else p.name) for j in jobs
-                        for p in [Path(j["path"]), *output_sidecars(j["path"], ext)] if os.path.lexists(p))
-        if theirs:
-            raise OutputError(f"{out} holds {theirs[0]}{f' and {len(theirs) - 1} more' if len(theirs) > 1 else ''}"
-                              f", which its {MANIFEST} does not list: this run would write there; move "
-                              f"{'it' if len(theirs) == 1 else 'them'} away, or write elsewhere")
-    manifest = {"software": f"slr_ray {__version__}", "settings": settings, "input": str(input_path),
-                "n_requested": config.n, "seed": config.seed, "pattern": pattern.to_dict(), "backend": backend,
-                "heights": list(heights), "effects": settings.get("effects"),
-                "positions": positions.tolist(), "stages": cells.stages, "scans": list(done.values())}
+        refuse_theirs(jobs, out, ext)
+    manifest = _manifest(settings, input_path, config, pattern, positions, cells, done)
 
     journal = out / JOURNAL
     last_write = [0.0]
@@ -702,22 +563,14 @@ def _augment(input_path, out, config, ground, run: _Run) -> dict:
         # MANIFEST_EVERY seconds (rewriting it after each of thousands of scans is quadratic)
         entry = {**entry, "done": round(time.perf_counter() - record_start, 3)}  # seconds into this run
         manifest["scans"].append(entry)
-        try:
-            with open(journal, "a") as f:
-                f.write(json.dumps(entry) + "\n")
-        except OSError as exc:  # 'File too large', 'No space left on device': say which file
-            if exc.filename is not None:
-                raise
-            raise OSError(exc.errno, f"cannot write {journal}: {exc.strerror or exc}") from exc
+        append_journal(journal, entry)
         if time.perf_counter() - last_write[0] > MANIFEST_EVERY:
             write_manifest()
         return entry
 
     write_manifest()
     record_start = time.perf_counter()
-    bar = None
-    if progress:
-        bar = progress_bar(total=len(jobs), desc="augment", unit="scan", leave=True)
+    bar = progress_bar(total=len(jobs), desc="augment", unit="scan", leave=True) if progress else None
     told = _Told(out, ext)
 
     def done_one(entry):
@@ -739,32 +592,7 @@ def _augment(input_path, out, config, ground, run: _Run) -> dict:
     failed = False  # an error (exit 2), not an interruption (which keeps what it made, to resume)
     complete = False
     try:
-        if cloud is None:  # streamed
-            _run_streamed(jobs, input_path, pattern, int(config.chunk_size), int(config.per_pass), done_one,
-                          progress)
-        elif config.scheduler:
-            from dask.distributed import Client, as_completed
-
-            with Client(config.scheduler) as client:
-                shared = client.scatter(cloud, broadcast=True)  # once, not once per task
-                futures = [client.submit(_scan_on_dask, j, shared, pure=False) for j in jobs]
-                for fut in as_completed(futures):
-                    done_one(fut.result())
-        elif (config.workers or os.cpu_count() or 1) > 1 and len(jobs) > 1:
-            n_workers = min(len(jobs), config.workers or os.cpu_count() or 1)
-            jobs = share_threads(jobs, options, backend_options, n_workers)
-            # spawn, not fork: a forked child inherits the parent's thread pools
-            # (numba's, the binning backend's) in whatever state they were and can hang.
-            # multiprocessing.Pool, not ProcessPoolExecutor: on an interrupt (SIGINT, or
-            # SIGTERM turned into one by the CLI) its exit terminates the workers at once
-            # instead of running every queued scan first.
-            ctx = _WorkerContext()
-            with ctx.Pool(n_workers, initializer=_init_worker,
-                          initargs=(cloud.points, cloud.attributes, cloud.origin, cloud.meta)) as pool:
-                for entry in pool.imap(_scan_one, jobs):
-                    done_one(entry)
-        else:
-            _run_serial(jobs, cloud, done_one)
+        _run_jobs(jobs, cloud, input_path, config, run, backend_options, done_one)
         complete = True
     except Exception:
         failed = True
@@ -773,17 +601,121 @@ def _augment(input_path, out, config, ground, run: _Run) -> dict:
         if bar is not None:
             bar.close()
         told.say()
-        if failed and fresh and not manifest["scans"]:
-            # an error before any scan was recorded: leave nothing (none of these files existed before
-            # this run; the plan then removes the directory if it created it)
-            _remove_temporaries(jobs)  # no scan was published (each is recorded first): only staged files
-            manifest_path.unlink(missing_ok=True)
-            journal.unlink(missing_ok=True)
-        else:
-            if not complete:  # scans staged but never published (an interruption)
-                _remove_temporaries(jobs)
-            write_manifest()  # complete or interrupted: the manifest lists every scan written
+        _clean_up(failed and fresh and not manifest["scans"], complete, jobs, manifest_path, journal, write_manifest)
     journal.unlink(missing_ok=True)
     manifest["seconds"] = round(time.perf_counter() - record_start, 3)
     manifest["new_scans"] = len(jobs)
     return manifest
+
+
+def _settings(input_path, config, ground, run: _Run) -> dict:
+    """The settings a manifest records (a resume must find them the same)."""
+    pattern, options, effects, ext = run.pattern, run.options, run.effects, run.ext
+    heights, backend = config.scan_heights, config.backend
+    ground_setting = "from the input" if ground is None else dict(ground) if isinstance(ground, dict) else "given"
+    settings = {"input": str(input_path.resolve()), "input_bytes": input_path.stat().st_size,
+                "input_digest": content_digest(input_path), "seed": config.seed,
+                "pattern": pattern.to_dict(), "backend": backend, "backend_options": options.to_dict(),
+                "min_ground_points": config.min_ground_points, "format": ext, "heights": list(heights),
+                "ground": ground_setting}
+    if effects is not None:  # only then: a manifest without effects resumes as before
+        settings["effects"] = effects.to_dict()
+    return settings
+
+
+def _positions(input_path, config, ground, effects, progress) -> tuple:
+    """``(cloud, positions, cells)``: the input (None when streamed) and the positions drawn on its ground."""
+    if isinstance(ground, dict) and config.chunk_size is not None:  # labels (CSF) need the whole cloud
+        ground = ground_labels(read_cloud(input_path, allow_empty=False), **ground, progress=progress)
+    if config.chunk_size is not None:
+        cloud = None
+        positions, cells, _ = las_positions(input_path, config.n, seed=config.seed, ground=ground,
+                                            chunk=int(config.chunk_size), min_ground_points=config.min_ground_points,
+                                            allow_fewer=config.allow_fewer, scanner_height=config.scanner_height,
+                                            progress=progress)
+    else:
+        cloud = read_cloud(input_path, allow_empty=False)
+        if effects is not None and effects.intensity == "correct" and cloud.origin is None:  # before CSF
+            raise InputValueError(f"intensity='correct' needs where {input_path} was scanned from, and it records "
+                                  "no scanner origin (use intensity='carry')",
+                                  flags={"intensity='correct'": "--intensity correct",
+                                         "intensity='carry'": "--intensity carry"})
+        if ground is None or isinstance(ground, dict):
+            ground = ground_labels(cloud, **(ground or {}), progress=progress)
+        positions, cells = select_positions(cloud.points, ground, config.n, seed=config.seed,
+                                            min_ground_points=config.min_ground_points,
+                                            scanner_height=config.scanner_height,
+                                            allow_fewer=config.allow_fewer, return_cells=True)
+    return cloud, positions, cells
+
+
+def _jobs(positions, done, out, config, run: _Run, backend_options) -> list:
+    """A job a scan not yet done: its path, position, height, origin, pattern, backend and effects."""
+    pattern, effects, ext, heights, backend = run.pattern, run.effects, run.ext, config.scan_heights, config.backend
+    jobs = []
+    for i, p in enumerate(positions):
+        ground_z = p[2] - config.scanner_height  # select_positions puts them scanner_height above ground
+        for k, h in enumerate(heights):
+            name = _scan_name(i, h, ext)
+            if name in done:
+                continue
+            jobs.append({"path": str(out / name), "position": i, "height": float(h),
+                         "origin": [float(p[0]), float(p[1]), float(ground_z + h)],
+                         "pattern": pattern.to_dict(), "sensor": config.sensor, "backend": backend,
+                         "options": backend_options,
+                         "effects": None if effects is None else effects.with_seed(_scan_seed(effects.seed, i, k))})
+    return jobs
+
+
+def _run_jobs(jobs, cloud, input_path, config, run: _Run, backend_options, done_one) -> None:
+    """Every job run (streamed, on a dask scheduler, in worker processes or here), ``done_one`` called on each scan."""
+    pattern, options, progress = run.pattern, run.options, run.progress
+    if cloud is None:  # streamed
+        _run_streamed(jobs, input_path, pattern, int(config.chunk_size), int(config.per_pass), done_one,
+                      progress)
+    elif config.scheduler:
+        from dask.distributed import Client, as_completed
+
+        with Client(config.scheduler) as client:
+            shared = client.scatter(cloud, broadcast=True)  # once, not once per task
+            futures = [client.submit(_scan_on_dask, j, shared, pure=False) for j in jobs]
+            for fut in as_completed(futures):
+                done_one(fut.result())
+    elif (config.workers or os.cpu_count() or 1) > 1 and len(jobs) > 1:
+        n_workers = min(len(jobs), config.workers or os.cpu_count() or 1)
+        jobs = share_threads(jobs, options, backend_options, n_workers)
+        # spawn, not fork: a forked child inherits the parent's thread pools
+        # (numba's, the binning backend's) in whatever state they were and can hang.
+        # multiprocessing.Pool, not ProcessPoolExecutor: on an interrupt (SIGINT, or
+        # SIGTERM turned into one by the CLI) its exit terminates the workers at once
+        # instead of running every queued scan first.
+        ctx = _WorkerContext()
+        with ctx.Pool(n_workers, initializer=_init_worker,
+                      initargs=(cloud.points, cloud.attributes, cloud.origin, cloud.meta)) as pool:
+            for entry in pool.imap(_scan_one, jobs):
+                done_one(entry)
+    else:
+        _run_serial(jobs, cloud, done_one)
+
+
+def _manifest(settings, input_path, config, pattern, positions, cells, done) -> dict:
+    """The manifest of a run, before its new scans: the settings, the positions and the scans done."""
+    return {"software": f"slr_ray {__version__}", "settings": settings, "input": str(input_path),
+            "n_requested": config.n, "seed": config.seed, "pattern": pattern.to_dict(), "backend": config.backend,
+            "heights": list(config.scan_heights), "effects": settings.get("effects"),
+            "positions": positions.tolist(), "stages": cells.stages, "scans": list(done.values())}
+
+
+def _clean_up(nothing_recorded, complete, jobs, manifest_path, journal, write_manifest) -> None:
+    """After the scans: a fresh run that failed before recording any leaves nothing; else the
+    temporaries of an interrupted run go and the manifest lists every scan written."""
+    if nothing_recorded:
+        # an error before any scan was recorded: leave nothing (none of these files existed before
+        # this run; the plan then removes the directory if it created it)
+        _remove_temporaries(jobs)  # no scan was published (each is recorded first): only staged files
+        manifest_path.unlink(missing_ok=True)
+        journal.unlink(missing_ok=True)
+    else:
+        if not complete:  # scans staged but never published (an interruption)
+            _remove_temporaries(jobs)
+        write_manifest()  # complete or interrupted: the manifest lists every scan written

@@ -459,8 +459,41 @@ def evaluate_pair(a_points, b_points, a_beams="auto", b_beams="auto", options: E
     """
     t_all = time.perf_counter()
     o = EvaluateOptions.of(options, **keywords)
-    sensor, methods, seen_threshold, thresholds = o.sensor, o.methods, o.seen_threshold, o.thresholds
-    min_fitness, max_rmse = o.min_fitness, o.max_rmse
+    sensor, seen_threshold, thresholds = o.sensor, o.seen_threshold, o.thresholds
+    methods = _checked_methods(o.methods, o.min_fitness, o.max_rmse)
+    T = None if transform is None else as_rigid_pose(transform, "transform")  # before any work
+    base = _resolve_sensor(sensor)
+    a, b = as_points(a_points, "a_points"), as_points(b_points, "b_points")
+    (a_beams, a_how, pat_a), (b_beams, b_how, pat_b) = _frame(a, a_beams, base, "a"), _frame(b, b_beams, base, "b")
+    seconds = {}
+    _require_in_view((("a_points", a, pat_a), ("b_points", b, pat_b)))
+    t0 = time.perf_counter()
+    T, registration = _registration(a, b, T, o.min_fitness, o.max_rmse, progress)
+    seconds["registration"] = time.perf_counter() - t0
+    a_in_b, a_origin = _a_in_b(a, T, pat_b, registration)
+    t0 = time.perf_counter()
+    target = _target(b, b_beams, pat_b, a_in_b, seen_threshold)
+    seconds["target"] = time.perf_counter() - t0
+    real, b_in, seen, pix_seen, filled = target.real, target.points, target.seen, target.pixels, target.image["index"] >= 0
+    rows, images, identical = _score_methods(methods, (a_in_b, a_origin, a_beams, pat_a), pat_b, target,
+                                             thresholds, seconds, progress)
+    seconds["total"] = time.perf_counter() - t_all
+    return {"registration": registration,
+            "patterns": {"a": pat_a.to_dict() | {"beams_known": a_beams is not None, "beams": a_how},
+                         "b": pat_b.to_dict() | {"beams_known": b_beams is not None, "beams": b_how}},
+            "frames": {"a_points": int(len(a)), "b_points": int(len(b)), "b_points_in_view": int(len(b_in)),
+                       "b_pulses_returned": int(len(real)), "b_points_sharing_a_pulse": int(len(b_in) - len(real))},
+            "seen_threshold": seen_threshold, "thresholds": [float(x) for x in thresholds],
+            "unseen_share": float(np.mean(~seen)) if len(seen) else float("nan"),
+            "unseen_pulse_share": float(np.mean(pix_seen[filled] == "unseen")) if filled.any() else float("nan"),
+            "images_identical": {"zbuffer vs binning": identical},
+            "rows": rows, "images": images, "seconds": {k: round(v, 3) for k, v in seconds.items()}}
+
+
+
+def _checked_methods(methods, min_fitness, max_rmse) -> tuple | list:
+    """``methods`` as a sequence, refused when empty, unknown or given twice; and the registration's
+    bounds refused when they are not numbers in range (before any work)."""
     if not (isinstance(min_fitness, (int, float)) and 0 <= min_fitness <= 1):
         raise InputValueError(f"min_fitness must be a number in [0, 1] (a share of B's points), got {min_fitness!r}")
     if isinstance(methods, str):
@@ -475,23 +508,28 @@ def evaluate_pair(a_points, b_points, a_beams="auto", b_beams="auto", options: E
         raise InputValueError(f"methods: {', '.join(twice)} given twice (each method is one row)")
     if max_rmse is not None and not (isinstance(max_rmse, (int, float)) and max_rmse > 0):
         raise InputValueError(f"max_rmse must be a number > 0 (m), got {max_rmse!r}")
-    T = None if transform is None else as_rigid_pose(transform, "transform")  # before any work
-    base = _resolve_sensor(sensor)
-    a = as_points(a_points, "a_points")
-    b = as_points(b_points, "b_points")
-    a_beams, a_how = _beams_of(a, a_beams, base, "a_beams")
-    b_beams, b_how = _beams_of(b, b_beams, base, "b_beams")
-    pat_a = fitted_pattern(a, a_beams, base) if a_beams is not None else base
-    pat_b = fitted_pattern(b, b_beams, base) if b_beams is not None else base
-    seconds = {}
-    for name, pts, pat in (("a_points", a, pat_a), ("b_points", b, pat_b)):
+    return methods
+
+
+def _frame(pts, beams, base, name) -> tuple:
+    """``(beams, how, pattern)`` of a frame: its beams (:func:`_beams_of`) and its table fitted to them."""
+    beams, how = _beams_of(pts, beams, base, f"{name}_beams")
+    return beams, how, (fitted_pattern(pts, beams, base) if beams is not None else base)
+
+
+def _require_in_view(frames) -> None:
+    """Refuse a frame ``(name, points, pattern)`` none of whose points lies in its sensor's view."""
+    for name, pts, pat in frames:
         if not np.any(pat.pulse_ids(pts, np.zeros(3))[0] >= 0):
             raise InputValueError(
                 f"{name}: none of its {len(pts)} points lies within the sensor's view (elevation bands of "
                 f"{pat.name or 'its table'}, ranges up to {pat.max_range} m) about the origin; each frame must be "
                 "in its own sensor's frame (the sensor at (0, 0, 0)): subtract the scanner position first")
 
-    t0 = time.perf_counter()
+
+def _registration(a, b, T, min_fitness, max_rmse, progress) -> tuple:
+    """``(T, registration dict)``: B registered to A (refused below ``min_fitness`` or above
+    ``max_rmse``), or the given pose ``T``."""
     if T is None:
         few = [(name, len(pts)) for name, pts in (("A", a), ("B", b)) if len(pts) < MIN_REGISTRATION_POINTS]
         if few:
@@ -515,7 +553,11 @@ def evaluate_pair(a_points, b_points, a_beams="auto", b_beams="auto", options: E
         registration = reg.to_dict()
     else:
         registration = Registration(T, float("nan"), float("nan"), float("nan"), "given", 0.0).to_dict()
-    seconds["registration"] = time.perf_counter() - t0
+    return T, registration
+
+
+def _a_in_b(a, T, pat_b, registration) -> tuple:
+    """``(a_in_b, a_origin)``: A's points and sensor in B's frame, refused when none is in B's view."""
     R, t = T[:3, :3], T[:3, 3]
     a_in_b = (a - t) @ R  # R^T (a - t), row by row, in float64
     a_origin = -(R.T @ t)
@@ -523,17 +565,21 @@ def evaluate_pair(a_points, b_points, a_beams="auto", b_beams="auto", options: E
         raise InputValueError(
             f"at B's pose ({registration['translation_norm_m']:.4g} m from A's sensor) none of A's {len(a)} points "
             "lies within B's view: the frames do not overlap there; check the pose (transform, --transform)")
+    return a_in_b, a_origin
 
-    # The real B: its range image by the rule every simulated image is made by (nearest point per
-    # pulse of B's table, a point in the elevation band it falls in), so that a simulation equal to
-    # B scores a perfect image; the target points are B's points in that table's view.
-    t0 = time.perf_counter()
-    target = scoring_target(b, pat_b, b_beams, a_in_b, seen_threshold)
-    real, real_img, b_in, seen, pix_seen = target.real, target.image, target.points, target.seen, target.pixels
-    filled = real_img["index"] >= 0
-    seconds["target"] = time.perf_counter() - t0
 
-    rows, images = [], {"real": real_img["range"]}
+def _target(b, b_beams, pat_b, a_in_b, seen_threshold) -> ScoringTarget:
+    """The real B as every method is scored against it (:func:`scoring_target`: its range image by the
+    rule every simulated image is made by, its points in view, which A sees, and the splits' labels)."""
+    return scoring_target(b, pat_b, b_beams, a_in_b, seen_threshold)
+
+
+def _score_methods(methods, frame_a, pat_b, target, thresholds, seconds, progress) -> tuple:
+    """``(rows, images, identical)``: each method's simulation of B from A's points in B's frame
+    (``frame_a``: ``(a_in_b, a_origin, a_beams, pat_a)``), scored against the real B (``target``, a
+    :class:`ScoringTarget`) by every registered metric (its seconds into ``seconds``)."""
+    a_in_b, a_origin, a_beams, pat_a = frame_a
+    rows, images = [], {"real": target.image["range"]}
     binning_img = None
     todo = [m for m in methods if not (METHOD_SCANS.get(m, (m, None))[1] == "beams" and a_beams is None)]
     for m in progress_bar(todo, "methods", "method", progress=progress, leave=True):
@@ -565,17 +611,7 @@ def evaluate_pair(a_points, b_points, a_beams="auto", b_beams="auto", options: E
         identical = bool(np.array_equal(images[BASELINE], binning_img, equal_nan=True))
     else:
         identical = None
-    seconds["total"] = time.perf_counter() - t_all
-    return {"registration": registration,
-            "patterns": {"a": pat_a.to_dict() | {"beams_known": a_beams is not None, "beams": a_how},
-                         "b": pat_b.to_dict() | {"beams_known": b_beams is not None, "beams": b_how}},
-            "frames": {"a_points": int(len(a)), "b_points": int(len(b)), "b_points_in_view": int(len(b_in)),
-                       "b_pulses_returned": int(len(real)), "b_points_sharing_a_pulse": int(len(b_in) - len(real))},
-            "seen_threshold": seen_threshold, "thresholds": [float(x) for x in thresholds],
-            "unseen_share": float(np.mean(~seen)) if len(seen) else float("nan"),
-            "unseen_pulse_share": float(np.mean(pix_seen[filled] == "unseen")) if filled.any() else float("nan"),
-            "images_identical": {"zbuffer vs binning": identical},
-            "rows": rows, "images": images, "seconds": {k: round(v, 3) for k, v in seconds.items()}}
+    return rows, images, identical
 
 
 # --- tables and files ---------------------------------------------------------------------------------------

@@ -319,6 +319,20 @@ def candidate_cells(points, is_ground, options: CellOptions | None = None, *, pr
     stages.append({"stage": "ground_support", "before": int(len(ij)), "removed": int((~ok).sum()),
                    "kept": int(ok.sum())})
 
+    az = _azimuth_test(pts, ok, (tree, gpts, gcentre), centres, o, progress)
+    kept["azimuth_profile"] = az
+    stages.append({"stage": "azimuth_profile", "before": int(ok.sum()), "removed": int(ok.sum() - az.sum()),
+                   "kept": int(az.sum()), **({"skipped": True} if profile is None else {})})
+    return CandidateCells(cell_size, corner, ij, centres, counts, kept, stages, params,
+                          time.perf_counter() - t0, ground_index=(tree, gpts, gcentre))
+
+
+def _azimuth_test(pts, ok, ground_index, centres, o: CellOptions, progress) -> np.ndarray:
+    """Which cells pass the azimuth test (``o.profile``'s; every cell of ``ok`` where there is none):
+    a scan from the cell's ground height plus ``o.scanner_height``, its azimuth histogram against the
+    profile."""
+    tree, gpts, gcentre = ground_index
+    profile, scanner_height, ground_height_radius = o.profile, o.scanner_height, o.ground_height_radius
     az = ok.copy()
     if profile is not None:
         scanner = prepare(pts)
@@ -338,11 +352,7 @@ def candidate_cells(points, is_ground, options: CellOptions | None = None, *, pr
                 bar.update()
         if bar is not None:
             bar.close()
-    kept["azimuth_profile"] = az
-    stages.append({"stage": "azimuth_profile", "before": int(ok.sum()), "removed": int(ok.sum() - az.sum()),
-                   "kept": int(az.sum()), **({"skipped": True} if profile is None else {})})
-    return CandidateCells(cell_size, corner, ij, centres, counts, kept, stages, params,
-                          time.perf_counter() - t0, ground_index=(tree, gpts, gcentre))
+    return az
 
 
 def select_positions(points, is_ground, n: int, seed=None, options: PositionOptions | None = None, *,
@@ -581,14 +591,7 @@ def ground_labels(cloud, attribute: str | None = None, value: int | None = None,
         raise InputValueError(f"a ground value ({value}) needs the attribute that holds it: "
                               "give attribute= too", flags={"attribute=": "--ground-attribute NAME"})
     if attribute:
-        if csf:
-            raise InputValueError("ground labels from an attribute or by CSF, not both: drop csf=True or "
-                                  "attribute=", flags={"csf=True": "--csf", "attribute=": "--ground-attribute"})
-        value = 2 if value is None else value
-        if attribute not in attrs:
-            raise InputValueError(f"no attribute {attribute!r} in the input (has {sorted(attrs)})")
-        a = np.asarray(attrs[attribute])
-        return a.astype(bool) if a.dtype == bool else a == value
+        return _labels_of_attribute(attrs, attribute, value, csf)
     if not csf:
         tried = []
         for name, ground_value in (("is_ground", True), ("classification", 2), ("label", 0)):
@@ -619,3 +622,15 @@ def ground_labels(cloud, attribute: str | None = None, value: int | None = None,
     warnings.warn(f"{why}: CSF labelled {int(ground.sum()):,} of {len(ground):,} points as ground "
                   f"(cloth {cloth_resolution:g} m)", SlrNote, stacklevel=2)
     return ground
+
+
+def _labels_of_attribute(attrs, attribute: str, value, csf) -> np.ndarray:
+    """Ground where ``attrs[attribute]`` equals ``value`` (default 2) or is true (:func:`ground_labels`)."""
+    if csf:
+        raise InputValueError("ground labels from an attribute or by CSF, not both: drop csf=True or "
+                              "attribute=", flags={"csf=True": "--csf", "attribute=": "--ground-attribute"})
+    value = 2 if value is None else value
+    if attribute not in attrs:
+        raise InputValueError(f"no attribute {attribute!r} in the input (has {sorted(attrs)})")
+    a = np.asarray(attrs[attribute])
+    return a.astype(bool) if a.dtype == bool else a == value

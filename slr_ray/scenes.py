@@ -170,16 +170,7 @@ def rectangle_scene(
     and the part outside the disc are cut away, so a rectangle crossing the
     ground keeps its upper part. One that keeps no area is not present.
     """
-    _check_number("n_rectangles", n_rectangles, integer=True, low=0)
-    _check_number("ground_radius", ground_radius, low=0, open_low=True)
-    _check_number("ground_z", ground_z)
-    _check_number("ground_segments", ground_segments, integer=True, low=8)
-    for name, r in (("side_range", side_range), ("xy_range", xy_range), ("z_range", z_range)):
-        if len(r) != 2 or not all(isinstance(v, (int, float, np.integer, np.floating)) and math.isfinite(v)
-                                  for v in r) or not r[0] <= r[1]:
-            raise InputValueError(f"{name} must be two finite numbers, min <= max, got {list(r)!r}")
-    if not side_range[0] > 0:
-        raise InputValueError(f"side_range must be 0 < min <= max, got {side_range}")
+    _check_scene(n_rectangles, ground_radius, ground_z, ground_segments, side_range, xy_range, z_range)
     # the arrays, the clipped polygons (Python objects) and the mesh: about 1.5 kB a rectangle
     refuse_memory(1500.0 * n_rectangles + 100.0 * ground_segments, f"a scene of {int(n_rectangles):,} rectangles",
                   "ask for fewer rectangles")
@@ -189,13 +180,7 @@ def rectangle_scene(
     centres = np.column_stack([rng.uniform(*xy_range, size=(n, 2)), rng.uniform(*z_range, size=n)])
     rot = Rotation.random(n, random_state=rng).as_matrix() if n else np.empty((0, 3, 3))
 
-    ang = (np.arange(ground_segments) + 0.5) * (2 * np.pi / ground_segments)
-    ring = np.column_stack([ground_radius * np.cos(ang), ground_radius * np.sin(ang),
-                            np.full(ground_segments, ground_z)])
-    # half-planes of the polygon's edges: n.p >= -apothem with n pointing inwards
-    mid = (ang + np.pi / ground_segments)
-    edge_normals = -np.column_stack([np.cos(mid), np.sin(mid), np.zeros_like(mid)])
-    apothem = ground_radius * math.cos(math.pi / ground_segments)
+    ring, edge_normals, apothem = _ground_polygon(ground_radius, ground_z, ground_segments)
 
     gv, gf = _ground_mesh(ring, ground_z, ground_radius)
     vertices, faces, labels = [gv], [gf], [np.zeros(len(gf), np.int64)]
@@ -205,12 +190,7 @@ def rectangle_scene(
     up = np.array([0.0, 0.0, 1.0])
     for k in range(n):
         poly = centres[k] + (unit * [sides[k, 0], sides[k, 1], 0]) @ rot[k].T
-        poly = _clip(poly, up, ground_z)
-        if len(poly) and np.hypot(poly[:, 0], poly[:, 1]).max() > apothem:
-            for nrm in edge_normals:
-                poly = _clip(poly, nrm, -apothem)
-                if not len(poly):
-                    break
+        poly = _clip_to_ground(poly, up, ground_z, edge_normals, apothem)
         if _polygon_area(poly) <= 0.0:
             continue
         m = len(poly)
@@ -226,6 +206,43 @@ def rectangle_scene(
                   ground_segments=ground_segments)
     return RectangleScene(mesh, np.concatenate(labels), polygons,
                           np.array(polygon_labels, np.int64), n, len(polygons), params)
+
+
+def _check_scene(n_rectangles, ground_radius, ground_z, ground_segments, side_range, xy_range, z_range) -> None:
+    """:func:`rectangle_scene`'s arguments refused where they make no scene."""
+    _check_number("n_rectangles", n_rectangles, integer=True, low=0)
+    _check_number("ground_radius", ground_radius, low=0, open_low=True)
+    _check_number("ground_z", ground_z)
+    _check_number("ground_segments", ground_segments, integer=True, low=8)
+    for name, r in (("side_range", side_range), ("xy_range", xy_range), ("z_range", z_range)):
+        if len(r) != 2 or not all(isinstance(v, (int, float, np.integer, np.floating)) and math.isfinite(v)
+                                  for v in r) or not r[0] <= r[1]:
+            raise InputValueError(f"{name} must be two finite numbers, min <= max, got {list(r)!r}")
+    if not side_range[0] > 0:
+        raise InputValueError(f"side_range must be 0 < min <= max, got {side_range}")
+
+
+def _ground_polygon(ground_radius, ground_z, ground_segments) -> tuple:
+    """``(ring, edge_normals, apothem)`` of the ground disc's regular polygon."""
+    ang = (np.arange(ground_segments) + 0.5) * (2 * np.pi / ground_segments)
+    ring = np.column_stack([ground_radius * np.cos(ang), ground_radius * np.sin(ang),
+                            np.full(ground_segments, ground_z)])
+    # half-planes of the polygon's edges: n.p >= -apothem with n pointing inwards
+    mid = (ang + np.pi / ground_segments)
+    edge_normals = -np.column_stack([np.cos(mid), np.sin(mid), np.zeros_like(mid)])
+    apothem = ground_radius * math.cos(math.pi / ground_segments)
+    return ring, edge_normals, apothem
+
+
+def _clip_to_ground(poly, up, ground_z, edge_normals, apothem) -> np.ndarray:
+    """The part of polygon ``poly`` above the ground plane and inside the ground polygon (may be empty)."""
+    poly = _clip(poly, up, ground_z)
+    if len(poly) and np.hypot(poly[:, 0], poly[:, 1]).max() > apothem:
+        for nrm in edge_normals:
+            poly = _clip(poly, nrm, -apothem)
+            if not len(poly):
+                break
+    return poly
 
 
 def _check_number(name, v, integer: bool = False, low=None, open_low: bool = False) -> None:

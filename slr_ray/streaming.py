@@ -224,19 +224,8 @@ def las_positions(path, n: int, *, seed=0, ground=None, chunk: int = DEFAULT_CHU
         return np.asarray(ground[start:start + len(pts)], bool)
 
     # pass 1: the lowest x and y (and which points hold them); the ground count
-    lo, lowest, total, n_ground = np.full(2, np.inf), np.zeros(2, np.int64), 0, 0
     bar = las_bar(path, "positions: pass 1", progress)
-    for header, _, pts in las_chunks(path, chunk):
-        if bar is not None:
-            bar.update(len(pts))
-        n_ground += int(np.count_nonzero(labelled(header, pts, total)))
-        if len(pts):
-            xy = las_xyz(pts)[:, :2]
-            at = xy.argmin(axis=0)
-            better = xy[at, [0, 1]] < lo
-            lo = np.where(better, xy[at, [0, 1]], lo)
-            lowest = np.where(better, at + total, lowest)
-        total += len(pts)
+    lo, lowest, total, n_ground = _lowest_and_ground(path, chunk, labelled, bar)
     if ground is not None and len(ground) != total:
         raise InputValueError(f"ground has {len(ground)} labels for {total} points")
     if ground is None and total and not n_ground:  # a TLS scan's LAS: classification 0 throughout
@@ -252,8 +241,41 @@ def las_positions(path, n: int, *, seed=0, ground=None, chunk: int = DEFAULT_CHU
         warnings.warn(f"{path}: {n_ground:,} ground points; positions from every {stride}th "
                       f"(min_ground_points {options['min_ground_points']:,}): close to, not exactly, "
                       "those of a whole read", stacklevel=2)
-    seen, parts, labels, start, rank = set(), [], [], 0, 0
     bar = las_bar(path, "positions: pass 2", progress)
+    parts, labels = _ground_and_cells(path, chunk, labelled, lowest, corner, cell, stride, bar)
+    if bar is not None:
+        bar.close()
+    pts = np.concatenate(parts) if parts else np.empty((0, 3))
+    g = np.concatenate(labels) if labels else np.empty(0, bool)
+    if not g.any():
+        raise InputValueError(f"{path}: no point is labelled ground")
+    positions, cells = select_positions(pts, g, n, seed=seed, return_cells=True, progress=progress, **options)
+    return positions, cells, total
+
+
+def _lowest_and_ground(path, chunk, labelled, bar) -> tuple:
+    """:func:`las_positions`' pass 1: ``(lo, lowest, total, n_ground)``, the lowest x and y and which
+    points hold them, the points and the ground points."""
+    lo, lowest, total, n_ground = np.full(2, np.inf), np.zeros(2, np.int64), 0, 0
+    for header, _, pts in las_chunks(path, chunk):
+        if bar is not None:
+            bar.update(len(pts))
+        n_ground += int(np.count_nonzero(labelled(header, pts, total)))
+        if len(pts):
+            xy = las_xyz(pts)[:, :2]
+            at = xy.argmin(axis=0)
+            better = xy[at, [0, 1]] < lo
+            lo = np.where(better, xy[at, [0, 1]], lo)
+            lowest = np.where(better, at + total, lowest)
+        total += len(pts)
+    return lo, lowest, total, n_ground
+
+
+def _ground_and_cells(path, chunk, labelled, lowest, corner, cell, stride, bar) -> tuple:
+    """:func:`las_positions`' pass 2: ``(parts, labels)``, per chunk the ground points (every
+    ``stride``-th), the first point of each occupied cell and the lowest points, in file order, and
+    their ground labels."""
+    seen, parts, labels, start, rank = set(), [], [], 0, 0
     for header, _, pts in las_chunks(path, chunk):
         if bar is not None:
             bar.update(len(pts))
@@ -275,11 +297,4 @@ def las_positions(path, n: int, *, seed=0, ground=None, chunk: int = DEFAULT_CHU
         parts.append(xyz[keep])
         labels.append(g[keep])
         start += len(pts)
-    if bar is not None:
-        bar.close()
-    pts = np.concatenate(parts) if parts else np.empty((0, 3))
-    g = np.concatenate(labels) if labels else np.empty(0, bool)
-    if not g.any():
-        raise InputValueError(f"{path}: no point is labelled ground")
-    positions, cells = select_positions(pts, g, n, seed=seed, return_cells=True, progress=progress, **options)
-    return positions, cells, total
+    return parts, labels

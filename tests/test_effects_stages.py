@@ -1,9 +1,11 @@
-"""An effect is one Stage (with its options) and one line in STAGES: a toy effect
+"""An effect is one module of slr_ray/effects/stages/ (its Stage and options, importing
+the package's base only) and one line in STAGES: a toy effect's module written and
 registered here runs inside simulate, its options fields of the Effects its
 registry makes, with its own flag; and divergence and motion are stages like the
 others."""
 
 import dataclasses
+import importlib
 
 import numpy as np
 import pytest
@@ -11,8 +13,16 @@ import pytest
 import slr_ray
 from slr_ray.effects import Effects, simulate
 from slr_ray.effects import stages as registry
-from slr_ray.effects.settings import EffectOptions, effects_class, positive
-from slr_ray.effects.stages import Flag, Stage
+from slr_ray.effects.settings import effects_class
+
+TOY_STAGE = '''
+"""A toy effect, as a new one is written: one module of slr_ray/effects/stages/ that imports
+its base, never the package (docs/architecture.md)."""
+
+import dataclasses
+
+from slr_ray.effects.settings import EffectOptions, positive
+from slr_ray.effects.stages.base import Flag, Stage
 
 
 @dataclasses.dataclass(frozen=True)
@@ -46,13 +56,17 @@ class RangeBias(Stage):
     def apply(self, r, ctx):
         r.range = r.range + ctx.effects.range_bias
         return r
+'''
 
 
-def test_a_registered_toy_effect_runs_in_simulate(monkeypatch):
+def test_a_registered_toy_effect_runs_in_simulate(monkeypatch, tmp_path):
+    (tmp_path / "toy_stage.py").write_text(TOY_STAGE)  # its module...
+    monkeypatch.syspath_prepend(str(tmp_path))
+    RangeBias = importlib.import_module("toy_stage").RangeBias
     pts = np.random.default_rng(0).uniform(-5, 5, (400, 3))
     scanner = slr_ray.prepare(pts)
     ideal = simulate(scanner, [0, 0, 0], 2.0)
-    stages = (*registry.STAGES, RangeBias())  # the one registry line...
+    stages = (*registry.STAGES, RangeBias())  # ...and its line in STAGES (stages/__init__.py)...
     monkeypatch.setattr(registry, "STAGES", stages)
     ToyEffects = effects_class(stages)  # ...and the Effects it makes (registry.Effects, at import)
     assert RangeBias.fields == ("range_bias",) and "range_bias" in {f.name for f in dataclasses.fields(ToyEffects)}
@@ -68,6 +82,18 @@ def test_a_registered_toy_effect_runs_in_simulate(monkeypatch):
     assert "range_bias" in es.info["seconds"] and es.info["effects"]["range_bias"] == 0.5
     # off, the toy leaves the scan as it was
     assert np.array_equal(simulate(scanner, [0, 0, 0], 2.0, ToyEffects()).ranges, ideal.ranges)
+
+
+def test_every_stage_is_a_module_of_its_own_importing_the_base_not_the_package():
+    import ast
+    from pathlib import Path
+
+    modules = [type(stage).__module__ for stage in registry.STAGES]
+    assert len(set(modules)) == len(modules) and all(m.startswith("slr_ray.effects.stages.") for m in modules)
+    for mod in modules:
+        tree = ast.parse(Path(importlib.import_module(mod).__file__).read_text())
+        froms = {(n.level, n.module) for n in ast.walk(tree) if isinstance(n, ast.ImportFrom)}
+        assert (1, None) not in froms and (0, "slr_ray.effects.stages") not in froms, mod  # no cycle
 
 
 def test_divergence_and_motion_are_stages_that_plan_the_rays():

@@ -155,6 +155,60 @@ def test_no_module_is_over_800_lines():
     assert not long, long
 
 
+#: the longest function, docstring included (#47: orchestration split into named steps)
+MAX_FUNCTION_LINES = 80
+#: decorators of numba kernels: a compiled loop is one function, whatever its length
+NUMBA_DECORATORS = {"njit", "jit", "cfunc", "vectorize", "guvectorize", "stencil"}
+#: the allow-list beside numba kernels: the sequence package's functions, for now only (another
+#: engineer splits slr_ray/sequence/, issue #47; its entry goes when it has no function over the limit)
+LONG_FUNCTIONS_ALLOWED_IN = ("slr_ray.sequence",)
+
+
+def _is_numba_kernel(node) -> bool:
+    for dec in node.decorator_list:
+        target = dec.func if isinstance(dec, ast.Call) else dec
+        name = target.attr if isinstance(target, ast.Attribute) else getattr(target, "id", "")
+        if name in NUMBA_DECORATORS:
+            return True
+    return False
+
+
+def _long_functions(tree, mod: str, limit: int = MAX_FUNCTION_LINES) -> dict:
+    """``{"module:Class.function": lines}`` of every function (methods and nested ones too) over
+    ``limit`` lines, numba kernels left out."""
+    out = {}
+
+    def visit(node, prefix):
+        for child in ast.iter_child_nodes(node):
+            if isinstance(child, (ast.FunctionDef, ast.AsyncFunctionDef)):
+                n = child.end_lineno - child.lineno + 1
+                if n > limit and not _is_numba_kernel(child):
+                    out[f"{mod}:{prefix}{child.name}"] = n
+                visit(child, f"{prefix}{child.name}.")
+            elif isinstance(child, ast.ClassDef):
+                visit(child, f"{prefix}{child.name}.")
+            else:
+                visit(child, prefix)
+
+    visit(tree, "")
+    return out
+
+
+def test_the_long_function_check_finds_a_planted_one():
+    body = "\n".join(f"    x{i} = {i}" for i in range(81))
+    planted = f"class K:\n    def long(self):\n    {body.replace(chr(10), chr(10) + '    ')}\n"
+    kernel = f"@njit(cache=True)\ndef kernel():\n{body}\n"
+    assert _long_functions(ast.parse(planted + kernel), "m") == {"m:K.long": 82}
+
+
+def test_no_function_is_over_80_lines_outside_numba_kernels():
+    long = {}
+    for mod, path in _modules():
+        if not any(mod == pkg or mod.startswith(pkg + ".") for pkg in LONG_FUNCTIONS_ALLOWED_IN):
+            long |= _long_functions(ast.parse(path.read_text()), mod)
+    assert not long, f"functions over {MAX_FUNCTION_LINES} lines (split them into named steps): {long}"
+
+
 def _pattern_class_tests(tree):
     """Lines that test for a pattern class: ``isinstance``/``issubclass`` with one
     (tuples included), or a comparison with a pattern class's name."""

@@ -104,6 +104,23 @@ def build_parser() -> argparse.ArgumentParser:
         p.set_defaults(func=COMMANDS[name])
         return p
 
+    _scan_parser(command)
+    _compare_parser(command)
+    _positions_parser(command)
+    _profile_parser(command)
+    _validate_parser(command)
+    _distances_parser(command)
+    _augment_parser(command)
+    _demo_parser(command)
+    _evaluate_parser(sub)
+    _effects_parser(sub)
+    add_sequence_parser(sub)  # sequence: its parser and handlers live in .sequence_command
+    _scene_parser(command)
+    return ap
+
+
+def _scan_parser(command) -> None:
+    """The ``scan`` command's arguments."""
     p = command("scan", "simulate one scan of a point cloud from a position")
     p.add_argument("input", help=f"input cloud ({_FORMATS})")
     p.add_argument("-o", "--output", required=True, help="output cloud (same formats)")
@@ -124,6 +141,9 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("--print-config", action="store_true", help="print the resolved settings (JSON) and stop")
     A.add_effects(p)
 
+
+def _compare_parser(command) -> None:
+    """The ``compare`` command's arguments."""
     p = command("compare", "run both backends on a cloud and report where they differ")
     p.add_argument("input", help=f"input cloud ({_FORMATS})")
     A.add_pattern(p, origin="many")
@@ -135,6 +155,9 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("--quiet", action="store_true", help="no progress")
     p.add_argument("--force", action="store_true", help="overwrite an existing --png")
 
+
+def _positions_parser(command) -> None:
+    """The ``positions`` command's arguments."""
     p = command("positions", "choose secondary scanner positions (the paper's grid method)")
     p.add_argument("input", help=f"input cloud ({_FORMATS})")
     p.add_argument("--n", type=A.positive_int, required=True, help="positions to draw")
@@ -155,6 +178,9 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("--force", action="store_true", help="overwrite existing outputs (never an input)")
     A.add_input_format(p)
 
+
+def _profile_parser(command) -> None:
+    """The ``profile`` command's arguments."""
     p = command("profile", "rebuild the shipped azimuth minimum profile from synthetic scans")
     p.add_argument("--scenes", default=",".join(paper.Q1_SCENES),
                    help=f"shipped scenes, comma-separated (default {','.join(paper.Q1_SCENES)})")
@@ -164,6 +190,9 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("-o", "--output", required=True, help="the profile (JSON)")
     p.add_argument("--force", action="store_true", help="overwrite an existing output")
 
+
+def _validate_parser(command) -> None:
+    """The ``validate`` command's arguments."""
     p = command("validate", "reproduce the paper's validation (Experiment 1) from a config")
     shipped = sorted(q.stem[len("validate-"):] for q in SCENES_DIR.glob("validate-*.toml"))
     p.add_argument("config", help=f"a shipped config name ({', '.join(shipped)}) or a TOML path")
@@ -172,6 +201,9 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("--quiet", action="store_true", help="no progress bar")
     p.add_argument("--print-config", action="store_true", help="print the resolved config and stop")
 
+
+def _distances_parser(command) -> None:
+    """The ``distances`` command's arguments."""
     p = command("distances", "distance distributions with pulse-sized bins (the paper's Experiment 2)")
     p.add_argument("input", nargs="+", help="input clouds (each one scan; origin from the file or --origin)")
     p.add_argument("-o", "--output", required=True, help="output directory (CSV tables, distances.png)")
@@ -189,6 +221,9 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("--quiet", action="store_true", help="no progress bars")
     p.add_argument("--force", action="store_true", help="overwrite the tables and figure of an earlier run")
 
+
+def _augment_parser(command) -> None:
+    """The ``augment`` command's arguments."""
     p = command("augment", "many simulated scans of one real scan (resumable, parallel)")
     p.add_argument("input", help=f"input cloud ({_FORMATS})")
     p.add_argument("--n", type=A.positive_int, required=True, help="positions")
@@ -215,6 +250,9 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("--quiet", action="store_true", help="no progress bars")
     A.add_effects(p)
 
+
+def _demo_parser(command) -> None:
+    """The ``demo`` command's arguments."""
     p = command("demo", "the main job on a built-in scene: scene, primary scan, SLR scans by both backends, report")
     p.add_argument("-o", "--output", default="slr_ray_demo", help="output directory (default slr_ray_demo)")
     p.add_argument("--rectangles", type=int, default=200, help="rectangles in the scene (default 200)")
@@ -226,6 +264,9 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("--quiet", action="store_true", help="no progress (the report is still printed)")
     p.add_argument("--force", action="store_true", help="overwrite the files of an earlier demo")
 
+
+def _evaluate_parser(sub) -> None:
+    """The ``evaluate`` command's arguments."""
     # evaluate: its handler lives in .evaluate_command (self-contained)
     help_text = "re-simulate frame B from frame A at B's pose and score it against the real B (novel-view metrics)"
     p = sub.add_parser("evaluate", help=help_text, description=help_text)
@@ -249,6 +290,9 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("--quiet", action="store_true", help="no progress bar")
     p.add_argument("--force", action="store_true", help="replace the evaluation files of an existing directory")
 
+
+def _effects_parser(sub) -> None:
+    """The ``effects`` command and its subcommands' arguments."""
     # effects: its handler lives in .effects_command (self-contained)
     help_text = "sensor effects' tools: fit-drop (a ray-drop model from a real frame)"
     p = sub.add_parser("effects", help=help_text, description=help_text)
@@ -274,8 +318,9 @@ def build_parser() -> argparse.ArgumentParser:
     A.add_input_format(q)
     q.add_argument("--force", action="store_true", help="overwrite an existing output")
 
-    add_sequence_parser(sub)  # sequence: its parser and handlers live in .sequence_command
 
+def _scene_parser(command) -> None:
+    """The ``scene`` command and its subcommands' arguments."""
     p = command("scene", "synthetic rectangle scenes: info, build, scan")
     ssub = p.add_subparsers(dest="scene_cmd", required=True, metavar="command")
     spec_help = "a shipped scene name or a scene TOML path (docs/scenes.md)"
@@ -298,7 +343,6 @@ def build_parser() -> argparse.ArgumentParser:
                    help="the ideal scan, without the scene's [effects]")
     q.add_argument("-o", "--output", required=True, help="the scan (a cloud)")
     q.add_argument("--force", action="store_true", help="overwrite an existing output")
-    return ap
 
 
 class _Terminated(KeyboardInterrupt):

@@ -25,7 +25,7 @@ from ..compare import compare_backends, compared_backends
 from ..demo import run_demo
 from ..distances import distance_study, study_files
 from ..backends.embree import refuse_cast
-from ..effects import cast_rays, effect_cloud, simulate, simulate_given
+from ..effects import effect_cloud, ray_count, simulate, simulate_given
 from ..errors import InputValueError, SlrWarning
 from ..io import PointCloud, atomic_path, check_format, read_cloud, write_cloud
 from ..meshscan import scan_mesh
@@ -83,7 +83,7 @@ def scan(args):
     options = options_for(args.backend, backend_from(args))  # built once, used below
     effects = check_effects(effects_from(args), args.backend, pattern)
     if scanner_class(args.backend).casts_rays:  # before reading and preparing: binning answers at once
-        refuse_cast(cast_rays(pattern, effects), f"--backend {args.backend} (it casts rays, as do the backends "
+        refuse_cast(ray_count(pattern, effects), f"--backend {args.backend} (it casts rays, as do the backends "
                     f"with casts_rays: {', '.join(backends_with('casts_rays'))})",
                     "choose a coarser pattern (--resolution, --columns) or a smaller --divergence-mrad cone")
     if effects is not None and (args.range_image or args.png):

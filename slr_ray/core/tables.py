@@ -684,51 +684,7 @@ class BinTables:
             return self._out(keys, as_pulses), (ranges if with_ranges else None), idx
         m = self.n_bins
         if not release:
-            # every bin's record carries its range: no sort, no gather from the cloud
-            if self._private:  # each table's records, less those another table's beat: no fold
-                tabs, lose, _ = self._resolved()
-            else:
-                tabs, lose = [t.tab for t in self.tables], None
-            nh = np.int64(self.pattern.shape[1])
-
-            def mark(bits):
-                if lose is not None and self._word_aligned and len(tabs) > 1 and self.n_threads > 1 \
-                        and m > self.parallel_records:
-                    # own tables of whole-word chunks: no word holds two tables' winners
-                    with ThreadPoolExecutor(min(self.n_threads, len(tabs))) as pool:
-                        list(pool.map(lambda i: mark_alive(tabs[i], lose[i], bits), range(len(tabs))))
-                    return
-                for i, tab in enumerate(tabs):  # one after the other: threads would race on a word
-                    if lose is None:
-                        mark_records(tab, bits)
-                    else:
-                        mark_alive(tab, lose[i], bits)
-
-            def place(*out):
-                # every record has its own place: shares of the records are written out in
-                # parallel (and the fresh output pages are faulted in by all threads)
-                if lose is None and as_pulses:
-                    run = lambda tab, _: place_records_pulses(tab, out[0], out[1], nh, *out[2:])  # noqa: E731
-                elif lose is None:
-                    run = lambda tab, _: place_records(tab, *out)  # noqa: E731
-                elif as_pulses:
-                    run = lambda tab, x: place_alive_pulses(tab, x, out[0], out[1], nh, *out[2:])  # noqa: E731
-                else:
-                    run = lambda tab, x: place_alive(tab, x, *out)  # noqa: E731
-                parts = max(1, min(self.n_threads, m >> 16))
-                shares = [(tab[len(tab) * i // parts: len(tab) * (i + 1) // parts],
-                           None if lose is None else lose[t][len(tab) * i // parts: len(tab) * (i + 1) // parts])
-                          for t, tab in enumerate(tabs) for i in range(parts)]
-                if parts > 1:
-                    with ThreadPoolExecutor(parts) as pool:
-                        list(pool.map(lambda sh: run(*sh), shares))
-                else:
-                    for share in shares:
-                        run(*share)
-
-            keys, ranges, idx = in_index_order(self.n_points, m, mark, place, (2,) if as_pulses else (),
-                                               pool.take if pool is not None and as_pulses else None)
-            return keys, (ranges if with_ranges else None), idx
+            return self._winners_in_place(m, with_ranges, as_pulses, pool)
         final = [self._merged_slots()] if self._private else self.tables  # freed one by one: folded first
         n_pulse_bits = max(1, int(self.pattern.n_pulses - 1).bit_length())
         fits = int(max(self.n_points - 1, 1)).bit_length() + n_pulse_bits <= 63
@@ -761,6 +717,54 @@ class BinTables:
             at = _extract_hash(t.tab, keys, ranges, idx, at)
         keys, ranges, idx = _sort_by_index(keys, ranges, idx)
         return self._out(keys, as_pulses), ranges, idx
+
+    def _winners_in_place(self, m: int, with_ranges: bool, as_pulses: bool, pool):
+        """:meth:`winners` without ``release``: each bin's record written at its index's rank."""
+        # every bin's record carries its range: no sort, no gather from the cloud
+        if self._private:  # each table's records, less those another table's beat: no fold
+            tabs, lose, _ = self._resolved()
+        else:
+            tabs, lose = [t.tab for t in self.tables], None
+        nh = np.int64(self.pattern.shape[1])
+
+        def mark(bits):
+            if lose is not None and self._word_aligned and len(tabs) > 1 and self.n_threads > 1 \
+                    and m > self.parallel_records:
+                # own tables of whole-word chunks: no word holds two tables' winners
+                with ThreadPoolExecutor(min(self.n_threads, len(tabs))) as pool:
+                    list(pool.map(lambda i: mark_alive(tabs[i], lose[i], bits), range(len(tabs))))
+                return
+            for i, tab in enumerate(tabs):  # one after the other: threads would race on a word
+                if lose is None:
+                    mark_records(tab, bits)
+                else:
+                    mark_alive(tab, lose[i], bits)
+
+        def place(*out):
+            # every record has its own place: shares of the records are written out in
+            # parallel (and the fresh output pages are faulted in by all threads)
+            if lose is None and as_pulses:
+                run = lambda tab, _: place_records_pulses(tab, out[0], out[1], nh, *out[2:])  # noqa: E731
+            elif lose is None:
+                run = lambda tab, _: place_records(tab, *out)  # noqa: E731
+            elif as_pulses:
+                run = lambda tab, x: place_alive_pulses(tab, x, out[0], out[1], nh, *out[2:])  # noqa: E731
+            else:
+                run = lambda tab, x: place_alive(tab, x, *out)  # noqa: E731
+            parts = max(1, min(self.n_threads, m >> 16))
+            shares = [(tab[len(tab) * i // parts: len(tab) * (i + 1) // parts],
+                       None if lose is None else lose[t][len(tab) * i // parts: len(tab) * (i + 1) // parts])
+                      for t, tab in enumerate(tabs) for i in range(parts)]
+            if parts > 1:
+                with ThreadPoolExecutor(parts) as pool:
+                    list(pool.map(lambda sh: run(*sh), shares))
+            else:
+                for share in shares:
+                    run(*share)
+
+        keys, ranges, idx = in_index_order(self.n_points, m, mark, place, (2,) if as_pulses else (),
+                                           pool.take if pool is not None and as_pulses else None)
+        return keys, (ranges if with_ranges else None), idx
 
     def _out(self, keys, as_pulses: bool):
         return unravel_ids(keys, self.pattern.shape[1]) if as_pulses else keys

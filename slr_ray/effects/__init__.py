@@ -23,7 +23,7 @@ from .motion import deskew, pose
 from .options import Effects
 from .raydrop import RayDropModel, fit_ray_drop, frame_pulses, rings_from_scan_order
 from .scoring import intensity_metrics, range_image
-from .simulate import EffectScan, cast_rays, effect_cloud, simulate, simulate_given
+from .simulate import EffectScan, effect_cloud, ray_count, simulate, simulate_given
 
-__all__ = ["Effects", "EffectScan", "simulate", "simulate_given", "effect_cloud", "cast_rays", "RayDropModel", "fit_ray_drop",
+__all__ = ["Effects", "EffectScan", "simulate", "simulate_given", "effect_cloud", "ray_count", "RayDropModel", "fit_ray_drop",
            "frame_pulses", "rings_from_scan_order", "pose", "deskew", "range_image", "intensity_metrics"]

@@ -338,23 +338,8 @@ def frame_pulses(points, origin=(0.0, 0.0, 0.0), rings=None, intensity=None, col
     if normals is None and not (isinstance(k, (int, np.integer)) and lo_k <= k <= min(hi_k, max(n - 1, lo_k))):
         raise InputValueError(f"k must be an integer in [{lo_k}, {hi_k}] and below the frame's {n} points (the "
                               f"neighbours of a PCA normal), got {k!r}")
-    if rings is None:
-        rings, source = rings_from_scan_order(pts, o), "the scan order"
-    else:
-        given = np.asarray(rings)
-        if given.shape != (n,):
-            raise InputValueError(f"rings must have one entry per point ({n}), got {given.shape}")
-        if given.dtype.kind not in "iu" and (given.dtype.kind != "f" or not np.all(np.isfinite(given))
-                                             or np.any(given != np.round(given))):
-            raise InputValueError(f"rings must be integers (ring ids), got dtype {given.dtype} with fractions")
-        rings, source = given.astype(np.int64), "the rings given"
-    if not (isinstance(max_gap, (int, np.integer)) and max_gap >= 1):
-        raise InputValueError(f"max_gap must be an integer >= 1, got {max_gap!r}")
-    lo, hi = COLUMN_STEP_RANGE_DEG
-    if column_step_deg is not None and not (isinstance(column_step_deg, (int, float)) and
-                                            lo <= column_step_deg <= hi):
-        raise InputValueError(f"column_step_deg must be degrees in [{lo:g}, {hi:g}] (a spinning unit's step "
-                              f"between firings), got {column_step_deg!r}")
+    rings, source = _rings_of(pts, o, rings)
+    _check_steps(max_gap, column_step_deg)
     d = pts - o
     r = np.linalg.norm(d, axis=1)
     phi = np.degrees(np.unwrap(np.arctan2(d[:, 1], d[:, 0])))
@@ -385,6 +370,33 @@ def frame_pulses(points, origin=(0.0, 0.0, 0.0), rings=None, intensity=None, col
            "dropped": np.concatenate([np.zeros(n, bool), np.ones(len(left), bool)]),
            "ring": np.concatenate([rings, rings[left]]), "column_step_deg": column_step_deg}
     return out
+
+
+def _rings_of(pts, o, rings) -> tuple:
+    """``(rings, source)`` of :func:`frame_pulses`: the rings given, checked, or from the scan order."""
+    n = len(pts)
+    if rings is None:
+        rings, source = rings_from_scan_order(pts, o), "the scan order"
+    else:
+        given = np.asarray(rings)
+        if given.shape != (n,):
+            raise InputValueError(f"rings must have one entry per point ({n}), got {given.shape}")
+        if given.dtype.kind not in "iu" and (given.dtype.kind != "f" or not np.all(np.isfinite(given))
+                                             or np.any(given != np.round(given))):
+            raise InputValueError(f"rings must be integers (ring ids), got dtype {given.dtype} with fractions")
+        rings, source = given.astype(np.int64), "the rings given"
+    return rings, source
+
+
+def _check_steps(max_gap, column_step_deg) -> None:
+    """:func:`frame_pulses`' ``max_gap`` and ``column_step_deg`` refused out of range."""
+    if not (isinstance(max_gap, (int, np.integer)) and max_gap >= 1):
+        raise InputValueError(f"max_gap must be an integer >= 1, got {max_gap!r}")
+    lo, hi = COLUMN_STEP_RANGE_DEG
+    if column_step_deg is not None and not (isinstance(column_step_deg, (int, float)) and
+                                            lo <= column_step_deg <= hi):
+        raise InputValueError(f"column_step_deg must be degrees in [{lo:g}, {hi:g}] (a spinning unit's step "
+                              f"between firings), got {column_step_deg!r}")
 
 
 def drop_rates(values, dropped, edges) -> dict:

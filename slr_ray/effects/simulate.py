@@ -43,7 +43,7 @@ from .returns import group_returns, select_returns, subray_directions
 from .settings import EffectsBase
 from .stages import Context, Effects, Rays, Returns, Stage
 
-__all__ = ["cast_rays", "EffectScan", "simulate", "simulate_given", "effect_cloud"]
+__all__ = ["ray_count", "EffectScan", "simulate", "simulate_given", "effect_cloud"]
 
 #: rays cast per call (bounds memory: about 100 bytes a ray)
 RAYS_PER_BATCH = 1 << 21
@@ -133,7 +133,7 @@ def effect_cloud(es: EffectScan, cloud: PointCloud) -> PointCloud:
     return sub
 
 
-def cast_rays(pattern, effects: Effects | None = None) -> int:
+def ray_count(pattern, effects: Effects | None = None) -> int:
     """The rays a scan of ``pattern`` with ``effects`` casts on a scanner that casts rays: one a pulse,
     or each pulse's sub-rays with beam divergence (``1 + 3 beam_rings (beam_rings - 1)``)."""
     n = int(as_pattern(pattern).n_pulses)

@@ -1,6 +1,6 @@
 """The compiled cast loop of :class:`~slr_ray.raycast.RayScene` and its Embree filter.
 
-:func:`cast_rays` hands Embree packets of ``width`` rays (``rtcIntersect4/8/16``,
+:func:`cast_packets` hands Embree packets of ``width`` rays (``rtcIntersect4/8/16``,
 or ``rtcIntersect1`` for a width of 1) through function pointers; :data:`FILTER`
 is the filter callback (``RTCFilterFunctionN``) that skips discs holding the
 scanner and implements the tie rule (package docstring). One struct layout
@@ -23,7 +23,7 @@ from numba.extending import intrinsic
 from .cull import could_hit
 from .library import FEATURE_FLAGS_ALL, INVALID_ID, RAY_QUERY_FLAG_INVOKE_ARGUMENT_FILTER
 
-__all__ = ["cast_rays", "FILTER", "MODE_SKIP", "PACKET_WIDTHS", "silhouette_bit", "NO_CLIP", "SILHOUETTE_PARALLAX"]
+__all__ = ["cast_packets", "FILTER", "MODE_SKIP", "PACKET_WIDTHS", "silhouette_bit", "NO_CLIP", "SILHOUETTE_PARALLAX"]
 
 #: the packet widths Embree has (rtcIntersect1, 4, 8, 16)
 PACKET_WIDTHS = (1, 4, 8, 16)
@@ -167,7 +167,7 @@ def silhouette_bit(slot):
 #: grazing ground 0.7; docs/backends.md, "The primary's own view and silhouettes")
 SILHOUETTE_PARALLAX = 0.25
 
-#: no silhouette rule (cast_rays' clip arguments)
+#: no silhouette rule (cast_packets' clip arguments)
 NO_CLIP = (np.zeros(0, np.uint8), np.zeros(8), np.zeros(0))
 
 
@@ -377,7 +377,7 @@ def FILTER(fargs):
         k = b + _L_CAND + 4 * m
         ctxf[k] = t
         ctx[k + 1] = owner
-        ctx[k + 2] = prim  # its score only if it is in the final window (cast_rays)
+        ctx[k + 2] = prim  # its score only if it is in the final window (cast_packets)
         ctx[b + _L_NCAND] = m + 1
         if not ctx[_C_VERTICES]:
             # the caller reads the float64 centres of the candidates in the window: start the load
@@ -506,7 +506,7 @@ def _pick(ctx, ctxf, b, lo, hi, centres, org64, vertices, local, dx, dy, dz, asp
 
 
 @njit(cache=True, nogil=True)
-def cast_rays(isect, width, scene, filt, org32, org64, dirs, tnear, tfar, mode_first, ties, one_pass, aspect,
+def cast_packets(isect, width, scene, filt, org32, org64, dirs, tnear, tfar, mode_first, ties, one_pass, aspect,
               centres, radii, normals, div, reach, box, prim_out, owner_out, t_out, vertices, local, dmap, face,
               clip_bits, clip_geo, clip_edges):
     """Cast rays ``dirs`` from ``org32`` (scene frame) into ``*_out``, ``width`` at a time

@@ -18,7 +18,7 @@ from numba import njit, prange
 from ..arrays import as_origin, bounds, release_pages
 from ..errors import InputValueError
 from ..threads import default_threads
-from .cast import FILTER, MODE_SKIP, NO_CLIP, PACKET_WIDTHS, cast_rays
+from .cast import FILTER, MODE_SKIP, NO_CLIP, PACKET_WIDTHS, cast_packets
 from .cull import FACE, direction_map, float32_margin, voxel_boxes
 from .library import (BUFFER_INDEX, BUFFER_NORMAL, BUFFER_VERTEX, FORMAT_FLOAT3, FORMAT_FLOAT4, FORMAT_UINT3,
                       GEOMETRY_DISC_POINT, GEOMETRY_ORIENTED_DISC_POINT, GEOMETRY_TRIANGLE, SCENE_FLAG_COMPACT,
@@ -76,6 +76,20 @@ class Owners(NamedTuple):
     reach: float = 1.0
     normals: np.ndarray | None = None
     present: bool = True
+
+
+class _Query(NamedTuple):
+    """The options of one :meth:`RayScene.intersect` call, as its cast reads them."""
+
+    tnear: float
+    tfar: float
+    ties: float
+    skip_containing: bool
+    n_threads: int | None
+    pulse_aspect: float | None
+    one_pass: bool
+    packet: int | None
+    cull: bool
 
 
 class RayScene:
@@ -337,6 +351,22 @@ class RayScene:
         -------
         RayHits
         """
+        o, d, clip = self._checked_rays(origin, directions, ties, skip_containing, packet, pulse_aspect, clip)
+        m = len(d)
+        prim = np.empty(m, np.int64)
+        # a primitive its own owner (discs, plain triangles): one array for both, one write less a ray
+        owner = prim if self.prims_per_owner == 1 else np.empty(m, np.int64)
+        t = np.empty(m, np.float64)
+        if m == 0:
+            return RayHits(prim, owner, t)
+        self._cast_all(o, d, (prim, owner, t), clip, _Query(tnear, tfar, ties, skip_containing, n_threads,
+                                                            pulse_aspect, one_pass, packet, cull))
+        if exact:
+            self._exact_distances(o, d, prim, t)
+        return RayHits(prim, owner, t)
+
+    def _checked_rays(self, origin, directions, ties, skip_containing, packet, pulse_aspect, clip) -> tuple:
+        """:meth:`intersect`'s rays and options refused where they are none: ``(origin, directions, clip)``."""
         o = as_origin(origin)
         if pulse_aspect is not None and not (math.isfinite(pulse_aspect) and pulse_aspect > 0):
             raise InputValueError(f"pulse_aspect must be a finite number > 0, got {pulse_aspect!r}")
@@ -356,13 +386,13 @@ class RayScene:
         else:
             clip = (np.ascontiguousarray(clip[0], np.uint8), np.ascontiguousarray(clip[1], np.float64),
                     np.ascontiguousarray(clip[2], np.float64))
+        return o, d, clip
+
+    def _cast_all(self, o, d, out, clip, q: _Query) -> None:
+        """Every ray cast by Embree into ``out`` (``(prim, owner, t)``), in tasks shared by threads."""
+        prim, owner, t = out
         m = len(d)
-        prim = np.empty(m, np.int64)
-        # a primitive its own owner (discs, plain triangles): one array for both, one write less a ray
-        owner = prim if self.prims_per_owner == 1 else np.empty(m, np.int64)
-        t = np.empty(m, np.float64)
-        if m == 0:
-            return RayHits(prim, owner, t)
+        tnear, tfar, ties, skip_containing, n_threads, pulse_aspect, one_pass, packet, cull = q
         lib = embree_library()
         local = o - self.centre
         org32 = local.astype(np.float32)
@@ -379,12 +409,12 @@ class RayScene:
         def run(a):
             # one task: rays a .. a + task (threads take tasks in turn)
             e = min(m, a + task)
-            cast_rays(lib.intersect[width], width, self._scene, FILTER.address, org32, o, d[a:e],
-                        np.float32(tnear), np.float32(tf), mode, float(ties), bool(one_pass),
-                        float(pulse_aspect or 0.0),
-                        self._owner_centres, self._owner_radii, self._owner_normals, self.prims_per_owner,
-                        self.reach, self._box, prim[a:e], owner[a:e], t[a:e], self._vertex_centres, local, dmap, FACE,
-                        *clip)
+            cast_packets(lib.intersect[width], width, self._scene, FILTER.address, org32, o, d[a:e],
+                           np.float32(tnear), np.float32(tf), mode, float(ties), bool(one_pass),
+                           float(pulse_aspect or 0.0),
+                           self._owner_centres, self._owner_radii, self._owner_normals, self.prims_per_owner,
+                           self.reach, self._box, prim[a:e], owner[a:e], t[a:e], self._vertex_centres, local, dmap,
+                           FACE, *clip)
 
         starts = range(0, m, task)
         if n_threads == 1:
@@ -398,17 +428,18 @@ class RayScene:
                 # on an exception here (a signal), tasks not yet started are dropped: the
                 # call returns after the running ones, not after the whole cast
                 pool.shutdown(wait=True, cancel_futures=True)
-        if exact:
-            if self.kind != "triangles":
-                raise InputValueError("exact=True is for triangle scenes")
-            hit = prim >= 0
-            f = prim[hit]
-            v = self._vertices64
-            a = v[self._faces[f, 0]]
-            nrm = np.cross(v[self._faces[f, 1]] - a, v[self._faces[f, 2]] - a)
-            nd = np.einsum("ij,ij->i", nrm, d[hit])
-            t[hit] = np.einsum("ij,ij->i", nrm, a - o) / nd
-        return RayHits(prim, owner, t)
+
+    def _exact_distances(self, o, d, prim, t) -> None:
+        """Triangles only: each hit's distance recomputed in float64 on its triangle's plane (into ``t``)."""
+        if self.kind != "triangles":
+            raise InputValueError("exact=True is for triangle scenes")
+        hit = prim >= 0
+        f = prim[hit]
+        v = self._vertices64
+        a = v[self._faces[f, 0]]
+        nrm = np.cross(v[self._faces[f, 1]] - a, v[self._faces[f, 2]] - a)
+        nd = np.einsum("ij,ij->i", nrm, d[hit])
+        t[hit] = np.einsum("ij,ij->i", nrm, a - o) / nd
 
     def __del__(self):
         scene = getattr(self, "_scene", None)

@@ -230,48 +230,7 @@ class EmbreeOptions(BackendOptions):
             if self.primary_resolution is not None:
                 raise InputValueError("give primary_resolution or primary_pattern, not both")
             return
-        if isinstance(self.radius, str) and self.radius not in RADIUS_MODES:
-            raise InputValueError(f"radius must be a number, an array or one of {RADIUS_MODES}, "
-                                  f"got {self.radius!r}")
-        if not isinstance(self.radius, str):
-            try:
-                r = np.asarray(self.radius, dtype=np.float64)
-            except (TypeError, ValueError):
-                raise InputValueError(f"radius must be a number, an array or one of {RADIUS_MODES}, "
-                                      f"got {type(self.radius).__name__}") from None
-            if np.asarray(self.radius).dtype.kind == "b":
-                raise InputValueError(f"radius must be metres, got a boolean {self.radius!r}")
-            if r.ndim > 1:
-                raise InputValueError(f"radius must be a number or one number a point, got shape {r.shape}")
-            bad = int(np.count_nonzero(~(np.isfinite(r) & (r > 0))))
-            if bad:
-                raise InputValueError(f"radius must be finite and > 0: {bad} of {r.size} value(s) are not")
-        if self.normals is not None:
-            nrm = as_points(self.normals, "normals")  # (n, 3), finite
-            zero = int(np.count_nonzero(~(np.linalg.norm(nrm.astype(np.float64), axis=1) > 1e-6)))
-            if zero:
-                raise InputValueError(f"normals: {zero} of {len(nrm)} rows have (near) zero length: a disc needs "
-                                      "a direction (its discs would be met by no ray)")
-        if self.orientation not in ORIENTATIONS:
-            raise InputValueError(f"orientation must be one of {ORIENTATIONS}, got {self.orientation!r}")
-        if self.engine not in ENGINES:
-            raise InputValueError(f"engine must be one of {ENGINES}, got {self.engine!r}")
-        if int(self.segments) != self.segments or self.segments < 3:
-            raise InputValueError(f"segments must be an integer >= 3, got {self.segments!r}")
-        if int(self.k) != self.k or self.k < 1:
-            raise InputValueError(f"k must be an integer >= 1, got {self.k!r}")
-        for name in ("radius_scale", "fallback_radius"):
-            v = getattr(self, name)
-            if not (isinstance(v, (int, float)) and math.isfinite(v) and v > 0):
-                raise InputValueError(f"{name} must be a finite number > 0, got {v!r}")
-        for name in ("radius", "radius_scale", "fallback_radius", "min_radius"):  # Embree holds float32
-            v = getattr(self, name)
-            if not isinstance(v, str) and v is not None and np.size(v) and np.max(v) > MAX_RADIUS:
-                raise InputValueError(f"{name} must be at most {MAX_RADIUS:g} (a disc of {MAX_RADIUS / 1000:g} km "
-                                      f"holds a whole scene), got {float(np.max(v))!r}")
-        if self.n_threads is not None and not (isinstance(self.n_threads, numbers.Integral)
-                                               and not isinstance(self.n_threads, bool) and 1 <= self.n_threads <= 256):
-            raise InputValueError(f"n_threads must be an integer in [1, 256] (binning's bound), got {self.n_threads!r}")
+        self._check_own_values()
         if self.ties is None:  # frozen: set through object.__setattr__
             beams = self.primary_pattern is not None and as_pattern(self.primary_pattern).has_beams
             object.__setattr__(self, "ties", 3.0 if beams else 1.0)
@@ -322,6 +281,52 @@ class EmbreeOptions(BackendOptions):
                 raise InputValueError(f"{name} must be True or False, got {getattr(self, name)!r}")
         if int(self.chunk) != self.chunk or self.chunk < 1:
             raise InputValueError(f"chunk must be an integer >= 1, got {self.chunk!r}")
+
+    def _check_own_values(self) -> None:
+        """Each field's own value refused where it is no value of it (radius, normals, orientation,
+        engine, segments, k, radius_scale, fallback_radius, the largest radius, n_threads)."""
+        if isinstance(self.radius, str) and self.radius not in RADIUS_MODES:
+            raise InputValueError(f"radius must be a number, an array or one of {RADIUS_MODES}, "
+                                  f"got {self.radius!r}")
+        if not isinstance(self.radius, str):
+            try:
+                r = np.asarray(self.radius, dtype=np.float64)
+            except (TypeError, ValueError):
+                raise InputValueError(f"radius must be a number, an array or one of {RADIUS_MODES}, "
+                                      f"got {type(self.radius).__name__}") from None
+            if np.asarray(self.radius).dtype.kind == "b":
+                raise InputValueError(f"radius must be metres, got a boolean {self.radius!r}")
+            if r.ndim > 1:
+                raise InputValueError(f"radius must be a number or one number a point, got shape {r.shape}")
+            bad = int(np.count_nonzero(~(np.isfinite(r) & (r > 0))))
+            if bad:
+                raise InputValueError(f"radius must be finite and > 0: {bad} of {r.size} value(s) are not")
+        if self.normals is not None:
+            nrm = as_points(self.normals, "normals")  # (n, 3), finite
+            zero = int(np.count_nonzero(~(np.linalg.norm(nrm.astype(np.float64), axis=1) > 1e-6)))
+            if zero:
+                raise InputValueError(f"normals: {zero} of {len(nrm)} rows have (near) zero length: a disc needs "
+                                      "a direction (its discs would be met by no ray)")
+        if self.orientation not in ORIENTATIONS:
+            raise InputValueError(f"orientation must be one of {ORIENTATIONS}, got {self.orientation!r}")
+        if self.engine not in ENGINES:
+            raise InputValueError(f"engine must be one of {ENGINES}, got {self.engine!r}")
+        if int(self.segments) != self.segments or self.segments < 3:
+            raise InputValueError(f"segments must be an integer >= 3, got {self.segments!r}")
+        if int(self.k) != self.k or self.k < 1:
+            raise InputValueError(f"k must be an integer >= 1, got {self.k!r}")
+        for name in ("radius_scale", "fallback_radius"):
+            v = getattr(self, name)
+            if not (isinstance(v, (int, float)) and math.isfinite(v) and v > 0):
+                raise InputValueError(f"{name} must be a finite number > 0, got {v!r}")
+        for name in ("radius", "radius_scale", "fallback_radius", "min_radius"):  # Embree holds float32
+            v = getattr(self, name)
+            if not isinstance(v, str) and v is not None and np.size(v) and np.max(v) > MAX_RADIUS:
+                raise InputValueError(f"{name} must be at most {MAX_RADIUS:g} (a disc of {MAX_RADIUS / 1000:g} km "
+                                      f"holds a whole scene), got {float(np.max(v))!r}")
+        if self.n_threads is not None and not (isinstance(self.n_threads, numbers.Integral)
+                                               and not isinstance(self.n_threads, bool) and 1 <= self.n_threads <= 256):
+            raise InputValueError(f"n_threads must be an integer in [1, 256] (binning's bound), got {self.n_threads!r}")
 
     def check_points(self, n: int) -> None:
         """Arrays of one value a point (``radius``, ``normals``) must have ``n`` (``primary_beams``: the

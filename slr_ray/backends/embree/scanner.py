@@ -28,6 +28,28 @@ __all__ = ["DiscScanner", "PRIMARY_VIEW_TOLERANCE", "same_pulse_grid"]
 PRIMARY_VIEW_TOLERANCE = 1e-6
 
 
+def _initial_normals(pts, o: EmbreeOptions, need_normals, grid, ndtype):
+    """The discs' normals before the neighbour pass: the given ones (checked), the primary's
+    directions, the fallback for fewer than two points, kNN's zeroed rows to fill, or None."""
+    n = len(pts)
+    normals = None
+    if o.orientation == "normal":
+        # kNN normals are filled chunk by chunk below, pulse-grid ones come whole; fewer than two
+        # points have no neighbours and keep the fallback direction
+        if not need_normals:
+            normals = np.asarray(as_points(o.normals, "normals"), np.float64)
+        elif n < 2:
+            normals = np.array(fallback_directions(pts, o.primary_origin, ndtype))
+        elif not grid:
+            normals = padded_rows(n, ndtype)  # shared with Embree, not copied
+        if normals is not None and len(normals) != n:
+            raise InputValueError(f"normals has {len(normals)} rows for {n} points")
+    elif o.orientation == "primary":
+        # float32: what Embree holds anyway (a float64 copy would be 24 B a point of peak memory)
+        normals = fallback_directions(pts, o.primary_origin, np.float32)
+    return normals
+
+
 class DiscScanner(Scanner):
     """A cloud as discs in one Embree BVH, ready to scan from many positions.
 
@@ -78,7 +100,6 @@ class DiscScanner(Scanner):
         need_spacing = isinstance(o.radius, str) and o.radius == "spacing"
         need_normals = o.orientation == "normal" and o.normals is None
         spacing = np.zeros(n) if need_spacing else None
-        normals = None
         # estimated normals in float32 for Embree (its precision; 12 B a point less at the peak)
         ndtype = np.float32 if o.engine == "embree" else np.float64
         grid = (need_spacing or need_normals) and o.neighbours == "pulse-grid"
@@ -87,20 +108,7 @@ class DiscScanner(Scanner):
         if o.engine != "embree":  # polygon fans: vertices (24 B) and faces (24 B) per segment, before any work
             refuse_memory(48.0 * n * o.segments, f"discs as fans of {o.segments:,} segments for {n:,} points",
                           "use fewer segments (3 to 16 is plenty) or engine='embree'")
-        if o.orientation == "normal":
-            # kNN normals are filled chunk by chunk below, pulse-grid ones come whole; fewer than two
-            # points have no neighbours and keep the fallback direction
-            if not need_normals:
-                normals = np.asarray(as_points(o.normals, "normals"), np.float64)
-            elif n < 2:
-                normals = np.array(fallback_directions(pts, o.primary_origin, ndtype))
-            elif not grid:
-                normals = padded_rows(n, ndtype)  # shared with Embree, not copied
-            if normals is not None and len(normals) != n:
-                raise InputValueError(f"normals has {len(normals)} rows for {n} points")
-        elif o.orientation == "primary":
-            # float32: what Embree holds anyway (a float64 copy would be 24 B a point of peak memory)
-            normals = fallback_directions(pts, o.primary_origin, np.float32)
+        normals = _initial_normals(pts, o, need_normals, grid, ndtype)
         self._clip = None
         if grid and n >= 2:
             clip = (np.zeros(n, np.uint8) if o.silhouettes and o.primary_beams is None and o.engine != "open3d"
@@ -139,6 +147,15 @@ class DiscScanner(Scanner):
         self.normals = normals
         self.neighbour_seconds = time.perf_counter() - t0
         t1 = time.perf_counter()
+        self._build_scene(pts, normals, o)
+        self._max_radius = float(self.radii.max(initial=0.0))  # read by every scan: computed once
+        self.nbytes = self._scene.nbytes
+        self.build_seconds = time.perf_counter() - t1
+        self.prepare_seconds = time.perf_counter() - t0
+
+    def _build_scene(self, pts, normals, o: EmbreeOptions) -> None:
+        """The ray scene of the discs (Embree's discs, or polygon fans for Embree or Open3D)."""
+        n = len(pts)
         self._centre = 0.5 * np.add(*bounds(pts)) if n else np.zeros(3)
         self._scene = None
         if o.engine == "embree":
@@ -159,10 +176,6 @@ class DiscScanner(Scanner):
             # Embree and the tie rule hold their own float32 copy: the float64 one (24 B a point, 5 GB on
             # a 209 M-point primary) is not kept; ``normals`` is a read-only view of Embree's
             self.normals = normals = self._scene.owner_normals
-        self._max_radius = float(self.radii.max(initial=0.0))  # read by every scan: computed once
-        self.nbytes = self._scene.nbytes
-        self.build_seconds = time.perf_counter() - t1
-        self.prepare_seconds = time.perf_counter() - t0
 
     def _cast(self, origin, dirs, tfar, aspect=None):
         o = self.options
