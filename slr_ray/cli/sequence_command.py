@@ -12,7 +12,6 @@ from ..evaluate import compact_json, markdown_table
 from ..io import atomic_path
 from ..io.outputs import OutputPlan, resolve
 from ..errors import InputValueError, OutputError
-from ..sensors import SENSORS
 from ..sequence import (CONVERT_ESTIMATORS, FPA_GAP, METHODS, REMOVE_MOVING, SeeThrough, convert_sequence,
                         evaluate_sequence, read_sequence, read_trajectory, register_chain, write_kitti_poses)
 from ..sequence.holdout import DEFAULT_METHODS, GRID_SOURCES, lidar4d_holdout
@@ -81,7 +80,7 @@ def add_sequence_parser(sub) -> None:
     q.add_argument("--protocol", choices=["slr", "lidar4d"], default="slr",
                    help="lidar4d: LiDAR4D's KITTI-360 split (51 frames, frames 10, 20, 30, 40 held out, every other "
                         "frame the scene); its clamped depth errors are in every table either way")
-    q.add_argument("--sensor", default="velodyne_hdl64e_s2", choices=list(SENSORS),
+    q.add_argument("--sensor", default="velodyne_hdl64e_s2", type=A.sensor_name, metavar="NAME",
                    help="the frames' sensor (default velodyne_hdl64e_s2, KITTI's); fitted to each held-out frame")
     q.add_argument("--methods", nargs="+", default=list(DEFAULT_METHODS), choices=list(METHODS),
                    help=f"methods (default {' '.join(DEFAULT_METHODS)})")
@@ -93,11 +92,12 @@ def add_sequence_parser(sub) -> None:
                                     "its pose (and --offset); resumable, parallel")
     _common(q)
     q.add_argument("-o", "--output", required=True, help="output directory (a rerun with the same settings resumes)")
-    q.add_argument("--sensor", required=True, choices=list(SENSORS), help="the target sensor")
+    q.add_argument("--sensor", required=True, type=A.sensor_name, metavar="NAME",
+                   help="the target sensor: " + A.SENSOR_HELP)
     q.add_argument("--estimator", default="nearest", choices=list(CONVERT_ESTIMATORS),
                    help="per-pulse rule (default nearest; rays: the target table's own rays onto the union's "
                         "planes; embree-sources needs --source-sensor)")
-    q.add_argument("--source-sensor", choices=list(SENSORS),
+    q.add_argument("--source-sensor", type=A.sensor_name, metavar="NAME",
                    help="the input frames' own sensor (fitted to each frame whose beams are known: a ring field "
                         "or a KITTI .bin's order), for --remove-moving visibility and --estimator embree-sources")
     q.add_argument("--offset", nargs=3, type=A.finite_float, default=[0.0, 0.0, 0.0], metavar=("DX", "DY", "DZ"),
