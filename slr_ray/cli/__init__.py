@@ -39,6 +39,7 @@ from .evaluate_command import evaluate as evaluate_command
 from .effects_command import RING_SOURCES
 from .effects_command import effects as effects_command
 from .sequence_command import add_sequence_parser
+from .sensor_command import add_sensor_parser
 
 __all__ = ["main", "build_parser"]
 
@@ -274,6 +275,7 @@ def build_parser() -> argparse.ArgumentParser:
     q.add_argument("--force", action="store_true", help="overwrite an existing output")
 
     add_sequence_parser(sub)  # sequence: its parser and handlers live in .sequence_command
+    add_sensor_parser(sub)  # sensor: its parser and handlers live in .sensor_command
 
     p = command("scene", "synthetic rectangle scenes: info, build, scan")
     ssub = p.add_subparsers(dest="scene_cmd", required=True, metavar="command")
