@@ -62,7 +62,8 @@ from .errors import FormatError, InputValueError, SlrError
 from .threads import default_threads
 
 __all__ = ["BeamPattern", "sensor", "SENSORS", "SENSORS_DIR", "read_ouster_metadata",
-           "read_velodyne_calibration", "read_card", "write_card", "card_dict", "is_sensor_name", "beams_outside", "miscalibrated", "sensor_noise", "scan_order_beams", "fitted_pattern"]
+           "read_velodyne_calibration", "read_card", "write_card", "card_dict", "is_sensor_name", "beams_outside",
+           "source_elevation_range", "conversion_reach", "miscalibrated", "sensor_noise", "scan_order_beams", "fitted_pattern"]
 
 #: Directory of the shipped beam tables (package data).
 SENSORS_DIR = Path(__file__).resolve().parent / "data" / "sensors"
@@ -422,6 +423,39 @@ def beams_outside(target: BeamPattern, elevation_range_deg) -> np.ndarray:
         raise InputValueError(f"elevation_range_deg must be two finite angles, low first, got {elevation_range_deg!r}")
     el = np.asarray(target.elevation_deg)
     return np.flatnonzero((el < lo) | (el > hi))
+
+
+def source_elevation_range(points, origin=None, percentiles=(1.0, 99.0)) -> tuple[float, float]:
+    """The elevations (degrees) a frame saw from ``origin`` (default 0): the ``percentiles`` of its points'
+    (the 1st to 99th: a stray point above or below is not a beam's)."""
+    p = as_points(points, "points") - (np.zeros(3) if origin is None else as_origin(origin))
+    if not len(p):
+        raise InputValueError("a frame of no points saw no elevation")
+    el = np.degrees(np.arctan2(p[:, 2], np.hypot(p[:, 0], p[:, 1])))
+    lo, hi = np.percentile(el, percentiles)
+    return float(lo), float(hi)
+
+
+def conversion_reach(target: BeamPattern, source_points, points_out: int, source_origin=None) -> dict:
+    """What a conversion to ``target`` could get from frames like ``source_points``: the target's beams
+    outside the elevations the source saw (:func:`source_elevation_range`, from its own origin) are said
+    once (an :class:`~slr_ray.errors.SlrWarning` with the count); ``points_out`` 0 (the conversion
+    returned nothing) is an :class:`InputValueError`. Returns the summary's entries."""
+    from .errors import SlrWarning
+
+    lo, hi = source_elevation_range(source_points, source_origin)
+    out = beams_outside(target, (lo, hi))
+    el = sorted(round(float(target.elevation_deg[b]), 3) for b in out)
+    if len(out):
+        warnings.warn(f"{len(out)} of the target's {target.n_beams} beams ({el[0]:+g} ... {el[-1]:+g} deg) lie "
+                      f"outside what the source frames saw ({lo:+.1f} ... {hi:+.1f} deg, 1st-99th percentile "
+                      "from their origin): those beams stay (nearly) empty", SlrWarning, stacklevel=3)
+    if points_out == 0:
+        raise InputValueError(f"the conversion returned no point: the target's beams ({min(target.elevation_deg):+g}"
+                              f" ... {max(target.elevation_deg):+g} deg, ranges {target.range_limits}) meet nothing "
+                              f"the source frames saw ({lo:+.1f} ... {hi:+.1f} deg)")
+    return {"beams_outside_source": len(out), "beams_outside_source_deg": el,
+            "source_elevation_range_deg": [round(lo, 3), round(hi, 3)]}
 
 
 def miscalibrated(pattern: BeamPattern, elevation_sd: float = 0.1, azimuth_sd: float = 0.1,

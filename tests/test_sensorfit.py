@@ -158,3 +158,32 @@ def test_shared_velodyne_frames_fit_the_shipped_tables_within_005_deg(frame, tab
 def test_shared_forward_looking_unit_is_refused():
     with pytest.raises(InputValueError, match="turn of azimuth"):
         fit_card(_shared("single_frames", "hesai_at128_1679653308704927652.pcd"))
+
+
+def test_convert_says_the_target_beams_the_source_never_saw_and_refuses_nothing(tmp_path):
+    """#45 item 5: a VLP-16 drive (-15 ... +15 deg) as an HDL-32E (-30.7 ... +10.7): the beams below
+    what the frames saw are said once, with their count, on stderr and in the summary; a target that
+    gets nothing is an error."""
+    from slr_ray.errors import SlrWarning
+    from slr_ray.sequence import convert_sequence, read_sequence
+    from slr_ray.sequence.synthetic import synthetic_drive
+
+    synthetic_drive(tmp_path / "seq", n_frames=2, sensor="velodyne_vlp16", step=0.8, moving=False)
+    seq = read_sequence(tmp_path / "seq")
+    (tmp_path / "out").mkdir()
+    with warnings.catch_warnings(record=True) as said:
+        warnings.simplefilter("always")
+        summary = convert_sequence(seq, tmp_path / "out", "velodyne_hdl32e", half=0)
+    lo, hi = summary["source_elevation_range_deg"]
+    el = np.asarray(sensor("velodyne_hdl32e").elevation_deg)
+    want = int(((el < lo) | (el > hi)).sum())
+    assert lo < -14 and hi > 0 and want >= 8 and summary["beams_outside_source"] == want
+    notes = [w for w in said if issubclass(w.category, SlrWarning) and "outside what the source" in str(w.message)]
+    assert len(notes) == 1 and str(notes[0].message).startswith(f"{want} of the target's 32 beams")
+    card = sensor("velodyne_vlp16").with_(elevation_deg=tuple(np.linspace(60, 80, 16)), name="sky")
+    write_card(tmp_path / "sky.json", card)
+    (tmp_path / "out2").mkdir()
+    with warnings.catch_warnings():
+        warnings.simplefilter("ignore")
+        with pytest.raises(InputValueError, match="returned no point"):
+            convert_sequence(seq, tmp_path / "out2", str(tmp_path / "sky.json"), half=0)
