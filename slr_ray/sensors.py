@@ -58,7 +58,7 @@ import yaml
 from .arrays import as_origin, as_points
 from .core.beams import beam_keys, beam_keys_given, beam_reduce, beam_reduce_posed, beam_reduce_serial
 from .core.protocol import Pattern
-from .errors import FormatError, InputValueError, SlrError
+from .errors import FormatError, InputValueError, SlrError, SlrWarning
 from .threads import default_threads
 
 __all__ = ["BeamPattern", "sensor", "SENSORS", "SENSORS_DIR", "read_ouster_metadata",
@@ -441,8 +441,6 @@ def conversion_reach(target: BeamPattern, source_points, points_out: int, source
     outside the elevations the source saw (:func:`source_elevation_range`, from its own origin) are said
     once (an :class:`~slr_ray.errors.SlrWarning` with the count); ``points_out`` 0 (the conversion
     returned nothing) is an :class:`InputValueError`. Returns the summary's entries."""
-    from .errors import SlrWarning
-
     lo, hi = source_elevation_range(source_points, source_origin)
     out = beams_outside(target, (lo, hi))
     el = sorted(round(float(target.elevation_deg[b]), 3) for b in out)
