@@ -65,7 +65,7 @@ MAX_RESIDUAL_DEG = 0.1
 _BIN_DEG = 0.01
 _HEIGHTS = sorted(np.round(np.arange(-0.1, 0.1001, 0.005), 4), key=abs)  # 0 first: ties keep the least
 #: points nearer the spin axis than this (m) are not used (their elevation says little)
-_MIN_RHO = 0.3
+_MIN_RHO = 0.05
 
 
 def _frames(frames, input_format=None):
@@ -276,8 +276,8 @@ def fit_card(frames, ring: str | bool = "auto", name: str | None = None, source:
     drop = 1.0 - occupied / (len(fr) * columns)
     rr = r[ok]
     meta = {"source": source or "fitted by slr_ray.sensorfit.fit_card from " + ", ".join(labels),
-            "height_m": [round(float(x), 5) for x in z0],
-            "drop_rate": [round(float(x), 5) for x in drop],
+            "height_m": [round(float(x), 5) + 0.0 for x in z0],  # + 0.0: no -0.0
+            "drop_rate": [round(float(x), 5) + 0.0 for x in drop],
             "points": [int(x) for x in counts],
             "fit": {"how": how, "frames": len(fr), "points": int(ok.sum()),
                     "median_off_beam_deg": round(resid, 5), "share_assigned": round(share, 5),
@@ -285,6 +285,6 @@ def fit_card(frames, ring: str | bool = "auto", name: str | None = None, source:
                     "ranges": "the ranges seen (override with min_range / max_range, --min-range / --max-range)"}}
     if use_rings:
         meta["ring"] = [int(x) for x in rings_seen[keep]] if not keep.all() else [int(x) for x in rings_seen]
-    return BeamPattern(tuple(el.tolist()), columns, tuple(np.round(offsets, 5).tolist()),
+    return BeamPattern(tuple((el + 0.0).tolist()), columns, tuple((np.round(offsets, 5) + 0.0).tolist()),
                        min_range=round(float(rr.min()), 3), max_range=round(float(rr.max()), 3),
                        name=name or "fitted", meta=meta)
