@@ -78,6 +78,8 @@ def test_card_round_trips_and_goes_wherever_a_sensor_name_does(tmp_path, capsys)
     with pytest.raises(FileExistsError):
         write_card(tmp_path / "c.json", card)  # never over a file
     assert read_card(tmp_path / "c.json", columns=100).columns == 100
+    from slr_ray import as_pattern
+    assert as_pattern(str(tmp_path / "c.json")).elevation_deg == card.elevation_deg  # a scan's pattern too
     # the command line: a scan with --sensor card.json; sensor show
     pts = _frame(sensor("velodyne_vlp16", columns=600)).points
     write_cloud(tmp_path / "in.npz", PointCloud(pts, {}, np.zeros(3)))
