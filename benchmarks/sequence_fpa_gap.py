@@ -26,7 +26,7 @@ def main() -> None:
     for gap in (0.05, 0.1, 0.15, 0.25, 0.5, 1.0):
         tabs = []
         for h in (1, 2):
-            res = evaluate_holdout(seq, h, methods=("nearest", "fpa"), gap=gap)
+            res = evaluate_holdout(seq, h, methods=("nearest", "fpa"), fpa_gap=gap)
             tabs.append(res["table"])
         for r in mean_rows(tabs):
             rows.append({"gap_m": gap} | {k: r[k] for k in ("method", "points", "F@5cm", "depth_medae_m",

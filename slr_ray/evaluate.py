@@ -82,7 +82,7 @@ from .sensors import BeamPattern, fitted_pattern, scan_order_beams, sensor
 
 __all__ = ["METHODS", "BEAM_SOURCES", "EVALUATION_FILES", "LABELS", "Registration", "register", "scan_order_beams", "fitted_pattern", "zbuffer",
            "EvaluateOptions", "evaluate_pair", "evaluation_table", "markdown_table", "splits_table", "compact_json",
-           "write_evaluation"]
+           "write_evaluation", "frame_beams", "SPLITS", "ScoringTarget", "scoring_target", "score_simulation", "write_sequence_evaluation", "SEQUENCE_COLUMNS", "sequence_summary"]
 
 #: the methods scored, in table order, and their names in tables and figures
 METHODS = ("zbuffer", "binning", "embree-knn", "embree-grid", "embree-beams")
@@ -306,6 +306,73 @@ def _split_labels(rows_of_points, ranges, seen):
             "seen": np.where(seen, "seen", "unseen")}
 
 
+def frame_beams(points, beams, base, what: str = "beams"):
+    """A frame's beams as :func:`evaluate_pair` takes them (its ``a_beams`` / ``b_beams``): an array
+    (checked against ``base``'s table: ids in it, one elevation a beam), ``None``, ``'auto'`` or
+    ``'scan-order'``. Returns ``(beams or None, how they were found)``; ``'auto'`` falls back to
+    ``None`` saying why."""
+    return _beams_of(points, beams, base, what)
+
+
+#: the splits of a score (``groups`` of its blocks): by range band, by beam, seen from the primary or not
+SPLITS = ("range band", "beam", "seen")
+
+
+@dataclass
+class ScoringTarget:
+    """A real frame as every simulation of it is scored (:func:`scoring_target`)."""
+
+    pattern: BeamPattern
+    real: Scan              # the frame's own z-buffer in ``pattern`` (nearest point per pulse)
+    image: dict             # its range image (``range``, ``index``)
+    in_view: np.ndarray     # (n,) bool: the frame's points in the pattern's view
+    points: np.ndarray      # (m, 3) those points: the target
+    seen: np.ndarray        # (m,) bool: seen from the primary
+    pixels: np.ndarray      # (rows, cols) each pulse's split label: seen, unseen, no return
+    point_groups: dict
+    splits: tuple = SPLITS
+
+
+def scoring_target(points, pattern, beams, primary, seen_threshold: float = PAPER_THRESHOLD,
+                   splits=SPLITS) -> ScoringTarget:
+    """The real frame ``points`` (its own frame) as :func:`evaluate_pair` scores every method against it:
+    its range image by the rule every simulated image is made by (nearest point per pulse of
+    ``pattern``, a point in the elevation band it falls in), so that a simulation equal to it scores a
+    perfect image; the target points are its points in that table's view, each *seen* when a point
+    of ``primary`` (the cloud the simulations come from, in the frame's frame) lies closer than
+    ``seen_threshold``; the beam split by ``beams`` where known, else by band row. ``splits``: the
+    groups scored (a subset of :data:`SPLITS`)."""
+    band_keys, ranges = pattern.pulse_ids(points, np.zeros(3))
+    in_view = band_keys >= 0
+    real = zbuffer(points, pattern, backend="real")
+    image = real.range_image()
+    inside = points[in_view]
+    if beams is not None:
+        rows = pattern.rows_of_beams(beams, len(points))[in_view]
+    else:
+        rows = band_keys[in_view] // pattern.columns
+    seen = seen_from(inside, primary, seen_threshold)
+    seen_all = np.zeros(len(points), bool)
+    seen_all[in_view] = seen
+    groups = _split_labels(rows, ranges[in_view], seen)
+    pixels = np.full(image["range"].shape, "no return", dtype=object)
+    filled = image["index"] >= 0
+    pixels[filled] = np.where(seen_all[image["index"][filled]], "seen", "unseen")
+    return ScoringTarget(pattern, real, image, in_view, inside, seen, pixels,
+                         {k: v for k, v in groups.items() if k in splits}, tuple(splits))
+
+
+def score_simulation(target: ScoringTarget, simulated, image, thresholds=THRESHOLDS) -> dict:
+    """Every registered metric's block (:data:`slr_ray.metrics.REGISTRY`) of a simulation of ``target``:
+    its points ``simulated`` and its range image ``image`` (in the target's pattern)."""
+    real = target.image["range"]
+    sim_ranges = np.where(np.isfinite(real), real, image)
+    pulses = {"range band": range_bands(sim_ranges), "beam": np.arange(target.pattern.n_beams),
+              "seen": target.pixels.astype(str)}
+    return score_pair(Pair(target.points, simulated, real, image, tuple(thresholds), target.point_groups,
+                           {k: v for k, v in pulses.items() if k in target.splits}))
+
+
 @dataclass(frozen=True)
 class EvaluateOptions(Options):
     """How :func:`evaluate_pair` re-simulates and scores a pair of frames.
@@ -461,23 +528,9 @@ def evaluate_pair(a_points, b_points, a_beams="auto", b_beams="auto", options: E
     # pulse of B's table, a point in the elevation band it falls in), so that a simulation equal to
     # B scores a perfect image; the target points are B's points in that table's view.
     t0 = time.perf_counter()
-    band_keys, b_ranges = pat_b.pulse_ids(b, np.zeros(3))
-    in_view = band_keys >= 0
-    real = zbuffer(b, pat_b, backend="real")
-    real_img = real.range_image()
-    b_in = b[in_view]
-    b_ranges = b_ranges[in_view]
-    if b_beams is not None:  # the beam split by B's own beams where known, else by band row
-        b_rows = pat_b.rows_of_beams(b_beams, len(b))[in_view]
-    else:
-        b_rows = band_keys[in_view] // pat_b.columns
-    seen = seen_from(b_in, a_in_b, seen_threshold)
-    seen_all = np.zeros(len(b), bool)
-    seen_all[in_view] = seen
-    point_groups = _split_labels(b_rows, b_ranges, seen)
-    pix_seen = np.full(real_img["range"].shape, "no return", dtype=object)
+    target = scoring_target(b, pat_b, b_beams, a_in_b, seen_threshold)
+    real, real_img, b_in, seen, pix_seen = target.real, target.image, target.points, target.seen, target.pixels
     filled = real_img["index"] >= 0
-    pix_seen[filled] = np.where(seen_all[real_img["index"][filled]], "seen", "unseen")
     seconds["target"] = time.perf_counter() - t0
 
     rows, images = [], {"real": real_img["range"]}
@@ -503,10 +556,7 @@ def evaluate_pair(a_points, b_points, a_beams="auto", b_beams="auto", options: E
         images[m] = img
         if m == BINNING_METHOD:
             binning_img = img
-        sim_ranges = np.where(np.isfinite(real_img["range"]), real_img["range"], img)
-        blocks = score_pair(Pair(b_in, a_in_b[sim_idx], real_img["range"], img, tuple(thresholds), point_groups,
-                                 {"range band": range_bands(sim_ranges), "beam": np.arange(pat_b.n_beams),
-                                  "seen": pix_seen.astype(str)}))
+        blocks = score_simulation(target, a_in_b[sim_idx], img, thresholds)
         rows.append({"method": m, "label": LABELS.get(m, m), "points_out": int(len(sim_idx)),
                      "pulses_returned": int(len(sc)),
                      "prepare_seconds": round(prep, 3), "seconds": round(time.perf_counter() - t0, 3)} | blocks)
@@ -631,3 +681,53 @@ def write_evaluation(result: dict, directory, force: bool = False, inputs: dict 
     with atomic_path(paths["splits"]) as tmp:
         tmp.write_text(_csv_text(splits_table(result)))
     return {k: str(v) for k, v in paths.items()}
+
+
+#: the columns of a sequence evaluation's ``table.md`` by protocol (every column is in ``table.csv`` and
+#: the JSON): the default, and LiDAR4D's (its clamped depth errors, Chamfer and 22.4 cm F-score)
+SEQUENCE_COLUMNS = {
+    "slr": ("frame", "method", "points", "F@5cm", "F@10cm", "depth_medae_m", "depth_rmse_m", "drop_accuracy",
+            "drop_recall", "cd_sum_m2", "R@10cm seen"),
+    "lidar4d": ("frame", "method", "points", "cd_sum_m2", "F@22.3607cm", "lidar4d_depth_rmse_m",
+                "lidar4d_depth_medae_m", "drop_accuracy")}
+
+
+def _sequence_rows(result: dict) -> list[dict]:
+    return [r for f in result["frames"] for r in f["table"]] + result["mean"]
+
+
+def _sequence_columns(result: dict, rows: list[dict]) -> list[str]:
+    cols = SEQUENCE_COLUMNS.get(result.get("protocol", "slr"), SEQUENCE_COLUMNS["slr"])
+    return [c for c in cols if c in rows[0]]
+
+
+def write_sequence_evaluation(result: dict, directory, force: bool = False) -> dict:
+    """Write a sequence evaluation (:func:`slr_ray.sequence.evaluate_sequence`'s result, with what the
+    caller adds: ``protocol``, ``inputs``...) into ``directory``: ``evaluation.json`` (everything, its
+    ``table`` every frame's rows and the means), ``table.md`` (the columns of its protocol,
+    :data:`SEQUENCE_COLUMNS`) and ``table.csv`` (every column). Refuses an existing non-empty
+    directory unless ``force`` (then only these files are replaced). Returns the paths, by kind."""
+    d = Path(directory)
+    if d.exists() and not d.is_dir():
+        raise OutputError(f"{d} exists and is not a directory")
+    if d.is_dir() and any(d.iterdir()) and not force:
+        raise OutputError(f"{d} exists and is not empty (use --force to replace its evaluation files)")
+    d.mkdir(parents=True, exist_ok=True)
+    rows = _sequence_rows(result)
+    paths = {kind: d / EVALUATION_FILES[kind] for kind in ("json", "markdown", "csv")}
+    with atomic_path(paths["json"]) as tmp:
+        tmp.write_text(compact_json(json_safe(result | {"table": rows})) + "\n")
+    with atomic_path(paths["markdown"]) as tmp:
+        tmp.write_text(markdown_table(rows, _sequence_columns(result, rows)) + "\n")
+    with atomic_path(paths["csv"]) as tmp:
+        tmp.write_text(_csv_text(rows))
+    return {k: str(v) for k, v in paths.items()}
+
+
+def sequence_summary(result: dict) -> tuple[str, list[dict]]:
+    """A sequence evaluation in short: the mean rows as a markdown table of its protocol's columns, and
+    the same rows (those columns only, figures to 4 decimals) for a summary."""
+    rows = result["mean"]
+    cols = [c for c in _sequence_columns(result, rows) if c != "frame"]
+    short = [{c: round(v, 4) if isinstance(v, float) else v for c, v in ((c, r.get(c)) for c in cols)} for r in rows]
+    return markdown_table(rows, cols), short

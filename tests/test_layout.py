@@ -245,6 +245,52 @@ def test_the_backend_identity_check_sees_comparisons():
     assert _backend_identity_tests(ast.parse("if scanner.casts_rays: pass")) == []
 
 
+def _sequence_method_names() -> dict:
+    """name -> the module that owns it (``slr_ray.sequence.methods.NAME``'s ``METHOD``)."""
+    from slr_ray.sequence.methods import REGISTRY
+    return {name: type(m).__module__ for name, m in REGISTRY.items()}
+
+
+def _method_name_tests(tree, names):
+    """Comparisons against a sequence method's name as a string (``m == "fpa"``, ``m in ("rays", ...)``,
+    a ``match`` case): callers read the method's capabilities from the registry instead."""
+    def named(node):
+        items = node.elts if isinstance(node, (ast.Tuple, ast.List, ast.Set)) else [node]
+        return any(isinstance(x, ast.Constant) and x.value in names for x in items)
+    found = [node.lineno for node in ast.walk(tree) if isinstance(node, ast.Compare)
+             and any(named(x) for x in [node.left, *node.comparators])]
+    found += [node.pattern.lineno for node in ast.walk(tree) if isinstance(node, ast.match_case)
+              and any(isinstance(x, ast.MatchValue) and named(x.value) for x in ast.walk(node.pattern))]
+    return sorted(found)
+
+
+def test_no_sequence_method_name_compared_outside_its_module():
+    """In the sequence package and every module that imports it (``nearest`` is also a mesh scan's
+    mode elsewhere: a word, not a method there)."""
+    owners = _sequence_method_names()
+    assert {"nearest", "fpa", "rays", "embree-sources"} <= set(owners)   # the registry is read
+    graph = _import_graph()
+    users = {m for m, deps in graph.items() if m.startswith("slr_ray.sequence")
+             or any(d.startswith("slr_ray.sequence") for d in deps)}
+    assert "slr_ray.cli.sequence_command" in users and "slr_ray.sequence.convert" in users
+    found = []
+    for mod, path in _modules():
+        if mod not in users:
+            continue
+        names = {n for n, owner in owners.items() if owner != mod}
+        found += [f"{mod}:{line}" for line in _method_name_tests(ast.parse(path.read_text()), names)]
+    assert not found, f"compare a sequence method's name outside its module (read its capabilities): {found}"
+
+
+def test_the_method_name_check_sees_comparisons():
+    names = set(_sequence_method_names())
+    assert _method_name_tests(ast.parse("if settings['estimator'] == 'embree-sources': pass"), names) == [1]
+    assert _method_name_tests(ast.parse("x = m in ('zbuffer', 'other')"), names) == [1]
+    assert _method_name_tests(ast.parse("match m:\n    case 'fpa':\n        pass"), names) == [2]
+    assert _method_name_tests(ast.parse("if method.needs_source_sensor: pass"), names) == []
+    assert _method_name_tests(ast.parse("x = m == 'mine'"), names) == []
+
+
 #: The layers of docs/architecture.md, bottom up: a module imports only modules of its own
 #: layer or below (the package's ``__init__`` sits above them all).
 LAYERS = (
@@ -395,3 +441,36 @@ def test_uses_chains_are_shallow():
     units, layers = _unit_graph(_import_graph()), dict(LAYERS)
     chain = _chain_within(units, set().union(*(layers[name] for name in COMPUTATION_LAYERS)))
     assert len(chain) <= MAX_USES_DEPTH, " -> ".join(chain)
+
+
+#: the names of the shipped sequence layouts: outside ``slr_ray.sequence.layouts`` no module compares against them
+LAYOUT_NAMES = {"kitti", "files", "world-files", "e57", "scan-field", "pcd-directory", "ouster-directory"}
+
+
+def _layout_identity_tests(tree):
+    """Comparisons on a sequence's layout: its ``.layout`` (or ``.layout.name``), a ``meta`` dict's
+    ``"layout"``, or a layout's name as a string (callers ask the layout, ``seq.layout.frame`` /
+    ``trajectory``, or add a capability to ``FrameSource``)."""
+    def is_identity(node):
+        for sub in ast.walk(node):
+            if (isinstance(sub, ast.Attribute) and sub.attr == "layout") \
+                    or (isinstance(sub, ast.Constant) and sub.value in LAYOUT_NAMES | {"layout"}):
+                return True
+        return False
+    return [node.lineno for node in ast.walk(tree) if isinstance(node, ast.Compare)
+            and any(is_identity(x) for x in [node.left, *node.comparators])]
+
+
+def test_no_layout_identity_outside_the_layouts():
+    found = [f"{mod}:{line}" for mod, path in _modules() if not mod.startswith("slr_ray.sequence.layouts")
+             for line in _layout_identity_tests(ast.parse(path.read_text()))]
+    assert not found, f"compare a sequence's layout outside slr_ray.sequence.layouts (ask the layout): {found}"
+    from slr_ray.sequence.layouts import REGISTRY
+    assert set(REGISTRY) <= LAYOUT_NAMES, "a new shipped layout: add its name to LAYOUT_NAMES"
+
+
+def test_the_layout_identity_check_sees_comparisons():
+    assert _layout_identity_tests(ast.parse("if seq.layout.name == 'x': pass")) == [1]
+    assert _layout_identity_tests(ast.parse("x = seq.meta.get('layout') == 'e57'")) == [1]
+    assert _layout_identity_tests(ast.parse("if name != 'kitti': pass")) == [1]
+    assert _layout_identity_tests(ast.parse("if seq.poses is None: pass")) == []

@@ -34,7 +34,7 @@ OLD_KEYWORDS = {
     scan_mesh: (MeshOptions, "mode supersample spacing face_labels rays_per_batch progress band_pulses"),
     convert_sequence: (ConvertOptions, "estimator half radius offset poses drop_moving fmt fpa_gap workers block "
                                        "progress inputs"),
-    evaluate_holdout: (HoldoutOptions, "sensor methods half radius drop_moving thresholds seen_threshold gap cache"),
+    evaluate_holdout: (HoldoutOptions, "sensor methods half radius drop_moving thresholds seen_threshold fpa_gap cache"),
 }
 
 
@@ -47,6 +47,13 @@ def test_every_old_keyword_is_still_a_parameter_or_an_option(fn):
     assert "options" in params and any(p.kind is p.VAR_KEYWORD for p in params.values())
     assert [k for k in old.split() if k not in params and k not in fields] == []
     assert set(cls.describe()) == fields  # every field described in the docstring's Attributes
+
+
+def test_holdout_options_take_gap_its_old_name_with_a_deprecation():
+    with pytest.warns(DeprecationWarning, match="fpa_gap"):
+        assert HoldoutOptions.of(gap=0.2).fpa_gap == 0.2
+    with pytest.warns(DeprecationWarning, match="fpa_gap"):
+        assert HoldoutOptions.of({"gap": 0.3}).fpa_gap == 0.3
 
 
 def test_options_of_merges_keywords_and_refuses_unknown_names():

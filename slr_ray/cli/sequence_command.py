@@ -3,46 +3,52 @@
 
 from __future__ import annotations
 
-import csv
-import io
+import argparse
+import sys
+import warnings
 from pathlib import Path
 
-from ..arrays import json_safe
-from ..evaluate import compact_json, markdown_table
+from ..evaluate import sequence_summary, write_sequence_evaluation
 from ..io import atomic_path
 from ..io.outputs import OutputPlan, resolve
-from ..errors import InputValueError, OutputError
-from ..sequence import (CONVERT_ESTIMATORS, FPA_GAP, METHODS, REMOVE_MOVING, SeeThrough, convert_sequence,
-                        evaluate_sequence, read_sequence, read_trajectory, register_chain, write_kitti_poses)
-from ..sequence.holdout import DEFAULT_METHODS, GRID_SOURCES, lidar4d_holdout
+from ..errors import InputValueError, OutputError, SlrWarning
+from ..sequence import (REMOVE_MOVING, SeeThrough, convert_sequence, evaluate_sequence, read_sequence,
+                        read_trajectory, register_chain, write_kitti_poses)
+from ..sequence.holdout import GRID_SOURCES, lidar4d_holdout
+from ..sequence.methods import REGISTRY, method_options, methods_with, option_keys
 from . import arguments as A
 from .commands import emit
+from ..sequence.layouts import LAYOUTS
 
 __all__ = ["add_sequence_parser", "sequence"]
 
 _SEQ_HELP = ("the sequence: a KITTI / SemanticKITTI directory (velodyne/, labels/, poses.txt, calib.txt) or "
              "frame files in order, each in its sensor's frame")
-#: the table's columns in table.md (every column is in table.csv and the JSON)
-COLUMNS = ("frame", "method", "points", "F@5cm", "F@10cm", "depth_medae_m", "depth_rmse_m", "drop_accuracy",
-           "drop_recall", "cd_sum_m2", "R@10cm seen")
-LIDAR4D_COLUMNS = ("frame", "method", "points", "cd_sum_m2", "F@22.3607cm", "lidar4d_depth_rmse_m",
-                   "lidar4d_depth_medae_m", "drop_accuracy")
+#: the window's half width unless told
+HALF = 2
+#: the frames' sensor of ``sequence evaluate`` unless told (KITTI's)
+SOURCE_SENSOR = "velodyne_hdl64e_s2"
 
 
 def _common(p):
     p.add_argument("sequence", nargs="+", help=_SEQ_HELP)
     p.add_argument("--poses", nargs="+", help="a trajectory (KITTI 12 numbers or TUM 8 numbers a line, one a frame) "
-                                              "instead of the sequence's own poses; or one pose file a frame (a 4 x 4 "
-                                              "matrix each); or 'origins': the files are in one world frame, each "
+                                              "instead of the sequence's own poses (for a KITTI directory with "
+                                              "calib.txt, KITTI form is the camera's, as its poses.txt); or one pose "
+                                              "file a frame (a 4 x 4 matrix each); or 'origins': the files are in one world frame, each "
                                               "with its scanner's origin (.npz, .pcd, .e57)")
     p.add_argument("--origins", help="the frames are in one world frame (LAS/LAZ of a campaign): a text file of "
                                      "each one's scanner origin, x y z a line")
     p.add_argument("--scan-field", nargs="?", const="point_source_id", metavar="FIELD",
                    help="one file holding several scans in one world frame (a campaign's LAS/LAZ): each value of "
                         "this per-point field a scan (default point_source_id), with --origins in ascending order")
+    p.add_argument("--layout", choices=list(LAYOUTS),
+                   help="the sequence's layout where its path could be two (default: the one it is in; directories: "
+                        "KITTI / SemanticKITTI, PCD frames and a CSV of poses, Ouster .npz frames with their "
+                        "metadata .json and *poses*.txt)")
     p.add_argument("--register", action="store_true",
                    help="no poses: register each frame to the one before (ICP) and write the poses found")
-    p.add_argument("--half", type=int, default=2, help="window: frames either side of the target (default 2)")
+    p.add_argument("--half", type=int, help=f"window: frames either side of the target (default {HALF})")
     p.add_argument("--radius", type=A.positive_float, help="window: frames whose origin is within this (m)")
     p.add_argument("--keep-moving", action="store_true",
                    help="keep SemanticKITTI's moving classes (252-259) in the union (default: left out); the "
@@ -51,17 +57,40 @@ def _common(p):
                    help="moving objects left out of the union: 'labels' (SemanticKITTI's moving classes, where "
                         "the frames have labels; the default), 'visibility' (points that other frames saw "
                         "through, no labels needed: the frames' own sensor casts their rays), 'both', 'none'")
-    p.add_argument("--visibility-margin", type=A.finite_float, default=SeeThrough.margin,
+    p.add_argument("--visibility-margin", type=A.finite_float,
                    help=f"visibility removal: a frame saw through a point where its pulse and the four beside it "
                         f"return from this far beyond it (m, default {SeeThrough.margin})")
-    p.add_argument("--visibility-votes", type=A.positive_int, default=SeeThrough.votes,
+    p.add_argument("--visibility-votes", type=A.positive_int,
                    help=f"visibility removal: frames (of the {SeeThrough.half} either side) that must have seen "
-                        f"through a point (default {SeeThrough.votes})")
-    p.add_argument("--fpa-gap", type=A.positive_float, default=FPA_GAP,
-                   help=f"first-peak average: largest step between ranges in the first cluster (m, default {FPA_GAP})")
+                        f"through a point (default {SeeThrough.votes}, at most {2 * SeeThrough.half})")
+    add_method_options(p)
     A.add_input_format(p)
     p.add_argument("--quiet", action="store_true", help="no progress bars")
     p.add_argument("--force", action="store_true", help="replace the files of an earlier run")
+
+
+_TYPES = {"float": A.finite_float, "int": int, "str": str}
+
+
+def add_method_options(p) -> None:
+    """Every registered method's options as flags (``--PREFIX-FIELD``), generated from their options
+    classes (:func:`slr_ray.sequence.methods.option_keys`): a setting two methods share is one flag."""
+    for key, (cls, name, methods) in option_keys().items():
+        typ, text = cls.describe().get(name, ("str", ""))
+        default = getattr(cls(), name)
+        p.add_argument("--" + key.replace("_", "-"), dest=f"mopt_{key}", type=_TYPES.get(typ.split()[0], str),
+                       metavar=name.split("_")[-1].upper(),
+                       help=f"{', '.join(methods)}: {text[:1].lower()}{text[1:].rstrip('.')} (default {default})"
+                       .replace("%", "%%"))
+
+
+def method_options_from(args) -> dict:
+    """The method options given on the command line, by flat key."""
+    return {k[5:]: v for k, v in vars(args).items() if k.startswith("mopt_") and v is not None}
+
+
+def _deprecated_sensor(p) -> None:
+    p.add_argument("--sensor", dest="old_sensor", type=A.sensor_name, metavar="NAME", help=argparse.SUPPRESS)
 
 
 def add_sequence_parser(sub) -> None:
@@ -80,10 +109,13 @@ def add_sequence_parser(sub) -> None:
     q.add_argument("--protocol", choices=["slr", "lidar4d"], default="slr",
                    help="lidar4d: LiDAR4D's KITTI-360 split (51 frames, frames 10, 20, 30, 40 held out, every other "
                         "frame the scene); its clamped depth errors are in every table either way")
-    q.add_argument("--sensor", default="velodyne_hdl64e_s2", type=A.sensor_name, metavar="NAME",
-                   help="the frames' sensor (default velodyne_hdl64e_s2, KITTI's); fitted to each held-out frame")
-    q.add_argument("--methods", nargs="+", default=list(DEFAULT_METHODS), choices=list(METHODS),
-                   help=f"methods (default {' '.join(DEFAULT_METHODS)})")
+    q.add_argument("--source-sensor", type=A.sensor_name, metavar="NAME",
+                   help=f"the frames' sensor (default {SOURCE_SENSOR}, KITTI's); fitted to each held-out frame "
+                        "(--sensor, its old name, still works)")
+    _deprecated_sensor(q)
+    defaults = methods_with("default")
+    q.add_argument("--methods", nargs="+", default=defaults, choices=methods_with("holdout"),
+                   help=f"methods (default {' '.join(defaults)})")
     q.add_argument("--grid-from", choices=list(GRID_SOURCES), default="target",
                    help="where each held-out frame's scoring grid (row elevations, column count) is fitted: target "
                         "(default) its own points, others the other frames of its window (strictly leak-free)")
@@ -92,17 +124,19 @@ def add_sequence_parser(sub) -> None:
                                     "its pose (and --offset); resumable, parallel")
     _common(q)
     q.add_argument("-o", "--output", required=True, help="output directory (a rerun with the same settings resumes)")
-    q.add_argument("--sensor", required=True, type=A.sensor_name, metavar="NAME",
-                   help="the target sensor: " + A.SENSOR_HELP)
-    q.add_argument("--estimator", default="nearest", choices=list(CONVERT_ESTIMATORS),
+    q.add_argument("--target-sensor", type=A.sensor_name, metavar="NAME",
+                   help="the target sensor (required; --sensor, its old name, still works)")
+    _deprecated_sensor(q)
+    q.add_argument("--estimator", default="nearest", choices=methods_with("convert"),
                    help="per-pulse rule (default nearest; rays: the target table's own rays onto the union's "
-                        "planes; embree-sources needs --source-sensor)")
+                        f"planes; {', '.join(methods_with('needs_source_sensor'))} need(s) --source-sensor)")
     q.add_argument("--source-sensor", type=A.sensor_name, metavar="NAME",
                    help="the input frames' own sensor (fitted to each frame whose beams are known: a ring field "
                         "or a KITTI .bin's order), for --remove-moving visibility and --estimator embree-sources")
     q.add_argument("--offset", nargs=3, type=A.finite_float, default=[0.0, 0.0, 0.0], metavar=("DX", "DY", "DZ"),
                    help="the target sensor's offset in each frame's own axes (m)")
-    q.add_argument("--target-poses", help="a trajectory of target poses (one a frame) instead of the frames' poses")
+    q.add_argument("--target-poses", help="a trajectory of target poses (one a frame) instead of the frames' poses "
+                                           "(for a KITTI directory, KITTI form is the camera's, as its poses.txt)")
     q.add_argument("--format", default="bin", help="frame format (default bin: KITTI; others carry a ring field)")
     q.add_argument("--workers", type=A.positive_int, default=1, help="worker processes (default 1)")
     q.add_argument("--scheduler", metavar="ADDRESS",
@@ -137,20 +171,48 @@ def _moving(args, source_sensor) -> tuple[bool, SeeThrough | None]:
     if args.keep_moving and how in ("labels", "both"):
         raise InputValueError(f"--keep-moving with --remove-moving {how}: give one")
     how = how or ("none" if args.keep_moving else "labels")
+    visibility = how in ("visibility", "both")
+    given = [f for f, v in (("--visibility-margin", args.visibility_margin),
+                            ("--visibility-votes", args.visibility_votes)) if v is not None]
+    if given and not visibility:
+        raise InputValueError(f"{' and '.join(given)} without visibility removal: add --remove-moving visibility "
+                              "(or both)")
     st = None
-    if how in ("visibility", "both"):
+    if visibility:
         if source_sensor is None:
             raise InputValueError(f"--remove-moving {how} casts the frames' own rays: name their sensor "
                                   "(--source-sensor)")
-        if not args.visibility_margin >= 0:
-            raise InputValueError(f"--visibility-margin must be metres >= 0, got {args.visibility_margin}")
-        st = SeeThrough(source_sensor, args.visibility_margin, args.visibility_votes)
+        margin = SeeThrough.margin if args.visibility_margin is None else args.visibility_margin
+        votes = SeeThrough.votes if args.visibility_votes is None else args.visibility_votes
+        if not margin >= 0:
+            raise InputValueError(f"--visibility-margin must be metres >= 0, got {margin}")
+        if votes > 2 * SeeThrough.half:
+            raise InputValueError(f"--visibility-votes {votes}: at most {2 * SeeThrough.half} frames vote (the "
+                                  f"{SeeThrough.half} either side of a point's frame), so no point would be removed")
+        st = SeeThrough(source_sensor, margin, votes)
     return how in ("labels", "both"), st
+
+
+def _sensors(args) -> None:
+    """``--source-sensor`` / ``--target-sensor`` resolved; ``--sensor``, their old name, said so on one line."""
+    old = args.old_sensor
+    new = "--source-sensor" if args.sequence_cmd == "evaluate" else "--target-sensor"
+    dest = new[2:].replace("-", "_")
+    if old is not None:
+        if getattr(args, dest) is not None:
+            raise InputValueError(f"--sensor and {new}: give {new} (--sensor is its old name)")
+        warnings.warn(f"sequence {args.sequence_cmd} --sensor is {new} now (the old name still works)", SlrWarning,
+                      stacklevel=2)
+        setattr(args, dest, old)
+    if args.sequence_cmd == "evaluate":
+        args.source_sensor = args.source_sensor or SOURCE_SENSOR
+    elif args.target_sensor is None:
+        raise InputValueError("sequence convert: name the target sensor (--target-sensor NAME)")
 
 
 def _load(args):
     seq = read_sequence(args.sequence if len(args.sequence) > 1 else args.sequence[0], args.poses,
-                        args.input_format, args.origins, args.scan_field)
+                        args.input_format, args.origins, args.scan_field, args.layout)
     if args.register and (args.poses or args.origins):
         raise InputValueError("--register with --poses or --origins: give one")
     if seq.poses is None and not args.register:
@@ -166,25 +228,26 @@ def _poses_of(args, seq):
     return seq, regs
 
 
-def _csv(rows) -> str:
-    buf = io.StringIO()
-    w = csv.DictWriter(buf, fieldnames=list(dict.fromkeys(k for r in rows for k in r)), lineterminator="\n")
-    w.writeheader()
-    w.writerows(rows)
-    return buf.getvalue()
-
-
-def _write(path, text) -> None:
-    with atomic_path(path) as tmp:
-        tmp.write_text(text)
-
-
 def sequence(args):
     # refused before anything is read or written
-    args.moving = _moving(args, args.sensor if args.sequence_cmd == "evaluate" else args.source_sensor)
-    if args.sequence_cmd == "convert" and args.estimator == "embree-sources" and args.source_sensor is None:
-        raise InputValueError("--estimator embree-sources sizes discs from each frame's own pulse grid: name "
-                              "the frames' sensor (--source-sensor)")
+    _sensors(args)
+    args.moving = _moving(args, args.source_sensor)
+    if args.sequence_cmd == "convert":
+        m = REGISTRY[args.estimator]
+        if m.needs_source_sensor and args.source_sensor is None:
+            raise InputValueError(f"--estimator {args.estimator} needs the frames' sensor (--source-sensor): "
+                                  f"{m.source_why}")
+    else:
+        twice = sorted({m for m in args.methods if args.methods.count(m) > 1})
+        if twice:
+            raise InputValueError(f"--methods: {', '.join(twice)} given twice (each method is one row)")
+        if args.protocol == "lidar4d" and (args.half is not None or args.radius is not None):
+            raise InputValueError("--half / --radius with --protocol lidar4d: its scene is every other frame of the "
+                                  "51 (no window)")
+    args.method_options = method_options_from(args)
+    method_options(args.method_options)  # every method's options checked, before anything is read
+    if args.half is None and not (args.sequence_cmd == "evaluate" and args.protocol == "lidar4d"):
+        args.half = HALF
     seq = _load(args)
     plan = OutputPlan(force=args.force)
     _plan_inputs(plan, args, seq)
@@ -196,7 +259,6 @@ def sequence(args):
             if holdout or args.every:
                 raise InputValueError("--protocol lidar4d holds out its own frames: no --holdout or --every")
             holdout = lidar4d_holdout(len(seq))
-            args.half, args.radius = None, None  # the scene is every other frame
         if args.every:
             holdout += list(range(1, len(seq), args.every))
         if not holdout:
@@ -219,33 +281,31 @@ def sequence(args):
 def _evaluate(args, seq, holdout, out):
     seq, regs = _poses_of(args, seq)
     drop, st = args.moving
-    res = evaluate_sequence(seq, holdout, args.sensor, args.methods, args.half, args.radius,
-                            drop_moving=drop, progress=not args.quiet, gap=args.fpa_gap, see_through=st,
-                            grid_from=args.grid_from)
-    rows = [r for f in res["frames"] for r in f["table"]] + res["mean"]
-    files = {"json": out / "evaluation.json", "markdown": out / "table.md", "csv": out / "table.csv"}
-    doc = res | {"protocol": args.protocol, "grid_from": args.grid_from, "registration": regs, "pose_source": seq.pose_source,
-                 "inputs": [str(p) for p in seq.paths], "table": rows}
-    _write(files["json"], compact_json(json_safe(doc)) + "\n")
-    cols = LIDAR4D_COLUMNS if args.protocol == "lidar4d" else COLUMNS
-    _write(files["markdown"], markdown_table(rows, [c for c in cols if c in rows[0]]) + "\n")
-    _write(files["csv"], _csv(rows))
+    res = evaluate_sequence(seq, holdout, args.source_sensor, args.methods, args.half, args.radius,
+                            drop_moving=drop, progress=not args.quiet, see_through=st, grid_from=args.grid_from,
+                            method_options=args.method_options)
+    res |= {"protocol": args.protocol, "grid_from": args.grid_from, "registration": regs,
+            "pose_source": seq.pose_source, "inputs": [str(p) for p in seq.paths]}
+    files = write_sequence_evaluation(res, out, force=True)  # out: planned and locked above
     if args.register:
-        files["poses"] = out / "poses.txt"
+        files["poses"] = str(out / "poses.txt")
         with atomic_path(files["poses"]) as tmp:
             write_kitti_poses(tmp, seq.poses)
-    emit({"output_dir": str(out), "files": {k: str(v) for k, v in files.items()}, "frames": len(seq),
-          "holdout": [seq.names[h] for h in holdout], "pose_source": seq.pose_source,
-          "seconds": res["seconds"], "mean": res["mean"]})
+    table, mean = sequence_summary(res)
+    if not args.quiet:
+        sys.stderr.write(f"mean over {len(holdout)} held-out frame(s):\n{table}\n")
+    emit({"output_dir": str(out), "files": files, "frames": len(seq), "holdout": [seq.names[h] for h in holdout],
+          "pose_source": seq.pose_source, "seconds": res["seconds"], "mean": mean})
 
 
 def _convert(args, seq, out):
     seq, regs = _poses_of(args, seq)
-    target = read_trajectory(args.target_poses, len(seq)) if args.target_poses else None
+    target = seq.trajectory(args.target_poses)[0] if args.target_poses else None  # a KITTI directory's Tr
     drop, st = args.moving
-    res = convert_sequence(seq, out, args.sensor, estimator=args.estimator, half=args.half, radius=args.radius,
-                           offset=tuple(args.offset), poses=target, drop_moving=drop, fmt=args.format,
-                           fpa_gap=args.fpa_gap, workers=args.workers, progress=not args.quiet, see_through=st,
+    res = convert_sequence(seq, out, args.target_sensor, estimator=args.estimator, half=args.half,
+                           radius=args.radius, offset=tuple(args.offset), poses=target, drop_moving=drop,
+                           fmt=args.format, method_options=args.method_options, workers=args.workers,
+                           progress=not args.quiet, see_through=st,
                            source_sensor=args.source_sensor, scheduler=args.scheduler,
                            inputs={"sequence": [str(p) for p in seq.paths], "poses": args.poses,
                                    "register": bool(args.register)})

@@ -31,7 +31,8 @@ def _pye57():
 def read_scans(path) -> list:
     """Every scan of an E57 file as ``(points, attributes, origin, meta)`` (global frame; origin =
     the scan's pose translation; a pose's rotation other than the identity in
-    ``meta['e57_rotation']``, 3 x 3). A scan without a pose gets origin None: the
+    ``meta['e57_rotation']``, 3 x 3; its quaternion as the file holds it, w x y z, in
+    ``meta['e57_quaternion']``). A scan without a pose gets origin None: the
     E57 standard reads an absent pose as identity (scanner at the file's
     origin), but a missing pose is as often a lost one, so the caller decides
     (``--origin 0 0 0``). Points flagged
@@ -45,9 +46,14 @@ def read_scans(path) -> list:
             raw = e57.read_scan_raw(i)
             header = e57.get_header(i)
             has_pose = bool(header.has_pose())
+            quat = None
             if has_pose:
                 rot = np.asarray(header.rotation_matrix, np.float64)
                 origin = np.asarray(header.translation, np.float64)
+                try:  # as the file holds it (w, x, y, z): the matrix above is of the quaternion normalised
+                    quat = [float(e.value()) for e in header.node["pose"]["rotation"]]
+                except Exception:  # no rotation: the identity
+                    quat = None
             else:
                 rot, origin = np.eye(3), None
             local = np.column_stack([raw["cartesianX"], raw["cartesianY"], raw["cartesianZ"]]).astype(np.float64)
@@ -61,6 +67,8 @@ def read_scans(path) -> list:
                 warnings.warn(f"{path}: scan {i} has {int((~valid).sum())} invalid points (no coordinates, "
                               "cartesianInvalidState != 0): left out", stacklevel=3)
             meta = {"e57_scan": i, "e57_invalid": int((~valid).sum()), "e57_pose": has_pose}
+            if quat is not None:
+                meta["e57_quaternion"] = quat
             if has_pose and not np.array_equal(rot, np.eye(3)):  # the scan's own axes (a sequence's frame)
                 meta["e57_rotation"] = rot.tolist()
             out.append((pts, attrs, origin, meta))

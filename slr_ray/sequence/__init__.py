@@ -1,8 +1,15 @@
 """Sequences in, datasets out: frames of a drive or a campaign, their poses, their union.
 
 ``frames``
-    reading a sequence (KITTI / SemanticKITTI layout, a list of files with a
-    trajectory) and its poses; bad input refused naming the file and line.
+    reading a sequence (:func:`read_sequence`: the layout a path is in) and
+    registering its frames; bad input refused naming the file and line.
+``layouts``
+    the layouts sequences come in, one module a layout (KITTI / SemanticKITTI,
+    file lists, E57 scans, a LAS split by a scan field, PCD and Ouster
+    directories), each a ``FrameSource`` with its ``detect``; the ``Sequence``.
+``poses``
+    trajectory and pose files: KITTI, TUM, pose files, ``calib.txt``'s ``Tr``,
+    origins, CSV blocks.
 ``union``
     the accumulated primary: a window of frames in the world frame, each point
     with its source frame and origin, moving classes left out.
@@ -12,6 +19,9 @@
 ``rays``
     the ``rays`` estimator: the sensor's own rays (each laser's height and elevation, the sweep's
     motion) fitted from frames' points, each beam cast along its ray onto the union's planes.
+``methods``
+    the registry of sequence methods (one module a method: its options, its capabilities), which
+    ``holdout`` and ``convert`` loop over.
 ``holdout``
     leave-one-out evaluation: each held-out frame re-simulated from the others.
 ``sources``

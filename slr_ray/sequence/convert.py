@@ -28,35 +28,55 @@ processes or on a ``dask.distributed`` scheduler's workers.
 
 from __future__ import annotations
 
+import dataclasses
 import importlib.util
 import json
 import multiprocessing
 from dataclasses import dataclass
 import time
 import uuid
+import warnings
+from collections.abc import Sequence as SequenceABC
 from functools import partial
 from pathlib import Path
 
 import numpy as np
 from tqdm import tqdm
 
-from ..errors import InputValueError, MissingDependencyError, OutputError
+from ..errors import InputValueError, MissingDependencyError, OutputError, SlrWarning
 from ..io import PointCloud, atomic_path, check_format, write_cloud
 from ..io.outputs import LOCK_NAME, clean_stale_parts
 from ..options import Options
 from ..sensors import conversion_reach, sensor as shipped_sensor
-from .estimators import ESTIMATORS, FPA_GAP, estimate
+from .estimators import FPA_GAP
 from .frames import Sequence, write_kitti_poses
-from .rays import cast_rays
-from .sources import SeeThrough, base_pattern
-from .union import FrameCache, accumulate, discs_of_frames, nearest_of_frames, to_frame, window
+from .methods import REGISTRY, TargetFrame, method, method_options, methods_with
+from .sources import SeeThrough, base_pattern, source_sensor_problem
+from .union import FrameCache, window
 
 __all__ = ["ConvertOptions", "convert_sequence", "target_poses", "MANIFEST", "JOURNAL", "CONVERT_ESTIMATORS"]
 
-#: convert's per-pulse rules: those of a union (:data:`~slr_ray.sequence.estimators.ESTIMATORS`),
-#: ``rays`` (the target table's own rays, a simulated sensor's pulse centres, no motion, onto the
-#: union's planes) and ``embree-sources`` (discs from each source frame's own pulse grid)
-CONVERT_ESTIMATORS = (*ESTIMATORS, "rays", "embree-sources")
+
+
+class _ConvertEstimators(SequenceABC):
+    """The names of the registered methods with the ``convert`` capability, read when asked."""
+
+    def __getitem__(self, i):
+        return tuple(methods_with("convert"))[i]
+
+    def __len__(self):
+        return len(methods_with("convert"))
+
+    def __repr__(self):
+        return repr(tuple(methods_with("convert")))
+
+
+#: convert's per-pulse rules: the registered methods that work in a conversion
+#: (:data:`slr_ray.sequence.methods.REGISTRY`, the ``convert`` capability): those of a union
+#: (:data:`~slr_ray.sequence.estimators.ESTIMATORS`), ``rays`` (the target table's own rays, a
+#: simulated sensor's pulse centres, no motion, onto the union's planes) and ``embree-sources``
+#: (discs from each source frame's own pulse grid)
+CONVERT_ESTIMATORS = _ConvertEstimators()
 
 MANIFEST = "manifest.json"
 JOURNAL = "journal.jsonl"
@@ -75,24 +95,20 @@ def target_poses(poses, offset=(0.0, 0.0, 0.0)) -> np.ndarray:
 
 def _frame_cloud(seq, i, pose, pattern, settings, cache) -> PointCloud:
     frames = window(seq, i, settings["half"], settings["radius"], include_target=True)
-    st = _see_through(settings)
-    if settings["estimator"] == "nearest":  # a frame at a time: the union is never held whole
-        ret, carried = nearest_of_frames(seq, frames, pose, pattern, settings["drop_moving"], cache, st)
-    elif settings["estimator"] == "embree-sources":  # a scene a frame, reused by the targets that hold it
-        ret, carried = discs_of_frames(cache, frames, pose, pattern, base_pattern(settings["source_sensor"]),
-                                       settings["drop_moving"], st)
-    else:
-        union = accumulate(seq, frames, drop_moving=settings["drop_moving"], cache=cache, see_through=st)
-        u = to_frame(union.points, pose)
-        if settings["estimator"] == "rays":
-            ret = cast_rays(u, pattern, gap=settings["fpa_gap"])
-        else:
-            ret = estimate(u, pattern, settings["estimator"], gap=settings["fpa_gap"])
-        carried = {n: v[ret.index] for n, v in union.attributes.items()}
+    m = REGISTRY[settings["estimator"]]
+    source = settings.get("source_sensor")
+    frame = TargetFrame(seq, frames, pose, pattern, cache, settings["drop_moving"], _see_through(settings),
+                        None if source is None else base_pattern(source))
+    ret, carried = m.convert_frame(frame, m.options.from_flat(_flat_options(settings)))
     attrs = {n: carried[n] for n in ("intensity", "semantic", "instance") if n in carried}
     if settings["format"] != "bin":
         attrs["ring"] = pattern.beam_of_row[ret.keys // pattern.columns].astype(np.int32)
     return PointCloud(ret.points, attrs, np.zeros(3))
+
+
+def _flat_options(settings) -> dict:
+    """The methods' options by flat key: ``fpa_gap`` and the other ``method_options`` of the settings."""
+    return method_options({"fpa_gap": settings["fpa_gap"]} | settings.get("method_options", {}))
 
 
 def _see_through(settings) -> SeeThrough | None:
@@ -178,7 +194,7 @@ class ConvertOptions(Options):
     fmt : str
         The frames' file format ('bin': KITTI's).
     fpa_gap : float
-        The first-peak average's gap (m).
+        The first-peak average's gap (m; ``fpa`` and ``rays``).
     workers : int
         Processes converting frames.
     block : int
@@ -192,6 +208,9 @@ class ConvertOptions(Options):
         The address of a ``dask.distributed`` scheduler whose workers convert the blocks of
         frames (they write the frames into ``out``: a file system they share), instead of
         ``workers`` local processes.
+    method_options : dict or None
+        The registered methods' other options by flat key (``PREFIX_FIELD``:
+        :func:`slr_ray.sequence.methods.method_options`); over ``fpa_gap`` where both name it.
     """
 
     estimator: str = "nearest"
@@ -206,6 +225,7 @@ class ConvertOptions(Options):
     see_through: SeeThrough | None = None
     source_sensor: str | None = None
     scheduler: str | None = None
+    method_options: dict | None = None
 
 
 def convert_sequence(seq: Sequence, out, sensor: str, options: ConvertOptions | None = None, *, poses=None,
@@ -228,12 +248,17 @@ def convert_sequence(seq: Sequence, out, sensor: str, options: ConvertOptions | 
     if base.shape != (len(seq), 4, 4):
         raise InputValueError(f"{len(base)} target poses for {len(seq)} frames")
     P = target_poses(base, offset)
-    if estimator not in CONVERT_ESTIMATORS:
-        raise InputValueError(f"unknown estimator {estimator!r}; choose from {list(CONVERT_ESTIMATORS)}")
+    m = method(estimator, "convert", what="estimator")
+    flat = method_options({"fpa_gap": fpa_gap} | dict(o.method_options or {}))
+    m.options.from_flat(flat)  # its options checked before anything is written
     settings = {"sensor": sensor, "estimator": estimator, "half": half, "radius": radius,
                 "offset": [float(x) for x in offset], "drop_moving": bool(drop_moving), "format": fmt.lstrip("."),
-                "fpa_gap": float(fpa_gap), "frames": [str(p) for p in seq.paths],
+                "fpa_gap": float(flat["fpa_gap"]), "frames": [str(p) for p in seq.paths],
                 "poses": np.round(P, 12).reshape(len(P), -1).tolist(), "cache": int(half or 8)}
+    fields = {f.name for f in dataclasses.fields(ConvertOptions)}
+    extra = {k: v for k, v in (o.method_options or {}).items() if k not in fields}
+    if extra:  # only where given: a manifest written before method options resumes as it was
+        settings["method_options"] = extra
     if see_through is not None:
         if source_sensor is not None and source_sensor != see_through.sensor:
             raise InputValueError(f"two source sensors: {source_sensor!r} and see_through's {see_through.sensor!r}")
@@ -241,11 +266,15 @@ def convert_sequence(seq: Sequence, out, sensor: str, options: ConvertOptions | 
             raise InputValueError("convert names the source sensor (a shipped sensor's name), not a table")
         source_sensor = see_through.sensor
         settings["see_through"] = see_through.to_dict()
-    if estimator == "embree-sources" and source_sensor is None:
-        raise InputValueError("the embree-sources estimator needs the frames' own sensor (source_sensor, "
-                              "--source-sensor): their discs come from their own pulse grids")
+    if m.needs_source_sensor and source_sensor is None:
+        raise InputValueError(f"the {estimator} estimator needs the frames' own sensor (source_sensor, "
+                              f"--source-sensor): {m.source_why}")
     if source_sensor is not None:
-        shipped_sensor(source_sensor)
+        probe = seq.read(0)
+        why = source_sensor_problem(probe.points, probe.attributes, shipped_sensor(source_sensor))
+        if why is not None:  # its rays (see-through) and pulse grids (embree-sources) are then the table's
+            warnings.warn(f"frame {seq.names[0]}: {why}: are the frames of this sensor (source_sensor, "
+                          "--source-sensor)?", SlrWarning, stacklevel=2)
         settings["source_sensor"] = source_sensor
     shipped_sensor(sensor)  # an unknown name or format is refused before anything is written
     check_format(out / "velodyne" / f"000000.{settings['format']}", settings["format"])

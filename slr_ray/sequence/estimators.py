@@ -25,13 +25,15 @@ pulse, or the disc's point).
 from __future__ import annotations
 
 from dataclasses import dataclass
+from functools import partial
 
 import numpy as np
 
 from ..backends import prepare
 from ..errors import InputValueError
 
-__all__ = ["PulseReturns", "estimate", "merge_nearest", "ESTIMATORS", "FPA_GAP"]
+__all__ = ["PulseReturns", "estimate", "merge_nearest", "ESTIMATORS", "FPA_GAP", "nearest_returns", "fpa_returns",
+           "embree_returns"]
 
 ESTIMATORS = ("nearest", "fpa", "embree-knn")
 #: the fpa cluster's largest step between consecutive ranges (m)
@@ -63,12 +65,18 @@ def _sorted(keys, ranges, index, points):
     return PulseReturns(keys[order].astype(np.int64), ranges[order], points[order], index[order].astype(np.int64))
 
 
-def _nearest(points, pattern):
+def nearest_returns(points, pattern) -> PulseReturns:
+    """The nearest point per pulse (SLR's rule) of ``points`` (float64, scanner frame)."""
+    points = np.ascontiguousarray(points, np.float64)
     keys, ranges, idx = pattern.reduce(points, np.zeros(3))
     return _sorted(np.asarray(keys), np.asarray(ranges, np.float64), np.asarray(idx), points[idx])
 
 
-def _fpa(points, pattern, gap):
+def fpa_returns(points, pattern, gap: float = FPA_GAP) -> PulseReturns:
+    """The first-peak average per pulse (module docstring) of ``points`` (float64, scanner frame)."""
+    if not gap > 0:
+        raise InputValueError(f"the fpa gap must be > 0 m, got {gap}")
+    gap, points = float(gap), np.ascontiguousarray(points, np.float64)
     keys, ranges = pattern.pulse_ids(points, np.zeros(3))
     ok = np.flatnonzero(keys >= 0)
     k, r = keys[ok], ranges[ok]
@@ -91,7 +99,9 @@ def _fpa(points, pattern, gap):
     return _sorted(k[first], rng, idx[first], centroid)
 
 
-def _embree(points, pattern):
+def embree_returns(points, pattern) -> PulseReturns:
+    """The embree backend's scan (its default kNN discs) of ``points`` (float64, scanner frame)."""
+    points = np.ascontiguousarray(points, np.float64)
     sc = prepare(points, "embree").scan(np.zeros(3), pattern)
     idx = np.asarray(sc.indices)
     return _sorted(np.asarray(sc.pulse_ids), np.asarray(sc.ranges, np.float64), idx, points[idx])
@@ -126,14 +136,10 @@ def merge_nearest(parts) -> tuple[PulseReturns, np.ndarray]:
 
 def estimate(points, pattern, estimator: str = "nearest", gap: float = FPA_GAP) -> PulseReturns:
     """One return per pulse of ``pattern`` from ``points`` (float64, in the scanner's frame:
-    the scanner at the origin) by ``estimator`` (:data:`ESTIMATORS`)."""
+    the scanner at the origin) by ``estimator`` (:data:`ESTIMATORS`; ``gap``: fpa's)."""
     pts = np.ascontiguousarray(points, np.float64)
-    if estimator == "nearest":
-        return _nearest(pts, pattern)
-    if estimator == "fpa":
-        if not gap > 0:
-            raise InputValueError(f"the fpa gap must be > 0 m, got {gap}")
-        return _fpa(pts, pattern, float(gap))
-    if estimator == "embree-knn":
-        return _embree(pts, pattern)
-    raise InputValueError(f"unknown estimator {estimator!r}; choose from {list(ESTIMATORS)}")
+    rules = {ESTIMATORS[0]: nearest_returns, ESTIMATORS[1]: partial(fpa_returns, gap=gap),
+             ESTIMATORS[2]: embree_returns}
+    if estimator not in rules:
+        raise InputValueError(f"unknown estimator {estimator!r}; choose from {list(ESTIMATORS)}")
+    return rules[estimator](pts, pattern)

@@ -23,21 +23,24 @@ from __future__ import annotations
 import math
 import time
 import warnings
+from collections.abc import Mapping
 from dataclasses import dataclass
 
 import numpy as np
 from tqdm import tqdm
 
 from ..errors import InputValueError, SlrWarning
-from ..evaluate import THRESHOLDS, evaluation_table, fitted_pattern, scan_order_beams, zbuffer
-from ..metrics import PAPER_THRESHOLD, Pair, score_pair, seen_from
+from ..evaluate import THRESHOLDS, evaluation_table, fitted_pattern, frame_beams, score_simulation, scoring_target
+from ..metrics import PAPER_THRESHOLD
 from ..options import Options
 from ..sensors import sensor as shipped_sensor
-from .estimators import FPA_GAP, estimate
+from .estimators import FPA_GAP
 from .frames import Sequence
-from .rays import RayModel, cast_rays, fit_range_bias, fit_ray_model, frame_motion, pattern_ray_model
-from .sources import SeeThrough
-from .union import FrameCache, Union, accumulate, discs_of_frames, to_frame, window
+from .methods import (LABELS, REGISTRY, HeldOut, adjacent_frame, check_methods, holdout_ray_model, method_options,
+                      methods_with)
+from .methods import method as registered_method
+from .sources import SeeThrough, known_beams
+from .union import FrameCache, accumulate, to_frame, window
 
 __all__ = ["METHODS", "LABELS", "HoldoutOptions", "evaluate_holdout", "evaluate_sequence", "mean_rows", "DEFAULT_METHODS",
            "clamped_depth_errors", "lidar4d_holdout", "LIDAR4D_MAX_DEPTH", "holdout_ray_model", "simulate_holdout",
@@ -68,61 +71,36 @@ def lidar4d_holdout(n_frames: int) -> list[int]:
                               f"{n_frames}: pick 51 frames, or hold out frames by --holdout / --every")
     return [10, 20, 30, 40]
 
-METHODS = ("zbuffer", "adjacent", "nearest", "fpa", "rays", "embree-knn", "embree-sources")
-DEFAULT_METHODS = ("zbuffer", "adjacent", "nearest", "fpa", "rays")
-LABELS = {"zbuffer": "no SLR (z-buffer of the union)", "adjacent": "binning, adjacent frame alone",
-          "nearest": "nearest (binning of the union)", "fpa": "first-peak average (union)",
-          "rays": "beam rays onto the union's planes", "embree-knn": "embree kNN discs (union)",
-          "embree-sources": "embree discs from each source frame's pulse grid"}
+#: the methods (:data:`slr_ray.sequence.methods.REGISTRY`: name -> method, the tables' order); those that
+#: work here have the ``holdout`` capability
+METHODS = REGISTRY
+#: ``sequence evaluate``'s methods unless told (those with the ``default`` capability)
+DEFAULT_METHODS = tuple(methods_with("default"))
 
 
 def _beams(frame, base):
-    ring = frame.attributes.get("ring")
-    if ring is not None:
-        return np.asarray(ring, np.int64)
-    return scan_order_beams(frame.points, base.n_beams)
+    return known_beams(frame.points, frame.attributes, base)
 
 
 def _held_beams(seq: Sequence, target: int, frame, base):
-    """The held-out frame's beams (:func:`_beams`), or ``None`` with a warning: its grid is then the
-    shipped table, not fitted to it (a frame out of scan order, or of another sensor)."""
-    beams = _beams(frame, base)
+    """The held-out frame's beams as ``slr-ray evaluate`` takes a frame's
+    (:func:`slr_ray.evaluate.frame_beams`: a ``ring`` field checked, else the scan order), or ``None``
+    with a warning: its grid is then the shipped table, not fitted to it (a frame out of scan order,
+    or of another sensor). Beams that fill under half the table's rows: a warning that the sensor
+    may not be the frames' (``--source-sensor``)."""
+    ring = frame.attributes.get("ring")
+    beams, how = frame_beams(frame.points, "auto" if ring is None else ring, base,
+                             f"frame {seq.names[target]}'s ring field")
     if beams is None:
         warnings.warn(f"frame {seq.names[target]}: beams not known (no ring field, not in {base.name}'s scan order "
-                      f"of {base.n_beams} rings: another sensor, or shuffled points?): scored on the shipped "
-                      "table's grid, not one fitted to the frame", SlrWarning, stacklevel=3)
+                      f"of {base.n_beams} rings: another sensor (--source-sensor), or shuffled points?): scored on "
+                      "the shipped table's grid, not one fitted to the frame", SlrWarning, stacklevel=3)
+        return None
+    used = len(np.unique(beams[beams >= 0]))
+    if 2 * used < base.n_beams:
+        warnings.warn(f"frame {seq.names[target]}: its points lie on {used} of {base.name}'s {base.n_beams} beams: "
+                      "are the frames of this sensor (--source-sensor)?", SlrWarning, stacklevel=3)
     return beams
-
-
-def holdout_ray_model(seq: Sequence, others, base, pattern, cache: FrameCache) -> RayModel:
-    """The sensor's rays fitted from the frames ``others`` (never the held-out frame): their own points,
-    their beams (a ``ring`` field or the scan order) and their motion from the poses
-    (:func:`~slr_ray.sequence.rays.fit_ray_model`), and each laser's range bias against the others'
-    frames (:func:`~slr_ray.sequence.rays.fit_range_bias`). Where a frame's beams are not known, the
-    pattern's own rays."""
-    frames, worlds, unknown = [], [], []
-    for i in others:
-        f, w = cache.get(i)
-        beams = _beams(f, base)
-        if beams is None or len(f.points) == 0:
-            unknown.append(seq.names[i])
-            continue
-        base.rows_of_beams(beams, len(f.points))  # beam ids outside the sensor's table: refused, named
-        known = beams >= 0  # -1: a point whose beam is not known
-        frames.append((f.points[known], beams[known], frame_motion(seq.poses, i)))
-        worlds.append((w[known], beams[known], seq.poses[i], frames[-1][2]))
-    if unknown:
-        warnings.warn(f"frame(s) {', '.join(unknown)}: beams not known (no ring field, not in {base.name}'s scan "
-                      f"order of {base.n_beams} rings): left out of the rays' fit"
-                      + ("" if frames else "; rays casts the table's ideal rays"), SlrWarning, stacklevel=2)
-    if not frames:
-        return pattern_ray_model(pattern)
-    return fit_range_bias(fit_ray_model(frames, base.n_beams), worlds)
-
-
-def _adjacent(frames, target):
-    """The nearest frame to ``target`` in index, the one before on a tie."""
-    return min(frames, key=lambda i: (abs(i - target), i > target))
 
 
 @dataclass(frozen=True)
@@ -145,8 +123,8 @@ class HoldoutOptions(Options):
         F-score thresholds (m).
     seen_threshold : float
         A point of the frame is seen when a point of the union lies strictly closer (m).
-    gap : float
-        The first-peak average's gap (m).
+    fpa_gap : float
+        The first-peak average's gap (m; ``fpa`` and ``rays``). ``gap=``, its old name, still works.
     see_through : SeeThrough or None
         Leave out of the union what other frames saw through (the held-out frame does not vote:
         it is what is scored).
@@ -154,6 +132,9 @@ class HoldoutOptions(Options):
         Where the held-out frame's scoring grid (each row's elevation, the column count) is fitted:
         ``"target"`` its own points (the default, as ``slr-ray evaluate`` fits a pair's), or
         ``"others"`` the other frames of its window (strictly leak-free: :func:`others_pattern`).
+    method_options : dict or None
+        The registered methods' other options by flat key (``PREFIX_FIELD``:
+        :func:`slr_ray.sequence.methods.method_options`); over ``fpa_gap`` where both name it.
     """
 
     sensor: object = "velodyne_hdl64e_s2"
@@ -163,10 +144,34 @@ class HoldoutOptions(Options):
     drop_moving: bool = True
     thresholds: tuple = THRESHOLDS
     seen_threshold: float = PAPER_THRESHOLD
-    gap: float = FPA_GAP
+    fpa_gap: float = FPA_GAP
     see_through: SeeThrough | None = None
     grid_from: str = "target"
+    method_options: dict | None = None
 
+    @classmethod
+    def of(cls, options=None, /, **keywords):
+        """:meth:`Options.of`, ``gap`` (the old name of ``fpa_gap``) taken with a deprecation warning."""
+        if isinstance(options, Mapping) and "gap" in options:
+            options = {("fpa_gap" if k == "gap" else k): v for k, v in options.items()}
+            warnings.warn("HoldoutOptions: gap is fpa_gap now", DeprecationWarning, stacklevel=2)
+        if "gap" in keywords:
+            warnings.warn("HoldoutOptions: gap= is fpa_gap= now", DeprecationWarning, stacklevel=2)
+            keywords["fpa_gap"] = keywords.pop("gap")
+        return super().of(options, **keywords)
+
+    def flat_options(self) -> dict:
+        """Every registered method's options by flat key (``fpa_gap`` and ``method_options`` over the defaults)."""
+        return method_options({"fpa_gap": self.fpa_gap} | dict(self.method_options or {}))
+
+    def methods_settings(self, names) -> dict:
+        """The options (:class:`~slr_ray.sequence.methods.MethodOptions`) of each method of ``names``, by name."""
+        flat = self.flat_options()
+        return {name: REGISTRY[name].options.from_flat(flat) for name in names}
+
+
+#: the splits of a held-out frame's scores (:data:`slr_ray.evaluate.SPLITS`: seen from the union or not)
+HOLDOUT_SPLITS = ("seen",)
 
 #: where a held-out frame's scoring grid may be fitted (HoldoutOptions.grid_from)
 GRID_SOURCES = ("target", "others")
@@ -195,13 +200,12 @@ def evaluate_holdout(seq: Sequence, target: int, options: HoldoutOptions | None 
     """Frame ``target`` re-simulated from the other frames of its window by every method
     (``options``: a :class:`HoldoutOptions`, or its fields as keywords)."""
     o = HoldoutOptions.of(options, **keywords)
-    sensor, methods, half, radius, drop_moving = o.sensor, o.methods, o.half, o.radius, o.drop_moving
-    thresholds, seen_threshold, gap, see_through = o.thresholds, o.seen_threshold, o.gap, o.see_through
+    sensor, half, radius, drop_moving = o.sensor, o.half, o.radius, o.drop_moving
+    thresholds, seen_threshold, see_through = o.thresholds, o.seen_threshold, o.see_through
     if o.grid_from not in GRID_SOURCES:
         raise InputValueError(f"grid_from {o.grid_from!r}: choose from {list(GRID_SOURCES)}")
-    unknown = [m for m in methods if m not in METHODS]
-    if unknown:
-        raise InputValueError(f"unknown method(s) {unknown}; choose from {list(METHODS)}")
+    methods = check_methods(o.methods, "holdout")
+    settings, gap = o.methods_settings(methods), o.flat_options()["fpa_gap"]
     base = shipped_sensor(sensor) if isinstance(sensor, str) else sensor
     cache = cache or FrameCache(seq)
     others = window(seq, target, half, radius)
@@ -219,32 +223,27 @@ def evaluate_holdout(seq: Sequence, target: int, options: HoldoutOptions | None 
     if not in_view.any():
         raise InputValueError(f"{seq.paths[target]}: none of its points lies within {pat.name}'s view about "
                               "its origin (is the frame in its sensor's frame?)")
-    real_img = zbuffer(b, pat, backend="real").range_image()
-    b_in = b[in_view]
     union = accumulate(seq, others, drop_moving=drop_moving, cache=cache, see_through=see_through, exclude=(target,))
     u = to_frame(union.points, fb.pose)
-    seen = seen_from(b_in, u, seen_threshold)
-    groups = {"seen": np.where(seen, "seen", "unseen")}
-    seen_all = np.zeros(len(b), bool)
-    seen_all[in_view] = seen
-    pix = np.full(real_img["range"].shape, "no return", dtype=object)
-    filled = real_img["index"] >= 0
-    pix[filled] = np.where(seen_all[real_img["index"][filled]], "seen", "unseen")
-    adj = _adjacent(others, target)
+    # scored as slr-ray evaluate scores a pair (the same target, every registered metric's block), split
+    # by seen / unseen only
+    scored = scoring_target(b, pat, beams, u, seen_threshold, splits=HOLDOUT_SPLITS)
+    real_img, b_in, seen = scored.image, scored.points, scored.seen
+    adj = adjacent_frame(others, target)
     rows, extra = [], {}
-    models = {}
-    held = _Held(seq, target, others, union, u, pat, base, gap, cache, fb.pose, drop_moving, see_through)
+    infos = {REGISTRY[m].info: None for m in REGISTRY if REGISTRY[m].info}  # every key, run or not
+    held = HeldOut(seq, target, others, union, u, pat, base, cache, fb.pose, drop_moving, see_through)
     for m in methods:
         t0 = time.perf_counter()
-        ret, sim = _simulate(m, held, models)
+        ret, sim, info = REGISTRY[m].simulate(held, settings[m])
+        if REGISTRY[m].info:
+            infos[REGISTRY[m].info] = info
         img = ret.image(pat)
-        # every registered metric's block (slr_ray.metrics.REGISTRY), as slr-ray evaluate scores a pair
-        blocks = score_pair(Pair(b_in, sim, real_img["range"], img, tuple(thresholds), groups,
-                                 {"seen": pix.astype(str)}))
+        blocks = score_simulation(scored, sim, img, thresholds)
         extra[m] = clamped_depth_errors(real_img["range"], img)
         rows.append({"method": m, "label": LABELS[m], "points_out": int(len(sim)), "pulses_returned": int(len(ret)),
                      "seconds": round(time.perf_counter() - t0, 3)} | blocks)
-    res = {"frame": seq.names[target], "fpa_gap_m": gap, "ray_model": models.get("rays"), "index": int(target), "window": [seq.names[i] for i in others],
+    res = {"frame": seq.names[target], "fpa_gap_m": gap} | infos | {"index": int(target), "window": [seq.names[i] for i in others],
            "adjacent": seq.names[adj], "union_points": int(len(union)), "removed": union.removed,
            "see_through": see_through.to_dict() if see_through else None,
            "target_points_in_view": int(len(b_in)), "unseen_share": float(np.mean(~seen)),
@@ -256,53 +255,12 @@ def evaluate_holdout(seq: Sequence, target: int, options: HoldoutOptions | None 
     return res
 
 
-@dataclass
-class _Held:
-    """What a method may use for a held-out frame: never its points (its pattern is the table
-    fitted to them, as every method's grid)."""
-
-    seq: Sequence
-    target: int
-    others: list
-    union: Union
-    u: np.ndarray       # the union in the target's frame
-    pattern: object
-    base: object
-    gap: float
-    cache: FrameCache
-    pose: np.ndarray                 # the held-out frame's pose (where its pulses start)
-    drop_moving: bool = True
-    see_through: SeeThrough | None = None
-
-
-def _simulate(m, held: _Held, models: dict):
-    """Method ``m``'s returns and points out for the held-out frame."""
-    u, pat = held.u, held.pattern
-    if m == "zbuffer":
-        ret = estimate(u, pat, "nearest")
-        keys, _ = pat.pulse_ids(u, np.zeros(3))
-        return ret, u[keys >= 0]
-    if m == "adjacent":
-        ret = estimate(u[held.union.frame_of_point == _adjacent(held.others, held.target)], pat, "nearest")
-    elif m == "rays":
-        model = holdout_ray_model(held.seq, held.others, held.base, pat, held.cache)
-        models["rays"] = model.to_dict()
-        ret = cast_rays(u, pat, model, frame_motion(held.seq.poses, held.target), gap=held.gap)
-    elif m == "embree-sources":
-        ret, _ = discs_of_frames(held.cache, held.others, held.pose, pat, held.base, held.drop_moving,
-                                 held.see_through, (held.target,))
-    else:
-        ret = estimate(u, pat, m, gap=held.gap)
-    return ret, ret.points
-
-
 def simulate_holdout(seq: Sequence, target: int, method: str = "rays", sensor: str = "velodyne_hdl64e_s2",
                      half: int | None = 2, drop_moving: bool = True, gap: float = FPA_GAP, pattern=None):
     """What ``method`` returns for the held-out frame ``target`` (a :class:`PulseReturns` in ``pattern``,
     default the target's fitted table as :func:`evaluate_holdout` fits it). The held-out frame's points
     are read for its table only: every method's returns depend on its pose and the other frames."""
-    if method not in METHODS:
-        raise InputValueError(f"unknown method {method!r}; choose from {list(METHODS)}")
+    m = registered_method(method, "holdout")
     base = shipped_sensor(sensor) if isinstance(sensor, str) else sensor
     cache = FrameCache(seq)
     others = window(seq, target, half)
@@ -313,9 +271,9 @@ def simulate_holdout(seq: Sequence, target: int, method: str = "rays", sensor: s
         beams = _held_beams(seq, target, fb, base)
         pattern = fitted_pattern(fb.points, beams, base) if beams is not None else base
     union = accumulate(seq, others, drop_moving=drop_moving, cache=cache)
-    held = _Held(seq, target, others, union, to_frame(union.points, fb.pose), pattern, base, gap, cache,
-                 fb.pose, drop_moving)
-    return _simulate(method, held, {})[0]
+    held = HeldOut(seq, target, others, union, to_frame(union.points, fb.pose), pattern, base, cache, fb.pose,
+                   drop_moving)
+    return m.simulate(held, HoldoutOptions.of(None, fpa_gap=gap).methods_settings((method,))[method])[0]
 
 
 def mean_rows(tables: list[list[dict]]) -> list[dict]:

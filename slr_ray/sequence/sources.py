@@ -43,7 +43,7 @@ from ..sensors import fitted_pattern, scan_order_beams
 from ..sensors import sensor as shipped_sensor
 from .estimators import PulseReturns
 
-__all__ = ["SeeThrough", "SourceView", "source_view", "seen_through_votes", "source_discs", "cast_sources",
+__all__ = ["SeeThrough", "known_beams", "source_sensor_problem", "SourceView", "source_view", "seen_through_votes", "source_discs", "cast_sources",
            "REMOVE_MOVING", "SOURCE_TIES",
            "SOURCE_RADIUS_SCALE"]
 
@@ -101,6 +101,28 @@ class SourceView:
     pattern: object
     beams: np.ndarray | None
     image: np.ndarray
+
+
+def known_beams(points, attributes, base):
+    """Each point's beam in ``base``'s table: a ``ring`` field, else the file's scan order
+    (:func:`~slr_ray.sensors.scan_order_beams`); ``None`` where neither tells."""
+    ring = attributes.get("ring")
+    if ring is not None:
+        return np.asarray(ring, np.int64)
+    return scan_order_beams(points, base.n_beams)
+
+
+def source_sensor_problem(points, attributes, base) -> str | None:
+    """Why the frame ``points`` (its ``attributes``) seems not of the sensor ``base`` (None when it
+    fits): its beams not known by ``base`` (no ring field, not in its scan order), or a ring field on
+    under half its beams. A cheap check of a named source sensor."""
+    beams = known_beams(points, attributes, base)
+    if beams is None:
+        return f"not in {base.name}'s scan order of {base.n_beams} rings and no ring field"
+    used = len(np.unique(beams[beams >= 0]))
+    if 2 * used < base.n_beams:
+        return f"its points lie on {used} of {base.name}'s {base.n_beams} beams"
+    return None
 
 
 def source_view(local, attributes, base) -> SourceView:

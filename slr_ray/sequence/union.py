@@ -22,7 +22,7 @@ from dataclasses import dataclass, field
 import numpy as np
 
 from ..errors import InputValueError
-from .estimators import PulseReturns, estimate, merge_nearest
+from .estimators import PulseReturns, merge_nearest, nearest_returns
 from .frames import Frame, Sequence
 from .sources import (SeeThrough, SourceView, base_pattern, cast_sources, seen_through_votes, source_discs,
                       source_view)
@@ -235,7 +235,7 @@ def nearest_of_frames(seq: Sequence, frames, pose, pattern, drop_moving: bool = 
             keys, ranges, idx = keys[order], ranges[order], idx[order]
             ret = PulseReturns(keys, ranges, to_frame(w[idx], pose), idx)
         else:
-            ret = estimate(to_frame(w, pose), pattern, "nearest")
+            ret = nearest_returns(to_frame(w, pose), pattern)
         parts.append(PulseReturns(ret.keys, ret.ranges, ret.points, ret.index + offset))
         attrs.append({n: v[ret.index] for n, v in a.items()})
         offset += len(w)

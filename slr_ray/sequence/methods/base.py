@@ -1,0 +1,191 @@
+"""The protocol of a sequence method (:class:`SequenceMethod`), its options and what it is given.
+
+A method makes one return per pulse of a target sensor from the other frames
+of a sequence: for a held-out frame (``slr-ray sequence evaluate``,
+:func:`~slr_ray.sequence.holdout.evaluate_holdout`: :meth:`SequenceMethod.simulate`
+with a :class:`HeldOut`) and for every frame of a conversion (``slr-ray
+sequence convert``, :func:`~slr_ray.sequence.convert.convert_sequence`:
+:meth:`SequenceMethod.convert_frame` with a :class:`TargetFrame`). What a
+method can do is a capability on its class, read by the callers (never its
+name):
+
+- ``holdout``, ``convert``: it works in the leave-one-out evaluation, in a conversion;
+- ``default``: it is among ``sequence evaluate``'s default methods;
+- ``frame_state``: it works frame by frame on the :class:`~slr_ray.sequence.union.FrameCache`
+  (per-frame reductions or scenes held while the frame is), never the whole union;
+- ``needs_source_sensor``: it needs the frames' own sensor (``source_why`` says why);
+- ``info``: the key of what it reports about a held-out frame (``None``: nothing; the
+  frame's result holds the key whether or not the method ran).
+
+Its settings are a frozen :class:`MethodOptions` subclass (``options``): the docstring's
+Attributes describe each field; ``PREFIX`` names its flags (``--PREFIX-FIELD``) and the flat
+keys of the callers' ``method_options`` (``PREFIX_FIELD``); a field two classes share names one
+key in ``KEYS`` (``rays`` takes the first peak's ``gap`` as ``fpa`` does, ``fpa_gap``: one flag).
+"""
+
+from __future__ import annotations
+
+import dataclasses
+from collections.abc import Mapping
+from dataclasses import dataclass
+from typing import ClassVar
+
+import numpy as np
+
+from ...errors import InputValueError
+from ...options import Options
+from ..estimators import FPA_GAP, PulseReturns
+from ..frames import Sequence
+from ..rays import MAX_SHIFT, RAY_NEIGHBOURS
+from ..sources import SeeThrough
+from ..union import FrameCache, Union, accumulate, to_frame
+
+__all__ = ["MethodOptions", "NoOptions", "FirstPeakOptions", "RaysOptions", "HeldOut", "TargetFrame",
+           "SequenceMethod"]
+
+
+@dataclass(frozen=True)
+class MethodOptions(Options):
+    """Base of a sequence method's options (module docstring): ``PREFIX`` names the flags and keys."""
+
+    PREFIX: ClassVar[str] = ""
+    #: a field's flat key where it is not ``PREFIX_FIELD``: a setting two classes share (one flag)
+    KEYS: ClassVar[dict] = {}
+
+    def check(self) -> None:
+        """Refuse impossible values (``InputValueError`` naming the flag)."""
+
+    @classmethod
+    def keys(cls) -> dict:
+        """``{flat key: field}``: ``PREFIX_FIELD`` for each field (or its entry of ``KEYS``)."""
+        return {cls.KEYS.get(f.name, f"{cls.PREFIX}_{f.name}"): f.name for f in dataclasses.fields(cls)}
+
+    @classmethod
+    def from_flat(cls, values: Mapping):
+        """The options from the flat keys found in ``values`` (others ignored; a missing one its default),
+        checked."""
+        o = cls(**{name: values[key] for key, name in cls.keys().items() if values.get(key) is not None})
+        o.check()
+        return o
+
+
+@dataclass(frozen=True)
+class NoOptions(MethodOptions):
+    """A method without settings."""
+
+
+@dataclass(frozen=True)
+class FirstPeakOptions(MethodOptions):
+    """The first peak along a pulse (``fpa``'s average, ``rays``' cluster along each ray).
+
+    Attributes
+    ----------
+    gap : float
+        The first-peak average's gap: the largest step between ranges in a pulse's first cluster (m).
+    """
+
+    PREFIX: ClassVar[str] = "fpa"
+    gap: float = FPA_GAP
+
+    def check(self) -> None:
+        if not (isinstance(self.gap, (int, float)) and self.gap > 0):
+            raise InputValueError(f"the fpa gap must be > 0 m, got {self.gap}")
+
+
+@dataclass(frozen=True)
+class RaysOptions(MethodOptions):
+    """The ``rays`` method's settings (:func:`~slr_ray.sequence.rays.cast_rays`).
+
+    Attributes
+    ----------
+    gap : float
+        The first cluster's gap along each ray (m): ``--fpa-gap``, the one fpa takes.
+    neighbours : int
+        Union points whose plane a ray meets (3 or more).
+    max_shift : float
+        How far before the first cluster a ray's hit on the plane may lie (m).
+    """
+
+    PREFIX: ClassVar[str] = "rays"
+    KEYS: ClassVar[dict] = {"gap": "fpa_gap"}
+    gap: float = FPA_GAP
+    neighbours: int = RAY_NEIGHBOURS
+    max_shift: float = MAX_SHIFT
+
+    def check(self) -> None:
+        FirstPeakOptions(self.gap).check()
+        if not (isinstance(self.neighbours, (int, np.integer)) and self.neighbours >= 3):
+            raise InputValueError(f"--rays-neighbours: a plane takes 3 or more neighbours, got {self.neighbours}")
+        if not (isinstance(self.max_shift, (int, float)) and self.max_shift >= 0):
+            raise InputValueError(f"--rays-max-shift must be metres >= 0, got {self.max_shift}")
+
+
+@dataclass
+class HeldOut:
+    """What a method may use for a held-out frame: never its points (its pattern is the table
+    fitted to them, or to the others', as every method's grid)."""
+
+    seq: Sequence
+    target: int
+    others: list
+    union: Union
+    u: np.ndarray       # the union in the target's frame
+    pattern: object     # the grid every method fills and is scored on
+    base: object        # the frames' sensor (a shipped beam table)
+    cache: FrameCache
+    pose: np.ndarray    # the held-out frame's pose (where its pulses start)
+    drop_moving: bool = True
+    see_through: SeeThrough | None = None
+
+
+@dataclass
+class TargetFrame:
+    """A frame of a conversion: its window's frames, the target sensor's pose and pattern."""
+
+    seq: Sequence
+    frames: list        # the window, the frame itself included
+    pose: np.ndarray    # the target sensor's pose (world)
+    pattern: object     # the target sensor
+    cache: FrameCache
+    drop_moving: bool = True
+    see_through: SeeThrough | None = None
+    source: object = None   # the frames' own sensor (a beam table), where given
+
+    def union(self) -> Union:
+        """The window's union (world frame)."""
+        return accumulate(self.seq, self.frames, drop_moving=self.drop_moving, cache=self.cache,
+                          see_through=self.see_through)
+
+
+class SequenceMethod:
+    """A sequence method (module docstring). A subclass sets ``name``, ``label`` and its
+    capabilities, and implements :meth:`returns` (a rule on a union in the sensor's frame), or
+    :meth:`simulate` and :meth:`convert_frame` where it needs more than the union."""
+
+    #: its name (``--methods``, ``--estimator``, rows' ``method``) and its label in the tables
+    name: ClassVar[str] = ""
+    label: ClassVar[str] = ""
+    options: ClassVar[type] = NoOptions
+    holdout: ClassVar[bool] = True
+    convert: ClassVar[bool] = True
+    default: ClassVar[bool] = False
+    frame_state: ClassVar[bool] = False
+    needs_source_sensor: ClassVar[bool] = False
+    source_why: ClassVar[str] = ""
+    info: ClassVar[str | None] = None
+
+    def returns(self, points, pattern, options) -> PulseReturns:
+        """One return per pulse of ``pattern`` from ``points`` (float64, the scanner at the origin)."""
+        raise NotImplementedError(f"{self.name}: no rule on a union (it implements simulate / convert_frame)")
+
+    def simulate(self, held: HeldOut, options) -> tuple[PulseReturns, np.ndarray, dict | None]:
+        """The held-out frame's returns, the points scored (its simulation) and what it reports
+        (``info``), from ``held``."""
+        ret = self.returns(held.u, held.pattern, options)
+        return ret, ret.points, None
+
+    def convert_frame(self, frame: TargetFrame, options) -> tuple[PulseReturns, dict]:
+        """A converted frame's returns and the attributes each return carries."""
+        union = frame.union()
+        ret = self.returns(to_frame(union.points, frame.pose), frame.pattern, options)
+        return ret, {n: v[ret.index] for n, v in union.attributes.items()}

@@ -1,0 +1,63 @@
+"""``rays``: each beam cast along the sensor's own modelled ray onto the union's planes
+(:mod:`slr_ray.sequence.rays`); for a held-out frame the rays are fitted on the *other* frames
+of its window (:func:`holdout_ray_model`), the motion taken from the poses."""
+
+from __future__ import annotations
+
+import warnings
+
+from ...errors import SlrWarning
+from ..rays import RayModel, cast_rays, fit_range_bias, fit_ray_model, frame_motion, pattern_ray_model
+from ..sources import known_beams
+from .base import HeldOut, RaysOptions, SequenceMethod
+
+__all__ = ["Rays", "METHOD", "holdout_ray_model"]
+
+
+def holdout_ray_model(seq, others, base, pattern, cache) -> RayModel:
+    """The sensor's rays fitted from the frames ``others`` (never the held-out frame): their own points,
+    their beams (a ``ring`` field or the scan order) and their motion from the poses
+    (:func:`~slr_ray.sequence.rays.fit_ray_model`), and each laser's range bias against the others'
+    frames (:func:`~slr_ray.sequence.rays.fit_range_bias`). Where a frame's beams are not known, the
+    pattern's own rays."""
+    frames, worlds, unknown = [], [], []
+    for i in others:
+        f, w = cache.get(i)
+        beams = known_beams(f.points, f.attributes, base)
+        if beams is None or len(f.points) == 0:
+            unknown.append(seq.names[i])
+            continue
+        base.rows_of_beams(beams, len(f.points))  # beam ids outside the sensor's table: refused, named
+        known = beams >= 0  # -1: a point whose beam is not known
+        frames.append((f.points[known], beams[known], frame_motion(seq.poses, i)))
+        worlds.append((w[known], beams[known], seq.poses[i], frames[-1][2]))
+    if unknown:
+        warnings.warn(f"frame(s) {', '.join(unknown)}: beams not known (no ring field, not in {base.name}'s scan "
+                      f"order of {base.n_beams} rings): left out of the rays' fit"
+                      + ("" if frames else "; rays casts the table's ideal rays"), SlrWarning, stacklevel=2)
+    if not frames:
+        return pattern_ray_model(pattern)
+    return fit_range_bias(fit_ray_model(frames, base.n_beams), worlds)
+
+
+class Rays(SequenceMethod):
+    """The sensor's rays onto the union's planes: a held-out frame's rays fitted from the other frames
+    (reported as ``ray_model``); a conversion casts the target table's own rays (no motion)."""
+
+    name = "rays"
+    label = "beam rays onto the union's planes"
+    options = RaysOptions
+    default = True
+    info = "ray_model"
+
+    def returns(self, points, pattern, options: RaysOptions):
+        return cast_rays(points, pattern, gap=options.gap, neighbours=options.neighbours, max_shift=options.max_shift)
+
+    def simulate(self, held: HeldOut, options: RaysOptions):
+        model = holdout_ray_model(held.seq, held.others, held.base, held.pattern, held.cache)
+        ret = cast_rays(held.u, held.pattern, model, frame_motion(held.seq.poses, held.target), gap=options.gap,
+                        neighbours=options.neighbours, max_shift=options.max_shift)
+        return ret, ret.points, model.to_dict()
+
+
+METHOD = Rays()
