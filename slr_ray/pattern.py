@@ -296,8 +296,8 @@ def as_pattern(pattern) -> Pattern:
 
     A :class:`~slr_ray.core.Pattern` (a :class:`ScanPattern`, a
     :class:`~slr_ray.sensors.BeamPattern`) is returned as it is; a string
-    names a preset (:data:`PRESETS`) or a shipped sensor
-    (:data:`slr_ray.sensors.SENSORS`).
+    names a preset (:data:`PRESETS`), a shipped sensor
+    (:data:`slr_ray.sensors.SENSORS`) or a sensor card (a ``.json`` path).
 
     Raises
     ------
@@ -311,7 +311,7 @@ def as_pattern(pattern) -> Pattern:
     if isinstance(pattern, str):
         if pattern in PRESETS:
             return preset(pattern)
-        if pattern in SENSORS:
+        if pattern in SENSORS or pattern.lower().endswith(".json"):  # a shipped sensor or a sensor card
             return sensor(pattern)
         raise InputValueError(f"unknown pattern {pattern!r}: presets {sorted(PRESETS)}, sensors {list(SENSORS)}")
     if isinstance(pattern, (int, float, np.integer, np.floating)) and not isinstance(pattern, (bool, np.bool_)):

@@ -58,11 +58,12 @@ import yaml
 from .arrays import as_origin, as_points
 from .core.beams import beam_keys, beam_keys_given, beam_reduce, beam_reduce_posed, beam_reduce_serial
 from .core.protocol import Pattern
-from .errors import FormatError, InputValueError, SlrError
+from .errors import FormatError, InputValueError, SlrError, SlrWarning
 from .threads import default_threads
 
 __all__ = ["BeamPattern", "sensor", "SENSORS", "SENSORS_DIR", "read_ouster_metadata",
-           "read_velodyne_calibration", "miscalibrated", "sensor_noise", "scan_order_beams", "fitted_pattern"]
+           "read_velodyne_calibration", "read_card", "write_card", "card_dict", "is_sensor_name", "beams_outside",
+           "source_elevation_range", "conversion_reach", "miscalibrated", "sensor_noise", "scan_order_beams", "fitted_pattern"]
 
 #: Directory of the shipped beam tables (package data).
 SENSORS_DIR = Path(__file__).resolve().parent / "data" / "sensors"
@@ -321,23 +322,30 @@ class BeamPattern(Pattern):
     def from_table(cls, table: dict, **changes) -> "BeamPattern":
         """From a beam-table dict (the shipped JSON layout: ``elevation_deg``,
         ``azimuth_offset_deg``, ``columns``, ``max_range_m_nominal``, ...)."""
-        meta = {k: v for k, v in table.items() if k not in ("elevation_deg", "azimuth_offset_deg", "columns")}
+        meta = {k: v for k, v in table.items()
+                if k not in ("elevation_deg", "azimuth_offset_deg", "columns", "min_range_m", "max_range_m")}
         kw = {"elevation_deg": table["elevation_deg"], "azimuth_offset_deg": table.get("azimuth_offset_deg"),
-              "columns": table.get("columns", 1024), "max_range": table.get("max_range_m_nominal"),
-              "name": table.get("name"), "meta": meta}
+              "columns": table.get("columns", 1024),
+              "max_range": table.get("max_range_m", table.get("max_range_m_nominal")),
+              "min_range": table.get("min_range_m"), "name": table.get("name"), "meta": meta}
         return cls(**(kw | changes))
 
 
 def sensor(name: str, **changes) -> BeamPattern:
-    """A shipped sensor's :class:`BeamPattern` by name (:data:`SENSORS`).
+    """A shipped sensor's :class:`BeamPattern` by name (:data:`SENSORS`), or a
+    sensor card's by its path (a ``.json`` file: :func:`read_card`).
 
     Keywords override fields (``columns=1024``, ``max_range=80``).
 
     >>> slr_ray.sensor("velodyne_vlp16").shape  # doctest: +SKIP
     (16, 1800)
     """
+    if isinstance(name, Path):
+        name = str(name)
     if not isinstance(name, str):
         raise InputValueError(f"a sensor is named by a string, got {name!r}; shipped: {list(SENSORS)}")
+    if name not in SENSORS and name.lower().endswith(".json"):
+        return read_card(name, **changes)
     return BeamPattern.from_table(copy.deepcopy(_shipped_table(name)), **changes)
 
 
@@ -348,6 +356,104 @@ def _shipped_table(name: str) -> dict:
     if not path.is_file():
         raise InputValueError(f"unknown sensor {name!r}; shipped: {list(SENSORS)}")
     return json.loads(path.read_text())
+
+
+#: what a sensor card's ``card`` key says (:func:`write_card`)
+CARD = "slr_ray sensor card"
+#: the keys of a card that are the pattern's fields (the others are its ``meta``)
+_CARD_FIELDS = ("name", "elevation_deg", "azimuth_offset_deg", "columns", "min_range_m", "max_range_m")
+
+
+def is_sensor_name(name) -> bool:
+    """Whether ``name`` names a shipped sensor or a ``.json`` file (a card, read when used)."""
+    return isinstance(name, (str, Path)) and (str(name) in SENSORS or str(name).lower().endswith(".json"))
+
+
+def card_dict(pattern: BeamPattern) -> dict:
+    """A :class:`BeamPattern` as a sensor card (plain JSON-ready dict): the pattern's fields and its ``meta``
+    (source, per-beam heights, drop rates, the fit's quality, where a fit gave them)."""
+    if not isinstance(pattern, BeamPattern):
+        raise InputValueError(f"a card is written from a BeamPattern, got {type(pattern).__name__}")
+    d = {"card": CARD, "version": 1, **{k: v for k, v in pattern.meta.items() if k not in ("card", "version")}}
+    d.update({"name": pattern.name, "beams": pattern.n_beams, "columns": pattern.columns,
+              "min_range_m": pattern.min_range, "max_range_m": pattern.max_range,
+              "elevation_deg": list(pattern.elevation_deg), "azimuth_offset_deg": list(pattern.azimuth_offset_deg)})
+    return d
+
+
+def write_card(path, pattern: BeamPattern) -> None:
+    """``pattern`` as a sensor card at ``path`` (JSON; :func:`read_card` gives the same pattern back).
+    Never overwrites a file."""
+    text = json.dumps(card_dict(pattern), indent=1) + "\n"
+    with open(path, "x") as f:
+        f.write(text)
+
+
+def read_card(path, **changes) -> BeamPattern:
+    """A :class:`BeamPattern` from a sensor card (:func:`write_card`; the shipped tables are cards too;
+    an Ouster metadata JSON is read by :func:`read_ouster_metadata`). Keywords override fields.
+
+    Raises :class:`FormatError` (one line, naming the file) for a JSON that is not a card."""
+    try:
+        d = json.loads(Path(path).read_text())
+    except json.JSONDecodeError as exc:
+        raise FormatError(f"{path}: not a sensor card (not JSON: {exc})") from None
+    except OSError as exc:
+        raise InputValueError(f"{path}: no such sensor card or shipped sensor ({exc.strerror}); "
+                              f"shipped: {list(SENSORS)}") from None
+    if isinstance(d, dict) and "elevation_deg" not in d and (
+            "beam_altitude_angles" in d or "beam_altitude_angles" in (d.get("beam_intrinsics") or {})):
+        return read_ouster_metadata(path, **changes)
+    if not isinstance(d, dict) or not isinstance(d.get("elevation_deg"), list):
+        raise FormatError(f"{path}: not a sensor card (a JSON object with an elevation_deg list and columns; "
+                          "`slr-ray sensor fit` writes one)")
+    try:
+        return BeamPattern.from_table(d, **changes)
+    except SlrError as exc:
+        raise FormatError(f"{path}: not a sensor card ({exc})") from None
+    except (TypeError, ValueError) as exc:
+        raise FormatError(f"{path}: not a sensor card ({type(exc).__name__}: {exc})") from None
+
+
+def beams_outside(target: BeamPattern, elevation_range_deg) -> np.ndarray:
+    """The beam ids of ``target`` whose elevation lies outside ``elevation_range_deg`` (``(low, high)``
+    degrees: what the source frames ever saw), ascending: beams a conversion cannot fill."""
+    lo, hi = (float(v) for v in elevation_range_deg)
+    if not (math.isfinite(lo) and math.isfinite(hi) and lo <= hi):
+        raise InputValueError(f"elevation_range_deg must be two finite angles, low first, got {elevation_range_deg!r}")
+    el = np.asarray(target.elevation_deg)
+    return np.flatnonzero((el < lo) | (el > hi))
+
+
+def source_elevation_range(points, origin=None, percentiles=(1.0, 99.0)) -> tuple[float, float]:
+    """The elevations (degrees) a frame saw from ``origin`` (default 0): the ``percentiles`` of its points'
+    (the 1st to 99th: a stray point above or below is not a beam's)."""
+    p = as_points(points, "points") - (np.zeros(3) if origin is None else as_origin(origin))
+    if not len(p):
+        raise InputValueError("a frame of no points saw no elevation")
+    el = np.degrees(np.arctan2(p[:, 2], np.hypot(p[:, 0], p[:, 1])))
+    lo, hi = np.percentile(el, percentiles)
+    return float(lo), float(hi)
+
+
+def conversion_reach(target: BeamPattern, source_points, points_out: int, source_origin=None) -> dict:
+    """What a conversion to ``target`` could get from frames like ``source_points``: the target's beams
+    outside the elevations the source saw (:func:`source_elevation_range`, from its own origin) are said
+    once (an :class:`~slr_ray.errors.SlrWarning` with the count); ``points_out`` 0 (the conversion
+    returned nothing) is an :class:`InputValueError`. Returns the summary's entries."""
+    lo, hi = source_elevation_range(source_points, source_origin)
+    out = beams_outside(target, (lo, hi))
+    el = sorted(round(float(target.elevation_deg[b]), 3) for b in out)
+    if len(out):
+        warnings.warn(f"{len(out)} of the target's {target.n_beams} beams ({el[0]:+g} ... {el[-1]:+g} deg) lie "
+                      f"outside what the source frames saw ({lo:+.1f} ... {hi:+.1f} deg, 1st-99th percentile "
+                      "from their origin): those beams stay (nearly) empty", SlrWarning, stacklevel=3)
+    if points_out == 0:
+        raise InputValueError(f"the conversion returned no point: the target's beams ({min(target.elevation_deg):+g}"
+                              f" ... {max(target.elevation_deg):+g} deg, ranges {target.range_limits}) meet nothing "
+                              f"the source frames saw ({lo:+.1f} ... {hi:+.1f} deg)")
+    return {"beams_outside_source": len(out), "beams_outside_source_deg": el,
+            "source_elevation_range_deg": [round(lo, 3), round(hi, 3)]}
 
 
 def miscalibrated(pattern: BeamPattern, elevation_sd: float = 0.1, azimuth_sd: float = 0.1,

@@ -356,7 +356,8 @@ LAYERS = (
     ("ray casting", {"raycast"}),
     ("backends", {"backends", "accumulator"}),
     ("simulation", {"effects", "scenes", "meshscan"}),
-    ("uses", {"streaming", "positions", "compare", "distances", "validation", "augment", "evaluate", "sequence"}),
+    ("uses", {"streaming", "positions", "compare", "distances", "validation", "augment", "evaluate", "sequence",
+              "sensorfit"}),
     ("figures", {"plotting", "demo"}),
     ("command line", {"cli"}),
 )

@@ -169,7 +169,8 @@ def test_convert_says_when_the_frames_seem_not_of_the_source_sensor(drive, tmp_p
     r = _Run(capsys)("sequence", "convert", drive, "--target-sensor", "velodyne_hdl64e_s2", "--half", "1",
                      "--source-sensor", "velodyne_vlp16", "--remove-moving", "visibility", "-o", tmp_path / "d",
                      "--quiet")
-    assert r.returncode == 0 and "warning" not in r.stderr, r.stderr   # the right one: nothing said
+    assert r.returncode == 0 and "scan order" not in r.stderr, r.stderr   # the right one: nothing said of it
+    assert r.stderr.count("warning") == 1 and "lie outside what the source frames saw" in r.stderr  # (#45 item 5)
 
 
 def test_a_ring_field_on_few_of_the_sensors_beams_is_a_problem_of_the_named_sensor():

@@ -32,7 +32,6 @@ from ..backends import Backend
 from ..io import FORMATS
 from ..meshscan import MESH_MODES
 from ..scenes import SCENES_DIR
-from ..sensors import SENSORS
 from . import arguments as A
 from .commands import COMMANDS
 from ..evaluate import METHODS as EVALUATE_METHODS
@@ -40,6 +39,7 @@ from .evaluate_command import evaluate as evaluate_command
 from .effects_command import RING_SOURCES
 from .effects_command import effects as effects_command
 from .sequence_command import add_sequence_parser
+from .sensor_command import add_sensor_parser
 
 __all__ = ["main", "build_parser"]
 
@@ -115,6 +115,7 @@ def build_parser() -> argparse.ArgumentParser:
     _evaluate_parser(sub)
     _effects_parser(sub)
     add_sequence_parser(sub)  # sequence: its parser and handlers live in .sequence_command
+    add_sensor_parser(sub)  # sensor: its parser and handlers live in .sensor_command
     _scene_parser(command)
     return ap
 
@@ -233,8 +234,8 @@ def _augment_parser(command) -> None:
     p.add_argument("--heights", nargs="+", type=A.positive_float, metavar="M",
                    help="scanner heights above ground, a scan each (default: --scanner-height)")
     p.add_argument("--format", help="output extension (default: the input's)")
-    p.add_argument("--sensor", choices=list(SENSORS), metavar="NAME",
-                   help="a sensor's beam table instead of --resolution: " + ", ".join(SENSORS))
+    p.add_argument("--sensor", type=A.sensor_name, metavar="NAME",
+                   help="a sensor's beam table instead of --resolution: " + A.SENSOR_HELP)
     A.add_backend(p)
     A.add_positions(p)
     A.add_ground(p)
@@ -274,7 +275,7 @@ def _evaluate_parser(sub) -> None:
     p.add_argument("a", help=f"frame A, the primary, in its sensor's frame ({_FORMATS})")
     p.add_argument("b", help="frame B, the real scan to re-simulate, in its sensor's frame")
     p.add_argument("-o", "--output", required=True, help="a new or empty directory for the tables and figure")
-    p.add_argument("--sensor", default="velodyne_hdl64e_s2", choices=list(SENSORS), metavar="NAME",
+    p.add_argument("--sensor", default="velodyne_hdl64e_s2", type=A.sensor_name, metavar="NAME",
                    help="the sensor's beam table (default velodyne_hdl64e_s2, KITTI's; see scan --help)")
     p.add_argument("--beams", default="auto", choices=["auto", "scan-order", "none"],
                    help="each point's beam: auto (a 'ring' field, else the scan order of a KITTI .bin), "

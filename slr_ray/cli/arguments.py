@@ -56,7 +56,8 @@ def positive_int(text: str) -> int:
 
 
 def add_input_format(p) -> None:
-    p.add_argument("--input-format", metavar="EXT", help="input format, overriding the extension")
+    p.add_argument("--input-format", metavar="EXT", help="input format, overriding the extension (bin: KITTI, "
+                   "pcd.bin: nuScenes)")
 
 
 # --- scan pattern -------------------------------------------------------------------------------------------
@@ -80,8 +81,8 @@ def add_pattern(p, origin: str = "optional", resolution_default: float | None = 
                    help="angular resolution, both axes (degrees)"
                    + (f"; default {resolution_default:g}" if resolution_default else ""))
     g.add_argument("--preset", choices=sorted(PRESETS), help="a pattern of the paper (other options override it)")
-    g.add_argument("--sensor", choices=list(SENSORS), metavar="NAME",
-                   help="a sensor's beam table instead of a uniform pattern: " + ", ".join(SENSORS))
+    g.add_argument("--sensor", type=sensor_name, metavar="NAME",
+                   help="a sensor's beam table instead of a uniform pattern: " + SENSOR_HELP)
     g.add_argument("--sensor-file", metavar="PATH",
                    help="a calibration: Ouster metadata .json or Velodyne .yaml")
     g.add_argument("--columns", type=positive_int, metavar="N",
@@ -283,6 +284,19 @@ def add_positions(p) -> None:
 
 
 # --- sensor effects ------------------------------------------------------------------------------------------
+
+def sensor_name(text: str) -> str:
+    """An argparse type: a shipped sensor's name or a sensor card's path (``.json``; read, and refused in one
+    line if it is not a card, when the command uses it)."""
+    if text in SENSORS or text.lower().endswith(".json"):
+        return text
+    raise argparse.ArgumentTypeError(f"{text!r} is neither a shipped sensor ({', '.join(SENSORS)}) nor a "
+                                     "sensor card (.json: `slr-ray sensor fit` writes one)")
+
+
+#: the help of a flag that takes a sensor
+SENSOR_HELP = "a shipped sensor (" + ", ".join(SENSORS) + ") or a sensor card .json (`slr-ray sensor fit`)"
+
 
 def _number_or_sensor(text: str):
     """An argparse type: a finite number, or 'sensor' (the sensor table's value)."""

@@ -12,7 +12,6 @@ from ..evaluate import sequence_summary, write_sequence_evaluation
 from ..io import atomic_path
 from ..io.outputs import OutputPlan, resolve
 from ..errors import InputValueError, OutputError, SlrWarning
-from ..sensors import SENSORS
 from ..sequence import (REMOVE_MOVING, SeeThrough, convert_sequence, evaluate_sequence, read_sequence,
                         read_trajectory, register_chain, write_kitti_poses)
 from ..sequence.holdout import GRID_SOURCES, lidar4d_holdout
@@ -91,7 +90,7 @@ def method_options_from(args) -> dict:
 
 
 def _deprecated_sensor(p) -> None:
-    p.add_argument("--sensor", dest="old_sensor", choices=list(SENSORS), help=argparse.SUPPRESS)
+    p.add_argument("--sensor", dest="old_sensor", type=A.sensor_name, metavar="NAME", help=argparse.SUPPRESS)
 
 
 def add_sequence_parser(sub) -> None:
@@ -110,7 +109,7 @@ def add_sequence_parser(sub) -> None:
     q.add_argument("--protocol", choices=["slr", "lidar4d"], default="slr",
                    help="lidar4d: LiDAR4D's KITTI-360 split (51 frames, frames 10, 20, 30, 40 held out, every other "
                         "frame the scene); its clamped depth errors are in every table either way")
-    q.add_argument("--source-sensor", choices=list(SENSORS),
+    q.add_argument("--source-sensor", type=A.sensor_name, metavar="NAME",
                    help=f"the frames' sensor (default {SOURCE_SENSOR}, KITTI's); fitted to each held-out frame "
                         "(--sensor, its old name, still works)")
     _deprecated_sensor(q)
@@ -125,13 +124,13 @@ def add_sequence_parser(sub) -> None:
                                     "its pose (and --offset); resumable, parallel")
     _common(q)
     q.add_argument("-o", "--output", required=True, help="output directory (a rerun with the same settings resumes)")
-    q.add_argument("--target-sensor", choices=list(SENSORS),
+    q.add_argument("--target-sensor", type=A.sensor_name, metavar="NAME",
                    help="the target sensor (required; --sensor, its old name, still works)")
     _deprecated_sensor(q)
     q.add_argument("--estimator", default="nearest", choices=methods_with("convert"),
                    help="per-pulse rule (default nearest; rays: the target table's own rays onto the union's "
                         f"planes; {', '.join(methods_with('needs_source_sensor'))} need(s) --source-sensor)")
-    q.add_argument("--source-sensor", choices=list(SENSORS),
+    q.add_argument("--source-sensor", type=A.sensor_name, metavar="NAME",
                    help="the input frames' own sensor (fitted to each frame whose beams are known: a ring field "
                         "or a KITTI .bin's order), for --remove-moving visibility and --estimator embree-sources")
     q.add_argument("--offset", nargs=3, type=A.finite_float, default=[0.0, 0.0, 0.0], metavar=("DX", "DY", "DZ"),

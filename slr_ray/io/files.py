@@ -16,8 +16,11 @@ through the indices of a scan. Formats are chosen by extension:
           the origin of each frame
 ``.xyz``  plain text, whitespace-separated: x y z, then intensity, r, g, b
 ``.txt``  (Semantic3D) or further columns as ``column_3``...
-``.pcd``  Point Cloud Library files, ascii or binary (not binary_compressed):
-          every field kept; VIEWPOINT's translation as the origin
+``.pcd``  Point Cloud Library files, ascii, binary or binary_compressed:
+          every field kept (a ``ring`` field as its integers); VIEWPOINT's
+          translation as the origin
+``.pcd.bin``  nuScenes frames: float32 x, y, z, intensity, ring (by the
+          name or ``format``, never by the byte count)
 ``.e57``  via pye57: points in the global frame (each scan's pose applied),
           the pose's translation as the scanner origin; a file with several
           scans: :func:`read_e57_scans` (one cloud each)
@@ -52,7 +55,8 @@ def check_format(path, fmt=None) -> str:
     """
     if os.path.isdir(path):  # its 'extension' is nothing, or a directory name's ('unknown format .')
         raise FormatError(f"{path} is a directory, not a point-cloud file")
-    ext = (fmt if fmt else Path(path).suffix).lower()
+    two = "".join(Path(path).suffixes[-2:]).lower()  # a two-part extension first: .pcd.bin (nuScenes)
+    ext = (fmt if fmt else two if two in REGISTRY and two.count(".") == 2 else Path(path).suffix).lower()
     if not ext.startswith("."):
         ext = "." + ext
     if ext not in REGISTRY:

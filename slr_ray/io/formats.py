@@ -9,11 +9,11 @@ registry.
 
 from __future__ import annotations
 
-from . import e57, kitti, las, npy, pcd, ply, xyz
+from . import e57, kitti, las, npy, nuscenes, pcd, ply, xyz
 
 __all__ = ["REGISTRY", "FORMATS"]
 
 #: extension -> Format, in the order the command line lists them
-REGISTRY = {f.extension: f for module in (npy, ply, las, kitti, xyz, e57, pcd) for f in module.FORMATS}
+REGISTRY = {f.extension: f for module in (npy, ply, las, kitti, xyz, e57, pcd, nuscenes) for f in module.FORMATS}
 #: the extensions slr_ray reads and writes
 FORMATS = tuple(REGISTRY)

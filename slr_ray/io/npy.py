@@ -1,6 +1,7 @@
 """NumPy files: ``.npy`` (an ``(n, 3)`` or wider array, or a structured one with
 ``x, y, z`` fields) and ``.npz`` (``points``, an optional ``origin``, and every
-other length-``n`` array as an attribute)."""
+other length-``n`` array as an attribute; an Ouster range image's ``xyz`` and
+``range_mm``: :mod:`~slr_ray.io.ouster`)."""
 
 from __future__ import annotations
 
@@ -12,6 +13,7 @@ import numpy as np
 from ..errors import FormatError
 from .cloud import PointCloud
 from .format import Format
+from .ouster import is_ouster_npz, read_ouster_npz
 
 __all__ = ["FORMATS"]
 
@@ -36,6 +38,8 @@ def _read_npz(path):
         if f.read(2) != b"PK":
             raise FormatError(f"{path}: not a .npz file (not a zip archive)")
     with np.load(path, allow_pickle=False) as z:
+        if is_ouster_npz(z.files):  # an Ouster range image (xyz, range_mm): its pixels with a return
+            return read_ouster_npz(path, z)
         if "points" not in z.files:
             raise FormatError(f"{path}: no 'points' array (has {z.files})")
         pts = z["points"]

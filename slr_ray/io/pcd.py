@@ -1,4 +1,9 @@
-"""Point Cloud Library files (``.pcd``), ascii and binary: :func:`read` and :func:`write`.
+"""Point Cloud Library files (``.pcd``), ascii, binary and binary_compressed: :func:`read` and :func:`write`.
+
+binary_compressed (read only): two little-endian uint32 (compressed and
+uncompressed sizes), then LZF-compressed data holding each field's values for
+all points in turn (column by column). A sensor's ring field (``ring``,
+``laser_number``, ``channel``...) is kept as the integer attribute it is.
 
 :mod:`slr_ray.io` reads and writes ``.pcd`` with these. They take and give
 plain arrays and any object with ``points``, ``attributes`` and ``origin``,
@@ -11,6 +16,7 @@ from __future__ import annotations
 import io
 import warnings
 
+import numba
 import numpy as np
 
 from ..errors import FormatError
@@ -72,12 +78,15 @@ def read(path) -> tuple:
         if len(body) < n * dtype.itemsize:
             raise FormatError(f"{path}: truncated ({len(body)} bytes of data for POINTS {n} of "
                               f"{dtype.itemsize} bytes)")
-        if len(body) - n * dtype.itemsize >= dtype.itemsize:  # padding shorter than a point is tolerated
+        extra = body[n * dtype.itemsize:]
+        if len(extra) >= dtype.itemsize and extra.strip(b"\0"):  # zero padding (PCL's writers pad) is no data
             raise FormatError(f"{path}: POINTS {n} declared, the data holds {len(body) // dtype.itemsize} points "
                               "(a header that lies, or a corrupt file)")
         data = np.frombuffer(body[: n * dtype.itemsize], dtype)
+    elif kind == "binary_compressed":
+        data = _decompressed(path, body, n, dtype)
     else:
-        raise FormatError(f"{path}: PCD DATA {kind} is not supported (ascii and binary are)")
+        raise FormatError(f"{path}: PCD DATA {kind} is not supported (ascii, binary and binary_compressed are)")
     if not {"x", "y", "z"} <= set(fields):
         raise FormatError(f"{path}: no x, y, z fields")
     pts = np.column_stack([data["x"], data["y"], data["z"]]).astype(np.float64)
@@ -85,6 +94,67 @@ def read(path) -> tuple:
     vp = header.get("VIEWPOINT")
     origin = np.array([float(v) for v in vp[:3]]) if vp and len(vp) >= 3 else None
     return pts, attrs, origin
+
+
+@numba.njit(cache=True)
+def _lzf_decode(src, dst):  # pragma: no cover (compiled)
+    """LZF (liblzf's format): returns the bytes written to ``dst``, -1 for a corrupt stream."""
+    ip, op, n_in, n_out = 0, 0, len(src), len(dst)
+    while ip < n_in:
+        ctrl = np.int64(src[ip])
+        ip += 1
+        if ctrl < 32:  # a literal run of ctrl + 1 bytes
+            ctrl += 1
+            if op + ctrl > n_out or ip + ctrl > n_in:
+                return -1
+            for _ in range(ctrl):
+                dst[op] = src[ip]
+                op += 1
+                ip += 1
+        else:  # a back reference: length (ctrl >> 5) + 2, distance from the low 5 bits and the next byte
+            length = ctrl >> 5
+            if length == 7:
+                if ip >= n_in:
+                    return -1
+                length += np.int64(src[ip])
+                ip += 1
+            if ip >= n_in:
+                return -1
+            ref = op - ((ctrl & 0x1F) << 8) - 1 - np.int64(src[ip])
+            ip += 1
+            length += 2
+            if ref < 0 or op + length > n_out:
+                return -1
+            for _ in range(length):  # byte by byte: the reference may overlap what it writes
+                dst[op] = dst[ref]
+                op += 1
+                ref += 1
+    return op
+
+
+def _decompressed(path, body: bytes, n: int, dtype: np.dtype) -> np.ndarray:
+    """The points of a binary_compressed body (module docstring), as a structured array."""
+    if len(body) < 8:
+        raise FormatError(f"{path}: binary_compressed data shorter than its two sizes")
+    packed, unpacked = (int(v) for v in np.frombuffer(body[:8], "<u4"))
+    if packed > len(body) - 8:
+        raise FormatError(f"{path}: truncated (binary_compressed: {len(body) - 8} bytes of {packed} compressed)")
+    if unpacked != n * dtype.itemsize:
+        raise FormatError(f"{path}: binary_compressed holds {unpacked} bytes uncompressed, POINTS {n} of "
+                          f"{dtype.itemsize} bytes need {n * dtype.itemsize}")
+    raw = np.empty(unpacked, np.uint8)
+    got = _lzf_decode(np.frombuffer(body, np.uint8, packed, 8), raw) if unpacked else 0
+    if got != unpacked:
+        raise FormatError(f"{path}: corrupt binary_compressed data (LZF gave {got} of {unpacked} bytes)")
+    data = np.empty(n, dtype)
+    at = 0
+    for name in dtype.names:  # column by column: all points' values of one field, then the next
+        sub = dtype.fields[name][0]
+        size = n * sub.itemsize
+        data[name] = np.frombuffer(raw[at:at + size].tobytes(), sub.base, n * max(1, int(np.prod(sub.shape)))
+                                   ).reshape((n,) + sub.shape)
+        at += size
+    return data
 
 
 def write(path, cloud, binary: bool = True) -> None:

@@ -47,7 +47,7 @@ from ..errors import InputValueError, MissingDependencyError, OutputError, SlrWa
 from ..io import PointCloud, atomic_path, check_format, write_cloud
 from ..io.outputs import LOCK_NAME, clean_stale_parts
 from ..options import Options
-from ..sensors import sensor as shipped_sensor
+from ..sensors import conversion_reach, sensor as shipped_sensor
 from .estimators import FPA_GAP
 from .frames import Sequence, write_kitti_poses
 from .methods import REGISTRY, TargetFrame, method, method_options, methods_with
@@ -281,7 +281,8 @@ def convert_sequence(seq: Sequence, out, sensor: str, options: ConvertOptions | 
     fresh = not (out / MANIFEST).exists()
     done = _resume(out, settings)
     try:
-        return _convert(seq, out, P, settings, done, o, progress, inputs)
+        summary = _convert(seq, out, P, settings, done, o, progress, inputs)
+        return summary | conversion_reach(shipped_sensor(sensor), seq.read(0).points, summary["points"])  # (#45)
     except BaseException:
         if fresh and not done:  # nothing converted: leave nothing (none of these files was there before)
             for name in (MANIFEST, JOURNAL, "poses.txt", "calib.txt"):

@@ -130,6 +130,11 @@ def _lines(P, R, n_lasers):
     return z0, el, float(np.median(np.concatenate(res_all))) if res_all else math.inf
 
 
+#: per laser the robust line ``z = z0 + rho tan(e)`` of points and their lasers: ``(z0, e, median residual deg)``
+#: (the sensor cards' fit, :mod:`slr_ray.sensorfit`, uses it too)
+beam_lines = _lines
+
+
 def fit_ray_model(frames, n_lasers: int, skews=None, stride: int = 2) -> RayModel:
     """The sensor's rays from frames' own points: ``frames`` a list of ``(points, beams, motion)``
     (each frame's points in its own frame, each point's laser, the frame's motion per frame by

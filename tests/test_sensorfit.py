@@ -1,0 +1,191 @@
+"""Sensor cards fitted from frames (#45 item 1): beams with and without a ring field, non-uniform and 128
+beams, heights, columns, offsets, drop rates; the card file round-trips and goes wherever a sensor name
+does; a frame that is not a spinning unit's is refused."""
+
+import json
+import warnings
+from pathlib import Path
+
+import numpy as np
+import pytest
+
+from slr_ray import InputValueError
+from slr_ray.cli import main
+from slr_ray.errors import FormatError, SlrNote
+from slr_ray.io import PointCloud, write_cloud
+from slr_ray.sensorfit import fit_card
+from slr_ray.sensors import beams_outside, card_dict, read_card, sensor, write_card
+
+DATA = next((p / "shared" / "data" for p in Path(__file__).resolve().parents[1:4] if (p / "shared" / "data").is_dir()),
+            Path(__file__).resolve().parents[2] / "shared" / "data")
+
+
+def _frame(table, heights=None, drop=0.1, seed=0, columns=None, ring_of_beam=None):
+    """A spinning unit's frame, exactly on its beams: beam b's ray leaves the spin axis at height
+    heights[b] at elevation e_b, azimuth offset_b + (h + 1/2) 2 pi / columns; ranges 3-40 m; a share
+    ``drop`` of the pulses lost. Returns a PointCloud with a ``ring`` field."""
+    rng = np.random.default_rng(seed)
+    el = np.radians(table.elevation_deg)
+    off = np.radians(table.azimuth_offset_deg)
+    cols = columns or table.columns
+    z0 = np.zeros(len(el)) if heights is None else np.asarray(heights)
+    b, h = np.meshgrid(np.arange(len(el)), np.arange(cols), indexing="ij")
+    b, h = b.ravel(), h.ravel()
+    keep = rng.random(len(b)) >= drop
+    b, h = b[keep], h[keep]
+    az = off[b] + (h + 0.5) * 2 * np.pi / cols
+    rho = rng.uniform(3, 40, len(b))
+    pts = np.column_stack([rho * np.cos(az), rho * np.sin(az), z0[b] + rho * np.tan(el[b])])
+    ring = b if ring_of_beam is None else np.asarray(ring_of_beam)[b]
+    return PointCloud(pts, {"ring": ring.astype(np.uint16)}, np.zeros(3))
+
+
+@pytest.mark.parametrize("name", ["velodyne_vlp32c", "ouster_os1_128"])
+@pytest.mark.parametrize("ring", [True, False])
+def test_fit_gives_the_units_beams_with_or_without_rings(name, ring):
+    table = sensor(name, columns=512)
+    card = fit_card(_frame(table, drop=0.2), ring=ring)
+    want = np.sort(table.elevation_deg)
+    got = np.sort(card.elevation_deg)
+    assert card.n_beams == table.n_beams and np.max(np.abs(got - want)) < 0.01
+    assert card.columns == 512
+    assert card.meta["fit"]["share_assigned"] > 0.99 and card.meta["fit"]["median_off_beam_deg"] < 0.01
+    assert np.allclose(card.meta["drop_rate"], 0.2, atol=0.1)
+    if ring:  # beams in ring order: each beam is its ring's
+        np.testing.assert_allclose(card.elevation_deg, table.elevation_deg, atol=0.01)
+        # azimuth offsets as fired, modulo a column
+        step = 360 / 512
+        d = (np.asarray(card.azimuth_offset_deg) - np.asarray(table.azimuth_offset_deg) + step / 2) % step - step / 2
+        assert np.max(np.abs(d)) < 1e-3
+
+
+def test_fit_finds_each_beams_height_and_rings_that_skip_numbers():
+    table = sensor("velodyne_vlp16", columns=900)
+    heights = np.linspace(-0.05, 0.05, 16)
+    card = fit_card(_frame(table, heights=heights, ring_of_beam=np.arange(16) * 2 + 1), ring=True)
+    assert card.meta["ring"] == list(range(1, 33, 2))
+    np.testing.assert_allclose(card.meta["height_m"], heights, atol=2e-3)
+    np.testing.assert_allclose(card.elevation_deg, table.elevation_deg, atol=0.01)
+
+
+def test_card_round_trips_and_goes_wherever_a_sensor_name_does(tmp_path, capsys):
+    card = fit_card([_frame(sensor("velodyne_vlp16", columns=600), seed=s) for s in (0, 1)], name="my_vlp")
+    write_card(tmp_path / "c.json", card)
+    back = sensor(str(tmp_path / "c.json"))
+    for f in ("elevation_deg", "azimuth_offset_deg", "columns", "min_range", "max_range", "name"):
+        assert getattr(back, f) == getattr(card, f)
+    assert card_dict(back) == card_dict(card) and back.meta["fit"]["frames"] == 2
+    with pytest.raises(FileExistsError):
+        write_card(tmp_path / "c.json", card)  # never over a file
+    assert read_card(tmp_path / "c.json", columns=100).columns == 100
+    from slr_ray import as_pattern
+    assert as_pattern(str(tmp_path / "c.json")).elevation_deg == card.elevation_deg  # a scan's pattern too
+    # the command line: a scan with --sensor card.json; sensor show
+    pts = _frame(sensor("velodyne_vlp16", columns=600)).points
+    write_cloud(tmp_path / "in.npz", PointCloud(pts, {}, np.zeros(3)))
+    assert main(["scan", str(tmp_path / "in.npz"), "--sensor", str(tmp_path / "c.json"), "-o",
+                 str(tmp_path / "out.npz")]) == 0
+    capsys.readouterr()
+    assert main(["sensor", "show", str(tmp_path / "c.json")]) == 0
+    assert json.loads(capsys.readouterr().out)["elevation_deg"] == list(card.elevation_deg)
+
+
+def test_a_json_that_is_not_a_card_is_refused_in_one_line(tmp_path, capsys):
+    (tmp_path / "x.json").write_text('{"lasers": []}')
+    with pytest.raises(FormatError, match="x.json: not a sensor card"):
+        sensor(str(tmp_path / "x.json"))
+    (tmp_path / "bad.json").write_text('{"elevation_deg": [1, 1], "columns": 10}')
+    with pytest.raises(FormatError, match="bad.json: not a sensor card.*repeated"):
+        sensor(str(tmp_path / "bad.json"))
+    assert main(["sensor", "show", str(tmp_path / "x.json")]) == 2
+    err = capsys.readouterr().err.strip().splitlines()
+    assert len(err) == 1 and "not a sensor card" in err[0]
+
+
+def test_cli_fit_writes_a_card_and_says_its_quality(tmp_path, capsys):
+    write_cloud(tmp_path / "f.pcd", _frame(sensor("velodyne_vlp16", columns=600)))
+    assert main(["sensor", "fit", str(tmp_path / "f.pcd"), "-o", str(tmp_path / "c.json")]) == 0
+    out = json.loads(capsys.readouterr().out)
+    assert out["beams"] == 16 and out["share_assigned"] > 0.99 and "ring field" in out["how"]
+    assert sensor(str(tmp_path / "c.json")).name == "c"
+
+
+def test_what_is_not_a_spinning_units_frame_is_refused():
+    rng = np.random.default_rng(0)
+    with pytest.raises(InputValueError, match="not a spinning"):
+        fit_card(rng.uniform(-20, 20, (20000, 3)))  # random points
+    fr = _frame(sensor("velodyne_vlp16", columns=600)).points
+    with pytest.raises(InputValueError, match="georeferenced"):
+        fit_card(fr + [5e5, 4e6, 0])
+    fwd = fr[np.abs(np.arctan2(fr[:, 1], fr[:, 0])) < 0.5]  # 57 deg of azimuth: forward-looking
+    with pytest.raises(InputValueError, match="turn of azimuth"):
+        fit_card(fwd)
+
+
+def test_beams_outside_what_the_source_saw():
+    vlp = sensor("velodyne_vlp16")
+    out = beams_outside(vlp, (-23.5, 2.6))
+    assert sorted(np.asarray(vlp.elevation_deg)[out]) == [3, 5, 7, 9, 11, 13, 15]
+    assert len(beams_outside(vlp, (-90, 90))) == 0
+    with pytest.raises(InputValueError):
+        beams_outside(vlp, (3, 1))
+
+
+def _shared(*parts):
+    p = DATA.joinpath(*parts)
+    if not p.exists():
+        pytest.skip(f"../shared/data/{'/'.join(parts)} is absent")
+    return p
+
+
+def test_shared_ouster_frames_fit_the_units_metadata_within_005_deg():
+    d = _shared("ouster_os1_128")
+    with warnings.catch_warnings():
+        warnings.simplefilter("ignore", SlrNote)
+        card = fit_card(sorted(d.glob("*.npz")))
+    meta = sensor(str(next(d.glob("*.json"))))
+    assert card.n_beams == 128 and card.columns == 1024
+    assert np.median(np.abs(np.asarray(card.elevation_deg) - meta.elevation_deg)) < 0.05
+
+
+@pytest.mark.parametrize("frame, table", [("velodyne_vlp16_1673400472138016708.pcd", "velodyne_vlp16"),
+                                          ("velodyne_vlp32_1713492677464078412.pcd", "velodyne_vlp32c")])
+def test_shared_velodyne_frames_fit_the_shipped_tables_within_005_deg(frame, table):
+    card = fit_card(_shared("single_frames", frame), ring=False)
+    t = np.asarray(sensor(table).elevation_deg)
+    d = [np.min(np.abs(t - e)) for e in card.elevation_deg]
+    assert card.n_beams >= len(t) - 1 and np.median(d) < 0.05
+
+
+def test_shared_forward_looking_unit_is_refused():
+    with pytest.raises(InputValueError, match="turn of azimuth"):
+        fit_card(_shared("single_frames", "hesai_at128_1679653308704927652.pcd"))
+
+
+def test_convert_says_the_target_beams_the_source_never_saw_and_refuses_nothing(tmp_path):
+    """#45 item 5: a VLP-16 drive (-15 ... +15 deg) as an HDL-32E (-30.7 ... +10.7): the beams below
+    what the frames saw are said once, with their count, on stderr and in the summary; a target that
+    gets nothing is an error."""
+    from slr_ray.errors import SlrWarning
+    from slr_ray.sequence import convert_sequence, read_sequence
+    from slr_ray.sequence.synthetic import synthetic_drive
+
+    synthetic_drive(tmp_path / "seq", n_frames=2, sensor="velodyne_vlp16", step=0.8, moving=False)
+    seq = read_sequence(tmp_path / "seq")
+    (tmp_path / "out").mkdir()
+    with warnings.catch_warnings(record=True) as said:
+        warnings.simplefilter("always")
+        summary = convert_sequence(seq, tmp_path / "out", "velodyne_hdl32e", half=0)
+    lo, hi = summary["source_elevation_range_deg"]
+    el = np.asarray(sensor("velodyne_hdl32e").elevation_deg)
+    want = int(((el < lo) | (el > hi)).sum())
+    assert lo < -14 and hi > 0 and want >= 8 and summary["beams_outside_source"] == want
+    notes = [w for w in said if issubclass(w.category, SlrWarning) and "outside what the source" in str(w.message)]
+    assert len(notes) == 1 and str(notes[0].message).startswith(f"{want} of the target's 32 beams")
+    card = sensor("velodyne_vlp16").with_(elevation_deg=tuple(np.linspace(60, 80, 16)), name="sky")
+    write_card(tmp_path / "sky.json", card)
+    (tmp_path / "out2").mkdir()
+    with warnings.catch_warnings():
+        warnings.simplefilter("ignore")
+        with pytest.raises(InputValueError, match="returned no point"):
+            convert_sequence(seq, tmp_path / "out2", str(tmp_path / "sky.json"), half=0)
