@@ -417,7 +417,7 @@ def convert_sequence(seq: Sequence, out, sensor: str, options: ConvertOptions | 
                 held.enter_context(hold_directory(out / sub))
                 clean_stale_parts(out / sub, locked=True)
             done.update(_resume(out, settings, seq, labelled))
-            return _convert(seq, out, P, settings, done, o, progress, inputs, labelled)
+            return _convert(seq, out, P, settings, done, o, progress, inputs)
     except BaseException:
         if fresh and not done:  # nothing converted: leave nothing (none of these files was there before)
             for name in (MANIFEST, JOURNAL, "poses.txt", "calib.txt"):
@@ -480,7 +480,8 @@ def _run_blocks(seq, out, P, settings, blocks, o: ConvertOptions, token, record)
                 record(entries)
 
 
-def _convert(seq, out, P, settings, done, o: ConvertOptions, progress, inputs, labelled) -> dict:
+def _convert(seq, out, P, settings, done, o: ConvertOptions, progress, inputs) -> dict:
+    labelled = _labelled(seq)
     doc = {"settings": settings, "inputs": inputs or {"sequence": [str(p) for p in seq.paths]},
            "pose_source": seq.pose_source}
     for name, text in ((MANIFEST, json.dumps(doc) + "\n"), ("calib.txt", "Tr: 1 0 0 0 0 1 0 0 0 0 1 0\n")):
