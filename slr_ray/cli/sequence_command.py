@@ -10,7 +10,7 @@ from pathlib import Path
 
 from ..evaluate import sequence_summary, write_sequence_evaluation
 from ..io import atomic_path
-from ..io.outputs import OutputPlan, resolve
+from ..io.outputs import LOCK_NAME, OutputPlan, resolve
 from ..errors import InputValueError, OutputError, SlrWarning
 from ..sequence import (REMOVE_MOVING, SeeThrough, convert_sequence, evaluate_sequence, read_sequence,
                         read_trajectory, register_chain, write_kitti_poses)
@@ -66,7 +66,9 @@ def _common(p):
     add_method_options(p)
     A.add_input_format(p)
     p.add_argument("--quiet", action="store_true", help="no progress bars")
-    p.add_argument("--force", action="store_true", help="replace the files of an earlier run")
+    p.add_argument("--force", action="store_true",
+                   help="evaluate: write into a directory that is not empty, replacing the files of an earlier "
+                        "run (never an input); convert: refused (it resumes its own run by itself)")
 
 
 _TYPES = {"float": A.finite_float, "int": int, "str": str}
@@ -267,15 +269,33 @@ def sequence(args):
         bad = [h for h in holdout if not 0 <= h < len(seq)]
         if bad:
             raise InputValueError(f"--holdout {bad}: not in a sequence of {len(seq)} frames (0 to {len(seq) - 1})")
-        for name in ("evaluation.json", "table.md", "table.csv") + (("poses.txt",) if args.register else ()):
+        names = ("evaluation.json", "table.md", "table.csv") + (("poses.txt",) if args.register else ())
+        _check_evaluate_output(out, args.force)
+        for name in names:
             plan.write(out / name, sidecars=False)
         with plan:
             _evaluate(args, seq, holdout, out)
     else:
+        if args.force:
+            raise InputValueError("sequence convert has no --force: it resumes its own run by itself and never "
+                                  "writes over what it did not write; write elsewhere, or remove the directory "
+                                  "to start again")
         for name in ("manifest.json", "poses.txt", "calib.txt", "journal.jsonl"):
             plan.write(out / name, sidecars=False, resumed=True)
         with plan:
             _convert(args, seq, out)
+
+
+def _check_evaluate_output(out: Path, force: bool) -> None:
+    """``sequence evaluate`` writes into a new or empty directory; ``--force``: among other
+    files (its own of an earlier run replaced, never an input)."""
+    if force or not out.is_dir():
+        return
+    held = sorted(p.name for p in out.iterdir() if p.name != LOCK_NAME and ".part" not in p.name)
+    if held:
+        raise OutputError(f"{out} is not empty ({', '.join(held[:3])}{', ...' if len(held) > 3 else ''}): "
+                          "sequence evaluate writes into a new or empty directory; write elsewhere, or give "
+                          "--force to write among these files (replacing evaluation.json, table.md, table.csv)")
 
 
 def _evaluate(args, seq, holdout, out):

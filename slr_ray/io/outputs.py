@@ -40,12 +40,14 @@ import os
 import re
 import socket
 import stat
+from contextlib import contextmanager
 from pathlib import Path
 
 from ..errors import OutputError
 
 __all__ = ["OutputPlan", "resolve", "output_sidecars", "input_sidecars", "label_targets", "content_digest",
-           "clean_stale_parts", "part_prefix", "label_path", "label_destinations", "link_new", "LOCK_NAME"]
+           "clean_stale_parts", "part_prefix", "label_path", "label_destinations", "link_new", "hold_directory",
+           "LOCK_NAME"]
 
 #: The lock file in an output directory while a command writes there.
 LOCK_NAME = ".slr_ray.lock"
@@ -302,6 +304,20 @@ class _Lock:
                     pass
             os.close(self.fd)
             self.fd = None
+
+
+@contextmanager
+def hold_directory(directory):
+    """Lock ``directory`` (which exists) as :class:`OutputPlan` locks an output directory, for
+    the ``with`` block: for a command that writes into subdirectories of its own (``sequence
+    convert``'s ``velodyne/``, ``labels/``), so that a single file written there by another
+    command meanwhile is refused (its shared lock), not replaced."""
+    lock = _Lock(resolve(directory))
+    lock.acquire()
+    try:
+        yield
+    finally:
+        lock.release()
 
 
 def _refuse_directory_syntax(path, what) -> None:

@@ -32,6 +32,11 @@ import dataclasses
 import importlib.util
 import json
 import multiprocessing
+import os
+import re
+import shutil
+import warnings
+from contextlib import ExitStack
 from dataclasses import dataclass
 import time
 import uuid
@@ -43,9 +48,10 @@ from pathlib import Path
 import numpy as np
 from tqdm import tqdm
 
-from ..errors import InputValueError, MissingDependencyError, OutputError, SlrWarning
+from ..errors import InputValueError, MissingDependencyError, OutputError, SlrError, SlrWarning
 from ..io import PointCloud, atomic_path, check_format, write_cloud
-from ..io.outputs import LOCK_NAME, clean_stale_parts
+from ..io.outputs import (LOCK_NAME, clean_stale_parts, content_digest, hold_directory, input_sidecars, label_path,
+                          link_new)
 from ..options import Options
 from ..sensors import conversion_reach, sensor as shipped_sensor
 from .estimators import FPA_GAP
@@ -80,6 +86,10 @@ CONVERT_ESTIMATORS = _ConvertEstimators()
 
 MANIFEST = "manifest.json"
 JOURNAL = "journal.jsonl"
+#: a run's staging directory in the output directory (``.convert-TOKEN``): its workers write there only,
+#: and the run itself gives each frame its final name once the journal lists it
+STAGE_PREFIX = ".convert-"
+_STAGE = re.compile(r"^\.convert-[0-9a-f]{32}$")
 _STATE: dict = {}
 
 
@@ -129,50 +139,192 @@ def _dask_job(block, out, seq, poses, settings, token) -> list:
         _STATE.clear()
         _init(seq, poses, settings)
         _STATE["token"] = token
-    return _job(block, out)
+    return _job(block, out, token)
 
 
-def _job(block, out) -> list:
+def _stage(out, token) -> Path:
+    """The staging directory of the run ``token`` in ``out``."""
+    return Path(out) / f"{STAGE_PREFIX}{token}"
+
+
+def _job(block, out, token) -> list:
+    """Convert the frames of ``block`` into the run's staging directory (never under a final
+    name: a worker of an interrupted run that goes on writing writes only there, and that
+    directory is gone or never published). Each entry says what to publish (``_staged``)."""
     s = _STATE
+    stage = _stage(out, token)
+    fmt = s["settings"]["format"]
     done = []
     for i in block:
         t0 = time.perf_counter()
         cloud = _frame_cloud(s["seq"], i, s["poses"][i], s["pattern"], s["settings"], s["cache"])
-        name = f"velodyne/{s['seq'].names[i]}.{s['settings']['format']}"
-        write_cloud(Path(out) / name, cloud, format=s["settings"]["format"])
-        done.append({"frame": int(i), "file": name, "points": int(len(cloud)),
-                     "seconds": round(time.perf_counter() - t0, 3)})
+        frame = s["seq"].names[i]
+        if len(cloud) == 0:
+            raise OutputError(f"frame {frame}: no pulse of the target sensor returns from its window (is the "
+                              "target pose far from the frames, an --offset or --target-poses away?): nothing "
+                              "to write")
+        name = f"velodyne/{frame}.{fmt}"
+        _write_frame(stage / name, cloud, fmt, frame)
+        entry = {"frame": int(i), "file": name, "points": int(len(cloud)),
+                 "seconds": round(time.perf_counter() - t0, 3)}
+        staged = [(str(stage / name), name)]
+        label = f"labels/{frame}.label"
+        if fmt == "bin" and "semantic" in cloud.attributes and (stage / label).is_file():
+            entry["label"] = label
+            staged.insert(0, (str(stage / label), label))  # the labels first: a frame is never without them
+        entry["_staged"] = staged
+        done.append(entry)
     return done
 
 
-def _resume(out: Path, settings: dict) -> dict:
+def _write_frame(path: Path, cloud, fmt, frame) -> None:
+    """``write_cloud``, its failures (a full disk in a LAS/LAZ or E57 library, which may
+    not say it as an OSError) one :class:`OutputError` naming the frame."""
+    try:
+        write_cloud(path, cloud, format=fmt)
+    except SlrError:
+        raise
+    except Exception as exc:  # noqa: BLE001 - a writer library's own exception (laspy, lazrs, pye57)
+        why = exc.strerror if isinstance(exc, OSError) and exc.strerror else str(exc) or type(exc).__name__
+        raise OutputError(f"cannot write frame {frame} ({fmt}): {why}") from None
+
+
+def _clean_stages(out: Path) -> None:
+    """Remove the staging directories of killed runs (the caller holds ``out``'s lock: no other
+    run of ours is live there; a late worker of a dead run that writes into one fails)."""
+    for p in out.iterdir():
+        if _STAGE.match(p.name) and p.is_dir() and not p.is_symlink():
+            shutil.rmtree(p, ignore_errors=True)
+
+
+def _refuse_foreign(out: Path) -> None:
+    """A directory without a manifest: refused unless empty (a killed run's temporaries, its
+    staging directory and a lock aside)."""
+    held = [p.name for p in out.iterdir()
+            if p.name != LOCK_NAME and ".part" not in p.name and not _STAGE.match(p.name)]
+    if held:  # not a conversion of ours: its files would be written over or mixed with frames
+        held.sort()
+        raise OutputError(f"{out} holds files that are not a conversion by slr-ray ({', '.join(held[:3])}"
+                          f"{', ...' if len(held) > 3 else ''}): write elsewhere")
+
+
+def _read_manifest(out: Path, settings: dict) -> None:
+    """Refuse a manifest of other settings (or none slr_ray can read), in one line."""
     m = out / MANIFEST
-    if not m.exists():
-        held = sorted(p.name for p in out.iterdir() if p.name != LOCK_NAME and ".part" not in p.name)
-        if held:  # not a conversion of ours: its files would be written over or mixed with frames
-            raise OutputError(f"{out} holds files that are not a conversion by slr-ray ({', '.join(held[:3])}"
-                              f"{', ...' if len(held) > 3 else ''}): write elsewhere")
-        return {}
     try:
         old = json.loads(m.read_text())
-    except ValueError:
-        raise InputValueError(f"{m} is not a manifest slr_ray can read: write elsewhere") from None
+    except (ValueError, UnicodeDecodeError):
+        raise InputValueError(f"{m} is not a manifest slr_ray can read: write elsewhere, or remove the "
+                              "directory to start again") from None
     before = old.get("settings") if isinstance(old, dict) else None
+    if not isinstance(before, dict):
+        raise InputValueError(f"{m} holds no settings slr_ray can read: write elsewhere, or remove the "
+                              "directory to start again")
     if before != settings:
-        diff = sorted(k for k in set(before or {}) | set(settings) if (before or {}).get(k) != settings.get(k))
-        raise InputValueError(f"{out} holds a conversion with other settings ({', '.join(diff)}): write elsewhere, "
+        diff = sorted(k for k in set(before) | set(settings) if before.get(k) != settings.get(k))
+        what = ", ".join(diff)
+        old_frames, new_frames = before.get("frames"), settings["frames"]
+        if diff == ["frames"] and isinstance(old_frames, list) and len(old_frames) == len(new_frames):
+            k = next(k for k, (a, b) in enumerate(zip(old_frames, new_frames)) if a != b)
+            what = f"frames: frame {k}'s content is not the one it converted"
+        raise InputValueError(f"{out} holds a conversion with other settings ({what}): write elsewhere, "
                               "or remove it to start again")
-    done = {}
+
+
+def _journal(out: Path, seq, settings: dict) -> dict:
+    """The entries of ``out``'s journal by frame (withdrawn ones dropped). A line cut short
+    (the last, by an interruption) is skipped; any other line that is not an entry this
+    conversion wrote (a hand-edited ``file``) is refused in one line."""
     j = out / JOURNAL
-    if j.exists():
-        for line in j.read_text().splitlines():
-            try:
-                e = json.loads(line)
-            except ValueError:
+    if not j.exists():
+        return {}
+    try:
+        lines = j.read_text().splitlines()
+    except UnicodeDecodeError:
+        lines = [None]
+    fmt = settings["format"]
+    entries = {}
+    for n, line in enumerate(lines, 1):
+        try:
+            e = json.loads(line)
+        except (TypeError, ValueError):
+            if n == len(lines) and line is not None:
                 continue  # a line cut short by an interruption
-            if (out / e["file"]).exists():
-                done[e["frame"]] = e
+            e = None
+        i = e.get("frame") if isinstance(e, dict) else None
+        ok = isinstance(i, int) and not isinstance(i, bool) and 0 <= i < len(seq)
+        if ok and e.get("withdrawn"):
+            entries.pop(i, None)
+            continue
+        ok = ok and e.get("file") == f"velodyne/{seq.names[i]}.{fmt}" and e.get("label") in (
+            None, f"labels/{seq.names[i]}.label") and isinstance(e.get("points"), int)
+        if not ok:
+            raise InputValueError(f"{j} line {n} is not an entry this conversion wrote (a frame of "
+                                  f"{len(seq)}, its file velodyne/NAME.{fmt}): remove the directory to start "
+                                  "again, or write elsewhere")
+        entries[i] = e
+    return entries
+
+
+def _resume(out: Path, settings: dict, seq, labelled: bool) -> dict:
+    """The frames an earlier run of the same settings wrote (the journal lists them, and their
+    files, labels included, are there). A listed frame with a file gone is converted again (its
+    other files, ours, removed; said in one line). A file under a name this run will write
+    that the journal does not list is another's: refused before any work."""
+    if not (out / MANIFEST).exists():
+        return {}
+    _read_manifest(out, settings)
+    done = {}
+    for i, e in _journal(out, seq, settings).items():
+        files = [e["file"]] + ([e["label"]] if "label" in e else [])
+        missing = labelled and settings["format"] == "bin" and "label" not in e
+        present = [f for f in files if os.path.lexists(out / f)]
+        if len(present) == len(files) and not missing:
+            done[i] = e
+            continue
+        for f in present:  # this run's own (the journal lists them): written again with the rest
+            (out / f).unlink()
+        warnings.warn(f"frame {seq.names[i]}: {', '.join(sorted(set(files) - set(present)) or ['its labels'])} "
+                      "gone since it was converted: converting it again", SlrWarning, stacklevel=3)
+    fmt = settings["format"]
+    theirs = [n for i in range(len(seq)) if i not in done
+              for n in [f"velodyne/{seq.names[i]}.{fmt}", *([f"labels/{seq.names[i]}.label"] if fmt == "bin" else [])]
+              if os.path.lexists(out / n)]
+    if theirs:
+        raise OutputError(f"{out} holds {theirs[0]}{f' and {len(theirs) - 1} more' if len(theirs) > 1 else ''}, "
+                          f"which its {JOURNAL} does not list: this run would write there; move "
+                          f"{'it' if len(theirs) == 1 else 'them'} away, or write elsewhere")
     return done
+
+
+def _identity(seq) -> list:
+    """Each frame's content (digests of its file and the labels read with it): what a resume
+    compares, not paths (another sequence at the same path, a frame edited since, the same
+    frames by another path)."""
+    seen: dict = {}
+
+    def digest(p):
+        key = os.fspath(p)
+        if key not in seen:
+            seen[key] = content_digest(p)
+        return seen[key]
+
+    return ["+".join(digest(p) for p in [path, *input_sidecars(path, seq.input_format)]) for path in seq.paths]
+
+
+def _labelled(seq) -> bool:
+    """Whether the frames carry SemanticKITTI ``.label`` files: all or none. One frame without
+    them would strip the labels of every output frame its window reaches (a union carries an
+    attribute all its frames have) and keep its moving objects: refused, naming it."""
+    if (seq.input_format or Path(seq.paths[0]).suffix).lower().lstrip(".") != "bin" or seq.meta.get("split"):
+        return False
+    has = [label_path(p) is not None for p in seq.paths]
+    if any(has) and not all(has):
+        k = has.index(False)
+        raise InputValueError(f"{seq.paths[k]}: no labels (.label) where the other frames have them: give "
+                              f"frame {seq.names[k]} its labels, or convert a copy without the labels/ "
+                              "directory")
+    return any(has)
 
 
 @dataclass(frozen=True)
@@ -253,8 +405,8 @@ def convert_sequence(seq: Sequence, out, sensor: str, options: ConvertOptions | 
     m.options.from_flat(flat)  # its options checked before anything is written
     settings = {"sensor": sensor, "estimator": estimator, "half": half, "radius": radius,
                 "offset": [float(x) for x in offset], "drop_moving": bool(drop_moving), "format": fmt.lstrip("."),
-                "fpa_gap": float(flat["fpa_gap"]), "frames": [str(p) for p in seq.paths],
-                "poses": np.round(P, 12).reshape(len(P), -1).tolist(), "cache": int(half or 8)}
+                "fpa_gap": float(flat["fpa_gap"]), "frames": [], "poses": np.round(P, 12).reshape(len(P), -1).tolist(),
+                "cache": int(half or 8)}
     fields = {f.name for f in dataclasses.fields(ConvertOptions)}
     extra = {k: v for k, v in (o.method_options or {}).items() if k not in fields}
     if extra:  # only where given: a manifest written before method options resumes as it was
@@ -278,10 +430,23 @@ def convert_sequence(seq: Sequence, out, sensor: str, options: ConvertOptions | 
         settings["source_sensor"] = source_sensor
     shipped_sensor(sensor)  # an unknown name or format is refused before anything is written
     check_format(out / "velodyne" / f"000000.{settings['format']}", settings["format"])
+    labelled = _labelled(seq)
+    settings["frames"] = _identity(seq)
     fresh = not (out / MANIFEST).exists()
-    done = _resume(out, settings)
+    if fresh:
+        _refuse_foreign(out)
+    _clean_stages(out)
+    done: dict = {}
     try:
-        summary = _convert(seq, out, P, settings, done, o, progress, inputs)
+        with ExitStack() as held:
+            for sub in ("velodyne", "labels") if labelled else ("velodyne",):
+                (out / sub).mkdir(exist_ok=True)
+                # locked as out is: a file written into it by another command meanwhile (scan -o
+                # OUT/velodyne/000011.bin) is refused there, not replaced here
+                held.enter_context(hold_directory(out / sub))
+                clean_stale_parts(out / sub, locked=True)
+            done.update(_resume(out, settings, seq, labelled))
+            summary = _convert(seq, out, P, settings, done, o, progress, inputs)
         return summary | conversion_reach(shipped_sensor(sensor), seq.read(0).points, summary["points"])  # (#45)
     except BaseException:
         if fresh and not done:  # nothing converted: leave nothing (none of these files was there before)
@@ -295,60 +460,96 @@ def convert_sequence(seq: Sequence, out, sensor: str, options: ConvertOptions | 
         _STATE.clear()  # the serial run's frames
 
 
+def _publish(out: Path, staged) -> None:
+    """Give a frame's staged files their final names, never over a file: one there now
+    (another program's, written meanwhile) is a :class:`FileExistsError` naming it, left as it
+    is (and this frame's files just published are taken back)."""
+    published = []
+    try:
+        for src, rel in staged:
+            link_new(src, out / rel)
+            published.append(out / rel)
+    except FileExistsError:
+        for p in published:
+            p.unlink(missing_ok=True)
+        raise
+
+
+def _run_blocks(seq, out, P, settings, blocks, o: ConvertOptions, token, record) -> None:
+    """Convert ``blocks`` (serially, in local processes or on a Dask scheduler), ``record`` each
+    block's entries as it comes. On any exit, no worker of this run writes any more: a pool's
+    workers are terminated; a scheduler's tasks are cancelled (one already running finishes into
+    the staging directory, which :func:`_convert` removes and never publishes)."""
+    if o.scheduler:
+        from dask.distributed import Client, as_completed, wait
+
+        with Client(o.scheduler) as client:
+            shared = client.scatter([seq, P, settings], broadcast=True)  # once, not once a block
+            futures = [client.submit(_dask_job, b, str(out), *shared, token, pure=False) for b in blocks]
+            try:
+                for fut in as_completed(futures):
+                    record(fut.result())
+            except BaseException:
+                client.cancel(futures)
+                try:  # those already running: let them end (into the staging directory) before we go on
+                    wait(futures, timeout=30)
+                except Exception:  # noqa: BLE001 - a timeout: the staging directory is removed anyway
+                    pass
+                raise
+    elif o.workers <= 1 or len(blocks) <= 1:
+        _init(seq, P, settings)
+        for b in blocks:
+            record(_job(b, str(out), token))
+    else:
+        # spawn, not fork (a forked child inherits numba's thread pools in whatever state they
+        # were); multiprocessing.Pool, not ProcessPoolExecutor: on an interrupt (SIGINT, or
+        # SIGTERM turned into one by the CLI) its exit terminates the workers at once
+        ctx = multiprocessing.get_context("spawn")
+        with ctx.Pool(o.workers, initializer=_init, initargs=(seq, P, settings)) as pool:
+            for entries in pool.imap_unordered(partial(_job, out=str(out), token=token), blocks):
+                record(entries)
+
+
 def _convert(seq, out, P, settings, done, o: ConvertOptions, progress, inputs) -> dict:
-    workers, block, scheduler = o.workers, o.block, o.scheduler
-    (out / "velodyne").mkdir(exist_ok=True)
-    clean_stale_parts(out / "velodyne", locked=True)  # a killed run's temporaries (the caller holds out's lock)
-    probe = seq.read(0)
-    if "semantic" in probe.attributes:
-        (out / "labels").mkdir(exist_ok=True)
-    doc = {"settings": settings, "inputs": inputs or {}, "pose_source": seq.pose_source}
+    labelled = _labelled(seq)
+    doc = {"settings": settings, "inputs": inputs or {"sequence": [str(p) for p in seq.paths]},
+           "pose_source": seq.pose_source}
     for name, text in ((MANIFEST, json.dumps(doc) + "\n"), ("calib.txt", "Tr: 1 0 0 0 0 1 0 0 0 0 1 0\n")):
         with atomic_path(out / name) as tmp:
             tmp.write_text(text)
     with atomic_path(out / "poses.txt") as tmp:
         write_kitti_poses(tmp, P)
     todo = [i for i in range(len(seq)) if i not in done]
-    blocks = [todo[k:k + block] for k in range(0, len(todo), block)]
+    blocks = [todo[k:k + o.block] for k in range(0, len(todo), o.block)]
+    token = uuid.uuid4().hex
+    stage = _stage(out, token)
     t0 = time.perf_counter()
     bar = tqdm(total=len(seq), initial=len(done), desc="frames", unit="frame", disable=not progress)
-    with open(out / JOURNAL, "a") as journal:
-        def record(entries):
-            for e in entries:
-                journal.write(json.dumps(e) + "\n")
-                done[e["frame"]] = e
-            journal.flush()
-            bar.update(len(entries))
+    try:
+        for sub in ("velodyne", "labels") if labelled else ("velodyne",):
+            (stage / sub).mkdir(parents=True)
+        with open(out / JOURNAL, "a") as journal:
+            def record(entries):
+                # recorded, then published: a frame under its final name is always one the journal lists
+                for e in entries:
+                    staged = e.pop("_staged")
+                    journal.write(json.dumps(e) + "\n")
+                    journal.flush()
+                    try:
+                        _publish(out, staged)
+                    except FileExistsError as exc:
+                        journal.write(json.dumps({"frame": e["frame"], "withdrawn": True}) + "\n")
+                        journal.flush()
+                        raise OutputError(f"{exc.filename} appeared in the output directory during the run (this "
+                                          "run did not write it): left as it is, and the run stopped; move it "
+                                          "away and rerun to resume") from None
+                    done[e["frame"]] = e
+                    bar.update(1)
 
-        try:
-            if scheduler:
-                from dask.distributed import Client, as_completed
-
-                with Client(scheduler) as client:
-                    token = uuid.uuid4().hex
-                    shared = client.scatter([seq, P, settings], broadcast=True)  # once, not once a block
-                    futures = [client.submit(_dask_job, b, str(out), *shared, token, pure=False) for b in blocks]
-                    for fut in as_completed(futures):
-                        record(fut.result())
-            elif workers <= 1 or len(blocks) <= 1:
-                _init(seq, P, settings)
-                for b in blocks:
-                    record(_job(b, str(out)))
-            else:
-                # spawn, not fork (a forked child inherits numba's thread pools in whatever state they
-                # were); multiprocessing.Pool, not ProcessPoolExecutor: on an interrupt (SIGINT, or
-                # SIGTERM turned into one by the CLI) its exit terminates the workers at once
-                ctx = multiprocessing.get_context("spawn")
-                with ctx.Pool(workers, initializer=_init, initargs=(seq, P, settings)) as pool:
-                    for entries in pool.imap_unordered(partial(_job, out=str(out)), blocks):
-                        record(entries)
-        except BaseException:
-            for sub in ("velodyne", "labels"):  # what a killed worker left mid-write
-                if (out / sub).is_dir():
-                    clean_stale_parts(out / sub, locked=True)
-            raise
-        finally:
-            bar.close()
+            _run_blocks(seq, out, P, settings, blocks, o, token, record)
+    finally:
+        bar.close()
+        shutil.rmtree(stage, ignore_errors=True)  # what was converted and not published (an interruption)
     secs = time.perf_counter() - t0
     return {"output_dir": str(out), "frames": len(seq), "written": len(todo), "resumed": len(seq) - len(todo),
             "points": int(sum(e["points"] for e in done.values())), "seconds": round(secs, 3),

@@ -1,0 +1,279 @@
+"""`sequence convert`'s output directory (#48): what it locks, resumes, refuses and publishes.
+A tiny synthetic drive (4 frames, VLP-16), converted nearest-a-frame."""
+
+import errno
+import json
+import shutil
+from types import SimpleNamespace
+
+import numpy as np
+import pytest
+
+import slr_ray.sequence.convert as C
+from slr_ray.cli import main
+from slr_ray.errors import InputValueError, OutputError, SlrError, SlrWarning
+from slr_ray.io import read_cloud
+from slr_ray.io.outputs import OutputPlan
+from slr_ray.sequence import convert_sequence, read_sequence
+from slr_ray.sequence.synthetic import synthetic_drive
+
+SENSOR = "velodyne_vlp16"
+
+
+@pytest.fixture(scope="module")
+def drive(tmp_path_factory):
+    root = tmp_path_factory.mktemp("drive") / "seq"
+    synthetic_drive(root, n_frames=4, sensor=SENSOR, step=0.8)
+    return root
+
+
+def _convert(root, out, **kw):
+    out.mkdir(exist_ok=True)
+    kw = {"half": 1, "block": 1} | kw
+    return convert_sequence(read_sequence(root), out, SENSOR, **kw)
+
+
+def _interrupt_after(monkeypatch, n_blocks, exc=KeyboardInterrupt):
+    """The run stops (Ctrl-C) when the ``n_blocks + 1``-th block starts."""
+    real, calls = C._job, []
+
+    def job(block, out, token):
+        calls.append(block)
+        if len(calls) > n_blocks:
+            raise exc()
+        return real(block, out, token)
+
+    monkeypatch.setattr(C, "_job", job)
+    return calls
+
+
+def _bytes(d):
+    return {str(p.relative_to(d)): p.read_bytes() for p in sorted(d.rglob("*")) if p.is_file()}
+
+
+def test_a_file_written_into_velodyne_during_a_conversion_is_refused(drive, tmp_path, monkeypatch):
+    # (#48 item 1) the lock covers the subdirectories convert writes into
+    out, real, tried = tmp_path / "out", C._job, []
+
+    def job(block, out_, token):
+        plan = OutputPlan()
+        plan.write(out / "velodyne" / "000011.bin")  # what scan -o OUT/velodyne/000011.bin plans
+        with pytest.raises(OutputError, match="in use by another slr-ray run"):
+            with plan:
+                pass
+        tried.append(1)
+        return real(block, out_, token)
+
+    monkeypatch.setattr(C, "_job", job)
+    _convert(drive, out)
+    assert tried and not (out / "velodyne" / "000011.bin").exists()
+    assert not list(out.rglob(".slr_ray.lock"))  # released
+
+
+def test_a_resume_never_writes_over_a_file_it_did_not_write(drive, tmp_path, monkeypatch):
+    # (#48 item 2) planted before the resume: refused before any work, left as it is
+    out = tmp_path / "out"
+    _interrupt_after(monkeypatch, 1)
+    with pytest.raises(KeyboardInterrupt):
+        _convert(drive, out)
+    monkeypatch.undo()
+    planted = out / "velodyne" / "000002.bin"
+    planted.write_bytes(b"mine")
+    with pytest.raises(OutputError, match="000002.bin.*does not list"):
+        _convert(drive, out)
+    assert planted.read_bytes() == b"mine"
+    # planted while the resume runs, after its checks: published without replacing, so refused too
+    planted.unlink()
+    real, theirs = C._job, out / "velodyne" / "000001.bin"
+
+    def job(block, out_, token):
+        entries = real(block, out_, token)
+        theirs.write_bytes(b"theirs")
+        return entries
+
+    monkeypatch.setattr(C, "_job", job)
+    with pytest.raises(OutputError, match="000001.bin appeared in the output directory"):
+        _convert(drive, out)
+    assert theirs.read_bytes() == b"theirs" and not (out / "labels" / "000001.label").exists()
+    monkeypatch.undo()  # moved away, the rerun resumes
+    theirs.unlink()
+    assert _convert(drive, out)["written"] == 3
+
+
+def test_workers_write_only_their_runs_staging_directory(drive, tmp_path, monkeypatch):
+    # (#48 item 3) a worker of an interrupted run (a Dask task cancelled too late) writes into its
+    # run's staging directory, gone once the run ends: never a frame under a final name
+    out = tmp_path / "out"
+    _interrupt_after(monkeypatch, 1)
+    with pytest.raises(KeyboardInterrupt):
+        _convert(drive, out)
+    monkeypatch.undo()
+    before = _bytes(out)
+    assert not [p for p in out.iterdir() if p.name.startswith(C.STAGE_PREFIX)]
+    token = "0" * 32
+    seq = read_sequence(drive)
+    with pytest.raises((OSError, SlrError)):  # the late worker: its staging directory is gone
+        C._dask_job([2], str(out), seq, seq.poses, json.loads((out / C.MANIFEST).read_text())["settings"], token)
+    assert _bytes(out) == before
+    # a killed run's staging directory (kill -9: never removed) is not published by the next run
+    stale = out / f"{C.STAGE_PREFIX}{'1' * 32}" / "velodyne"
+    stale.mkdir(parents=True)
+    (stale / "000003.bin").write_bytes(b"old run")
+    _convert(drive, out)
+    journal = [json.loads(line) for line in (out / C.JOURNAL).read_text().splitlines()]
+    assert sorted(e["frame"] for e in journal) == [0, 1, 2, 3]
+    assert (out / "velodyne" / "000003.bin").read_bytes() != b"old run"
+    assert not [p for p in out.iterdir() if p.name.startswith(C.STAGE_PREFIX)]
+
+
+def test_a_frame_without_labels_among_labelled_ones_is_refused(drive, tmp_path):
+    # (#48 item 4) it would strip its neighbours' labels and keep its moving objects
+    root = tmp_path / "seq"
+    shutil.copytree(drive, root)
+    (root / "labels" / "000002.label").unlink()
+    with pytest.raises(InputValueError, match="000002.*no labels") as e:
+        _convert(root, tmp_path / "out")
+    assert "\n" not in str(e.value)
+    assert not any((tmp_path / "out").iterdir())
+
+
+def test_inputs_are_known_by_content_not_path(drive, tmp_path, monkeypatch):
+    # (#48 item 6)
+    root = tmp_path / "seq"
+    shutil.copytree(drive, root)
+    out = tmp_path / "out"
+    _interrupt_after(monkeypatch, 1)
+    with pytest.raises(KeyboardInterrupt):
+        _convert(root, out)
+    monkeypatch.undo()
+    monkeypatch.chdir(tmp_path)  # the same frames by a relative path: resumed, not "other settings"
+    res = convert_sequence(read_sequence("seq"), out, SENSOR, half=1, block=1)
+    assert res["resumed"] == 1 and res["written"] == 3
+    # a frame edited since: refused, naming it
+    with open(root / "velodyne" / "000001.bin", "r+b") as f:
+        f.write(np.float32(0.5).tobytes())
+    with pytest.raises(InputValueError, match="frame 1's content"):
+        _convert(root, out)
+    # another sequence at the same path: refused
+    shutil.rmtree(root)
+    synthetic_drive(root, n_frames=4, sensor=SENSOR, step=0.9)
+    with pytest.raises(InputValueError, match="other settings"):
+        _convert(root, out)
+
+
+def test_a_failure_in_the_first_block_leaves_nothing_and_the_fixed_rerun_runs(drive, tmp_path, monkeypatch):
+    # (#48 item 7) frame 0 converted, frame 1 fails: no orphan frame without a manifest
+    out = tmp_path / "out"
+    real = C._frame_cloud
+
+    def frame_cloud(seq, i, *a):
+        if i == 1:
+            raise InputValueError("frame 1 is broken")
+        return real(seq, i, *a)
+
+    monkeypatch.setattr(C, "_frame_cloud", frame_cloud)
+    with pytest.raises(InputValueError):
+        _convert(drive, out, block=4)
+    assert list(out.iterdir()) == []
+    monkeypatch.undo()
+    assert _convert(drive, out, block=4)["written"] == 4
+
+
+def test_a_conversion_of_nothing_is_an_error_at_its_first_frame(drive, tmp_path, monkeypatch):
+    # (#48 item 7) --offset 1000 0 0: no pulse returns
+    out, real, calls = tmp_path / "out", C._frame_cloud, []
+    monkeypatch.setattr(C, "_frame_cloud", lambda *a: calls.append(1) or real(*a))
+    with pytest.raises(OutputError, match="frame 000000: no pulse") as e:
+        _convert(drive, out, offset=(1000.0, 0.0, 0.0), block=4)
+    assert len(calls) == 1 and "\n" not in str(e.value)
+    assert list(out.iterdir()) == []
+
+
+def test_a_frame_whose_labels_are_gone_is_converted_again(drive, tmp_path):
+    # (#48 item 10)
+    out = tmp_path / "out"
+    _convert(drive, out)
+    want = _bytes(out / "labels")
+    (out / "labels" / "000001.label").unlink()
+    with pytest.warns(SlrWarning, match="000001.*converting it again"):
+        res = _convert(drive, out)
+    assert res["written"] == 1 and _bytes(out / "labels") == want
+    c = read_cloud(out / "velodyne" / "000001.bin")
+    assert "semantic" in c.attributes
+
+
+@pytest.mark.parametrize("edit", ["file", "junk", "frame"])
+def test_a_journal_it_did_not_write_is_refused_in_one_line(drive, tmp_path, monkeypatch, edit):
+    # (#48 item 10, crashes) a hand-edited 'file', a line of junk, a frame out of range
+    out = tmp_path / "out"
+    _interrupt_after(monkeypatch, 2)
+    with pytest.raises(KeyboardInterrupt):
+        _convert(drive, out)
+    monkeypatch.undo()
+    j = out / C.JOURNAL
+    lines = j.read_text().splitlines()
+    e = json.loads(lines[0])
+    if edit == "file":
+        lines[0] = json.dumps(e | {"file": "../../elsewhere.bin"})
+    elif edit == "junk":
+        lines[0] = "[1, 2"
+    else:
+        lines[0] = json.dumps(e | {"frame": 99})
+    j.write_text("\n".join(lines) + "\n")
+    before = _bytes(out)
+    with pytest.raises(InputValueError, match="journal.jsonl line 1 is not an entry") as exc:
+        _convert(drive, out)
+    assert "\n" not in str(exc.value) and _bytes(out) == before
+
+
+@pytest.mark.parametrize("text", ["[]", '{"settings": "x"}', "{not json", "\xff\xfe"])
+def test_a_manifest_it_cannot_read_is_refused_in_one_line(drive, tmp_path, text):
+    out = tmp_path / "out"
+    out.mkdir()
+    (out / C.MANIFEST).write_bytes(text.encode("latin-1"))
+    with pytest.raises(InputValueError, match="manifest.json") as e:
+        _convert(drive, out)
+    assert "\n" not in str(e.value)
+
+
+@pytest.mark.parametrize("fmt,error", [("laz", OSError(errno.ENOSPC, "No space left on device")),
+                                       ("laz", RuntimeError("lazrs: No space left on device (os error 28)")),
+                                       ("e57", RuntimeError("E57 element path well-formed, but not defined"))])
+def test_a_writer_failing_is_one_output_error_naming_the_frame(drive, tmp_path, monkeypatch, fmt, error):
+    # full disk in LAZ (laspy / lazrs) or E57 (pye57): the library's own exception, said in one line
+    import laspy
+    import pye57
+
+    def fail(*a, **k):
+        raise error
+
+    monkeypatch.setattr(laspy.LasData, "write", fail)
+    monkeypatch.setattr(pye57.E57, "make_buffers", fail)
+    with pytest.raises(OutputError, match=r"cannot write frame 000000 \(" + fmt) as e:
+        _convert(drive, tmp_path / "out", fmt=fmt)
+    assert "\n" not in str(e.value)
+    assert list((tmp_path / "out").iterdir()) == []
+
+
+def _cli(capsys, *args):
+    capsys.readouterr()
+    rc = main([str(a) for a in args])
+    out = capsys.readouterr()
+    return SimpleNamespace(returncode=rc, stdout=out.out, stderr=out.err)
+
+
+def test_evaluate_into_a_directory_that_is_not_empty_needs_force(drive, tmp_path, capsys):
+    # (#48 item 16)
+    out = tmp_path / "ev"
+    out.mkdir()
+    (out / "notes.txt").write_text("mine")
+    r = _cli(capsys, "sequence", "evaluate", drive, "--holdout", "1", "--sensor", SENSOR, "-o", out, "--quiet")
+    assert r.returncode == 2 and "is not empty (notes.txt)" in r.stderr and "--force" in r.stderr
+    assert len(r.stderr.strip().splitlines()) == 1
+    assert sorted(p.name for p in out.iterdir()) == ["notes.txt"]
+
+
+def test_convert_refuses_force(drive, tmp_path, capsys):
+    # (#48 item 16) it had no effect: now said
+    r = _cli(capsys, "sequence", "convert", drive, "--sensor", SENSOR, "-o", tmp_path / "c", "--force", "--quiet")
+    assert r.returncode == 2 and "no --force" in r.stderr and not (tmp_path / "c").exists()
