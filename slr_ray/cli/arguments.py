@@ -272,12 +272,20 @@ def ground_from(args) -> dict:
             "cloth_resolution": args.cloth_resolution}
 
 
+def _count_or_auto(text: str):
+    """An argparse type: an integer >= 1, or 'auto'."""
+    return text if text == "auto" else positive_int(text)
+
+
 def add_positions(p) -> None:
     """The grid method's settings (:func:`slr_ray.positions.select_positions`)."""
     g = p.add_argument_group("positions (the paper's grid method)")
     g.add_argument("--seed", type=int, default=0, metavar="N", help="random seed of the draw (default 0)")
-    g.add_argument("--min-ground-points", type=positive_int, default=paper.MIN_GROUND_POINTS, metavar="N",
-                   help=f"ground points a position needs within 5 m (default {paper.MIN_GROUND_POINTS:,})")
+    g.add_argument("--min-ground-points", type=_count_or_auto, default="auto", metavar="N|auto",
+                   help=f"ground points a position needs within 5 m; 'auto' (default): the paper's "
+                        f"{paper.MIN_GROUND_POINTS:,} (for its 0.036 deg scans) scaled by the cloud's density, "
+                        "0.2545%% of the best cell's count (docs/positions.md); give "
+                        f"{paper.MIN_GROUND_POINTS} for the paper's number")
     g.add_argument("--scanner-height", type=positive_float, default=paper.SCANNER_HEIGHT, metavar="M",
                    help=f"scanner height above the ground (m, default {paper.SCANNER_HEIGHT})")
 
