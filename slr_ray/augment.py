@@ -39,7 +39,8 @@ from typing import NamedTuple
 import numpy as np
 
 from . import __version__
-from .backends import options_for, prepare, require_rays, require_streamable, scanner_class
+from .backends import (options_for, prepare, primary_from_cloud, require_rays, require_streamable,
+                       scanner_class)
 from .effects import Effects, effect_cloud, simulate
 from .errors import InputValueError, MissingDependencyError, OutputError, SlrError, refuse_memory
 from .io import PointCloud, atomic_path, check_format, read_cloud, write_cloud
@@ -660,6 +661,7 @@ def _augment(input_path, out, config, ground, run: _Run) -> dict:
                                             min_ground_points=config.min_ground_points,
                                             scanner_height=config.scanner_height,
                                             allow_fewer=config.allow_fewer, return_cells=True)
+    backend_options = primary_from_cloud(cloud, backend, backend_options, input_path)  # as `scan` does
     require_positions(positions, config.n, cells, input_path)  # allow_fewer is fewer, not none
     done = {} if fresh else _resumable(old, positions, out)
     if not os.access(out, os.W_OK):

@@ -1,0 +1,133 @@
+"""A first use as a new user makes it (issue #48, items 11-16): the README's set-up, defaults that
+follow the cloud, augment's primary as scan's, what the help and the progress lines say."""
+
+import json
+import re
+import shlex
+from pathlib import Path
+
+import numpy as np
+import pytest
+
+from slr_ray import paper
+from slr_ray.cli import main
+from slr_ray.errors import SlrNote
+from slr_ray.positions import candidate_cells
+
+ROOT = Path(__file__).resolve().parents[1]
+
+
+# --- 11. the README's two commands set up a virtual environment; CI runs the second --------------------------
+
+def _quick_start() -> list[str]:
+    text = (ROOT / "README.md").read_text(encoding="utf-8")
+    block = re.search(r"^## Quick start\n.*?```bash\n(.*?)```", text, flags=re.S | re.M).group(1)
+    return [line for line in block.splitlines() if line.strip() and not line.startswith("#")]
+
+
+def test_the_quick_start_is_two_commands_that_install_into_a_virtual_environment():
+    commands = _quick_start()
+    assert len(commands) == 2 and commands[0].endswith("slr-ray demo") and "pytest" in commands[1]
+    for c in commands:  # Debian 12 / Ubuntu 24.04: pip into the system's Python is refused
+        parts = [p.strip() for p in c.split("&&")]
+        venv = parts.index("python3 -m venv .venv")
+        assert parts[venv + 1] == ". .venv/bin/activate"
+        assert "python3-venv" in shlex.split(parts[1]) and parts[1].startswith("apt-get install")
+        pip = next(i for i, p in enumerate(parts) if p.startswith("pip install"))
+        assert pip > venv + 1  # pip only once the environment is active
+
+
+def test_ci_runs_the_readmes_test_command_after_its_apt_get_part():
+    command = _quick_start()[1]
+    ci = (ROOT / ".ci" / "run").read_text(encoding="utf-8")
+    after_apt = command.split(" && ", 2)[2]
+    assert after_apt.startswith("python3 -m venv .venv") and after_apt in ci.splitlines()
+    assert "python3 -m pip install" not in ci  # nothing into the system's Python
+    assert "libusb-1.0-0 python3-venv" in ci
+
+
+# --- 12. --min-ground-points follows the cloud's density --------------------------------------------------------
+
+def _ground(density: float, half=12.0, seed=0):
+    """A flat square of ground at ``density`` points/m², denser towards its centre as a scan's, and boxes."""
+    rng = np.random.default_rng(seed)
+    n = int(density * (2 * half) ** 2)
+    xy = rng.uniform(-half, half, (3 * n, 2))
+    xy = xy[rng.random(len(xy)) < np.exp(-np.hypot(*xy.T) / 6)][:n]
+    g = np.column_stack([xy, rng.normal(0, 0.01, len(xy))])
+    boxes = np.column_stack([rng.uniform(-half, half, (n // 10, 2)), rng.uniform(0.5, 2.5, n // 10)])
+    return np.vstack([g, boxes]), np.r_[np.ones(len(g), bool), np.zeros(len(boxes), bool)]
+
+
+def test_auto_ground_support_scales_with_the_density_and_keeps_the_same_cells():
+    from slr_ray.positions import AUTO_GROUND_FRACTION
+
+    pts, g = _ground(200.0)
+    full = candidate_cells(pts, g, min_ground_points="auto")
+    thin = candidate_cells(pts[::4], g[::4], min_ground_points="auto")
+    assert full.params["min_ground_points_rule"] == "auto"
+    for c in (full, thin):  # the threshold is the paper's fraction of the best cell
+        assert c.params["min_ground_points"] == max(1, int(np.ceil(AUTO_GROUND_FRACTION * c.ground_counts.max())))
+    ratio = full.params["min_ground_points"] / thin.params["min_ground_points"]
+    assert 3.0 < ratio < 5.0  # a quarter of the points, about a quarter of the threshold
+    a, b = ({tuple(ij) for ij in c.ij[c.final].tolist()} for c in (full, thin))
+    assert len(a & b) >= 0.9 * len(a | b) and len(a) > 10
+    assert candidate_cells(pts, g, min_ground_points=paper.MIN_GROUND_POINTS).params["min_ground_points"] == 50_000
+    with pytest.raises(ValueError, match="'auto'"):
+        candidate_cells(pts, g, min_ground_points="many")
+
+
+def test_positions_of_a_sparse_cloud_by_default_and_the_papers_number_on_demand(tmp_path, capsys):
+    from slr_ray.io import PointCloud, write_cloud
+
+    pts, g = _ground(20.0)
+    write_cloud(tmp_path / "c.npz", PointCloud(pts, {"is_ground": g}))
+    assert main(["positions", str(tmp_path / "c.npz"), "--n", "3", "-o", str(tmp_path / "p.json"), "--quiet"]) == 0
+    d = json.loads((tmp_path / "p.json").read_text())
+    assert len(d["positions"]) == 3 and d["params"]["min_ground_points_rule"] == "auto"
+    # the paper's number, typed, is the paper's: no cell here
+    assert main(["positions", str(tmp_path / "c.npz"), "--n", "3", "-o", str(tmp_path / "q.json"), "--quiet",
+                 "--min-ground-points", "50000"]) == 2
+    assert "ground_support removed 144" in capsys.readouterr().err
+
+
+def test_the_paper_configs_keep_the_papers_number():
+    from slr_ray.validation.config import load_config
+
+    for path in sorted((ROOT / "slr_ray" / "data" / "scenes").glob("validate-*.toml")):
+        value = load_config(path).min_ground_points  # never 'auto': the paper's runs stay the same
+        assert value == (300 if path.stem == "validate-quick" else paper.MIN_GROUND_POINTS), path
+
+
+# --- 13. augment --backend embree takes a sensor frame's primary as scan does -----------------------------------
+
+def _ring_frame():
+    """A KITTI-like frame: 64 rings of 300 points (the HDL-64E's table), ring by ring, each a turn."""
+    from slr_ray.sensors import sensor
+
+    el = np.radians(np.sort(np.asarray(sensor("velodyne_hdl64e_s2").elevation_deg))[::-1])
+    az = np.radians(np.arange(300) * 1.2 + 0.6)
+    e, a = np.meshgrid(el, az, indexing="ij")
+    rng = np.random.default_rng(0)
+    e = e + np.radians(rng.normal(scale=0.05, size=e.shape))
+    a = a + np.radians(rng.normal(scale=0.3, size=a.shape))
+    r = np.where(np.abs(np.sin(3 * a)) > 0.8, 4.0, 12.0) + rng.normal(scale=0.02, size=a.shape)
+    pts = np.stack([r * np.cos(e) * np.cos(a), r * np.cos(e) * np.sin(a), r * np.sin(e), np.ones_like(r)], -1)
+    return pts.reshape(-1, 4)
+
+
+def test_augment_with_embree_fits_a_sensor_frames_primary_as_scan_does(tmp_path):
+    from slr_ray import prepare
+    from slr_ray.augment import AugmentConfig, augment
+    from slr_ray.io import read_cloud
+
+    frame = tmp_path / "frame.bin"
+    _ring_frame().astype("<f4").tofile(frame)
+    cloud = read_cloud(frame)
+    ground = cloud.points[:, 2] < -1.0
+    config = AugmentConfig(n=2, sensor="velodyne_vlp16", backend="embree", min_ground_points=1, workers=1)
+    with pytest.warns(SlrNote, match="pattern fitted to the points"):
+        m = augment(frame, tmp_path / "out", config, ground=ground, progress=False)
+    fitted = prepare(cloud.points, "embree", primary_origin=[0, 0, 0], primary_pattern="fit")
+    for s in m["scans"]:
+        assert s["points"] == len(fitted.scan(s["origin"], "velodyne_vlp16"))
