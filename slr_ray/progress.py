@@ -12,6 +12,12 @@ Two helpers, used wherever slr_ray runs long enough to look stuck (~2 s):
     nothing for a step that ends sooner, nothing at all with
     ``progress=False``.
 
+Both (and the command line, unless ``--quiet``) call ``say_compiling``: the
+first time numba compiles a kernel in the process (not when it loads one from
+its cache) one line says so on stderr, and a phase that spent time compiling
+says how much of it, so that 30-40 s of a first run is not blamed on the
+phase's work.
+
 stdout is never written: it holds the command's one line of JSON.
 """
 
@@ -24,10 +30,47 @@ from contextlib import contextmanager
 
 from tqdm import tqdm
 
-__all__ = ["bar", "phase", "PHASE_AFTER"]
+__all__ = ["bar", "phase", "say_compiling", "PHASE_AFTER", "COMPILING"]
 
 #: Seconds a phase runs before it is named on stderr.
 PHASE_AFTER = 2.0
+
+#: What stderr says, once a process, when numba first compiles (a cache miss).
+COMPILING = "compiling numba kernels (first run only, cached) ..."
+
+_compiles = {"listening": False, "said": False, "depth": 0, "start": 0.0, "seconds": 0.0}
+_compiles_lock = threading.Lock()
+
+
+def say_compiling() -> None:
+    """From now on, say :data:`COMPILING` on stderr the first time numba compiles in this process
+    (numba's ``numba:compile`` event fires on a cache miss only: a kernel loaded from the cache says
+    nothing), and count the seconds spent compiling (what :func:`phase` reports)."""
+    with _compiles_lock:
+        if _compiles["listening"]:
+            return
+        _compiles["listening"] = True
+    from numba.core import event
+
+    class _Compiles(event.Listener):
+        def on_start(self, ev):
+            with _compiles_lock:
+                _compiles["depth"] += 1
+                if _compiles["depth"] > 1:  # a kernel compiled for another: counted with it
+                    return
+                _compiles["start"] = time.perf_counter()
+                say = not _compiles["said"]
+                _compiles["said"] = True
+            if say:
+                tqdm.write(COMPILING, file=sys.stderr)
+
+        def on_end(self, ev):
+            with _compiles_lock:
+                _compiles["depth"] -= 1
+                if _compiles["depth"] == 0:
+                    _compiles["seconds"] += time.perf_counter() - _compiles["start"]
+
+    event.register("numba:compile", _Compiles())
 
 
 def bar(iterable=None, desc: str = "", unit: str = "it", *, total=None, progress: bool = True,
@@ -39,6 +82,8 @@ def bar(iterable=None, desc: str = "", unit: str = "it", *, total=None, progress
     pipe) clearing writes a line of blanks, so the bar's last state is kept
     there, ended by a newline."""
     leave = leave or not _is_terminal(sys.stderr)
+    if progress:
+        say_compiling()
     return tqdm(iterable, total=total, desc=desc, unit=unit, leave=leave, disable=not progress, file=sys.stderr,
                 unit_scale=unit_scale)
 
@@ -61,7 +106,8 @@ def phase(desc: str, *, progress: bool = True, after: float | None = None):
     if not progress:
         yield
         return
-    t0 = time.perf_counter()
+    say_compiling()
+    t0, compiled = time.perf_counter(), _compiles["seconds"]
     lock = threading.Lock()
     shown = []
 
@@ -80,5 +126,8 @@ def phase(desc: str, *, progress: bool = True, after: float | None = None):
         timer.cancel()
         with lock:
             if shown:
-                tqdm.write(f"{desc}: {time.perf_counter() - t0:.1f} s", file=sys.stderr)
+                compiling = _compiles["seconds"] - compiled
+                tqdm.write(f"{desc}: {time.perf_counter() - t0:.1f} s"
+                           + (f" ({compiling:.1f} s of it compiling numba kernels)" if compiling >= 0.5 else ""),
+                           file=sys.stderr)
             shown = None

@@ -131,3 +131,32 @@ def test_augment_with_embree_fits_a_sensor_frames_primary_as_scan_does(tmp_path)
     fitted = prepare(cloud.points, "embree", primary_origin=[0, 0, 0], primary_pattern="fit")
     for s in m["scans"]:
         assert s["points"] == len(fitted.scan(s["origin"], "velodyne_vlp16"))
+
+
+# --- 14. a first run's numba compiling is said once, a cached kernel says nothing -------------------------------
+
+def _python(code: str, cwd):
+    import os
+    import subprocess
+    import sys
+
+    env = {**os.environ, "PYTHONPATH": os.pathsep.join(filter(None, [str(ROOT), str(cwd)]))}
+    return subprocess.run([sys.executable, "-c", code], cwd=cwd, env=env, capture_output=True, text=True,
+                          timeout=120)
+
+
+def test_numba_compiling_is_said_once_and_not_when_loaded_from_the_cache(tmp_path):
+    from slr_ray.progress import COMPILING
+
+    (tmp_path / "kernels.py").write_text("import numba\n\n\n@numba.njit(cache=True)\ndef twice(x):\n"
+                                         "    return 2 * x\n\n\n@numba.njit(cache=True)\ndef thrice(x):\n"
+                                         "    return 3 * x + twice(x)\n")
+    code = ("import importlib.util as u\n"  # progress.py alone: not the whole package, twice
+            f"s = u.spec_from_file_location('progress', {str(ROOT / 'slr_ray' / 'progress.py')!r})\n"
+            "progress = u.module_from_spec(s); s.loader.exec_module(progress); phase = progress.phase\n"
+            "import kernels\n"
+            "with phase('a step', after=0.0):\n    kernels.twice(1); kernels.thrice(2.0); kernels.twice(3.0)\n")
+    first, again = _python(code, tmp_path), _python(code, tmp_path)
+    assert first.returncode == again.returncode == 0, first.stderr + again.stderr
+    assert first.stderr.count(COMPILING) == 1 and "compiling" not in again.stderr
+    assert "a step: " in again.stderr
