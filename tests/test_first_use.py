@@ -160,3 +160,58 @@ def test_numba_compiling_is_said_once_and_not_when_loaded_from_the_cache(tmp_pat
     assert first.returncode == again.returncode == 0, first.stderr + again.stderr
     assert first.stderr.count(COMPILING) == 1 and "compiling" not in again.stderr
     assert "a step: " in again.stderr
+
+
+# --- 15. help that is whole, a warning nobody can act on silenced, the shipped tables as --sensor-file ----------
+
+def _actions():
+    import argparse
+
+    from slr_ray.cli import build_parser
+
+    sub = next(a for a in build_parser()._actions if isinstance(a, argparse._SubParsersAction))
+    for name, parser in sub.choices.items():
+        for action in parser._actions:
+            yield name, action
+
+
+def test_every_flags_help_is_whole_and_true_false_flags_show_their_values():
+    from slr_ray.cli.arguments import _boolean
+
+    bools = 0
+    for command, action in _actions():
+        text = action.help or ""
+        assert text.count("(") == text.count(")"), (command, action.option_strings, text)
+        if action.type is _boolean:
+            bools += 1
+            assert action.metavar == "{true,false}" and re.search(r"default (true|false)\)$", text), text
+    assert bools >= 2  # --primary-image, --silhouettes
+
+
+def test_numbas_old_tbb_warning_does_not_reach_users(tmp_path):
+    code = ("import slr_ray, warnings\nfrom numba.core.errors import NumbaWarning\n"
+            "warnings.warn(NumbaWarning('The TBB threading layer requires TBB version 2021 update 6 or later i.e., "
+            "TBB_INTERFACE_VERSION >= 12060. Found TBB_INTERFACE_VERSION = 12050. The TBB threading layer is "
+            "disabled.'))\nwarnings.warn(NumbaWarning('another numba warning'))\n")
+    res = _python(code, tmp_path)
+    assert res.returncode == 0 and "TBB" not in res.stderr and "another numba warning" in res.stderr
+
+
+def test_sensor_file_takes_a_shipped_table(tmp_path, capsys):
+    from slr_ray.sensors import SENSORS_DIR, read_sensor_file, sensor
+
+    for name in ("velodyne_vlp16", "ouster_os1_64"):
+        p = read_sensor_file(SENSORS_DIR / f"{name}.json", columns=900)
+        q = sensor(name, columns=900)
+        assert (p.elevation_deg, p.azimuth_offset_deg, p.columns, p.max_range) == \
+               (q.elevation_deg, q.azimuth_offset_deg, q.columns, q.max_range)
+    rng = np.random.default_rng(0)
+    np.save(tmp_path / "c.npy", rng.normal(size=(3000, 3)) * 10)
+    args = ["scan", str(tmp_path / "c.npy"), "--origin", "0", "0", "0", "--quiet", "-o"]
+    assert main(args + [str(tmp_path / "a.npy"), "--sensor-file", str(SENSORS_DIR / "velodyne_vlp16.json")]) == 0
+    assert main(args + [str(tmp_path / "b.npy"), "--sensor", "velodyne_vlp16"]) == 0
+    a, b = (json.loads(line) for line in capsys.readouterr().out.splitlines())
+    assert a["points_out"] == b["points_out"] > 0
+    (tmp_path / "x.json").write_text("{}")
+    assert main(args + [str(tmp_path / "d.npy"), "--sensor-file", str(tmp_path / "x.json")]) == 2
+    assert "elevation_deg" in capsys.readouterr().err  # what it takes, said
