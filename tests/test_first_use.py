@@ -215,3 +215,16 @@ def test_sensor_file_takes_a_shipped_table(tmp_path, capsys):
     (tmp_path / "x.json").write_text("{}")
     assert main(args + [str(tmp_path / "d.npy"), "--sensor-file", str(tmp_path / "x.json")]) == 2
     assert "elevation_deg" in capsys.readouterr().err  # what it takes, said
+
+
+# --- 16. Ctrl-C: a convert worker leaves it to the parent ------------------------------------------------------
+
+def test_a_convert_worker_ignores_sigint_and_lets_the_parent_stop_it(tmp_path):
+    code = ("import signal\nimport slr_ray.sequence.convert as c\nc._init = lambda *a: None\n"
+            "signal.pthread_sigmask(signal.SIG_BLOCK, {signal.SIGINT, signal.SIGTERM})  # as the pool starts it\n"
+            "c._init_worker(None, None, None)\n"
+            "assert signal.getsignal(signal.SIGINT) is signal.SIG_IGN\n"
+            "assert not signal.pthread_sigmask(signal.SIG_BLOCK, set()) & {signal.SIGINT, signal.SIGTERM}\n"
+            "signal.raise_signal(signal.SIGINT)\nprint('still here')\n")
+    res = _python(code, tmp_path)
+    assert res.returncode == 0 and res.stdout.strip() == "still here" and not res.stderr, res.stderr

@@ -31,6 +31,7 @@ from __future__ import annotations
 import importlib.util
 import json
 import multiprocessing
+import signal
 from dataclasses import dataclass
 import time
 import uuid
@@ -104,6 +105,15 @@ def _init(seq, poses, settings):
     st = _see_through(settings)
     _STATE.update(seq=seq, poses=poses, settings=settings, pattern=shipped_sensor(settings["sensor"]),
                   cache=FrameCache(seq, 2 * settings["cache"] + 16 + (2 * st.half if st else 0), local=False))
+
+
+def _init_worker(seq, poses, settings):
+    """A pool worker's start: Ctrl-C reaches the whole process group, and the parent decides (its pool's
+    exit terminates the workers): a worker ignores SIGINT, never printing a KeyboardInterrupt's traceback.
+    It starts with SIGINT and SIGTERM blocked (the parent's mask while it starts the pool), let in here."""
+    signal.signal(signal.SIGINT, signal.SIG_IGN)
+    signal.pthread_sigmask(signal.SIG_UNBLOCK, {signal.SIGINT, signal.SIGTERM})
+    _init(seq, poses, settings)
 
 
 def _dask_job(block, out, seq, poses, settings, token) -> list:
@@ -309,7 +319,12 @@ def _convert(seq, out, P, settings, done, o: ConvertOptions, progress, inputs) -
                 # were); multiprocessing.Pool, not ProcessPoolExecutor: on an interrupt (SIGINT, or
                 # SIGTERM turned into one by the CLI) its exit terminates the workers at once
                 ctx = multiprocessing.get_context("spawn")
-                with ctx.Pool(workers, initializer=_init, initargs=(seq, P, settings)) as pool:
+                mask = signal.pthread_sigmask(signal.SIG_BLOCK, {signal.SIGINT, signal.SIGTERM})  # a child's
+                try:  # a worker interrupted while it starts prints no traceback of its half-read start-up data
+                    pool = ctx.Pool(workers, initializer=_init_worker, initargs=(seq, P, settings))
+                finally:
+                    signal.pthread_sigmask(signal.SIG_SETMASK, mask)
+                with pool:
                     for entries in pool.imap_unordered(partial(_job, out=str(out)), blocks):
                         record(entries)
         except BaseException:
