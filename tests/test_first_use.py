@@ -228,3 +228,17 @@ def test_a_convert_worker_ignores_sigint_and_lets_the_parent_stop_it(tmp_path):
             "signal.raise_signal(signal.SIGINT)\nprint('still here')\n")
     res = _python(code, tmp_path)
     assert res.returncode == 0 and res.stdout.strip() == "still here" and not res.stderr, res.stderr
+
+
+# --- 16. an --input-format a command would not use is refused, not ignored -----------------------------------
+
+def test_input_format_for_a_kitti_directory_is_refused_unless_bin(tmp_path, capsys):
+    from slr_ray.sequence import read_sequence
+    from slr_ray.sequence.synthetic import synthetic_drive
+
+    synthetic_drive(tmp_path / "seq", n_frames=2, sensor="velodyne_vlp16", step=0.8)
+    assert len(read_sequence(tmp_path / "seq", input_format="bin")) == 2
+    rc = main(["sequence", "convert", str(tmp_path / "seq"), "--input-format", "ply", "--sensor", "velodyne_vlp16",
+               "-o", str(tmp_path / "out"), "--quiet"])
+    assert rc == 2 and "--input-format 'ply' does not apply" in capsys.readouterr().err
+    assert not (tmp_path / "out").exists()

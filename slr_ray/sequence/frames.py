@@ -402,6 +402,10 @@ def read_sequence(source, trajectory=None, input_format: str | None = None, orig
     if len(src) == 1 and (Path(src[0]).is_dir() or Path(src[0]).suffix.lower() == ".e57") and origins is not None:
         raise InputValueError(f"{src[0]}: its frames carry their poses: origins are for files in one world frame")
     if len(src) == 1 and Path(src[0]).is_dir():
+        if input_format is not None and str(input_format).lower().lstrip(".") != "bin":  # never ignored unsaid
+            raise InputValueError(f"{src[0]}: a KITTI directory's frames are velodyne/NNNNNN.bin, read as such: "
+                                  f"input_format {input_format!r} does not apply (drop it)",
+                                  flags={"input_format": "--input-format"})
         seq = read_kitti_layout(src[0])
         if isinstance(trajectory, (list, tuple)):
             if len(trajectory) != 1:
