@@ -18,6 +18,13 @@ its cache) one line says so on stderr, and a phase that spent time compiling
 says how much of it, so that 30-40 s of a first run is not blamed on the
 phase's work.
 
+``step``
+    what a phase is doing now (``step("neighbours", 0.4)``), from inside
+    it: once the phase is named, a new step is a line "PHASE: STEP ..." on
+    stderr (a share done, on a terminal only, is redrawn in place on its
+    line), so that a phase of half a minute shows where it is; nothing
+    outside a phase or before it is named.
+
 stdout is never written: it holds the command's one line of JSON.
 """
 
@@ -28,9 +35,10 @@ import threading
 import time
 from contextlib import contextmanager
 
+from numba.core import event as numba_event
 from tqdm import tqdm
 
-__all__ = ["bar", "phase", "say_compiling", "PHASE_AFTER", "COMPILING"]
+__all__ = ["bar", "phase", "step", "say_compiling", "PHASE_AFTER", "COMPILING"]
 
 #: Seconds a phase runs before it is named on stderr.
 PHASE_AFTER = 2.0
@@ -50,9 +58,7 @@ def say_compiling() -> None:
         if _compiles["listening"]:
             return
         _compiles["listening"] = True
-    from numba.core import event
-
-    class _Compiles(event.Listener):
+    class _Compiles(numba_event.Listener):
         def on_start(self, ev):
             with _compiles_lock:
                 _compiles["depth"] += 1
@@ -70,7 +76,7 @@ def say_compiling() -> None:
                 if _compiles["depth"] == 0:
                     _compiles["seconds"] += time.perf_counter() - _compiles["start"]
 
-    event.register("numba:compile", _Compiles())
+    numba_event.register("numba:compile", _Compiles())
 
 
 def bar(iterable=None, desc: str = "", unit: str = "it", *, total=None, progress: bool = True,
@@ -110,12 +116,16 @@ def phase(desc: str, *, progress: bool = True, after: float | None = None):
     t0, compiled = time.perf_counter(), _compiles["seconds"]
     lock = threading.Lock()
     shown = []
+    state = {"desc": desc, "lock": lock, "shown": shown, "step": None, "bar": None}
+    _phases.append(state)
 
     def show():
         with lock:
             if shown is not None:
                 shown.append(True)
                 tqdm.write(f"{desc} ...", file=sys.stderr)
+                if state["step"] is not None:
+                    _say_step(state)
 
     timer = threading.Timer(PHASE_AFTER if after is None else after, show)
     timer.daemon = True
@@ -124,10 +134,51 @@ def phase(desc: str, *, progress: bool = True, after: float | None = None):
         yield
     finally:
         timer.cancel()
+        if state in _phases:
+            _phases.remove(state)
         with lock:
+            if state["bar"] is not None:
+                state["bar"].close()
             if shown:
                 compiling = _compiles["seconds"] - compiled
                 tqdm.write(f"{desc}: {time.perf_counter() - t0:.1f} s"
                            + (f" ({compiling:.1f} s of it compiling numba kernels)" if compiling >= 0.5 else ""),
                            file=sys.stderr)
             shown = None
+
+
+#: the phases running now, innermost last: where :func:`step` says what it says
+_phases: list = []
+
+
+def step(text: str, done: float | None = None) -> None:
+    """Say what the innermost running :func:`phase` does now (``text``), and on a terminal the share of
+    it ``done`` (0-1), redrawn in place; a new ``text`` is a new line. Nothing outside a phase, nor
+    before the phase is named (a phase that ends within :data:`PHASE_AFTER` says nothing at all)."""
+    if not _phases:
+        return
+    state = _phases[-1]
+    with state["lock"]:
+        new = state["step"] is None or state["step"][0] != text
+        state["step"] = (text, done)
+        if state["shown"]:
+            if new:
+                _say_step(state)
+            elif state["bar"] is not None and done is not None:
+                state["bar"].n = round(1000 * min(max(done, 0.0), 1.0))
+                state["bar"].refresh()
+
+
+def _say_step(state) -> None:
+    """A phase's step: a line, and on a terminal a bar of its share done (when it has one)."""
+    text, done = state["step"]
+    if state["bar"] is not None:
+        state["bar"].close()
+        state["bar"] = None
+    if done is not None and _is_terminal(sys.stderr):
+        state["bar"] = tqdm(total=1000, desc=f"{state['desc']}: {text}", file=sys.stderr, leave=False,
+                            bar_format="{desc} {percentage:3.0f}% |{bar}| {elapsed}")
+        state["bar"].n = round(1000 * min(max(done, 0.0), 1.0))
+        state["bar"].refresh()
+    else:
+        tqdm.write(f"{state['desc']}: {text} ...", file=sys.stderr)

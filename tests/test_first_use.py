@@ -242,3 +242,26 @@ def test_input_format_for_a_kitti_directory_is_refused_unless_bin(tmp_path, caps
                "-o", str(tmp_path / "out"), "--quiet"])
     assert rc == 2 and "--input-format 'ply' does not apply" in capsys.readouterr().err
     assert not (tmp_path / "out").exists()
+
+
+# --- 15. a long phase says where it is ---------------------------------------------------------------------------
+
+def test_a_named_phase_says_each_step_once_and_nothing_before_it_is_named(capsys):
+    import time
+
+    from slr_ray.progress import phase, step
+
+    step("outside any phase")
+    with phase("quick", after=5.0):
+        step("neighbours", 0.5)
+    with phase("embree: preparing 9 points", after=0.05):
+        step("neighbours", 0.0)
+        time.sleep(0.2)  # named now, with the step it is in
+        step("neighbours", 0.5)
+        step("neighbours", 1.0)
+        step("BVH")
+    err = capsys.readouterr().err
+    assert "outside" not in err and "quick" not in err
+    lines = [line for line in err.splitlines() if line.strip()]
+    assert lines[0] == "embree: preparing 9 points ..." and lines[-1].startswith("embree: preparing 9 points: 0.")
+    assert lines[1:-1] == ["embree: preparing 9 points: neighbours ...", "embree: preparing 9 points: BVH ..."]
