@@ -5,6 +5,11 @@ have recorded from other positions, using only points of the original cloud.
 """
 
 import sys as _sys
+import warnings as _warnings
+
+#: numba's warning that an old libtbb (open3d's, loaded first) leaves it its OpenMP or workqueue threads:
+#: nothing a user can act on, and the loops run the same (numba highlights the text: \x1b[1m before it)
+_warnings.filterwarnings("ignore", message=r"(\x1b\[[0-9;]*m)?The TBB threading layer requires TBB")
 
 from .accumulator import ScanAccumulator
 from .errors import FormatError, InputTypeError, InputValueError, MissingDependencyError, SlrError, SlrNote, SlrWarning

@@ -39,7 +39,8 @@ from typing import NamedTuple
 import numpy as np
 
 from . import __version__
-from .backends import options_for, prepare, require_rays, require_streamable, scanner_class
+from .backends import (options_for, prepare, primary_from_cloud, require_rays, require_streamable,
+                       scanner_class)
 from .effects import Effects, effect_cloud, simulate
 from .errors import InputValueError, MissingDependencyError, OutputError, SlrError, refuse_memory
 from .io import PointCloud, atomic_path, check_format, read_cloud, write_cloud
@@ -540,6 +541,7 @@ def _augment(input_path, out, config, ground, run: _Run) -> dict:
     else:
         refuse_strangers(out, names, ext, force)
     cloud, positions, cells = _positions(input_path, config, ground, effects, progress)
+    backend_options = primary_from_cloud(cloud, config.backend, backend_options, input_path)  # as `scan` does
     require_positions(positions, config.n, cells, input_path)  # allow_fewer is fewer, not none
     done = {} if fresh else resumable(old, positions, out)
     if not os.access(out, os.W_OK):

@@ -76,7 +76,7 @@ from .io import atomic_path
 from .metrics import (FIELD_THRESHOLD, LIDAR4D_CODE_THRESHOLD, PAPER_THRESHOLD, REGISTRY as METRICS, Pair,
                       metric_columns, range_bands, score_pair, seen_from)
 from .options import Options
-from .progress import bar as progress_bar, phase
+from .progress import bar as progress_bar, phase, step
 from .scan import Scan
 from .sensors import BeamPattern, fitted_pattern, scan_order_beams, sensor
 
@@ -197,12 +197,14 @@ def register(source, target, max_distance: float = 0.2, min_fitness: float = 0.5
     def icp(init):
         T = init
         for d in (2.0, 1.0, 0.5, max_distance):
+            step(f"ICP at {d:g} m")  # said once the phase it runs in is named
             T = reg.registration_icp(src, tgt, d, T, plane, reg.ICPConvergenceCriteria(max_iteration=50)).transformation
         return reg.evaluate_registration(src, tgt, max_distance, T), T
 
     ev, T = icp(np.eye(4))
     how = "identity"
     if ev.fitness < min_fitness:
+        step("FPFH features and RANSAC")
         o3d.utility.random.seed(seed)
         feats = []
         for pc in (src, tgt):

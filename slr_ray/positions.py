@@ -51,6 +51,12 @@ __all__ = ["CandidateCells", "AzimuthProfile", "CellOptions", "PositionOptions",
 CLI_FLAGS = {"pass allow_fewer=True": "give --allow-fewer", "min_ground_points": "--min-ground-points"}
 
 DEFAULT_PROFILE_PATH = Path(__file__).resolve().parent / "data" / "default_profile.json"
+#: ``min_ground_points="auto"``: this fraction of the most ground points any cell has. The paper's
+#: 50,000 is for its 0.036 deg scans (``demo``'s scaling); on the demo's scene scanned from its centre
+#: the best cell holds 50,000 / 0.002545 points at any resolution (both scale with the pulse density:
+#: 0.3 deg 282,906 vs 720, 0.2 deg 636,502 vs 1,620), so "auto" is the paper's threshold scaled by the
+#: cloud's density (docs/positions.md).
+AUTO_GROUND_FRACTION = 0.002545
 STAGES = ("non_empty", "ground_support", "azimuth_profile")
 
 
@@ -224,10 +230,12 @@ class CellOptions(Options):
     ----------
     cell_size : float
         Cell side in metres (2).
-    min_ground_points : int
+    min_ground_points : int or 'auto'
         Cells with fewer ground points within ``ground_count_radius`` (5 m) of
-        their centre are dropped (50,000: the paper's, for a dense TLS cloud;
-        scale it with your cloud's density).
+        their centre are dropped (50,000: the paper's, for its 0.036 deg TLS
+        scans). ``'auto'``: the paper's threshold scaled by the cloud's
+        density, 0.2545 % of the most any cell has (at least 1), for a sparse
+        cloud (a sensor frame, an airborne tile) or a denser one.
     ground_count_radius : float
         Metres around a cell's centre its ground points are counted in.
     ground_height_radius : float
@@ -282,8 +290,9 @@ def candidate_cells(points, is_ground, options: CellOptions | None = None, *, pr
     pts, g = _check_ground(points, is_ground)
     if cell_size <= 0 or ground_count_radius <= 0 or ground_height_radius <= 0:
         raise InputValueError("cell_size, ground_count_radius and ground_height_radius must be > 0")
-    if min_ground_points < 0:
-        raise InputValueError(f"min_ground_points must be >= 0, got {min_ground_points}")
+    auto = isinstance(min_ground_points, str) and min_ground_points == "auto"
+    if not auto and (isinstance(min_ground_points, str) or min_ground_points < 0):
+        raise InputValueError(f"min_ground_points must be an integer >= 0 or 'auto', got {min_ground_points!r}")
     params = dict(cell_size=cell_size, min_ground_points=min_ground_points,
                   ground_count_radius=ground_count_radius, scanner_height=scanner_height,
                   ground_height_radius=ground_height_radius,
@@ -314,6 +323,9 @@ def candidate_cells(points, is_ground, options: CellOptions | None = None, *, pr
                                                   return_length=True, workers=-1), dtype=np.int64)
     else:
         counts = np.zeros(len(ij), np.int64)
+    if auto:  # the paper's threshold scaled by the cloud's density (AUTO_GROUND_FRACTION)
+        min_ground_points = max(1, math.ceil(AUTO_GROUND_FRACTION * int(counts.max(initial=0))))
+        params.update(min_ground_points=min_ground_points, min_ground_points_rule="auto")
     ok = counts >= min_ground_points
     kept["ground_support"] = ok.copy()
     stages.append({"stage": "ground_support", "before": int(len(ij)), "removed": int((~ok).sum()),

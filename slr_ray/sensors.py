@@ -61,9 +61,10 @@ from .core.protocol import Pattern
 from .errors import FormatError, InputValueError, SlrError, SlrWarning
 from .threads import default_threads
 
-__all__ = ["BeamPattern", "sensor", "SENSORS", "SENSORS_DIR", "read_ouster_metadata",
-           "read_velodyne_calibration", "read_card", "write_card", "card_dict", "is_sensor_name", "beams_outside",
-           "source_elevation_range", "conversion_reach", "miscalibrated", "sensor_noise", "scan_order_beams", "fitted_pattern"]
+__all__ = ["BeamPattern", "sensor", "SENSORS", "SENSORS_DIR", "read_ouster_metadata", "read_sensor_file",
+           "read_sensor_table", "read_velodyne_calibration", "read_card", "write_card", "card_dict", "is_sensor_name",
+           "beams_outside", "source_elevation_range", "conversion_reach", "miscalibrated", "sensor_noise",
+           "scan_order_beams", "fitted_pattern"]
 
 #: Directory of the shipped beam tables (package data).
 SENSORS_DIR = Path(__file__).resolve().parent / "data" / "sensors"
@@ -549,8 +550,8 @@ def read_ouster_metadata(path, **changes) -> BeamPattern:
         alt = bi["beam_altitude_angles"]
         az = bi["beam_azimuth_angles"]
     except KeyError:
-        raise InputValueError(f"{path}: no beam_altitude_angles / beam_azimuth_angles (not Ouster metadata?)") \
-            from None
+        raise InputValueError(f"{path}: no beam_altitude_angles / beam_azimuth_angles (not Ouster metadata?; "
+                              "a beam table as slr_ray/data/sensors/*.json has elevation_deg)") from None
     cols = (d.get("data_format") or {}).get("columns_per_frame") or d.get("columns_per_frame")
     if cols is None:
         mode = (d.get("config_params") or {}).get("lidar_mode") or d.get("lidar_mode") or "1024x10"
@@ -559,6 +560,30 @@ def read_ouster_metadata(path, **changes) -> BeamPattern:
     # offsets as the metadata gives them (the shipped ouster tables are these files' numbers)
     return BeamPattern(alt, int(cols), az, name=name,
                        meta={"source": str(path), "format": "ouster metadata"}).with_(**changes)
+
+
+@_sensor_file("sensor table JSON")
+def read_sensor_table(path, **changes) -> BeamPattern:
+    """A :class:`BeamPattern` from a beam table in the shipped layout (``slr_ray/data/sensors/*.json``:
+    ``elevation_deg``, ``azimuth_offset_deg``, ``columns``, ``max_range_m_nominal``...), a shipped
+    table's copy edited, say."""
+    d = json.loads(Path(path).read_text())
+    if not isinstance(d, dict) or "elevation_deg" not in d:
+        raise InputValueError(f"{path}: no elevation_deg (not a beam table as slr_ray/data/sensors/*.json?)")
+    return BeamPattern.from_table({"name": Path(path).stem, **d, "file": str(path)}, **changes)
+
+
+def read_sensor_file(path, **changes) -> BeamPattern:
+    """A :class:`BeamPattern` from a calibration file, whichever of the three it is: a ``.json`` beam
+    table in the shipped layout (``elevation_deg``: :func:`read_sensor_table`) or Ouster metadata
+    (:func:`read_ouster_metadata`), else a Velodyne calibration YAML (:func:`read_velodyne_calibration`)."""
+    if Path(path).suffix.lower() != ".json":
+        return read_velodyne_calibration(path, **changes)
+    try:
+        table = "elevation_deg" in json.loads(Path(path).read_text())
+    except (ValueError, TypeError):  # not JSON: the Ouster reader says so, with the file's name
+        table = False
+    return (read_sensor_table if table else read_ouster_metadata)(path, **changes)
 
 
 @_sensor_file("Velodyne calibration YAML")

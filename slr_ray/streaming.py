@@ -237,9 +237,11 @@ def las_positions(path, n: int, *, seed=0, ground=None, chunk: int = DEFAULT_CHU
     corner = np.floor(lo / cell) * cell
     stride = max(1, -(-n_ground // int(max_ground_points)))
     if stride > 1:
-        options["min_ground_points"] = -(-int(options.get("min_ground_points", MIN_GROUND_POINTS)) // stride)
+        if options.get("min_ground_points") != "auto":  # 'auto' follows the density of what is kept
+            options["min_ground_points"] = -(-int(options.get("min_ground_points", MIN_GROUND_POINTS)) // stride)
+        least = options["min_ground_points"]
         warnings.warn(f"{path}: {n_ground:,} ground points; positions from every {stride}th "
-                      f"(min_ground_points {options['min_ground_points']:,}): close to, not exactly, "
+                      f"(min_ground_points {least:{',' if least != 'auto' else ''}}): close to, not exactly, "
                       "those of a whole read", stacklevel=2)
     bar = las_bar(path, "positions: pass 2", progress)
     parts, labels = _ground_and_cells(path, chunk, labelled, lowest, corner, cell, stride, bar)

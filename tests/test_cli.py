@@ -173,10 +173,12 @@ def test_positions_command(tmp_path, capsys):
     assert len(res["positions"]) == 4 and summary["n_positions"] == 4
     assert [s["stage"] for s in res["stages"]] == ["non_empty", "ground_support", "azimuth_profile"]
     assert (tmp_path / "cells.png").stat().st_size > 1000
-    # no labels: ground found by CSF (said); too little of it for the default threshold: one error, no output
+    # no labels: ground found by CSF (said); too little of it for the paper's threshold: one error, no output
+    # (the default, 'auto', follows the cloud's density: tests/test_first_use.py)
     write_cloud(tmp_path / "nolab.ply", PointCloud(pts))
     out2 = tmp_path / "pos2.json"
-    assert main(["positions", str(tmp_path / "nolab.ply"), "--n", "2", "-o", str(out2)]) == 2
+    assert main(["positions", str(tmp_path / "nolab.ply"), "--n", "2", "-o", str(out2),
+                 "--min-ground-points", "50000"]) == 2
     err = capsys.readouterr().err
     assert "no ground labels" in err and "CSF labelled" in err and "--min-ground-points" in err
     assert not out2.exists()
@@ -185,7 +187,8 @@ def test_positions_command(tmp_path, capsys):
 def test_labels_that_mark_no_ground_are_replaced_by_csf(tmp_path, capsys):
     pts = np.random.default_rng(0).normal(size=(1000, 3))
     write_cloud(tmp_path / "c.ply", PointCloud(pts, {"classification": np.zeros(1000, np.uint8)}))
-    assert main(["positions", str(tmp_path / "c.ply"), "--n", "1", "-o", str(tmp_path / "p.json")]) == 2
+    assert main(["positions", str(tmp_path / "c.ply"), "--n", "1", "--min-ground-points", "50000",
+                 "-o", str(tmp_path / "p.json")]) == 2
     assert "(classification 2) mark no point as ground: CSF labelled" in capsys.readouterr().err
 
 

@@ -222,9 +222,10 @@ def test_readme_is_short_and_starts_with_the_quick_start():
     text = README.read_text(encoding="utf-8")
     assert len(text.splitlines()) <= 300
     first = code_blocks(README, SHELL)[0][1]
-    setup = "apt-get update && apt-get install -y libusb-1.0-0 && pip install -e"
+    setup = ("apt-get update && apt-get install -y libusb-1.0-0 python3-venv && python3 -m venv .venv "
+             "&& . .venv/bin/activate && pip install -e")  # a virtual environment: Debian 12 refuses the system's
     lines = [l for l in first.splitlines() if l.strip() and not l.startswith("#")]
-    assert lines == [f"{setup} . && slr-ray demo", f"{setup} '.[test]' && python3 -m pytest -q"]
+    assert lines == [f"{setup} . && slr-ray demo", f"{setup} '.[test]' && python -m pytest -q"]
     assert text.index("```") == text.index("```bash\n# 1. set up")  # the first code of the page
 
 

@@ -22,21 +22,23 @@ Each backend has typed options (:class:`~slr_ray.backends.binning.BinningOptions
 from __future__ import annotations
 
 import time
+import warnings
 from dataclasses import replace
 from typing import NamedTuple
 
 from ..arrays import as_origin, as_points
-from ..errors import InputValueError
+from ..errors import InputValueError, SlrNote, SlrWarning
 from ..pattern import as_pattern
 from ..raycast import embree_available
 from ..scan import Scan
 from .base import Backend, BackendOptions, Scanner, require_streamable, streams
 from .binning import BinningOptions, BinningScanner
 from .embree import DiscScanner, EmbreeOptions
+from .embree.fit import fit_primary_pattern
 
 __all__ = ["Backend", "BACKENDS", "BackendEntry", "Scanner", "BackendOptions", "prepare", "simulate_scan",
            "options_for", "scanner_class", "backends_with", "require_rays", "require_streamable", "streams",
-           "available_backends", "BinningOptions", "EmbreeOptions"]
+           "available_backends", "BinningOptions", "EmbreeOptions", "primary_from_cloud"]
 
 
 class BackendEntry(NamedTuple):
@@ -179,3 +181,28 @@ def simulate_scan(points, origin, pattern, backend: str | Backend = Backend.BINN
 def available_backends() -> list[str]:
     """Backends whose dependencies load on this machine."""
     return [str(b) for b in BACKENDS if b != Backend.EMBREE or embree_available()]
+
+
+def primary_from_cloud(cloud, backend, options: dict, name) -> dict:
+    """``options`` (a mapping of ``backend``'s options) with the primary taken from ``cloud``, as
+    ``slr-ray scan`` takes it: where the cloud records its scanner's origin (a KITTI .bin, an .npz
+    origin, a PCD viewpoint, an E57 pose) and ``options`` choose no primary, a backend told of its
+    primary (embree) gets that origin and ``primary_pattern='fit'`` (the same pattern wherever it is
+    prepared), said in a :class:`~slr_ray.errors.SlrNote`; a cloud no fit holds keeps ``options``,
+    with a warning saying why. ``options`` unchanged for a cloud of None (a streamed input). ``name``:
+    the cloud's, for the messages."""
+    takes = scanner_class(backend).primary_options
+    if (cloud is None or cloud.origin is None or not takes((0.0, 0.0, 0.0), 1.0)
+            or any(k in options for k in ("primary_origin", "primary_pattern", "primary_resolution"))):
+        return options
+    origin = [float(v) for v in cloud.origin]
+    try:
+        _, how, _ = fit_primary_pattern(cloud.points, origin)
+    except InputValueError as e:  # no grid, or not a scan's: the discs go without the primary (kNN), and say why
+        warnings.warn(f"{name}: its pattern is not fitted, the discs take kNN neighbours: {e}", SlrWarning,
+                      stacklevel=3)
+        return options
+    warnings.warn(f"{name} records where its scanner was ({', '.join(f'{v:g}' for v in origin)}): the {backend} "
+                  f"backend takes its pattern fitted to the points ({how}); give primary_origin and "
+                  "primary_pattern or primary_resolution to choose them", SlrNote, stacklevel=3)
+    return {**options, **takes(origin, "fit")}

@@ -30,6 +30,7 @@ from .. import __version__, paper
 from ..errors import SlrError, SlrNote, SlrWarning
 from ..backends import Backend
 from ..io import FORMATS
+from ..progress import say_compiling
 from ..meshscan import MESH_MODES
 from ..scenes import SCENES_DIR
 from . import arguments as A
@@ -401,6 +402,8 @@ def _run(args) -> int:
     previous = None
     if threading.current_thread() is threading.main_thread():
         previous = signal.signal(signal.SIGTERM, _on_sigterm)
+    if not getattr(args, "quiet", False):
+        say_compiling()  # a first run's 30-40 s of numba compiling, said once (not blamed on a phase)
     try:
         args.func(args)
     except _Terminated:

@@ -18,7 +18,7 @@ from ..effects import Effects
 from ..effects.stages import EFFECT_FLAGS, FLAGS as EFFECT_FLAG_SPECS
 from ..errors import InputValueError
 from ..pattern import PRESETS, ScanPattern, preset
-from ..sensors import SENSORS, read_ouster_metadata, read_velodyne_calibration, sensor
+from ..sensors import SENSORS, read_sensor_file, sensor
 
 __all__ = ["add_pattern", "pattern_from", "add_backend", "backend_from", "add_ground", "ground_from",
            "add_input_format", "add_effects", "effects_from", "check_effects", "finite_float", "positive_float",
@@ -84,7 +84,8 @@ def add_pattern(p, origin: str = "optional", resolution_default: float | None = 
     g.add_argument("--sensor", type=sensor_name, metavar="NAME",
                    help="a sensor's beam table instead of a uniform pattern: " + SENSOR_HELP)
     g.add_argument("--sensor-file", metavar="PATH",
-                   help="a calibration: Ouster metadata .json or Velodyne .yaml")
+                   help="a calibration: Ouster metadata .json, Velodyne .yaml, or a beam table .json "
+                        "as slr_ray/data/sensors/*.json")
     g.add_argument("--columns", type=positive_int, metavar="N",
                    help="columns per revolution of a sensor (azimuth steps)")
     g.add_argument("--zenith-range", nargs=2, type=finite_float, metavar=("A", "B"),
@@ -120,9 +121,7 @@ def _pattern_from(args):
                                      ("max_range", args.max_range)) if v is not None}
         if args.sensor:
             return sensor(args.sensor, **changes)
-        path = args.sensor_file
-        reader = read_ouster_metadata if str(path).lower().endswith(".json") else read_velodyne_calibration
-        return reader(path, **changes)
+        return read_sensor_file(args.sensor_file, **changes)  # Ouster .json, Velodyne .yaml or a table .json
     if getattr(args, "columns", None) is not None:
         raise InputValueError("--columns goes with --sensor or --sensor-file")
     if args.preset:
@@ -198,13 +197,20 @@ OPTION_HELP = {
     "max_incidence": ("DEG", "turn discs edge-on to the primary to this angle"),
     "grid_gate": ("F", "pulse-grid neighbours within this fraction of range"),
     "grid_spacing": (None, "pulse-grid spacing: mean distance or axis step"),
+    "primary_image": (None, "a scan from the primary's origin returns the primary's own point in each pulse"),
+    "silhouettes": (None, "pulse-grid discs kept within the pulses next to their point's, as the primary saw"),
 }
 
 
 def _first_sentence(text: str) -> str:
     """A docstring description's first sentence, without its reST markup."""
     text = text.replace("``", "")
-    return re.split(r"(?<=[.;])\s", text, maxsplit=1)[0].rstrip(".;")
+    depth = 0
+    for i, c in enumerate(text):  # never inside parentheses: "(the primary saw through there; ..." goes on
+        depth += (c == "(") - (c == ")")
+        if c in ".;" and depth <= 0 and (i + 1 == len(text) or text[i + 1].isspace()):
+            return text[:i]
+    return text.rstrip(".;")
 
 
 def add_backend(p, default: str = Backend.BINNING.value) -> None:
@@ -228,6 +234,9 @@ def add_backend(p, default: str = Backend.BINNING.value) -> None:
         kind, nargs = _option_type(name, typ)
         choices = cls.choices().get(name)
         metavar, short = OPTION_HELP.get(name, (None, _first_sentence(text or typ)))
+        if kind is _boolean:  # its values, and its default, said
+            default = {f.name: f.default for f in dataclasses.fields(cls)}.get(name)
+            metavar, short = "{true,false}", f"{short} (default {str(default).lower()})"
         groups[key].add_argument(
             "--" + name.replace("_", "-"), dest=f"opt_{name}", type=kind, nargs=nargs, choices=choices,
             default=None, metavar=None if choices else metavar or name.split("_")[-1].upper(),
@@ -273,12 +282,20 @@ def ground_from(args) -> dict:
             "cloth_resolution": args.cloth_resolution}
 
 
+def _count_or_auto(text: str):
+    """An argparse type: an integer >= 1, or 'auto'."""
+    return text if text == "auto" else positive_int(text)
+
+
 def add_positions(p) -> None:
     """The grid method's settings (:func:`slr_ray.positions.select_positions`)."""
     g = p.add_argument_group("positions (the paper's grid method)")
     g.add_argument("--seed", type=int, default=0, metavar="N", help="random seed of the draw (default 0)")
-    g.add_argument("--min-ground-points", type=positive_int, default=paper.MIN_GROUND_POINTS, metavar="N",
-                   help=f"ground points a position needs within 5 m (default {paper.MIN_GROUND_POINTS:,})")
+    g.add_argument("--min-ground-points", type=_count_or_auto, default="auto", metavar="N|auto",
+                   help=f"ground points a position needs within 5 m; 'auto' (default): the paper's "
+                        f"{paper.MIN_GROUND_POINTS:,} (for its 0.036 deg scans) scaled by the cloud's density, "
+                        "0.2545%% of the best cell's count (docs/positions.md); give "
+                        f"{paper.MIN_GROUND_POINTS} for the paper's number")
     g.add_argument("--scanner-height", type=positive_float, default=paper.SCANNER_HEIGHT, metavar="M",
                    help=f"scanner height above the ground (m, default {paper.SCANNER_HEIGHT})")
 

@@ -36,6 +36,7 @@ from ..backends.embree import refuse_cast
 from ..errors import InputValueError
 from ..io import PointCloud
 from ..pattern import as_pattern, pulse_rays
+from ..progress import step
 from ..scan import Scan
 from . import stages as registry  # its STAGES read at each call: a stage registered there runs
 from .motion import as_poses
@@ -161,6 +162,7 @@ def _cast_returns(scanner, origin, pattern, plan: Rays, intensity):
     for a, b, rot, o in zip(starts, stops, rots, origins):
         rows_per = max(1, RAYS_PER_BATCH // ((b - a) * s))
         for r0 in range(0, nv, rows_per):
+            step(f"casting {nv * nh * s:,} rays", (len(parts) * rows_per) / (len(starts) * nv))  # once named
             r1 = min(nv, r0 + rows_per)
             d = dirs_all[r0:r1, a:b].reshape(-1, 3) @ rot.T
             idx, t = scanner.cast(o, subray_directions(d, plan.offsets) if plan.subrays else d, max_range=rmax)

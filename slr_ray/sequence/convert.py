@@ -35,12 +35,12 @@ import multiprocessing
 import os
 import re
 import shutil
+import signal
 import warnings
 from contextlib import ExitStack
 from dataclasses import dataclass
 import time
 import uuid
-import warnings
 from collections.abc import Sequence as SequenceABC
 from functools import partial
 from pathlib import Path
@@ -130,6 +130,15 @@ def _init(seq, poses, settings):
     st = _see_through(settings)
     _STATE.update(seq=seq, poses=poses, settings=settings, pattern=shipped_sensor(settings["sensor"]),
                   cache=FrameCache(seq, 2 * settings["cache"] + 16 + (2 * st.half if st else 0), local=False))
+
+
+def _init_worker(seq, poses, settings):
+    """A pool worker's start: Ctrl-C reaches the whole process group, and the parent decides (its pool's
+    exit terminates the workers): a worker ignores SIGINT, never printing a KeyboardInterrupt's traceback.
+    It starts with SIGINT and SIGTERM blocked (the parent's mask while it starts the pool), let in here."""
+    signal.signal(signal.SIGINT, signal.SIG_IGN)
+    signal.pthread_sigmask(signal.SIG_UNBLOCK, {signal.SIGINT, signal.SIGTERM})
+    _init(seq, poses, settings)
 
 
 def _dask_job(block, out, seq, poses, settings, token) -> list:
@@ -505,7 +514,12 @@ def _run_blocks(seq, out, P, settings, blocks, o: ConvertOptions, token, record)
         # were); multiprocessing.Pool, not ProcessPoolExecutor: on an interrupt (SIGINT, or
         # SIGTERM turned into one by the CLI) its exit terminates the workers at once
         ctx = multiprocessing.get_context("spawn")
-        with ctx.Pool(o.workers, initializer=_init, initargs=(seq, P, settings)) as pool:
+        mask = signal.pthread_sigmask(signal.SIG_BLOCK, {signal.SIGINT, signal.SIGTERM})  # a child's
+        try:  # a worker interrupted while it starts prints no traceback of its half-read start-up data
+            pool = ctx.Pool(o.workers, initializer=_init_worker, initargs=(seq, P, settings))
+        finally:
+            signal.pthread_sigmask(signal.SIG_SETMASK, mask)
+        with pool:
             for entries in pool.imap_unordered(partial(_job, out=str(out), token=token), blocks):
                 record(entries)
 

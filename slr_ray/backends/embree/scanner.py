@@ -14,6 +14,7 @@ from ...arrays import as_origin, as_points, bounds, release_pages
 from ...core import ranges_of
 from ...errors import InputValueError, refuse_memory
 from ...pattern import as_pattern, pulse_rays
+from ...progress import step
 from ...raycast import Open3DScene, RayScene, disc_vertices, padded_rows
 from ...scan import Scan
 from ..base import Backend, Scanner
@@ -111,6 +112,7 @@ class DiscScanner(Scanner):
         normals = _initial_normals(pts, o, need_normals, grid, ndtype)
         self._clip = None
         if grid and n >= 2:
+            step("pulse-grid neighbours and normals")  # the phase the caller runs this in says it, once named
             clip = (np.zeros(n, np.uint8) if o.silhouettes and o.primary_beams is None and o.engine != "open3d"
                     else None)
             # one fused pass: no neighbour arrays (spacing 0 where none: the floor applies)
@@ -127,6 +129,7 @@ class DiscScanner(Scanner):
         elif need_spacing or need_normals:
             # one neighbour query per chunk serves radii and normals
             for s, d, idx in neighbourhoods(pts, o.k, o.chunk):
+                step("neighbours and normals" if need_normals else "neighbours", s / n)
                 if need_spacing:
                     spacing[s:s + len(d)] = d.mean(axis=1)
                 if need_normals:
@@ -137,6 +140,7 @@ class DiscScanner(Scanner):
                              math.cos(math.radians(o.max_incidence)))
         # float32, Embree's precision (4 B a point instead of 8: 0.8 GB on a 209 M-point primary); for
         # the embree engine written straight into the radius column of Embree's vertex buffer (shared)
+        step("disc radii")
         r64 = disc_radii(pts, o.radius, k=o.k, radius_scale=o.radius_scale,
                          primary_origin=o.primary_origin, primary_resolution=o.primary_grid,
                          min_radius=o.min_radius, fallback_radius=o.fallback_radius, spacing=spacing)
@@ -158,6 +162,7 @@ class DiscScanner(Scanner):
         n = len(pts)
         self._centre = 0.5 * np.add(*bounds(pts)) if n else np.zeros(3)
         self._scene = None
+        step("BVH")
         if o.engine == "embree":
             self._scene = RayScene.discs(pts, self.radii, normals, centre=self._centre)
             self.radii = self._scene.owner_radii  # a view of Embree's buffer: no second copy
