@@ -1,0 +1,258 @@
+"""The ``embree-rays`` estimator: the fitted sensor (``rays``' model) cast with Embree onto the frames' meshes.
+
+``rays`` (:mod:`slr_ray.sequence.rays`) casts each laser of the target along
+its fitted ray (its height on the spin axis, its elevation, the sweep's skew,
+its range bias) and finds where the ray meets the plane of the union's 64
+points nearest its first cluster: two k-d tree queries and two eigen
+decompositions a ray, seconds a frame. Here the surface is built once a
+source frame instead, and the rays are cast by Embree:
+
+* **a frame's mesh** (:func:`frame_mesh`): a frame's points are its rings
+  (beams), each in azimuth order; two rings adjacent in elevation are joined
+  by a zipper of triangles (each triangle two points of one ring and one of
+  the other, in azimuth order), kept where the triangle spans at most
+  ``max_step`` of azimuth (no pulses lost between) and its ranges from the
+  frame's origin differ by at most ``max_ratio`` of the nearest (no jump from
+  a foreground edge to what lies behind it). It is the surface the frame's own
+  pulses sampled, seen from where they were fired; the road between two rings
+  metres apart is the triangle between them. Each vertex is moved back along
+  its laser's ray by that laser's range bias (the surface as the average laser
+  reads it; the target's laser adds its own back);
+* **one Embree scene a frame** (:class:`MeshFrames`, world coordinates), built
+  once and reused by every target whose window holds the frame;
+* **the cast** (:func:`cast_embree_rays`): every laser through every column's
+  centre from its firing origin (:func:`rays_of_model`, the same rays as
+  ``rays``), each ray into each frame's scene
+  (:meth:`~slr_ray.raycast.RayScene.intersect_each`: one origin a ray); the
+  first surface is the nearest hit over the frames and the return the mean of
+  the frames' hits within ``gap`` of it (the first-peak average's rule over
+  the frames' surfaces), moved by the laser's range bias, binned into the
+  target's image nearest per pulse as a real point is.
+
+The range biases may be measured against the meshes too
+(:func:`mesh_range_bias`): each frame's points (every ``stride``-th) cast
+along their own laser's ray onto the *other* frames' meshes.
+"""
+
+from __future__ import annotations
+
+import dataclasses
+import math
+
+import numpy as np
+from numba import njit
+
+from ..errors import InputValueError
+from ..raycast import RayScene
+from .estimators import FPA_GAP, PulseReturns
+from .rays import RayModel, pattern_ray_model, sweep_offsets
+
+__all__ = ["frame_mesh", "MeshFrames", "rays_of_model", "cast_embree_rays", "mesh_range_bias", "MAX_RATIO",
+           "MAX_STEP_DEG"]
+
+#: a triangle's ranges (from its frame's origin) differ by at most this share of the nearest
+MAX_RATIO = 0.3
+#: a triangle spans at most this azimuth (degrees): about four of an HDL-64E's columns
+MAX_STEP_DEG = 0.8
+#: rays start this far from their firing origin (m): nothing of a frame is nearer its sensor
+TNEAR = 1.0
+
+
+@njit(cache=True)
+def _zipper(order, starts, az, rng, max_step, max_ratio, out):
+    """Triangles joining each ring (``order[starts[b]:starts[b+1]]``, by azimuth) to the next;
+    returns how many were written into ``out``."""
+    n = 0
+    for b in range(len(starts) - 2):
+        a0, a1 = starts[b], starts[b + 1]
+        b0, b1 = starts[b + 1], starts[b + 2]
+        if a1 - a0 < 2 or b1 - b0 < 2:
+            continue
+        i, j = a0, b0
+        while i < a1 - 1 or j < b1 - 1:
+            if j == b1 - 1 or (i < a1 - 1 and az[order[i + 1]] < az[order[j + 1]]):
+                p, q, r = order[i], order[i + 1], order[j]
+                i += 1
+            else:
+                p, q, r = order[i], order[j], order[j + 1]
+                j += 1
+            lo = min(az[p], az[q], az[r])
+            hi = max(az[p], az[q], az[r])
+            if hi - lo > max_step:
+                continue
+            rlo = min(rng[p], rng[q], rng[r])
+            rhi = max(rng[p], rng[q], rng[r])
+            if rhi - rlo > max_ratio * rlo:
+                continue
+            out[n, 0], out[n, 1], out[n, 2] = p, q, r
+            n += 1
+    return n
+
+
+def frame_mesh(points, beams, n_beams: int, max_ratio: float = MAX_RATIO,
+               max_step_deg: float = MAX_STEP_DEG) -> np.ndarray:
+    """``(f, 3) int64``: the triangles of one frame's rings (module docstring); ``points`` in the
+    frame's own axes, ``beams`` each point's ring (0 the highest, rings adjacent in elevation
+    adjacent in number; -1: not known, left out)."""
+    p = np.asarray(points, np.float64)
+    b = np.asarray(beams, np.int64)
+    if b.shape != (len(p),):
+        raise InputValueError(f"beams must be one a point ({len(p)}), got shape {b.shape}")
+    az = np.arctan2(p[:, 1], p[:, 0])
+    rng = np.linalg.norm(p, axis=1)
+    keep = np.flatnonzero((b >= 0) & (b < n_beams))
+    order = keep[np.lexsort((az[keep], b[keep]))]
+    starts = np.searchsorted(b[order], np.arange(n_beams + 1))
+    out = np.empty((2 * len(order) + 4, 3), np.int64)
+    n = _zipper(order, starts, az, rng, math.radians(max_step_deg), float(max_ratio), out)
+    return out[:n]
+
+
+def _unbiased(points, beams, model: RayModel | None):
+    """The frame's points moved back along their laser's ray by its range bias (from the laser's
+    firing point on the spin axis; the sweep's offset is a few decimetres against ranges of metres)."""
+    p = np.asarray(points, np.float64)
+    if model is None or model.range_bias is None:
+        return p
+    b = np.asarray(beams, np.int64)
+    ok = (b >= 0) & (b < len(model.range_bias))
+    bias = np.where(ok, model.range_bias[np.clip(b, 0, len(model.range_bias) - 1)], 0.0)
+    d = p.copy()
+    d[:, 2] -= np.where(ok, model.height[np.clip(b, 0, len(model.height) - 1)], 0.0)
+    d /= np.maximum(np.linalg.norm(d, axis=1), 1e-9)[:, None]
+    return p - bias[:, None] * d
+
+
+class MeshFrames:
+    """The Embree scenes of frames' meshes in the world frame, one a frame, built once each
+    (:meth:`add`) and cast into by every target that holds them (:func:`cast_embree_rays`)."""
+
+    def __init__(self, max_ratio: float = MAX_RATIO, max_step_deg: float = MAX_STEP_DEG):
+        self.max_ratio, self.max_step_deg = max_ratio, max_step_deg
+        self._scenes: dict = {}
+
+    def add(self, key, points, beams, pose, n_beams: int, model: RayModel | None = None, offset: int = 0):
+        """Frame ``key``'s mesh: ``points`` in its own axes, ``beams`` its rings, ``pose`` its pose;
+        ``model``: its lasers' range biases taken out; ``offset``: the union index of its first point."""
+        if key not in self._scenes:
+            faces = frame_mesh(points, beams, n_beams, self.max_ratio, self.max_step_deg)
+            P = np.asarray(pose, np.float64)
+            local = _unbiased(points, beams, model)
+            world = local @ P[:3, :3].T + P[:3, 3]
+            scene = RayScene.triangles(world, faces) if len(faces) else None
+            self._scenes[key] = (scene, faces)
+        scene, faces = self._scenes[key]
+        return scene, faces, offset
+
+    def drop(self, key):
+        self._scenes.pop(key, None)
+
+    def __contains__(self, key):
+        return key in self._scenes
+
+
+def rays_of_model(pattern, model: RayModel, motion=(0.0, 0.0, 0.0)):
+    """Every laser of ``model`` through every column's centre of ``pattern``: ``(origins, directions,
+    lasers)`` in the target's frame (the firing point: the laser's height on the spin axis and the
+    sweep's offset at the column's azimuth, as ``rays`` casts them)."""
+    C = pattern.columns
+    D = 2 * math.pi / C
+    L = len(model.elevation)
+    las = np.repeat(np.arange(L), C)
+    col = np.tile(np.arange(C), L)
+    th = model.azimuth_offset[las] + (col + 0.5) * D
+    ce = np.cos(model.elevation[las])
+    d = np.column_stack([ce * np.cos(th), ce * np.sin(th), np.sin(model.elevation[las])])
+    phi = np.mod(th, 2 * math.pi)
+    phi = np.where(phi > math.pi, phi - 2 * math.pi, phi)
+    origin = (model.skew * ((phi + math.pi) / (2 * math.pi) - 0.5))[:, None] * np.asarray(motion, np.float64)[None, :]
+    origin[:, 2] += model.height[las]
+    return origin, d, las
+
+
+def _first_peak(t, gap):
+    """Per ray (rows), the nearest of the frames' hits (columns; inf: none) and the mean of those within
+    ``gap`` of it; the frame of the nearest."""
+    first = np.argmin(t, axis=1)
+    t0 = t[np.arange(len(t)), first]
+    near = t <= (t0 + gap)[:, None]
+    n = near.sum(axis=1)
+    mean = np.where(near, t, 0.0).sum(axis=1) / np.maximum(n, 1)
+    return np.where(np.isfinite(t0), mean, np.inf), first
+
+
+def cast_embree_rays(points, pattern, model: RayModel | None = None, motion=(0.0, 0.0, 0.0), gap: float = FPA_GAP,
+                     *, surfaces, pose) -> PulseReturns:
+    """One return per pulse of ``pattern``: ``model``'s rays (default the pattern's own) from the target at
+    ``pose`` (world) cast into ``surfaces`` (``(scene, faces, offset)`` of :meth:`MeshFrames.add`, one a
+    frame of the window); ``points`` the union (float64, the target's frame; the return's ``index`` is the
+    union point nearest it among its triangle's corners). ``cast_rays``' arguments (module docstring)."""
+    if not gap > 0:
+        raise InputValueError(f"the fpa gap must be > 0 m, got {gap}")
+    model = model or pattern_ray_model(pattern)
+    pts = np.asarray(points, np.float64)
+    origin, d, las = rays_of_model(pattern, model, motion)
+    P = np.asarray(pose, np.float64)
+    ow = origin @ P[:3, :3].T + P[:3, 3]
+    dw = d @ P[:3, :3].T
+    live = [s for s in surfaces if s[0] is not None]
+    t = np.full((len(d), max(len(live), 1)), np.inf)
+    prims = np.full((len(d), max(len(live), 1)), -1, np.int64)
+    for k, (scene, _, _) in enumerate(live):
+        h = scene.intersect_each(ow, dw, tnear=TNEAR)
+        t[:, k], prims[:, k] = h.distances, h.primitives
+    tt, first = _first_peak(t, gap)
+    hitm = np.flatnonzero(np.isfinite(tt))
+    tt = tt[hitm]
+    L = las[hitm]
+    if model.range_bias is not None:
+        tt = tt + model.range_bias[L]
+    hit = origin[hitm] + tt[:, None] * d[hitm]
+    # the union point each return stands for: the nearest corner of the first surface's triangle
+    index = np.zeros(len(hitm), np.int64)
+    for k, (_, faces, offset) in enumerate(live):
+        m = np.flatnonzero(first[hitm] == k)
+        if not len(m):
+            continue
+        corners = faces[prims[hitm[m], k]] + offset
+        dist = np.linalg.norm(pts[corners] - hit[m][:, None, :], axis=2) if len(pts) else np.zeros(corners.shape)
+        index[m] = corners[np.arange(len(m)), np.argmin(dist, axis=1)]
+    keys, ranges = pattern.pulse_ids(hit, np.zeros(3))
+    ok = np.flatnonzero(keys >= 0)
+    o = np.lexsort((ok, ranges[ok], keys[ok]))
+    kk = keys[ok][o]
+    win = ok[o][np.r_[True, kk[1:] != kk[:-1]]] if len(kk) else ok[:0]
+    return PulseReturns(keys[win].astype(np.int64), ranges[win], hit[win], index[win])
+
+
+def mesh_range_bias(model: RayModel, frames, surfaces, stride: int = 8, reach: float = 0.2) -> RayModel:
+    """``model`` with each laser's range bias measured against meshes: ``frames`` ``(points, beams, pose,
+    motion)`` (own axes), ``surfaces`` the same frames' :meth:`MeshFrames.add` (built *without* biases);
+    each frame's every ``stride``-th point cast along its laser's ray from its firing point onto the
+    other frames' meshes (the first-peak rule of :func:`cast_embree_rays`); the bias the median of how
+    far beyond them the points lie (within ``reach``). One frame: no bias."""
+    L = len(model.elevation)
+    if len(frames) < 2:
+        return model
+    found = [[] for _ in range(L)]
+    for j, (p, beams, pose, motion) in enumerate(frames):
+        p = np.asarray(p, np.float64)[::stride]
+        lasers = np.asarray(beams, np.int64)[::stride]
+        origin = sweep_offsets(p, motion, model.skew)
+        origin[:, 2] += model.height[lasers]
+        dv = p - origin
+        r = np.linalg.norm(dv, axis=1)
+        dv /= r[:, None]
+        P = np.asarray(pose, np.float64)
+        ow, dw = origin @ P[:3, :3].T + P[:3, 3], dv @ P[:3, :3].T
+        rest = [s for i, s in enumerate(surfaces) if i != j and s[0] is not None]
+        t = np.full((len(p), max(len(rest), 1)), np.inf)
+        for k, (scene, _, _) in enumerate(rest):
+            t[:, k] = scene.intersect_each(ow, dw, tnear=max(TNEAR, 0.0)).distances
+        tt, _ = _first_peak(t, FPA_GAP)
+        along = r - tt
+        ok = np.isfinite(along) & (np.abs(along) < reach)
+        for laser in range(L):
+            found[laser].append(along[ok & (lasers == laser)])
+    bias = np.array([float(np.median(np.concatenate(a))) if sum(map(len, a)) >= 50 else 0.0 for a in found])
+    return dataclasses.replace(model, range_bias=bias)
