@@ -129,8 +129,10 @@ class RayScene:
         self._box = _padded_bounds(rows, extent, geometry_type != GEOMETRY_TRIANGLE)
         lib = self._lib = embree_library()
         t0 = time.perf_counter()
-        self._cull_boxes = voxel_boxes(buffers[0][4], buffers[1][4] if geometry_type == GEOMETRY_TRIANGLE else None,
-                                       self.n_primitives, extent=extent)
+        # the occupied voxels' boxes (.cull): made on the first cast that culls (intersect_each never does)
+        self._cull_of = (buffers[0][4], buffers[1][4] if geometry_type == GEOMETRY_TRIANGLE else None,
+                         self.n_primitives, extent)
+        self._cull = None
         self._scene = lib.new_scene(lib.device)
         lib.set_scene_flags(self._scene, SCENE_FLAG_FILTER_FUNCTION_IN_ARGUMENTS
                             | (SCENE_FLAG_COMPACT if compact else 0))
@@ -144,6 +146,13 @@ class RayScene:
         lib.commit_scene(self._scene)
         lib.check("building the scene")
         self.build_seconds = time.perf_counter() - t0
+
+    @property
+    def _cull_boxes(self) -> np.ndarray:
+        if self._cull is None:
+            v, f, n, extent = self._cull_of
+            self._cull = voxel_boxes(v, f, n, extent=extent)
+        return self._cull
 
     # --- constructors -------------------------------------------------------------------
     @classmethod

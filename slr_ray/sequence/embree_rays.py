@@ -43,17 +43,21 @@ import numpy as np
 from numba import njit
 
 from ..errors import InputValueError
+from ..evaluate import scan_order_beams
 from ..raycast import RayScene
 from .estimators import FPA_GAP, PulseReturns
 from .rays import RayModel, pattern_ray_model, sweep_offsets
+from .union import rotate
 
-__all__ = ["frame_mesh", "MeshFrames", "rays_of_model", "cast_embree_rays", "mesh_range_bias", "MAX_RATIO",
-           "MAX_STEP_DEG"]
+__all__ = ["frame_mesh", "MeshFrames", "rays_of_model", "cast_embree_rays", "mesh_range_bias", "union_meshes",
+           "frame_beams", "MAX_RATIO", "MAX_STEP_DEG", "EMBREE_GAP"]
 
 #: a triangle's ranges (from its frame's origin) differ by at most this share of the nearest
 MAX_RATIO = 0.3
-#: a triangle spans at most this azimuth (degrees): about four of an HDL-64E's columns
-MAX_STEP_DEG = 0.8
+#: a triangle spans at most this azimuth (degrees): about two of an HDL-64E's columns
+MAX_STEP_DEG = 0.4
+#: the first-peak gap over the frames' surfaces (m): the frames' meshes of one surface lie within it
+EMBREE_GAP = 0.2
 #: rays start this far from their firing origin (m): nothing of a frame is nearer its sensor
 TNEAR = 1.0
 
@@ -138,7 +142,7 @@ class MeshFrames:
             faces = frame_mesh(points, beams, n_beams, self.max_ratio, self.max_step_deg)
             P = np.asarray(pose, np.float64)
             local = _unbiased(points, beams, model)
-            world = local @ P[:3, :3].T + P[:3, 3]
+            world = rotate(local, P[:3, :3]) + P[:3, 3]
             scene = RayScene.triangles(world, faces) if len(faces) else None
             self._scenes[key] = (scene, faces)
         scene, faces = self._scenes[key]
@@ -181,7 +185,7 @@ def _first_peak(t, gap):
     return np.where(np.isfinite(t0), mean, np.inf), first
 
 
-def cast_embree_rays(points, pattern, model: RayModel | None = None, motion=(0.0, 0.0, 0.0), gap: float = FPA_GAP,
+def cast_embree_rays(points, pattern, model: RayModel | None = None, motion=(0.0, 0.0, 0.0), gap: float = EMBREE_GAP,
                      *, surfaces, pose) -> PulseReturns:
     """One return per pulse of ``pattern``: ``model``'s rays (default the pattern's own) from the target at
     ``pose`` (world) cast into ``surfaces`` (``(scene, faces, offset)`` of :meth:`MeshFrames.add`, one a
@@ -193,8 +197,8 @@ def cast_embree_rays(points, pattern, model: RayModel | None = None, motion=(0.0
     pts = np.asarray(points, np.float64)
     origin, d, las = rays_of_model(pattern, model, motion)
     P = np.asarray(pose, np.float64)
-    ow = origin @ P[:3, :3].T + P[:3, 3]
-    dw = d @ P[:3, :3].T
+    ow = rotate(origin, P[:3, :3]) + P[:3, 3]
+    dw = rotate(d, P[:3, :3])
     live = [s for s in surfaces if s[0] is not None]
     t = np.full((len(d), max(len(live), 1)), np.inf)
     prims = np.full((len(d), max(len(live), 1)), -1, np.int64)
@@ -244,7 +248,7 @@ def mesh_range_bias(model: RayModel, frames, surfaces, stride: int = 8, reach: f
         r = np.linalg.norm(dv, axis=1)
         dv /= r[:, None]
         P = np.asarray(pose, np.float64)
-        ow, dw = origin @ P[:3, :3].T + P[:3, 3], dv @ P[:3, :3].T
+        ow, dw = rotate(origin, P[:3, :3]) + P[:3, 3], rotate(dv, P[:3, :3])
         rest = [s for i, s in enumerate(surfaces) if i != j and s[0] is not None]
         t = np.full((len(p), max(len(rest), 1)), np.inf)
         for k, (scene, _, _) in enumerate(rest):
@@ -256,3 +260,38 @@ def mesh_range_bias(model: RayModel, frames, surfaces, stride: int = 8, reach: f
             found[laser].append(along[ok & (lasers == laser)])
     bias = np.array([float(np.median(np.concatenate(a))) if sum(map(len, a)) >= 50 else 0.0 for a in found])
     return dataclasses.replace(model, range_bias=bias)
+
+
+def frame_beams(frame, base):
+    """A frame's beams: its ``ring`` field, else its scan order (KITTI's ``.bin``), else None."""
+    ring = frame.attributes.get("ring")
+    if ring is not None:
+        return np.asarray(ring, np.int64)
+    return scan_order_beams(frame.points, base.n_beams)
+
+
+def union_meshes(cache, frames, base, model: RayModel | None = None, drop_moving: bool = True, see_through=None,
+                 exclude=(), meshes: MeshFrames | None = None) -> list:
+    """The surfaces of ``frames`` (sequence indices, in the union's order: ``offset`` of each frame's
+    first point in :func:`~slr_ray.sequence.union.accumulate`'s union of them) for
+    :func:`cast_embree_rays`: each frame's kept points meshed by its rings (``base``'s beam count), its
+    lasers' range biases (``model``) taken out. ``meshes`` keeps them between targets (a frame's
+    mesh is built once); frames whose beams are not known give no surface."""
+    meshes = meshes if meshes is not None else MeshFrames()
+    out, offset = [], 0
+    for i in frames:
+        f, _ = cache.get(int(i))
+        keep, _ = cache.selection(int(i), drop_moving, see_through, exclude)
+        pts = cache.own_points(int(i))
+        beams = frame_beams(f, base)
+        if keep is not None:
+            pts = pts[keep]
+            beams = None if beams is None else beams[keep]
+        if beams is None:
+            out.append((None, np.zeros((0, 3), np.int64), offset))
+        else:
+            bias = None if model is None or model.range_bias is None else model.range_bias.tobytes()
+            key = (int(i), bias, len(pts), model.height.tobytes() if bias else None)
+            out.append(meshes.add(key, pts, beams, f.pose, base.n_beams, model, offset))
+        offset += len(pts)
+    return out
