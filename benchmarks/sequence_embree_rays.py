@@ -59,7 +59,7 @@ def fit_parts(seq, others, base, pattern, cache, bias="planes"):
 VARIANTS = {NAME: {}, f"{NAME}, biases against the meshes": {"bias": "meshes"},
             f"{NAME}, no range bias": {"bias": "none"},
             f"{NAME}, ratio 0.2": {"max_ratio": 0.2}, f"{NAME}, ratio 0.15": {"max_ratio": 0.15},
-            f"{NAME}, gap 0.1": {"gap": 0.1}}
+            f"{NAME}, gap 0.1": {"gap": 0.1}, f"{NAME}, raw meshes, biases at the hits": {"raw": True}}
 _MODELS = {}
 
 
@@ -76,7 +76,8 @@ def hook():
             _MODELS[key] = fit_parts(held.seq, held.others, held.base, held.pattern, held.cache, key[1])[0]
         model = _MODELS[key]
         meshes = E.MeshFrames(v.get("max_ratio", E.MAX_RATIO))
-        s = E.union_meshes(held.cache, held.others, held.base, model, held.drop_moving, held.see_through,
+        s = E.union_meshes(held.cache, held.others, held.base, None if v.get("raw") else model, held.drop_moving,
+                           held.see_through,
                            (held.target,), meshes)
         ret = E.cast_embree_rays(held.u, held.pattern, model, frame_motion(held.seq.poses, held.target),
                                  v.get("gap", E.EMBREE_GAP), surfaces=s, pose=held.pose)

@@ -144,9 +144,11 @@ class MeshFrames:
             local = _unbiased(points, beams, model)
             world = rotate(local, P[:3, :3]) + P[:3, 3]
             scene = RayScene.triangles(world, faces) if len(faces) else None
-            self._scenes[key] = (scene, faces)
-        scene, faces = self._scenes[key]
-        return scene, faces, offset
+            # a raw mesh keeps its vertices' lasers: the cast takes their biases out of its hits
+            raw = np.asarray(beams, np.int64) if model is None or model.range_bias is None else None
+            self._scenes[key] = (scene, faces, raw)
+        scene, faces, raw = self._scenes[key]
+        return scene, faces, offset, raw
 
     def drop(self, key):
         self._scenes.pop(key, None)
@@ -172,6 +174,16 @@ def rays_of_model(pattern, model: RayModel, motion=(0.0, 0.0, 0.0)):
     origin = (model.skew * ((phi + math.pi) / (2 * math.pi) - 0.5))[:, None] * np.asarray(motion, np.float64)[None, :]
     origin[:, 2] += model.height[las]
     return origin, d, las
+
+
+def _debias(t, prims, faces, beams, bias):
+    """Hits ``t`` on a raw mesh moved back by the mean range bias of their triangle's corners' lasers
+    (in place): each corner was read that much long along its own ray, which from a nearby origin is
+    nearly the cast ray."""
+    hit = np.flatnonzero(prims >= 0)
+    b = beams[faces[prims[hit]]]
+    ok = (b >= 0) & (b < len(bias))
+    t[hit] -= np.where(ok, bias[np.clip(b, 0, len(bias) - 1)], 0.0).mean(axis=1)
 
 
 def _first_peak(t, gap):
@@ -202,9 +214,11 @@ def cast_embree_rays(points, pattern, model: RayModel | None = None, motion=(0.0
     live = [s for s in surfaces if s[0] is not None]
     t = np.full((len(d), max(len(live), 1)), np.inf)
     prims = np.full((len(d), max(len(live), 1)), -1, np.int64)
-    for k, (scene, _, _) in enumerate(live):
+    for k, (scene, faces, _, raw) in enumerate(live):
         h = scene.intersect_each(ow, dw, tnear=TNEAR)
         t[:, k], prims[:, k] = h.distances, h.primitives
+        if raw is not None and model.range_bias is not None:
+            _debias(t[:, k], prims[:, k], faces, raw, model.range_bias)
     tt, first = _first_peak(t, gap)
     hitm = np.flatnonzero(np.isfinite(tt))
     tt = tt[hitm]
@@ -214,7 +228,7 @@ def cast_embree_rays(points, pattern, model: RayModel | None = None, motion=(0.0
     hit = origin[hitm] + tt[:, None] * d[hitm]
     # the union point each return stands for: the nearest corner of the first surface's triangle
     index = np.zeros(len(hitm), np.int64)
-    for k, (_, faces, offset) in enumerate(live):
+    for k, (_, faces, offset, _) in enumerate(live):
         m = np.flatnonzero(first[hitm] == k)
         if not len(m):
             continue
@@ -251,7 +265,7 @@ def mesh_range_bias(model: RayModel, frames, surfaces, stride: int = 8, reach: f
         ow, dw = rotate(origin, P[:3, :3]) + P[:3, 3], rotate(dv, P[:3, :3])
         rest = [s for i, s in enumerate(surfaces) if i != j and s[0] is not None]
         t = np.full((len(p), max(len(rest), 1)), np.inf)
-        for k, (scene, _, _) in enumerate(rest):
+        for k, (scene, _, _, _) in enumerate(rest):
             t[:, k] = scene.intersect_each(ow, dw, tnear=max(TNEAR, 0.0)).distances
         tt, _ = _first_peak(t, FPA_GAP)
         along = r - tt
@@ -272,6 +286,8 @@ def frame_beams(frame, base):
 
 def union_meshes(cache, frames, base, model: RayModel | None = None, drop_moving: bool = True, see_through=None,
                  exclude=(), meshes: MeshFrames | None = None) -> list:
+    # model None: raw meshes (the same for every model: reusable across targets), the biases taken out
+    # of the hits by cast_embree_rays; a model: its biases taken out of the vertices
     """The surfaces of ``frames`` (sequence indices, in the union's order: ``offset`` of each frame's
     first point in :func:`~slr_ray.sequence.union.accumulate`'s union of them) for
     :func:`cast_embree_rays`: each frame's kept points meshed by its rings (``base``'s beam count), its
@@ -288,7 +304,7 @@ def union_meshes(cache, frames, base, model: RayModel | None = None, drop_moving
             pts = pts[keep]
             beams = None if beams is None else beams[keep]
         if beams is None:
-            out.append((None, np.zeros((0, 3), np.int64), offset))
+            out.append((None, np.zeros((0, 3), np.int64), offset, None))
         else:
             bias = None if model is None or model.range_bias is None else model.range_bias.tobytes()
             key = (int(i), bias, len(pts), model.height.tobytes() if bias else None)
