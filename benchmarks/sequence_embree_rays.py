@@ -57,8 +57,9 @@ def fit_parts(seq, others, base, pattern, cache, bias="planes"):
 
 
 VARIANTS = {NAME: {}, f"{NAME}, biases against the meshes": {"bias": "meshes"},
-            f"{NAME}, no range bias": {"bias": "none"},
-            f"{NAME}, ratio 0.2": {"max_ratio": 0.2}, f"{NAME}, ratio 0.15": {"max_ratio": 0.15},
+            f"{NAME}, no range bias": {"bias": "none"}, f"{NAME}, no weak triangles rule": {"weak": None},
+            f"{NAME}, weak 0.1": {"weak": 0.1}, f"{NAME}, ratio 0.5": {"max_ratio": 0.5},
+            f"{NAME}, ratio 0.15 (no weak)": {"max_ratio": 0.15, "weak": None},
             f"{NAME}, gap 0.1": {"gap": 0.1}, f"{NAME}, raw meshes, biases at the hits": {"raw": True}}
 _MODELS = {}
 
@@ -75,7 +76,7 @@ def hook():
         if key not in _MODELS:
             _MODELS[key] = fit_parts(held.seq, held.others, held.base, held.pattern, held.cache, key[1])[0]
         model = _MODELS[key]
-        meshes = E.MeshFrames(v.get("max_ratio", E.MAX_RATIO))
+        meshes = E.MeshFrames(v.get("max_ratio", E.MAX_RATIO), weak_ratio=v.get("weak", E.WEAK_RATIO))
         s = E.union_meshes(held.cache, held.others, held.base, None if v.get("raw") else model, held.drop_moving,
                            held.see_through,
                            (held.target,), meshes)

@@ -50,12 +50,16 @@ from .rays import RayModel, pattern_ray_model, sweep_offsets
 from .union import rotate
 
 __all__ = ["frame_mesh", "MeshFrames", "rays_of_model", "cast_embree_rays", "mesh_range_bias", "union_meshes",
-           "frame_beams", "MAX_RATIO", "MAX_STEP_DEG", "EMBREE_GAP"]
+           "frame_beams", "MAX_RATIO", "MAX_STEP_DEG", "EMBREE_GAP", "WEAK_RATIO"]
 
 #: a triangle's ranges (from its frame's origin) differ by at most this share of the nearest
 MAX_RATIO = 0.3
 #: a triangle spans at most this azimuth (degrees): about two of an HDL-64E's columns
 MAX_STEP_DEG = 0.4
+#: a triangle whose ranges differ by more than this share of the nearest is *weak* (seen edge-on from its
+#: frame: the road far off, or a skin from an edge to what lies behind it): a ray takes it only where
+#: no frame's mesh gives it a strong one
+WEAK_RATIO = 0.15
 #: the first-peak gap over the frames' surfaces (m): the frames' meshes of one surface lie within it
 EMBREE_GAP = 0.2
 #: rays start this far from their firing origin (m): nothing of a frame is nearer its sensor
@@ -131,8 +135,9 @@ class MeshFrames:
     """The Embree scenes of frames' meshes in the world frame, one a frame, built once each
     (:meth:`add`) and cast into by every target that holds them (:func:`cast_embree_rays`)."""
 
-    def __init__(self, max_ratio: float = MAX_RATIO, max_step_deg: float = MAX_STEP_DEG):
-        self.max_ratio, self.max_step_deg = max_ratio, max_step_deg
+    def __init__(self, max_ratio: float = MAX_RATIO, max_step_deg: float = MAX_STEP_DEG,
+                 weak_ratio: float | None = WEAK_RATIO):
+        self.max_ratio, self.max_step_deg, self.weak_ratio = max_ratio, max_step_deg, weak_ratio
         self._scenes: dict = {}
 
     def add(self, key, points, beams, pose, n_beams: int, model: RayModel | None = None, offset: int = 0):
@@ -146,9 +151,13 @@ class MeshFrames:
             scene = RayScene.triangles(world, faces) if len(faces) else None
             # a raw mesh keeps its vertices' lasers: the cast takes their biases out of its hits
             raw = np.asarray(beams, np.int64) if model is None or model.range_bias is None else None
-            self._scenes[key] = (scene, faces, raw)
-        scene, faces, raw = self._scenes[key]
-        return scene, faces, offset, raw
+            weak = None
+            if self.weak_ratio is not None and len(faces):
+                r = np.linalg.norm(np.asarray(points, np.float64), axis=1)[faces]
+                weak = np.ptp(r, axis=1) > self.weak_ratio * r.min(axis=1)
+            self._scenes[key] = (scene, faces, raw, weak)
+        scene, faces, raw, weak = self._scenes[key]
+        return scene, faces, offset, raw, weak
 
     def drop(self, key):
         self._scenes.pop(key, None)
@@ -174,6 +183,20 @@ def rays_of_model(pattern, model: RayModel, motion=(0.0, 0.0, 0.0)):
     origin = (model.skew * ((phi + math.pi) / (2 * math.pi) - 0.5))[:, None] * np.asarray(motion, np.float64)[None, :]
     origin[:, 2] += model.height[las]
     return origin, d, las
+
+
+def _strong(scene, weak, ow, dw, t, prims, layers: int = 4):
+    """Where a ray's first hit is on a weak triangle, its first strong one behind (``layers`` casts at
+    most; in place; inf where none)."""
+    todo = np.flatnonzero((prims >= 0) & weak[np.maximum(prims, 0)])
+    for _ in range(layers):
+        if not len(todo):
+            return
+        step = t[todo] + 1e-3
+        h = scene.intersect_each(ow[todo] + step[:, None] * dw[todo], dw[todo])
+        t[todo], prims[todo] = step + h.distances, h.primitives
+        todo = todo[(h.primitives >= 0) & weak[np.maximum(h.primitives, 0)]]
+    t[todo], prims[todo] = np.inf, -1
 
 
 def _debias(t, prims, faces, beams, bias):
@@ -212,13 +235,20 @@ def cast_embree_rays(points, pattern, model: RayModel | None = None, motion=(0.0
     ow = rotate(origin, P[:3, :3]) + P[:3, 3]
     dw = rotate(d, P[:3, :3])
     live = [s for s in surfaces if s[0] is not None]
-    t = np.full((len(d), max(len(live), 1)), np.inf)
-    prims = np.full((len(d), max(len(live), 1)), -1, np.int64)
-    for k, (scene, faces, _, raw) in enumerate(live):
+    shape = (len(d), max(len(live), 1))
+    t, prims = np.full(shape, np.inf), np.full(shape, -1, np.int64)
+    ts, ps = np.full(shape, np.inf), np.full(shape, -1, np.int64)  # the first strong hit
+    for k, (scene, faces, _, raw, weak) in enumerate(live):
         h = scene.intersect_each(ow, dw, tnear=TNEAR)
         t[:, k], prims[:, k] = h.distances, h.primitives
+        ts[:, k], ps[:, k] = h.distances, h.primitives
+        if weak is not None:
+            _strong(scene, weak, ow, dw, ts[:, k], ps[:, k])
         if raw is not None and model.range_bias is not None:
             _debias(t[:, k], prims[:, k], faces, raw, model.range_bias)
+            _debias(ts[:, k], ps[:, k], faces, raw, model.range_bias)
+    strong = np.isfinite(ts).any(axis=1)
+    t[strong], prims[strong] = ts[strong], ps[strong]
     tt, first = _first_peak(t, gap)
     hitm = np.flatnonzero(np.isfinite(tt))
     tt = tt[hitm]
@@ -228,7 +258,7 @@ def cast_embree_rays(points, pattern, model: RayModel | None = None, motion=(0.0
     hit = origin[hitm] + tt[:, None] * d[hitm]
     # the union point each return stands for: the nearest corner of the first surface's triangle
     index = np.zeros(len(hitm), np.int64)
-    for k, (_, faces, offset, _) in enumerate(live):
+    for k, (_, faces, offset, _, _) in enumerate(live):
         m = np.flatnonzero(first[hitm] == k)
         if not len(m):
             continue
@@ -265,7 +295,7 @@ def mesh_range_bias(model: RayModel, frames, surfaces, stride: int = 8, reach: f
         ow, dw = rotate(origin, P[:3, :3]) + P[:3, 3], rotate(dv, P[:3, :3])
         rest = [s for i, s in enumerate(surfaces) if i != j and s[0] is not None]
         t = np.full((len(p), max(len(rest), 1)), np.inf)
-        for k, (scene, _, _, _) in enumerate(rest):
+        for k, (scene, _, _, _, _) in enumerate(rest):
             t[:, k] = scene.intersect_each(ow, dw, tnear=max(TNEAR, 0.0)).distances
         tt, _ = _first_peak(t, FPA_GAP)
         along = r - tt
@@ -304,7 +334,7 @@ def union_meshes(cache, frames, base, model: RayModel | None = None, drop_moving
             pts = pts[keep]
             beams = None if beams is None else beams[keep]
         if beams is None:
-            out.append((None, np.zeros((0, 3), np.int64), offset, None))
+            out.append((None, np.zeros((0, 3), np.int64), offset, None, None))
         else:
             bias = None if model is None or model.range_bias is None else model.range_bias.tobytes()
             key = (int(i), bias, len(pts), model.height.tobytes() if bias else None)
