@@ -59,7 +59,7 @@ MAX_STEP_DEG = 0.4
 #: a triangle whose ranges differ by more than this share of the nearest is *weak* (seen edge-on from its
 #: frame: the road far off, or a skin from an edge to what lies behind it): a ray takes it only where
 #: no frame's mesh gives it a strong one
-WEAK_RATIO = 0.15
+WEAK_RATIO = 0.1
 #: the first-peak gap over the frames' surfaces (m): the frames' meshes of one surface lie within it
 EMBREE_GAP = 0.2
 #: rays start this far from their firing origin (m): nothing of a frame is nearer its sensor
