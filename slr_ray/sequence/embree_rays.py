@@ -46,11 +46,11 @@ from ..errors import InputValueError
 from ..evaluate import scan_order_beams
 from ..raycast import RayScene
 from .estimators import FPA_GAP, PulseReturns
-from .rays import RayModel, pattern_ray_model, sweep_offsets
+from .rays import RayModel, fit_ray_model, frame_motion, pattern_ray_model, sweep_offsets
 from .union import rotate
 
 __all__ = ["frame_mesh", "MeshFrames", "rays_of_model", "cast_embree_rays", "mesh_range_bias", "union_meshes",
-           "frame_beams", "MAX_RATIO", "MAX_STEP_DEG", "EMBREE_GAP", "WEAK_RATIO"]
+           "frame_beams", "fit_embree_model", "MAX_RATIO", "MAX_STEP_DEG", "EMBREE_GAP", "WEAK_RATIO"]
 
 #: a triangle's ranges (from its frame's origin) differ by at most this share of the nearest
 MAX_RATIO = 0.3
@@ -341,3 +341,27 @@ def union_meshes(cache, frames, base, model: RayModel | None = None, drop_moving
             out.append(meshes.add(key, pts, beams, f.pose, base.n_beams, model, offset))
         offset += len(pts)
     return out
+
+
+def fit_embree_model(seq, others, base, cache, meshes: MeshFrames | None = None,
+                     drop_moving: bool = True, see_through=None, exclude=()) -> tuple[RayModel, list]:
+    """``rays``' sensor fitted on the frames ``others`` (never a held-out one): each laser's line and
+    the sweep's skew (:func:`~slr_ray.sequence.rays.fit_ray_model`) on their own points, each laser's
+    range bias against the other frames' raw meshes (:func:`mesh_range_bias`); and the frames' raw
+    meshes (:func:`union_meshes`, the union's order), which :func:`cast_embree_rays` casts into.
+    Frames whose beams are not known are left out of the fit; none known: ``base``'s ideal rays.
+    ``meshes`` keeps the frames' meshes between targets (a sliding window builds each once)."""
+    surfaces = union_meshes(cache, others, base, None, drop_moving, see_through, exclude, meshes)
+    frames, known_surfaces = [], []
+    for i, surface in zip(others, surfaces):
+        f, _ = cache.get(int(i))
+        b = frame_beams(f, base)
+        if b is None or not len(f.points):
+            continue
+        known = b >= 0
+        frames.append((f.points[known], b[known], f.pose, frame_motion(seq.poses, int(i))))
+        known_surfaces.append(surface)
+    if not frames:
+        return pattern_ray_model(base), surfaces
+    model = fit_ray_model([(p, b, v) for p, b, _, v in frames], base.n_beams)
+    return mesh_range_bias(model, frames, known_surfaces), surfaces
