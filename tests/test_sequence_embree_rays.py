@@ -9,7 +9,7 @@ import pytest
 
 from slr_ray.raycast import RayScene, embree_available
 from slr_ray.sensors import sensor
-from slr_ray.sequence.embree_rays import MeshFrames, cast_embree_rays, frame_mesh, rays_of_model
+from slr_ray.sequence.embree_rays import MeshFrames, cast_embree_rays, frame_mesh, mesh_range_bias, rays_of_model
 from slr_ray.sequence.rays import pattern_ray_model
 
 pytestmark = pytest.mark.skipif(not embree_available(), reason="no Embree library")
@@ -107,3 +107,26 @@ def test_a_frame_rescanned_by_its_own_lasers_returns_its_own_ranges(vertices):
     # a ray through a vertex where the wall meets the road: the triangle's chord is within a few mm
     assert np.nanmedian(err) < 1e-4 and np.nanpercentile(err, 99) < 0.01, np.nanmax(err)
     assert np.all(np.linalg.norm(ret.points - pts[ret.index], axis=1) < 1.0)  # the return stands for a corner
+
+
+def test_a_laser_that_reads_long_or_short_is_found_against_the_other_frames_meshes():
+    pat = sensor("velodyne_vlp16")
+    L = pat.n_beams
+    bias = np.zeros(L)
+    bias[[5, 11]] = 0.04, -0.03
+    model = dataclasses.replace(pattern_ray_model(pat), range_bias=bias)
+    frames, surfaces, meshes = [], [], MeshFrames()
+    for x in (0.0, 0.5, 1.0):
+        pose = np.eye(4)
+        pose[0, 3] = x
+        o, d, las = rays_of_model(pat, model)
+        t = _yard(o + [x, 0, 0], d)  # the yard stands still; the sensor moves
+        ok = np.isfinite(t) & (t < 60)
+        pts = o[ok] + (t[ok] + bias[las[ok]])[:, None] * d[ok]
+        frames.append((pts, las[ok], pose, np.zeros(3)))
+        surfaces.append(meshes.add(x, pts, las[ok], pose, L))
+    unbiased = dataclasses.replace(model, range_bias=None)
+    found = mesh_range_bias(unbiased, frames, surfaces, stride=2).range_bias
+    # against meshes that hold its own laser's points of the other frames too: a part of it (an eighth here)
+    assert np.argmax(found) == 5 and np.argmin(found) == 11 and found[5] > 0.003 and found[11] < -0.003, found
+    assert mesh_range_bias(unbiased, frames[:1], surfaces[:1]).range_bias is None

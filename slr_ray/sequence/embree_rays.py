@@ -60,6 +60,8 @@ MAX_STEP_DEG = 0.4
 #: frame: the road far off, or a skin from an edge to what lies behind it): a ray takes it only where
 #: no frame's mesh gives it a strong one
 WEAK_RATIO = 0.1
+#: rounds of the range biases' fit against meshes that hold the same lasers' points (mesh_range_bias)
+BIAS_ROUNDS = 1
 #: the first-peak gap over the frames' surfaces (m): the frames' meshes of one surface lie within it
 EMBREE_GAP = 0.2
 #: rays start this far from their firing origin (m): nothing of a frame is nearer its sensor
@@ -273,16 +275,20 @@ def cast_embree_rays(points, pattern, model: RayModel | None = None, motion=(0.0
     return PulseReturns(keys[win].astype(np.int64), ranges[win], hit[win], index[win])
 
 
-def mesh_range_bias(model: RayModel, frames, surfaces, stride: int = 8, reach: float = 0.2) -> RayModel:
+def mesh_range_bias(model: RayModel, frames, surfaces, stride: int = 8, reach: float = 0.2,
+                    rounds: int = BIAS_ROUNDS) -> RayModel:
     """``model`` with each laser's range bias measured against meshes: ``frames`` ``(points, beams, pose,
-    motion)`` (own axes), ``surfaces`` the same frames' :meth:`MeshFrames.add` (built *without* biases);
-    each frame's every ``stride``-th point cast along its laser's ray from its firing point onto the
-    other frames' meshes (the first-peak rule of :func:`cast_embree_rays`); the bias the median of how
-    far beyond them the points lie (within ``reach``). One frame: no bias."""
+    motion)`` (own axes), ``surfaces`` the same frames' raw meshes (:meth:`MeshFrames.add` without a
+    model); each frame's every ``stride``-th point cast along its laser's ray from its firing point onto
+    the other frames' meshes (the first-peak rule of :func:`cast_embree_rays`, the biases found so far
+    taken out of the hits); a laser's bias the median of how far beyond them its points lie (within
+    ``reach``). The meshes hold the same lasers' points of the other frames: one round sees a part of
+    a laser's bias, the next rounds (``rounds`` in all, the hits cast once) the rest. One frame: no
+    bias."""
     L = len(model.elevation)
     if len(frames) < 2:
         return model
-    found = [[] for _ in range(L)]
+    casts = []
     for j, (p, beams, pose, motion) in enumerate(frames):
         p = np.asarray(p, np.float64)[::stride]
         lasers = np.asarray(beams, np.int64)[::stride]
@@ -294,15 +300,29 @@ def mesh_range_bias(model: RayModel, frames, surfaces, stride: int = 8, reach: f
         P = np.asarray(pose, np.float64)
         ow, dw = rotate(origin, P[:3, :3]) + P[:3, 3], rotate(dv, P[:3, :3])
         rest = [s for i, s in enumerate(surfaces) if i != j and s[0] is not None]
-        t = np.full((len(p), max(len(rest), 1)), np.inf)
-        for k, (scene, _, _, _, _) in enumerate(rest):
-            t[:, k] = scene.intersect_each(ow, dw, tnear=max(TNEAR, 0.0)).distances
-        tt, _ = _first_peak(t, FPA_GAP)
-        along = r - tt
-        ok = np.isfinite(along) & (np.abs(along) < reach)
-        for laser in range(L):
-            found[laser].append(along[ok & (lasers == laser)])
-    bias = np.array([float(np.median(np.concatenate(a))) if sum(map(len, a)) >= 50 else 0.0 for a in found])
+        hits = [(scene.intersect_each(ow, dw, tnear=TNEAR), faces, raw) for scene, faces, _, raw, _ in rest]
+        casts.append((lasers, r, hits))
+    bias = np.zeros(L)
+    for _ in range(max(1, int(rounds))):
+        along_all, laser_all = [], []
+        for lasers, r, hits in casts:
+            t = np.full((len(r), max(len(hits), 1)), np.inf)
+            for k, (h, faces, raw) in enumerate(hits):
+                t[:, k] = h.distances
+                if raw is not None:
+                    _debias(t[:, k], h.primitives, faces, raw, bias)
+            along = r - _first_peak(t, FPA_GAP)[0]
+            ok = np.isfinite(along) & (np.abs(along) < reach)
+            along_all.append(along[ok])
+            laser_all.append(lasers[ok])
+        along, lasers = np.concatenate(along_all), np.concatenate(laser_all)
+        o = np.lexsort((along, lasers))
+        along, lasers = along[o], lasers[o]
+        starts = np.searchsorted(lasers, np.arange(L + 1))
+        n = np.diff(starts)
+        lo, hi = starts[:-1] + (n - 1) // 2, starts[:-1] + n // 2  # each laser's median
+        bias = np.where(n >= 50, 0.5 * (along[np.minimum(lo, len(along) - 1)] + along[np.minimum(hi, len(along) - 1)]),
+                        0.0)
     return dataclasses.replace(model, range_bias=bias)
 
 
