@@ -151,11 +151,49 @@ def speed(seq, targets, runs):
     return out
 
 
+def ouster(tmp: Path):
+    """The Ouster OS1-128's three frames of shared/data (ouster_os1_128/: each frame's xyz grid, its rows
+    the rings, highest first; the poses in KITTI form), frame 1 held out from frames 0 and 2: each
+    frame written as an .npz of its returns (``points``, ``ring``, ``intensity``) for the sequence
+    reader."""
+    src = DATA / "ouster_os1_128"
+    files = []
+    for i in range(3):
+        z = np.load(src / f"os1_128_frame{i:02d}.npz")
+        ok = z["range_mm"] > 0
+        ring = np.broadcast_to(np.arange(ok.shape[0])[:, None], ok.shape)
+        f = tmp / f"os1_128_{i:06d}.npz"
+        np.savez(f, points=z["xyz"][ok].astype(np.float64), ring=ring[ok].astype(np.int64),
+                 intensity=z["reflectivity"][ok].astype(np.float32))
+        files.append(str(f))
+    seq = read_sequence(files, str(next(src.glob("*_poses_kitti.txt"))))
+    methods = ("zbuffer", "adjacent", "nearest", "fpa", "rays", NAME)
+    ev = H.evaluate_sequence(seq, [1], sensor="ouster_os1_128", methods=methods, half=1)
+    return {"mean": ev["mean"]}
+
+
 def main():
     ap = argparse.ArgumentParser(description=__doc__.split("\n")[0])
     ap.add_argument("--runs", type=int, default=3)
     ap.add_argument("--skip-accuracy", action="store_true")
+    ap.add_argument("--ouster-only", action="store_true", help="the Ouster OS1-128 frames only (written to "
+                    "results/sequence_embree_rays_ouster.json)")
     a = ap.parse_args()
+    keys = ("points", "F@5cm", "depth_medae_m", "depth_rmse_m", "drop_accuracy", "cd_sum_m2")
+
+    def show(rows):
+        print("| method | " + " | ".join(keys) + " |")
+        for r in rows:
+            print(f"| {r['method']} | " + " | ".join(f"{r[k]:,}" if k == "points" else f"{r[k]:.4f}" for k in keys) + " |")
+
+    if a.ouster_only:
+        import tempfile
+        hook()
+        with tempfile.TemporaryDirectory() as tmp:
+            res = {"machine": machine(), "load_before": os.getloadavg(), "ouster_os1_128": ouster(Path(tmp))}
+        show(res["ouster_os1_128"]["mean"])
+        (RESULTS / "sequence_embree_rays_ouster.json").write_text(json.dumps(res, indent=1, default=float))
+        return
     seq = read_sequence([str(DATA / f"kitti_hdl64_00000{i}.bin") for i in range(4)], str(POSES))
     res = {"machine": machine(), "load_before": os.getloadavg()}
     if not a.skip_accuracy:
@@ -163,10 +201,7 @@ def main():
         methods = ("zbuffer", "adjacent", "nearest", "fpa", "rays") + tuple(VARIANTS)
         ev = H.evaluate_sequence(seq, [1, 2], methods=methods)
         res["accuracy"] = {"mean": ev["mean"], "frames": [f["table"] for f in ev["frames"]]}
-        keys = ("points", "F@5cm", "depth_medae_m", "depth_rmse_m", "drop_accuracy", "cd_sum_m2")
-        print("| method | " + " | ".join(keys) + " |")
-        for r in ev["mean"]:
-            print(f"| {r['method']} | " + " | ".join(f"{r[k]:,}" if k == "points" else f"{r[k]:.4f}" for k in keys) + " |")
+        show(ev["mean"])
     res["speed"] = speed(seq, [1, 2], a.runs)
     res["load_after"] = os.getloadavg()
     for s in res["speed"]:
