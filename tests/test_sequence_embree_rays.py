@@ -130,3 +130,31 @@ def test_a_laser_that_reads_long_or_short_is_found_against_the_other_frames_mesh
     # against meshes that hold its own laser's points of the other frames too: a part of it (an eighth here)
     assert np.argmax(found) == 5 and np.argmin(found) == 11 and found[5] > 0.003 and found[11] < -0.003, found
     assert mesh_range_bias(unbiased, frames[:1], surfaces[:1]).range_bias is None
+
+
+def test_frames_of_unknown_rings_are_meshed_by_the_tables_rows(tmp_path):
+    """The synthetic drive's frames (scanned along the table's pulse centres) with their points
+    shuffled: no scan order, no rings; they are meshed by the table's rows, and the held-out frame is
+    re-scanned from the others."""
+    from slr_ray.sequence import FrameCache, accumulate, read_sequence, to_frame, window
+    from slr_ray.sequence.embree_rays import fit_embree_model
+    from slr_ray.sequence.synthetic import synthetic_drive
+
+    synthetic_drive(tmp_path / "seq", n_frames=3, sensor="velodyne_vlp16", step=0.8, moving=False)
+    rng = np.random.default_rng(0)
+    for f in sorted((tmp_path / "seq" / "velodyne").glob("*.bin")):
+        a = np.fromfile(f, np.float32).reshape(-1, 4)
+        a[rng.permutation(len(a))].tofile(f)
+    seq = read_sequence(tmp_path / "seq")
+    pat = sensor("velodyne_vlp16")
+    cache = FrameCache(seq)
+    others = window(seq, 1, 1)
+    with pytest.warns(UserWarning):  # beams not known: a warning names the frames
+        model, surfaces = fit_embree_model(seq, others, pat, cache)
+    assert model.source == "pattern" and all(s[0] is not None for s in surfaces)
+    fb, _ = cache.get(1)
+    u = to_frame(accumulate(seq, others, cache=cache).points, fb.pose)
+    ret = cast_embree_rays(u, pat, model, surfaces=surfaces, pose=fb.pose)
+    real = dict(zip(*[a.tolist() for a in pat.pulse_ids(fb.points, np.zeros(3))]))
+    err = np.abs(ret.ranges - np.array([real.get(k, np.nan) for k in ret.keys.tolist()]))
+    assert len(ret) > 0.8 * len(real) and np.nanmedian(err) < 0.01

@@ -38,11 +38,12 @@ from __future__ import annotations
 
 import dataclasses
 import math
+import warnings
 
 import numpy as np
 from numba import njit
 
-from ..errors import InputValueError
+from ..errors import InputValueError, SlrWarning
 from ..evaluate import scan_order_beams
 from ..raycast import RayScene
 from .estimators import FPA_GAP, PulseReturns
@@ -350,7 +351,8 @@ def union_meshes(cache, frames, base, model: RayModel | None = None, drop_moving
     first point in :func:`~slr_ray.sequence.union.accumulate`'s union of them) for
     :func:`cast_embree_rays`: each frame's kept points meshed by its rings (``base``'s beam count), its
     lasers' range biases (``model``) taken out. ``meshes`` keeps them between targets (a frame's
-    mesh is built once); frames whose beams are not known give no surface."""
+    mesh is built once). A frame whose rings are not known (no ``ring`` field, not in scan order) is
+    meshed by the rows of ``base``'s table its points fall in."""
     meshes = meshes if meshes is not None else MeshFrames()
     out, offset = [], 0
     for i in frames:
@@ -358,6 +360,9 @@ def union_meshes(cache, frames, base, model: RayModel | None = None, drop_moving
         keep, _ = cache.selection(int(i), drop_moving, see_through, exclude)
         pts = cache.own_points(int(i))
         beams = frame_beams(f, base)
+        if beams is None and len(pts):  # rings not known: each point's row of the base table
+            keys, _ = base.pulse_ids(pts, np.zeros(3))
+            beams = np.where(keys >= 0, keys // base.columns, -1)
         if keep is not None:
             pts = pts[keep]
             beams = None if beams is None else beams[keep]
@@ -380,15 +385,20 @@ def fit_embree_model(seq, others, base, cache, meshes: MeshFrames | None = None,
     Frames whose beams are not known are left out of the fit; none known: ``base``'s ideal rays.
     ``meshes`` keeps the frames' meshes between targets (a sliding window builds each once)."""
     surfaces = union_meshes(cache, others, base, None, drop_moving, see_through, exclude, meshes)
-    frames, known_surfaces = [], []
+    frames, known_surfaces, unknown = [], [], []
     for i, surface in zip(others, surfaces):
         f, _ = cache.get(int(i))
         b = frame_beams(f, base)
         if b is None or not len(f.points):
+            unknown.append(seq.names[int(i)])
             continue
         known = b >= 0
         frames.append((f.points[known], b[known], f.pose, frame_motion(seq.poses, int(i))))
         known_surfaces.append(surface)
+    if unknown:
+        warnings.warn(f"frame(s) {', '.join(unknown)}: beams not known (no ring field, not in {base.name}'s scan "
+                      f"order of {base.n_beams} rings): left out of the rays' fit, meshed by the table's rows"
+                      + ("" if frames else "; the table's ideal rays cast"), SlrWarning, stacklevel=2)
     if not frames:
         return pattern_ray_model(base), surfaces
     model = fit_ray_model([(p, b, v) for p, b, _, v in frames], base.n_beams)
