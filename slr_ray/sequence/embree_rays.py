@@ -15,23 +15,31 @@ source frame instead, and the rays are cast by Embree:
   frame's origin differ by at most ``max_ratio`` of the nearest (no jump from
   a foreground edge to what lies behind it). It is the surface the frame's own
   pulses sampled, seen from where they were fired; the road between two rings
-  metres apart is the triangle between them. Each vertex is moved back along
-  its laser's ray by that laser's range bias (the surface as the average laser
-  reads it; the target's laser adds its own back);
+  metres apart is the triangle between them. A triangle whose ranges differ
+  by more than :data:`WEAK_RATIO` of the nearest is *weak* (edge-on from its
+  frame: far road, or a skin from an edge to the background);
 * **one Embree scene a frame** (:class:`MeshFrames`, world coordinates), built
-  once and reused by every target whose window holds the frame;
+  once and reused by every target whose window holds the frame, whatever the
+  model (a raw mesh keeps its vertices' lasers; or, given a model, each vertex
+  moved back along its laser's ray by that laser's range bias);
+* **the model** (:func:`fit_embree_model`): the lasers' lines and the sweep's
+  skew as ``rays`` fits them, on the other frames, and each laser's range
+  bias against the other frames' raw meshes (:func:`mesh_range_bias`: each
+  frame's every ``stride``-th point cast along its own laser's ray);
 * **the cast** (:func:`cast_embree_rays`): every laser through every column's
   centre from its firing origin (:func:`rays_of_model`, the same rays as
   ``rays``), each ray into each frame's scene
-  (:meth:`~slr_ray.raycast.RayScene.intersect_each`: one origin a ray); the
-  first surface is the nearest hit over the frames and the return the mean of
-  the frames' hits within ``gap`` of it (the first-peak average's rule over
-  the frames' surfaces), moved by the laser's range bias, binned into the
-  target's image nearest per pulse as a real point is.
+  (:meth:`~slr_ray.raycast.RayScene.intersect_each`: one origin a ray); a hit
+  on a weak triangle is taken only where no frame's mesh has a strong one for
+  the ray; a raw mesh's hit moved back by the mean bias of its triangle's
+  corners' lasers; the first surface is the nearest hit over the frames and
+  the return the mean of the frames' hits within ``gap`` of it (the
+  first-peak average's rule over the frames' surfaces), moved by the laser's
+  range bias, binned into the target's image nearest per pulse as a real
+  point is.
 
-The range biases may be measured against the meshes too
-(:func:`mesh_range_bias`): each frame's points (every ``stride``-th) cast
-along their own laser's ray onto the *other* frames' meshes.
+Measured against ``rays`` on the KITTI frames in
+``benchmarks/sequence_embree_rays.py`` (docs/sequences.md).
 """
 
 from __future__ import annotations
