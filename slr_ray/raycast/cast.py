@@ -23,7 +23,8 @@ from numba.extending import intrinsic
 from .cull import could_hit
 from .library import FEATURE_FLAGS_ALL, INVALID_ID, RAY_QUERY_FLAG_INVOKE_ARGUMENT_FILTER
 
-__all__ = ["cast_packets", "FILTER", "MODE_SKIP", "PACKET_WIDTHS", "silhouette_bit", "NO_CLIP", "SILHOUETTE_PARALLAX"]
+__all__ = ["cast_packets", "cast_each", "FILTER", "MODE_SKIP", "PACKET_WIDTHS", "silhouette_bit", "NO_CLIP",
+           "SILHOUETTE_PARALLAX"]
 
 #: the packet widths Embree has (rtcIntersect1, 4, 8, 16)
 PACKET_WIDTHS = (1, 4, 8, 16)
@@ -689,3 +690,54 @@ def cast_packets(isect, width, scene, filt, org32, org64, dirs, tnear, tfar, mod
                 prim_out[r] = prim
                 owner_out[r] = owner
                 t_out[r] = t_hit
+
+
+@njit(cache=True, nogil=True)
+def cast_each(isect, width, scene, origins, dirs, tnear, tfar, prim_out, t_out):
+    """The first hit of every ray from its own origin (``origins`` float32-exact, scene frame; one a
+    ray), ``width`` rays a call, no filter: the rays of a fitted sensor, each laser firing from its own
+    point (:meth:`~slr_ray.raycast.RayScene.intersect_each`)."""
+    W = width
+    rh = _aligned(max(_RAYHIT_ROWS * W, 24))
+    ru = rh.view(np.uint32)
+    valid = _aligned(W).view(np.int32)
+    lane_ray = np.empty(W, np.int64)
+    rh_ptr = np.int64(rh.ctypes.data)
+    valid_ptr = np.int64(valid.ctypes.data)
+    for k in range(W):
+        rh[_TIME * W + k] = 0.0
+        ru[_MASK * W + k] = INVALID_ID
+        ru[_ID * W + k] = k
+        ru[_FLAGS * W + k] = 0
+    n_rays = dirs.shape[0]
+    i = 0
+    while i < n_rays:
+        k = 0
+        while k < W and i < n_rays:
+            for a in range(3):
+                rh[(_ORG + a) * W + k] = origins[i, a]
+                rh[(_DIR + a) * W + k] = dirs[i, a]
+            rh[_TNEAR * W + k] = tnear
+            rh[_TFAR * W + k] = tfar
+            ru[_PRIM * W + k] = INVALID_ID
+            ru[_GEOM * W + k] = INVALID_ID
+            ru[_INST * W + k] = INVALID_ID
+            ru[_INST_PRIM * W + k] = INVALID_ID
+            valid[k] = -1
+            lane_ray[k] = i
+            k += 1
+            i += 1
+        for q in range(k, W):
+            valid[q] = 0
+        if W > 1:
+            _call4(isect, valid_ptr, scene, rh_ptr, np.int64(0))
+        else:
+            _call3(isect, scene, rh_ptr, np.int64(0))
+        for q in range(k):
+            r = lane_ray[q]
+            if ru[_GEOM * W + q] == INVALID_ID:
+                prim_out[r] = -1
+                t_out[r] = np.inf
+            else:
+                prim_out[r] = np.int64(ru[_PRIM * W + q])
+                t_out[r] = np.float64(rh[_TFAR * W + q])

@@ -18,7 +18,7 @@ from numba import njit, prange
 from ..arrays import as_origin, bounds, release_pages
 from ..errors import InputValueError
 from ..threads import default_threads
-from .cast import FILTER, MODE_SKIP, NO_CLIP, PACKET_WIDTHS, cast_packets
+from .cast import FILTER, MODE_SKIP, NO_CLIP, PACKET_WIDTHS, cast_each, cast_packets
 from .cull import FACE, direction_map, float32_margin, voxel_boxes
 from .library import (BUFFER_INDEX, BUFFER_NORMAL, BUFFER_VERTEX, FORMAT_FLOAT3, FORMAT_FLOAT4, FORMAT_UINT3,
                       GEOMETRY_DISC_POINT, GEOMETRY_ORIENTED_DISC_POINT, GEOMETRY_TRIANGLE, SCENE_FLAG_COMPACT,
@@ -143,8 +143,10 @@ class RayScene:
         self._box = _padded_bounds(rows, extent, geometry_type != GEOMETRY_TRIANGLE)
         lib = self._lib = embree_library()
         t0 = time.perf_counter()
-        self._cull_boxes = voxel_boxes(buffers[0][4], buffers[1][4] if geometry_type == GEOMETRY_TRIANGLE else None,
-                                       self.n_primitives, extent=extent)
+        # the occupied voxels' boxes (.cull): made on the first cast that culls (intersect_each never does)
+        self._cull_of = (buffers[0][4], buffers[1][4] if geometry_type == GEOMETRY_TRIANGLE else None,
+                         self.n_primitives, extent)
+        self._cull = None
         self._scene = lib.new_scene(lib.device)
         lib.set_scene_flags(self._scene, SCENE_FLAG_FILTER_FUNCTION_IN_ARGUMENTS
                             | (SCENE_FLAG_COMPACT if compact else 0))
@@ -158,6 +160,13 @@ class RayScene:
         lib.commit_scene(self._scene)
         lib.check("building the scene")
         self.build_seconds = time.perf_counter() - t0
+
+    @property
+    def _cull_boxes(self) -> np.ndarray:
+        if self._cull is None:
+            v, f, n, extent = self._cull_of
+            self._cull = voxel_boxes(v, f, n, extent=extent)
+        return self._cull
 
     # --- constructors -------------------------------------------------------------------
     @classmethod
@@ -440,6 +449,40 @@ class RayScene:
         nrm = np.cross(v[self._faces[f, 1]] - a, v[self._faces[f, 2]] - a)
         nd = np.einsum("ij,ij->i", nrm, d[hit])
         t[hit] = np.einsum("ij,ij->i", nrm, a - o) / nd
+
+    def intersect_each(self, origins, directions, *, tnear: float = 0.0, tfar: float = math.inf,
+                       n_threads: int | None = None, packet: int | None = None) -> RayHits:
+        """First hit of every ray from its own origin (``origins`` (m, 3) float64, the geometry's
+        coordinates; ``directions`` (m, 3) unit): Embree's first hit, no tie rule, no culling (the
+        rays of a fitted sensor, each laser firing from its own point). ``owners`` is ``primitives``."""
+        o = np.asarray(origins, np.float64)
+        d = np.ascontiguousarray(directions, np.float32)
+        if d.ndim != 2 or d.shape[1] != 3 or o.shape != d.shape:
+            raise InputValueError(f"origins and directions must both be (m, 3), got {o.shape} and {d.shape}")
+        if packet is not None and packet not in PACKET_WIDTHS:
+            raise InputValueError(f"packet must be one of {PACKET_WIDTHS}, got {packet!r}")
+        m = len(d)
+        prim = np.empty(m, np.int64)
+        t = np.empty(m, np.float64)
+        if m == 0:
+            return RayHits(prim, prim, t)
+        org = np.ascontiguousarray(o - self.centre, np.float32)
+        lib = embree_library()
+        width = lib.native_width if packet is None else int(packet)
+        tn, tf = np.float32(tnear), np.float32(min(tfar, 3.0e38))
+        n_threads = max(1, min(int(n_threads or default_threads()), -(-m // _TASK_RAYS)))
+        task = -(-m // n_threads)
+
+        def run(a):
+            e = min(m, a + task)
+            cast_each(lib.intersect[width], width, self._scene, org[a:e], d[a:e], tn, tf, prim[a:e], t[a:e])
+
+        if n_threads == 1:
+            run(0)
+        else:
+            with ThreadPoolExecutor(n_threads) as pool:
+                list(pool.map(run, range(0, m, task)))
+        return RayHits(prim, prim, t)
 
     def __del__(self):
         scene = getattr(self, "_scene", None)

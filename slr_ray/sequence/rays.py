@@ -42,6 +42,7 @@ import math
 from dataclasses import dataclass
 
 import numpy as np
+from numba import njit
 from scipy.spatial import cKDTree
 
 from ..errors import InputValueError
@@ -108,26 +109,60 @@ def sweep_offsets(points, motion, skew: float) -> np.ndarray:
 
 def _lines(P, R, n_lasers):
     """Per laser the robust line ``z = z0 + rho tan(e)``; the median |angular residual| (degrees)."""
-    rho = np.hypot(P[:, 0], P[:, 1])
+    # each laser's points a slice of one stable sort (the points in the order a mask would give them)
+    order = np.argsort(R, kind="stable")
+    starts = np.searchsorted(R[order], np.arange(n_lasers + 1))
+    Ps = np.ascontiguousarray(P[order])
     z0, el = np.full(n_lasers, np.nan), np.full(n_lasers, np.nan)
-    res_all = []
-    for laser in range(n_lasers):
-        m = (R == laser) & (rho > 2.0)
+    res = np.empty(len(Ps))
+    n = _lines_kernel(Ps, starts, MAX_HEIGHT, z0, el, res)
+    return z0, el, float(np.median(res[:n])) if n else math.inf
+
+
+@njit(cache=True)
+def _line(rho, z):
+    """The least-squares line ``z = c0 + c1 rho`` (numpy's lstsq's: the least-norm one when every
+    ``rho`` is the same)."""
+    mr, mz = rho.mean(), z.mean()
+    sxx = ((rho - mr) ** 2).sum()
+    if sxx == 0.0:
+        s = mz / (1.0 + mr * mr)
+        return s, s * mr
+    c1 = ((rho - mr) * (z - mz)).sum() / sxx
+    return mz - c1 * mr, c1
+
+
+@njit(cache=True)
+def _lines_kernel(Ps, starts, max_height, z0, el, res_out):
+    """:func:`_lines` of points sorted by laser (laser ``l``'s: ``starts[l]:starts[l + 1]``); each
+    fitted point's angular residual (degrees) into ``res_out``; returns how many."""
+    n_out = 0
+    for laser in range(len(starts) - 1):
+        a, b = starts[laser], starts[laser + 1]
+        rho_all = np.sqrt(Ps[a:b, 0] ** 2 + Ps[a:b, 1] ** 2)
+        m = rho_all > 2.0
         if m.sum() < 20:
             continue
-        A = np.column_stack([np.ones(m.sum()), rho[m]])
-        z = P[m, 2]
-        c = np.linalg.lstsq(A, z, rcond=None)[0]
+        rho = rho_all[m]
+        z = Ps[a:b, 2][m]
+        c0, c1 = _line(rho, z)
         for _ in range(3):  # drop what is not on the laser's line (mixed pixels, another laser's)
-            res = z - A @ c
-            keep = np.abs(res) < 3 * np.median(np.abs(res)) + 1e-3
-            c = np.linalg.lstsq(A[keep], z[keep], rcond=None)[0]
-        if abs(c[0]) > MAX_HEIGHT:  # one range only (a laser that sees only the road): no height in it
-            c[0] = 0.0 if laser == 0 else float(np.nanmedian(z0[:laser])) if np.isfinite(z0[:laser]).any() else 0.0
-            c[1] = np.median((z - c[0]) / rho[m])
-        z0[laser], el[laser] = c[0], math.atan(c[1])
-        res_all.append(np.degrees(np.abs(z - A @ c) / np.hypot(rho[m], z - c[0])))
-    return z0, el, float(np.median(np.concatenate(res_all))) if res_all else math.inf
+            r = np.abs(z - (c0 + c1 * rho))
+            keep = r < 3 * np.median(r) + 1e-3
+            c0, c1 = _line(rho[keep], z[keep])
+        if abs(c0) > max_height:  # one range only (a laser that sees only the road): no height in it
+            c0 = 0.0
+            if laser > 0:
+                prior = z0[:laser]
+                prior = prior[np.isfinite(prior)]
+                if len(prior):
+                    c0 = np.median(prior)
+            c1 = np.median((z - c0) / rho)
+        z0[laser], el[laser] = c0, math.atan(c1)
+        zz = z - c0
+        res_out[n_out:n_out + len(z)] = np.degrees(np.abs(zz - c1 * rho) / np.sqrt(rho * rho + zz * zz))
+        n_out += len(z)
+    return n_out
 
 
 #: per laser the robust line ``z = z0 + rho tan(e)`` of points and their lasers: ``(z0, e, median residual deg)``

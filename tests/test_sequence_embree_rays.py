@@ -1,0 +1,160 @@
+"""``embree-rays`` (slr_ray.sequence.embree_rays): the fitted sensor cast with Embree onto each frame's
+ring mesh; and the engine's casts from one origin a ray (RayScene.intersect_each)."""
+
+import dataclasses
+import math
+
+import numpy as np
+import pytest
+
+from slr_ray.raycast import RayScene, embree_available
+from slr_ray.sensors import sensor
+from slr_ray.sequence.embree_rays import MeshFrames, cast_embree_rays, frame_mesh, mesh_range_bias, rays_of_model
+from slr_ray.sequence.rays import pattern_ray_model
+
+pytestmark = pytest.mark.skipif(not embree_available(), reason="no Embree library")
+
+
+def _yard(o, d):
+    """Distances along rays (origins ``o``, unit ``d``) to a road 1.73 m below walled in 24 by 10 m."""
+    with np.errstate(divide="ignore", invalid="ignore"):
+        t = np.where(d[:, 2] < -1e-3, (-1.73 - o[:, 2]) / np.minimum(d[:, 2], -1e-3), np.inf)
+        for axis, wall in ((0, 12.0), (1, 5.0)):
+            tw = np.where(d[:, axis] != 0, (np.sign(d[:, axis]) * wall - o[:, axis]) / d[:, axis], np.inf)
+            t = np.minimum(t, np.where(tw > 0, tw, np.inf))
+    return t
+
+
+def test_each_ray_from_its_own_origin_meets_what_brute_force_meets():
+    rng = np.random.default_rng(3)
+    a = rng.uniform(-5, 5, (60, 3))
+    v = np.concatenate([a, a + rng.normal(0, 1, (60, 3)), a + rng.normal(0, 1, (60, 3))])
+    f = np.column_stack([np.arange(60), np.arange(60) + 60, np.arange(60) + 120])
+    o = rng.uniform(-8, 8, (500, 3)) + 1000.0  # far from zero: the float32 boundary recentres
+    aim = v[f[rng.integers(0, 60, 500)]].mean(axis=1) + rng.normal(0, 0.3, (500, 3))  # most rays meet one
+    d = aim - (o - 1000.0)
+    d /= np.linalg.norm(d, axis=1)[:, None]
+    h = RayScene.triangles(v + 1000.0, f).intersect_each(o, d)
+    # Moller-Trumbore, every ray against every triangle, float64
+    e1, e2 = v[f[:, 1]] - v[f[:, 0]], v[f[:, 2]] - v[f[:, 0]]
+    oo = (o - 1000.0)[:, None, :]
+    p = np.cross(d[:, None, :], e2[None])
+    det = np.einsum("rtk,tk->rt", p, e1)
+    s = oo - v[f[:, 0]][None]
+    u = np.einsum("rtk,rtk->rt", s, p) / det
+    q = np.cross(s, e1[None])
+    w = np.einsum("rk,rtk->rt", d, q) / det
+    t = np.einsum("rtk,tk->rt", q, e2) / det
+    t = np.where((u >= 0) & (w >= 0) & (u + w <= 1) & (t > 0), t, np.inf)
+    best = t.min(axis=1)
+    with np.errstate(invalid="ignore"):
+        clear = ~(np.abs(np.sort(t, axis=1)[:, 1] - best) <= 1e-3)  # no two triangles at one distance
+    hit = np.isfinite(best)
+    assert hit.sum() > 200
+    assert np.array_equal(h.hit[clear], hit[clear])
+    assert np.allclose(h.distances[clear & hit], best[clear & hit], atol=1e-3)
+    assert np.array_equal(h.primitives[clear & hit], np.argmin(t, axis=1)[clear & hit])
+
+
+def _frame(pat, model):
+    """``model``'s rays (each laser from its own height) scanning the yard: points, beams, ranges."""
+    o, d, las = rays_of_model(pat, model)
+    t = _yard(o, d)
+    ok = np.isfinite(t) & (t < 60)
+    bias = np.zeros(len(model.elevation)) if model.range_bias is None else model.range_bias
+    return o[ok] + (t[ok] + bias[las[ok]])[:, None] * d[ok], las[ok]
+
+
+def test_a_ring_mesh_joins_rings_and_leaves_depth_jumps_open():
+    pat = sensor("velodyne_vlp16")
+    pts, beams = _frame(pat, pattern_ray_model(pat))
+    faces = frame_mesh(pts, beams, pat.n_beams)
+    b = beams[faces]
+    assert len(faces) > 1.5 * len(pts)  # two triangles a point, about: the rings joined
+    assert np.all(np.ptp(b, axis=1) <= 1)  # rings next in elevation only
+    r = np.linalg.norm(pts, axis=1)[faces]
+    assert np.all(np.ptp(r, axis=1) <= 0.3 * r.min(axis=1) + 1e-9)
+    # a pole in front of the wall: no triangle joins it to what lies behind
+    pole = pts.copy()
+    near = (np.abs(np.arctan2(pts[:, 1], pts[:, 0])) < math.radians(2)) & (pts[:, 2] > -1)
+    pole[near] *= 0.3
+    f2 = frame_mesh(pole, beams, pat.n_beams)
+    mixed = near[f2].any(axis=1) & ~near[f2].all(axis=1)
+    assert near.sum() > 20 and not mixed.any()
+
+
+@pytest.mark.parametrize("vertices", ["raw", "unbiased"])
+def test_a_frame_rescanned_by_its_own_lasers_returns_its_own_ranges(vertices):
+    """Lasers that cross the axis at their own heights and read their ranges long or short, the frame
+    meshed and cast again along the same rays from the same pose: every pulse that meets the mesh
+    returns the frame's own range (the biases taken out of the mesh, then added back)."""
+    pat = sensor("velodyne_vlp16")
+    base = pattern_ray_model(pat)
+    L = pat.n_beams
+    height = np.linspace(0.2, -0.1, L)
+    # raw meshes take the mean bias of a triangle's corners out: exact for one bias, per-laser biases
+    # are taken out of the vertices exactly
+    bias = np.full(L, 0.03) if vertices == "raw" else np.random.default_rng(0).uniform(-0.04, 0.07, L)
+    model = dataclasses.replace(base, height=height, range_bias=bias, source="fitted")
+    pts, beams = _frame(pat, model)
+    surf = MeshFrames().add(0, pts, beams, np.eye(4), L, None if vertices == "raw" else model)
+    ret = cast_embree_rays(pts, pat, model, surfaces=[surf], pose=np.eye(4))
+    keys, ranges = pat.pulse_ids(pts, np.zeros(3))
+    own = dict(zip(keys.tolist(), ranges.tolist()))
+    got = np.array([own.get(k, np.nan) for k in ret.keys.tolist()])
+    assert len(ret) > 0.7 * len(pts)  # rings at the mesh border and cut at the yard corners meet little
+    err = np.abs(ret.ranges - got)
+    # a ray through a vertex where the wall meets the road: the triangle's chord is within a few mm
+    assert np.nanmedian(err) < 1e-4 and np.nanpercentile(err, 99) < 0.01, np.nanmax(err)
+    assert np.all(np.linalg.norm(ret.points - pts[ret.index], axis=1) < 1.0)  # the return stands for a corner
+
+
+def test_a_laser_that_reads_long_or_short_is_found_against_the_other_frames_meshes():
+    pat = sensor("velodyne_vlp16")
+    L = pat.n_beams
+    bias = np.zeros(L)
+    bias[[5, 11]] = 0.04, -0.03
+    model = dataclasses.replace(pattern_ray_model(pat), range_bias=bias)
+    frames, surfaces, meshes = [], [], MeshFrames()
+    for x in (0.0, 0.5, 1.0):
+        pose = np.eye(4)
+        pose[0, 3] = x
+        o, d, las = rays_of_model(pat, model)
+        t = _yard(o + [x, 0, 0], d)  # the yard stands still; the sensor moves
+        ok = np.isfinite(t) & (t < 60)
+        pts = o[ok] + (t[ok] + bias[las[ok]])[:, None] * d[ok]
+        frames.append((pts, las[ok], pose, np.zeros(3)))
+        surfaces.append(meshes.add(x, pts, las[ok], pose, L))
+    unbiased = dataclasses.replace(model, range_bias=None)
+    found = mesh_range_bias(unbiased, frames, surfaces, stride=2).range_bias
+    # against meshes that hold its own laser's points of the other frames too: a part of it (an eighth here)
+    assert np.argmax(found) == 5 and np.argmin(found) == 11 and found[5] > 0.003 and found[11] < -0.003, found
+    assert mesh_range_bias(unbiased, frames[:1], surfaces[:1]).range_bias is None
+
+
+def test_frames_of_unknown_rings_are_meshed_by_the_tables_rows(tmp_path):
+    """The synthetic drive's frames (scanned along the table's pulse centres) with their points
+    shuffled: no scan order, no rings; they are meshed by the table's rows, and the held-out frame is
+    re-scanned from the others."""
+    from slr_ray.sequence import FrameCache, accumulate, read_sequence, to_frame, window
+    from slr_ray.sequence.embree_rays import fit_embree_model
+    from slr_ray.sequence.synthetic import synthetic_drive
+
+    synthetic_drive(tmp_path / "seq", n_frames=3, sensor="velodyne_vlp16", step=0.8, moving=False)
+    rng = np.random.default_rng(0)
+    for f in sorted((tmp_path / "seq" / "velodyne").glob("*.bin")):
+        a = np.fromfile(f, np.float32).reshape(-1, 4)
+        a[rng.permutation(len(a))].tofile(f)
+    seq = read_sequence(tmp_path / "seq")
+    pat = sensor("velodyne_vlp16")
+    cache = FrameCache(seq)
+    others = window(seq, 1, 1)
+    with pytest.warns(UserWarning):  # beams not known: a warning names the frames
+        model, surfaces = fit_embree_model(seq, others, pat, cache)
+    assert model.source == "pattern" and all(s[0] is not None for s in surfaces)
+    fb, _ = cache.get(1)
+    u = to_frame(accumulate(seq, others, cache=cache).points, fb.pose)
+    ret = cast_embree_rays(u, pat, model, surfaces=surfaces, pose=fb.pose)
+    real = dict(zip(*[a.tolist() for a in pat.pulse_ids(fb.points, np.zeros(3))]))
+    err = np.abs(ret.ranges - np.array([real.get(k, np.nan) for k in ret.keys.tolist()]))
+    assert len(ret) > 0.8 * len(real) and np.nanmedian(err) < 0.01
