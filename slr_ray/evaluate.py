@@ -147,6 +147,9 @@ class Registration:
     init : str
         ``"identity"`` or ``"fpfh-ransac"``.
     seconds : float
+    reverse_fitness : float
+        Share of A's points with a B point within ``max_distance`` after the
+        fit: the fitness read the other way (NaN where not measured).
     """
 
     transform: np.ndarray
@@ -155,13 +158,26 @@ class Registration:
     max_distance: float
     init: str
     seconds: float
+    reverse_fitness: float = float("nan")
+
+    @property
+    def rotation_deg(self) -> float:
+        """The angle of the rotation found (degrees)."""
+        R = self.transform[:3, :3]
+        return math.degrees(math.acos(max(-1.0, min(1.0, (np.trace(R) - 1) / 2))))
+
+    @property
+    def tilt_deg(self) -> float:
+        """The angle between B's up axis and A's after the fit (degrees): the part of the
+        rotation that is not a turn about the vertical."""
+        return math.degrees(math.acos(max(-1.0, min(1.0, float(self.transform[2, 2])))))
 
     def to_dict(self) -> dict:
-        R, t = self.transform[:3, :3], self.transform[:3, 3]
-        angle = math.degrees(math.acos(max(-1.0, min(1.0, (np.trace(R) - 1) / 2))))
+        t = self.transform[:3, 3]
         return {"transform": self.transform.tolist(), "translation_m": t.tolist(),
-                "translation_norm_m": float(np.linalg.norm(t)), "rotation_deg": angle,
-                "fitness": self.fitness, "inlier_rmse_m": self.inlier_rmse, "max_distance_m": self.max_distance,
+                "translation_norm_m": float(np.linalg.norm(t)), "rotation_deg": self.rotation_deg,
+                "tilt_deg": self.tilt_deg, "fitness": self.fitness, "reverse_fitness": self.reverse_fitness,
+                "inlier_rmse_m": self.inlier_rmse, "max_distance_m": self.max_distance,
                 "init": self.init, "seconds": round(self.seconds, 3)}
 
 
@@ -221,6 +237,7 @@ def register(source, target, max_distance: float = 0.2, min_fitness: float = 0.5
         if ev2.fitness > ev.fitness:
             ev, T, how = ev2, T2, "fpfh-ransac"
     T = np.array(T, dtype=np.float64)
+    back = reg.evaluate_registration(tgt, src, max_distance, np.linalg.inv(T))
     # undo the recentring: a = R (b - c) + t' + c
     T[:3, 3] = T[:3, 3] + c - T[:3, :3] @ c
     # Open3D's threads sum in varying order: the pose differs run to run in its 15th digit, enough to
@@ -228,7 +245,35 @@ def register(source, target, max_distance: float = 0.2, min_fitness: float = 0.5
     # 100 m) the same frames give the same pose, and the same scores, on every run.
     T[:3] = np.round(T[:3], POSE_DECIMALS)
     return Registration(T, float(ev.fitness), float(ev.inlier_rmse), float(max_distance), how,
-                        time.perf_counter() - t0)
+                        time.perf_counter() - t0, float(back.fitness))
+
+
+#: What a registration of two overlapping frames gives (:func:`registration_checks`); each bound
+#: set with a margin from the figures of real pairs (docs/evaluation.md, benchmarks/registration_gate.py)
+REGISTRATION_BOUNDS = {"min_fitness": 0.3, "min_reverse_fitness": 0.0, "max_rmse_share": 0.6, "max_tilt_deg": 180.0}
+
+
+def registration_checks(reg: Registration, bounds: dict | None = None) -> list:
+    """The checks ``reg`` fails, as ``(name, message)`` pairs (empty: accepted).
+
+    ``bounds`` overrides entries of :data:`REGISTRATION_BOUNDS`.
+    """
+    b = dict(REGISTRATION_BOUNDS) | dict(bounds or {})
+    failed = []
+    if not reg.fitness >= b["min_fitness"]:
+        failed.append(("fitness", f"fitness {reg.fitness:.3f} (share of B's points with an A point within "
+                                  f"{reg.max_distance:g} m) < {b['min_fitness']:g}"))
+    if not reg.reverse_fitness >= b["min_reverse_fitness"]:
+        failed.append(("reverse fitness", f"reverse fitness {reg.reverse_fitness:.3f} (share of A's points with a B "
+                                          f"point within {reg.max_distance:g} m) < {b['min_reverse_fitness']:g}"))
+    limit = b["max_rmse_share"] * reg.max_distance
+    if not reg.inlier_rmse <= limit:
+        failed.append(("inlier RMSE", f"inlier RMSE {reg.inlier_rmse:.3f} m > {limit:g} m (the pairs within "
+                                      f"{reg.max_distance:g} m lie spread, not matched)"))
+    if not reg.tilt_deg <= b["max_tilt_deg"]:
+        failed.append(("tilt", f"B tilted {reg.tilt_deg:.1f} deg from A's vertical > {b['max_tilt_deg']:g} deg "
+                               "(two upright sensors)"))
+    return failed
 
 
 # --- the evaluation -----------------------------------------------------------------------------------------

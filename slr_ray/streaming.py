@@ -83,7 +83,10 @@ def scan_las_many(path, origins, pattern, *, chunk: int = DEFAULT_CHUNK, n_threa
     reduction state per origin (a 0.144 deg pattern: 50 MB a thread) and up
     to about twice the kept records of each scan. ``n_threads`` (default all
     cores) are shared out: the reductions run side by side, one thread each,
-    or a single origin's reduction on all of them.
+    or a single origin's reduction on all of them. Each cloud's
+    ``meta["points_bounds"]`` holds the lowest and highest coordinates of all
+    the file's points, as read (:func:`slr_ray.io.streaming.checked_bounds`
+    compares them with the header's).
     """
     path = Path(path)
     threads = n_threads or default_threads()
@@ -91,6 +94,7 @@ def scan_las_many(path, origins, pattern, *, chunk: int = DEFAULT_CHUNK, n_threa
     accs = [ScanAccumulator(o, pattern, n_threads=per) for o in origins]
     kept = [_Candidates() for _ in accs]
     start, header, evlrs = 0, None, []
+    lo, hi = np.full(3, np.inf), np.full(3, -np.inf)  # the points' own bounds: the header's may lie
 
     def step(acc, cand, xyz, records, start):
         acc.add(xyz)
@@ -100,6 +104,8 @@ def scan_las_many(path, origins, pattern, *, chunk: int = DEFAULT_CHUNK, n_threa
     with ThreadPoolExecutor(max(1, min(len(accs), threads))) as pool:
         for header, evlrs, pts in las_chunks(path, chunk):
             xyz, records = las_xyz(pts), pts.array
+            if len(xyz):
+                lo, hi = np.minimum(lo, xyz.min(axis=0)), np.maximum(hi, xyz.max(axis=0))
             if len(accs) == 1:
                 step(accs[0], kept[0], xyz, records, start)
             else:
@@ -114,7 +120,9 @@ def scan_las_many(path, origins, pattern, *, chunk: int = DEFAULT_CHUNK, n_threa
     for i, (acc, cand) in enumerate(zip(accs, kept)):
         scan = acc.result()
         accs[i] = kept[i] = None  # each reduction's state and candidates freed once its scan is out
-        yield records_cloud(header, evlrs, cand.records(scan.indices, header.point_format.dtype())), scan
+        cloud = records_cloud(header, evlrs, cand.records(scan.indices, header.point_format.dtype()))
+        cloud.meta["points_bounds"] = (lo.copy(), hi.copy())
+        yield cloud, scan
 
 
 class _Candidates:

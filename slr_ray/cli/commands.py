@@ -38,7 +38,7 @@ from ..positions import (AzimuthProfile, default_profile, ground_labels, require
                          select_positions)
 from ..scan import Scan, check_range_image
 from ..scenes import MESH_FORMATS, scene_effects, scene_from_spec
-from ..io.streaming import STREAMED_FORMATS, las_bounds
+from ..io.streaming import STREAMED_FORMATS, checked_bounds, las_bounds
 from ..streaming import scan_las
 from ..validation import (build_synthetic_profile, load_config, load_rows, paper_report, paper_report_markdown,
                           run_validation, stage_summary)
@@ -106,6 +106,16 @@ def scan(args):
             said = bounds is None or _check_origin(origin, bounds, pattern)
             t0 = time.perf_counter()
             sub, result = scan_las(args.input, origin, pattern, chunk=args.chunk_size, progress=not args.quiet)
+            read = checked_bounds(args.input, bounds, sub.meta.pop("points_bounds"), sub.meta["las_scales"])
+            if bounds is not None and not all(map(np.array_equal, read, bounds)):
+                # the header lied about its bounds (said on stderr): the origin and its check from the points
+                bounds, before = read, origin
+                origin = _origin(args, None, bounds)
+                said = _check_origin(origin, bounds, pattern)
+                if not np.array_equal(origin, before):
+                    sub, result = scan_las(args.input, origin, pattern, chunk=args.chunk_size,
+                                           progress=not args.quiet)
+                    sub.meta.pop("points_bounds")
             sub.origin = np.asarray(origin, float)
             t_read = time.perf_counter() - t0
         else:

@@ -41,7 +41,16 @@ def check_las_size(path, header) -> None:
     whole chunks unread, or one larger than the table can hold, and the last
     chunk's own count, read from a layered chunk or found by decompressing a
     pointwise one: :func:`_check_last_chunk`). A LAS 1.4
-    legacy count that disagrees with the 1.4 count is read past with a warning."""
+    legacy count that disagrees with the 1.4 count is read past with a warning.
+    A scale of 0 or not finite (every coordinate of that axis would read as
+    its offset) is refused first."""
+    scales = np.asarray(header.scales, np.float64)
+    offsets = np.asarray(header.offsets, np.float64)
+    bad = [f"{a} scale {s!r}" for a, s in zip("xyz", scales.tolist()) if not (np.isfinite(s) and s != 0)]
+    bad += [f"{a} offset {o!r}" for a, o in zip("xyz", offsets.tolist()) if not np.isfinite(o)]
+    if bad:
+        raise FormatError(f"{path}: the LAS header's {', '.join(bad)}: its coordinates cannot be read "
+                          "(a scale of 0 reads every one as the offset; a corrupt or hand-edited header)")
     if header.are_points_compressed:
         _check_laz_chunks(path, header)
     else:

@@ -11,16 +11,17 @@ file module knows nothing of scanning.
 
 from __future__ import annotations
 
+import warnings
 
 import laspy
 import numpy as np
 
-from ..errors import FormatError
+from ..errors import FormatError, SlrWarning
 from ..progress import bar as progress_bar
 from .cloud import LasRecords, PointCloud
 from .las import check_las_size
 
-__all__ = ["las_bounds", "las_chunks", "las_xyz", "las_bar", "records_cloud", "STREAMED_FORMATS", "DEFAULT_CHUNK"]
+__all__ = ["las_bounds", "checked_bounds", "las_chunks", "las_xyz", "las_bar", "records_cloud", "STREAMED_FORMATS", "DEFAULT_CHUNK"]
 
 #: Input formats read in chunks (:func:`slr_ray.streaming.scan_las`).
 STREAMED_FORMATS = (".las", ".laz")
@@ -56,6 +57,24 @@ def las_bounds(path) -> tuple[np.ndarray, np.ndarray]:
             return (np.asarray(h.mins, np.float64), np.asarray(h.maxs, np.float64)) if h.point_count else None
     except (laspy.errors.LaspyException, ValueError, RuntimeError) as exc:  # OSError (no such file) as it is
         raise FormatError(f"cannot read {path}: {type(exc).__name__}: {exc}") from exc
+
+
+def checked_bounds(path, header_bounds, points_bounds, scales):
+    """The bounds to use: the header's (``header_bounds``, :func:`las_bounds`) when they agree with
+    ``points_bounds``, the lowest and highest coordinates of the points actually read, to half a
+    scale step; else the points', with a warning on stderr saying so (a header that lies about its
+    bounds must not move ``--origin-relative centre`` nor fool the origin's range check)."""
+    lo, hi = (np.asarray(b, np.float64) for b in points_bounds)
+    if header_bounds is None:
+        return lo, hi
+    hlo, hhi = (np.asarray(b, np.float64) for b in header_bounds)
+    tol = 0.5 * np.abs(np.asarray(scales, np.float64)) + 1e-9 * np.maximum(np.abs(lo), np.abs(hi))
+    if np.all(np.abs(hlo - lo) <= tol) and np.all(np.abs(hhi - hi) <= tol):
+        return hlo, hhi
+    fmt = lambda a, b: ", ".join(f"{n} {a[i]:,.3f} to {b[i]:,.3f}" for i, n in enumerate("xyz"))  # noqa: E731
+    warnings.warn(f"{path}: the LAS header's bounds ({fmt(hlo, hhi)}) disagree with its points' ({fmt(lo, hi)}): "
+                  "the points' are used", SlrWarning, stacklevel=2)
+    return lo, hi
 
 
 def las_xyz(pts) -> np.ndarray:

@@ -24,19 +24,25 @@ __all__ = ["neighbourhoods", "disc_radii", "estimate_normals", "chunk_normals", 
            "limit_incidence", "turned", "pca_normal", "fan_polygons", "primary_steps", "footprint_angle"]
 
 
+#: Bytes of one chunk's neighbour arrays (float64 distances, int64 indices) in :func:`neighbourhoods`.
+_NEIGHBOUR_BYTES = 1 << 30
+
+
 def neighbourhoods(points, k: int, chunk: int = 1 << 20):
     """The ``k`` nearest neighbours of every point, chunk by chunk.
 
     Yields ``(start, distances (c, k), indices (c, k))`` for consecutive
     chunks of ``chunk`` points (the point itself excluded; duplicates of it
     count as neighbours at distance 0). One kd-tree, queried on all cores;
-    memory is the tree plus one chunk's arrays, never ``(n, k)`` for all.
+    memory is the tree plus one chunk's arrays (at most about 1 GiB: fewer
+    points a chunk for a larger ``k``), never ``(n, k)`` for all.
     """
     pts = np.asarray(points)
     n = len(pts)
     k = min(k, n - 1)
     if k < 1:
         return
+    chunk = max(1, min(chunk, _NEIGHBOUR_BYTES // (16 * (k + 1))))  # a chunk's distances and indices
     c = 0.5 * np.add(*bounds(pts))
     tree = cKDTree(pts - c, balanced_tree=False, compact_nodes=False)
     for s in range(0, n, chunk):

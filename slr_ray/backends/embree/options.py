@@ -25,6 +25,9 @@ GRID_SPACINGS = ("mean", "step")
 #: The largest disc radius (metres) and radius scale: beyond, float32 radii overflow and a disc covers
 #: any scene.
 MAX_RADIUS = 1e6
+#: The most neighbours ``k`` a disc's spacing and normal take: far beyond any surface's (6-30 are
+#: used), and a bound on the neighbour arrays (a chunk of them is sized to fit memory besides).
+MAX_K = 1000
 #: A fast machine's cast rate, rays a second: several threads at the ~15 M a second one thread casts
 #: (docs/speed.md: 3.1 M rays in 0.21 s): a cast is estimated at this rate, never slower than it is.
 FAST_RAYS_PER_SECOND = 1e8
@@ -60,7 +63,8 @@ class EmbreeOptions(BackendOptions):
     radius_scale : float
         Multiplies every radius.
     k : int
-        Neighbours for ``'spacing'`` radii and for normals.
+        Neighbours for ``'spacing'`` radii and for normals (1 to
+        :data:`MAX_K`; a cloud of fewer points takes all the others).
     orientation : {'normal', 'billboard', 'primary'}
         Discs along the surface normal, facing each ray, or facing the
         primary scanner.
@@ -313,8 +317,9 @@ class EmbreeOptions(BackendOptions):
             raise InputValueError(f"engine must be one of {ENGINES}, got {self.engine!r}")
         if int(self.segments) != self.segments or self.segments < 3:
             raise InputValueError(f"segments must be an integer >= 3, got {self.segments!r}")
-        if int(self.k) != self.k or self.k < 1:
-            raise InputValueError(f"k must be an integer >= 1, got {self.k!r}")
+        if int(self.k) != self.k or not 1 <= self.k <= MAX_K:
+            raise InputValueError(f"k must be an integer in [1, {MAX_K}] (neighbours of a disc's spacing and "
+                                  f"normal), got {self.k!r}")
         for name in ("radius_scale", "fallback_radius"):
             v = getattr(self, name)
             if not (isinstance(v, (int, float)) and math.isfinite(v) and v > 0):
