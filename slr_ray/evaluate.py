@@ -248,34 +248,6 @@ def register(source, target, max_distance: float = 0.2, min_fitness: float = 0.5
                         time.perf_counter() - t0, float(back.fitness))
 
 
-#: What a registration of two overlapping frames gives (:func:`registration_checks`); each bound
-#: set with a margin from the figures of real pairs (docs/evaluation.md, benchmarks/registration_gate.py)
-REGISTRATION_BOUNDS = {"min_fitness": 0.3, "min_reverse_fitness": 0.0, "max_rmse_share": 0.6, "max_tilt_deg": 180.0}
-
-
-def registration_checks(reg: Registration, bounds: dict | None = None) -> list:
-    """The checks ``reg`` fails, as ``(name, message)`` pairs (empty: accepted).
-
-    ``bounds`` overrides entries of :data:`REGISTRATION_BOUNDS`.
-    """
-    b = dict(REGISTRATION_BOUNDS) | dict(bounds or {})
-    failed = []
-    if not reg.fitness >= b["min_fitness"]:
-        failed.append(("fitness", f"fitness {reg.fitness:.3f} (share of B's points with an A point within "
-                                  f"{reg.max_distance:g} m) < {b['min_fitness']:g}"))
-    if not reg.reverse_fitness >= b["min_reverse_fitness"]:
-        failed.append(("reverse fitness", f"reverse fitness {reg.reverse_fitness:.3f} (share of A's points with a B "
-                                          f"point within {reg.max_distance:g} m) < {b['min_reverse_fitness']:g}"))
-    limit = b["max_rmse_share"] * reg.max_distance
-    if not reg.inlier_rmse <= limit:
-        failed.append(("inlier RMSE", f"inlier RMSE {reg.inlier_rmse:.3f} m > {limit:g} m (the pairs within "
-                                      f"{reg.max_distance:g} m lie spread, not matched)"))
-    if not reg.tilt_deg <= b["max_tilt_deg"]:
-        failed.append(("tilt", f"B tilted {reg.tilt_deg:.1f} deg from A's vertical > {b['max_tilt_deg']:g} deg "
-                               "(two upright sensors)"))
-    return failed
-
-
 # --- the evaluation -----------------------------------------------------------------------------------------
 
 def _resolve_sensor(name_or_pattern) -> BeamPattern:

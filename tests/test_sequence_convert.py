@@ -267,7 +267,7 @@ def test_evaluate_into_a_directory_that_is_not_empty_needs_force(drive, tmp_path
     out = tmp_path / "ev"
     out.mkdir()
     (out / "notes.txt").write_text("mine")
-    r = _cli(capsys, "sequence", "evaluate", drive, "--holdout", "1", "--sensor", SENSOR, "-o", out, "--quiet")
+    r = _cli(capsys, "sequence", "evaluate", drive, "--holdout", "1", "--source-sensor", SENSOR, "-o", out, "--quiet")
     assert r.returncode == 2 and "is not empty (notes.txt)" in r.stderr and "--force" in r.stderr
     assert len(r.stderr.strip().splitlines()) == 1
     assert sorted(p.name for p in out.iterdir()) == ["notes.txt"]
@@ -275,5 +275,5 @@ def test_evaluate_into_a_directory_that_is_not_empty_needs_force(drive, tmp_path
 
 def test_convert_refuses_force(drive, tmp_path, capsys):
     # (#48 item 16) it had no effect: now said
-    r = _cli(capsys, "sequence", "convert", drive, "--sensor", SENSOR, "-o", tmp_path / "c", "--force", "--quiet")
+    r = _cli(capsys, "sequence", "convert", drive, "--target-sensor", SENSOR, "-o", tmp_path / "c", "--force", "--quiet")
     assert r.returncode == 2 and "no --force" in r.stderr and not (tmp_path / "c").exists()

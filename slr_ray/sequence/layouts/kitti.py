@@ -61,8 +61,11 @@ class KittiDirectory(FrameSource):
 
     @classmethod
     def open(cls, path, inputs: SequenceInputs) -> Sequence:
-        inputs.refuse(path, "KITTI", "origins", "scan_field", "input_format",
-                      why="its frames are .bin files, each in its sensor's frame")
+        fmt = inputs.input_format
+        if fmt is not None and str(fmt).lower().lstrip(".") != "bin":  # never ignored unsaid
+            raise InputValueError(f"{path}: a KITTI directory's frames are velodyne/NNNNNN.bin, read as such: "
+                                  f"--input-format {fmt!r} does not apply (drop it)")
+        inputs.refuse(path, "KITTI", "origins", "scan_field", why="its frames are .bin files, each in its sensor's frame")
         seq = read_kitti_layout(path)
         traj = inputs.trajectory
         if isinstance(traj, (list, tuple)):
