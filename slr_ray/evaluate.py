@@ -708,6 +708,17 @@ EVALUATION_FILES = {"json": "evaluation.json", "markdown": "table.md", "csv": "t
                     "splits": "splits.csv", "figure": "evaluation.png"}
 
 
+def _evaluation_directory(directory, force: bool) -> Path:
+    """``directory``, made; refused when it is a file, or not empty without ``force``."""
+    d = Path(directory)
+    if d.exists() and not d.is_dir():
+        raise OutputError(f"{d} exists and is not a directory")
+    if d.is_dir() and any(d.iterdir()) and not force:
+        raise OutputError(f"{d} exists and is not empty (use --force to replace its evaluation files)")
+    d.mkdir(parents=True, exist_ok=True)
+    return d
+
+
 def write_evaluation(result: dict, directory, force: bool = False, inputs: dict | None = None) -> dict:
     """Write ``evaluation.json`` (everything, splits included; one line per figure block),
     ``table.md``, ``table.csv`` and ``splits.csv`` (every split, one row each) into a new ``directory``.
@@ -718,12 +729,7 @@ def write_evaluation(result: dict, directory, force: bool = False, inputs: dict 
     command does: ``save_figure(evaluation_figure(result), directory / "evaluation.png")``
     (:mod:`slr_ray.plotting`).
     """
-    d = Path(directory)
-    if d.exists() and not d.is_dir():
-        raise OutputError(f"{d} exists and is not a directory")
-    if d.is_dir() and any(d.iterdir()) and not force:
-        raise OutputError(f"{d} exists and is not empty (use --force to replace its evaluation files)")
-    d.mkdir(parents=True, exist_ok=True)
+    d = _evaluation_directory(directory, force)
     table = evaluation_table(result)
     doc = {k: v for k, v in result.items() if k != "images"} | {"table": table, "inputs": inputs or {}}
     paths = {kind: d / name for kind, name in EVALUATION_FILES.items() if kind != "figure"}
@@ -762,12 +768,7 @@ def write_sequence_evaluation(result: dict, directory, force: bool = False) -> d
     ``table`` every frame's rows and the means), ``table.md`` (the columns of its protocol,
     :data:`SEQUENCE_COLUMNS`) and ``table.csv`` (every column). Refuses an existing non-empty
     directory unless ``force`` (then only these files are replaced). Returns the paths, by kind."""
-    d = Path(directory)
-    if d.exists() and not d.is_dir():
-        raise OutputError(f"{d} exists and is not a directory")
-    if d.is_dir() and any(d.iterdir()) and not force:
-        raise OutputError(f"{d} exists and is not empty (use --force to replace its evaluation files)")
-    d.mkdir(parents=True, exist_ok=True)
+    d = _evaluation_directory(directory, force)
     rows = _sequence_rows(result)
     paths = {kind: d / EVALUATION_FILES[kind] for kind in ("json", "markdown", "csv")}
     with atomic_path(paths["json"]) as tmp:

@@ -110,3 +110,21 @@ def las_reads(monkeypatch):
 
     monkeypatch.setattr(laspy, "open", lambda *a, **k: Counting(opened(*a, **k)))
     return reads
+
+
+class CliRun:
+    """``slr-ray ARGS...`` in this process: ``CliRun(capsys)(*args)`` gives ``returncode``, ``stdout``
+    and ``stderr`` (what the command printed, nothing from before)."""
+
+    def __init__(self, capsys):
+        self.capsys = capsys
+
+    def __call__(self, *args):
+        from types import SimpleNamespace
+
+        from slr_ray.cli import main
+
+        self.capsys.readouterr()
+        rc = main([str(a) for a in args])
+        out = self.capsys.readouterr()
+        return SimpleNamespace(returncode=rc, stdout=out.out, stderr=out.err)

@@ -2,12 +2,10 @@
 leave-one-out evaluation and conversion, on a tiny synthetic drive with exact poses."""
 
 import json
-from types import SimpleNamespace
 
 import numpy as np
 import pytest
 
-from slr_ray.cli import main
 from slr_ray.errors import FormatError, InputValueError
 from slr_ray.io import PointCloud, read_cloud, write_cloud
 from slr_ray.sensors import sensor
@@ -17,6 +15,7 @@ from slr_ray.sequence import (MOVING_CLASSES, accumulate, estimate, evaluate_seq
 from slr_ray.sequence.frames import read_pose_files
 from slr_ray.sequence.holdout import clamped_depth_errors, lidar4d_holdout
 from slr_ray.sequence.synthetic import KITTI_TR, synthetic_drive
+from conftest import CliRun
 
 
 @pytest.fixture(scope="module")
@@ -26,15 +25,7 @@ def drive(tmp_path_factory):
     return root, poses
 
 
-class _Run:
-    def __init__(self, capsys):
-        self.capsys = capsys
-
-    def __call__(self, *args):
-        self.capsys.readouterr()
-        rc = main([str(a) for a in args])
-        out = self.capsys.readouterr()
-        return SimpleNamespace(returncode=rc, stdout=out.out, stderr=out.err)
+_Run = CliRun
 
 
 def test_kitti_layout_poses_are_tr_inverse_p_tr(drive):

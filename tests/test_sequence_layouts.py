@@ -2,18 +2,17 @@
 recipe of docs/architecture.md, and the refusals of poses files (#47 item 2, #48 items 5 and 10)."""
 
 from pathlib import Path
-from types import SimpleNamespace
 
 import numpy as np
 import pytest
 
-from slr_ray.cli import main
 from slr_ray.errors import InputValueError, SlrNote
 from slr_ray.io import PointCloud, write_cloud
 from slr_ray.sequence import accumulate, read_sequence
 from slr_ray.sequence.layouts import REGISTRY, FrameSource, Sequence, SequenceInputs, detect
 from slr_ray.sequence.poses import read_calib_tr, read_pose_blocks, read_trajectory, write_kitti_poses
 from slr_ray.sequence.synthetic import KITTI_TR
+from conftest import CliRun
 
 DATA = Path("/work/shared/data")
 
@@ -44,15 +43,7 @@ def kitti(tmp_path):
     return root, vel, cam
 
 
-class _Run:
-    def __init__(self, capsys):
-        self.capsys = capsys
-
-    def __call__(self, *args):
-        self.capsys.readouterr()
-        rc = main([str(a) for a in args])
-        out = self.capsys.readouterr()
-        return SimpleNamespace(returncode=rc, stdout=out.out, stderr=out.err)
+_Run = CliRun
 
 
 # -- #48 item 5: a trajectory given for a KITTI directory is taken as its poses.txt is

@@ -4,13 +4,11 @@ command's flags come from the methods' options; its refusals and warnings are on
 
 import json
 from dataclasses import dataclass
-from types import SimpleNamespace
 from typing import ClassVar
 
 import numpy as np
 import pytest
 
-from slr_ray.cli import main
 from slr_ray.errors import InputValueError
 from slr_ray.io import read_cloud
 from slr_ray.sequence import methods as M
@@ -18,6 +16,7 @@ from slr_ray.sequence.estimators import nearest_returns
 from slr_ray.sequence.holdout import HoldoutOptions, evaluate_holdout
 from slr_ray.sequence import read_sequence
 from slr_ray.sequence.synthetic import synthetic_drive
+from conftest import CliRun
 
 
 @dataclass(frozen=True)
@@ -65,15 +64,7 @@ def drive(tmp_path_factory):
     return root
 
 
-class _Run:
-    def __init__(self, capsys):
-        self.capsys = capsys
-
-    def __call__(self, *args):
-        self.capsys.readouterr()
-        rc = main([str(a) for a in args])
-        out = self.capsys.readouterr()
-        return SimpleNamespace(returncode=rc, stdout=out.out, stderr=out.err)
+_Run = CliRun
 
 
 def test_the_registry_holds_every_method_once_with_its_capabilities():
