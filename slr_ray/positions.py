@@ -22,6 +22,7 @@ import importlib.util
 import json
 import math
 import os
+import signal
 import subprocess
 import sys
 import time
@@ -543,7 +544,6 @@ def label_ground(points, *, cloth_resolution: float = 0.5, rigidness: int = 2,
 
 
 def _signal_name(number: int) -> str:
-    import signal
     try:
         return signal.Signals(number).name
     except ValueError:
