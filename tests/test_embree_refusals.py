@@ -107,3 +107,18 @@ def test_k_is_bounded_before_any_work_and_a_neighbour_chunk_within_its_memory_ca
     monkeypatch.undo()
     chunk = max(1, min(1 << 20, discs._NEIGHBOUR_BYTES // (16 * (MAX_K + 1))))
     assert chunk * (MAX_K + 1) * 16 <= 1 << 30
+
+
+def test_a_disc_radius_of_zero_says_it_must_be_above_zero(tmp_path, capsys):
+    """#48: `--radius 0` read "radius must be a number, an array or one of ('spacing', 'footprint')"."""
+    src = tmp_path / "c.npz"
+    write_cloud(src, PointCloud(P, {}, np.zeros(3)))
+    for bad in ("0", "-1", "nan", "inf"):
+        assert main(["scan", str(src), "-o", str(tmp_path / "o.npz"), "--backend", "embree", "--resolution", "1",
+                     "--radius", bad]) == 2
+        err = capsys.readouterr().err
+        assert err.count("\n") == 1 and "--radius: a disc radius must be a finite number of metres > 0" in err
+        assert f"got {bad!r}" in err and "must be a number" not in err
+    assert main(["scan", str(src), "-o", str(tmp_path / "o.npz"), "--backend", "embree", "--resolution", "1",
+                 "--radius", "sizes"]) == 2
+    assert "one of ('spacing', 'footprint'), got 'sizes'" in capsys.readouterr().err  # a mode's name: its own message

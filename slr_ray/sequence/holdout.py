@@ -78,8 +78,9 @@ METHODS = REGISTRY
 DEFAULT_METHODS = tuple(methods_with("default"))
 
 
-def _beams(frame, base):
-    return known_beams(frame.points, frame.attributes, base)
+def _beams(frame, base, seq=None):
+    where = f" ({seq.paths[frame.index]})" if seq is not None else ""
+    return known_beams(frame.points, frame.attributes, base, f"frame {frame.name}{where}")
 
 
 def _held_beams(seq: Sequence, target: int, frame, base):
@@ -184,7 +185,7 @@ def others_pattern(others, base, cache: FrameCache):
     pts, beams = [], []
     for i in others:
         f, _ = cache.get(i)
-        b = _beams(f, base)
+        b = _beams(f, base, cache.seq)
         if b is None or len(f.points) == 0:
             continue
         known = b >= 0
@@ -213,7 +214,7 @@ def evaluate_holdout(seq: Sequence, target: int, options: HoldoutOptions | None 
         raise InputValueError(f"frame {seq.names[target]}: no other frame in its window")
     fb, _ = cache.get(target)
     b = fb.points
-    beams = _held_beams(seq, target, fb, base) if o.grid_from == "target" else _beams(fb, base)
+    beams = _held_beams(seq, target, fb, base) if o.grid_from == "target" else _beams(fb, base, seq)
     if o.grid_from == "others":
         pat = others_pattern(others, base, cache)
     else:
