@@ -14,7 +14,7 @@ from slr_ray.cli import main
 from slr_ray.errors import FormatError, OutputError, SlrNote
 from slr_ray.io import PointCloud, write_cloud
 from slr_ray.sensorfit import fit_card
-from slr_ray.sensors import beams_outside, card_dict, read_card, sensor, write_card
+from slr_ray.sensors import BeamPattern, beams_outside, card_dict, read_card, sensor, write_card
 
 DATA = next((p / "shared" / "data" for p in Path(__file__).resolve().parents[1:4] if (p / "shared" / "data").is_dir()),
             Path(__file__).resolve().parents[2] / "shared" / "data")
@@ -190,3 +190,23 @@ def test_convert_says_the_target_beams_the_source_never_saw_and_refuses_nothing(
         # refused at its first frame (the convert's empty-frame check, #48 item 7) or at its end (#45 item 5)
         with pytest.raises((InputValueError, OutputError), match="returned no point|no pulse of the target sensor"):
             convert_sequence(seq, tmp_path / "out2", str(tmp_path / "sky.json"), half=0)
+
+
+def test_a_frame_whose_beams_come_out_twice_is_flagged_not_passed_as_a_good_fit():
+    # failed before (#45): BALM's OS0-64-like frames (deskewed: their points do not all leave one origin)
+    # fitted 109 beams for 64 rings with a fine quality report and no word. Here a 16-beam unit whose
+    # points leave two origins 0.15 m apart in height: each beam found twice, close pairs
+    from slr_ray.errors import SlrWarning
+    from slr_ray.sensors import SENSORS
+    from slr_ray.sensorfit import _split_beams
+    table = BeamPattern(tuple(np.arange(16) * 2.0 - 15.0), 360, name="toy16")
+    f = _frame(table, drop=0.0, seed=1)
+    pts = f.points.copy()
+    pts[::2, 2] += 0.15
+    pts[:, :2] *= np.where(np.arange(len(pts)) % 4 < 2, 1.0, 3.0)[:, None]  # some far, some near: two elevations
+    with pytest.warns(SlrWarning, match="one beam seen twice"):
+        card = fit_card(PointCloud(pts, {}, np.zeros(3)), ring=False)
+    assert card.meta["fit"]["split_beams"] > 0 and card.n_beams > 16
+    clean = fit_card(_frame(table, drop=0.0, seed=1), ring=False)
+    assert clean.meta["fit"]["split_beams"] == 0 and clean.n_beams == 16
+    assert all(_split_beams(sensor(n).elevation_deg) == 0 for n in SENSORS)  # non-uniform units are not split
