@@ -35,7 +35,8 @@ seen twice (a gap under a quarter of both gaps beside it: warned). Without a
 ring field, a frame whose points do not all leave one origin (a moving unit's
 frame deskewed, several sweeps merged: BALM's OS0-64-like frames) puts one
 beam's points at two elevations that depend on range and azimuth, and the
-votes find it twice (109 beams for 64 rings there): the warning says so. A frame that is not a spinning unit's is refused
+votes find it twice (109 beams for 64 rings there): the warning says so.
+A frame that is not a spinning unit's is refused
 (:class:`~slr_ray.errors.InputValueError`, saying why): under half the turn
 of azimuth seen, no beams, more than :data:`MAX_BEAMS` of them, or points
 that do not lie on beams (under :data:`MIN_ASSIGNED` assigned, or a median
@@ -293,7 +294,8 @@ def fit_card(frames, ring: str | bool = "auto", name: str | None = None, source:
     rr = r[ok]
     split = _split_beams(el)
     if split:
-        warnings.warn(f"{', '.join(labels[:2])}{' ...' if len(labels) > 2 else ''}: {split} of the {n} beams fitted lie "
+        warnings.warn(f"{', '.join(labels[:2])}{' ...' if len(labels) > 2 else ''}: {split} of the {n} beams "
+                      "fitted lie "
                       "under a quarter of the gaps beside them from the next: one beam seen twice? (frames not "
                       "in the sensor's own axes, several sweeps merged, or a moving unit's frame): check the "
                       "card (its fit quality: split_beams)", SlrWarning, stacklevel=2)

@@ -115,6 +115,10 @@ def add_sequence_parser(sub) -> None:
                    help=f"the frames' sensor (default {SOURCE_SENSOR}, KITTI's); fitted to each held-out frame "
                         "(--sensor, its old name, still works)")
     _deprecated_sensor(q)
+    q.add_argument("--target-sensor", type=A.sensor_name, metavar="NAME|CARD",
+                   help="the held-out frames' own unit where it is not the source's (" + A.SENSOR_HELP + "): each "
+                        "is scored on its grid, re-simulated from the source frames; the target's beams outside "
+                        "what the source frames saw are scored apart ('in reach' / 'out of reach' columns)")
     defaults = methods_with("default")
     q.add_argument("--methods", nargs="+", default=defaults, choices=methods_with("holdout"),
                    help=f"methods (default {' '.join(defaults)})")
@@ -303,7 +307,7 @@ def _evaluate(args, seq, holdout, out):
     drop, st = args.moving
     res = evaluate_sequence(seq, holdout, args.source_sensor, args.methods, args.half, args.radius,
                             drop_moving=drop, progress=not args.quiet, see_through=st, grid_from=args.grid_from,
-                            method_options=args.method_options)
+                            method_options=args.method_options, target_sensor=args.target_sensor)
     res |= {"protocol": args.protocol, "grid_from": args.grid_from, "registration": regs,
             "pose_source": seq.pose_source, "inputs": [str(p) for p in seq.paths]}
     files = write_sequence_evaluation(res, out, force=True)  # out: planned and locked above

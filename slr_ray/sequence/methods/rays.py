@@ -54,6 +54,10 @@ class Rays(SequenceMethod):
         return cast_rays(points, pattern, gap=options.gap, neighbours=options.neighbours, max_shift=options.max_shift)
 
     def simulate(self, held: HeldOut, options: RaysOptions):
+        if held.target_base is not None:  # another unit than the frames': its table's own rays, as convert casts
+            ret = self.returns(held.u, held.pattern, options)
+            return ret, ret.points, pattern_ray_model(held.pattern).to_dict() | {
+                "why": "the held-out frame is of another unit (target sensor): its table's ideal rays"}
         model = holdout_ray_model(held.seq, held.others, held.base, held.pattern, held.cache)
         ret = cast_rays(held.u, held.pattern, model, frame_motion(held.seq.poses, held.target), gap=options.gap,
                         neighbours=options.neighbours, max_shift=options.max_shift)
