@@ -308,6 +308,8 @@ def fit_card(frames, ring: str | bool = "auto", name: str | None = None, source:
                     "azimuth_seen": round(seen, 4), "split_beams": split,
                     "columns_from": "median azimuth step of a beam's points",
                     "ranges": "the ranges seen (override with min_range / max_range, --min-range / --max-range)"}}
+    if not use_rings:  # its beams are elevation bands: frames without rings take their beams from them
+        meta["beams_from"] = "elevation bands"
     if use_rings:
         meta["ring"] = [int(x) for x in rings_seen[keep]] if not keep.all() else [int(x) for x in rings_seen]
     return BeamPattern(tuple((el + 0.0).tolist()), columns, tuple((np.round(offsets, 5) + 0.0).tolist()),

@@ -210,3 +210,27 @@ def test_a_frame_whose_beams_come_out_twice_is_flagged_not_passed_as_a_good_fit(
     clean = fit_card(_frame(table, drop=0.0, seed=1), ring=False)
     assert clean.meta["fit"]["split_beams"] == 0 and clean.n_beams == 16
     assert all(_split_beams(sensor(n).elevation_deg) == 0 for n in SENSORS)  # non-uniform units are not split
+
+
+def test_frames_without_rings_take_their_beams_from_a_card_fitted_without_rings():
+    # failed before (#45): a ring-less PCD sequence (BALM's) had no beams for the rays' per-laser fit, though
+    # its card (fitted from such frames) defines its beams as elevation bands
+    from slr_ray.sequence.sources import known_beams
+    table = BeamPattern(tuple(np.arange(16) * 2.0 - 15.0), 360, name="toy16")
+    f = _frame(table, drop=0.0, seed=2)
+    card = fit_card(PointCloud(f.points, {}, np.zeros(3)), ring=False)
+    assert card.meta["beams_from"] == "elevation bands"
+    shuffled = np.random.default_rng(0).permutation(len(f.points))  # no scan order to read
+    beams = known_beams(f.points[shuffled], {}, read_card_of(card))
+    el = np.asarray(card.elevation_deg)[beams]
+    want = np.asarray(table.elevation_deg)[np.asarray(f.attributes["ring"], int)[shuffled]]
+    assert np.all(beams >= 0) and np.allclose(el, want, atol=0.05)
+    assert known_beams(f.points[shuffled], {}, table) is None  # a table of rings: not guessed from bands
+
+
+def read_card_of(card, tmp=None):
+    """``card`` written and read back (the meta that tells its beams are bands round-trips)."""
+    import tempfile
+    with tempfile.TemporaryDirectory() as d:
+        write_card(Path(d) / "c.json", card)
+        return read_card(Path(d) / "c.json")

@@ -29,6 +29,6 @@ while len(el) > 1:
     w[i:i + 2] = [w[i] + w[i + 1]]
 card = BeamPattern(tuple(round(float(e), 4) for e in el), fitted.columns, name="balm_os0_64",
                    meta={"source": f"{fitted.meta['source']}; close pairs (< 0.45 deg) merged by "
-                                   "docs/sequence_sensors/balm_card.py"})
+                                   "docs/sequence_sensors/balm_card.py", "beams_from": "elevation bands"})
 write_card(out, card)
 print(card.n_beams, "beams after merging, columns", card.columns, "->", out)
