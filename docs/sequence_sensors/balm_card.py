@@ -12,7 +12,7 @@ from slr_ray.sensorfit import fit_card
 from slr_ray.sensors import BeamPattern, write_card
 
 frame = sys.argv[1] if len(sys.argv) > 1 else "../shared/data/balm_os0_64/full20.pcd"
-out = sys.argv[2] if len(sys.argv) > 2 else "docs/sequence_sensors/balm_os0_64.json"
+out = sys.argv[2] if len(sys.argv) > 2 else "balm_os0_64.json"
 with warnings.catch_warnings(record=True) as said:
     warnings.simplefilter("always")
     fitted = fit_card(frame, name="balm_os0_64_fitted")
