@@ -96,7 +96,8 @@ def _held_beams(seq: Sequence, target: int, frame, base):
     if beams is None:
         warnings.warn(f"frame {seq.names[target]}: beams not known (no ring field, not in {base.name}'s scan order "
                       f"of {base.n_beams} rings: another sensor (--source-sensor), or shuffled points?): scored on "
-                      "the shipped table's grid, not one fitted to the frame", SlrWarning, stacklevel=3)
+                      f"{base.name}'s grid as given (the shipped table or card), not one fitted to the frame",
+                      SlrWarning, stacklevel=3)
         return None
     used = len(np.unique(beams[beams >= 0]))
     if 2 * used < base.n_beams:
