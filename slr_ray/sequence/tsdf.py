@@ -45,10 +45,11 @@ Here, in numpy and numba:
   of the TSDF interpolated trilinearly between voxel centres, what a renderer of a TSDF does: the
   crossing lies on the same level set marching cubes triangulates (marching cubes interpolates
   linearly along the voxel edges, trilinear interpolation inside the cells; they agree on every
-  edge and differ inside a cell by a fraction of a voxel). The march starts at the nearest depth
-  of the image within two rows and four columns of the ray's pixel, less the truncation and two
-  voxels, and ends past the farthest one (a surface of a pixel further off the ray, seen from
-  under a metre or two, can be missed);
+  edge and differ inside a cell by a fraction of a voxel). A voxel's value is below 1 only within
+  the truncation of its pixel's depth, so a ray is marched only about the depths of the pixels near
+  its own (two rows and four columns either side, wider where they are near, so that the window spans
+  two voxels: up to 8 rows and 64 columns), nearest first, by steps of half the TSDF's distance (at
+  least half a voxel); a surface seen through a pixel further off the ray is missed;
 - the labels and every other attribute: a return carries the union point nearest its hit among
   the image's points (those the surface was fused from), where theirs takes the voxel of a face's
   first vertex, whose label is that of the image pixel the voxel projects to.
