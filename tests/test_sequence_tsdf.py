@@ -66,6 +66,7 @@ def test_bounds_and_voxel_follow_the_options(scene):
     (np.zeros((0, 3)), {}, "no points to fuse"),
     (np.array([[200.0, 0, 0], [0, 200, 0]]), {}, "no point within the pattern's rows and the volume's bounds"),
     (np.ones((5, 2)), {}, "expected \\(n, 3\\)"),
+    (np.array([[1.0, 2, 3], [np.nan, 0, 0]]), {}, "points has 1 row\\(s\\) with NaN or inf out of 2"),
     (np.ones((5, 3)), {"truncation": 0.01}, "at least one voxel"),
     (np.ones((5, 3)), {"voxel": 0.0}, "voxel must be > 0"),
 ])

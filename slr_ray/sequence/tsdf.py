@@ -65,6 +65,7 @@ import math
 import numpy as np
 from numba import njit, prange
 
+from ..arrays import count_nonfinite_rows, refuse_nonfinite_rows
 from ..errors import InputValueError
 from ..metrics import nearest
 from .estimators import PulseReturns
@@ -269,8 +270,8 @@ def tsdf_returns(points, pattern, voxel: float = TSDF_VOXEL, truncation: float =
     Raises
     ------
     InputValueError
-        no points; none inside the volume's bounds and the pattern's rows; a voxel, truncation or
-        bound that is not a positive length, a truncation under one voxel.
+        no points, or a row with NaN or inf; none inside the volume's bounds and the pattern's rows; a
+        voxel, truncation or bound that is not a positive length, a truncation under one voxel.
     """
     _check(voxel, truncation, xy_bound, z_bound)
     points = np.ascontiguousarray(points, np.float64)
@@ -278,6 +279,7 @@ def tsdf_returns(points, pattern, voxel: float = TSDF_VOXEL, truncation: float =
         raise InputValueError(f"points: expected (n, 3), got shape {points.shape}")
     if not len(points):
         raise InputValueError("tsdf: no points to fuse (the union is empty)")
+    refuse_nonfinite_rows(count_nonfinite_rows(points), len(points))
     img = range_image(points, pattern)
     fused = img.index[img.index >= 0]
     bound = np.array([xy_bound, xy_bound, z_bound])
