@@ -61,24 +61,26 @@ from __future__ import annotations
 
 import math
 import time
-from dataclasses import dataclass
+import warnings
+from dataclasses import dataclass, field
 
 import numpy as np
 
 from .arrays import as_points, as_rigid_pose
 from .backends import BACKENDS, prepare, scanner_class
-from .errors import InputValueError, MissingDependencyError
+from .errors import InputValueError, MissingDependencyError, SlrWarning
 from .metrics import FIELD_THRESHOLD, LIDAR4D_CODE_THRESHOLD, PAPER_THRESHOLD, Pair, range_bands, score_pair, seen_from
 from .options import Options
 from .progress import bar as progress_bar, phase, step
 from .reports import (EVALUATION_FILES, SEQUENCE_COLUMNS, compact_json, evaluation_table, markdown_table,  # noqa: F401
-                      sequence_summary, splits_table, write_evaluation, write_sequence_evaluation)
+                      reach_table, sequence_summary, splits_table, write_evaluation, write_sequence_evaluation)
 from .scan import Scan
 from .sensors import BeamPattern, fitted_pattern, scan_order_beams, sensor
 
 __all__ = ["METHODS", "BEAM_SOURCES", "EVALUATION_FILES", "LABELS", "Registration", "register", "scan_order_beams", "fitted_pattern", "zbuffer",
            "EvaluateOptions", "evaluate_pair", "evaluation_table", "markdown_table", "splits_table", "compact_json",
-           "write_evaluation", "frame_beams", "SPLITS", "ScoringTarget", "scoring_target", "score_simulation", "write_sequence_evaluation", "SEQUENCE_COLUMNS", "sequence_summary"]
+           "write_evaluation", "frame_beams", "SPLITS", "ScoringTarget", "scoring_target", "score_simulation", "write_sequence_evaluation", "SEQUENCE_COLUMNS", "sequence_summary",
+           "REACH", "source_reach", "reach_table", "rig_extrinsic"]
 
 #: the methods scored, in table order, and their names in tables and figures
 METHODS = ("zbuffer", "binning", "embree-knn", "embree-grid", "embree-beams")
@@ -346,6 +348,7 @@ class ScoringTarget:
     pixels: np.ndarray      # (rows, cols) each pulse's split label: seen, unseen, no return
     point_groups: dict
     splits: tuple = SPLITS
+    pulse_groups: dict = field(default_factory=dict)  # further splits' labels per pulse (``source``)
 
 
 def scoring_target(points, pattern, beams, primary, seen_threshold: float = PAPER_THRESHOLD,
@@ -385,7 +388,48 @@ def score_simulation(target: ScoringTarget, simulated, image, thresholds=THRESHO
     pulses = {"range band": range_bands(sim_ranges), "beam": np.arange(target.pattern.n_beams),
               "seen": target.pixels.astype(str)}
     return score_pair(Pair(target.points, simulated, real, image, tuple(thresholds), target.point_groups,
-                           {k: v for k, v in pulses.items() if k in target.splits}))
+                           {k: v for k, v in pulses.items() if k in target.splits} | target.pulse_groups))
+
+
+#: what a source could have seen of each target point (the ``source`` split of :func:`evaluate_pair`), in
+#: table order; a pulse with no real return is ``"no return"``
+REACH = ("seen by source", "in source view, unseen", "outside source range", "outside source FOV")
+
+
+def source_reach(points, transform, source_pattern: BeamPattern, source_points, seen) -> np.ndarray:
+    """Each target point labelled by what the source frame could have seen of it (:data:`REACH`).
+
+    ``points`` (m, 3): the target's, in its own frame; ``transform``: the target's pose in the source's
+    frame (``a = R b + t``); ``seen`` (m,) bool: a source point lies near it. Unseen points are *outside
+    source FOV* (no elevation band of ``source_pattern`` holds them, seen from the source's origin),
+    *outside source range* (beyond the ranges the source frame's points span, within its table's limits),
+    or else *in source view, unseen* (hidden from the source, or its pulse dropped)."""
+    R, t = np.asarray(transform, np.float64)[:3, :3], np.asarray(transform, np.float64)[:3, 3]
+    in_a = as_points(points, "points") @ R.T + t
+    keys, ranges = source_pattern.with_(min_range=None, max_range=None).pulse_ids(in_a, np.zeros(3))
+    r_a = np.linalg.norm(as_points(source_points, "source_points"), axis=1)
+    lo, hi = source_pattern.range_limits
+    lo, hi = max(lo, float(r_a.min(initial=np.inf))), min(hi, float(r_a.max(initial=0.0)))
+    labels = np.full(len(in_a), REACH[3], dtype=object)
+    fov = keys >= 0
+    labels[fov] = np.where((ranges[fov] >= lo) & (ranges[fov] <= hi), REACH[1], REACH[2])
+    labels[np.asarray(seen, bool)] = REACH[0]
+    return labels.astype(str)
+
+
+def _reach(target: ScoringTarget, b, T, pat_a, a) -> dict:
+    """Adds the ``source`` split (:func:`source_reach`) to ``target``'s points and pulses; returns its counts
+    (target points and real pulses per label: they sum to the target's)."""
+    labels = source_reach(target.points, T, pat_a, a, target.seen)
+    every = np.full(len(b), "no return", dtype=object)
+    every[target.in_view] = labels
+    pixels = np.full(target.image["range"].shape, "no return", dtype=object)
+    filled = target.image["index"] >= 0
+    pixels[filled] = every[target.image["index"][filled]]
+    target.point_groups["source"] = labels
+    target.pulse_groups["source"] = pixels.astype(str)
+    return {"labels": list(REACH), "points": {k: int(np.count_nonzero(labels == k)) for k in REACH},
+            "pulses": {k: int(np.count_nonzero(pixels == k)) for k in (*REACH, "no return")}}
 
 
 @dataclass(frozen=True)
@@ -395,8 +439,15 @@ class EvaluateOptions(Options):
     Attributes
     ----------
     sensor : str or BeamPattern
-        The sensor's shipped table (columns, range limits; the elevations
-        where a frame's beams are unknown).
+        The frames' sensor: a shipped name, a sensor card's path (``.json``)
+        or a pattern (columns, range limits; the elevations where a frame's
+        beams are unknown). ``source_sensor``'s old name.
+    source_sensor : str or BeamPattern, optional
+        Frame A's sensor (default ``sensor``).
+    target_sensor : str or BeamPattern, optional
+        Frame B's sensor (default the source's): another unit of the rig,
+        re-simulated at its pose from A; B's pose must then be given
+        (``transform`` or ``extrinsic``).
     methods : sequence of str
         A subset of :data:`METHODS`, or registered backends' names.
     seen_threshold : float
@@ -421,10 +472,12 @@ class EvaluateOptions(Options):
     thresholds: tuple = THRESHOLDS
     min_fitness: float = MIN_FITNESS
     max_rmse: float | None = None
+    source_sensor: str | BeamPattern | None = None
+    target_sensor: str | BeamPattern | None = None
 
 
 def evaluate_pair(a_points, b_points, a_beams="auto", b_beams="auto", options: EvaluateOptions | None = None, *,
-                  transform=None, progress: bool = False, **keywords) -> dict:
+                  transform=None, extrinsic=None, progress: bool = False, **keywords) -> dict:
     """Re-simulate frame B from frame A at B's pose and score every method against the real B.
 
     Parameters
@@ -449,6 +502,11 @@ def evaluate_pair(a_points, b_points, a_beams="auto", b_beams="auto", options: E
         rigid pose (:func:`slr_ray.arrays.as_rigid_pose`: a rotation to
         1e-5, last row ``0 0 0 1``, finite), which must put some of A's
         points in B's view. ``min_fitness`` and ``max_rmse`` are then ignored.
+    extrinsic : (4, 4) float, optional
+        The same pose as a rig's extrinsic from A's sensor to B's gives it:
+        it maps A's coordinates into B's frame (``b = E a``), the inverse of
+        ``transform`` (docs/cross_sensor.md; checked by ICP on the Pandar64
+        to PandarQT64 rig). Give one of the two.
     progress : bool
         Progress on stderr.
 
@@ -474,12 +532,13 @@ def evaluate_pair(a_points, b_points, a_beams="auto", b_beams="auto", options: E
     """
     t_all = time.perf_counter()
     o = EvaluateOptions.of(options, **keywords)
-    sensor, seen_threshold, thresholds = o.sensor, o.seen_threshold, o.thresholds
+    seen_threshold, thresholds = o.seen_threshold, o.thresholds
     methods = _checked_methods(o.methods, o.min_fitness, o.max_rmse)
     T = None if transform is None else as_rigid_pose(transform, "transform")  # before any work
-    base = _resolve_sensor(sensor)
+    base_a, base_b, cross = _pair_sensors(o)
+    T = _given_pose(T, extrinsic, cross, base_a, base_b)
     a, b = as_points(a_points, "a_points"), as_points(b_points, "b_points")
-    (a_beams, a_how, pat_a), (b_beams, b_how, pat_b) = _frame(a, a_beams, base, "a"), _frame(b, b_beams, base, "b")
+    (a_beams, a_how, pat_a), (b_beams, b_how, pat_b) = _frame(a, a_beams, base_a, "a"), _frame(b, b_beams, base_b, "b")
     seconds = {}
     _require_in_view((("a_points", a, pat_a), ("b_points", b, pat_b)))
     t0 = time.perf_counter()
@@ -488,12 +547,13 @@ def evaluate_pair(a_points, b_points, a_beams="auto", b_beams="auto", options: E
     a_in_b, a_origin = _a_in_b(a, T, pat_b, registration)
     t0 = time.perf_counter()
     target = _target(b, b_beams, pat_b, a_in_b, seen_threshold)
+    reach = _reach(target, b, T, pat_a, a)
     seconds["target"] = time.perf_counter() - t0
     real, b_in, seen, pix_seen, filled = target.real, target.points, target.seen, target.pixels, target.image["index"] >= 0
     rows, images, identical = _score_methods(methods, (a_in_b, a_origin, a_beams, pat_a), pat_b, target,
                                              thresholds, seconds, progress)
     seconds["total"] = time.perf_counter() - t_all
-    return {"registration": registration,
+    return {"registration": registration, "cross_sensor": cross, "source_reach": reach,
             "patterns": {"a": pat_a.to_dict() | {"beams_known": a_beams is not None, "beams": a_how},
                          "b": pat_b.to_dict() | {"beams_known": b_beams is not None, "beams": b_how}},
             "frames": {"a_points": int(len(a)), "b_points": int(len(b)), "b_points_in_view": int(len(b_in)),
@@ -504,6 +564,51 @@ def evaluate_pair(a_points, b_points, a_beams="auto", b_beams="auto", options: E
             "images_identical": {"zbuffer vs binning": identical},
             "rows": rows, "images": images, "seconds": {k: round(v, 3) for k, v in seconds.items()}}
 
+
+
+def _pair_sensors(o: EvaluateOptions) -> tuple:
+    """``(source table, target table, cross)``: A's sensor (``source_sensor``, else ``sensor``) and B's
+    (``target_sensor``, else A's), and whether they differ."""
+    base_a = _resolve_sensor(o.sensor if o.source_sensor is None else o.source_sensor)
+    if o.target_sensor is None:
+        return base_a, base_a, False
+    base_b = _resolve_sensor(o.target_sensor)
+    return base_a, base_b, base_b.to_dict() != base_a.to_dict()
+
+
+#: a rig's extrinsic whose 3 x 3 part is a rotation to this (every entry of R^T R - I) is taken as its nearest
+#: rotation (a hand calibration's six-digit matrix: the Pandar64 to QT64 rig's is 0.0215 off, 1 % of scale)
+EXTRINSIC_TOLERANCE = 0.05
+
+
+def rig_extrinsic(extrinsic, name: str = "extrinsic") -> np.ndarray:
+    """A rig's extrinsic as a rigid pose: its rotation part replaced by the nearest rotation (SVD) when it is
+    one to :data:`EXTRINSIC_TOLERANCE` (said once, with how far it moved), refused beyond."""
+    E = as_rigid_pose(extrinsic, name, tol=EXTRINSIC_TOLERANCE)
+    u, _, vt = np.linalg.svd(E[:3, :3])
+    R = u @ vt
+    moved = float(np.max(np.abs(R - E[:3, :3])))
+    if moved > 1e-6:
+        warnings.warn(f"{name}: its 3 x 3 part is not quite a rotation: taken as the nearest rotation (entries moved "
+                      f"by up to {moved:.3g})", SlrWarning, stacklevel=3)
+    E[:3, :3] = R
+    return E
+
+
+def _given_pose(T, extrinsic, cross: bool, base_a, base_b):
+    """B's pose in A's frame from ``transform`` (``T``) or ``extrinsic`` (its inverse); a target sensor
+    other than the source's needs one (another unit of a rig sits elsewhere: registration from the
+    identity is no start)."""
+    if extrinsic is not None:
+        if T is not None:
+            raise InputValueError("transform and extrinsic: give one (extrinsic is transform's inverse)")
+        T = np.linalg.inv(rig_extrinsic(extrinsic))
+        T[3] = (0.0, 0.0, 0.0, 1.0)
+    if T is None and cross:
+        raise InputValueError(
+            f"target_sensor {base_b.name!r} is not the source's ({base_a.name!r}): give B's pose, transform= (B's "
+            "pose in A's frame, --transform) or extrinsic= (A's coordinates into B's frame, --extrinsic)")
+    return T
 
 
 def _checked_methods(methods, min_fitness, max_rmse) -> tuple | list:

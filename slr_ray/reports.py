@@ -19,7 +19,7 @@ from .io import atomic_path
 from .metrics import REGISTRY as METRICS, metric_columns
 
 __all__ = ["EVALUATION_FILES", "evaluation_table", "markdown_table", "compact_json", "splits_table", "csv_text",
-           "evaluation_directory", "write_evaluation", "SEQUENCE_COLUMNS", "write_sequence_evaluation",
+           "evaluation_directory", "write_evaluation", "reach_table", "SEQUENCE_COLUMNS", "write_sequence_evaluation",
            "sequence_summary"]
 
 
@@ -29,6 +29,32 @@ def evaluation_table(result: dict) -> list[dict]:
     """One flat row per method: the figures of the table (JSON-ready), each registered metric's columns
     in the registry's order (:data:`slr_ray.metrics.REGISTRY`)."""
     return [{"method": r["label"], "points": r["points_out"]} | metric_columns(r, result) for r in result["rows"]]
+
+
+def reach_table(result: dict) -> list[dict]:
+    """One row per method and part of the real target by what the source could have seen of it (the
+    ``source`` split of :func:`slr_ray.evaluate.evaluate_pair`: seen by source, in source view but unseen,
+    outside the source's range, outside its field of view, and the pulses with no real return): target
+    points and real pulses of the part, the point figures at the first threshold and the depth and drop
+    figures on its pulses. Every part is a row, empty or not: the parts sum to the whole."""
+    reach = result.get("source_reach")
+    if not reach:
+        return []
+    tau = f"{100 * result['thresholds'][0]:g}cm"
+    out = []
+    for r in result["rows"]:
+        points = r.get("points", {}).get("groups", {}).get("source", {})
+        image = r.get("image", {}).get("groups", {}).get("source", {})
+        for label in (*reach["labels"], "no return"):
+            p, im = points.get(label, {}), image.get(label, {})
+            f = p.get("fscore", {}).get(tau, {})
+            out.append({"method": r["label"], "part": label, "target points": reach["points"].get(label, 0),
+                        "real pulses": reach["pulses"].get(label, 0),
+                        "simulated points": p.get("simulated_points", 0), f"P@{tau}": f.get("precision", math.nan),
+                        f"R@{tau}": f.get("recall", math.nan), f"F@{tau}": f.get("fscore", math.nan),
+                        "depth_medae_m": im.get("medae", math.nan), "depth_rmse_m": im.get("rmse", math.nan),
+                        "drop_accuracy": im.get("accuracy", math.nan)})
+    return out
 
 
 def _fmt(v):
@@ -109,6 +135,10 @@ def evaluation_directory(directory, force: bool) -> Path:
     return d
 
 
+#: the heading of ``table.md``'s second table (:func:`reach_table`)
+REACH_HEADING = "By what the source could have seen of the real target (part: the source split; parts sum to the whole)"
+
+
 def write_evaluation(result: dict, directory, force: bool = False, inputs: dict | None = None) -> dict:
     """Write ``evaluation.json`` (everything, splits included; one line per figure block),
     ``table.md``, ``table.csv`` and ``splits.csv`` (every split, one row each) into a new ``directory``.
@@ -121,12 +151,15 @@ def write_evaluation(result: dict, directory, force: bool = False, inputs: dict 
     """
     d = evaluation_directory(directory, force)
     table = evaluation_table(result)
+    reach = reach_table(result)
     doc = {k: v for k, v in result.items() if k != "images"} | {"table": table, "inputs": inputs or {}}
+    if reach:
+        doc["reach_table"] = reach
     paths = {kind: d / name for kind, name in EVALUATION_FILES.items() if kind != "figure"}
     with atomic_path(paths["json"]) as tmp:
         tmp.write_text(compact_json(json_safe(doc)) + "\n")
     with atomic_path(paths["markdown"]) as tmp:
-        tmp.write_text(markdown_table(table) + "\n")
+        tmp.write_text(markdown_table(table) + "\n" + (f"\n{REACH_HEADING}\n\n{markdown_table(reach)}\n" if reach else ""))
     with atomic_path(paths["csv"]) as tmp:
         tmp.write_text(csv_text(table))
     with atomic_path(paths["splits"]) as tmp:

@@ -1,0 +1,154 @@
+"""Cross-sensor scoring (#45 item 3): frame B of another unit re-simulated from frame A at B's pose."""
+
+import json
+import math
+from pathlib import Path
+
+import numpy as np
+import pytest
+
+from slr_ray.errors import InputValueError, SlrWarning
+from slr_ray.evaluate import REACH, evaluate_pair, reach_table, rig_extrinsic
+from slr_ray.sensors import sensor
+
+from conftest import CliRun
+from test_evaluate import room
+
+DATA = next((p / "shared" / "data" for p in Path(__file__).resolve().parents[1:4] if (p / "shared" / "data").is_dir()),
+            Path(__file__).resolve().parents[2] / "shared" / "data") / "hesai_p64_qt64"
+SOURCE = sensor("velodyne_hdl64e_s2", columns=720, max_range=120.0)
+TARGET = sensor("velodyne_vlp16", columns=720, max_range=100.0)
+YAW = math.radians(30.0)
+POSE_B = np.array([[math.cos(YAW), -math.sin(YAW), 0, 0.6], [math.sin(YAW), math.cos(YAW), 0, 0.3],
+                   [0, 0, 1, -0.4], [0, 0, 0, 1.0]])
+
+
+@pytest.fixture(scope="module")
+def rig():
+    """A room scanned by an HDL-64E at the origin (A, with its beams) and by a VLP-16 at POSE_B (B, in its
+    own turned frame, no beams): two shipped cards at two poses."""
+    from slr_ray import scan_mesh
+
+    mesh = room()
+    a = scan_mesh(mesh, [0.0, 0, 0], SOURCE)
+    b = scan_mesh(mesh, POSE_B[:3, 3], TARGET)
+    b_local = (b.points - POSE_B[:3, 3]) @ POSE_B[:3, :3]  # R^T (p - t): B's own axes
+    return a.points, SOURCE.beam_of_row[a.pulses[:, 0]], b_local
+
+
+def _pair(rig, **kw):
+    a, a_beams, b = rig
+    kw = {"source_sensor": SOURCE, "target_sensor": TARGET, "methods": ("zbuffer", "binning")} | kw
+    return evaluate_pair(a, b, a_beams=a_beams, b_beams=None, **kw)
+
+
+def test_a_second_sensor_is_scored_split_by_what_the_source_could_see(rig):
+    res = _pair(rig, transform=POSE_B, methods=("zbuffer", "binning", "embree-knn"))
+    assert res["cross_sensor"] and res["patterns"]["b"]["beams"] == "none"
+    zb, em = ({r["method"]: r for r in res["rows"]}[m]["points"] for m in ("zbuffer", "embree-knn"))
+    # the VLP-16's own rays cast onto A's discs land on its beam lines: far more precise than every A point
+    # in its view (binning's nearest point of a 2 deg band is not on the line: its image is the z-buffer's)
+    assert em["fscore"]["5cm"]["precision"] > zb["fscore"]["5cm"]["precision"] + 0.1
+    assert em["fscore"]["5cm"]["fscore"] > zb["fscore"]["5cm"]["fscore"]
+    assert res["images_identical"]["zbuffer vs binning"]
+    reach = res["source_reach"]
+    # every real point in view and every pulse has one part; none is dropped
+    assert sum(reach["points"].values()) == res["frames"]["b_points_in_view"] == zb["target_points"]
+    assert sum(reach["pulses"].values()) == TARGET.n_pulses
+    # the VLP-16 looks up to +15 deg, the HDL-64E to +2: the ceiling beyond is outside the source's view
+    assert reach["points"]["outside source FOV"] > 100 and reach["points"]["seen by source"] > 100
+    for r in res["rows"]:
+        groups = r["points"]["groups"]["source"]
+        assert sum(g["target_points"] for g in groups.values()) == r["points"]["target_points"]
+        assert sum(g["simulated_points"] for g in groups.values()) == r["points"]["simulated_points"]
+        assert sum(g["pulses"] for g in r["image"]["groups"]["source"].values()) == TARGET.n_pulses
+    rows = reach_table(res)
+    assert len(rows) == 3 * (len(REACH) + 1) and {r["part"] for r in rows} == {*REACH, "no return"}
+
+
+def test_an_extrinsic_is_the_inverse_of_the_pose(rig):
+    one = {"methods": ("binning",)}
+    by_pose, by_extrinsic = _pair(rig, transform=POSE_B, **one), _pair(rig, extrinsic=np.linalg.inv(POSE_B), **one)
+    assert np.allclose(by_pose["registration"]["transform"], by_extrinsic["registration"]["transform"], atol=1e-12)
+    assert [r["points"]["fscore"] for r in by_pose["rows"]] == [r["points"]["fscore"] for r in by_extrinsic["rows"]]
+
+
+def test_cross_sensor_refusals(rig):
+    with pytest.raises(InputValueError, match="give B's pose"):  # another unit: no registration from identity
+        _pair(rig)
+    with pytest.raises(InputValueError, match="transform and extrinsic"):
+        _pair(rig, transform=POSE_B, extrinsic=np.linalg.inv(POSE_B))
+    with pytest.raises(InputValueError, match="no such sensor card"):
+        _pair(rig, target_sensor="no_such_card.json", transform=POSE_B)
+    skewed = POSE_B.copy()
+    skewed[:3, :3] *= 1.2
+    with pytest.raises(InputValueError, match="extrinsic"):  # a scale, not a hand calibration's rounding
+        _pair(rig, extrinsic=skewed)
+
+
+def test_a_hand_calibrations_extrinsic_is_taken_as_its_nearest_rotation():
+    E = np.linalg.inv(POSE_B)
+    E[:3, :3] *= 1.01
+    with pytest.warns(SlrWarning, match="nearest rotation"):
+        fixed = rig_extrinsic(E)
+    assert np.allclose(fixed, np.linalg.inv(POSE_B), atol=1e-9)
+
+
+def test_cli_cross_sensor_flags(tmp_path, capsys):
+    run = CliRun(capsys)
+    a, b = tmp_path / "a.xyz", tmp_path / "b.xyz"
+    a.write_text("1 0 0\n")
+    b.write_text("1 0 0\n")
+    r = run("evaluate", a, b, "-o", tmp_path / "o", "--target-sensor", "velodyne_vlp16")
+    assert r.returncode == 2 and r.stderr.count("\n") == 1 and "--transform" in r.stderr and "--extrinsic" in r.stderr
+    r = run("evaluate", a, b, "-o", tmp_path / "o", "--target-sensor", "nope")
+    assert r.returncode == 2 and "neither a shipped sensor" in r.stderr
+    pose = tmp_path / "pose.txt"
+    np.savetxt(pose, np.eye(4))
+    r = run("evaluate", a, b, "-o", tmp_path / "o", "--target-sensor", tmp_path / "missing.json", "--transform", pose)
+    assert r.returncode == 2 and "--target-sensor: " in r.stderr and "missing.json" in r.stderr
+    assert r.stderr.count("\n") == 1
+    (tmp_path / "card.json").write_text('{"name": "not a card"}')
+    r = run("evaluate", a, b, "-o", tmp_path / "o", "--target-sensor", tmp_path / "card.json", "--transform", pose)
+    assert r.returncode == 2 and "not a sensor card" in r.stderr and r.stderr.count("\n") == 1
+    r = run("evaluate", a, b, "-o", tmp_path / "o", "--sensor", "velodyne_vlp16", "--source-sensor", "velodyne_vlp16")
+    assert r.returncode == 2 and "--sensor is its old name" in r.stderr
+    r = run("evaluate", a, b, "-o", tmp_path / "o", "--sensor", "velodyne_vlp16")  # the old name still works
+    assert "warning: evaluate --sensor is --source-sensor now" in r.stderr and r.returncode == 2  # tiny frames
+
+
+def test_cli_reads_a_rigs_extrinsic_json(tmp_path):
+    from slr_ray.cli.evaluate_command import read_extrinsic
+
+    E = np.linalg.inv(POSE_B)
+    p = tmp_path / "rig.json"
+    p.write_text(json.dumps({"a-to-b": {"param": {"sensor_calib": {"data": E.tolist(), "rows": 4}}}}))
+    assert np.array_equal(read_extrinsic(p), E)
+    p.write_text(json.dumps({"one": E.tolist(), "two": E.tolist()}))
+    with pytest.raises(InputValueError, match="2 4 x 4 matrices"):
+        read_extrinsic(p)
+
+
+@pytest.mark.skipif(not DATA.is_dir(), reason="../shared/data/hesai_p64_qt64 (the Pandar64 + QT64 rig) is absent")
+def test_pandar64_to_qt64_against_the_real_qt64():
+    from slr_ray.cli.evaluate_command import read_extrinsic
+    from slr_ray.io import read_cloud
+
+    a, b = read_cloud(DATA / "p64.pcd"), read_cloud(DATA / "qt.pcd")
+    E = read_extrinsic(DATA / "p64-to-qt-extrinsic.json")
+    kw = {"source_sensor": "hesai_pandar64", "target_sensor": "hesai_pandarqt64_pjlab", "methods": ("zbuffer",
+          "binning")}
+    with pytest.warns(SlrWarning, match="nearest rotation"):
+        res = evaluate_pair(a.points, b.points, a.attributes["ring"], None, extrinsic=E, **kw)
+    reach = res["source_reach"]
+    assert sum(reach["points"].values()) == res["frames"]["b_points_in_view"] > 12000
+    assert sum(reach["pulses"].values()) == sensor("hesai_pandarqt64_pjlab").n_pulses
+    # the QT64 looks down to -40 deg beside the car: half its points lie below what the roof Pandar64 sees
+    assert reach["points"]["outside source FOV"] > 0.3 * res["frames"]["b_points_in_view"]
+    zb, bn = ({r["method"]: r for r in res["rows"]}[m]["points"] for m in ("zbuffer", "binning"))
+    assert bn["fscore"]["10cm"]["precision"] > zb["fscore"]["10cm"]["precision"]
+    # the file maps the Pandar64's coordinates into the QT64's frame: read the other way, nothing meets
+    with pytest.warns(SlrWarning):
+        wrong = evaluate_pair(a.points, b.points, a.attributes["ring"], None, transform=rig_extrinsic(E),
+                              **kw | {"methods": ("zbuffer",)})
+    assert wrong["source_reach"]["points"]["seen by source"] < reach["points"]["seen by source"] / 5
