@@ -503,10 +503,8 @@ def evaluate_pair(a_points, b_points, a_beams="auto", b_beams="auto", options: E
         1e-5, last row ``0 0 0 1``, finite), which must put some of A's
         points in B's view. ``min_fitness`` and ``max_rmse`` are then ignored.
     extrinsic : (4, 4) float, optional
-        The same pose as a rig's extrinsic from A's sensor to B's gives it:
-        it maps A's coordinates into B's frame (``b = E a``), the inverse of
-        ``transform`` (docs/cross_sensor.md; checked by ICP on the Pandar64
-        to PandarQT64 rig). Give one of the two.
+        The pose as a rig's extrinsic from A's sensor to B's: A's coordinates
+        into B's frame (``b = E a``), ``transform``'s inverse (docs/cross_sensor.md).
     progress : bool
         Progress on stderr.
 
@@ -523,20 +521,20 @@ def evaluate_pair(a_points, b_points, a_beams="auto", b_beams="auto", options: E
     -------
     dict
         ``registration``, ``patterns``, ``unseen_share`` (of B's points),
+        ``cross_sensor``, ``source_reach`` (B's points and pulses per part of the
+        ``source`` split, :func:`source_reach`; they sum to B's),
         ``rows`` (one per method: counts, seconds, and a block per registered
         metric, :data:`slr_ray.metrics.REGISTRY`: ``points``, a
         :class:`~slr_ray.metrics.PointMetrics`, and ``image``, a
         :class:`~slr_ray.metrics.RangeImageMetrics`, as dicts),
-        ``images`` (range images, not JSON: ``real`` and per method) and
-        ``seconds`` per stage.
+        ``images`` (range images, not JSON: ``real`` and per method), ``seconds``.
     """
     t_all = time.perf_counter()
     o = EvaluateOptions.of(options, **keywords)
     seen_threshold, thresholds = o.seen_threshold, o.thresholds
     methods = _checked_methods(o.methods, o.min_fitness, o.max_rmse)
-    T = None if transform is None else as_rigid_pose(transform, "transform")  # before any work
     base_a, base_b, cross = _pair_sensors(o)
-    T = _given_pose(T, extrinsic, cross, base_a, base_b)
+    T = _given_pose(transform, extrinsic, cross, base_a, base_b)  # before any work
     a, b = as_points(a_points, "a_points"), as_points(b_points, "b_points")
     (a_beams, a_how, pat_a), (b_beams, b_how, pat_b) = _frame(a, a_beams, base_a, "a"), _frame(b, b_beams, base_b, "b")
     seconds = {}
@@ -549,21 +547,24 @@ def evaluate_pair(a_points, b_points, a_beams="auto", b_beams="auto", options: E
     target = _target(b, b_beams, pat_b, a_in_b, seen_threshold)
     reach = _reach(target, b, T, pat_a, a)
     seconds["target"] = time.perf_counter() - t0
-    real, b_in, seen, pix_seen, filled = target.real, target.points, target.seen, target.pixels, target.image["index"] >= 0
     rows, images, identical = _score_methods(methods, (a_in_b, a_origin, a_beams, pat_a), pat_b, target,
                                              thresholds, seconds, progress)
     seconds["total"] = time.perf_counter() - t_all
     return {"registration": registration, "cross_sensor": cross, "source_reach": reach,
             "patterns": {"a": pat_a.to_dict() | {"beams_known": a_beams is not None, "beams": a_how},
                          "b": pat_b.to_dict() | {"beams_known": b_beams is not None, "beams": b_how}},
-            "frames": {"a_points": int(len(a)), "b_points": int(len(b)), "b_points_in_view": int(len(b_in)),
-                       "b_pulses_returned": int(len(real)), "b_points_sharing_a_pulse": int(len(b_in) - len(real))},
-            "seen_threshold": seen_threshold, "thresholds": [float(x) for x in thresholds],
-            "unseen_share": float(np.mean(~seen)) if len(seen) else float("nan"),
-            "unseen_pulse_share": float(np.mean(pix_seen[filled] == "unseen")) if filled.any() else float("nan"),
+            **_counts(target, a, b), "seen_threshold": seen_threshold, "thresholds": [float(x) for x in thresholds],
             "images_identical": {"zbuffer vs binning": identical},
             "rows": rows, "images": images, "seconds": {k: round(v, 3) for k, v in seconds.items()}}
 
+
+def _counts(target: ScoringTarget, a, b) -> dict:
+    """The result's ``frames`` (points, in view, pulses) and the shares of B's points and pulses unseen."""
+    real, b_in, seen, filled = target.real, target.points, target.seen, target.image["index"] >= 0
+    return {"frames": {"a_points": int(len(a)), "b_points": int(len(b)), "b_points_in_view": int(len(b_in)),
+                       "b_pulses_returned": int(len(real)), "b_points_sharing_a_pulse": int(len(b_in) - len(real))},
+            "unseen_share": float(np.mean(~seen)) if len(seen) else float("nan"),
+            "unseen_pulse_share": float(np.mean(target.pixels[filled] == "unseen")) if filled.any() else float("nan")}
 
 
 def _pair_sensors(o: EvaluateOptions) -> tuple:
@@ -595,10 +596,11 @@ def rig_extrinsic(extrinsic, name: str = "extrinsic") -> np.ndarray:
     return E
 
 
-def _given_pose(T, extrinsic, cross: bool, base_a, base_b):
+def _given_pose(transform, extrinsic, cross: bool, base_a, base_b):
     """B's pose in A's frame from ``transform`` (``T``) or ``extrinsic`` (its inverse); a target sensor
     other than the source's needs one (another unit of a rig sits elsewhere: registration from the
     identity is no start)."""
+    T = None if transform is None else as_rigid_pose(transform, "transform")
     if extrinsic is not None:
         if T is not None:
             raise InputValueError("transform and extrinsic: give one (extrinsic is transform's inverse)")
