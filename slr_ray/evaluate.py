@@ -547,7 +547,7 @@ def evaluate_pair(a_points, b_points, a_beams="auto", b_beams="auto", options: E
     target = _target(b, b_beams, pat_b, a_in_b, seen_threshold)
     reach = _reach(target, b, T, pat_a, a)
     seconds["target"] = time.perf_counter() - t0
-    rows, images, identical = _score_methods(methods, (a_in_b, a_origin, a_beams, pat_a), pat_b, target,
+    rows, images, identical = _score_methods(methods, (a_in_b, a_origin, a_beams, pat_a, a, T), pat_b, target,
                                              thresholds, seconds, progress)
     seconds["total"] = time.perf_counter() - t_all
     return {"registration": registration, "cross_sensor": cross, "source_reach": reach,
@@ -597,7 +597,7 @@ def rig_extrinsic(extrinsic, name: str = "extrinsic") -> np.ndarray:
 
 
 def _given_pose(transform, extrinsic, cross: bool, base_a, base_b):
-    """B's pose in A's frame from ``transform`` (``T``) or ``extrinsic`` (its inverse); a target sensor
+    """B's pose in A's frame from ``transform`` or ``extrinsic`` (its inverse), checked; a target sensor
     other than the source's needs one (another unit of a rig sits elsewhere: registration from the
     identity is no start)."""
     T = None if transform is None else as_rigid_pose(transform, "transform")
@@ -696,11 +696,40 @@ def _target(b, b_beams, pat_b, a_in_b, seen_threshold) -> ScoringTarget:
     return scoring_target(b, pat_b, b_beams, a_in_b, seen_threshold)
 
 
+#: degrees: B's axes tilted from A's by more than this (another unit of a rig), the methods told of A's pulse
+#: grid are prepared in A's own frame and B's pulses cast into it turned by B's pose (:func:`posed_scan`):
+#: in B's frame A's grid would be tilted (rows across beams). KITTI's pairs: under 0.2 deg, unchanged.
+MAX_GRID_TILT_DEG = 1.0
+
+
+def tilt_deg(transform) -> float:
+    """The angle between B's up axis and A's (degrees) of the pose ``transform`` (B's in A's frame)."""
+    return math.degrees(math.acos(max(-1.0, min(1.0, float(np.asarray(transform)[2, 2])))))
+
+
+def posed_scan(scanner, transform, pattern: BeamPattern, points_in_b) -> Scan:
+    """A scan of ``pattern`` at B's pose ``transform`` (B's in A's frame) by ``scanner``, prepared on A's
+    points in A's frame (a scanner that casts rays): each pulse's ray turned into A's frame and cast from B's
+    origin there; a point met by several rays keeps its nearest ray's pulse, and a point the pattern would
+    not see from B (``points_in_b``: the same points in B's frame) is not returned, as a scan's rule is."""
+    T = np.asarray(transform, np.float64)
+    dirs, v, h = pattern.rays()
+    idx, dist = scanner.cast(T[:3, 3], dirs @ T[:3, :3].T, pattern.range_limits[1])
+    hit = np.flatnonzero(idx >= 0)
+    order = hit[np.lexsort((dist[hit], idx[hit]))]  # by point, nearest ray first
+    first = order[np.r_[True, idx[order][1:] != idx[order][:-1]]] if len(order) else order
+    keys, ranges = pattern.pulse_ids(points_in_b[idx[first]], np.zeros(3))
+    keep = first[keys >= 0]
+    return Scan(indices=idx[keep].astype(np.intp), ranges=ranges[keys >= 0], origin=np.zeros(3), pattern=pattern,
+                pulses=np.column_stack([v[keep], h[keep]]).astype(np.int64), backend=scanner.backend,
+                n_input=len(points_in_b), info={"cast": "posed: B's rays turned into A's frame"})
+
+
 def _score_methods(methods, frame_a, pat_b, target, thresholds, seconds, progress) -> tuple:
     """``(rows, images, identical)``: each method's simulation of B from A's points in B's frame
     (``frame_a``: ``(a_in_b, a_origin, a_beams, pat_a)``), scored against the real B (``target``, a
     :class:`ScoringTarget`) by every registered metric (its seconds into ``seconds``)."""
-    a_in_b, a_origin, a_beams, pat_a = frame_a
+    a_in_b, a_origin, a_beams, pat_a, a, T = frame_a
     rows, images = [], {"real": target.image["range"]}
     binning_img = None
     todo = [m for m in methods if not (METHOD_SCANS.get(m, (m, None))[1] == "beams" and a_beams is None)]
@@ -713,12 +742,14 @@ def _score_methods(methods, frame_a, pat_b, target, thresholds, seconds, progres
             sim_idx = np.flatnonzero(keys >= 0)  # every point of A in B's view: no visibility rule
         else:
             backend, told = METHOD_SCANS.get(m, (m, None))
-            opts = {} if told is None else scanner_class(backend).primary_options(a_origin, pat_a)
+            posed = told is not None and scanner_class(backend).casts_rays and tilt_deg(T) > MAX_GRID_TILT_DEG
+            opts = {} if told is None else scanner_class(backend).primary_options(
+                np.zeros(3) if posed else a_origin, pat_a)
             if told == "beams":
                 opts["primary_beams"] = a_beams
-            scanner = prepare(a_in_b, backend, **opts)
+            scanner = prepare(a if posed else a_in_b, backend, **opts)
             prep = scanner.prepare_seconds
-            sc = scanner.scan(np.zeros(3), pat_b)
+            sc = posed_scan(scanner, T, pat_b, a_in_b) if posed else scanner.scan(np.zeros(3), pat_b)
             sim_idx = sc.indices
         img = sc.range_image()["range"]
         images[m] = img

@@ -152,3 +152,28 @@ def test_pandar64_to_qt64_against_the_real_qt64():
         wrong = evaluate_pair(a.points, b.points, a.attributes["ring"], None, transform=rig_extrinsic(E),
                               **kw | {"methods": ("zbuffer",)})
     assert wrong["source_reach"]["points"]["seen by source"] < reach["points"]["seen by source"] / 5
+
+
+def test_a_posed_scan_is_the_scan_in_bs_frame(rig):
+    """B's rays turned into A's frame and cast on discs prepared there meet what a scan in B's frame of the
+    same discs moved there meets (kNN discs do not depend on the frame): the cast the methods told of A's
+    pulse grid use when B is tilted (MAX_GRID_TILT_DEG)."""
+    from slr_ray import prepare
+    from slr_ray.evaluate import MAX_GRID_TILT_DEG, posed_scan, tilt_deg
+
+    a = rig[0]
+    c, s = math.cos(math.radians(12.0)), math.sin(math.radians(12.0))
+    T = np.array([[1, 0, 0, 0.5], [0, c, -s, -0.2], [0, s, c, 0.3], [0, 0, 0, 1.0]])
+    assert tilt_deg(T) > MAX_GRID_TILT_DEG
+    a_in_b = (a - T[:3, 3]) @ T[:3, :3]
+    posed = posed_scan(prepare(a, "embree"), T, TARGET, a_in_b)
+    moved = prepare(a_in_b, "embree").scan(np.zeros(3), TARGET)
+    # the tie rule may take a neighbouring disc of a dense cloud (cast() ranks by distance from the ray, a
+    # scan by the pulse's aspect too): the same surface, another point; the ranges agree
+    im_posed, im_moved = posed.range_image()["range"], moved.range_image()["range"]
+    both = np.isfinite(im_posed) & np.isfinite(im_moved)
+    assert len(posed) > 5000 and abs(len(posed) - len(moved)) < 0.02 * len(moved)
+    assert np.count_nonzero(both) > 0.97 * np.count_nonzero(np.isfinite(im_moved))
+    diff = np.abs(im_posed[both] - im_moved[both])
+    assert np.median(diff) < 1e-3 and np.mean(diff < 0.05) > 0.9  # 94 %: the rest at silhouettes
+    assert np.allclose(np.linalg.norm(a_in_b[posed.indices], axis=1), posed.ranges)
