@@ -98,9 +98,9 @@ def corridor_campaign(out, n_setups: int = 3, resolution: float = 1.0, form: str
     pattern = ScanPattern(resolution, zenith_range=tuple(zenith_range), name="corridor scanner")
     poses = _setup_poses(int(n_setups), LENGTH, WIDTH)
     locals_ = []
-    for T in poses:
-        sc = scan_mesh(mesh, T[:3, 3], pattern, "center")
-        local = (sc.points - T[:3, 3]) @ T[:3, :3]  # the scanner's own axes (float64)
+    for T in poses:  # the mesh in the scanner's own axes: its grid turns with it
+        sc = scan_mesh(mesh.copy().apply_transform(np.linalg.inv(T)), np.zeros(3), pattern, "center")
+        local = sc.points
         r = np.linalg.norm(local, axis=1)
         locals_.append(local * (1.0 + rng.normal(0.0, range_sd, len(r)) / r)[:, None])
     worlds = [p @ T[:3, :3].T + T[:3, 3] for p, T in zip(locals_, poses)]

@@ -208,11 +208,12 @@ def scoring_grid(seq: Sequence, target: int, frame, sensor, grid_from: str, othe
         default = shipped_sensor(DEFAULT_SPINNING)
         sensor = default if sensor_kind(frame.points, frame.attributes, default) == SPINNING else TERRESTRIAL
     if is_terrestrial(sensor):
-        source = frame if grid_from == "target" else cache.get(adjacent_frame(others, target))[0]
-        pattern, how = terrestrial_grid(source.points, f"frame {seq.names[source.index]}")
-        if grid_from != "target":
+        own = grid_from == "target"
+        source = frame if own else cache.get(adjacent_frame(others, target))[0]
+        pattern, how, yaw = terrestrial_grid(source.points, f"frame {seq.names[source.index]}", turn_columns=own)
+        if not own:  # the steps of the adjacent setup's grid; its columns from the frame's own x axis
             how += f" (frame {seq.names[source.index]}, the adjacent one: --grid-from others)"
-        return ScoringGrid(TERRESTRIAL, pattern, None, None, how)
+        return ScoringGrid(TERRESTRIAL, pattern, None, None, how, yaw)
     base = shipped_sensor(sensor) if isinstance(sensor, str) else sensor
     if grid_from == "others":
         return ScoringGrid(SPINNING, others_pattern(others, base, cache), _beams(frame, base), base,
@@ -251,17 +252,17 @@ def evaluate_holdout(seq: Sequence, target: int, options: HoldoutOptions | None 
     if not others:
         raise InputValueError(f"frame {seq.names[target]}: no other frame in its window")
     fb, _ = cache.get(target)
-    b = fb.points
     grid = scoring_grid(seq, target, fb, sensor, o.grid_from, others, cache)
     _check_kind(grid, methods)
     pat, beams, base = grid.pattern, grid.beams, grid.base
+    b, pose = grid.turned(fb.points), grid.turned_pose(fb.pose)  # the frame in its grid's axes
     band_keys, _ = pat.pulse_ids(b, np.zeros(3))
     in_view = band_keys >= 0
     if not in_view.any():
         raise InputValueError(f"{seq.paths[target]}: none of its points lies within {pat.name}'s view about "
                               "its origin (is the frame in its sensor's frame?)")
     union = accumulate(seq, others, drop_moving=drop_moving, cache=cache, see_through=see_through, exclude=(target,))
-    u = to_frame(union.points, fb.pose)
+    u = to_frame(union.points, pose)
     # scored as slr-ray evaluate scores a pair (the same target, every registered metric's block), split
     # by seen / unseen only
     scored = scoring_target(b, pat, beams, u, seen_threshold, splits=HOLDOUT_SPLITS)
@@ -269,7 +270,7 @@ def evaluate_holdout(seq: Sequence, target: int, options: HoldoutOptions | None 
     adj = adjacent_frame(others, target)
     rows, extra = [], {}
     infos = {REGISTRY[m].info: None for m in REGISTRY if REGISTRY[m].info}  # every key, run or not
-    held = HeldOut(seq, target, others, union, u, pat, base, cache, fb.pose, drop_moving, see_through)
+    held = HeldOut(seq, target, others, union, u, pat, base, cache, pose, drop_moving, see_through)
     for m in methods:
         t0 = time.perf_counter()
         ret, sim, info = REGISTRY[m].simulate(held, settings[m])
@@ -285,6 +286,7 @@ def evaluate_holdout(seq: Sequence, target: int, options: HoldoutOptions | None 
            "see_through": see_through.to_dict() if see_through else None,
            "target_points_in_view": int(len(b_in)), "in_view_share": float(len(b_in) / len(b)),
            "unseen_share": float(np.mean(~seen)), "sensor_kind": grid.kind, "grid": grid.how,
+           "grid_yaw_deg": float(np.degrees(grid.yaw)),
            "pattern": pat.to_dict() | {"beams_known": beams is not None, "grid_from": o.grid_from},
            "thresholds": [float(x) for x in thresholds], "seen_threshold": seen_threshold, "rows": rows}
     res["table"] = [{"frame": res["frame"]} | r
@@ -306,9 +308,9 @@ def simulate_holdout(seq: Sequence, target: int, method: str = "rays", sensor: s
     fb, _ = cache.get(target)
     grid = scoring_grid(seq, target, fb, sensor, "target", others, cache)
     _check_kind(grid, (method,))
-    base, pattern = grid.base, grid.pattern if pattern is None else pattern
+    base, pattern, pose = grid.base, grid.pattern if pattern is None else pattern, grid.turned_pose(fb.pose)
     union = accumulate(seq, others, drop_moving=drop_moving, cache=cache)
-    held = HeldOut(seq, target, others, union, to_frame(union.points, fb.pose), pattern, base, cache, fb.pose,
+    held = HeldOut(seq, target, others, union, to_frame(union.points, pose), pattern, base, cache, pose,
                    drop_moving)
     return m.simulate(held, HoldoutOptions.of(None, fpa_gap=gap).methods_settings((method,))[method])[0]
 

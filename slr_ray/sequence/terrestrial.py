@@ -28,12 +28,12 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from ..backends.embree.fit import FIT_MIN_SINGLE, fit_primary_pattern
+from ..backends.embree.fit import FIT_MIN_SINGLE, fit_primary_pattern, fit_quality
 from ..errors import InputValueError
 from .sources import known_beams
 
 __all__ = ["AUTO", "SPINNING", "TERRESTRIAL", "KINDS", "DEFAULT_SPINNING", "ScoringGrid", "sensor_kind",
-           "terrestrial_grid", "is_terrestrial"]
+           "terrestrial_grid", "is_terrestrial", "column_phase", "turn"]
 
 #: decide the kind from each held-out frame (``--source-sensor`` not given)
 AUTO = "auto"
@@ -54,9 +54,33 @@ class ScoringGrid:
     beams: np.ndarray | None
     base: object | None
     how: str
+    yaw: float = 0.0    # radians: the grid's first column's edge, from the frame's x axis (terrestrial)
 
     def to_dict(self) -> dict:
-        return {"kind": self.kind, "how": self.how}
+        return {"kind": self.kind, "how": self.how, "yaw_deg": float(np.degrees(self.yaw))}
+
+    def turned(self, points) -> np.ndarray:
+        """``points`` (the frame's own axes) in the grid's: turned by ``-yaw`` about z (float64)."""
+        return turn(points, self.yaw)
+
+    def turned_pose(self, pose) -> np.ndarray:
+        """The frame's ``pose`` (its axes to the world) with the grid's axes: ``pose @ Rz(yaw)``."""
+        c, s = np.cos(self.yaw), np.sin(self.yaw)
+        out = np.array(pose, np.float64, copy=True)
+        out[:3, :2] = np.column_stack([pose[:3, 0] * c + pose[:3, 1] * s, -pose[:3, 0] * s + pose[:3, 1] * c])
+        return out
+
+
+def turn(points, yaw: float) -> np.ndarray:
+    """``points`` turned by ``-yaw`` about z (float64; ``yaw`` 0: themselves)."""
+    p = np.asarray(points, np.float64)
+    if yaw == 0.0:
+        return p
+    c, s = np.cos(yaw), np.sin(yaw)
+    out = p.copy()
+    out[:, 0] = p[:, 0] * c + p[:, 1] * s
+    out[:, 1] = -p[:, 0] * s + p[:, 1] * c
+    return out
 
 
 def is_terrestrial(sensor) -> bool:
@@ -70,13 +94,17 @@ def sensor_kind(points, attributes, base) -> str:
     return SPINNING if known_beams(points, attributes, base) is not None else TERRESTRIAL
 
 
-def terrestrial_grid(points, what: str) -> tuple:
-    """``(pattern, how)``: the uniform grid fitted to ``points`` (the scanner at the origin, its axes
-    the frame's) and a line saying so, with the fit's quality (the share of occupied pulses holding
-    one point). Refused, naming ``what`` and ``--source-sensor``, where the points show no grid or
-    the fitted one holds them as no scan would (under :data:`~slr_ray.backends.embree.fit.FIT_MIN_SINGLE`)."""
+def terrestrial_grid(points, what: str, turn_columns: bool = True) -> tuple:
+    """``(pattern, how, yaw)``: the uniform grid fitted to ``points`` (the scanner at the origin, its
+    zenith axis the frame's z), a line saying so with the fit's quality (the share of occupied pulses
+    holding one point), and where its columns start (radians from the frame's x axis; 0 unless
+    ``turn_columns``): a scan exported in world axes (a campaign's LAS) has its columns turned by its
+    setup's heading, and a grid whose columns start at 0 would split them
+    (:func:`column_phase`). Refused, naming ``what`` and ``--source-sensor``, where the points show
+    no grid or the fitted one holds them as no scan would (under
+    :data:`~slr_ray.backends.embree.fit.FIT_MIN_SINGLE`)."""
     p = np.asarray(points, np.float64)
-    why = None
+    why, yaw = None, 0.0
     try:
         pattern, _, quality = fit_primary_pattern(p, np.zeros(3), min_quality=0.0)
     except InputValueError:
@@ -84,18 +112,37 @@ def terrestrial_grid(points, what: str) -> tuple:
     else:
         if getattr(pattern, "has_beams", False):  # in the fit's beam-table scan order: a spinning unit's
             why = "it is stored ring after ring as a spinning unit's frame"
-        elif not quality >= FIT_MIN_SINGLE:
+        elif turn_columns:
+            yaw = column_phase(p, pattern)
+            quality = fit_quality(turn(p, yaw), pattern)
+        if why is None and not quality >= FIT_MIN_SINGLE:
             why = (f"the uniform grid fitted to it holds one point in {quality:.0%} of its occupied pulses "
                    f"(a scan's: {FIT_MIN_SINGLE:.0%} or more)")
     if why is not None:
         raise InputValueError(f"{what}: not a terrestrial scan ({why}) and no spinning unit's beams known (no ring "
                               "field, not in a shipped table's scan order): name the frames' sensor "
                               "(--source-sensor NAME or card.json)")
-    pattern = _zenith_extent(pattern, p)
+    pattern = _zenith_extent(pattern, turn(p, yaw))
     how = (f"terrestrial: a uniform grid fitted to the frame, {pattern.zenith_resolution:.5g} deg (zenith) x "
            f"{pattern.azimuth_resolution:.5g} deg (azimuth), zenith {pattern.zenith_range[0]:.4g} to {pattern.zenith_range[1]:.4g} deg; one "
-           f"point in {quality:.1%} of its occupied pulses")
-    return pattern, how
+           f"point in {quality:.1%} of its occupied pulses" + (f"; its columns from {np.degrees(yaw):.4g} deg azimuth"
+                                                            if yaw else ""))
+    return pattern, how, yaw
+
+
+def column_phase(points, pattern) -> float:
+    """Where the columns of ``pattern``'s azimuth step start (radians, within a column of 0), from
+    ``points``: a scan's points sit mid-column, so the circular mean of their azimuth modulo a
+    column, less half a column, is the columns' start."""
+    p = np.asarray(points, np.float64)
+    step = 2 * np.pi / pattern.shape[1]
+    ang = np.arctan2(p[:, 1], p[:, 0]) * (2 * np.pi / step)
+    keep = np.hypot(p[:, 0], p[:, 1]) > 0
+    if not keep.any():
+        return 0.0
+    phase = np.arctan2(np.mean(np.sin(ang[keep])), np.mean(np.cos(ang[keep]))) / (2 * np.pi) * step
+    yaw = float(phase - step / 2)
+    return 0.0 if abs(yaw) < 1e-9 * step or abs(abs(yaw) - step) < 1e-9 * step else yaw
 
 
 def _zenith_extent(pattern, points):
