@@ -141,8 +141,9 @@ def column_phase(points, pattern) -> float:
     if not keep.any():
         return 0.0
     phase = np.arctan2(np.mean(np.sin(ang[keep])), np.mean(np.cos(ang[keep]))) / (2 * np.pi) * step
-    yaw = float(phase - step / 2)
-    return 0.0 if abs(yaw) < 1e-9 * step or abs(abs(yaw) - step) < 1e-9 * step else yaw
+    yaw = float(np.mod(phase - step / 2, step))
+    yaw = yaw - step if yaw > step / 2 else yaw  # within half a column of 0
+    return 0.0 if abs(yaw) < 1e-4 * step else yaw
 
 
 def _zenith_extent(pattern, points):
