@@ -79,6 +79,9 @@ def test_beam_methods_and_one_scan_campaigns_are_refused_in_one_line(campaigns, 
     r = run("sequence", "evaluate", *c["paths"], *c["flags"], "--holdout", "1", "--methods", "embree-sources",
             "-o", tmp_path / "a", "--quiet")
     assert r.returncode == 2 and r.stderr.count("\n") == 1 and "embree-knn" in r.stderr
+    r = run("sequence", "evaluate", *c["paths"], *c["flags"], "--holdout", "1", "--remove-moving", "visibility",
+            "-o", tmp_path / "v", "--quiet")
+    assert r.returncode == 2 and r.stderr.count("\n") == 1 and "terrestrial" in r.stderr
     one = corridor_campaign(tmp_path / "one", n_setups=1, resolution=4.0, form="files")
     r = run("sequence", "evaluate", *one["paths"], *one["flags"], "--holdout", "0", "-o", tmp_path / "b")
     assert r.returncode == 2 and r.stderr.count("\n") == 1 and "one scan" in r.stderr

@@ -226,8 +226,13 @@ def scoring_grid(seq: Sequence, target: int, frame, sensor, grid_from: str, othe
                        f"spinning: {base.name}'s beam table fitted to the frame")
 
 
-def _check_kind(grid: ScoringGrid, methods) -> None:
-    """Refuse, before any method runs, the methods that need the frames' beam table on a terrestrial grid."""
+def _check_kind(grid: ScoringGrid, methods, see_through=None) -> None:
+    """Refuse, before any method runs, the methods (and the see-through removal) that need the frames' beam
+    table on a terrestrial grid."""
+    if grid.base is None and see_through is not None:
+        raise InputValueError(f"--remove-moving visibility casts the frames' own beams: {grid.how.split(':')[0]} "
+                              "frames have none (leave it out, or name the frames' sensor if they are a spinning "
+                              "unit's: --source-sensor)")
     if grid.base is None:
         need = [m for m in methods if REGISTRY[m].needs_source_sensor]
         if need:
@@ -253,7 +258,7 @@ def evaluate_holdout(seq: Sequence, target: int, options: HoldoutOptions | None 
         raise InputValueError(f"frame {seq.names[target]}: no other frame in its window")
     fb, _ = cache.get(target)
     grid = scoring_grid(seq, target, fb, sensor, o.grid_from, others, cache)
-    _check_kind(grid, methods)
+    _check_kind(grid, methods, see_through)
     pat, beams, base = grid.pattern, grid.beams, grid.base
     b, pose = grid.turned(fb.points), grid.turned_pose(fb.pose)  # the frame in its grid's axes
     band_keys, _ = pat.pulse_ids(b, np.zeros(3))
