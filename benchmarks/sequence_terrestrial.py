@@ -57,6 +57,8 @@ def evaluate(c, out, *extra) -> dict:
             "sensor_kind": summary["sensor_kind"], "scoring_grid": summary["scoring_grid"],
             "in_view_share": summary["in_view_share"],
             "target_points": [f["target_points_in_view"] for f in frames],
+            "unseen_share": [round(f["unseen_share"], 4) for f in frames],
+            "method_seconds": {f["frame"]: {r["method"]: r["seconds"] for r in f["rows"]} for f in frames},
             "frames": {f["frame"]: [{"method": r["method"]} | {k: r[k] for k in ("points", *KEYS)} for r in f["table"]]
                        for f in frames},
             "mean": [{"method": r["method"]} | {k: round(r[k], 4) for k in ("points", *KEYS)} for r in summary["mean"]]}
