@@ -116,3 +116,14 @@ def test_points_that_are_no_scan_are_refused_naming_the_source_sensor():
     rng = np.random.default_rng(1)
     with pytest.raises(InputValueError, match="--source-sensor"):
         terrestrial_grid(rng.normal(size=(5000, 3)) * 5, "frame 000003")
+
+
+def test_grid_from_others_takes_the_adjacent_setups_steps(campaigns):
+    """--grid-from others on a terrestrial frame: the steps of the adjacent setup's fitted grid (the same
+    scanner), nothing of the held-out scan; its points all in view."""
+    seq = read_sequence(campaigns["scans"]["paths"][0], origins=campaigns["scans"]["flags"][2],
+                        scan_field="point_source_id")
+    frame = evaluate_sequence(seq, [1], "auto", ["nearest"], half=1, grid_from="others")["frames"][0]
+    assert frame["sensor_kind"] == TERRESTRIAL and "000000, the adjacent one" in frame["grid"]
+    assert frame["pattern"]["zenith_resolution"] == pytest.approx(RESOLUTION, rel=0.02)
+    assert frame["in_view_share"] > 0.99

@@ -120,7 +120,8 @@ def add_sequence_parser(sub) -> None:
     _deprecated_sensor(q)
     defaults = methods_with("default")
     q.add_argument("--methods", nargs="+", default=defaults, choices=methods_with("holdout"),
-                   help=f"methods (default {' '.join(defaults)})")
+                   help=f"methods (default {' '.join(defaults)}; on a terrestrial scanner's frames rays casts "
+                        "the fitted grid's pulse centres, no beams being there, and embree-sources is refused)")
     q.add_argument("--grid-from", choices=list(GRID_SOURCES), default="target",
                    help="where each held-out frame's scoring grid (row elevations, column count) is fitted: target "
                         "(default) its own points, others the other frames of its window (strictly leak-free)")
