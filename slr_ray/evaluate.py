@@ -368,7 +368,7 @@ def scoring_target(points, pattern, beams, primary, seen_threshold: float = PAPE
     if beams is not None:
         rows = pattern.rows_of_beams(beams, len(points))[in_view]
     else:
-        rows = band_keys[in_view] // pattern.columns
+        rows = band_keys[in_view] // pattern.shape[1]
     seen = seen_from(inside, primary, seen_threshold)
     seen_all = np.zeros(len(points), bool)
     seen_all[in_view] = seen
@@ -385,7 +385,7 @@ def score_simulation(target: ScoringTarget, simulated, image, thresholds=THRESHO
     its points ``simulated`` and its range image ``image`` (in the target's pattern)."""
     real = target.image["range"]
     sim_ranges = np.where(np.isfinite(real), real, image)
-    pulses = {"range band": range_bands(sim_ranges), "beam": np.arange(target.pattern.n_beams),
+    pulses = {"range band": range_bands(sim_ranges), "beam": np.arange(target.pattern.shape[0]),
               "seen": target.pixels.astype(str)}
     return score_pair(Pair(target.points, simulated, real, image, tuple(thresholds), target.point_groups,
                            {k: v for k, v in pulses.items() if k in target.splits} | target.pulse_groups))
