@@ -42,11 +42,12 @@ from .methods import (LABELS, REGISTRY, HeldOut, adjacent_frame, check_methods, 
                       methods_with)
 from .methods import method as registered_method
 from .sources import SeeThrough, known_beams
+from .terrestrial import AUTO, DEFAULT_SPINNING, SPINNING, TERRESTRIAL, ScoringGrid, is_terrestrial, sensor_kind, terrestrial_grid
 from .union import FrameCache, accumulate, to_frame, window
 
 __all__ = ["METHODS", "LABELS", "HoldoutOptions", "evaluate_holdout", "evaluate_sequence", "mean_rows", "DEFAULT_METHODS",
            "clamped_depth_errors", "lidar4d_holdout", "LIDAR4D_MAX_DEPTH", "holdout_ray_model", "simulate_holdout",
-           "GRID_SOURCES", "others_pattern"]
+           "GRID_SOURCES", "others_pattern", "scoring_grid", "one_frame_refusal"]
 
 #: LiDAR4D's depth clamp (utils/metrics.py, compute_depth_errors: min 1e-6, max 80 m)
 LIDAR4D_MAX_DEPTH = 80.0
@@ -113,7 +114,9 @@ class HoldoutOptions(Options):
     Attributes
     ----------
     sensor : str or BeamPattern
-        The frames' sensor (its shipped table, or the pattern).
+        The frames' sensor (its shipped table or card, or the pattern): a spinning unit's; or
+        ``"terrestrial"`` (a uniform grid fitted to each held-out frame), or ``"auto"`` (each held-out
+        frame's kind from its points: :func:`scoring_grid`, :mod:`slr_ray.sequence.terrestrial`).
     methods : sequence of str
         A subset of :data:`METHODS`.
     half : int or None
@@ -254,6 +257,49 @@ def _reach_columns(parts, rows_out, pat, sim, img, thresholds, res) -> dict:
     return cols
 
 
+def scoring_grid(seq: Sequence, target: int, frame, sensor, grid_from: str, others, cache: FrameCache) -> ScoringGrid:
+    """The held-out frame's scoring grid (:class:`~slr_ray.sequence.terrestrial.ScoringGrid`): ``sensor`` a
+    beam table (or its name, a card): spinning, that table fitted to the frame (or to ``others``); ``"auto"``:
+    spinning on :data:`~slr_ray.sequence.terrestrial.DEFAULT_SPINNING` where the frame is in its scan order
+    or has a ring field, else terrestrial; ``"terrestrial"``: a uniform grid fitted to the frame (or to the
+    adjacent frame of ``others``)."""
+    if isinstance(sensor, str) and sensor == AUTO:
+        default = shipped_sensor(DEFAULT_SPINNING)
+        sensor = default if sensor_kind(frame.points, frame.attributes, default) == SPINNING else TERRESTRIAL
+    if is_terrestrial(sensor):
+        own = grid_from == "target"
+        source = frame if own else cache.get(adjacent_frame(others, target))[0]
+        pattern, how, yaw = terrestrial_grid(source.points, f"frame {seq.names[source.index]}", turn_columns=own)
+        if not own:  # the steps of the adjacent setup's grid; its columns from the frame's own x axis
+            how += f" (frame {seq.names[source.index]}, the adjacent one: --grid-from others)"
+        return ScoringGrid(TERRESTRIAL, pattern, None, None, how, yaw)
+    base = shipped_sensor(sensor) if isinstance(sensor, str) else sensor
+    if grid_from == "others":
+        return ScoringGrid(SPINNING, others_pattern(others, base, cache), _beams(frame, base), base,
+                           f"spinning: {base.name}'s beam table fitted to the other frames of the window")
+    beams = _held_beams(seq, target, frame, base)
+    if beams is None:
+        return ScoringGrid(SPINNING, base, None, base, f"spinning: {base.name}'s shipped table (the frame's beams "
+                                                       "not known)")
+    return ScoringGrid(SPINNING, fitted_pattern(frame.points, beams, base), beams, base,
+                       f"spinning: {base.name}'s beam table fitted to the frame")
+
+
+def _check_kind(grid: ScoringGrid, methods, see_through=None) -> None:
+    """Refuse, before any method runs, the methods (and the see-through removal) that need the frames' beam
+    table on a terrestrial grid."""
+    if grid.base is None and see_through is not None:
+        raise InputValueError(f"--remove-moving visibility casts the frames' own beams: {grid.how.split(':')[0]} "
+                              "frames have none (leave it out, or name the frames' sensor if they are a spinning "
+                              "unit's: --source-sensor)")
+    if grid.base is None:
+        need = [m for m in methods if REGISTRY[m].needs_source_sensor]
+        if need:
+            raise InputValueError(f"{', '.join(need)} need(s) the frames' beam table ({REGISTRY[need[0]].source_why}): "
+                                  f"{grid.how.split(':')[0]} frames have none; use embree-knn, or name the frames' "
+                                  "sensor if they are a spinning unit's (--source-sensor)")
+
+
 def evaluate_holdout(seq: Sequence, target: int, options: HoldoutOptions | None = None, *,
                      cache: FrameCache | None = None, **keywords) -> dict:
     """Frame ``target`` re-simulated from the other frames of its window by every method
@@ -265,30 +311,31 @@ def evaluate_holdout(seq: Sequence, target: int, options: HoldoutOptions | None 
         raise InputValueError(f"grid_from {o.grid_from!r}: choose from {list(GRID_SOURCES)}")
     methods = check_methods(o.methods, "holdout")
     settings, gap = o.methods_settings(methods), o.flat_options()["fpa_gap"]
-    base = _table_of(sensor)
-    tbase = base if o.target_sensor is None else _table_of(o.target_sensor)
-    cross = tbase is not base
+    cross = o.target_sensor is not None
     if cross and o.grid_from == "others":
         raise InputValueError("grid_from 'others' fits the held-out frame's grid on the other frames: they are the "
                               "source's, not the target sensor's (use grid_from 'target')")
+    if cross and isinstance(sensor, str) and sensor == AUTO:
+        raise InputValueError("a target sensor is scored against the source frames' own table: name it "
+                              "(--source-sensor)")
     cache = cache or FrameCache(seq)
     others = window(seq, target, half, radius)
     if not others:
         raise InputValueError(f"frame {seq.names[target]}: no other frame in its window")
     fb, _ = cache.get(target)
-    b = fb.points
-    beams = _held_beams(seq, target, fb, tbase) if o.grid_from == "target" else _beams(fb, base)
-    if o.grid_from == "others":
-        pat = others_pattern(others, base, cache)
-    else:
-        pat = fitted_pattern(b, beams, tbase) if beams is not None else tbase
+    grid = scoring_grid(seq, target, fb, o.target_sensor if cross else sensor, o.grid_from, others, cache)
+    _check_kind(grid, methods, see_through)
+    pat, beams, base = grid.pattern, grid.beams, grid.base
+    if cross:  # the grid is the target's; the other frames (their beams, the rays' fit) the source's
+        tbase, base = grid.base, _table_of(sensor)
+    b, pose = grid.turned(fb.points), grid.turned_pose(fb.pose)  # the frame in its grid's axes
     band_keys, _ = pat.pulse_ids(b, np.zeros(3))
     in_view = band_keys >= 0
     if not in_view.any():
         raise InputValueError(f"{seq.paths[target]}: none of its points lies within {pat.name}'s view about "
                               "its origin (is the frame in its sensor's frame?)")
     union = accumulate(seq, others, drop_moving=drop_moving, cache=cache, see_through=see_through, exclude=(target,))
-    u = to_frame(union.points, fb.pose)
+    u = to_frame(union.points, pose)
     # scored as slr-ray evaluate scores a pair (the same target, every registered metric's block), split
     # by seen / unseen only
     scored = scoring_target(b, pat, beams, u, seen_threshold, splits=HOLDOUT_SPLITS)
@@ -296,7 +343,7 @@ def evaluate_holdout(seq: Sequence, target: int, options: HoldoutOptions | None 
     adj = adjacent_frame(others, target)
     rows, extra = [], {}
     infos = {REGISTRY[m].info: None for m in REGISTRY if REGISTRY[m].info}  # every key, run or not
-    held = HeldOut(seq, target, others, union, u, pat, base, cache, fb.pose, drop_moving, see_through,
+    held = HeldOut(seq, target, others, union, u, pat, base, cache, pose, drop_moving, see_through,
                    target_base=tbase if cross else None)
     reach = reach_split(others, base, pat, cache) if cross else None
     parts = _reach_targets(b, beams, pat, u, reach["rows_out"], seen_threshold) if cross else {}
@@ -317,10 +364,12 @@ def evaluate_holdout(seq: Sequence, target: int, options: HoldoutOptions | None 
     res = {"frame": seq.names[target], "fpa_gap_m": gap} | infos | {"index": int(target), "window": [seq.names[i] for i in others],
            "adjacent": seq.names[adj], "union_points": int(len(union)), "removed": union.removed,
            "see_through": see_through.to_dict() if see_through else None,
-           "target_points_in_view": int(len(b_in)), "unseen_share": float(np.mean(~seen)),
+           "target_points_in_view": int(len(b_in)), "in_view_share": float(len(b_in) / len(b)),
+           "unseen_share": float(np.mean(~seen)), "sensor_kind": grid.kind, "grid": grid.how,
+           "grid_yaw_deg": float(np.degrees(grid.yaw)),
            "pattern": pat.to_dict() | {"beams_known": beams is not None, "grid_from": o.grid_from},
            "thresholds": [float(x) for x in thresholds], "seen_threshold": seen_threshold, "rows": rows,
-           "target_sensor": (tbase.name if cross else None)} | (reach["report"] if cross else {})
+           "target_sensor": (getattr(tbase, "name", None) if cross else None)} | (reach["report"] if cross else {})
     res["table"] = [{"frame": res["frame"]} | r
                     | {"lidar4d_depth_rmse_m": extra[m][0], "lidar4d_depth_medae_m": extra[m][1]}
                     | by_reach.get(m, {})
@@ -334,17 +383,16 @@ def simulate_holdout(seq: Sequence, target: int, method: str = "rays", sensor: s
     default the target's fitted table as :func:`evaluate_holdout` fits it). The held-out frame's points
     are read for its table only: every method's returns depend on its pose and the other frames."""
     m = registered_method(method, "holdout")
-    base = shipped_sensor(sensor) if isinstance(sensor, str) else sensor
     cache = FrameCache(seq)
     others = window(seq, target, half)
     if not others:
         raise InputValueError(f"frame {seq.names[target]}: no other frame in its window")
     fb, _ = cache.get(target)
-    if pattern is None:
-        beams = _held_beams(seq, target, fb, base)
-        pattern = fitted_pattern(fb.points, beams, base) if beams is not None else base
+    grid = scoring_grid(seq, target, fb, sensor, "target", others, cache)
+    _check_kind(grid, (method,))
+    base, pattern, pose = grid.base, grid.pattern if pattern is None else pattern, grid.turned_pose(fb.pose)
     union = accumulate(seq, others, drop_moving=drop_moving, cache=cache)
-    held = HeldOut(seq, target, others, union, to_frame(union.points, fb.pose), pattern, base, cache, fb.pose,
+    held = HeldOut(seq, target, others, union, to_frame(union.points, pose), pattern, base, cache, pose,
                    drop_moving)
     return m.simulate(held, HoldoutOptions.of(None, fpa_gap=gap).methods_settings((method,))[method])[0]
 
@@ -372,11 +420,20 @@ def mean_rows(tables: list[list[dict]]) -> list[dict]:
     return out
 
 
+def one_frame_refusal(seq: Sequence) -> str:
+    """Why a sequence of one frame cannot be evaluated (one line)."""
+    return (f"{seq.root or seq.paths[0]}: a sequence of {len(seq)} frame (one scan): a held-out frame is "
+            "re-simulated from the other frames, so evaluation needs two or more (a campaign's registered setups, "
+            "a drive's frames); slr-ray scan or augment re-simulate one scan from other positions")
+
+
 def evaluate_sequence(seq: Sequence, holdout, sensor: str = "velodyne_hdl64e_s2", methods=DEFAULT_METHODS,
                       half: int | None = 2, radius: float | None = None, drop_moving: bool = True,
                       progress: bool = False, **kw) -> dict:
     """Every held-out frame (sequence indices) by :func:`evaluate_holdout`; ``mean`` over them."""
     holdout = [int(h) for h in holdout]
+    if len(seq) < 2:
+        raise InputValueError(one_frame_refusal(seq))
     if not holdout:
         raise InputValueError("no frame held out")
     bad = [h for h in holdout if not 0 <= h < len(seq)]

@@ -46,10 +46,11 @@ from numba import njit
 from scipy.spatial import cKDTree
 
 from ..errors import InputValueError
+from ..pattern import pulse_directions
 from .estimators import FPA_GAP, PulseReturns
 
 __all__ = ["RayModel", "fit_ray_model", "fit_range_bias", "pattern_ray_model", "frame_motion", "sweep_offsets", "cast_rays",
-           "RAY_NEIGHBOURS", "fit_azimuth_phases", "PHASE_COHERENCE"]
+           "cast_grid_rays", "RAY_NEIGHBOURS", "fit_azimuth_phases", "PHASE_COHERENCE"]
 
 #: the plane's points (the union's nearest to the first cluster); chosen on the KITTI frames
 #: (benchmarks/sequence_rays.py)
@@ -356,6 +357,45 @@ def cast_rays(points, pattern, model: RayModel | None = None, motion=(0.0, 0.0, 
     if model.range_bias is not None:
         t = t + model.range_bias[L]
     hit = origin + t[:, None] * d
+    keys, ranges = pattern.pulse_ids(hit, np.zeros(3))
+    ok = np.flatnonzero(keys >= 0)
+    o = np.lexsort((ok, ranges[ok], keys[ok]))
+    kk = keys[ok][o]
+    win = ok[o][np.r_[True, kk[1:] != kk[:-1]]] if len(kk) else ok[:0]
+    return PulseReturns(keys[win].astype(np.int64), ranges[win], hit[win], sel[first][win].astype(np.int64))
+
+
+def cast_grid_rays(points, pattern, gap: float = FPA_GAP, neighbours: int = RAY_NEIGHBOURS,
+                   max_shift: float = MAX_SHIFT) -> PulseReturns:
+    """:func:`cast_rays` for a uniform grid (a terrestrial scanner's :class:`~slr_ray.ScanPattern`: no lasers,
+    no sweep, no range bias): each pulse's ray from the origin through its centre, the first cluster of
+    ``points`` (float64, the scanner's frame) in the pulse, and where the ray meets the plane of the
+    ``neighbours`` points nearest it (as :func:`cast_rays`; else the cluster's centroid projected onto the
+    ray), binned nearest per pulse."""
+    pts = np.ascontiguousarray(points, np.float64)
+    if not gap > 0:
+        raise InputValueError(f"the fpa gap must be > 0 m, got {gap}")
+    if int(neighbours) < 3:
+        raise InputValueError(f"a plane takes 3 or more neighbours, got {neighbours}")
+    keys, ranges = pattern.pulse_ids(pts, np.zeros(3))
+    sel = np.flatnonzero(keys >= 0)
+    o = np.lexsort((sel, ranges[sel], keys[sel]))
+    key, r, sel = keys[sel][o], ranges[sel][o], sel[o]
+    if not len(key):
+        return PulseReturns(np.zeros(0, np.int64), np.zeros(0), np.zeros((0, 3)), np.zeros(0, np.int64))
+    member, pno, first = _first_clusters(key, r, gap)
+    n = np.bincount(pno[member]).astype(np.float64)
+    cen = np.column_stack([np.bincount(pno[member], weights=pts[sel[member], j]) for j in range(3)]) / n[:, None]
+    d = pulse_directions(pattern.unravel(key[first]), pattern)
+    origin = np.zeros_like(d)
+    t = np.einsum("mi,mi->m", cen, d)
+    lo = r[first] - max_shift
+    if len(pts) >= neighbours:
+        tree = cKDTree(pts)
+        for s in range(0, len(t), _BLOCK):
+            b = slice(s, s + _BLOCK)
+            t[b] = _onto_plane(pts, tree, origin[b], d[b], t[b], lo[b], int(neighbours))
+    hit = t[:, None] * d
     keys, ranges = pattern.pulse_ids(hit, np.zeros(3))
     ok = np.flatnonzero(keys >= 0)
     o = np.lexsort((ok, ranges[ok], keys[ok]))

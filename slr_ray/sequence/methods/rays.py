@@ -8,12 +8,16 @@ import dataclasses
 import warnings
 
 from ...errors import SlrWarning
-from ..rays import (RayModel, cast_rays, fit_azimuth_phases, fit_range_bias, fit_ray_model, frame_motion,
-                    pattern_ray_model)
+from ..rays import (RayModel, cast_grid_rays, cast_rays, fit_azimuth_phases, fit_range_bias, fit_ray_model,
+                    frame_motion, pattern_ray_model)
 from ..sources import known_beams
 from .base import HeldOut, RaysOptions, SequenceMethod
 
-__all__ = ["Rays", "METHOD", "holdout_ray_model"]
+__all__ = ["Rays", "METHOD", "holdout_ray_model", "GRID_RAYS"]
+
+#: what ``rays`` casts for a terrestrial scanner's frame (its ``ray_model``'s ``what``)
+GRID_RAYS = ("a terrestrial scanner has no beams: each pulse of its fitted grid cast from its origin through the "
+             "pulse's centre onto the union's planes (no lasers, no sweep, no range bias fitted)")
 
 
 def holdout_ray_model(seq, others, base, pattern, cache) -> RayModel:
@@ -49,7 +53,8 @@ def holdout_ray_model(seq, others, base, pattern, cache) -> RayModel:
 
 class Rays(SequenceMethod):
     """The sensor's rays onto the union's planes: a held-out frame's rays fitted from the other frames
-    (reported as ``ray_model``); a conversion casts the target table's own rays (no motion)."""
+    (reported as ``ray_model``); a terrestrial scanner's frame (no beams: ``held.base`` None) its fitted
+    grid's pulse centres (:data:`GRID_RAYS`); a conversion casts the target table's own rays (no motion)."""
 
     name = "rays"
     label = "beam rays onto the union's planes"
@@ -61,6 +66,10 @@ class Rays(SequenceMethod):
         return cast_rays(points, pattern, gap=options.gap, neighbours=options.neighbours, max_shift=options.max_shift)
 
     def simulate(self, held: HeldOut, options: RaysOptions):
+        if held.base is None:  # a terrestrial scanner: no beams, its grid's pulse centres from its origin
+            ret = cast_grid_rays(held.u, held.pattern, gap=options.gap, neighbours=options.neighbours,
+                                 max_shift=options.max_shift)
+            return ret, ret.points, {"source": "grid", "what": GRID_RAYS}
         if held.target_base is not None:  # another unit than the frames': its table's own rays, as convert casts
             ret = self.returns(held.u, held.pattern, options)
             return ret, ret.points, pattern_ray_model(held.pattern).to_dict() | {
