@@ -171,7 +171,8 @@ def write_evaluation(result: dict, directory, force: bool = False, inputs: dict 
 #: the JSON): the default, and LiDAR4D's (its clamped depth errors, Chamfer and 22.4 cm F-score)
 SEQUENCE_COLUMNS = {
     "slr": ("frame", "method", "points", "F@5cm", "F@10cm", "depth_medae_m", "depth_rmse_m", "drop_accuracy",
-            "drop_recall", "cd_sum_m2", "R@10cm seen"),
+            "drop_recall", "cd_sum_m2", "R@10cm seen", "F@5cm in reach", "depth_medae_m in reach",
+            "target points out of reach", "points out of reach", "F@5cm out of reach"),
     "lidar4d": ("frame", "method", "points", "cd_sum_m2", "F@22.3607cm", "lidar4d_depth_rmse_m",
                 "lidar4d_depth_medae_m", "drop_accuracy")}
 

@@ -118,6 +118,10 @@ def add_sequence_parser(sub) -> None:
                         "order (KITTI's) is scored on that table, any other (a terrestrial scanner's) on a uniform "
                         "grid fitted to it; the output says which")
     _deprecated_sensor(q)
+    q.add_argument("--target-sensor", type=A.sensor_name, metavar="NAME|CARD",
+                   help="the held-out frames' own unit where it is not the source's (" + A.SENSOR_HELP + "): each "
+                        "is scored on its grid, re-simulated from the source frames; the target's beams outside "
+                        "what the source frames saw are scored apart ('in reach' / 'out of reach' columns)")
     defaults = methods_with("default")
     q.add_argument("--methods", nargs="+", default=defaults, choices=methods_with("holdout"),
                    help=f"methods (default {' '.join(defaults)}; on a terrestrial scanner's frames rays casts "
@@ -310,7 +314,7 @@ def _evaluate(args, seq, holdout, out):
     drop, st = args.moving
     res = evaluate_sequence(seq, holdout, args.scored_sensor, args.methods, args.half, args.radius,
                             drop_moving=drop, progress=not args.quiet, see_through=st, grid_from=args.grid_from,
-                            method_options=args.method_options)
+                            method_options=args.method_options, target_sensor=args.target_sensor)
     res |= {"protocol": args.protocol, "grid_from": args.grid_from, "registration": regs,
             "pose_source": seq.pose_source, "inputs": [str(p) for p in seq.paths]}
     files = write_sequence_evaluation(res, out, force=True)  # out: planned and locked above

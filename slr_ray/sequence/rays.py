@@ -50,7 +50,7 @@ from ..pattern import pulse_directions
 from .estimators import FPA_GAP, PulseReturns
 
 __all__ = ["RayModel", "fit_ray_model", "fit_range_bias", "pattern_ray_model", "frame_motion", "sweep_offsets", "cast_rays",
-           "cast_grid_rays", "RAY_NEIGHBOURS"]
+           "cast_grid_rays", "RAY_NEIGHBOURS", "fit_azimuth_phases", "PHASE_COHERENCE"]
 
 #: the plane's points (the union's nearest to the first cluster); chosen on the KITTI frames
 #: (benchmarks/sequence_rays.py)
@@ -86,6 +86,7 @@ class RayModel:
                 "median_residual_deg": self.residual_deg,
                 "height_m": [round(float(x), 4) for x in self.height],
                 "elevation_deg": [round(math.degrees(x), 4) for x in self.elevation],
+                "azimuth_offset_deg": [round(math.degrees(x), 4) for x in self.azimuth_offset],
                 "range_bias_m": None if self.range_bias is None else [round(float(x), 4) for x in self.range_bias]}
 
 
@@ -239,6 +240,33 @@ def fit_range_bias(model: RayModel, frames, k: int = 32, stride: int = 8) -> Ray
             found[laser].append(along[ok & (lasers == laser)])
     bias = np.array([float(np.median(np.concatenate(a))) if sum(map(len, a)) >= 50 else 0.0 for a in found])
     return dataclasses.replace(model, range_bias=bias)
+
+
+#: a laser's azimuth phase is fitted where its points' phasors agree this well (1: every point at one
+#: phase of its column; a motion-compensated frame's azimuths, as KITTI's, spread and keep phase 0)
+PHASE_COHERENCE = 0.9
+
+
+def fit_azimuth_phases(frames, n_lasers: int, columns: int) -> tuple[np.ndarray, np.ndarray]:
+    """Where within a column each laser fires, from frames' own points: ``frames`` a list of ``(points,
+    beams)`` (each in its own frame). A laser's offset (radians: its column's centre is ``offset + (h +
+    1/2) 2 pi / columns``) is the mean phase of its points' azimuths in the column, taken where their
+    phasors agree (:data:`PHASE_COHERENCE`), else 0 (the column's centre). An Ouster's beams fire at
+    the column's edge (its beam azimuth angles), a Hesai's at its centre. Returns the offsets and each
+    laser's coherence."""
+    D = 2 * math.pi / int(columns)
+    acc = np.zeros(n_lasers, complex)
+    cnt = np.zeros(n_lasers)
+    for p, b in frames:
+        p = np.asarray(p, np.float64)
+        b = np.asarray(b, np.int64)
+        ph = np.exp(1j * (2 * math.pi / D) * (np.arctan2(p[:, 1], p[:, 0]) - 0.5 * D))
+        acc += np.bincount(b, weights=ph.real, minlength=n_lasers)[:n_lasers] + \
+            1j * np.bincount(b, weights=ph.imag, minlength=n_lasers)[:n_lasers]
+        cnt += np.bincount(b, minlength=n_lasers)[:n_lasers]
+    coherence = np.abs(acc) / np.maximum(cnt, 1)
+    offset = np.where((coherence >= PHASE_COHERENCE) & (cnt >= 20), np.angle(acc) * D / (2 * math.pi), 0.0)
+    return offset, coherence
 
 
 def pattern_ray_model(pattern) -> RayModel:
