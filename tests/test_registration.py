@@ -156,7 +156,7 @@ def test_cli_evaluate_and_sequence_register_refuse_unrelated_frames_in_one_line(
         files.append(tmp_path / f"{name}.npz")
         write_cloud(files[-1], PointCloud(scenes[name]))
     out = tmp_path / "out"
-    rc = main(["evaluate", *map(str, files), "-o", str(out), "--sensor", "velodyne_vlp16", "--beams", "none",
+    rc = main(["evaluate", *map(str, files), "-o", str(out), "--source-sensor", "velodyne_vlp16", "--beams", "none",
                "--methods", "zbuffer", "--quiet"])
     err = capsys.readouterr().err
     assert rc == 2 and err.startswith("slr-ray: error: registration refused: B registered to A fails the check")
