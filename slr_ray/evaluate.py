@@ -68,10 +68,11 @@ import numpy as np
 
 from .arrays import as_points, as_rigid_pose
 from .backends import BACKENDS, prepare, scanner_class
-from .errors import InputValueError, MissingDependencyError, SlrWarning
+from .errors import InputValueError, SlrWarning
 from .metrics import FIELD_THRESHOLD, LIDAR4D_CODE_THRESHOLD, PAPER_THRESHOLD, Pair, range_bands, score_pair, seen_from
 from .options import Options
-from .progress import bar as progress_bar, phase, step
+from .progress import bar as progress_bar, phase
+from .registration import REGISTRATION_BOUNDS, Registration, check_registration, register
 from .reports import (EVALUATION_FILES, SEQUENCE_COLUMNS, compact_json, evaluation_table, markdown_table,  # noqa: F401
                       reach_table, sequence_summary, splits_table, write_evaluation, write_sequence_evaluation)
 from .scan import Scan
@@ -95,11 +96,12 @@ METHOD_SCANS = {"binning": ("binning", None), "embree-knn": ("embree", None), "e
 BINNING_METHOD = "binning"
 #: F-score thresholds of the table: the field's 5 cm, SLR's 10 cm, LiDAR-NeRF/LiDAR4D code's 22.4 cm
 THRESHOLDS = (FIELD_THRESHOLD, PAPER_THRESHOLD, LIDAR4D_CODE_THRESHOLD)
-#: registrations below this fitness are refused by :func:`evaluate_pair` (KITTI's pair: 0.89)
-MIN_FITNESS = 0.3
+#: registrations below this fitness are refused by :func:`evaluate_pair` (the gate's bound,
+#: :data:`slr_ray.registration.REGISTRATION_BOUNDS`; real overlapping pairs: 0.84-0.99)
+MIN_FITNESS = REGISTRATION_BOUNDS["min_fitness"]
 #: registrations whose inlier RMSE exceeds this share of the final correspondence distance are refused
 #: (KITTI's pairs: 0.072-0.075 m of 0.2; pairs spread evenly within 0.2 m give 0.115 m and more)
-MAX_RMSE_SHARE = 0.6
+MAX_RMSE_SHARE = REGISTRATION_BOUNDS["max_rmse_share"]
 #: frames with fewer points than this are not registered (a pose from 40 points is not to be trusted)
 MIN_REGISTRATION_POINTS = 1000
 
@@ -124,126 +126,6 @@ def zbuffer(points, pattern: BeamPattern, origin=(0.0, 0.0, 0.0), beams=None, ba
     srt = np.argsort(idx, kind="stable")
     idx = idx[srt]
     return Scan.from_keys(k[first][srt], ranges[idx], idx, o, pattern, backend, len(p))
-
-
-# --- registration -------------------------------------------------------------------------------------------
-
-@dataclass(frozen=True)
-class Registration:
-    """The pose of B in A's frame.
-
-    Attributes
-    ----------
-    transform : (4, 4) float64
-        Maps B's coordinates into A's: ``a = R b + t``.
-    fitness : float
-        Share of B's points with an A point within ``max_distance`` after the fit (Open3D's fitness).
-    inlier_rmse : float
-        RMS distance of those pairs (m).
-    max_distance : float
-        The final correspondence distance (m).
-    init : str
-        ``"identity"`` or ``"fpfh-ransac"``.
-    seconds : float
-    reverse_fitness : float
-        Share of A's points with a B point within ``max_distance`` after the
-        fit: the fitness read the other way (NaN where not measured).
-    """
-
-    transform: np.ndarray
-    fitness: float
-    inlier_rmse: float
-    max_distance: float
-    init: str
-    seconds: float
-    reverse_fitness: float = float("nan")
-
-    @property
-    def rotation_deg(self) -> float:
-        """The angle of the rotation found (degrees)."""
-        R = self.transform[:3, :3]
-        return math.degrees(math.acos(max(-1.0, min(1.0, (np.trace(R) - 1) / 2))))
-
-    @property
-    def tilt_deg(self) -> float:
-        """The angle between B's up axis and A's after the fit (degrees): the part of the
-        rotation that is not a turn about the vertical."""
-        return math.degrees(math.acos(max(-1.0, min(1.0, float(self.transform[2, 2])))))
-
-    def to_dict(self) -> dict:
-        t = self.transform[:3, 3]
-        return {"transform": self.transform.tolist(), "translation_m": t.tolist(),
-                "translation_norm_m": float(np.linalg.norm(t)), "rotation_deg": self.rotation_deg,
-                "tilt_deg": self.tilt_deg, "fitness": self.fitness, "reverse_fitness": self.reverse_fitness,
-                "inlier_rmse_m": self.inlier_rmse, "max_distance_m": self.max_distance,
-                "init": self.init, "seconds": round(self.seconds, 3)}
-
-
-#: Decimals a registered pose is rounded to (:func:`register`): run-to-run noise gone, accuracy kept.
-POSE_DECIMALS = 9
-
-
-def register(source, target, max_distance: float = 0.2, min_fitness: float = 0.5, seed: int = 0) -> Registration:
-    """Align ``source`` (B) to ``target`` (A): Open3D ICP, point-to-plane, from the identity.
-
-    ICP runs at correspondence distances 2, 1, 0.5 m and ``max_distance``
-    (each from the last one's result; normals of ``target`` from 30
-    neighbours within 1 m). When its fitness at ``max_distance`` is below
-    ``min_fitness``, a coarse alignment by FPFH features and RANSAC (0.5 m
-    voxels, ``seed``) starts a second ICP; the better fit is kept. The pose is
-    rounded to :data:`POSE_DECIMALS` decimals, so that a rerun gives the same one.
-    """
-    try:
-        import open3d as o3d
-    except (ImportError, OSError):  # OSError: its system library libusb-1.0 missing
-        raise MissingDependencyError("registration needs open3d: pip install open3d "
-                                     "(and its system library: apt-get install libusb-1.0-0)") from None
-    reg = o3d.pipelines.registration
-    t0 = time.perf_counter()
-    s_pts, t_pts = as_points(source, "source"), as_points(target, "target")
-    c = t_pts.mean(axis=0) if len(t_pts) else np.zeros(3)  # recentre: float64 throughout, small numbers
-    src, tgt = o3d.geometry.PointCloud(), o3d.geometry.PointCloud()
-    src.points = o3d.utility.Vector3dVector(s_pts - c)
-    tgt.points = o3d.utility.Vector3dVector(t_pts - c)
-    tgt.estimate_normals(o3d.geometry.KDTreeSearchParamHybrid(radius=1.0, max_nn=30))
-    plane = reg.TransformationEstimationPointToPlane()
-
-    def icp(init):
-        T = init
-        for d in (2.0, 1.0, 0.5, max_distance):
-            step(f"ICP at {d:g} m")  # said once the phase it runs in is named
-            T = reg.registration_icp(src, tgt, d, T, plane, reg.ICPConvergenceCriteria(max_iteration=50)).transformation
-        return reg.evaluate_registration(src, tgt, max_distance, T), T
-
-    ev, T = icp(np.eye(4))
-    how = "identity"
-    if ev.fitness < min_fitness:
-        step("FPFH features and RANSAC")
-        o3d.utility.random.seed(seed)
-        feats = []
-        for pc in (src, tgt):
-            down = pc.voxel_down_sample(0.5)
-            down.estimate_normals(o3d.geometry.KDTreeSearchParamHybrid(radius=1.0, max_nn=30))
-            feats.append((down, reg.compute_fpfh_feature(down, o3d.geometry.KDTreeSearchParamHybrid(
-                radius=2.5, max_nn=100))))
-        coarse = reg.registration_ransac_based_on_feature_matching(
-            feats[0][0], feats[1][0], feats[0][1], feats[1][1], True, 1.5,
-            reg.TransformationEstimationPointToPoint(False), 3,
-            [reg.CorrespondenceCheckerBasedOnEdgeLength(0.9), reg.CorrespondenceCheckerBasedOnDistance(1.5)],
-            reg.RANSACConvergenceCriteria(100000, 0.999))
-        ev2, T2 = icp(coarse.transformation)
-        if ev2.fitness > ev.fitness:
-            ev, T, how = ev2, T2, "fpfh-ransac"
-    T = np.array(T, dtype=np.float64)
-    back = reg.evaluate_registration(tgt, src, max_distance, np.linalg.inv(T))
-    # undo the recentring: a = R (b - c) + t' + c
-    T[:3, 3] = T[:3, 3] + c - T[:3, :3] @ c
-    # Open3D's threads sum in varying order: the pose differs run to run in its 15th digit, enough to
-    # move a few embree points (KITTI pair: 95,429-95,436). Rounded to 1e-9 (a nanometre, 1e-7 m at
-    # 100 m) the same frames give the same pose, and the same scores, on every run.
-    T[:3] = np.round(T[:3], POSE_DECIMALS)
-    return Registration(T, float(ev.fitness), float(ev.inlier_rmse), float(max_distance), how,
-                        time.perf_counter() - t0, float(back.fitness))
 
 
 # --- the evaluation -----------------------------------------------------------------------------------------
@@ -464,6 +346,11 @@ class EvaluateOptions(Options):
         A registration whose inlier RMSE exceeds this (m; default
         :data:`MAX_RMSE_SHARE` of the 0.2 m correspondence distance) is
         refused; ignored with ``transform``.
+    accept_registration : bool
+        Score at the pose registration finds whatever it measures: the gate
+        (:func:`slr_ray.registration.registration_checks`: fitness, reverse
+        fitness, inlier RMSE, tilt; docs/evaluation.md "Registration gate")
+        is skipped. Default False: a registration failing a check is refused.
     """
 
     sensor: str | BeamPattern = "velodyne_hdl64e_s2"
@@ -474,6 +361,7 @@ class EvaluateOptions(Options):
     max_rmse: float | None = None
     source_sensor: str | BeamPattern | None = None
     target_sensor: str | BeamPattern | None = None
+    accept_registration: bool = False
 
 
 def evaluate_pair(a_points, b_points, a_beams="auto", b_beams="auto", options: EvaluateOptions | None = None, *,
@@ -514,8 +402,8 @@ def evaluate_pair(a_points, b_points, a_beams="auto", b_beams="auto", options: E
         A frame with no point within its table's view (not in its sensor's
         frame, or empty), a transform that is not a rigid pose or puts no
         point of A in B's view, beams that are not a scan's, too few points
-        to register, or a registration below ``min_fitness`` or above
-        ``max_rmse``.
+        to register, or a registration failing the gate (fitness, reverse fitness, RMSE, tilt:
+        :func:`slr_ray.registration.registration_checks`) unless ``accept_registration``.
 
     Returns
     -------
@@ -540,7 +428,7 @@ def evaluate_pair(a_points, b_points, a_beams="auto", b_beams="auto", options: E
     seconds = {}
     _require_in_view((("a_points", a, pat_a), ("b_points", b, pat_b)))
     t0 = time.perf_counter()
-    T, registration = _registration(a, b, T, o.min_fitness, o.max_rmse, progress)
+    T, registration = _registration(a, b, T, o, progress)
     seconds["registration"] = time.perf_counter() - t0
     a_in_b, a_origin = _a_in_b(a, T, pat_b, registration)
     t0 = time.perf_counter()
@@ -649,9 +537,12 @@ def _require_in_view(frames) -> None:
                 "in its own sensor's frame (the sensor at (0, 0, 0)): subtract the scanner position first")
 
 
-def _registration(a, b, T, min_fitness, max_rmse, progress) -> tuple:
-    """``(T, registration dict)``: B registered to A (refused below ``min_fitness`` or above
-    ``max_rmse``), or the given pose ``T``."""
+def _registration(a, b, T, o, progress) -> tuple:
+    """``(T, registration dict)``: B registered to A, refused when it fails a check of the gate
+    (:func:`slr_ray.registration.check_registration`, with ``o.min_fitness`` and ``o.max_rmse``)
+    unless ``o.accept_registration``; or the given pose ``T``."""
+    if not isinstance(o.accept_registration, (bool, np.bool_)):
+        raise InputValueError(f"accept_registration must be True or False, got {o.accept_registration!r}")
     if T is None:
         few = [(name, len(pts)) for name, pts in (("A", a), ("B", b)) if len(pts) < MIN_REGISTRATION_POINTS]
         if few:
@@ -660,17 +551,11 @@ def _registration(a, b, T, min_fitness, max_rmse, progress) -> tuple:
                 f"{MIN_REGISTRATION_POINTS:,} in each frame): give B's pose (transform, --transform)")
         with phase(f"registering B to A ({len(b):,} and {len(a):,} points)", progress=progress):
             reg = register(b, a)
-        limit = MAX_RMSE_SHARE * reg.max_distance if max_rmse is None else max_rmse
-        if not reg.fitness >= min_fitness:
-            raise InputValueError(
-                f"registration failed: B aligned to A with fitness {reg.fitness:.3f} (share of B's points with an "
-                f"A point within {reg.max_distance:g} m) < min_fitness {min_fitness:g}; do the frames overlap? Give "
-                "B's pose (transform, --transform) or accept the fit (min_fitness=0, --min-fitness 0)")
-        if not reg.inlier_rmse <= limit:
-            raise InputValueError(
-                f"registration failed: B aligned to A with inlier RMSE {reg.inlier_rmse:.3f} m > {limit:g} m (the "
-                f"pairs within {reg.max_distance:g} m lie spread, not matched); give B's pose (transform, "
-                "--transform)")
+        if not o.accept_registration:
+            bounds = {"min_fitness": o.min_fitness} | (
+                {} if o.max_rmse is None else {"max_rmse_share": o.max_rmse / reg.max_distance})
+            check_registration(reg, bounds, remedy="give B's pose (transform, --transform), or score at this pose "
+                                                   "anyway (accept_registration=True, --accept-registration)")
         T = reg.transform
         registration = reg.to_dict()
     else:

@@ -22,9 +22,9 @@ import importlib.util
 import json
 import math
 import os
+import signal
 import subprocess
 import sys
-import tempfile
 import time
 import warnings
 from dataclasses import dataclass, field
@@ -496,11 +496,13 @@ def label_ground(points, *, cloth_resolution: float = 0.5, rigidness: int = 2,
 
     The cloth is dropped from above the inverted cloud; points within
     ``class_threshold`` of it are ground. CSF runs in a child interpreter (numpy and
-    CSF only, so a script without a ``__main__`` guard is safe), in a
-    temporary directory (it writes ``cloth_nodes.txt`` into its working
-    directory and prints to the console): this process's working directory,
-    stdout and threads are never touched, so it is safe to call from threads,
-    and a crash inside CSF is an error here, not the end of the program.
+    CSF only, so a script without a ``__main__`` guard is safe), which reads the
+    points from a pipe and writes the ground indices to another (no copy of the cloud
+    on disk; CSF's console output goes to the null device, and with ``exportCloth``
+    off it writes no file): this process's working directory, stdout and threads are
+    never touched, so it is safe to call from threads, and a crash inside CSF is an
+    error here, not the end of the program. On Linux the child dies with this process
+    (``prctl(PR_SET_PDEATHSIG)``: a ``kill -9`` of the caller leaves no CSF running).
 
     Returns
     -------
@@ -523,36 +525,57 @@ def label_ground(points, *, cloth_resolution: float = 0.5, rigidness: int = 2,
               "interations": int(iterations), "time_step": float(time_step)}
     # a child interpreter that imports numpy and CSF only: not multiprocessing's spawn, whose
     # child re-runs the caller's __main__ (a plain script without a __main__ guard ran twice
-    # and CSF "crashed"); one OpenMP thread: CSF's threads race (20,000 then 20,001 ground points)
-    with tempfile.TemporaryDirectory(prefix="slr_ray_csf_") as tmp:
-        np.save(os.path.join(tmp, "points.npy"), pts - pts.mean(axis=0))
-        run = subprocess.run([sys.executable, "-c", _CSF_CHILD, tmp, json.dumps(params)], cwd=tmp,
-                             stdin=subprocess.DEVNULL, stdout=subprocess.DEVNULL, stderr=subprocess.PIPE,
-                             env={**os.environ, "OMP_NUM_THREADS": "1"}, text=True, errors="replace")
-        if run.returncode != 0:
-            last = (run.stderr.strip().splitlines() or [f"exit status {run.returncode}"])[-1]
-            raise InputValueError(f"CSF crashed ({last}); try other cloth parameters")
-        ground = np.load(os.path.join(tmp, "ground.npy"))
+    # and CSF "crashed"); one OpenMP thread: CSF's threads race (20,000 then 20,001 ground points).
+    # The points go through its stdin (a view of the array: no copy, no file a kill -9 would leave)
+    centred = np.ascontiguousarray(pts - pts.mean(axis=0))
+    run = subprocess.run([sys.executable, "-c", _CSF_CHILD, json.dumps(params), str(os.getpid())],
+                         input=memoryview(centred).cast("B"), capture_output=True,
+                         env={**os.environ, "OMP_NUM_THREADS": "1"})
+    if run.returncode != 0:
+        if run.returncode < 0:  # a signal: nothing to do with the cloth
+            raise InputValueError(f"CSF was stopped by signal {_signal_name(-run.returncode)} (killed from outside, "
+                                  "or out of memory: a smaller cloud or a coarser cloth_resolution needs less)")
+        last = (run.stderr.decode(errors="replace").strip().splitlines() or [f"exit status {run.returncode}"])[-1]
+        raise InputValueError(f"CSF crashed ({last}); try other cloth parameters")
+    ground = np.frombuffer(run.stdout, np.int64)
     out = np.zeros(len(pts), bool)
     out[ground] = True
     return out
 
 
-# CSF in its own interpreter (see label_ground): argv is the directory, which holds points.npy and
-# gets ground.npy (and CSF's cloth_nodes.txt), and the parameters as JSON; CSF prints to stdout
+def _signal_name(number: int) -> str:
+    try:
+        return signal.Signals(number).name
+    except ValueError:
+        return str(number)
+
+
+# CSF in its own interpreter (see label_ground): argv holds the parameters as JSON and the caller's
+# pid; stdin the centred points (float64, x y z); stdout gets the ground indices (int64). On Linux
+# it asks to be killed when its caller dies (PR_SET_PDEATHSIG = 1), then checks that the caller has
+# not died already. CSF prints to fd 1: that goes to the null device, the answer to a copy of fd 1.
 _CSF_CHILD = """
-import json, os, sys
+import os, signal, sys
+if sys.platform.startswith("linux"):
+    import ctypes
+    ctypes.CDLL(None, use_errno=True).prctl(1, signal.SIGKILL, 0, 0, 0)
+    if os.getppid() != int(sys.argv[2]):
+        os._exit(3)
+answer = os.fdopen(os.dup(1), "wb")
+os.dup2(os.open(os.devnull, os.O_WRONLY), 1)
+import json
 import numpy as np
 import CSF
-tmp, params = sys.argv[1], json.loads(sys.argv[2])
-pts = np.load(os.path.join(tmp, "points.npy"))
+params = json.loads(sys.argv[1])
+pts = np.frombuffer(sys.stdin.buffer.read(), np.float64).reshape(-1, 3)
 csf = CSF.CSF()
 for k, v in params.items():
     setattr(csf.params, k, v)
-csf.setPointCloud(pts.tolist() if len(pts) < 10_000 else pts)
+csf.setPointCloud(pts.tolist() if len(pts) < 10_000 else np.array(pts))
 ground, off = CSF.VecInt(), CSF.VecInt()
 csf.do_filtering(ground, off, False)
-np.save(os.path.join(tmp, "ground.npy"), np.asarray(list(ground), dtype=np.int64))
+answer.write(np.asarray(list(ground), dtype=np.int64).tobytes())
+answer.close()
 """
 
 

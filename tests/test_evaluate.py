@@ -250,8 +250,8 @@ def test_a_failed_registration_is_refused_unless_accepted():
     b = rng.uniform(-20, 20, (1000, 3))
     with pytest.raises(InputValueError, match="fitness"):
         evaluate_pair(a, b, a_beams=None, b_beams=None, sensor=SMALL, methods=("zbuffer",))
-    res = evaluate_pair(a, b, a_beams=None, b_beams=None, sensor=SMALL, methods=("zbuffer",), min_fitness=0.0,
-                        max_rmse=1.0)
+    res = evaluate_pair(a, b, a_beams=None, b_beams=None, sensor=SMALL, methods=("zbuffer",),
+                        accept_registration=True)
     assert res["registration"]["fitness"] < 0.3
     for bad in (math.nan, -0.1, 1.5):
         with pytest.raises(InputValueError, match="min_fitness must"):

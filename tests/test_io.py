@@ -1002,3 +1002,28 @@ def test_a_format_is_one_registry_entry(tmp_path, monkeypatch):
     assert check_format(tmp_path / "a.toy") == ".toy"
     np.testing.assert_array_equal(read_cloud(tmp_path / "a.toy").points, pts)
 
+
+
+def test_coordinates_beyond_a_million_kilometres_are_refused_naming_the_file(tmp_path):
+    """#48: a point at 1e300 m is finite; downstream its square overflowed with numpy's warnings."""
+    import warnings
+
+    from slr_ray.cli import main
+    from slr_ray.io.files import MAX_COORDINATE
+
+    pts = np.random.default_rng(0).uniform(-5, 5, (300, 3))
+    pts[[0, 7]] = [[1e300, 0, 0], [0, 0, -1e20]]
+    src = tmp_path / "huge.npz"
+    write_cloud(src, PointCloud(pts, {}, np.zeros(3)))
+    with pytest.raises(FormatError, match=r"huge.npz: 2 of 300 points have coordinates beyond 1e\+09 m \(rows 0, 7; "
+                                          r"the largest 1e\+300\)"):
+        read_cloud(src)
+    pts[[0, 7]] = [[MAX_COORDINATE, 0, 0], [6.4e6, 0, 0]]  # at the bound, and Earth-centred: kept
+    write_cloud(src, PointCloud(pts, {}, np.zeros(3)))
+    assert len(read_cloud(src)) == 300
+    pts[0] = [0, -1e300, 0]
+    write_cloud(src, PointCloud(pts, {}, np.zeros(3)))
+    with warnings.catch_warnings():
+        warnings.simplefilter("error")  # a numpy warning is a failure, not a second message
+        assert main(["scan", str(src), "-o", str(tmp_path / "o.npz"), "--resolution", "1"]) == 2
+    assert not (tmp_path / "o.npz").exists()

@@ -356,7 +356,7 @@ LAYERS = (
     ("input/output", {"io"}),
     ("core", {"core"}),
     ("patterns", {"pattern", "sensors", "spherical", "scan"}),
-    ("measures", {"metrics", "reports"}),
+    ("measures", {"metrics", "reports", "registration"}),
     ("ray casting", {"raycast"}),
     ("backends", {"backends", "accumulator"}),
     ("simulation", {"effects", "scenes", "meshscan"}),

@@ -1,6 +1,8 @@
 import os
+import signal
 import subprocess
 import sys
+import time
 from pathlib import Path
 
 import numpy as np
@@ -216,3 +218,69 @@ def test_too_few_candidates_says_the_most_ground_any_cell_has():
     with pytest.raises(InputValueError, match=r"ground_support removed [1-4], azimuth_profile removed 1[2-5]") as e:
         select_positions(small, np.ones(600, bool), 3, seed=0, min_ground_points=some, profile=default_profile())
     assert "the most ground points" not in str(e.value)
+
+
+def _children(pid: int) -> list:
+    """The pids whose parent is ``pid`` (Linux /proc)."""
+    kids = []
+    for stat in Path("/proc").glob("[0-9]*/stat"):
+        try:
+            fields = stat.read_text().rsplit(")", 1)[1].split()
+        except OSError:  # gone meanwhile
+            continue
+        if int(fields[1]) == pid:
+            kids.append(int(stat.parent.name))
+    return kids
+
+
+def _long_csf(tmp):
+    """A forked parent's work: CSF for minutes, with the temporary files' folder ``tmp``."""
+    import tempfile
+    tempfile.tempdir = tmp
+    g = np.random.default_rng(0).uniform(-50, 50, (200_000, 3)) * [1, 1, 0.01]
+    label_ground(g, cloth_resolution=0.05, iterations=1_000_000)
+
+
+@pytest.mark.skipif(not sys.platform.startswith("linux"), reason="PR_SET_PDEATHSIG is Linux's")
+def test_the_csf_child_dies_with_its_parent_and_leaves_no_file(tmp_path, monkeypatch):
+    """#48: a `kill -9` of the caller left CSF running and its temporary copy of the cloud on disk."""
+    import multiprocessing
+
+    pytest.importorskip("CSF")
+    monkeypatch.chdir(tmp_path)
+    tmp = tmp_path / "tmp"
+    tmp.mkdir()
+    parent = multiprocessing.get_context("fork").Process(target=_long_csf, args=(str(tmp),))
+    parent.start()
+    kids = []
+    try:
+        deadline = time.monotonic() + 60
+        while not kids and time.monotonic() < deadline and parent.is_alive():
+            time.sleep(0.1)
+            kids = _children(parent.pid)
+        assert kids, "the CSF child never started"
+        time.sleep(0.5)  # the child reads the points: CSF runs
+        os.kill(parent.pid, signal.SIGKILL)
+        parent.join()
+        deadline = time.monotonic() + 10
+        while any(Path(f"/proc/{k}").exists() for k in kids) and time.monotonic() < deadline:
+            time.sleep(0.1)
+        alive = [k for k in kids if Path(f"/proc/{k}").exists()]
+        assert not alive, "the CSF child outlived its parent"
+        assert list(tmp.iterdir()) == [] and [p.name for p in tmp_path.iterdir()] == ["tmp"]
+    finally:
+        for k in kids:  # the test's own cleanup
+            if Path(f"/proc/{k}").exists():
+                os.kill(k, signal.SIGKILL)
+        if parent.is_alive():
+            parent.kill()
+
+
+def test_a_csf_child_killed_by_a_signal_is_not_blamed_on_the_cloth(monkeypatch):
+    """#48: a CSF child killed from outside (or by the kernel for memory) read "try other cloth parameters"."""
+    pytest.importorskip("CSF")
+    monkeypatch.setattr("slr_ray.positions.subprocess.run",
+                        lambda args, **kw: subprocess.CompletedProcess(args, -signal.SIGKILL, b"", b""))
+    with pytest.raises(InputValueError, match="CSF was stopped by signal SIGKILL") as err:
+        label_ground(np.random.default_rng(0).normal(size=(50, 3)))
+    assert "cloth parameters" not in str(err.value)

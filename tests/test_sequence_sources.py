@@ -171,3 +171,25 @@ def test_convert_on_a_scheduler_without_dask(drive, tmp_path, monkeypatch):
     with pytest.raises(MissingDependencyError, match=r'pip install "slr_ray\[dask\]"'):
         convert_sequence(read_sequence(drive), tmp_path / "out", "velodyne_vlp16", scheduler="tcp://127.0.0.1:1")
     assert not any((tmp_path / "out").iterdir())
+
+
+def test_ring_values_outside_the_sensors_table_are_refused_naming_the_frame_and_its_file():
+    """#48: a ring field of another sensor (rings 0-99 read with a 64-beam table) was refused as
+    'beams must lie in [-1, 64) ...' with no frame or file named."""
+    from slr_ray.sensors import sensor
+    from slr_ray.sequence.embree_rays import frame_beams
+    from slr_ray.sequence.layouts.base import Frame
+    from slr_ray.sequence.sources import known_beams, source_view
+
+    base = sensor("velodyne_hdl64e_s2")
+    pts = np.random.default_rng(0).uniform(-20, 20, (500, 3))
+    ring = np.arange(500) % 100
+    what = "frame 000003 (drive/000003.pcd)"
+    for call in (lambda: known_beams(pts, {"ring": ring}, base, what), lambda: source_view(pts, {"ring": ring}, base, what)):
+        with pytest.raises(InputValueError, match=r"^frame 000003 \(drive/000003.pcd\): its ring field: beams must lie in "
+                                                  r"\[-1, 64\).*got 0 \.\.\. 99.*--source-sensor"):
+            call()
+    frame = Frame(3, "000003", pts, {"ring": ring}, np.eye(4))
+    with pytest.raises(InputValueError, match=r"^frame 000003 \(drive/000003.pcd\): its ring field"):
+        frame_beams(frame, base, SimpleNamespace(paths=["a", "b", "c", "drive/000003.pcd"]))
+    np.testing.assert_array_equal(known_beams(pts, {"ring": ring % 64}, base, what), ring % 64)  # in range: kept

@@ -36,6 +36,7 @@ from ..scenes import SCENES_DIR
 from . import arguments as A
 from .commands import COMMANDS
 from ..evaluate import METHODS as EVALUATE_METHODS
+from ..registration import REGISTRATION_BOUNDS
 from .evaluate_command import evaluate as evaluate_command
 from .effects_command import RING_SOURCES
 from .effects_command import effects as effects_command
@@ -295,8 +296,12 @@ def _evaluate_parser(sub) -> None:
                         "--transform")
     p.add_argument("--seen-threshold", type=A.positive_float, default=paper.SIMILARITY_THRESHOLD, metavar="M",
                    help="B's point is seen from A within this (m, default 0.1)")
-    p.add_argument("--min-fitness", type=float, default=0.3, metavar="F",
-                   help="refuse a registration fitting worse (default 0.3; 0: any)")
+    p.add_argument("--min-fitness", type=float, default=REGISTRATION_BOUNDS["min_fitness"], metavar="F",
+                   help="refuse a registration fitting worse: share of B's points with an A point within 0.2 m "
+                        f"(default {REGISTRATION_BOUNDS['min_fitness']:g}; the other checks: --accept-registration)")
+    p.add_argument("--accept-registration", action="store_true",
+                   help="score at the pose registration finds even when it fails the gate (fitness, reverse fitness, "
+                        "inlier RMSE, tilt; docs/evaluation.md 'Registration gate')")
     A.add_input_format(p)
     p.add_argument("--quiet", action="store_true", help="no progress bar")
     p.add_argument("--force", action="store_true", help="replace the evaluation files of an existing directory")

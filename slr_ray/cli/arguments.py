@@ -158,9 +158,13 @@ def _option_type(name: str, typ: str):
     if name == "radius":
         def radius(text):
             try:
-                return positive_float(text)
-            except argparse.ArgumentTypeError:
+                v = float(text)
+            except ValueError:
                 return text  # a mode name, checked by the options class
+            if not (math.isfinite(v) and v > 0):  # a number, not a mode: say what a radius must be
+                raise argparse.ArgumentTypeError(f"a disc radius must be a finite number of metres > 0 (or "
+                                                 f"'spacing', 'footprint'), got {text!r}")
+            return v
         return radius, None
     if typ.startswith("(3,)"):
         return finite_float, 3

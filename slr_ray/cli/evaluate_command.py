@@ -118,6 +118,9 @@ def _foreign_files(out: Path) -> list:
 def evaluate(args):
     if not 0 <= args.min_fitness <= 1:  # nan too
         raise InputValueError(f"--min-fitness {args.min_fitness}: a share of B's points, in [0, 1]")
+    if args.accept_registration and (args.transform or args.extrinsic):
+        raise InputValueError(f"--accept-registration with {'--transform' if args.transform else '--extrinsic'}: "
+                              "nothing is registered (B's pose is given)")
     if len(set(args.methods)) != len(args.methods):
         twice = sorted({m for m in args.methods if args.methods.count(m) > 1})
         raise InputValueError(f"--methods: {', '.join(twice)} given twice (each method is one row)")
@@ -169,7 +172,8 @@ def _evaluate(args, out):
         res = evaluate_pair(frames[0], frames[1], a_beams=beams[0], b_beams=beams[1],
                             source_sensor=args.source_sensor, target_sensor=args.target_sensor,
                             methods=args.methods, transform=transform, extrinsic=extrinsic,
-                            seen_threshold=args.seen_threshold, min_fitness=args.min_fitness, progress=not args.quiet)
+                            seen_threshold=args.seen_threshold, min_fitness=args.min_fitness,
+                            accept_registration=args.accept_registration, progress=not args.quiet)
     except InputValueError as exc:  # the library names a_beams / b_beams: say the flag and the file
         msg = str(exc)
         for key, name, path in (("a_beams", "A", args.a), ("b_beams", "B", args.b)):

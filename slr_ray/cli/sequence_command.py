@@ -49,6 +49,9 @@ def _common(p):
                         "metadata .json and *poses*.txt)")
     p.add_argument("--register", action="store_true",
                    help="no poses: register each frame to the one before (ICP) and write the poses found")
+    p.add_argument("--accept-registration", action="store_true",
+                   help="with --register: chain every pose found, even one failing the registration gate (fitness, "
+                        "reverse fitness, inlier RMSE, tilt; docs/evaluation.md)")
     p.add_argument("--half", type=int, help=f"window: frames either side of the target (default {HALF})")
     p.add_argument("--radius", type=A.positive_float, help="window: frames whose origin is within this (m)")
     p.add_argument("--keep-moving", action="store_true",
@@ -226,6 +229,8 @@ def _load(args):
                         args.input_format, args.origins, args.scan_field, args.layout)
     if args.register and (args.poses or args.origins):
         raise InputValueError("--register with --poses or --origins: give one")
+    if args.accept_registration and not args.register:
+        raise InputValueError("--accept-registration without --register: it accepts the poses registration finds")
     if args.sequence_cmd == "evaluate" and len(seq) < 2:
         raise InputValueError(one_frame_refusal(seq))
     if seq.poses is None and not args.register:
@@ -237,7 +242,7 @@ def _load(args):
 def _poses_of(args, seq):
     regs = []
     if args.register:
-        seq, regs = register_chain(seq, progress=not args.quiet)
+        seq, regs = register_chain(seq, progress=not args.quiet, accept_registration=args.accept_registration)
     return seq, regs
 
 

@@ -64,15 +64,21 @@ def check_format(path, fmt=None) -> str:
     return ext
 
 
+#: Coordinates beyond this (metres; a million kilometres) are no scan's: :func:`read_cloud` refuses them
+#: (UTM and Earth-centred coordinates stay under 1e7 m; 1e300 is finite, and its square overflows)
+MAX_COORDINATE = 1e9
+
+
 def read_cloud(path, format: str | None = None, check_finite: bool = True, allow_empty: bool = True) -> PointCloud:
     """Read a point cloud; the format comes from the extension unless given.
 
     Parameters
     ----------
     check_finite : bool
-        Refuse coordinates that are NaN or infinite (default), naming the file
-        and how many; False reads them as they are (an organised PCD's
-        no-return points, to be removed by the caller).
+        Refuse coordinates that are NaN or infinite, or beyond
+        :data:`MAX_COORDINATE` (default), naming the file and how many; False
+        reads them as they are (an organised PCD's no-return points, to be
+        removed by the caller).
     allow_empty : bool
         A file of no points reads as an empty cloud (default); False refuses
         it (``FormatError: PATH: no points``), in every format alike: what the
@@ -118,6 +124,14 @@ def read_cloud(path, format: str | None = None, check_finite: bool = True, allow
             raise FormatError(f"{path}: {len(rows):,} of {len(pts):,} points have NaN or infinite coordinates "
                               f"(rows {', '.join(map(str, rows[:5]))}{', ...' if len(rows) > 5 else ''}): "
                               "remove them first (nothing is dropped silently)")
+        # 1e300 is finite, and squared overflows: numpy's warnings, then noise, downstream (min and max:
+        # no copy of a large cloud; the rows are looked for only when there are some)
+        if len(pts) and max(-cloud.points.min(), cloud.points.max()) > MAX_COORDINATE:
+            rows = np.flatnonzero((np.abs(cloud.points) > MAX_COORDINATE).any(axis=1))
+            raise FormatError(f"{path}: {len(rows):,} of {len(pts):,} points have coordinates beyond "
+                              f"{MAX_COORDINATE:g} m (rows {', '.join(map(str, rows[:5]))}"
+                              f"{', ...' if len(rows) > 5 else ''}; the largest {np.abs(cloud.points[rows]).max():g}): "
+                              "no scan's (a corrupt file, or other units?); remove them first")
     for k, v in cloud.attributes.items():
         if np.ndim(v) == 0:
             raise FormatError(f"{path}: attribute {k!r} is a single value, not one a point ({len(pts)} points)")

@@ -56,6 +56,7 @@ from ..evaluate import scan_order_beams
 from ..raycast import RayScene
 from .estimators import FPA_GAP, PulseReturns
 from .rays import RayModel, fit_ray_model, frame_motion, pattern_ray_model, sweep_offsets
+from .sources import ring_beams
 from .union import rotate
 
 __all__ = ["frame_mesh", "MeshFrames", "rays_of_model", "cast_embree_rays", "mesh_range_bias", "union_meshes",
@@ -343,11 +344,13 @@ def mesh_range_bias(model: RayModel, frames, surfaces, stride: int = 8, reach: f
     return dataclasses.replace(model, range_bias=bias)
 
 
-def frame_beams(frame, base):
-    """A frame's beams: its ``ring`` field, else its scan order (KITTI's ``.bin``), else None."""
+def frame_beams(frame, base, seq=None):
+    """A frame's beams: its ``ring`` field (checked against ``base``, naming the frame and, given its
+    sequence ``seq``, its file), else its scan order (KITTI's ``.bin``), else None."""
     ring = frame.attributes.get("ring")
     if ring is not None:
-        return np.asarray(ring, np.int64)
+        where = f" ({seq.paths[frame.index]})" if seq is not None else ""
+        return ring_beams(ring, base, f"frame {frame.name}{where}")
     return scan_order_beams(frame.points, base.n_beams)
 
 
@@ -367,7 +370,7 @@ def union_meshes(cache, frames, base, model: RayModel | None = None, drop_moving
         f, _ = cache.get(int(i))
         keep, _ = cache.selection(int(i), drop_moving, see_through, exclude)
         pts = cache.own_points(int(i))
-        beams = frame_beams(f, base)
+        beams = frame_beams(f, base, cache.seq)
         if beams is None and len(pts):  # rings not known: each point's row of the base table
             keys, _ = base.pulse_ids(pts, np.zeros(3))
             beams = np.where(keys >= 0, keys // base.columns, -1)
@@ -396,7 +399,7 @@ def fit_embree_model(seq, others, base, cache, meshes: MeshFrames | None = None,
     frames, known_surfaces, unknown = [], [], []
     for i, surface in zip(others, surfaces):
         f, _ = cache.get(int(i))
-        b = frame_beams(f, base)
+        b = frame_beams(f, base, cache.seq)
         if b is None or not len(f.points):
             unknown.append(seq.names[int(i)])
             continue

@@ -25,7 +25,7 @@ import numpy as np
 from tqdm import tqdm
 
 from ..errors import InputValueError
-from ..evaluate import register
+from ..registration import check_registration, register
 from .layouts import SequenceInputs, detect
 from .layouts.base import Frame, FrameSource, Sequence, layout_class
 from .layouts.e57 import read_e57_sequence
@@ -62,12 +62,25 @@ def read_sequence(source, trajectory=None, input_format: str | None = None, orig
     return cls.open(src[0] if len(src) == 1 else src, inputs)
 
 
-def register_chain(seq: Sequence, min_fitness: float = 0.3, progress: bool = False) -> tuple[Sequence, list]:
-    """Poses by registering each frame to the one before (:func:`slr_ray.evaluate.register`),
+def register_chain(seq: Sequence, min_fitness: float | None = None, progress: bool = False,
+                   accept_registration: bool = False) -> tuple[Sequence, list]:
+    """Poses by registering each frame to the one before (:func:`slr_ray.registration.register`),
     chained from frame 0 at the identity. Returns the sequence with those poses and each
-    pair's registration (dicts)."""
+    pair's registration (dicts).
+
+    Each registration passes the gate (:func:`slr_ray.registration.check_registration`: fitness,
+    reverse fitness, inlier RMSE, tilt; ``min_fitness`` replaces the fitness bound) or is refused
+    (InputValueError naming the frames, the failed check, its figure and bound), unless
+    ``accept_registration``: a pose chained from a failed registration moves every frame after it.
+    """
     if len(seq) < 2:
         raise InputValueError("registration needs two frames or more")
+    if not isinstance(accept_registration, (bool, np.bool_)):
+        raise InputValueError(f"accept_registration must be True or False, got {accept_registration!r}")
+    if min_fitness is not None and not (isinstance(min_fitness, (int, float)) and 0 <= min_fitness <= 1):
+        raise InputValueError(f"min_fitness must be a number in [0, 1] (a share of a frame's points), got "
+                              f"{min_fitness!r}")
+    bounds = {} if min_fitness is None else {"min_fitness": min_fitness}
     poses = [np.eye(4)]
     regs = []
     prev = seq.with_poses(np.repeat(np.eye(4)[None], len(seq), 0), "identity")
@@ -75,9 +88,11 @@ def register_chain(seq: Sequence, min_fitness: float = 0.3, progress: bool = Fal
     for i in tqdm(range(1, len(seq)), desc="registering", disable=not progress):
         cur = prev.read(i).points
         reg = register(cur, last)
-        if not reg.fitness >= min_fitness:
-            raise InputValueError(f"{seq.paths[i]}: registered to {seq.paths[i - 1]} with fitness {reg.fitness:.3f} "
-                                  f"< {min_fitness:g}: do the frames overlap? Give the poses instead")
+        if not accept_registration:
+            check_registration(reg, bounds, what=f"frame {i} ({seq.paths[i]}) registered to frame {i - 1} "
+                                                 f"({seq.paths[i - 1]})",
+                               remedy="give the poses (--poses FILE), or chain this pose anyway "
+                                      "(accept_registration=True, --accept-registration)")
         poses.append(poses[-1] @ reg.transform)
         regs.append(reg.to_dict() | {"frame": i, "to": i - 1})
         last = cur

@@ -81,8 +81,9 @@ METHODS = REGISTRY
 DEFAULT_METHODS = tuple(methods_with("default"))
 
 
-def _beams(frame, base):
-    return known_beams(frame.points, frame.attributes, base)
+def _beams(frame, base, seq=None):
+    where = f" ({seq.paths[frame.index]})" if seq is not None else ""
+    return known_beams(frame.points, frame.attributes, base, f"frame {frame.name}{where}")
 
 
 def _held_beams(seq: Sequence, target: int, frame, base):
@@ -196,7 +197,7 @@ def others_pattern(others, base, cache: FrameCache):
     pts, beams = [], []
     for i in others:
         f, _ = cache.get(i)
-        b = _beams(f, base)
+        b = _beams(f, base, cache.seq)
         if b is None or len(f.points) == 0:
             continue
         known = b >= 0
@@ -275,7 +276,7 @@ def scoring_grid(seq: Sequence, target: int, frame, sensor, grid_from: str, othe
         return ScoringGrid(TERRESTRIAL, pattern, None, None, how, yaw)
     base = shipped_sensor(sensor) if isinstance(sensor, str) else sensor
     if grid_from == "others":
-        return ScoringGrid(SPINNING, others_pattern(others, base, cache), _beams(frame, base), base,
+        return ScoringGrid(SPINNING, others_pattern(others, base, cache), _beams(frame, base, seq), base,
                            f"spinning: {base.name}'s beam table fitted to the other frames of the window")
     beams = _held_beams(seq, target, frame, base)
     if beams is None:

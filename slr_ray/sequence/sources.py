@@ -43,7 +43,7 @@ from ..sensors import fitted_pattern, scan_order_beams
 from ..sensors import sensor as shipped_sensor
 from .estimators import PulseReturns
 
-__all__ = ["SeeThrough", "known_beams", "source_sensor_problem", "SourceView", "source_view", "seen_through_votes", "source_discs", "cast_sources",
+__all__ = ["SeeThrough", "known_beams", "ring_beams", "source_sensor_problem", "SourceView", "source_view", "seen_through_votes", "source_discs", "cast_sources",
            "REMOVE_MOVING", "SOURCE_TIES",
            "SOURCE_RADIUS_SCALE"]
 
@@ -103,18 +103,29 @@ class SourceView:
     image: np.ndarray
 
 
+def ring_beams(ring, base, what: str) -> np.ndarray:
+    """A ``ring`` field as beams of ``base``'s table (int64), refused naming ``what`` (the frame or its
+    file) where it holds non-integers or beams outside the table (another sensor's frame: --source-sensor)."""
+    try:
+        base.rows_of_beams(ring)
+    except InputValueError as e:
+        raise InputValueError(f"{what}: its ring field: {e} (a frame of another sensor? --source-sensor)") from None
+    return np.asarray(ring, np.int64)
+
+
 #: a card whose beams are its elevation bands (``meta["beams_from"]``: fitted from frames without a ring field)
 BEAMS_FROM_BANDS = "elevation bands"
 
 
-def known_beams(points, attributes, base):
-    """Each point's beam in ``base``'s table: a ``ring`` field, else the file's scan order
+def known_beams(points, attributes, base, what: str = "a frame"):
+    """Each point's beam in ``base``'s table: a ``ring`` field (checked: :func:`ring_beams`, naming
+    ``what``), else the file's scan order
     (:func:`~slr_ray.sensors.scan_order_beams`), else, for a card fitted from frames without rings
     (``meta["beams_from"]`` :data:`BEAMS_FROM_BANDS`: its beams *are* its elevation bands), the band
     each point falls in (-1 outside them); ``None`` where none tells."""
     ring = attributes.get("ring")
     if ring is not None:
-        return np.asarray(ring, np.int64)
+        return ring_beams(ring, base, what)
     order = scan_order_beams(points, base.n_beams)
     if order is None and getattr(base, "meta", {}).get("beams_from") == BEAMS_FROM_BANDS and len(points):
         bands = base.with_(min_range=None, max_range=None)  # the band by elevation alone, at any range
@@ -137,11 +148,12 @@ def source_sensor_problem(points, attributes, base) -> str | None:
     return None
 
 
-def source_view(local, attributes, base) -> SourceView:
-    """The view of a frame whose points are ``local`` (its own frame, float64) by the beam table ``base``."""
+def source_view(local, attributes, base, what: str = "a frame") -> SourceView:
+    """The view of a frame (``what``, in messages) whose points are ``local`` (its own frame, float64) by
+    the beam table ``base``."""
     ring = attributes.get("ring")
     if ring is not None and len(ring) == len(local):
-        beams = np.asarray(ring, np.int64)
+        beams = ring_beams(ring, base, what)
     else:
         beams = scan_order_beams(local, base.n_beams)
     pat = fitted_pattern(local, beams, base) if beams is not None else base

@@ -148,7 +148,8 @@ class FrameCache:
         held = self._views.setdefault(i, {})
         key = (base.name, base.shape, tuple(base.elevation_deg))  # one view a table
         if key not in held:
-            held[key] = source_view(self.own_points(i), f.attributes, base)
+            held[key] = source_view(self.own_points(i), f.attributes, base,
+                                       f"frame {f.name} ({self.seq.paths[i]})")
         return held[key]
 
     def selection(self, i: int, drop_moving: bool, see_through: SeeThrough | None = None,

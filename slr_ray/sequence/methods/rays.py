@@ -30,11 +30,11 @@ def holdout_ray_model(seq, others, base, pattern, cache) -> RayModel:
     frames, worlds, unknown = [], [], []
     for i in others:
         f, w = cache.get(i)
-        beams = known_beams(f.points, f.attributes, base)
+        beams = known_beams(f.points, f.attributes, base, f"frame {seq.names[i]} ({seq.paths[i]})")  # out of the table: refused, named
         if beams is None or len(f.points) == 0:
             unknown.append(seq.names[i])
             continue
-        base.rows_of_beams(beams, len(f.points))  # beam ids outside the sensor's table: refused, named
+        base.rows_of_beams(beams, len(f.points))  # one a point
         known = beams >= 0  # -1: a point whose beam is not known
         frames.append((f.points[known], beams[known], frame_motion(seq.poses, i)))
         worlds.append((w[known], beams[known], seq.poses[i], frames[-1][2]))
