@@ -21,7 +21,8 @@ from ...raycast import padded_rows
 from .options import RADIUS_MODES
 
 __all__ = ["neighbourhoods", "disc_radii", "estimate_normals", "chunk_normals", "fallback_directions",
-           "limit_incidence", "turned", "pca_normal", "fan_polygons", "primary_steps", "footprint_angle"]
+           "limit_incidence", "turned", "pca_normal", "fan_polygons", "primary_steps", "footprint_angle",
+           "pulse_centre_reach", "PULSE_REACH_MARGIN", "PULSE_REACH_CAP"]
 
 
 #: Bytes of one chunk's neighbour arrays (float64 distances, int64 indices) in :func:`neighbourhoods`.
@@ -328,3 +329,56 @@ def footprint_angle(primary) -> float:
     degrees, exactly their radians)."""
     d_theta, d_phi = primary_steps(primary)
     return d_theta if d_theta == d_phi else math.sqrt(0.5 * (d_theta * d_theta + d_phi * d_phi))
+
+
+#: :func:`pulse_centre_reach`'s radius: this times the distance to the pulse centre ray (float32 discs)
+PULSE_REACH_MARGIN = 1.02
+#: :func:`pulse_centre_reach` grows a disc to at most this times its radius (a disc nearly along its
+#: pulse's ray would meet it metres away)
+PULSE_REACH_CAP = 4.0
+
+
+def pulse_centre_reach(points, normals, primary_origin, primary, chunk: int = 1 << 20) -> np.ndarray:
+    """``(n,) float64``: how far each point's disc must reach to hold its own pulse's centre ray.
+
+    Each point falls in a pulse of the primary's pattern ``primary`` (degrees or a pattern; a
+    beam table's elevation bands, its azimuth offsets 0, as the pulse grid takes them) seen from
+    ``primary_origin``; the pulse's centre ray meets the point's disc plane (normal ``normals[i]``,
+    None: the disc faces the ray) at some distance from the point: this distance times
+    :data:`PULSE_REACH_MARGIN`. A point recorded off its pulse's centre (a beam's point a band
+    away from its beam's nominal elevation, a point near a cell's corner) has a disc of its
+    neighbours' spacing that the centre ray can pass by. 0 for points outside the pattern and
+    rays along the plane (:data:`PULSE_REACH_CAP` bounds the growth where the caller applies it).
+    """
+    pts = np.asarray(points, np.float64)
+    o = as_origin(primary_origin, "primary_origin")
+    grid = as_pattern(primary).aligned() if not isinstance(primary, (int, float, np.integer, np.floating)) \
+        else as_pattern(float(primary))
+    out = np.zeros(len(pts))
+    for s in range(0, len(pts), chunk):
+        rel = pts[s:s + chunk] - o
+        keys, _ = grid.pulse_ids(rel, np.zeros(3))
+        ok = keys >= 0
+        nv, nh = grid.shape
+        v, h = keys[ok] // nh, keys[ok] % nh
+        if getattr(grid, "has_beams", False):
+            zen = grid.row_zenith[v]
+            az = (h + 0.5) * (2 * math.pi / nh)
+            st = np.sin(zen)
+            d = np.column_stack([st * np.cos(az), st * np.sin(az), np.cos(zen)])
+        else:
+            from ...pattern import pulse_directions
+            d = pulse_directions(np.column_stack([v, h]), grid)
+        p = rel[ok]
+        if normals is None:  # facing the ray: the distance from the ray
+            t = np.einsum("ij,ij->i", p, d)
+        else:
+            n = np.asarray(normals[s:s + len(rel)], np.float64)[ok]
+            dn = np.einsum("ij,ij->i", d, n)
+            with np.errstate(divide="ignore", invalid="ignore"):
+                t = np.einsum("ij,ij->i", p, n) / dn
+            t = np.where(np.isfinite(t) & (t > 0), t, np.nan)
+        q = t[:, None] * d - p
+        r = np.linalg.norm(q, axis=1) * PULSE_REACH_MARGIN
+        out[s:s + chunk][ok] = np.where(np.isfinite(r), r, 0.0)
+    return out
