@@ -84,3 +84,22 @@ def test_pulse_cells_needs_the_primary():
     with pytest.raises(InputValueError, match="pulse_cells must be True or False"):
         prepare(np.random.default_rng(0).normal(size=(50, 3)), "embree", primary_origin=P, primary_resolution=2.0,
                 pulse_cells="yes")
+
+
+def test_a_disc_stops_beyond_a_silhouette_side_pulse_in_azimuth():
+    """Rows four times as tall as columns: a pole one column wide 5 m before a wall 10 m away. The pole's
+    discs may reach as many columns as a row's height holds, but not past the next column, where the
+    wall's return lies behind (its silhouette bit): 188 of the wall's rays met the pole's discs two to
+    four columns aside before."""
+    pattern = ScanPattern(azimuth_resolution=0.25, zenith_resolution=1.0, zenith_range=(70, 110))
+    a = np.radians(10.125)  # a column's centre
+    pole = trimesh.creation.box((0.015, 0.015, 3.0))
+    pole.apply_translation((5.0 * np.cos(a), 5.0 * np.sin(a), 0.0))
+    wall = trimesh.creation.box((0.1, 8.0, 6.0))
+    wall.apply_translation((10.0, 0.0, 0.0))
+    truth = scan_mesh(trimesh.util.concatenate([pole, wall]), P, pattern)
+    exact = dict(zip(map(tuple, truth.pulses.tolist()), truth.ranges))
+    sc = prepare(truth.points, "embree", primary_origin=P, primary_pattern=pattern, primary_image=False)
+    _, (pulses, _, dist) = sc.scan_and_rays(P, pattern)
+    off = np.abs(dist - np.array([exact.get(p, np.nan) for p in map(tuple, pulses.tolist())]))  # where it returned
+    assert np.count_nonzero(truth.ranges < 6) >= 5 and np.count_nonzero(off > 0.5) == 0

@@ -16,7 +16,7 @@ from scipy.spatial import cKDTree
 
 from ...arrays import as_origin, bounds
 from ...errors import InputValueError
-from ...pattern import as_pattern
+from ...pattern import as_pattern, pulse_directions
 from ...raycast import padded_rows
 from .options import RADIUS_MODES
 
@@ -367,7 +367,6 @@ def pulse_centre_reach(points, normals, primary_origin, primary, chunk: int = 1 
             st = np.sin(zen)
             d = np.column_stack([st * np.cos(az), st * np.sin(az), np.cos(zen)])
         else:
-            from ...pattern import pulse_directions
             d = pulse_directions(np.column_stack([v, h]), grid)
         p = rel[ok]
         if normals is None:  # facing the ray: the distance from the ray
