@@ -23,7 +23,9 @@ Run: ``PYTHONPATH=. nice python benchmarks/embree_self_rescan.py`` from the repo
 minutes on the shared 2-core machine; ``--frames kitti_hdl64_000000.bin`` for one frame,
 ``--settings before pulse_cells`` for some settings). ``--pair`` adds KITTI 000001 re-simulated from
 000000 (registered, ``primary_image`` at its default): the settings away from the primary's origin;
-``--pair-only`` runs that alone (``results/NAME_pair.json``).
+``--pair-only`` runs that alone (``results/NAME_pair.json``); ``--speed-only N`` measures what
+``pulse_cells`` costs to prepare and cast on KITTI 000000, medians of N alternated rounds in one
+process (``results/NAME_speed.json``).
 """
 
 from __future__ import annotations
@@ -153,6 +155,41 @@ def pair(data: Path, settings) -> list[dict]:
     return rows
 
 
+def speed(data: Path, repeats: int) -> dict:
+    """What ``pulse_cells`` costs: KITTI 000000's beam-table-grid scanner prepared with and without it
+    (``primary_image=False``), cast from its origin and from 1 m aside with its fitted table, the two
+    alternated in this process, medians of ``repeats`` (wall and CPU seconds: all threads)."""
+    import statistics
+
+    from slr_ray.sensors import fitted_pattern, scan_order_beams, sensor
+
+    pts = read_cloud(data / "kitti_hdl64_000000.bin").points
+    base = sensor("velodyne_hdl64e_s2")
+    pat = fitted_pattern(pts, scan_order_beams(pts, base.n_beams), base)
+    opts = {"primary_origin": np.zeros(3), "primary_pattern": pat, "primary_image": False}
+    times = {k: [] for k in ("before", "pulse_cells")}
+    for i in range(repeats + 1):  # the first round compiles: not counted
+        for name, extra in (("before", {}), ("pulse_cells", {"pulse_cells": True})):
+            row = {}
+            t, c = time.perf_counter(), time.process_time()
+            sc = prepare(pts, "embree", **opts, **extra)
+            row["prepare_s"], row["prepare_cpu_s"] = time.perf_counter() - t, time.process_time() - c
+            for where, origin in (("origin", np.zeros(3)), ("1m_aside", np.array([0.0, 1.0, 0.0]))):
+                t, c = time.perf_counter(), time.process_time()
+                sc.scan(origin, pat)
+                row[f"cast_{where}_s"], row[f"cast_{where}_cpu_s"] = time.perf_counter() - t, time.process_time() - c
+            if i:
+                times[name].append(row)
+    med = {k: {m: statistics.median(r[m] for r in v) for m in v[0]} for k, v in times.items()}
+    ratio = {m: med["pulse_cells"][m] / med["before"][m] for m in med["before"]}
+    print("\nspeed (medians of", repeats, "):", json_line(med), "\npulse_cells / before:", json_line(ratio), flush=True)
+    return {"runs": times, "median": med, "pulse_cells_over_before": ratio}
+
+
+def json_line(d) -> str:
+    return ", ".join(f"{k}: " + (json_line(v) if isinstance(v, dict) else f"{v:.3f}") for k, v in d.items())
+
+
 def main(argv=None) -> None:
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     ap.add_argument("--data", type=Path, default=DATA)
@@ -161,7 +198,13 @@ def main(argv=None) -> None:
     ap.add_argument("--name", default="embree_self_rescan", help="results/NAME.json and NAME.png")
     ap.add_argument("--pair", action="store_true", help="also KITTI 000001 re-simulated from 000000 (registered)")
     ap.add_argument("--pair-only", action="store_true", help="only that (results/NAME_pair.json)")
+    ap.add_argument("--speed-only", type=int, default=0, metavar="N",
+                    help="only what pulse_cells costs, medians of N (results/NAME_speed.json)")
     args = ap.parse_args(argv)
+    if args.speed_only:
+        save(f"{args.name}_speed", {"machine": machine(), "load_before": os.getloadavg(),
+                                    **speed(args.data, args.speed_only), "load_after": os.getloadavg()})
+        return
     if args.pair_only:
         save(f"{args.name}_pair", {"machine": machine(), "load_before": os.getloadavg(),
                                    "pair": pair(args.data, args.settings), "load_after": os.getloadavg()})

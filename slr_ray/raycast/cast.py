@@ -210,6 +210,14 @@ def _outside_cell(ctx, ctxf, geo, owner, x, y, z, t):
     the primary's origin, outside the owner's own pulse by more than the parallax angle (the ray
     origin's distance from the primary's over ``t``; 0 at the primary's origin, where each disc is
     cut to its pulse exactly)."""
+    b = math.sqrt(ctxf[_C_CLIP_T2]) * SILHOUETTE_PARALLAX  # the ray origin's distance from the primary's
+    if b > 0.0:
+        # seen from the primary the hit lies within about r / (t - b - r) of the owner's direction, and the
+        # owner in its pulse: no cut where that is within the parallax angle b / t (most hits away from the
+        # primary's origin; the radius is read from Embree's vertex buffer, in cache)
+        r = np.float64(carray(_as_pointer(ctx[_C_RADII] + owner * ctx[_C_RSTRIDE]), 1, dtype=np.float32)[0])
+        if 1.5 * r * t <= b * (t - b - r):
+            return False
     n_edges = ctx[_C_CLIP_NEDGES]
     edges = carray(_as_pointer(ctx[_C_CLIP_EDGES]), max(n_edges, 1), dtype=np.float64)
     cen = carray(_as_pointer(ctx[_C_CENTRES] + owner * 24), 3, dtype=np.float64)
@@ -217,7 +225,7 @@ def _outside_cell(ctx, ctxf, geo, owner, x, y, z, t):
     vx, hx = _primary_cell(geo, edges, n_edges, x, y, z)
     if vc == vx and hc == hx:
         return False
-    margin = math.sqrt(ctxf[_C_CLIP_T2]) * SILHOUETTE_PARALLAX / t
+    margin = b / t
     if margin == 0.0:
         return True
     # the hit's angles from the primary against the owner's cell, radians
