@@ -193,7 +193,9 @@ class EmbreeOptions(BackendOptions):
     pulse_cells : bool
         Each disc cut, as seen from the primary's origin, to its own point's
         pulse of the primary (needs ``primary_origin`` and the primary's
-        pattern; with or without ``primary_beams``): the discs tile the
+        pattern; with or without ``primary_beams``) and grown to hold its
+        centre ray (up to 4x its radius; ``discs.pulse_centre_reach``):
+        the discs tile the
         primary's pulses, and a ray of the primary's own pattern from its
         origin meets only the discs of its own pulse's points, so that the
         discs alone re-scan the frame they came from (``primary_image=False``;
@@ -299,8 +301,6 @@ class EmbreeOptions(BackendOptions):
                 self.primary_origin is None or self.primary_grid is None):
             raise InputValueError("radius='footprint' needs primary_origin and primary_resolution "
                                   "(or primary_pattern)")
-        if self.pulse_cells and (self.primary_origin is None or self.primary_grid is None):
-            raise InputValueError("pulse_cells needs primary_origin and primary_resolution (or primary_pattern)")
         if self.pulse_cells and self.engine == "open3d":
             raise InputValueError("pulse_cells needs engine 'embree' or 'fan' (Open3D's scene has no filter)")
         for name in ("primary_image", "silhouettes", "pulse_cells"):

@@ -52,6 +52,22 @@ def _initial_normals(pts, o: EmbreeOptions, need_normals, grid, ndtype):
     return normals
 
 
+def _check_pulse_cells(o: EmbreeOptions) -> None:
+    """``pulse_cells`` refused without the primary's origin and pattern (checked when the scanner is made,
+    not with the options: ``slr-ray scan`` adds a file's own primary to them later)."""
+    if o.pulse_cells and (o.primary_origin is None or o.primary_grid is None):
+        raise InputValueError("pulse_cells needs primary_origin and primary_resolution (or primary_pattern)")
+
+
+def _reaching_pulse_centres(pts, normals, o: EmbreeOptions, radii):
+    """``radii`` grown, with ``pulse_cells``, to hold each point's own pulse's centre ray (at most
+    :data:`~.discs.PULSE_REACH_CAP` times)."""
+    step("discs reaching their pulse centres")
+    reach = pulse_centre_reach(pts, normals if o.orientation != "billboard" else None, o.primary_origin,
+                               o.primary_grid)
+    return np.maximum(radii, np.minimum(reach, PULSE_REACH_CAP * radii))
+
+
 class DiscScanner(Scanner):
     """A cloud as discs in one Embree BVH, ready to scan from many positions.
 
@@ -96,6 +112,7 @@ class DiscScanner(Scanner):
         if options.fit_pending:
             fitted, self.primary_fit, self.primary_fit_quality = fit_primary_pattern(pts, options.primary_origin)
             options = dataclasses.replace(options, primary_pattern=fitted)
+        _check_pulse_cells(options)
         super().__init__(pts, options)
         o = options
         n = len(pts)
@@ -150,11 +167,7 @@ class DiscScanner(Scanner):
                          min_radius=o.min_radius, fallback_radius=o.fallback_radius, spacing=spacing)
         del spacing
         if o.pulse_cells and n:  # each disc holds its own pulse's centre ray (the cell cut keeps it there)
-            step("discs reaching their pulse centres")
-            reach = pulse_centre_reach(pts, normals if o.orientation != "billboard" else None, o.primary_origin,
-                                       o.primary_grid)
-            r64 = np.maximum(r64, np.minimum(reach, PULSE_REACH_CAP * r64))
-            del reach
+            r64 = _reaching_pulse_centres(pts, normals, o, r64)
         self.radii = disc_vertices(n) if o.engine == "embree" else np.empty(n, np.float32)
         self.radii[:] = r64
         del r64
