@@ -203,6 +203,7 @@ OPTION_HELP = {
     "grid_spacing": (None, "pulse-grid spacing: mean distance or axis step"),
     "primary_image": (None, "a scan from the primary's origin returns the primary's own point in each pulse"),
     "silhouettes": (None, "pulse-grid discs kept within the pulses next to their point's, as the primary saw"),
+    "pulse_cells": (None, "each disc cut to its own point's pulse of the primary, reaching its centre ray"),
 }
 
 

@@ -82,8 +82,8 @@ brute-force ray-disc and ray-triangle intersection.
 
 from .library import embree_available, embree_library
 from .open3d_scene import Open3DScene
-from .cast import silhouette_bit
+from .cast import CELLS_AND_SILHOUETTES, CELLS_OFF, CELLS_ONLY, silhouette_bit
 from .scene import RayHits, RayScene, disc_vertices, padded_rows
 
 __all__ = ["silhouette_bit", "RayScene", "RayHits", "Open3DScene", "embree_library", "embree_available", "padded_rows",
-           "disc_vertices"]
+           "disc_vertices", "CELLS_OFF", "CELLS_AND_SILHOUETTES", "CELLS_ONLY"]

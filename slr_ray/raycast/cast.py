@@ -24,6 +24,7 @@ from .cull import could_hit
 from .library import FEATURE_FLAGS_ALL, INVALID_ID, RAY_QUERY_FLAG_INVOKE_ARGUMENT_FILTER
 
 __all__ = ["cast_packets", "cast_each", "FILTER", "MODE_SKIP", "PACKET_WIDTHS", "silhouette_bit", "NO_CLIP",
+           "CELLS_OFF", "CELLS_AND_SILHOUETTES", "CELLS_ONLY",
            "SILHOUETTE_PARALLAX"]
 
 #: the packet widths Embree has (rtcIntersect1, 4, 8, 16)
@@ -169,7 +170,10 @@ def silhouette_bit(slot):
 SILHOUETTE_PARALLAX = 0.25
 
 #: no silhouette rule (cast_packets' clip arguments)
-NO_CLIP = (np.zeros(0, np.uint8), np.zeros(8), np.zeros(0))
+NO_CLIP = (np.zeros(0, np.uint8), np.zeros(9), np.zeros(0))
+#: the pulse-cell cut (``clip_geo[8]``): none; each disc within its owner's pulse of the primary, widened
+#: by the parallax angle, and the silhouette rule; that cut alone (no silhouette bits known)
+CELLS_OFF, CELLS_AND_SILHOUETTES, CELLS_ONLY = 0.0, 1.0, 2.0
 
 
 @njit(cache=True, nogil=True, inline="always")
@@ -201,6 +205,51 @@ def _primary_cell(geo, edges, n_edges, x, y, z):
 
 
 @njit(cache=True, nogil=True, inline="always")
+def _outside_cell(ctx, ctxf, geo, owner, x, y, z, t):
+    """The pulse-cell cut: whether the hit ``(x, y, z)`` at ``t`` on disc ``owner`` lies, as seen from
+    the primary's origin, outside the owner's own pulse by more than the parallax angle (the ray
+    origin's distance from the primary's over ``t``; 0 at the primary's origin, where each disc is
+    cut to its pulse exactly)."""
+    b = math.sqrt(ctxf[_C_CLIP_T2]) * SILHOUETTE_PARALLAX  # the ray origin's distance from the primary's
+    if b > 0.0:
+        # seen from the primary the hit lies within about r / (t - b - r) of the owner's direction, and the
+        # owner in its pulse: no cut where that is within the parallax angle b / t (most hits away from the
+        # primary's origin; the radius is read from Embree's vertex buffer, in cache)
+        r = np.float64(carray(_as_pointer(ctx[_C_RADII] + owner * ctx[_C_RSTRIDE]), 1, dtype=np.float32)[0])
+        if 1.5 * r * t <= b * (t - b - r):
+            return False
+    n_edges = ctx[_C_CLIP_NEDGES]
+    edges = carray(_as_pointer(ctx[_C_CLIP_EDGES]), max(n_edges, 1), dtype=np.float64)
+    cen = carray(_as_pointer(ctx[_C_CENTRES] + owner * 24), 3, dtype=np.float64)
+    vc, hc = _primary_cell(geo, edges, n_edges, cen[0], cen[1], cen[2])
+    vx, hx = _primary_cell(geo, edges, n_edges, x, y, z)
+    if vc == vx and hc == hx:
+        return False
+    margin = b / t
+    if margin == 0.0:
+        return True
+    # the hit's angles from the primary against the owner's cell, radians
+    ax, ay, az = x - geo[0], y - geo[1], z - geo[2]
+    rho = math.sqrt(ax * ax + ay * ay)
+    theta = math.atan2(rho, az)
+    if n_edges == 0:
+        lo = geo[3] + vc * geo[4]
+        hi = lo + geo[4]
+    else:
+        if vc < 0 or vc + 1 >= n_edges:
+            return False  # the owner outside the table's bands: no cell to keep it in
+        lo, hi = math.acos(-edges[vc]), math.acos(-edges[vc + 1])
+    ex = max(0.0, lo - theta, theta - hi)
+    phi = math.atan2(ay, ax)
+    if phi < 0.0:
+        phi += 2.0 * math.pi
+    mid = (hc + 0.5) * geo[5]
+    off = (phi - mid + math.pi) % (2.0 * math.pi) - math.pi
+    ex = max(ex, (abs(off) - 0.5 * geo[5]) * math.sin(theta))
+    return ex > margin
+
+
+@njit(cache=True, nogil=True, inline="always")
 def _clipped(ctx, ctxf, owner, t, dx, dy, dz):
     """The silhouette rule: whether the hit at ``t`` on disc ``owner`` lies, as seen from the primary's
     origin, beyond the pulses next to the owner's own (in azimuth, where columns are narrower than a
@@ -210,8 +259,13 @@ def _clipped(ctx, ctxf, owner, t, dx, dy, dz):
     if t * t < ctxf[_C_CLIP_T2]:
         return False  # seen from too far aside of the primary's origin: its pulses are no guide here
     bits = np.int64(carray(_as_pointer(ctx[_C_CLIP] + owner), 1, dtype=np.uint8)[0])
-    geo = carray(_as_pointer(ctx[_C_CLIP_GEO]), 8, dtype=np.float64)
+    geo = carray(_as_pointer(ctx[_C_CLIP_GEO]), 9, dtype=np.float64)
     hx_, hy_, hz_ = ctxf[_C_ORG] + t * dx, ctxf[_C_ORG + 1] + t * dy, ctxf[_C_ORG + 2] + t * dz
+    if geo[8] != CELLS_OFF:
+        if _outside_cell(ctx, ctxf, geo, owner, hx_, hy_, hz_, t):
+            return True
+        if geo[8] == CELLS_ONLY:
+            return False
     if bits == 0:
         # an inner point: no angles, its pulse offset in the tangent frame of its direction: a hit
         # 1.5 rows off, or 1.5 columns (or where columns are narrower than a row, half a column
@@ -259,6 +313,8 @@ def _clipped(ctx, ctxf, owner, t, dx, dy, dz):
         return (bits >> silhouette_bit((dv + 1) * 3 + dh + 1)) & 1 == 1
     if dv < -1 or dv > 1:
         return True  # a disc reaching two pulses would take the next one's silhouette pulse
+    if (bits >> silhouette_bit((dv + 1) * 3 + (1 if dh > 0 else -1) + 1)) & 1 == 1:
+        return True  # beyond the next pulse on a silhouette side: a silhouette pulse further on too
     # columns narrower than a row (towards the poles, a beam table's): as many as a row's height holds
     rho = math.sqrt((cen[0] - geo[0]) ** 2 + (cen[1] - geo[1]) ** 2)
     r = math.sqrt(rho * rho + (cen[2] - geo[2]) ** 2)

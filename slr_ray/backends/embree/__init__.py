@@ -57,6 +57,13 @@ max_incidence
     With pulse-grid normals (default 80 degrees): a disc seen edge-on from the
     primary scanner (a noisy normal on grazing ground) is turned towards it,
     so that the ray of its own pulse still meets it.
+pulse_cells
+    With the primary's origin and pattern (default off): each disc cut, as
+    seen from the primary's origin, to its own point's pulse (widened by the
+    parallax angle away from it) and grown to hold that pulse's centre
+    ray; the discs alone then re-scan the primary's frame from its origin
+    (``primary_image=False``: KITTI 0.12-0.17 m depth RMSE, 99.7 % drop
+    accuracy, against 0.92-1.28 m and 86-88 % before).
 
 Embree works in float32: coordinates are recentred in float64 on the cloud's
 centre before conversion; the tie rule and returned ranges are computed in

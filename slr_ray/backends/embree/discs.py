@@ -21,7 +21,8 @@ from ...raycast import padded_rows
 from .options import RADIUS_MODES
 
 __all__ = ["neighbourhoods", "disc_radii", "estimate_normals", "chunk_normals", "fallback_directions",
-           "limit_incidence", "turned", "pca_normal", "fan_polygons", "primary_steps", "footprint_angle"]
+           "limit_incidence", "turned", "pca_normal", "fan_polygons", "primary_steps", "footprint_angle",
+           "pulse_centre_reach", "PULSE_REACH_MARGIN", "PULSE_REACH_CAP"]
 
 
 #: Bytes of one chunk's neighbour arrays (float64 distances, int64 indices) in :func:`neighbourhoods`.
@@ -328,3 +329,67 @@ def footprint_angle(primary) -> float:
     degrees, exactly their radians)."""
     d_theta, d_phi = primary_steps(primary)
     return d_theta if d_theta == d_phi else math.sqrt(0.5 * (d_theta * d_theta + d_phi * d_phi))
+
+
+#: :func:`pulse_centre_reach`'s radius: this times the distance to the pulse centre ray (float32 discs)
+PULSE_REACH_MARGIN = 1.02
+#: :func:`pulse_centre_reach` grows a disc to at most this times its radius (a disc nearly along its
+#: pulse's ray would meet it metres away)
+PULSE_REACH_CAP = 4.0
+
+
+def pulse_centre_reach(points, normals, primary_origin, primary, chunk: int = 1 << 20,
+                       corners: bool = False) -> np.ndarray:
+    """``(n,) float64``: how far each point's disc must reach to hold its own pulse.
+
+    Each point falls in a pulse of the primary's pattern ``primary`` (degrees or a pattern; a
+    beam table's elevation bands, its azimuth offsets 0, as the pulse grid takes them) seen from
+    ``primary_origin``; the pulse's centre ray and (``corners``) the rays through its four corners
+    meet the point's disc plane (normal ``normals[i]``, None: the disc faces the ray) at some
+    distance from the point: the largest, times :data:`PULSE_REACH_MARGIN`. A point recorded off
+    its pulse's centre (a beam's point a band away from its beam's nominal elevation, a point near
+    a cell's corner) has a disc of its neighbours' spacing that rays of its pulse can pass by. Rays
+    along the plane count 0 (:data:`PULSE_REACH_CAP` bounds the growth where the caller applies
+    it); points outside the pattern get 0.
+    """
+    pts = np.asarray(points, np.float64)
+    o = as_origin(primary_origin, "primary_origin")
+    grid = as_pattern(primary).aligned() if not isinstance(primary, (int, float, np.integer, np.floating)) \
+        else as_pattern(float(primary))
+    nv, nh = grid.shape
+    beams = getattr(grid, "has_beams", False)
+    if beams:
+        edges = np.asarray(grid.band_edges, np.float64)
+        zen_mid = np.asarray(grid.row_zenith, np.float64)
+    else:
+        d_theta, d_phi, th0, th1 = grid.radians
+    d_az = 2 * math.pi / nh
+    out = np.zeros(len(pts))
+    offsets = ((0.5, 0.5), (0.0, 0.0), (0.0, 1.0), (1.0, 0.0), (1.0, 1.0)) if corners else ((0.5, 0.5),)
+    for s in range(0, len(pts), chunk):
+        rel = pts[s:s + chunk] - o
+        keys, _ = grid.pulse_ids(rel, np.zeros(3))
+        ok = keys >= 0
+        v, h = keys[ok] // nh, keys[ok] % nh
+        p = rel[ok]
+        n = None if normals is None else np.asarray(normals[s:s + len(rel)], np.float64)[ok]
+        best = np.zeros(len(p))
+        for fv, fh in offsets:
+            if beams:
+                zen = zen_mid[v] if fv == 0.5 else edges[v + int(fv)]
+            else:
+                zen = np.minimum(th0 + (v + fv) * d_theta, th1)
+            az = (h + fh) * (d_az if beams else d_phi)
+            st = np.sin(zen)
+            d = np.column_stack([st * np.cos(az), st * np.sin(az), np.cos(zen)])
+            if n is None:  # facing the ray: the distance from the ray
+                t = np.einsum("ij,ij->i", p, d)
+            else:
+                dn = np.einsum("ij,ij->i", d, n)
+                with np.errstate(divide="ignore", invalid="ignore"):
+                    t = np.einsum("ij,ij->i", p, n) / dn
+                t = np.where(np.isfinite(t) & (t > 0), t, np.nan)
+            r = np.linalg.norm(t[:, None] * d - p, axis=1)
+            best = np.fmax(best, r)
+        out[s:s + chunk][ok] = np.where(np.isfinite(best), best * PULSE_REACH_MARGIN, 0.0)
+    return out

@@ -15,11 +15,12 @@ from ...core import ranges_of
 from ...errors import InputValueError, refuse_memory
 from ...pattern import as_pattern, pulse_rays
 from ...progress import step
-from ...raycast import Open3DScene, RayScene, disc_vertices, padded_rows
+from ...raycast import CELLS_AND_SILHOUETTES, CELLS_OFF, CELLS_ONLY, Open3DScene, RayScene, disc_vertices, padded_rows
 from ...scan import Scan
 from ..base import Backend, Scanner
 from .fit import fit_primary_pattern, fitted_grid_holds
-from .discs import chunk_normals, disc_radii, fallback_directions, fan_polygons, limit_incidence, neighbourhoods
+from .discs import (PULSE_REACH_CAP, chunk_normals, disc_radii, fallback_directions, fan_polygons, limit_incidence,
+                    neighbourhoods, pulse_centre_reach)
 from .options import EmbreeOptions, refuse_cast
 from .pulsegrid import pulse_grid_spacing_normals
 
@@ -49,6 +50,22 @@ def _initial_normals(pts, o: EmbreeOptions, need_normals, grid, ndtype):
         # float32: what Embree holds anyway (a float64 copy would be 24 B a point of peak memory)
         normals = fallback_directions(pts, o.primary_origin, np.float32)
     return normals
+
+
+def _check_pulse_cells(o: EmbreeOptions) -> None:
+    """``pulse_cells`` refused without the primary's origin and pattern (checked when the scanner is made,
+    not with the options: ``slr-ray scan`` adds a file's own primary to them later)."""
+    if o.pulse_cells and (o.primary_origin is None or o.primary_grid is None):
+        raise InputValueError("pulse_cells needs primary_origin and primary_resolution (or primary_pattern)")
+
+
+def _reaching_pulse_centres(pts, normals, o: EmbreeOptions, radii):
+    """``radii`` grown, with ``pulse_cells``, to hold each point's own pulse's centre ray (at most
+    :data:`~.discs.PULSE_REACH_CAP` times)."""
+    step("discs reaching their pulse centres")
+    reach = pulse_centre_reach(pts, normals if o.orientation != "billboard" else None, o.primary_origin,
+                               o.primary_grid)
+    return np.maximum(radii, np.minimum(reach, PULSE_REACH_CAP * radii))
 
 
 class DiscScanner(Scanner):
@@ -95,6 +112,7 @@ class DiscScanner(Scanner):
         if options.fit_pending:
             fitted, self.primary_fit, self.primary_fit_quality = fit_primary_pattern(pts, options.primary_origin)
             options = dataclasses.replace(options, primary_pattern=fitted)
+        _check_pulse_cells(options)
         super().__init__(pts, options)
         o = options
         n = len(pts)
@@ -123,7 +141,8 @@ class DiscScanner(Scanner):
                                                                spacing_kind=o.grid_spacing,
                                                                silhouette=clip)
             if clip is not None:
-                self._clip = (clip, *_grid_geometry(o.primary_origin, o.primary_grid))
+                self._clip = (clip, *_grid_geometry(o.primary_origin, o.primary_grid,
+                                                    CELLS_AND_SILHOUETTES if o.pulse_cells else CELLS_OFF))
             if need_normals:
                 normals = grid_normals
         elif need_spacing or need_normals:
@@ -135,6 +154,8 @@ class DiscScanner(Scanner):
                 if need_normals:
                     normals[s:s + len(idx)] = chunk_normals(pts, np.arange(s, s + len(idx)), idx,
                                                              o.primary_origin)
+        if o.pulse_cells and self._clip is None:  # the cut alone (no silhouette bits here)
+            self._clip = (np.zeros(n, np.uint8), *_grid_geometry(o.primary_origin, o.primary_grid, CELLS_ONLY))
         if need_normals and n >= 2 and o.max_incidence < 90 and not grid:  # the grid pass turns its own
             limit_incidence(pts, normals, as_origin(o.primary_origin, "primary_origin"),
                              math.cos(math.radians(o.max_incidence)))
@@ -145,6 +166,8 @@ class DiscScanner(Scanner):
                          primary_origin=o.primary_origin, primary_resolution=o.primary_grid,
                          min_radius=o.min_radius, fallback_radius=o.fallback_radius, spacing=spacing)
         del spacing
+        if o.pulse_cells and n:  # each disc holds its own pulse's centre ray (the cell cut keeps it there)
+            r64 = _reaching_pulse_centres(pts, normals, o, r64)
         self.radii = disc_vertices(n) if o.engine == "embree" else np.empty(n, np.float32)
         self.radii[:] = r64
         del r64
@@ -187,9 +210,19 @@ class DiscScanner(Scanner):
         if o.engine == "open3d":  # no tie rule in Open3D (slr_ray.raycast.open3d_scene)
             hits = self._scene.intersect(origin, dirs, tfar=tfar, skip_containing=True, n_threads=o.n_threads)
         else:
-            hits = self._scene.intersect(origin, dirs, tfar=tfar, ties=o.ties, skip_containing=True,
+            hits = self._scene.intersect(origin, dirs, tfar=tfar, ties=self._ties_at(origin), skip_containing=True,
                                          n_threads=o.n_threads, pulse_aspect=aspect, clip=self._clip)
         return hits.owners, hits.distances
+
+    def _ties_at(self, origin) -> float:
+        """The tie window of a cast from ``origin``: ``ties``, and 0 with ``pulse_cells`` at the primary's
+        origin (within :data:`PRIMARY_VIEW_TOLERANCE`), where the discs are cut to their pulses: no two
+        discs of one surface overlap there, and the first one met is the nearest of a pulse's points."""
+        o = self.options
+        if o.pulse_cells and float(np.max(np.abs(as_origin(origin) - as_origin(o.primary_origin)))) \
+                <= PRIMARY_VIEW_TOLERANCE:
+            return 0.0
+        return o.ties
 
     def primary_view(self, origin, pattern) -> bool:
         """Whether a scan from ``origin`` with ``pattern`` is the primary's own view:
@@ -336,16 +369,18 @@ def _nearest_ray(group, t, n_groups):
     return best
 
 
-def _grid_geometry(primary_origin, primary_grid):
-    """The silhouette rule's description of the primary's pulse grid (RayScene.intersect's ``clip``)."""
+def _grid_geometry(primary_origin, primary_grid, cells: float = CELLS_OFF):
+    """The silhouette rule's description of the primary's pulse grid (RayScene.intersect's ``clip``);
+    ``cells``: the pulse-cell cut's mode (``pulse_cells``; :data:`slr_ray.raycast.cast.CELLS_OFF`...)."""
     g = as_pattern(primary_grid).aligned()
     nv, nh = g.shape
     po = as_origin(primary_origin, "primary_origin")
     if getattr(g, "has_beams", False):
         edges = np.asarray(g.band_edges, np.float64)
-        return np.array([*po, edges[0], float(np.diff(edges).max()), 2 * math.pi / nh, nv, nh]), -np.cos(edges)
+        return (np.array([*po, edges[0], float(np.diff(edges).max()), 2 * math.pi / nh, nv, nh, cells]),
+                -np.cos(edges))
     d_theta, d_phi, theta_min, _ = g.radians
-    return np.array([*po, theta_min, d_theta, d_phi, nv, nh]), np.zeros(0)
+    return np.array([*po, theta_min, d_theta, d_phi, nv, nh, cells]), np.zeros(0)
 
 
 def same_pulse_grid(p, g) -> bool:
