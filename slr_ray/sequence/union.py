@@ -21,6 +21,7 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
+from ..effects.motion import rotate, to_frame  # noqa: F401  (the one to_frame: re-exported)
 from ..errors import InputValueError
 from .estimators import PulseReturns, merge_nearest, nearest_returns
 from .frames import Frame, Sequence
@@ -32,23 +33,6 @@ __all__ = ["Union", "rotate", "MOVING_CLASSES", "window", "accumulate", "nearest
 
 #: SemanticKITTI's moving classes (semantic-kitti.yaml: 252 moving-car ... 259 moving-other-vehicle)
 MOVING_CLASSES = tuple(range(252, 260))
-
-
-def to_frame(points_world, pose) -> np.ndarray:
-    """World points into the frame of the sensor at ``pose`` (float64: ``R^T (p - t)``)."""
-    T = np.asarray(pose, np.float64)
-    return rotate(np.asarray(points_world, np.float64) - T[:3, 3], T[:3, :3].T)
-
-
-def rotate(points, R) -> np.ndarray:
-    """``points @ R.T`` (each row rotated by ``R``) by three multiply-adds a column, not a BLAS
-    matrix product: a (n, 3) x (3, 3) product went through BLAS's threads, 100 times slower on a
-    loaded machine (0.33 s for 124,000 points) than this."""
-    p = np.asarray(points, np.float64)
-    out = np.empty_like(p)
-    for j in range(3):
-        out[:, j] = p[:, 0] * R[j, 0] + p[:, 1] * R[j, 1] + p[:, 2] * R[j, 2]
-    return out
 
 
 @dataclass
