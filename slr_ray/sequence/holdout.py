@@ -40,7 +40,7 @@ from .methods import (LABELS, REGISTRY, HeldOut, adjacent_frame, check_methods, 
                       methods_with)
 from .methods import method as registered_method
 from .sources import SeeThrough, known_beams
-from .union import FrameCache, accumulate, to_frame, window
+from .union import FrameCache, Keep, accumulate, to_frame, window
 
 __all__ = ["METHODS", "LABELS", "HoldoutOptions", "evaluate_holdout", "evaluate_sequence", "mean_rows", "DEFAULT_METHODS",
            "clamped_depth_errors", "lidar4d_holdout", "LIDAR4D_MAX_DEPTH", "holdout_ray_model", "simulate_holdout",
@@ -223,7 +223,8 @@ def evaluate_holdout(seq: Sequence, target: int, options: HoldoutOptions | None 
     if not in_view.any():
         raise InputValueError(f"{seq.paths[target]}: none of its points lies within {pat.name}'s view about "
                               "its origin (is the frame in its sensor's frame?)")
-    union = accumulate(seq, others, drop_moving=drop_moving, cache=cache, see_through=see_through, exclude=(target,))
+    keep = Keep(drop_moving, see_through, (target,))
+    union = accumulate(seq, others, keep, cache=cache)
     u = to_frame(union.points, fb.pose)
     # scored as slr-ray evaluate scores a pair (the same target, every registered metric's block), split
     # by seen / unseen only
@@ -232,7 +233,7 @@ def evaluate_holdout(seq: Sequence, target: int, options: HoldoutOptions | None 
     adj = adjacent_frame(others, target)
     rows, extra = [], {}
     infos = {REGISTRY[m].info: None for m in REGISTRY if REGISTRY[m].info}  # every key, run or not
-    held = HeldOut(seq, target, others, union, u, pat, base, cache, fb.pose, drop_moving, see_through)
+    held = HeldOut(seq, target, others, union, u, pat, base, cache, fb.pose, keep)
     for m in methods:
         t0 = time.perf_counter()
         ret, sim, info = REGISTRY[m].simulate(held, settings[m])
@@ -270,9 +271,10 @@ def simulate_holdout(seq: Sequence, target: int, method: str = "rays", sensor: s
     if pattern is None:
         beams = _held_beams(seq, target, fb, base)
         pattern = fitted_pattern(fb.points, beams, base) if beams is not None else base
-    union = accumulate(seq, others, drop_moving=drop_moving, cache=cache)
+    keep = Keep(drop_moving, None, (target,))
+    union = accumulate(seq, others, keep, cache=cache)
     held = HeldOut(seq, target, others, union, to_frame(union.points, fb.pose), pattern, base, cache, fb.pose,
-                   drop_moving)
+                   keep)
     return m.simulate(held, HoldoutOptions.of(None, fpa_gap=gap).methods_settings((method,))[method])[0]
 
 
