@@ -240,3 +240,15 @@ def test_a_tum_trajectory_gives_frames_named_by_time_the_pose_of_their_time(tmp_
     tum.write_text("".join(f"{100 + 0.1 * k + 0.05:.6f} {k} 0 0 0 0 0 1\n" for k in range(6)))  # 50 ms off
     with pytest.raises(InputValueError, match=r"traj\.tum: 6 poses for 3 frames, and frame 0 \(time 100\.000000 s"):
         read_sequence(files, tum)
+
+
+def test_directory_layouts_take_one_trajectory_file_through_one_check():
+    # the KITTI, PCD and Ouster directories refuse several files and 'origins' with one message (#47)
+    from slr_ray.sequence.layouts.base import one_trajectory
+
+    assert one_trajectory("d", None, "a PCD directory") is None
+    assert one_trajectory("d", ["p.txt"], "a PCD directory") == one_trajectory("d", "p.txt", "x") == "p.txt"
+    with pytest.raises(InputValueError, match="d: an Ouster directory takes one trajectory file, got 2"):
+        one_trajectory("d", ["a", "b"], "an Ouster directory")
+    with pytest.raises(InputValueError, match="a KITTI sequence's frames are each in their sensor's frame"):
+        one_trajectory("d", "origins", "a KITTI sequence")
