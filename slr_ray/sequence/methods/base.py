@@ -125,8 +125,23 @@ class RaysOptions(MethodOptions):
             raise InputValueError(f"--rays-max-shift must be metres >= 0, got {self.max_shift}")
 
 
+class _KeepRead:
+    """``drop_moving`` and ``see_through`` read from the ``keep`` of what a method is given (the
+    old fields' names)."""
+
+    keep: Keep
+
+    @property
+    def drop_moving(self) -> bool:
+        return self.keep.drop_moving
+
+    @property
+    def see_through(self) -> SeeThrough | None:
+        return self.keep.see_through
+
+
 @dataclass
-class HeldOut:
+class HeldOut(_KeepRead):
     """What a method may use for a held-out frame: never its points (its pattern is the table
     fitted to them, or to the others', as every method's grid)."""
 
@@ -141,17 +156,9 @@ class HeldOut:
     pose: np.ndarray    # the held-out frame's pose (where its pulses start)
     keep: Keep = Keep()  # which points of each frame the union keeps (its exclude: the target)
 
-    @property
-    def drop_moving(self) -> bool:
-        return self.keep.drop_moving
-
-    @property
-    def see_through(self) -> SeeThrough | None:
-        return self.keep.see_through
-
 
 @dataclass
-class TargetFrame:
+class TargetFrame(_KeepRead):
     """A frame of a conversion: its window's frames, the target sensor's pose and pattern."""
 
     seq: Sequence
@@ -161,14 +168,6 @@ class TargetFrame:
     cache: FrameCache
     keep: Keep = Keep()     # which points of each frame the union keeps
     source: object = None   # the frames' own sensor (a beam table), where given
-
-    @property
-    def drop_moving(self) -> bool:
-        return self.keep.drop_moving
-
-    @property
-    def see_through(self) -> SeeThrough | None:
-        return self.keep.see_through
 
     def union(self) -> Union:
         """The window's union (world frame)."""
