@@ -140,6 +140,17 @@ def _split_beams(el) -> int:
     return int(np.sum((inner < 0.25 * g[:-2]) & (inner < 0.25 * g[2:])))
 
 
+def _warn_split(el, labels) -> int:
+    """:func:`_split_beams` of ``el``, warned where there are any."""
+    split = _split_beams(el)
+    if split:
+        warnings.warn(f"{', '.join(labels[:2])}{' ...' if len(labels) > 2 else ''}: {split} of the {len(el)} beams "
+                      "fitted lie under a quarter of the gaps beside them from the next: one beam seen twice? "
+                      "(frames not in the sensor's own axes, several sweeps merged, or a moving unit's frame): "
+                      "check the card (its fit quality: split_beams)", SlrWarning, stacklevel=3)
+    return split
+
+
 def _apparent(el_deg, z0, rho):
     """The elevation, seen from the origin, of beams ``(el_deg, z0)`` at horizontal distance ``rho``."""
     return np.degrees(np.arctan(np.tan(np.radians(el_deg)) + z0 / rho))
@@ -186,64 +197,15 @@ def fit_card(frames, ring: str | bool = "auto", name: str | None = None, source:
         raise InputValueError(f"ring must be 'auto', True or False, got {ring!r}")
     fr = _frames(frames, input_format)
     labels = [f[2] for f in fr]
-    if ring is not False and all(f[1] is None for f in fr):
-        orders = [scan_order_beams(f[0], 64) if str(f[2]).lower().endswith(".bin") else None for f in fr]
-        if all(o is not None for o in orders):
-            fr = [(f[0], o, f[2], "scan order") for f, o in zip(fr, orders)]
-    has = [f[1] is not None for f in fr]
-    if ring is True and not all(has):
-        raise InputValueError(f"ring=True: {[f[2] for f in fr if f[1] is None][:3]} record no ring "
-                              f"({', '.join(RING_FIELDS)}) and are not KITTI frames in scan order")
-    use_rings = ring is not False and all(has)
+    fr, use_rings = _rings(fr, ring)
     P = np.concatenate([f[0] for f in fr])
     fid = np.concatenate([np.full(len(f[0]), i) for i, f in enumerate(fr)])
+    ok, r, az, seen = _spinning(P, labels)
     rho = np.hypot(P[:, 0], P[:, 1])
-    ok = np.isfinite(P).all(axis=1) & (rho > _MIN_RHO)
-    if ok.sum() < 100:
-        _not_spinning(labels, f"{int(ok.sum())} points beyond {_MIN_RHO} m of the spin axis")
-    r = np.linalg.norm(P, axis=1)
-    if np.median(r[ok]) > 1000:
-        _not_spinning(labels, f"median range {np.median(r[ok]):.0f} m: georeferenced coordinates, not the "
-                              "sensor's own axes")
-    az = np.arctan2(P[:, 1], P[:, 0])
-    seen = len(np.unique(np.floor(np.degrees(az[ok])).astype(int))) / 360
-    if seen < 0.5:
-        _not_spinning(labels, f"{seen:.0%} of the turn of azimuth seen; a spinning unit sees most of it "
-                              "(a solid-state or forward-looking unit?)")
     u, t = 1.0 / rho[ok], P[ok, 2] / rho[ok]
-    if use_rings:
-        R_all = np.concatenate([f[1] for f in fr])
-        rings_seen, R = np.unique(R_all[ok], return_inverse=True)
-        if len(rings_seen) > MAX_BEAMS:
-            _not_spinning(labels, f"{len(rings_seen)} ring values")
-        el0 = np.array([np.median(np.degrees(np.arctan(t[R == b]))) for b in range(len(rings_seen))])
-        z00 = np.zeros(len(el0))
-        how = f"beams from the frames' {fr[0][3]} field"
-    else:
-        el0, z00 = _vote_beams(u, t)
-        if len(el0) < 2 or len(el0) > MAX_BEAMS:
-            _not_spinning(labels, f"{len(el0)} beams found in the points' elevations")
-        R, _ = _assign(el0, z00, u, t)
-        how = "beams from the points' elevations (no ring field)"
+    R, el0, z00, how, rings_seen = _first_beams(fr, ok, u, t, use_rings, labels)
+    el, z0, R = _beam_lines(P[ok], R, el0, z00, u, t, use_rings)
     n = len(el0)
-    # the lines: slr_ray.sequence.rays' fit (points beyond 2 m), else the starting estimate
-    Pk = P[ok]
-    app = np.degrees(np.arctan(t))
-    el, z0 = el0.copy(), z00.copy()
-    for _ in range(1 if use_rings else 2):
-        z1, e1, _ = beam_lines(Pk, R, n)
-        e1 = np.degrees(e1)
-        for b in range(n):  # the line, or the median elevation at the height so far: the one that fits best
-            mine = R == b
-            if not mine.any():
-                continue
-            cands = [(el[b], z0[b]), (float(np.median(np.degrees(np.arctan(t[mine] - z0[b] * u[mine])))), z0[b])]
-            if np.isfinite(e1[b]):
-                cands.append((e1[b], z1[b]))
-            el[b], z0[b] = min(cands, key=lambda c: np.median(np.abs(_apparent(c[0], c[1], 1.0 / u[mine]) -
-                                                                       app[mine])))
-        if not use_rings:
-            R, _ = _assign(el, z0, u, t)
     off = np.abs(_apparent(el[R], z0[R], 1.0 / u) - np.degrees(np.arctan(t)))
     counts = np.bincount(R, minlength=n)
     keep = counts > 0
@@ -251,54 +213,16 @@ def fit_card(frames, ring: str | bool = "auto", name: str | None = None, source:
         remap = np.cumsum(keep) - 1
         el, z0, el0, counts, R = el[keep], z0[keep], el0[keep], counts[keep], remap[R]
         n = len(el)
-    el = np.round(el, 5)
-    while len(np.unique(el)) != n:  # two beams at one elevation: part them by 1e-5 degree
-        _, first = np.unique(el, return_index=True)
-        el[np.setdiff1d(np.arange(n), first)] += 1e-5
-    srt = np.sort(el)
-    gaps = np.diff(srt)
-    gap = np.full(n, np.inf)
-    if n > 1:
-        pos = np.searchsorted(srt, el)
-        left = np.where(pos > 0, el - srt[np.maximum(pos - 1, 0)], np.inf)
-        right = np.where(pos < n - 1, srt[np.minimum(pos + 1, n - 1)] - el, np.inf)
-        gap = np.minimum(left, right)
-    assigned = off <= 0.5 * gap[R]  # within its beam's band
+    el = _parted(np.round(el, 5))
+    assigned = off <= 0.5 * _band_gaps(el)[R]  # within its beam's band
     share = float(assigned.mean())
     resid = float(np.median(off))
     if (share < MIN_ASSIGNED and not use_rings) or resid > MAX_RESIDUAL_DEG:  # rings say where points go
         _not_spinning(labels, f"{share:.0%} of the points on {n} beams, median {resid:.3f} deg off them; a "
                               f"spinning unit's: over {MIN_ASSIGNED:.0%}, under {MAX_RESIDUAL_DEG} deg")
-    # columns: the median azimuth step between a beam's neighbouring points, frame by frame
-    A, F = az[ok], fid[ok]
-    steps = []
-    for i in range(len(fr)):
-        for b in range(n):
-            a = np.sort(A[(F == i) & (R == b) & assigned])
-            d = np.diff(a)
-            d = d[d > 1e-7]
-            if len(d) >= 10:
-                steps.append(np.median(d))
-    if not steps:
-        _not_spinning(labels, "no beam has ten points in a row")
-    columns = int(round(2 * math.pi / np.median(steps)))
-    step = 2 * math.pi / columns
-    # each beam's azimuth offset: where within a column it fires (a column's centre is offset + (h + 1/2) step)
-    ph = np.exp(1j * (2 * math.pi / step) * (A - 0.5 * step))
-    offsets = np.array([np.angle(ph[(R == b) & assigned].mean()) if np.any((R == b) & assigned) else 0.0
-                        for b in range(n)]) * step / (2 * math.pi)
-    offsets = np.degrees(offsets)
-    col = np.floor(((A - np.radians(offsets)[R]) % (2 * math.pi)) / step).astype(np.int64)
-    occupied = np.array([len(np.unique(F[R == b] * columns + col[R == b])) for b in range(n)])
-    drop = 1.0 - occupied / (len(fr) * columns)
+    columns, offsets, drop = _columns(az[ok], fid[ok], R, assigned, n, len(fr), labels)
     rr = r[ok]
-    split = _split_beams(el)
-    if split:
-        warnings.warn(f"{', '.join(labels[:2])}{' ...' if len(labels) > 2 else ''}: {split} of the {n} beams "
-                      "fitted lie "
-                      "under a quarter of the gaps beside them from the next: one beam seen twice? (frames not "
-                      "in the sensor's own axes, several sweeps merged, or a moving unit's frame): check the "
-                      "card (its fit quality: split_beams)", SlrWarning, stacklevel=2)
+    split = _warn_split(el, labels)
     meta = {"source": source or "fitted by slr_ray.sensorfit.fit_card from " + ", ".join(labels),
             "height_m": [round(float(x), 5) + 0.0 for x in z0],  # + 0.0: no -0.0
             "drop_rate": [round(float(x), 5) + 0.0 for x in drop],
@@ -315,3 +239,124 @@ def fit_card(frames, ring: str | bool = "auto", name: str | None = None, source:
     return BeamPattern(tuple((el + 0.0).tolist()), columns, tuple((np.round(offsets, 5) + 0.0).tolist()),
                        min_range=round(float(rr.min()), 3), max_range=round(float(rr.max()), 3),
                        name=name or "fitted", meta=meta)
+
+
+def _rings(fr, ring) -> tuple[list, bool]:
+    """The frames, KITTI ``.bin`` frames given their scan order's rings where none records a ring
+    field (and ``ring`` allows rings), and whether the fit takes rings."""
+    if ring is not False and all(f[1] is None for f in fr):
+        orders = [scan_order_beams(f[0], 64) if str(f[2]).lower().endswith(".bin") else None for f in fr]
+        if all(o is not None for o in orders):
+            fr = [(f[0], o, f[2], "scan order") for f, o in zip(fr, orders)]
+    has = [f[1] is not None for f in fr]
+    if ring is True and not all(has):
+        raise InputValueError(f"ring=True: {[f[2] for f in fr if f[1] is None][:3]} record no ring "
+                              f"({', '.join(RING_FIELDS)}) and are not KITTI frames in scan order")
+    return fr, ring is not False and all(has)
+
+
+def _spinning(P, labels):
+    """The points a spinning unit's fit takes (``ok``), their ranges, azimuths and the share of the
+    turn of azimuth seen; refused (:func:`_not_spinning`) where they are not a spinning unit's."""
+    rho = np.hypot(P[:, 0], P[:, 1])
+    ok = np.isfinite(P).all(axis=1) & (rho > _MIN_RHO)
+    if ok.sum() < 100:
+        _not_spinning(labels, f"{int(ok.sum())} points beyond {_MIN_RHO} m of the spin axis")
+    r = np.linalg.norm(P, axis=1)
+    if np.median(r[ok]) > 1000:
+        _not_spinning(labels, f"median range {np.median(r[ok]):.0f} m: georeferenced coordinates, not the "
+                              "sensor's own axes")
+    az = np.arctan2(P[:, 1], P[:, 0])
+    seen = len(np.unique(np.floor(np.degrees(az[ok])).astype(int))) / 360
+    if seen < 0.5:
+        _not_spinning(labels, f"{seen:.0%} of the turn of azimuth seen; a spinning unit sees most of it "
+                              "(a solid-state or forward-looking unit?)")
+    return ok, r, az, seen
+
+
+def _first_beams(fr, ok, u, t, use_rings, labels):
+    """Each point's beam and the beams' first elevations and heights: from the rings, or voted from
+    the points' elevations. Returns (beams, elevations, heights, how, the ring numbers or None)."""
+    if use_rings:
+        R_all = np.concatenate([f[1] for f in fr])
+        rings_seen, R = np.unique(R_all[ok], return_inverse=True)
+        if len(rings_seen) > MAX_BEAMS:
+            _not_spinning(labels, f"{len(rings_seen)} ring values")
+        el0 = np.array([np.median(np.degrees(np.arctan(t[R == b]))) for b in range(len(rings_seen))])
+        return R, el0, np.zeros(len(el0)), f"beams from the frames' {fr[0][3]} field", rings_seen
+    el0, z00 = _vote_beams(u, t)
+    if len(el0) < 2 or len(el0) > MAX_BEAMS:
+        _not_spinning(labels, f"{len(el0)} beams found in the points' elevations")
+    R, _ = _assign(el0, z00, u, t)
+    return R, el0, z00, "beams from the points' elevations (no ring field)", None
+
+
+def _beam_lines(Pk, R, el0, z00, u, t, use_rings):
+    """The beams' lines: ``slr_ray.sequence.rays``' fit (points beyond 2 m), else the starting
+    estimate, whichever fits a beam's points best; without rings the points are assigned again.
+    Returns (elevations, heights, beams)."""
+    n = len(el0)
+    app = np.degrees(np.arctan(t))
+    el, z0 = el0.copy(), z00.copy()
+    for _ in range(1 if use_rings else 2):
+        z1, e1, _ = beam_lines(Pk, R, n)
+        e1 = np.degrees(e1)
+        for b in range(n):  # the line, or the median elevation at the height so far: the one that fits best
+            mine = R == b
+            if not mine.any():
+                continue
+            cands = [(el[b], z0[b]), (float(np.median(np.degrees(np.arctan(t[mine] - z0[b] * u[mine])))), z0[b])]
+            if np.isfinite(e1[b]):
+                cands.append((e1[b], z1[b]))
+            el[b], z0[b] = min(cands, key=lambda c: np.median(np.abs(_apparent(c[0], c[1], 1.0 / u[mine]) -
+                                                                       app[mine])))
+        if not use_rings:
+            R, _ = _assign(el, z0, u, t)
+    return el, z0, R
+
+
+def _parted(el):
+    """Two beams at one elevation parted by 1e-5 degree."""
+    n = len(el)
+    while len(np.unique(el)) != n:
+        _, first = np.unique(el, return_index=True)
+        el[np.setdiff1d(np.arange(n), first)] += 1e-5
+    return el
+
+
+def _band_gaps(el):
+    """Each beam's gap to its nearest neighbour in elevation (inf for a lone beam)."""
+    n = len(el)
+    gap = np.full(n, np.inf)
+    if n > 1:
+        srt = np.sort(el)
+        pos = np.searchsorted(srt, el)
+        left = np.where(pos > 0, el - srt[np.maximum(pos - 1, 0)], np.inf)
+        right = np.where(pos < n - 1, srt[np.minimum(pos + 1, n - 1)] - el, np.inf)
+        gap = np.minimum(left, right)
+    return gap
+
+
+def _columns(A, F, R, assigned, n, n_frames, labels):
+    """The columns (the median azimuth step between a beam's neighbouring points, frame by frame),
+    each beam's azimuth offset (deg: where within a column it fires; a column's centre is offset +
+    (h + 1/2) step) and drop rate. ``A``, ``F``: the points' azimuths and frames."""
+    steps = []
+    for i in range(n_frames):
+        for b in range(n):
+            a = np.sort(A[(F == i) & (R == b) & assigned])
+            d = np.diff(a)
+            d = d[d > 1e-7]
+            if len(d) >= 10:
+                steps.append(np.median(d))
+    if not steps:
+        _not_spinning(labels, "no beam has ten points in a row")
+    columns = int(round(2 * math.pi / np.median(steps)))
+    step = 2 * math.pi / columns
+    ph = np.exp(1j * (2 * math.pi / step) * (A - 0.5 * step))
+    offsets = np.array([np.angle(ph[(R == b) & assigned].mean()) if np.any((R == b) & assigned) else 0.0
+                        for b in range(n)]) * step / (2 * math.pi)
+    offsets = np.degrees(offsets)
+    col = np.floor(((A - np.radians(offsets)[R]) % (2 * math.pi)) / step).astype(np.int64)
+    occupied = np.array([len(np.unique(F[R == b] * columns + col[R == b])) for b in range(n)])
+    return columns, offsets, 1.0 - occupied / (n_frames * columns)

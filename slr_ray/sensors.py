@@ -304,7 +304,7 @@ class BeamPattern(Pattern):
     def reduce_posed(self, points, pose):
         """:meth:`reduce` of world points ``points`` ((n, 3) float64) seen by the sensor at ``pose``
         (4 x 4, the sensor's axes and origin in the world): the same returns as
-        ``reduce(slr_ray.sequence.union.to_frame(points, pose), zeros(3))``, one thread, each point
+        ``reduce(slr_ray.effects.motion.to_frame(points, pose), zeros(3))``, one thread, each point
         moved in the kernel (no moved copy). Returns ``(keys, ranges, indices)``, indices ascending."""
         pts = np.ascontiguousarray(points, dtype=np.float64)
         T = np.asarray(pose, dtype=np.float64)

@@ -136,3 +136,22 @@ def test_sweep_options_are_checked():
         Effects(sweep_clockwise="yes")
     with pytest.raises(InputValueError, match="sweep_start_deg"):
         Effects(sweep_start_deg=float("nan"))
+
+
+def test_to_frame_is_one_function_and_undoes_its_pose():
+    # one to_frame (#47): the sequence's unions use the motion effect's, and it inverts R p + t
+    # to rounding for any rotation and a far-off translation
+    import slr_ray.sequence
+    import slr_ray.sequence.union
+
+    assert slr_ray.sequence.union.to_frame is to_frame and slr_ray.sequence.to_frame is to_frame
+    rng = np.random.default_rng(3)
+    for _ in range(20):
+        q, _ = np.linalg.qr(rng.normal(size=(3, 3)))
+        T = pose()
+        T[:3, :3] = q * np.sign(np.linalg.det(q))
+        T[:3, 3] = rng.normal(size=3) * 10 ** rng.uniform(0, 6)
+        local = rng.normal(size=(200, 3)) * 50
+        got = to_frame(local @ T[:3, :3].T + T[:3, 3], T)
+        assert got.dtype == np.float64
+        assert np.allclose(got, local, atol=1e-9 * max(1.0, np.abs(T[:3, 3]).max()))

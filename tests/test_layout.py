@@ -164,7 +164,7 @@ NUMBA_DECORATORS = {"njit", "jit", "cfunc", "vectorize", "guvectorize", "stencil
 LONG_FUNCTIONS_ALLOWED_IN = ("slr_ray.sequence",)
 #: functions that arrived over the limit in the merges of session 18 (sensor cards, the LAS bounds check in
 #: scan), named one by one so that no other slips in: to be split into named steps (closing note of stop 44)
-LONG_FUNCTIONS_KNOWN = {"slr_ray.cli.commands:scan", "slr_ray.sensorfit:fit_card"}
+LONG_FUNCTIONS_KNOWN: set = set()
 
 
 def _is_numba_kernel(node) -> bool:

@@ -273,3 +273,15 @@ def test_an_ouster_frame_is_moved_to_the_lidar_origin_its_beams_start_from(tmp_p
     assert np.allclose(el, np.array([10.0, 0.0, -10.0])[f.attributes["ring"]], atol=1e-9)  # each beam's own
     assert np.allclose(f.world(), xyz + [1.0, 0, 0])  # the world points unchanged (frame 1 is 1 m along x)
     assert np.allclose(seq.trajectory(tmp_path / "os" / "poses.txt")[0], seq.poses)  # a given trajectory too
+
+
+def test_directory_layouts_take_one_trajectory_file_through_one_check():
+    # the KITTI, PCD and Ouster directories refuse several files and 'origins' with one message (#47)
+    from slr_ray.sequence.layouts.base import one_trajectory
+
+    assert one_trajectory("d", None, "a PCD directory") is None
+    assert one_trajectory("d", ["p.txt"], "a PCD directory") == one_trajectory("d", "p.txt", "x") == "p.txt"
+    with pytest.raises(InputValueError, match="d: an Ouster directory takes one trajectory file, got 2"):
+        one_trajectory("d", ["a", "b"], "an Ouster directory")
+    with pytest.raises(InputValueError, match="a KITTI sequence's frames are each in their sensor's frame"):
+        one_trajectory("d", "origins", "a KITTI sequence")

@@ -109,6 +109,41 @@ def test_a_toy_method_reaches_both_commands_and_the_tables(toy, drive, tmp_path,
     assert r.returncode == 2 and "--toy-shrink must be in [0, 1)" in r.stderr and not (tmp_path / "bad").exists()
 
 
+class Stateful(Toy):
+    """The recipe's per-sequence state: built once a run, seen by every held-out frame."""
+
+    name = "stateful"
+    label = "stateful: nearest"
+
+    def sequence_state(self, seq, cache, options):
+        self.built.append(options)
+        return {"targets": []}
+
+    def simulate(self, held, options):
+        self.state(held, options)["targets"].append(held.target)
+        return super().simulate(held, options)
+
+
+def test_a_method_builds_its_sequence_state_once_for_every_held_out_frame(drive, monkeypatch):
+    # the per-sequence hook (#47): one state a run (the frames cache's), not one a held-out frame;
+    # the loose union arguments are one Keep on what a method is given
+    from slr_ray.sequence import evaluate_sequence
+    from slr_ray.sequence.union import FrameCache, Keep, accumulate
+
+    stateful = Stateful()
+    stateful.built = []
+    monkeypatch.setitem(M.REGISTRY, "stateful", stateful)
+    seq = read_sequence(drive)
+    res = evaluate_sequence(seq, [0, 1, 2], "velodyne_vlp16", ("stateful",), half=1)
+    assert len(res["frames"]) == 3 and stateful.built == [ToyOptions()]
+    assert not hasattr(M.SequenceMethod, "frame_state")
+    cache = FrameCache(seq)
+    assert stateful.state(M.TargetFrame(seq, [0, 1], seq.poses[0], None, cache), ToyOptions()) == {"targets": []}
+    assert len(stateful.built) == 2   # another run (another cache): built again
+    a, b = accumulate(seq, [0, 2], Keep(False), cache=cache), accumulate(seq, [0, 2], drop_moving=False)
+    assert np.array_equal(a.points, b.points) and a.removed == b.removed
+
+
 def test_the_library_takes_method_options_and_refuses_a_method_twice(drive):
     seq = read_sequence(drive)
     a = evaluate_holdout(seq, 1, sensor="velodyne_vlp16", half=1, methods=("fpa",), fpa_gap=0.3)

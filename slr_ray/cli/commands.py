@@ -70,6 +70,39 @@ def _plan(args, *, inputs=(), outputs=(), fmt=None, figures=()) -> OutputPlan:
 
 
 def scan(args):
+    plan, pattern, options, effects = _scan_checked(args)
+    if args.print_config:
+        emit({"input": str(args.input), "output": str(args.output), "origin": args.origin,
+              "origin_relative": args.origin_relative,
+              "pattern": pattern.to_dict(), "backend": args.backend, "options": options.to_dict(),
+              "effects": None if effects is None else effects.to_dict()})
+        return
+    # LAS/LAZ stream through the uniform binning reduction; beam tables and effects read the file whole
+    streamed = (effects is None and streams(scanner_class(args.backend), pattern)
+                and check_format(args.input, args.input_format) in STREAMED_FORMATS)
+    with plan:
+        if streamed:
+            (result, sub, bounds, said, t_read), primary = _scan_streamed(args, pattern), None
+        else:
+            result, sub, bounds, said, t_read, primary = _scan_read(args, pattern, options, effects)
+        if not said:
+            _check_returns(result, bounds)
+        kept = _keep(args, sub, result)
+        # the range image is made before anything is written: an error there leaves no scan behind
+        image = _range_image(args, sub, result, skip=kept) if args.range_image or args.png else None
+        t1 = time.perf_counter()
+        write_cloud(args.output, sub, args.format)
+        if image is not None:
+            _write_range_image(args, image, result)
+    emit({**result.summary(), **({"primary": primary} if not streamed and primary else {}),
+          "input": str(args.input), "output": str(args.output), "streamed": streamed,
+          ("seconds_read_and_scan" if streamed else "seconds_read"): round(t_read, 6),
+          "seconds_write": round(time.perf_counter() - t1, 6)})
+
+
+def _scan_checked(args):
+    """``scan``'s refusals before any work, and what they check: (the output plan, the pattern, the
+    backend's options, the effects)."""
     check_format(args.output, args.format)  # refuse an unknown output format before any work
     if args.range_image and Path(args.range_image).suffix.lower() != ".npz":
         # it is written as numpy's .npz whatever its name: a .txt or .png of npz bytes misleads
@@ -89,70 +122,56 @@ def scan(args):
     if effects is not None and (args.range_image or args.png):
         raise InputValueError("--range-image and --png draw an ideal scan (one point a pulse): drop them, or the "
                               "effects (slr_ray.effects.range_image draws a scan with effects)")
-    if args.print_config:
-        emit({"input": str(args.input), "output": str(args.output), "origin": args.origin,
-              "origin_relative": args.origin_relative,
-              "pattern": pattern.to_dict(), "backend": args.backend, "options": options.to_dict(),
-              "effects": None if effects is None else effects.to_dict()})
-        return
-    # LAS/LAZ stream through the uniform binning reduction; beam tables and effects read the file whole
-    streamed = (effects is None and streams(scanner_class(args.backend), pattern)
-                and check_format(args.input, args.input_format) in STREAMED_FORMATS)
-    with plan:
-        if streamed:
-            # LAS/LAZ: one pass in chunks, memory bounded by a chunk and the scan, not the file
-            bounds = las_bounds(args.input)  # the header's: no point read (None: no point, refused by the scan)
-            origin = _origin(args, None, bounds or (np.zeros(3), np.zeros(3)))
-            said = bounds is None or _check_origin(origin, bounds, pattern)
-            t0 = time.perf_counter()
-            sub, result = scan_las(args.input, origin, pattern, chunk=args.chunk_size, progress=not args.quiet)
-            read = checked_bounds(args.input, bounds, sub.meta.pop("points_bounds"), sub.meta["las_scales"])
-            if bounds is not None and not all(map(np.array_equal, read, bounds)):
-                # the header lied about its bounds (said on stderr): the origin and its check from the points
-                bounds, before = read, origin
-                origin = _origin(args, None, bounds)
-                said = _check_origin(origin, bounds, pattern)
-                if not np.array_equal(origin, before):
-                    sub, result = scan_las(args.input, origin, pattern, chunk=args.chunk_size,
-                                           progress=not args.quiet)
-                    sub.meta.pop("points_bounds")
-            sub.origin = np.asarray(origin, float)
-            t_read = time.perf_counter() - t0
-        else:
-            t0 = time.perf_counter()
-            cloud = read_cloud(args.input, args.input_format, allow_empty=False)
-            t_read = time.perf_counter() - t0
-            bounds = (cloud.points.min(axis=0), cloud.points.max(axis=0))
-            origin = _origin(args, cloud.origin, bounds, cloud.meta.get("e57_pose") is False)
-            said = _check_origin(origin, bounds, pattern)
-            if effects is not None and effects.intensity == "correct" and cloud.origin is None:
-                raise InputValueError(f"--intensity correct needs where {args.input} was scanned from, and it "
-                                      "records no scanner origin (use --intensity carry)")
-            options, primary = _primary_from_file(args, cloud, options)
-            with phase(f"{args.backend}: preparing {len(cloud):,} points", progress=not args.quiet):
-                scanner = prepare(cloud.points, args.backend, options)
-            if effects is None:
-                with phase(f"{args.backend}: scanning", progress=not args.quiet):
-                    result = scanner.scan(origin, pattern)
-                sub = cloud.subset(result.indices)
-                sub.origin = np.asarray(origin, float)
-            else:
-                what = "with beam divergence" if effects.divergence_mrad else "with effects"
-                with phase(f"{args.backend}: scanning {what}", progress=not args.quiet):
-                    result, sub = _scan_with_effects(args, cloud, origin, pattern, scanner, effects)
-        if not said:
-            _check_returns(result, bounds)
-        kept = _keep(args, sub, result)
-        # the range image is made before anything is written: an error there leaves no scan behind
-        image = _range_image(args, sub, result, skip=kept) if args.range_image or args.png else None
-        t1 = time.perf_counter()
-        write_cloud(args.output, sub, args.format)
-        if image is not None:
-            _write_range_image(args, image, result)
-    emit({**result.summary(), **({"primary": primary} if not streamed and primary else {}),
-          "input": str(args.input), "output": str(args.output), "streamed": streamed,
-          ("seconds_read_and_scan" if streamed else "seconds_read"): round(t_read, 6),
-          "seconds_write": round(time.perf_counter() - t1, 6)})
+    return plan, pattern, options, effects
+
+
+def _scan_streamed(args, pattern):
+    """LAS/LAZ: one pass in chunks, memory bounded by a chunk and the scan, not the file. Returns
+    (the scan, the points kept, the bounds, whether the origin's check said something, seconds)."""
+    bounds = las_bounds(args.input)  # the header's: no point read (None: no point, refused by the scan)
+    origin = _origin(args, None, bounds or (np.zeros(3), np.zeros(3)))
+    said = bounds is None or _check_origin(origin, bounds, pattern)
+    t0 = time.perf_counter()
+    sub, result = scan_las(args.input, origin, pattern, chunk=args.chunk_size, progress=not args.quiet)
+    read = checked_bounds(args.input, bounds, sub.meta.pop("points_bounds"), sub.meta["las_scales"])
+    if bounds is not None and not all(map(np.array_equal, read, bounds)):
+        # the header lied about its bounds (said on stderr): the origin and its check from the points
+        bounds, before = read, origin
+        origin = _origin(args, None, bounds)
+        said = _check_origin(origin, bounds, pattern)
+        if not np.array_equal(origin, before):
+            sub, result = scan_las(args.input, origin, pattern, chunk=args.chunk_size,
+                                   progress=not args.quiet)
+            sub.meta.pop("points_bounds")
+    sub.origin = np.asarray(origin, float)
+    return result, sub, bounds, said, time.perf_counter() - t0
+
+
+def _scan_read(args, pattern, options, effects):
+    """A cloud read whole, prepared and scanned (with its effects). Returns (the scan, the points
+    kept, the bounds, whether the origin's check said something, seconds to read, the primary)."""
+    t0 = time.perf_counter()
+    cloud = read_cloud(args.input, args.input_format, allow_empty=False)
+    t_read = time.perf_counter() - t0
+    bounds = (cloud.points.min(axis=0), cloud.points.max(axis=0))
+    origin = _origin(args, cloud.origin, bounds, cloud.meta.get("e57_pose") is False)
+    said = _check_origin(origin, bounds, pattern)
+    if effects is not None and effects.intensity == "correct" and cloud.origin is None:
+        raise InputValueError(f"--intensity correct needs where {args.input} was scanned from, and it "
+                              "records no scanner origin (use --intensity carry)")
+    options, primary = _primary_from_file(args, cloud, options)
+    with phase(f"{args.backend}: preparing {len(cloud):,} points", progress=not args.quiet):
+        scanner = prepare(cloud.points, args.backend, options)
+    if effects is None:
+        with phase(f"{args.backend}: scanning", progress=not args.quiet):
+            result = scanner.scan(origin, pattern)
+        sub = cloud.subset(result.indices)
+        sub.origin = np.asarray(origin, float)
+    else:
+        what = "with beam divergence" if effects.divergence_mrad else "with effects"
+        with phase(f"{args.backend}: scanning {what}", progress=not args.quiet):
+            result, sub = _scan_with_effects(args, cloud, origin, pattern, scanner, effects)
+    return result, sub, bounds, said, t_read, primary
 
 
 def _scan_with_effects(args, cloud, origin, pattern, scanner, effects):

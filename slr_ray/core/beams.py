@@ -225,7 +225,7 @@ def beam_reduce_serial(pts, ox, oy, oz, edges, offsets, columns, rmin, rmax, bes
 def beam_reduce_posed(pts, rot, tx, ty, tz, edges, offsets, columns, rmin, rmax, best_r, best_i):
     """:func:`beam_reduce_serial` of ``pts`` ((n, 3) float64, world) seen from a sensor at
     translation ``t`` with rotation ``rot`` (the sensor's axes: ``rot = R.T`` of its pose), each
-    point moved as ``slr_ray.sequence.union.to_frame`` moves it (``p - t``, then row ``j``:
+    point moved as ``slr_ray.effects.motion.to_frame`` moves it (``p - t``, then row ``j``:
     ``d0 rot[j, 0] + d1 rot[j, 1] + d2 rot[j, 2]``, the same roundings) a block at a time into a
     buffer: no moved copy of the cloud."""
     n = len(pts)

@@ -14,25 +14,21 @@ from .cloud import PointCloud
 from .format import Format
 from .nuscenes import looks_like_rings
 from .outputs import label_destinations, label_path, label_targets
+from .records import float_records
 
 __all__ = ["FORMATS", "KITTI_TOLERANCE"]
 
 
 def _read_kitti(path):
-    size = os.path.getsize(path)
-    if size % 16:
-        raise FormatError(f"{path}: {size} bytes, not a multiple of 16 (float32 x, y, z, intensity a point): "
-                          "truncated, or not a KITTI .bin" + (
-                              " (a multiple of 20: a nuScenes frame? name it .pcd.bin, or --input-format "
-                              "pcd.bin)" if size % 20 == 0 else ""))
-    raw = np.fromfile(path, dtype="<f4")
-    five = raw.reshape(-1, 5) if size % 20 == 0 else None
+    a = float_records(path, ("x", "y", "z", "intensity"), "a KITTI .bin",
+                      (5, " (a multiple of 20: a nuScenes frame? name it .pcd.bin, or --input-format pcd.bin)"))
+    size = a.nbytes
+    five = a.reshape(-1, 5) if size % 20 == 0 else None
     if five is not None and looks_like_rings(five[:, 4]) and not np.all(five[:, :3] == np.round(five[:, :3])):
         # the count fits both, and the fifth floats are rings among measured coordinates: never guessed
         raise FormatError(f"{path}: {size} bytes divide into KITTI's 4 floats a point and nuScenes' 5, and every "
                           "fifth float is a ring number: a nuScenes frame? name it .pcd.bin, or read it with "
                           "--input-format pcd.bin (format='.pcd.bin')")
-    a = raw.reshape(-1, 4)
     attrs = {"intensity": a[:, 3].copy()}
     lab = label_path(path)
     if lab is not None:  # SemanticKITTI: uint32, semantic class in the low 16 bits, instance in the high 16

@@ -5,7 +5,6 @@ refuses one that reads as this layout)."""
 
 from __future__ import annotations
 
-import os
 import warnings
 
 import numpy as np
@@ -13,6 +12,7 @@ import numpy as np
 from ..errors import FormatError
 from .cloud import PointCloud
 from .format import Format
+from .records import float_records
 
 __all__ = ["FORMATS", "EXTENSION", "looks_like_rings"]
 
@@ -27,13 +27,8 @@ def looks_like_rings(column) -> bool:
 
 
 def _read(path):
-    size = os.path.getsize(path)
-    if size % 20:
-        raise FormatError(f"{path}: {size} bytes, not a multiple of 20 (float32 x, y, z, intensity, ring a "
-                          "point): truncated, or not a nuScenes .pcd.bin" + (
-                              " (a multiple of 16: KITTI's layout? name it .bin, or --input-format bin)"
-                              if size % 16 == 0 else ""))
-    a = np.fromfile(path, dtype="<f4").reshape(-1, 5)
+    a = float_records(path, ("x", "y", "z", "intensity", "ring"), "a nuScenes .pcd.bin",
+                      (4, " (a multiple of 16: KITTI's layout? name it .bin, or --input-format bin)"))
     ring = a[:, 4]
     if len(a) and not (np.all(ring == np.round(ring)) and ring.min() >= 0):
         raise FormatError(f"{path}: the fifth float of a point is not a ring number (not integers >= 0: "

@@ -452,6 +452,34 @@ def _aligned(n):
 
 
 @njit(cache=True, nogil=True, inline="always")
+def _packet(W):
+    """A packet of ``W`` rays' buffers: the RTCRayHitW (floats ``rh``, the same bytes as words ``ru``),
+    the valid mask and each lane's ray; the lanes' fields Embree only reads (time, mask, lane id,
+    flags) set once for every packet."""
+    rh = _aligned(max(_RAYHIT_ROWS * W, 24))
+    ru = rh.view(np.uint32)
+    valid = _aligned(W).view(np.int32)
+    for k in range(W):
+        rh[_TIME * W + k] = 0.0
+        ru[_MASK * W + k] = INVALID_ID
+        ru[_ID * W + k] = k  # the lane: the filter's state of this ray
+        ru[_FLAGS * W + k] = 0
+    return rh, ru, valid, np.empty(W, np.int64)
+
+
+@njit(cache=True, nogil=True, inline="always")
+def _open_lane(rh, ru, W, k, tnear, tfar):
+    """Lane ``k`` of a packet ready for a new ray: its span and no hit yet (its direction and origin
+    are the caller's)."""
+    rh[_TNEAR * W + k] = tnear
+    rh[_TFAR * W + k] = tfar
+    ru[_PRIM * W + k] = INVALID_ID
+    ru[_GEOM * W + k] = INVALID_ID
+    ru[_INST * W + k] = INVALID_ID
+    ru[_INST_PRIM * W + k] = INVALID_ID
+
+
+@njit(cache=True, nogil=True, inline="always")
 def _misses_box(ox, oy, oz, dx, dy, dz, box, tnear, tfar):
     """Whether the ray surely misses the axis-aligned box ``(lo, hi)`` on [tnear, tfar]
     (float64 slab test; the box is padded, so a True is never a ray Embree would hit)."""
@@ -579,10 +607,7 @@ def cast_packets(isect, width, scene, filt, org32, org64, dirs, tnear, tfar, mod
     filter's one-pass mode); a second query over the window only for the rare ray
     whose candidates it could not all keep (a packet of those)."""
     W = width
-    rh = _aligned(max(_RAYHIT_ROWS * W, 24))
-    ru = rh.view(np.uint32)
-    valid = _aligned(W).view(np.int32)
-    lane_ray = np.empty(W, np.int64)
+    rh, ru, valid, lane_ray = _packet(W)
     lane_prim = np.empty(W, np.int64)
     lane_owner = np.empty(W, np.int64)
     lane_t = np.empty(W, np.float64)
@@ -629,12 +654,8 @@ def cast_packets(isect, width, scene, filt, org32, org64, dirs, tnear, tfar, mod
     first_args = args_ptr if mode else np.int64(0)
     ox, oy, oz = np.float64(org32[0]), np.float64(org32[1]), np.float64(org32[2])
     t_lo, t_hi = np.float64(tnear), np.float64(tfar)
-    for k in range(W):  # what Embree only reads, the same for every packet
+    for k in range(W):  # the origin: Embree only reads it, the same for every packet
         rh[_ORG * W + k], rh[(_ORG + 1) * W + k], rh[(_ORG + 2) * W + k] = org32[0], org32[1], org32[2]
-        rh[_TIME * W + k] = 0.0
-        ru[_MASK * W + k] = INVALID_ID
-        ru[_ID * W + k] = k  # the lane: the filter's state of this ray
-        ru[_FLAGS * W + k] = 0
     n_rays = dirs.shape[0]
     i = 0
     while i < n_rays:
@@ -648,13 +669,8 @@ def cast_packets(isect, width, scene, filt, org32, org64, dirs, tnear, tfar, mod
                 t_out[i] = np.inf
                 i += 1
                 continue
-            rh[_TNEAR * W + k] = tnear  # a second query moves it
+            _open_lane(rh, ru, W, k, tnear, tfar)  # tnear: a second query moves it
             rh[_DIR * W + k], rh[(_DIR + 1) * W + k], rh[(_DIR + 2) * W + k] = dx, dy, dz
-            rh[_TFAR * W + k] = tfar
-            ru[_PRIM * W + k] = INVALID_ID
-            ru[_GEOM * W + k] = INVALID_ID
-            ru[_INST * W + k] = INVALID_ID
-            ru[_INST_PRIM * W + k] = INVALID_ID
             b = _C_LANES + k * _LANE_WORDS
             ctx[b + _L_MODE] = mode
             ctxf[b + _L_DIR], ctxf[b + _L_DIR + 1], ctxf[b + _L_DIR + 2] = dx, dy, dz
@@ -754,17 +770,9 @@ def cast_each(isect, width, scene, origins, dirs, tnear, tfar, prim_out, t_out):
     ray), ``width`` rays a call, no filter: the rays of a fitted sensor, each laser firing from its own
     point (:meth:`~slr_ray.raycast.RayScene.intersect_each`)."""
     W = width
-    rh = _aligned(max(_RAYHIT_ROWS * W, 24))
-    ru = rh.view(np.uint32)
-    valid = _aligned(W).view(np.int32)
-    lane_ray = np.empty(W, np.int64)
+    rh, ru, valid, lane_ray = _packet(W)
     rh_ptr = np.int64(rh.ctypes.data)
     valid_ptr = np.int64(valid.ctypes.data)
-    for k in range(W):
-        rh[_TIME * W + k] = 0.0
-        ru[_MASK * W + k] = INVALID_ID
-        ru[_ID * W + k] = k
-        ru[_FLAGS * W + k] = 0
     n_rays = dirs.shape[0]
     i = 0
     while i < n_rays:
@@ -773,12 +781,7 @@ def cast_each(isect, width, scene, origins, dirs, tnear, tfar, prim_out, t_out):
             for a in range(3):
                 rh[(_ORG + a) * W + k] = origins[i, a]
                 rh[(_DIR + a) * W + k] = dirs[i, a]
-            rh[_TNEAR * W + k] = tnear
-            rh[_TFAR * W + k] = tfar
-            ru[_PRIM * W + k] = INVALID_ID
-            ru[_GEOM * W + k] = INVALID_ID
-            ru[_INST * W + k] = INVALID_ID
-            ru[_INST_PRIM * W + k] = INVALID_ID
+            _open_lane(rh, ru, W, k, tnear, tfar)
             valid[k] = -1
             lane_ray[k] = i
             k += 1

@@ -37,12 +37,12 @@ from .frames import (Frame, Sequence, kitti_velodyne_poses, read_calib_tr, read_
                      read_kitti_layout, read_sequence, read_trajectory, register_chain, write_kitti_poses)
 from .holdout import METHODS, evaluate_holdout, evaluate_sequence, mean_rows
 from .sources import REMOVE_MOVING, SeeThrough
-from .union import (MOVING_CLASSES, FrameCache, Union, accumulate, discs_of_frames, nearest_of_frames, to_frame,
-                    window)
+from .union import (MOVING_CLASSES, FrameCache, Keep, Union, accumulate, discs_of_frames, nearest_of_frames,
+                    to_frame, window)
 
 __all__ = ["CONVERT_ESTIMATORS", "REMOVE_MOVING", "SeeThrough", "discs_of_frames", "convert_sequence", "target_poses",
            "ESTIMATORS", "FPA_GAP", "PulseReturns", "estimate", "Frame",
            "Sequence", "kitti_velodyne_poses", "read_calib_tr", "read_file_list",
            "read_kitti_layout", "read_sequence", "read_trajectory", "register_chain", "write_kitti_poses",
            "METHODS", "evaluate_holdout", "evaluate_sequence", "mean_rows", "MOVING_CLASSES", "FrameCache",
-           "Union", "accumulate", "nearest_of_frames", "to_frame", "window"]
+           "Keep", "Union", "accumulate", "nearest_of_frames", "to_frame", "window"]

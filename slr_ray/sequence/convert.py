@@ -58,7 +58,7 @@ from .estimators import FPA_GAP
 from .frames import Sequence, write_kitti_poses
 from .methods import REGISTRY, TargetFrame, method, method_options, methods_with
 from .sources import SeeThrough, base_pattern, source_sensor_problem
-from .union import FrameCache, window
+from .union import FrameCache, Keep, window
 
 __all__ = ["ConvertOptions", "convert_sequence", "target_poses", "MANIFEST", "JOURNAL", "CONVERT_ESTIMATORS"]
 
@@ -107,7 +107,7 @@ def _frame_cloud(seq, i, pose, pattern, settings, cache) -> PointCloud:
     frames = window(seq, i, settings["half"], settings["radius"], include_target=True)
     m = REGISTRY[settings["estimator"]]
     source = settings.get("source_sensor")
-    frame = TargetFrame(seq, frames, pose, pattern, cache, settings["drop_moving"], _see_through(settings),
+    frame = TargetFrame(seq, frames, pose, pattern, cache, Keep(settings["drop_moving"], _see_through(settings)),
                         None if source is None else base_pattern(source))
     ret, carried = m.convert_frame(frame, m.options.from_flat(_flat_options(settings)))
     attrs = {n: carried[n] for n in ("intensity", "semantic", "instance") if n in carried}

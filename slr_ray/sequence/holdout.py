@@ -43,7 +43,7 @@ from .methods import (LABELS, REGISTRY, HeldOut, adjacent_frame, check_methods, 
 from .methods import method as registered_method
 from .sources import SeeThrough, known_beams
 from .terrestrial import AUTO, DEFAULT_SPINNING, SPINNING, TERRESTRIAL, ScoringGrid, is_terrestrial, sensor_kind, terrestrial_grid
-from .union import FrameCache, accumulate, to_frame, window
+from .union import FrameCache, Keep, accumulate, to_frame, window
 
 __all__ = ["METHODS", "LABELS", "HoldoutOptions", "evaluate_holdout", "evaluate_sequence", "mean_rows", "DEFAULT_METHODS",
            "clamped_depth_errors", "lidar4d_holdout", "LIDAR4D_MAX_DEPTH", "holdout_ray_model", "simulate_holdout",
@@ -335,7 +335,8 @@ def evaluate_holdout(seq: Sequence, target: int, options: HoldoutOptions | None 
     if not in_view.any():
         raise InputValueError(f"{seq.paths[target]}: none of its points lies within {pat.name}'s view about "
                               "its origin (is the frame in its sensor's frame?)")
-    union = accumulate(seq, others, drop_moving=drop_moving, cache=cache, see_through=see_through, exclude=(target,))
+    keep = Keep(drop_moving, see_through, (target,))
+    union = accumulate(seq, others, keep, cache=cache)
     u = to_frame(union.points, pose)
     # scored as slr-ray evaluate scores a pair (the same target, every registered metric's block), split
     # by seen / unseen only
@@ -344,7 +345,7 @@ def evaluate_holdout(seq: Sequence, target: int, options: HoldoutOptions | None 
     adj = adjacent_frame(others, target)
     rows, extra = [], {}
     infos = {REGISTRY[m].info: None for m in REGISTRY if REGISTRY[m].info}  # every key, run or not
-    held = HeldOut(seq, target, others, union, u, pat, base, cache, pose, drop_moving, see_through,
+    held = HeldOut(seq, target, others, union, u, pat, base, cache, pose, keep,
                    target_base=tbase if cross else None)
     reach = reach_split(others, base, pat, cache) if cross else None
     parts = _reach_targets(b, beams, pat, u, reach["rows_out"], seen_threshold) if cross else {}
@@ -392,9 +393,9 @@ def simulate_holdout(seq: Sequence, target: int, method: str = "rays", sensor: s
     grid = scoring_grid(seq, target, fb, sensor, "target", others, cache)
     _check_kind(grid, (method,))
     base, pattern, pose = grid.base, grid.pattern if pattern is None else pattern, grid.turned_pose(fb.pose)
-    union = accumulate(seq, others, drop_moving=drop_moving, cache=cache)
-    held = HeldOut(seq, target, others, union, to_frame(union.points, pose), pattern, base, cache, pose,
-                   drop_moving)
+    keep = Keep(drop_moving, None, (target,))
+    union = accumulate(seq, others, keep, cache=cache)
+    held = HeldOut(seq, target, others, union, to_frame(union.points, pose), pattern, base, cache, pose, keep)
     return m.simulate(held, HoldoutOptions.of(None, fpa_gap=gap).methods_settings((method,))[method])[0]
 
 

@@ -21,6 +21,7 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
+from ..effects.motion import rotate, to_frame  # noqa: F401  (the one to_frame: re-exported)
 from ..errors import InputValueError
 from .estimators import PulseReturns, merge_nearest, nearest_returns
 from .frames import Frame, Sequence
@@ -28,27 +29,10 @@ from .sources import (SeeThrough, SourceView, base_pattern, cast_sources, seen_t
                       source_view)
 
 __all__ = ["Union", "rotate", "MOVING_CLASSES", "window", "accumulate", "nearest_of_frames", "discs_of_frames",
-           "FrameCache", "to_frame"]
+           "FrameCache", "Keep", "to_frame"]
 
 #: SemanticKITTI's moving classes (semantic-kitti.yaml: 252 moving-car ... 259 moving-other-vehicle)
 MOVING_CLASSES = tuple(range(252, 260))
-
-
-def to_frame(points_world, pose) -> np.ndarray:
-    """World points into the frame of the sensor at ``pose`` (float64: ``R^T (p - t)``)."""
-    T = np.asarray(pose, np.float64)
-    return rotate(np.asarray(points_world, np.float64) - T[:3, 3], T[:3, :3].T)
-
-
-def rotate(points, R) -> np.ndarray:
-    """``points @ R.T`` (each row rotated by ``R``) by three multiply-adds a column, not a BLAS
-    matrix product: a (n, 3) x (3, 3) product went through BLAS's threads, 100 times slower on a
-    loaded machine (0.33 s for 124,000 points) than this."""
-    p = np.asarray(points, np.float64)
-    out = np.empty_like(p)
-    for j in range(3):
-        out[:, j] = p[:, 0] * R[j, 0] + p[:, 1] * R[j, 1] + p[:, 2] * R[j, 2]
-    return out
 
 
 @dataclass
@@ -110,10 +94,39 @@ def window(seq: Sequence, target: int, half: int | None = 2, radius: float | Non
     return [int(i) for i in cand if include_target or i != target]
 
 
+@dataclass(frozen=True)
+class Keep:
+    """Which points of each frame a union keeps, one object passed whole (to
+    :func:`accumulate`, :class:`FrameCache`'s ``selection``, ``kept`` and ``discs``, the methods'
+    :class:`~slr_ray.sequence.methods.HeldOut` and ``TargetFrame``): all but the labelled moving
+    classes (``drop_moving``) and, with ``see_through``, but those other frames saw through; the
+    frames of ``exclude`` (a held-out target) never vote."""
+
+    drop_moving: bool = True
+    see_through: SeeThrough | None = None
+    exclude: tuple = ()
+
+    @classmethod
+    def of(cls, keep=True, see_through: SeeThrough | None = None, exclude=()) -> Keep:
+        """``keep`` itself where it is a :class:`Keep`; else the old loose arguments (``keep`` the
+        ``drop_moving`` bool) made one."""
+        if isinstance(keep, Keep):
+            return keep
+        return cls(bool(keep), see_through, tuple(sorted(int(e) for e in exclude)))
+
+    def key(self, i: int) -> tuple:
+        """What frame ``i``'s selection depends on (its own index never excludes it)."""
+        return (bool(self.drop_moving), self.see_through.key if self.see_through else None,
+                tuple(sorted(int(e) for e in self.exclude if e != i)))
+
+
 class FrameCache:
     """The last ``size`` frames read, in the world frame (a sliding window reads each frame once);
     ``local=False`` keeps the world coordinates only (not the frame's own). What is derived from a
-    frame (its kept points, its own view, its discs) is held with it and goes with it."""
+    frame (its kept points, its own view, its discs) is held with it and goes with it; what a
+    method builds once for the sequence (:meth:`method_state`) is held for the cache's life.
+    ``keep`` (a :class:`Keep`) says which points of a frame a union keeps; the old loose arguments
+    (``drop_moving``, ``see_through``, ``exclude``) still work in its place."""
 
     def __init__(self, seq: Sequence, size: int = 64, local: bool = True):
         self.seq, self.size, self.local = seq, max(1, int(size)), local
@@ -121,6 +134,16 @@ class FrameCache:
         self._kept: dict = {}
         self._views: dict = {}
         self._discs: dict = {}
+        self._states: dict = {}
+
+    def method_state(self, method, options):
+        """``method.sequence_state(seq, cache, options)`` built once for this cache (one sequence's
+        run: every held-out frame of ``sequence evaluate``, every frame a ``sequence convert``
+        worker converts), then returned as it is; keyed by the method's name and options."""
+        key = (method.name, options)
+        if key not in self._states:
+            self._states[key] = method.sequence_state(self.seq, self, options)
+        return self._states[key]
 
     def get(self, i: int) -> tuple[Frame, np.ndarray]:
         if i in self._held:
@@ -152,17 +175,18 @@ class FrameCache:
                                        f"frame {f.name} ({self.seq.paths[i]})")
         return held[key]
 
-    def selection(self, i: int, drop_moving: bool, see_through: SeeThrough | None = None,
+    def selection(self, i: int, keep: Keep | bool = True, see_through: SeeThrough | None = None,
                   exclude=()) -> tuple[np.ndarray | None, dict]:
         """Which points of frame ``i`` the union keeps (None: all) and how many each rule removed:
         ``moving`` (labelled moving classes, with ``drop_moving``), ``seen_through`` (other frames
         of ``see_through``'s neighbourhood, less ``exclude``, saw through them)."""
+        rule = Keep.of(keep, see_through, exclude)
+        see_through, exclude = rule.see_through, rule.key(i)[2]
         f, w = self.get(i)
-        exclude = tuple(sorted(int(e) for e in exclude if e != i))
-        key = ("sel", bool(drop_moving), see_through.key if see_through else None, exclude)
+        key = ("sel", *rule.key(i))
         held = self._kept.setdefault(i, {})
         if key not in held:
-            keep = _kept(f, drop_moving)
+            keep = _kept(f, rule.drop_moving)
             removed = {"moving": 0 if keep is None else int(len(keep) - keep.sum())}
             if see_through is not None:
                 base = base_pattern(see_through.sensor)
@@ -177,17 +201,17 @@ class FrameCache:
             held[key] = (keep, removed)
         return held[key]
 
-    def kept(self, i: int, drop_moving: bool, see_through: SeeThrough | None = None,
+    def kept(self, i: int, keep: Keep | bool = True, see_through: SeeThrough | None = None,
              exclude=()) -> tuple[np.ndarray, dict]:
         """Frame ``i``'s world points and 1-d attributes less its labelled moving points (with
         ``drop_moving``) and those other frames saw through (with ``see_through``), selected once
         while the frame is held: a window of 61 frames slid over a drive selects each frame once,
         not 61 times."""
+        rule = Keep.of(keep, see_through, exclude)
         f, w = self.get(i)
-        keep, _ = self.selection(i, drop_moving, see_through, exclude)
+        keep, _ = self.selection(i, rule)
         held = self._kept.setdefault(i, {})
-        key = ("pts", bool(drop_moving), see_through.key if see_through else None,
-               tuple(sorted(int(e) for e in exclude if e != i)))
+        key = ("pts", *rule.key(i))
         if key not in held:
             a = {n: np.asarray(v) for n, v in f.attributes.items() if np.ndim(v) == 1}
             if keep is not None:
@@ -196,14 +220,13 @@ class FrameCache:
             held[key] = (w, a)
         return held[key]
 
-    def discs(self, i: int, base, drop_moving: bool, see_through: SeeThrough | None = None, exclude=()):
+    def discs(self, i: int, base, keep: Keep | bool = True, see_through: SeeThrough | None = None, exclude=()):
         """An embree scanner of frame ``i``'s kept points, discs from its own pulse grid
         (:func:`~slr_ray.sequence.sources.source_discs`), built once while the frame is held."""
+        rule = Keep.of(keep, see_through, exclude)
         f, w = self.get(i)
-        keep, _ = self.selection(i, drop_moving, see_through, exclude)
-        key = (bool(drop_moving), see_through.key if see_through else None,
-               tuple(sorted(int(e) for e in exclude if e != i)))
-        key += (base.name, base.shape, tuple(base.elevation_deg))
+        keep, _ = self.selection(i, rule)
+        key = rule.key(i) + (base.name, base.shape, tuple(base.elevation_deg))
         held = self._discs.setdefault(i, {})
         if key not in held:
             held[key] = source_discs(w, self.own_points(i), self.view(i, base), f.pose, keep)
@@ -217,7 +240,7 @@ def _kept(f: Frame, drop_moving: bool):
     return None
 
 
-def nearest_of_frames(seq: Sequence, frames, pose, pattern, drop_moving: bool = True,
+def nearest_of_frames(seq: Sequence, frames, pose, pattern, keep: Keep | bool = True,
                       cache: FrameCache | None = None,
                       see_through: SeeThrough | None = None) -> tuple[PulseReturns, dict]:
     """The nearest rule over the union of ``frames`` seen from ``pose``, a frame at a time: each
@@ -226,10 +249,11 @@ def nearest_of_frames(seq: Sequence, frames, pose, pattern, drop_moving: bool = 
     union in memory. Returns them and the attributes carried (every frame's), by return.
     ``see_through``: points other frames saw through are left out too (:class:`FrameCache.selection`)."""
     cache = cache or FrameCache(seq, len(frames))
+    keep = Keep.of(keep, see_through)
     posed = getattr(pattern, "reduce_posed", None)  # a beam table's (slr_ray.sensors.BeamPattern)
     parts, attrs, offset = [], [], 0
     for i in frames:
-        w, a = cache.kept(int(i), drop_moving, see_through)
+        w, a = cache.kept(int(i), keep)
         if posed is not None:  # each point moved in the kernel: no moved copy of the frame
             keys, ranges, idx = posed(w, pose)
             order = np.argsort(keys, kind="stable")
@@ -246,21 +270,24 @@ def nearest_of_frames(seq: Sequence, frames, pose, pattern, drop_moving: bool = 
     return merged, carried
 
 
-def accumulate(seq: Sequence, frames, drop_moving: bool = True, cache: FrameCache | None = None,
-               see_through: SeeThrough | None = None, exclude=()) -> Union:
-    """The union of ``frames`` of ``seq`` in the world frame (module docstring); with ``see_through``
-    the points other frames saw through are left out too, the frames of ``exclude`` (a held-out
-    target) not among those that vote."""
+def accumulate(seq: Sequence, frames, keep: Keep | bool = True, cache: FrameCache | None = None,
+               see_through: SeeThrough | None = None, exclude=(), *, drop_moving: bool | None = None) -> Union:
+    """The union of ``frames`` of ``seq`` in the world frame (module docstring), each frame's points
+    that ``keep`` keeps (a :class:`Keep`; or the old loose arguments: ``keep`` or ``drop_moving=``
+    the labelled moving classes left out, with ``see_through`` the points other frames saw through
+    too, the frames of ``exclude``, a held-out target, not among those that vote)."""
+    keep = Keep.of(keep if drop_moving is None else drop_moving, see_through, exclude)
     frames = [int(i) for i in frames]
     if not frames:
         raise InputValueError("no frame to accumulate: the window holds none but the target")
+    see_through = keep.see_through
     cache = cache or FrameCache(seq, len(frames) + (2 * see_through.half if see_through else 0))
     pts, src, attrs, origins = [], [], [], []
     removed = {"moving": 0} | ({"seen_through": 0} if see_through else {})
     for k, i in enumerate(frames):
         f, _ = cache.get(i)
-        w, a = cache.kept(i, drop_moving, see_through, exclude)
-        for name, count in cache.selection(i, drop_moving, see_through, exclude)[1].items():
+        w, a = cache.kept(i, keep)
+        for name, count in cache.selection(i, keep)[1].items():
             removed[name] += count
         pts.append(w)
         src.append(np.full(len(w), k, np.int32))
@@ -272,17 +299,18 @@ def accumulate(seq: Sequence, frames, drop_moving: bool = True, cache: FrameCach
                  carried, removed)
 
 
-def discs_of_frames(cache: FrameCache, frames, pose, pattern, base, drop_moving: bool = True,
+def discs_of_frames(cache: FrameCache, frames, pose, pattern, base, keep: Keep | bool = True,
                     see_through: SeeThrough | None = None, exclude=()) -> tuple[PulseReturns, dict]:
     """The ``embree-sources`` estimator over ``frames`` seen from ``pose``: each frame's discs from its
     own pulse grid (``base`` fitted to it), one scene a frame held by ``cache`` and reused by every
     target whose window holds the frame (:func:`~slr_ray.sequence.sources.cast_sources`). Returns
     the returns and the attributes carried (every frame's), by return (``cache``: the sequence's
     frames, ``FrameCache(seq)``)."""
+    keep = Keep.of(keep, see_through, exclude)
     scanners, attrs, offset = [], [], 0
     for i in frames:
-        w, a = cache.kept(int(i), drop_moving, see_through, exclude)
-        scanners.append((cache.discs(int(i), base, drop_moving, see_through, exclude), offset))
+        w, a = cache.kept(int(i), keep)
+        scanners.append((cache.discs(int(i), base, keep), offset))
         attrs.append(a)
         offset += len(w)
     ret = cast_sources(scanners, pose, pattern)

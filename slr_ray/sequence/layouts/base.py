@@ -26,7 +26,7 @@ from ...io import read_cloud
 from ..poses import frame_stamps, read_trajectory
 
 __all__ = ["Frame", "Sequence", "FrameSource", "SequenceInputs", "REGISTRY", "detect", "layout_class",
-           "sensor_frame_points", "files_in", "trailing_number"]
+           "sensor_frame_points", "files_in", "trailing_number", "one_trajectory"]
 
 
 def _natural(name: str) -> tuple:
@@ -90,6 +90,20 @@ class SequenceInputs:
         if given:
             raise InputValueError(f"{path}: a {layout} sequence takes no {' or '.join(given)}" + (f": {why}" if why
                                                                                                   else ""))
+
+
+def one_trajectory(path, trajectory, what: str):
+    """The one trajectory file a directory of frames each in its sensor's frame takes (``what``: the
+    layout, "a KITTI sequence"), from ``trajectory`` (a file, or a list of one); None where none was
+    given. Several files, or ``"origins"`` (files in one world frame), refused."""
+    if isinstance(trajectory, (list, tuple)):
+        if len(trajectory) != 1:
+            raise InputValueError(f"{path}: {what} takes one trajectory file, got {len(trajectory)}")
+        trajectory = trajectory[0]
+    if trajectory == "origins":
+        raise InputValueError(f"{path}: {what}'s frames are each in their sensor's frame: poses 'origins' is for "
+                              "files in one world frame")
+    return trajectory
 
 
 def sensor_frame_points(cloud) -> np.ndarray:

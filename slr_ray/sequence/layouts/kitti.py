@@ -21,7 +21,7 @@ import numpy as np
 
 from ...errors import FormatError, InputValueError, SlrNote
 from ..poses import kitti_velodyne_poses, read_calib_tr, read_trajectory, trajectory_form
-from .base import FrameSource, Sequence, SequenceInputs
+from .base import FrameSource, Sequence, SequenceInputs, one_trajectory
 
 __all__ = ["KittiDirectory", "LAYOUT", "read_kitti_layout"]
 
@@ -67,14 +67,7 @@ class KittiDirectory(FrameSource):
                                   f"--input-format {fmt!r} does not apply (drop it)")
         inputs.refuse(path, "KITTI", "origins", "scan_field", why="its frames are .bin files, each in its sensor's frame")
         seq = read_kitti_layout(path)
-        traj = inputs.trajectory
-        if isinstance(traj, (list, tuple)):
-            if len(traj) != 1:
-                raise InputValueError(f"{path}: a KITTI sequence takes one trajectory file, got {len(traj)}")
-            traj = traj[0]
-        if traj == "origins":
-            raise InputValueError(f"{path}: a KITTI sequence's frames are each in their sensor's frame: "
-                                  "poses 'origins' is for files in one world frame")
+        traj = one_trajectory(path, inputs.trajectory, "a KITTI sequence")
         if traj is not None:
             poses, source = seq.layout.trajectory(seq, traj)
             seq = seq.with_poses(poses, source, [traj])

@@ -22,7 +22,7 @@ import numpy as np
 
 from ...errors import InputValueError
 from ..poses import read_trajectory
-from .base import FrameSource, Sequence, SequenceInputs, files_in
+from .base import FrameSource, Sequence, SequenceInputs, files_in, one_trajectory
 
 __all__ = ["OusterDirectory", "LAYOUT", "read_ouster_directory", "lidar_origin"]
 
@@ -104,13 +104,7 @@ def read_ouster_directory(root, trajectory=None, input_format=None) -> Sequence:
                                   f"({', '.join(p.name for p in found)}): keep one")
     if not frames:
         raise InputValueError(f"{root}: no .npz frames")
-    if isinstance(trajectory, (list, tuple)):
-        if len(trajectory) != 1:
-            raise InputValueError(f"{root}: an Ouster directory takes one trajectory file, got {len(trajectory)}")
-        trajectory = trajectory[0]
-    if trajectory == "origins":
-        raise InputValueError(f"{root}: its frames are each in their sensor's frame: poses 'origins' is for files "
-                              "in one world frame")
+    trajectory = one_trajectory(root, trajectory, "an Ouster directory")
     layout = OusterDirectory(metadata[0] if metadata else None)
     names = [f.stem for f in frames]
     source = trajectory if trajectory is not None else (poses[0] if poses else None)

@@ -13,7 +13,7 @@ from pathlib import Path
 
 from ...errors import InputValueError
 from ..poses import frame_stamps, read_pose_blocks, read_trajectory
-from .base import FrameSource, Sequence, SequenceInputs, files_in, trailing_number
+from .base import FrameSource, Sequence, SequenceInputs, files_in, one_trajectory, trailing_number
 
 __all__ = ["PcdDirectory", "LAYOUT", "read_pcd_directory"]
 
@@ -58,13 +58,7 @@ def read_pcd_directory(root, trajectory=None, input_format=None) -> Sequence:
         raise InputValueError(f"{root}: {len(csvs)} CSV files ({', '.join(c.name for c in csvs)}): which holds the "
                               "poses? Give --poses")
     names = [f.stem for f in frames]
-    if isinstance(trajectory, (list, tuple)):
-        if len(trajectory) != 1:
-            raise InputValueError(f"{root}: a PCD directory takes one trajectory file, got {len(trajectory)}")
-        trajectory = trajectory[0]
-    if trajectory == "origins":
-        raise InputValueError(f"{root}: its frames are each in their sensor's frame: poses 'origins' is for files "
-                              "in one world frame")
+    trajectory = one_trajectory(root, trajectory, "a PCD directory")
     if trajectory is not None:
         return Sequence(frames, read_trajectory(trajectory, len(frames), frame_stamps(frames)), names, "trajectory", root, input_format,
                         PcdDirectory(), [trajectory])

@@ -11,11 +11,16 @@ name):
 
 - ``holdout``, ``convert``: it works in the leave-one-out evaluation, in a conversion;
 - ``default``: it is among ``sequence evaluate``'s default methods;
-- ``frame_state``: it works frame by frame on the :class:`~slr_ray.sequence.union.FrameCache`
-  (per-frame reductions or scenes held while the frame is), never the whole union;
 - ``needs_source_sensor``: it needs the frames' own sensor (``source_why`` says why);
 - ``info``: the key of what it reports about a held-out frame (``None``: nothing; the
   frame's result holds the key whether or not the method ran).
+
+What a method builds once for a whole sequence (meshes of its frames, a fitted model) is its
+``sequence_state(seq, cache, options)``; :meth:`SequenceMethod.state` gives it, built on first
+use and held by the run's :class:`~slr_ray.sequence.union.FrameCache`
+(:meth:`~slr_ray.sequence.union.FrameCache.method_state`): one for all the held-out frames of a
+``sequence evaluate``, one for all the frames a ``sequence convert`` worker converts. What is
+built per frame (a frame's kept points, its discs) goes on the cache with the frame.
 
 Its settings are a frozen :class:`MethodOptions` subclass (``options``): the docstring's
 Attributes describe each field; ``PREFIX`` names its flags (``--PREFIX-FIELD``) and the flat
@@ -38,7 +43,7 @@ from ..estimators import FPA_GAP, PulseReturns
 from ..frames import Sequence
 from ..rays import MAX_SHIFT, RAY_NEIGHBOURS
 from ..sources import SeeThrough
-from ..union import FrameCache, Union, accumulate, to_frame
+from ..union import FrameCache, Keep, Union, accumulate, to_frame
 
 __all__ = ["MethodOptions", "NoOptions", "FirstPeakOptions", "RaysOptions", "HeldOut", "TargetFrame",
            "SequenceMethod"]
@@ -120,8 +125,23 @@ class RaysOptions(MethodOptions):
             raise InputValueError(f"--rays-max-shift must be metres >= 0, got {self.max_shift}")
 
 
+class _KeepRead:
+    """``drop_moving`` and ``see_through`` read from the ``keep`` of what a method is given (the
+    old fields' names)."""
+
+    keep: Keep
+
+    @property
+    def drop_moving(self) -> bool:
+        return self.keep.drop_moving
+
+    @property
+    def see_through(self) -> SeeThrough | None:
+        return self.keep.see_through
+
+
 @dataclass
-class HeldOut:
+class HeldOut(_KeepRead):
     """What a method may use for a held-out frame: never its points (its pattern is the table
     fitted to them, or to the others', as every method's grid)."""
 
@@ -134,13 +154,12 @@ class HeldOut:
     base: object        # the frames' sensor (a shipped beam table)
     cache: FrameCache
     pose: np.ndarray    # the held-out frame's pose (where its pulses start)
-    drop_moving: bool = True
-    see_through: SeeThrough | None = None
+    keep: Keep = Keep()  # which points of each frame the union keeps (its exclude: the target)
     target_base: object = None  # the held-out frame's own unit where it is not ``base`` (a target sensor)
 
 
 @dataclass
-class TargetFrame:
+class TargetFrame(_KeepRead):
     """A frame of a conversion: its window's frames, the target sensor's pose and pattern."""
 
     seq: Sequence
@@ -148,14 +167,12 @@ class TargetFrame:
     pose: np.ndarray    # the target sensor's pose (world)
     pattern: object     # the target sensor
     cache: FrameCache
-    drop_moving: bool = True
-    see_through: SeeThrough | None = None
+    keep: Keep = Keep()     # which points of each frame the union keeps
     source: object = None   # the frames' own sensor (a beam table), where given
 
     def union(self) -> Union:
         """The window's union (world frame)."""
-        return accumulate(self.seq, self.frames, drop_moving=self.drop_moving, cache=self.cache,
-                          see_through=self.see_through)
+        return accumulate(self.seq, self.frames, self.keep, cache=self.cache)
 
 
 class SequenceMethod:
@@ -170,10 +187,17 @@ class SequenceMethod:
     holdout: ClassVar[bool] = True
     convert: ClassVar[bool] = True
     default: ClassVar[bool] = False
-    frame_state: ClassVar[bool] = False
     needs_source_sensor: ClassVar[bool] = False
     source_why: ClassVar[str] = ""
     info: ClassVar[str | None] = None
+
+    def sequence_state(self, seq: Sequence, cache: FrameCache, options):
+        """What the method builds once for the sequence ``seq`` (module docstring); None: nothing."""
+        return None
+
+    def state(self, given: HeldOut | TargetFrame, options):
+        """This method's :meth:`sequence_state` for the run ``given`` belongs to, built once."""
+        return given.cache.method_state(self, options)
 
     def returns(self, points, pattern, options) -> PulseReturns:
         """One return per pulse of ``pattern`` from ``points`` (float64, the scanner at the origin)."""

@@ -15,18 +15,15 @@ class EmbreeSources(SequenceMethod):
 
     name = "embree-sources"
     label = "embree discs from each source frame's pulse grid"
-    frame_state = True
     needs_source_sensor = True
     source_why = "their discs come from their own pulse grids"
 
     def simulate(self, held: HeldOut, options):
-        ret, _ = discs_of_frames(held.cache, held.others, held.pose, held.pattern, held.base, held.drop_moving,
-                                 held.see_through, (held.target,))
+        ret, _ = discs_of_frames(held.cache, held.others, held.pose, held.pattern, held.base, held.keep)
         return ret, ret.points, None
 
     def convert_frame(self, frame: TargetFrame, options):
-        return discs_of_frames(frame.cache, frame.frames, frame.pose, frame.pattern, frame.source,
-                               frame.drop_moving, frame.see_through)
+        return discs_of_frames(frame.cache, frame.frames, frame.pose, frame.pattern, frame.source, frame.keep)
 
 
 METHOD = EmbreeSources()

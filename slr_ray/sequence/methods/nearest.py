@@ -16,14 +16,12 @@ class Nearest(SequenceMethod):
     name = "nearest"
     label = "nearest (binning of the union)"
     default = True
-    frame_state = True
 
     def returns(self, points, pattern, options):
         return nearest_returns(points, pattern)
 
     def convert_frame(self, frame: TargetFrame, options):
-        return nearest_of_frames(frame.seq, frame.frames, frame.pose, frame.pattern, frame.drop_moving, frame.cache,
-                                 frame.see_through)
+        return nearest_of_frames(frame.seq, frame.frames, frame.pose, frame.pattern, frame.keep, frame.cache)
 
 
 METHOD = Nearest()
