@@ -15,12 +15,10 @@ from __future__ import annotations
 import math
 
 import numpy as np
-from llvmlite import ir
 from numba import carray, cfunc, njit, types
-from numba.core import cgutils
-from numba.extending import intrinsic
 
 from .cull import could_hit
+from .intrinsics import as_pointer as _as_pointer, call3 as _call3, call4 as _call4, prefetch as _prefetch
 from .library import FEATURE_FLAGS_ALL, INVALID_ID, RAY_QUERY_FLAG_INVOKE_ARGUMENT_FILTER
 
 __all__ = ["cast_packets", "cast_each", "FILTER", "MODE_SKIP", "PACKET_WIDTHS", "silhouette_bit", "NO_CLIP",
@@ -69,60 +67,6 @@ MODE_SKIP, _MODE_TIES, _MODE_ONE_PASS, _MODE_CLIP = 1, 2, 4, 8
 #: later whose window reaches a little further (an equal distance is common: duplicate points
 #: with other normals) leaves the candidates complete; the window itself is unchanged
 _CULL_PAD = 2.0
-
-
-@intrinsic
-def _as_pointer(typingctx, address):
-    """An integer address as a ``void*`` (for numba.carray)."""
-    sig = types.voidptr(address)
-
-    def codegen(context, builder, signature, args):
-        return builder.inttoptr(args[0], cgutils.voidptr_t)
-
-    return sig, codegen
-
-
-@intrinsic
-def _prefetch(typingctx, address):
-    """Start loading the cache line at an integer address (LLVM's prefetch; no fault)."""
-    sig = types.void(address)
-
-    def codegen(context, builder, signature, args):
-        i32 = ir.IntType(32)
-        fnty = ir.FunctionType(ir.VoidType(), [cgutils.voidptr_t, i32, i32, i32])
-        fn = cgutils.get_or_insert_function(builder.module, fnty, "llvm.prefetch.p0i8")
-        builder.call(fn, [builder.inttoptr(args[0], cgutils.voidptr_t), ir.Constant(i32, 0), ir.Constant(i32, 3),
-                          ir.Constant(i32, 1)])
-        return context.get_dummy_value()
-
-    return sig, codegen
-
-
-def _c_call(fptr, *args):
-    """Signature and code of a call to the C function at address ``fptr`` with
-    pointer-sized integer arguments (None: not integers, numba tries no other)."""
-    if not all(isinstance(x, types.Integer) for x in (fptr, *args)):
-        return None
-
-    def codegen(context, builder, signature, values):
-        i64 = ir.IntType(64)
-        f = builder.inttoptr(values[0], ir.FunctionType(ir.VoidType(), [i64] * len(args)).as_pointer())
-        builder.call(f, [builder.zext(x, i64) if x.type.width < 64 else x for x in values[1:]])
-        return context.get_dummy_value()
-
-    return types.void(fptr, *args), codegen
-
-
-@intrinsic
-def _call3(typingctx, fptr, a, b, c):
-    """Call the C function at address ``fptr`` with three pointer-sized arguments."""
-    return _c_call(fptr, a, b, c)
-
-
-@intrinsic
-def _call4(typingctx, fptr, a, b, c, d):
-    """Call the C function at address ``fptr`` with four pointer-sized arguments."""
-    return _c_call(fptr, a, b, c, d)
 
 
 @njit(cache=True, nogil=True, inline="always")
