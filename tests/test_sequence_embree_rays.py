@@ -158,3 +158,77 @@ def test_frames_of_unknown_rings_are_meshed_by_the_tables_rows(tmp_path):
     real = dict(zip(*[a.tolist() for a in pat.pulse_ids(fb.points, np.zeros(3))]))
     err = np.abs(ret.ranges - np.array([real.get(k, np.nan) for k in ret.keys.tolist()]))
     assert len(ret) > 0.8 * len(real) and np.nanmedian(err) < 0.01
+
+
+@pytest.fixture(scope="module")
+def drive(tmp_path_factory):
+    from slr_ray.sequence.synthetic import synthetic_drive
+    root = tmp_path_factory.mktemp("drive") / "seq"
+    synthetic_drive(root, n_frames=4, sensor="velodyne_vlp16", step=0.8, moving=False)
+    return root
+
+
+def test_embree_rays_is_a_sequence_method_of_both_commands(drive, tmp_path, capsys):
+    """Registered (#46): ``sequence evaluate --methods embree-rays`` scores it beside the others, its held-out
+    frame's sensor fitted on the other frames (reported); ``sequence convert --estimator embree-rays``
+    writes every frame, its points on what the frames saw."""
+    import json
+
+    from conftest import CliRun
+    from slr_ray.io import read_cloud
+
+    run = CliRun(capsys)
+    r = run("sequence", "evaluate", drive, "--holdout", "1", "2", "--half", "1", "--source-sensor", "velodyne_vlp16",
+            "--methods", "nearest", "embree-rays", "-o", tmp_path / "ev", "--quiet")
+    assert r.returncode == 0, r.stderr
+    res = json.loads((tmp_path / "ev" / "evaluation.json").read_text())
+    frame = res["frames"][0]
+    assert frame["ray_model"]["source"] == "fitted" and frame["ray_model"]["lasers"] == 16
+    mean = {row["method"]: row for row in json.loads(r.stdout)["mean"]}
+    er = mean["the fitted sensor cast with Embree onto the frames' ring meshes"]
+    near = mean["nearest (binning of the union)"]
+    # the drive's surfaces are planes: the meshes of the other frames hold them, the fitted rays meet them
+    assert er["F@5cm"] >= near["F@5cm"] and er["depth_medae_m"] < 0.02 and er["drop_accuracy"] > 0.9, er
+    r = run("sequence", "convert", drive, "--target-sensor", "velodyne_vlp16", "--source-sensor", "velodyne_vlp16",
+            "--estimator", "embree-rays", "--half", "1", "-o", tmp_path / "conv", "--quiet")
+    assert r.returncode == 0, r.stderr
+    seq_frames = sorted((drive / "velodyne").glob("*.bin"))
+    out = sorted((tmp_path / "conv" / "velodyne").glob("*.bin"))
+    assert [f.name for f in out] == [f.name for f in seq_frames]
+    for a, b in zip(out, seq_frames):  # the target is the source at the same poses: its own frames again
+        got, real = read_cloud(a).points, read_cloud(b).points
+        assert 0.9 * len(real) < len(got) <= len(real) * 1.01
+        from scipy.spatial import cKDTree
+        assert np.median(cKDTree(real).query(got)[0]) < 0.05
+
+
+def test_each_frames_mesh_and_fit_are_made_once_while_the_cache_holds_it(drive, monkeypatch):
+    """frame_state (#46): two held-out frames sharing the frames cache mesh and fit each frame once, and
+    their returns are those of a fresh cache each; a frame the cache lets go takes its state with it."""
+    import slr_ray.sequence.embree_rays as E
+    from slr_ray.sequence import FrameCache, read_sequence
+
+    seq = read_sequence(drive)
+    made = []
+    mesh, fit = E._mesh, E.fit_ray_model
+    monkeypatch.setattr(E, "_mesh", lambda *a: made.append("mesh") or mesh(*a))
+    monkeypatch.setattr(E, "fit_ray_model", lambda *a, **k: made.append("fit") or fit(*a, **k))
+    pat = sensor("velodyne_vlp16")
+    cache = FrameCache(seq)
+    held = []
+    for t in (1, 2):
+        others = [i for i in range(4) if i != t]
+        model, surfaces = E.fit_embree_model(seq, others, pat, cache, exclude=(t,))
+        held.append(cast_embree_rays(np.zeros((sum(len(cache.get(i)[1]) for i in others), 3)), pat, model,
+                                     surfaces=surfaces, pose=seq.poses[t]))
+    assert made.count("mesh") == 4 and made.count("fit") == 4   # frames 0..3, once each, not 3 + 3
+    for t, ret in zip((1, 2), held):
+        others = [i for i in range(4) if i != t]
+        model, surfaces = E.fit_embree_model(seq, others, pat, FrameCache(seq), exclude=(t,))
+        fresh = cast_embree_rays(np.zeros((sum(len(cache.get(i)[1]) for i in others), 3)), pat, model,
+                                 surfaces=surfaces, pose=seq.poses[t])
+        assert np.array_equal(fresh.keys, ret.keys) and np.allclose(fresh.ranges, ret.ranges)
+    small = FrameCache(seq, size=2)
+    small.state(0, "k", lambda: 1)
+    small.get(1), small.get(2)
+    assert small.state(0, "k", lambda: 2) == 2   # frame 0 let go: its state went with it
