@@ -232,3 +232,26 @@ def test_each_frames_mesh_and_fit_are_made_once_while_the_cache_holds_it(drive, 
     small.state(0, "k", lambda: 1)
     small.get(1), small.get(2)
     assert small.state(0, "k", lambda: 2) == 2   # frame 0 let go: its state went with it
+
+
+def test_fill_gives_the_pulses_the_meshes_miss_the_unions_first_peak_only():
+    """--embree-rays-fill (#46 item 3): the returns kept as they are; a pulse they miss takes fpa's return of
+    the union where it holds at least ``least`` of its points, and no other pulse."""
+    from slr_ray.sequence.embree_rays import fill_missing
+    from slr_ray.sequence.estimators import PulseReturns, fpa_returns
+
+    pat = sensor("velodyne_vlp16")
+    rng = np.random.default_rng(1)
+    pts = rng.normal(size=(4000, 3)) * [20, 20, 1]
+    f = fpa_returns(pts, pat)
+    half = PulseReturns(f.keys[::2], f.ranges[::2] + 1.0, f.points[::2], f.index[::2])  # "the meshes'" returns
+    keys, _ = pat.pulse_ids(pts, np.zeros(3))
+    count = np.bincount(keys[keys >= 0])
+    for least in (1, 2):
+        out = fill_missing(half, pts, pat, least)
+        assert np.all(np.diff(out.keys) > 0)
+        mine = np.isin(out.keys, half.keys)
+        assert np.array_equal(out.ranges[mine], half.ranges)   # the meshes' returns as they were
+        want = f.keys[~np.isin(f.keys, half.keys) & (count[f.keys] >= least)]
+        assert np.array_equal(out.keys[~mine], want)
+    assert fill_missing(half, pts, pat, 0) is half

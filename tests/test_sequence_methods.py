@@ -75,8 +75,9 @@ def test_the_registry_holds_every_method_once_with_its_capabilities():
     assert M.methods_with("needs_source_sensor") == ["embree-sources", "embree-rays"]
     assert M.option_keys()["fpa_gap"][2] == ["fpa", "rays"]   # fpa's and rays' gap: one setting, one flag
     assert M.method_options() == {"fpa_gap": 0.1, "rays_neighbours": 64, "rays_max_shift": 0.3,
-                                  "embree_rays_gap": 0.2, "embree_rays_max_ratio": 0.3, "embree_rays_weak_ratio": 0.1}
-    with pytest.raises(InputValueError, match="known: \\['embree_rays_gap', .*'fpa_gap', "):
+                                  "embree_rays_gap": 0.2, "embree_rays_max_ratio": 0.3, "embree_rays_weak_ratio": 0.1,
+                                  "embree_rays_fill": 0}
+    with pytest.raises(InputValueError, match="known: \\['embree_rays_fill', .*'fpa_gap', "):
         M.method_options({"fpa_gapp": 0.2})
     with pytest.raises(InputValueError, match="fpa given twice"):
         M.check_methods(("fpa", "nearest", "fpa"), "holdout")

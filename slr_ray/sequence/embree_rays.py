@@ -54,12 +54,12 @@ from numba import njit
 from ..errors import InputValueError, SlrWarning
 from ..evaluate import scan_order_beams
 from ..raycast import RayScene
-from .estimators import FPA_GAP, PulseReturns
+from .estimators import FPA_GAP, PulseReturns, fpa_returns
 from .rays import RayModel, fit_ray_model, frame_motion, pattern_ray_model, sweep_offsets
 from .union import rotate
 
 __all__ = ["frame_mesh", "MeshFrames", "rays_of_model", "cast_embree_rays", "mesh_range_bias", "union_meshes",
-           "frame_beams", "fit_embree_model", "frame_surface", "frame_points_beams", "frame_ray_model",
+           "frame_beams", "fit_embree_model", "fill_missing", "frame_surface", "frame_points_beams", "frame_ray_model",
            "combined_model", "MAX_RATIO", "MAX_STEP_DEG", "MAX_STEP_COLUMNS", "EMBREE_GAP", "WEAK_RATIO"]
 
 #: a triangle's ranges (from its frame's origin) differ by at most this share of the nearest
@@ -73,6 +73,8 @@ MAX_STEP_DEG = 0.4
 #: frame: the road far off, or a skin from an edge to what lies behind it): a ray takes it only where
 #: no frame's mesh gives it a strong one
 WEAK_RATIO = 0.1
+#: every this many points of a frame fitted for its own lasers' lines (frame_ray_model)
+FIT_STRIDE = 8
 #: every this many points of a frame cast for the range biases (mesh_range_bias)
 BIAS_STRIDE = 8
 #: rounds of the range biases' fit against meshes that hold the same lasers' points (mesh_range_bias)
@@ -307,6 +309,25 @@ def cast_embree_rays(points, pattern, model: RayModel | None = None, motion=(0.0
     return PulseReturns(keys[win].astype(np.int64), ranges[win], hit[win], index[win])
 
 
+def fill_missing(ret: PulseReturns, points, pattern, least: int = 1, gap: float = FPA_GAP) -> PulseReturns:
+    """``ret`` with the pulses it misses (no mesh met) that hold at least ``least`` of the union's
+    ``points`` (the target's frame) given their first-peak average
+    (:func:`~slr_ray.sequence.estimators.fpa_returns`): the gaps of the meshes (depth jumps, rings
+    too far apart) filled from the union. On the KITTI frames it trades depth and drop accuracy for
+    coverage (the real frame's side of the Chamfer distance; docs/sequences.md)."""
+    if least < 1 or not len(points):
+        return ret
+    f = fpa_returns(points, pattern, gap)
+    keys, _ = pattern.pulse_ids(points, np.zeros(3))
+    keys = keys[keys >= 0]
+    held = np.searchsorted(np.sort(keys), f.keys, side="right") - np.searchsorted(np.sort(keys), f.keys)
+    add = np.flatnonzero((held >= least) & ~np.isin(f.keys, ret.keys))
+    k = np.concatenate([ret.keys, f.keys[add]])
+    o = np.argsort(k, kind="stable")
+    return PulseReturns(k[o], np.concatenate([ret.ranges, f.ranges[add]])[o],
+                        np.concatenate([ret.points, f.points[add]])[o], np.concatenate([ret.index, f.index[add]])[o])
+
+
 def mesh_range_bias(model: RayModel, frames, surfaces, stride: int = 8, reach: float = 0.2,
                     rounds: int = BIAS_ROUNDS) -> RayModel:
     """``model`` with each laser's range bias measured against meshes: ``frames`` ``(points, beams, pose,
@@ -479,7 +500,8 @@ def frame_ray_model(cache, seq, i: int, base) -> RayModel | None:
             return None
         ok = beams >= 0
         try:
-            return fit_ray_model([(pts[ok], beams[ok], frame_motion(seq.poses, int(i)))], base.n_beams)
+            return fit_ray_model([(pts[ok], beams[ok], frame_motion(seq.poses, int(i)))], base.n_beams,
+                                 stride=FIT_STRIDE)
         except InputValueError:  # too few points on its lasers
             return None
 

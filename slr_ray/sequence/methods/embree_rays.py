@@ -9,9 +9,11 @@ from __future__ import annotations
 from dataclasses import dataclass
 from typing import ClassVar
 
+import numpy as np
+
 from ...errors import InputValueError
-from ..embree_rays import (EMBREE_GAP, MAX_RATIO, WEAK_RATIO, MeshFrames, cast_embree_rays, fit_embree_model,
-                           union_meshes)
+from ..embree_rays import (EMBREE_GAP, MAX_RATIO, WEAK_RATIO, MeshFrames, cast_embree_rays, fill_missing,
+                           fit_embree_model, union_meshes)
 from ..rays import frame_motion, pattern_ray_model
 from ..union import to_frame
 from .base import HeldOut, MethodOptions, SequenceMethod, TargetFrame
@@ -33,12 +35,16 @@ class EmbreeRaysOptions(MethodOptions):
     weak_ratio : float
         A triangle whose ranges differ by more than this share of the nearest is weak: a ray takes it
         only where no frame's mesh has a strong one (0: no weak rule).
+    fill : int
+        Pulses no mesh meets that hold at least this many union points take the union's first-peak
+        average (0: none; 1: every such pulse: more coverage, less depth and drop accuracy).
     """
 
     PREFIX: ClassVar[str] = "embree_rays"
     gap: float = EMBREE_GAP
     max_ratio: float = MAX_RATIO
     weak_ratio: float = WEAK_RATIO
+    fill: int = 0
 
     def check(self) -> None:
         for name in ("gap", "max_ratio"):
@@ -47,6 +53,8 @@ class EmbreeRaysOptions(MethodOptions):
                 raise InputValueError(f"--embree-rays-{name.replace('_', '-')} must be > 0, got {v}")
         if not (isinstance(self.weak_ratio, (int, float)) and 0 <= self.weak_ratio):
             raise InputValueError(f"--embree-rays-weak-ratio must be >= 0, got {self.weak_ratio}")
+        if not (isinstance(self.fill, (int, np.integer)) and self.fill >= 0):
+            raise InputValueError(f"--embree-rays-fill must be a count >= 0, got {self.fill}")
 
     @property
     def weak(self):
@@ -79,14 +87,17 @@ class EmbreeRays(SequenceMethod):
                                     (held.target,), options.meshes)
         ret = cast_embree_rays(held.u, held.pattern, model, frame_motion(held.seq.poses, held.target), options.gap,
                                surfaces=surfaces, pose=held.pose)
+        ret = fill_missing(ret, held.u, held.pattern, options.fill)
         return ret, ret.points, model.to_dict()
 
     def convert_frame(self, frame: TargetFrame, options: EmbreeRaysOptions):
         union = frame.union()
         surfaces = union_meshes(frame.cache, frame.frames, frame.source, None, frame.drop_moving,
                                 frame.see_through, (), options.meshes)
-        ret = cast_embree_rays(to_frame(union.points, frame.pose), frame.pattern, pattern_ray_model(frame.pattern),
-                               gap=options.gap, surfaces=surfaces, pose=frame.pose)
+        u = to_frame(union.points, frame.pose)
+        ret = cast_embree_rays(u, frame.pattern, pattern_ray_model(frame.pattern), gap=options.gap, surfaces=surfaces,
+                               pose=frame.pose)
+        ret = fill_missing(ret, u, frame.pattern, options.fill)
         return ret, {n: v[ret.index] for n, v in union.attributes.items()}
 
 
