@@ -144,7 +144,10 @@ def ouster(tmp: Path):
         files.append(str(f))
     seq = read_sequence(files, str(next(src.glob("*_poses_kitti.txt"))))
     ev = H.evaluate_sequence(seq, [1], sensor="ouster_os1_128", methods=METHODS, half=1)
-    return {"mean": directions(ev)}
+    rows = directions(ev)
+    fill = H.evaluate_sequence(seq, [1], sensor="ouster_os1_128", methods=("embree-rays",), half=1,
+                               method_options={"embree_rays_fill": 1})
+    return {"mean": rows + [directions(fill)[0] | {"method": "embree-rays, fill 1"}]}
 
 
 def main():
@@ -152,13 +155,17 @@ def main():
     ap.add_argument("--runs", type=int, default=5)
     ap.add_argument("--skip-accuracy", action="store_true")
     ap.add_argument("--ouster", action="store_true", help="the Ouster OS1-128's frames too")
+    ap.add_argument("--ouster-only", action="store_true", help="the Ouster OS1-128's frames only")
     a = ap.parse_args()
+    a.ouster = a.ouster or a.ouster_only
     res = {"machine": machine(), "load_before": os.getloadavg()}
     if a.ouster:
         with tempfile.TemporaryDirectory() as tmp:
             res["ouster_os1_128"] = ouster(Path(tmp))
         show(res["ouster_os1_128"]["mean"])
         save("sequence_embree_rays_ouster", res | {"load_after": os.getloadavg()})
+        if a.ouster_only:
+            return
     seq = read_sequence([str(DATA / f"kitti_hdl64_00000{i}.bin") for i in range(4)], str(POSES))
     if not a.skip_accuracy:
         ev = H.evaluate_sequence(seq, [1, 2], methods=METHODS)
