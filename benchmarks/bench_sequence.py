@@ -48,6 +48,7 @@ def main() -> None:
     ap.add_argument("--estimator", nargs="+", default=["nearest"], help="convert's --estimator (default nearest)")
     ap.add_argument("--target", default="velodyne_vlp16", help="the target sensor (default velodyne_vlp16)")
     ap.add_argument("--dask", action="store_true", help="on a local dask.distributed cluster of --workers workers")
+    ap.add_argument("--suffix", default="", help="appended to the results' names (bench_sequence_NAME_SUFFIX.json)")
     a = ap.parse_args()
     env = dict(os.environ, PYTHONPATH=str(Path(__file__).resolve().parents[1]))
     with tempfile.TemporaryDirectory() as tmp:
@@ -116,7 +117,7 @@ def one(a, estimator, drive, tmp, env, made, cluster=None) -> None:
            "largest_process_peak_gib": round(peak, 3), "peak_of": "every process so far, earlier estimators included"}
     print(json.dumps({k: v for k, v in out.items() if k != "machine"}))
     name = "bench_sequence" if estimator == "nearest" else f"bench_sequence_{estimator}"
-    save(name + ("_dask" if cluster is not None else ""), out)
+    save(name + ("_dask" if cluster is not None else "") + (f"_{a.suffix}" if a.suffix else ""), out)
 
 
 def _worker_pids(cluster) -> list:
