@@ -59,30 +59,28 @@ beam-table grid (not of the primary-beams grid, whose rows are the beams).
 
 from __future__ import annotations
 
-import csv
-import io
-import json
 import math
 import time
-from dataclasses import dataclass
-from pathlib import Path
+import warnings
+from dataclasses import dataclass, field
 
 import numpy as np
 
-from .arrays import as_points, as_rigid_pose, json_safe
+from .arrays import as_points, as_rigid_pose
 from .backends import BACKENDS, prepare, scanner_class
-from .errors import InputValueError, MissingDependencyError, OutputError
-from .io import atomic_path
-from .metrics import (FIELD_THRESHOLD, LIDAR4D_CODE_THRESHOLD, PAPER_THRESHOLD, REGISTRY as METRICS, Pair,
-                      metric_columns, range_bands, score_pair, seen_from)
+from .errors import InputValueError, MissingDependencyError, SlrWarning
+from .metrics import FIELD_THRESHOLD, LIDAR4D_CODE_THRESHOLD, PAPER_THRESHOLD, Pair, range_bands, score_pair, seen_from
 from .options import Options
 from .progress import bar as progress_bar, phase, step
+from .reports import (EVALUATION_FILES, SEQUENCE_COLUMNS, compact_json, evaluation_table, markdown_table,  # noqa: F401
+                      reach_table, sequence_summary, splits_table, write_evaluation, write_sequence_evaluation)
 from .scan import Scan
 from .sensors import BeamPattern, fitted_pattern, scan_order_beams, sensor
 
 __all__ = ["METHODS", "BEAM_SOURCES", "EVALUATION_FILES", "LABELS", "Registration", "register", "scan_order_beams", "fitted_pattern", "zbuffer",
            "EvaluateOptions", "evaluate_pair", "evaluation_table", "markdown_table", "splits_table", "compact_json",
-           "write_evaluation", "frame_beams", "SPLITS", "ScoringTarget", "scoring_target", "score_simulation", "write_sequence_evaluation", "SEQUENCE_COLUMNS", "sequence_summary"]
+           "write_evaluation", "frame_beams", "SPLITS", "ScoringTarget", "scoring_target", "score_simulation", "write_sequence_evaluation", "SEQUENCE_COLUMNS", "sequence_summary",
+           "REACH", "source_reach", "reach_table", "rig_extrinsic"]
 
 #: the methods scored, in table order, and their names in tables and figures
 METHODS = ("zbuffer", "binning", "embree-knn", "embree-grid", "embree-beams")
@@ -350,6 +348,7 @@ class ScoringTarget:
     pixels: np.ndarray      # (rows, cols) each pulse's split label: seen, unseen, no return
     point_groups: dict
     splits: tuple = SPLITS
+    pulse_groups: dict = field(default_factory=dict)  # further splits' labels per pulse (``source``)
 
 
 def scoring_target(points, pattern, beams, primary, seen_threshold: float = PAPER_THRESHOLD,
@@ -369,7 +368,7 @@ def scoring_target(points, pattern, beams, primary, seen_threshold: float = PAPE
     if beams is not None:
         rows = pattern.rows_of_beams(beams, len(points))[in_view]
     else:
-        rows = band_keys[in_view] // pattern.columns
+        rows = band_keys[in_view] // pattern.shape[1]
     seen = seen_from(inside, primary, seen_threshold)
     seen_all = np.zeros(len(points), bool)
     seen_all[in_view] = seen
@@ -386,10 +385,51 @@ def score_simulation(target: ScoringTarget, simulated, image, thresholds=THRESHO
     its points ``simulated`` and its range image ``image`` (in the target's pattern)."""
     real = target.image["range"]
     sim_ranges = np.where(np.isfinite(real), real, image)
-    pulses = {"range band": range_bands(sim_ranges), "beam": np.arange(target.pattern.n_beams),
+    pulses = {"range band": range_bands(sim_ranges), "beam": np.arange(target.pattern.shape[0]),
               "seen": target.pixels.astype(str)}
     return score_pair(Pair(target.points, simulated, real, image, tuple(thresholds), target.point_groups,
-                           {k: v for k, v in pulses.items() if k in target.splits}))
+                           {k: v for k, v in pulses.items() if k in target.splits} | target.pulse_groups))
+
+
+#: what a source could have seen of each target point (the ``source`` split of :func:`evaluate_pair`), in
+#: table order; a pulse with no real return is ``"no return"``
+REACH = ("seen by source", "in source view, unseen", "outside source range", "outside source FOV")
+
+
+def source_reach(points, transform, source_pattern: BeamPattern, source_points, seen) -> np.ndarray:
+    """Each target point labelled by what the source frame could have seen of it (:data:`REACH`).
+
+    ``points`` (m, 3): the target's, in its own frame; ``transform``: the target's pose in the source's
+    frame (``a = R b + t``); ``seen`` (m,) bool: a source point lies near it. Unseen points are *outside
+    source FOV* (no elevation band of ``source_pattern`` holds them, seen from the source's origin),
+    *outside source range* (beyond the ranges the source frame's points span, within its table's limits),
+    or else *in source view, unseen* (hidden from the source, or its pulse dropped)."""
+    R, t = np.asarray(transform, np.float64)[:3, :3], np.asarray(transform, np.float64)[:3, 3]
+    in_a = as_points(points, "points") @ R.T + t
+    keys, ranges = source_pattern.with_(min_range=None, max_range=None).pulse_ids(in_a, np.zeros(3))
+    r_a = np.linalg.norm(as_points(source_points, "source_points"), axis=1)
+    lo, hi = source_pattern.range_limits
+    lo, hi = max(lo, float(r_a.min(initial=np.inf))), min(hi, float(r_a.max(initial=0.0)))
+    labels = np.full(len(in_a), REACH[3], dtype=object)
+    fov = keys >= 0
+    labels[fov] = np.where((ranges[fov] >= lo) & (ranges[fov] <= hi), REACH[1], REACH[2])
+    labels[np.asarray(seen, bool)] = REACH[0]
+    return labels.astype(str)
+
+
+def _reach(target: ScoringTarget, b, T, pat_a, a) -> dict:
+    """Adds the ``source`` split (:func:`source_reach`) to ``target``'s points and pulses; returns its counts
+    (target points and real pulses per label: they sum to the target's)."""
+    labels = source_reach(target.points, T, pat_a, a, target.seen)
+    every = np.full(len(b), "no return", dtype=object)
+    every[target.in_view] = labels
+    pixels = np.full(target.image["range"].shape, "no return", dtype=object)
+    filled = target.image["index"] >= 0
+    pixels[filled] = every[target.image["index"][filled]]
+    target.point_groups["source"] = labels
+    target.pulse_groups["source"] = pixels.astype(str)
+    return {"labels": list(REACH), "points": {k: int(np.count_nonzero(labels == k)) for k in REACH},
+            "pulses": {k: int(np.count_nonzero(pixels == k)) for k in (*REACH, "no return")}}
 
 
 @dataclass(frozen=True)
@@ -399,8 +439,15 @@ class EvaluateOptions(Options):
     Attributes
     ----------
     sensor : str or BeamPattern
-        The sensor's shipped table (columns, range limits; the elevations
-        where a frame's beams are unknown).
+        The frames' sensor: a shipped name, a sensor card's path (``.json``)
+        or a pattern (columns, range limits; the elevations where a frame's
+        beams are unknown). ``source_sensor``'s old name.
+    source_sensor : str or BeamPattern, optional
+        Frame A's sensor (default ``sensor``).
+    target_sensor : str or BeamPattern, optional
+        Frame B's sensor (default the source's): another unit of the rig,
+        re-simulated at its pose from A; B's pose must then be given
+        (``transform`` or ``extrinsic``).
     methods : sequence of str
         A subset of :data:`METHODS`, or registered backends' names.
     seen_threshold : float
@@ -425,10 +472,12 @@ class EvaluateOptions(Options):
     thresholds: tuple = THRESHOLDS
     min_fitness: float = MIN_FITNESS
     max_rmse: float | None = None
+    source_sensor: str | BeamPattern | None = None
+    target_sensor: str | BeamPattern | None = None
 
 
 def evaluate_pair(a_points, b_points, a_beams="auto", b_beams="auto", options: EvaluateOptions | None = None, *,
-                  transform=None, progress: bool = False, **keywords) -> dict:
+                  transform=None, extrinsic=None, progress: bool = False, **keywords) -> dict:
     """Re-simulate frame B from frame A at B's pose and score every method against the real B.
 
     Parameters
@@ -453,6 +502,9 @@ def evaluate_pair(a_points, b_points, a_beams="auto", b_beams="auto", options: E
         rigid pose (:func:`slr_ray.arrays.as_rigid_pose`: a rotation to
         1e-5, last row ``0 0 0 1``, finite), which must put some of A's
         points in B's view. ``min_fitness`` and ``max_rmse`` are then ignored.
+    extrinsic : (4, 4) float, optional
+        The pose as a rig's extrinsic from A's sensor to B's: A's coordinates
+        into B's frame (``b = E a``), ``transform``'s inverse (docs/cross_sensor.md).
     progress : bool
         Progress on stderr.
 
@@ -469,21 +521,22 @@ def evaluate_pair(a_points, b_points, a_beams="auto", b_beams="auto", options: E
     -------
     dict
         ``registration``, ``patterns``, ``unseen_share`` (of B's points),
+        ``cross_sensor``, ``source_reach`` (B's points and pulses per part of the
+        ``source`` split, :func:`source_reach`; they sum to B's),
         ``rows`` (one per method: counts, seconds, and a block per registered
         metric, :data:`slr_ray.metrics.REGISTRY`: ``points``, a
         :class:`~slr_ray.metrics.PointMetrics`, and ``image``, a
         :class:`~slr_ray.metrics.RangeImageMetrics`, as dicts),
-        ``images`` (range images, not JSON: ``real`` and per method) and
-        ``seconds`` per stage.
+        ``images`` (range images, not JSON: ``real`` and per method), ``seconds``.
     """
     t_all = time.perf_counter()
     o = EvaluateOptions.of(options, **keywords)
-    sensor, seen_threshold, thresholds = o.sensor, o.seen_threshold, o.thresholds
+    seen_threshold, thresholds = o.seen_threshold, o.thresholds
     methods = _checked_methods(o.methods, o.min_fitness, o.max_rmse)
-    T = None if transform is None else as_rigid_pose(transform, "transform")  # before any work
-    base = _resolve_sensor(sensor)
+    base_a, base_b, cross = _pair_sensors(o)
+    T = _given_pose(transform, extrinsic, cross, base_a, base_b)  # before any work
     a, b = as_points(a_points, "a_points"), as_points(b_points, "b_points")
-    (a_beams, a_how, pat_a), (b_beams, b_how, pat_b) = _frame(a, a_beams, base, "a"), _frame(b, b_beams, base, "b")
+    (a_beams, a_how, pat_a), (b_beams, b_how, pat_b) = _frame(a, a_beams, base_a, "a"), _frame(b, b_beams, base_b, "b")
     seconds = {}
     _require_in_view((("a_points", a, pat_a), ("b_points", b, pat_b)))
     t0 = time.perf_counter()
@@ -492,22 +545,72 @@ def evaluate_pair(a_points, b_points, a_beams="auto", b_beams="auto", options: E
     a_in_b, a_origin = _a_in_b(a, T, pat_b, registration)
     t0 = time.perf_counter()
     target = _target(b, b_beams, pat_b, a_in_b, seen_threshold)
+    reach = _reach(target, b, T, pat_a, a)
     seconds["target"] = time.perf_counter() - t0
-    real, b_in, seen, pix_seen, filled = target.real, target.points, target.seen, target.pixels, target.image["index"] >= 0
-    rows, images, identical = _score_methods(methods, (a_in_b, a_origin, a_beams, pat_a), pat_b, target,
+    rows, images, identical = _score_methods(methods, (a_in_b, a_origin, a_beams, pat_a, a, T), pat_b, target,
                                              thresholds, seconds, progress)
     seconds["total"] = time.perf_counter() - t_all
-    return {"registration": registration,
+    return {"registration": registration, "cross_sensor": cross, "source_reach": reach,
             "patterns": {"a": pat_a.to_dict() | {"beams_known": a_beams is not None, "beams": a_how},
                          "b": pat_b.to_dict() | {"beams_known": b_beams is not None, "beams": b_how}},
-            "frames": {"a_points": int(len(a)), "b_points": int(len(b)), "b_points_in_view": int(len(b_in)),
-                       "b_pulses_returned": int(len(real)), "b_points_sharing_a_pulse": int(len(b_in) - len(real))},
-            "seen_threshold": seen_threshold, "thresholds": [float(x) for x in thresholds],
-            "unseen_share": float(np.mean(~seen)) if len(seen) else float("nan"),
-            "unseen_pulse_share": float(np.mean(pix_seen[filled] == "unseen")) if filled.any() else float("nan"),
+            **_counts(target, a, b), "seen_threshold": seen_threshold, "thresholds": [float(x) for x in thresholds],
             "images_identical": {"zbuffer vs binning": identical},
             "rows": rows, "images": images, "seconds": {k: round(v, 3) for k, v in seconds.items()}}
 
+
+def _counts(target: ScoringTarget, a, b) -> dict:
+    """The result's ``frames`` (points, in view, pulses) and the shares of B's points and pulses unseen."""
+    real, b_in, seen, filled = target.real, target.points, target.seen, target.image["index"] >= 0
+    return {"frames": {"a_points": int(len(a)), "b_points": int(len(b)), "b_points_in_view": int(len(b_in)),
+                       "b_pulses_returned": int(len(real)), "b_points_sharing_a_pulse": int(len(b_in) - len(real))},
+            "unseen_share": float(np.mean(~seen)) if len(seen) else float("nan"),
+            "unseen_pulse_share": float(np.mean(target.pixels[filled] == "unseen")) if filled.any() else float("nan")}
+
+
+def _pair_sensors(o: EvaluateOptions) -> tuple:
+    """``(source table, target table, cross)``: A's sensor (``source_sensor``, else ``sensor``) and B's
+    (``target_sensor``, else A's), and whether they differ."""
+    base_a = _resolve_sensor(o.sensor if o.source_sensor is None else o.source_sensor)
+    if o.target_sensor is None:
+        return base_a, base_a, False
+    base_b = _resolve_sensor(o.target_sensor)
+    return base_a, base_b, base_b.to_dict() != base_a.to_dict()
+
+
+#: a rig's extrinsic whose 3 x 3 part is a rotation to this (every entry of R^T R - I) is taken as its nearest
+#: rotation (a hand calibration's six-digit matrix: the Pandar64 to QT64 rig's is 0.0215 off, 1 % of scale)
+EXTRINSIC_TOLERANCE = 0.05
+
+
+def rig_extrinsic(extrinsic, name: str = "extrinsic") -> np.ndarray:
+    """A rig's extrinsic as a rigid pose: its rotation part replaced by the nearest rotation (SVD) when it is
+    one to :data:`EXTRINSIC_TOLERANCE` (said once, with how far it moved), refused beyond."""
+    E = as_rigid_pose(extrinsic, name, tol=EXTRINSIC_TOLERANCE)
+    u, _, vt = np.linalg.svd(E[:3, :3])
+    R = u @ vt
+    moved = float(np.max(np.abs(R - E[:3, :3])))
+    if moved > 1e-6:
+        warnings.warn(f"{name}: its 3 x 3 part is not quite a rotation: taken as the nearest rotation (entries moved "
+                      f"by up to {moved:.3g})", SlrWarning, stacklevel=3)
+    E[:3, :3] = R
+    return E
+
+
+def _given_pose(transform, extrinsic, cross: bool, base_a, base_b):
+    """B's pose in A's frame from ``transform`` or ``extrinsic`` (its inverse), checked; a target sensor
+    other than the source's needs one (another unit of a rig sits elsewhere: registration from the
+    identity is no start)."""
+    T = None if transform is None else as_rigid_pose(transform, "transform")
+    if extrinsic is not None:
+        if T is not None:
+            raise InputValueError("transform and extrinsic: give one (extrinsic is transform's inverse)")
+        T = np.linalg.inv(rig_extrinsic(extrinsic))
+        T[3] = (0.0, 0.0, 0.0, 1.0)
+    if T is None and cross:
+        raise InputValueError(
+            f"target_sensor {base_b.name!r} is not the source's ({base_a.name!r}): give B's pose, transform= (B's "
+            "pose in A's frame, --transform) or extrinsic= (A's coordinates into B's frame, --extrinsic)")
+    return T
 
 
 def _checked_methods(methods, min_fitness, max_rmse) -> tuple | list:
@@ -593,11 +696,40 @@ def _target(b, b_beams, pat_b, a_in_b, seen_threshold) -> ScoringTarget:
     return scoring_target(b, pat_b, b_beams, a_in_b, seen_threshold)
 
 
+#: degrees: B's axes tilted from A's by more than this (another unit of a rig), the methods told of A's pulse
+#: grid are prepared in A's own frame and B's pulses cast into it turned by B's pose (:func:`posed_scan`):
+#: in B's frame A's grid would be tilted (rows across beams). KITTI's pairs: under 0.2 deg, unchanged.
+MAX_GRID_TILT_DEG = 1.0
+
+
+def tilt_deg(transform) -> float:
+    """The angle between B's up axis and A's (degrees) of the pose ``transform`` (B's in A's frame)."""
+    return math.degrees(math.acos(max(-1.0, min(1.0, float(np.asarray(transform)[2, 2])))))
+
+
+def posed_scan(scanner, transform, pattern: BeamPattern, points_in_b) -> Scan:
+    """A scan of ``pattern`` at B's pose ``transform`` (B's in A's frame) by ``scanner``, prepared on A's
+    points in A's frame (a scanner that casts rays): each pulse's ray turned into A's frame and cast from B's
+    origin there; a point met by several rays keeps its nearest ray's pulse, and a point the pattern would
+    not see from B (``points_in_b``: the same points in B's frame) is not returned, as a scan's rule is."""
+    T = np.asarray(transform, np.float64)
+    dirs, v, h = pattern.rays()
+    idx, dist = scanner.cast(T[:3, 3], dirs @ T[:3, :3].T, pattern.range_limits[1])
+    hit = np.flatnonzero(idx >= 0)
+    order = hit[np.lexsort((dist[hit], idx[hit]))]  # by point, nearest ray first
+    first = order[np.r_[True, idx[order][1:] != idx[order][:-1]]] if len(order) else order
+    keys, ranges = pattern.pulse_ids(points_in_b[idx[first]], np.zeros(3))
+    keep = first[keys >= 0]
+    return Scan(indices=idx[keep].astype(np.intp), ranges=ranges[keys >= 0], origin=np.zeros(3), pattern=pattern,
+                pulses=np.column_stack([v[keep], h[keep]]).astype(np.int64), backend=scanner.backend,
+                n_input=len(points_in_b), info={"cast": "posed: B's rays turned into A's frame"})
+
+
 def _score_methods(methods, frame_a, pat_b, target, thresholds, seconds, progress) -> tuple:
     """``(rows, images, identical)``: each method's simulation of B from A's points in B's frame
     (``frame_a``: ``(a_in_b, a_origin, a_beams, pat_a)``), scored against the real B (``target``, a
     :class:`ScoringTarget`) by every registered metric (its seconds into ``seconds``)."""
-    a_in_b, a_origin, a_beams, pat_a = frame_a
+    a_in_b, a_origin, a_beams, pat_a, a, T = frame_a
     rows, images = [], {"real": target.image["range"]}
     binning_img = None
     todo = [m for m in methods if not (METHOD_SCANS.get(m, (m, None))[1] == "beams" and a_beams is None)]
@@ -610,12 +742,14 @@ def _score_methods(methods, frame_a, pat_b, target, thresholds, seconds, progres
             sim_idx = np.flatnonzero(keys >= 0)  # every point of A in B's view: no visibility rule
         else:
             backend, told = METHOD_SCANS.get(m, (m, None))
-            opts = {} if told is None else scanner_class(backend).primary_options(a_origin, pat_a)
+            posed = told is not None and scanner_class(backend).casts_rays and tilt_deg(T) > MAX_GRID_TILT_DEG
+            opts = {} if told is None else scanner_class(backend).primary_options(
+                np.zeros(3) if posed else a_origin, pat_a)
             if told == "beams":
                 opts["primary_beams"] = a_beams
-            scanner = prepare(a_in_b, backend, **opts)
+            scanner = prepare(a if posed else a_in_b, backend, **opts)
             prep = scanner.prepare_seconds
-            sc = scanner.scan(np.zeros(3), pat_b)
+            sc = posed_scan(scanner, T, pat_b, a_in_b) if posed else scanner.scan(np.zeros(3), pat_b)
             sim_idx = sc.indices
         img = sc.range_image()["range"]
         images[m] = img
@@ -631,159 +765,3 @@ def _score_methods(methods, frame_a, pat_b, target, thresholds, seconds, progres
     else:
         identical = None
     return rows, images, identical
-
-
-# --- tables and files ---------------------------------------------------------------------------------------
-
-def evaluation_table(result: dict) -> list[dict]:
-    """One flat row per method: the figures of the table (JSON-ready), each registered metric's columns
-    in the registry's order (:data:`slr_ray.metrics.REGISTRY`)."""
-    return [{"method": r["label"], "points": r["points_out"]} | metric_columns(r, result) for r in result["rows"]]
-
-
-def _fmt(v):
-    if isinstance(v, float):
-        if math.isnan(v):
-            return "–"
-        return f"{v:.4f}" if abs(v) < 10 else f"{v:.2f}"
-    return f"{v:,}" if isinstance(v, int) else str(v)
-
-
-def markdown_table(table: list[dict], columns=None) -> str:
-    """``table`` (from :func:`evaluation_table`) as a markdown table."""
-    cols = columns or list(table[0])
-    lines = ["| " + " | ".join(cols) + " |", "|" + "---|" * len(cols)]
-    lines += ["| " + " | ".join(_fmt(r.get(c, math.nan)) for c in cols) + " |" for r in table]
-    return "\n".join(lines)
-
-
-
-
-def compact_json(obj, indent: int = 1, width: int = 1000, _level: int = 0) -> str:
-    """JSON with every block that fits in ``width`` characters (a split's figures, a list of numbers)
-    on one line: a file people read and diff, not one number a line."""
-    flat = json.dumps(obj, allow_nan=False)
-    scalars = isinstance(obj, list) and not any(isinstance(v, (dict, list)) for v in obj)
-    if not isinstance(obj, (dict, list)) or scalars or len(flat) <= width or not obj:
-        return flat
-    pad, inner = " " * (indent * _level), " " * (indent * (_level + 1))
-    if isinstance(obj, dict):
-        items = [f"{inner}{json.dumps(str(k))}: {compact_json(v, indent, width, _level + 1)}" for k, v in obj.items()]
-        return "{\n" + ",\n".join(items) + "\n" + pad + "}"
-    items = [inner + compact_json(v, indent, width, _level + 1) for v in obj]
-    return "[\n" + ",\n".join(items) + "\n" + pad + "]"
-
-
-def splits_table(result: dict) -> list[dict]:
-    """Every split of every method as one flat row (method, part, split, label, then the figures;
-    F-scores as ``P@5cm``, ``R@5cm``, ``F@5cm``...): the JSON's ``groups`` as a long table."""
-    out = []
-    for r in result["rows"]:
-        for part in (m for m in METRICS if m in r):
-            for split, labels in r[part].get("groups", {}).items():
-                for label, block in labels.items():
-                    row = {"method": r["method"], "part": part, "split": split, "label": label}
-                    for k, v in block.items():
-                        if k == "fscore":
-                            for tau, f in v.items():
-                                row |= {f"P@{tau}": f["precision"], f"R@{tau}": f["recall"], f"F@{tau}": f["fscore"]}
-                        else:
-                            row[k] = v
-                    out.append(row)
-    return out
-
-
-def _csv_text(rows: list[dict]) -> str:
-    buf = io.StringIO()
-    fields = list(dict.fromkeys(k for r in rows for k in r))
-    w = csv.DictWriter(buf, fieldnames=fields, lineterminator="\n")
-    w.writeheader()
-    w.writerows(rows)
-    return buf.getvalue()
-
-
-#: the files of an evaluation (the ``evaluate`` command's), by kind: :func:`write_evaluation` writes all
-#: but ``figure``, which :func:`slr_ray.plotting.evaluation_figure` draws (figures are not computed here)
-EVALUATION_FILES = {"json": "evaluation.json", "markdown": "table.md", "csv": "table.csv",
-                    "splits": "splits.csv", "figure": "evaluation.png"}
-
-
-def _evaluation_directory(directory, force: bool) -> Path:
-    """``directory``, made; refused when it is a file, or not empty without ``force``."""
-    d = Path(directory)
-    if d.exists() and not d.is_dir():
-        raise OutputError(f"{d} exists and is not a directory")
-    if d.is_dir() and any(d.iterdir()) and not force:
-        raise OutputError(f"{d} exists and is not empty (use --force to replace its evaluation files)")
-    d.mkdir(parents=True, exist_ok=True)
-    return d
-
-
-def write_evaluation(result: dict, directory, force: bool = False, inputs: dict | None = None) -> dict:
-    """Write ``evaluation.json`` (everything, splits included; one line per figure block),
-    ``table.md``, ``table.csv`` and ``splits.csv`` (every split, one row each) into a new ``directory``.
-
-    Refuses an existing non-empty directory unless ``force`` (then only these
-    files are replaced). Returns the paths written, by kind. The figure,
-    ``evaluation.png``, is drawn by the figures' layer, as the ``evaluate``
-    command does: ``save_figure(evaluation_figure(result), directory / "evaluation.png")``
-    (:mod:`slr_ray.plotting`).
-    """
-    d = _evaluation_directory(directory, force)
-    table = evaluation_table(result)
-    doc = {k: v for k, v in result.items() if k != "images"} | {"table": table, "inputs": inputs or {}}
-    paths = {kind: d / name for kind, name in EVALUATION_FILES.items() if kind != "figure"}
-    with atomic_path(paths["json"]) as tmp:
-        tmp.write_text(compact_json(json_safe(doc)) + "\n")
-    with atomic_path(paths["markdown"]) as tmp:
-        tmp.write_text(markdown_table(table) + "\n")
-    with atomic_path(paths["csv"]) as tmp:
-        tmp.write_text(_csv_text(table))
-    with atomic_path(paths["splits"]) as tmp:
-        tmp.write_text(_csv_text(splits_table(result)))
-    return {k: str(v) for k, v in paths.items()}
-
-
-#: the columns of a sequence evaluation's ``table.md`` by protocol (every column is in ``table.csv`` and
-#: the JSON): the default, and LiDAR4D's (its clamped depth errors, Chamfer and 22.4 cm F-score)
-SEQUENCE_COLUMNS = {
-    "slr": ("frame", "method", "points", "F@5cm", "F@10cm", "depth_medae_m", "depth_rmse_m", "drop_accuracy",
-            "drop_recall", "cd_sum_m2", "R@10cm seen"),
-    "lidar4d": ("frame", "method", "points", "cd_sum_m2", "F@22.3607cm", "lidar4d_depth_rmse_m",
-                "lidar4d_depth_medae_m", "drop_accuracy")}
-
-
-def _sequence_rows(result: dict) -> list[dict]:
-    return [r for f in result["frames"] for r in f["table"]] + result["mean"]
-
-
-def _sequence_columns(result: dict, rows: list[dict]) -> list[str]:
-    cols = SEQUENCE_COLUMNS.get(result.get("protocol", "slr"), SEQUENCE_COLUMNS["slr"])
-    return [c for c in cols if c in rows[0]]
-
-
-def write_sequence_evaluation(result: dict, directory, force: bool = False) -> dict:
-    """Write a sequence evaluation (:func:`slr_ray.sequence.evaluate_sequence`'s result, with what the
-    caller adds: ``protocol``, ``inputs``...) into ``directory``: ``evaluation.json`` (everything, its
-    ``table`` every frame's rows and the means), ``table.md`` (the columns of its protocol,
-    :data:`SEQUENCE_COLUMNS`) and ``table.csv`` (every column). Refuses an existing non-empty
-    directory unless ``force`` (then only these files are replaced). Returns the paths, by kind."""
-    d = _evaluation_directory(directory, force)
-    rows = _sequence_rows(result)
-    paths = {kind: d / EVALUATION_FILES[kind] for kind in ("json", "markdown", "csv")}
-    with atomic_path(paths["json"]) as tmp:
-        tmp.write_text(compact_json(json_safe(result | {"table": rows})) + "\n")
-    with atomic_path(paths["markdown"]) as tmp:
-        tmp.write_text(markdown_table(rows, _sequence_columns(result, rows)) + "\n")
-    with atomic_path(paths["csv"]) as tmp:
-        tmp.write_text(_csv_text(rows))
-    return {k: str(v) for k, v in paths.items()}
-
-
-def sequence_summary(result: dict) -> tuple[str, list[dict]]:
-    """A sequence evaluation in short: the mean rows as a markdown table of its protocol's columns, and
-    the same rows (those columns only, figures to 4 decimals) for a summary."""
-    rows = result["mean"]
-    cols = [c for c in _sequence_columns(result, rows) if c != "frame"]
-    short = [{c: round(v, 4) if isinstance(v, float) else v for c, v in ((c, r.get(c)) for c in cols)} for r in rows]
-    return markdown_table(rows, cols), short

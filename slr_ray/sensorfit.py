@@ -30,7 +30,13 @@ rate (the share of its pulses, frames x columns, with no point).
 
 Fit quality, in ``meta["fit"]``: the median angle of the points off their
 beam's line and the share of points assigned (within their beam's band: half
-the gap to the next beam). A frame that is not a spinning unit's is refused
+the gap to the next beam); ``split_beams``, the beams that look like one beam
+seen twice (a gap under a quarter of both gaps beside it: warned). Without a
+ring field, a frame whose points do not all leave one origin (a moving unit's
+frame deskewed, several sweeps merged: BALM's OS0-64-like frames) puts one
+beam's points at two elevations that depend on range and azimuth, and the
+votes find it twice (109 beams for 64 rings there): the warning says so.
+A frame that is not a spinning unit's is refused
 (:class:`~slr_ray.errors.InputValueError`, saying why): under half the turn
 of azimuth seen, no beams, more than :data:`MAX_BEAMS` of them, or points
 that do not lie on beams (under :data:`MIN_ASSIGNED` assigned, or a median
@@ -40,13 +46,14 @@ angle off their beams over :data:`MAX_RESIDUAL_DEG`).
 from __future__ import annotations
 
 import math
+import warnings
 from pathlib import Path
 
 import numpy as np
 from scipy.ndimage import gaussian_filter1d
 from scipy.signal import find_peaks
 
-from .errors import InputValueError
+from .errors import InputValueError, SlrWarning
 from .io import PointCloud, read_cloud
 from .sensors import BeamPattern, scan_order_beams
 from .sequence.rays import beam_lines
@@ -121,6 +128,16 @@ def _vote_beams(u, t):
     g = gaussian_filter1d(votes(h), 1.0)
     peaks, _ = find_peaks(g, prominence=3.0, distance=max(1, int(0.06 / _BIN_DEG)))
     return lo + (peaks + 0.5) * _BIN_DEG, np.full(len(peaks), h)
+
+
+def _split_beams(el) -> int:
+    """Beams that look like one beam seen twice: a gap to the next beam under a quarter of both gaps
+    beside it (non-uniform units space their beams smoothly: a fine band has fine gaps both sides)."""
+    g = np.diff(np.sort(np.asarray(el, np.float64)))
+    if len(g) < 3:
+        return 0
+    inner = g[1:-1]
+    return int(np.sum((inner < 0.25 * g[:-2]) & (inner < 0.25 * g[2:])))
 
 
 def _apparent(el_deg, z0, rho):
@@ -275,14 +292,24 @@ def fit_card(frames, ring: str | bool = "auto", name: str | None = None, source:
     occupied = np.array([len(np.unique(F[R == b] * columns + col[R == b])) for b in range(n)])
     drop = 1.0 - occupied / (len(fr) * columns)
     rr = r[ok]
+    split = _split_beams(el)
+    if split:
+        warnings.warn(f"{', '.join(labels[:2])}{' ...' if len(labels) > 2 else ''}: {split} of the {n} beams "
+                      "fitted lie "
+                      "under a quarter of the gaps beside them from the next: one beam seen twice? (frames not "
+                      "in the sensor's own axes, several sweeps merged, or a moving unit's frame): check the "
+                      "card (its fit quality: split_beams)", SlrWarning, stacklevel=2)
     meta = {"source": source or "fitted by slr_ray.sensorfit.fit_card from " + ", ".join(labels),
             "height_m": [round(float(x), 5) + 0.0 for x in z0],  # + 0.0: no -0.0
             "drop_rate": [round(float(x), 5) + 0.0 for x in drop],
             "points": [int(x) for x in counts],
             "fit": {"how": how, "frames": len(fr), "points": int(ok.sum()),
                     "median_off_beam_deg": round(resid, 5), "share_assigned": round(share, 5),
-                    "azimuth_seen": round(seen, 4), "columns_from": "median azimuth step of a beam's points",
+                    "azimuth_seen": round(seen, 4), "split_beams": split,
+                    "columns_from": "median azimuth step of a beam's points",
                     "ranges": "the ranges seen (override with min_range / max_range, --min-range / --max-range)"}}
+    if not use_rings:  # its beams are elevation bands: frames without rings take their beams from them
+        meta["beams_from"] = "elevation bands"
     if use_rings:
         meta["ring"] = [int(x) for x in rings_seen[keep]] if not keep.all() else [int(x) for x in rings_seen]
     return BeamPattern(tuple((el + 0.0).tolist()), columns, tuple((np.round(offsets, 5) + 0.0).tolist()),

@@ -639,7 +639,7 @@ def fitted_pattern(points, beams, base: BeamPattern, columns: int | None = None)
     points carry their beams gives its own elevations. Azimuth offsets are
     zero (the points' azimuths are where they were measured); ``columns``
     defaults to ``360 /`` the median azimuth step between a beam's
-    consecutive points, rounded. Beams with no point keep ``base``'s elevation.
+    points next in azimuth (not in the file's order: a Hesai PCD lists them out of firing order), rounded. Beams with no point keep ``base``'s elevation.
     """
     p = as_points(points, "points")
     base.rows_of_beams(beams, len(p))  # checks the beam ids
@@ -653,8 +653,8 @@ def fitted_pattern(points, beams, base: BeamPattern, columns: int | None = None)
         mine = b == i
         if np.any(mine):
             elev[i] = np.median(el[mine])
-            d = np.abs(np.diff(np.unwrap(az[mine])))
-            d = d[d > 0]  # duplicate points are no step
+            d = np.diff(np.sort(az[mine]))  # sorted: a file need not list a beam's points in firing order
+            d = d[d > 1e-9]  # duplicate points are no step
             if len(d):
                 steps.append(np.median(d))
     if columns is None:

@@ -179,7 +179,7 @@ def test_cli_evaluate(tmp_path, capsys):
         write_cloud(p, PointCloud(s.points - o, {"ring": SMALL.beam_of_row[s.pulses[:, 0]].astype(np.int32)}))
         files.append(str(p))
     out = tmp_path / "out"
-    argv = ["evaluate", *files, "-o", str(out), "--sensor", "velodyne_vlp16", "--quiet",
+    argv = ["evaluate", *files, "-o", str(out), "--source-sensor", "velodyne_vlp16", "--quiet",
             "--methods", "zbuffer", "binning"]
     # a 16-beam table with the small pattern's rings: beams come from the 'ring' field
     assert main(argv) == 0
@@ -276,7 +276,7 @@ def test_cli_evaluate_moves_frames_with_a_recorded_origin_to_their_sensor(tmp_pa
             files.append(str(p))
         eye = tmp_path / "eye.txt"
         np.savetxt(eye, np.eye(4))
-        assert main(["evaluate", *files, "-o", str(tmp_path / kind), "--sensor", "velodyne_vlp16", "--quiet",
+        assert main(["evaluate", *files, "-o", str(tmp_path / kind), "--source-sensor", "velodyne_vlp16", "--quiet",
                      "--methods", "zbuffer", "--transform", str(eye)]) == 0
         out[kind] = json.loads(capsys.readouterr().out)["table"][0]
     assert perfect(out["local"]) and perfect(out["utm"])

@@ -84,7 +84,7 @@ def test_cli_evaluate_refuses_a_transform_that_is_not_a_rigid_pose(frames, tmp_p
         path = tmp_path / "T.txt"
         path.write_text(text)
         rc, stdout, err = run(["evaluate", str(frames["ordered"]), str(frames["ordered"]), "-o", str(out), "--quiet",
-                               "--sensor", "velodyne_vlp16", "--methods", "zbuffer", "--transform", str(path)], capsys)
+                               "--source-sensor", "velodyne_vlp16", "--methods", "zbuffer", "--transform", str(path)], capsys)
         assert rc == 2 and stdout == "" and not out.exists(), what
         assert err.count("\n") == 1 and "--transform" in err and "Traceback" not in err, (what, err)
 
@@ -92,7 +92,7 @@ def test_cli_evaluate_refuses_a_transform_that_is_not_a_rigid_pose(frames, tmp_p
 def test_cli_evaluate_beams_scan_order_refuses_a_frame_not_in_scan_order_and_auto_says_so(frames, tmp_path, capsys):
     eye = tmp_path / "eye.txt"
     eye.write_text("1 0 0 0 0 1 0 0 0 0 1 0\n")  # a line of a KITTI poses file: 3 x 4, row by row
-    base = ["--sensor", "velodyne_vlp16", "--methods", "zbuffer", "--transform", str(eye), "--quiet"]
+    base = ["--source-sensor", "velodyne_vlp16", "--methods", "zbuffer", "--transform", str(eye), "--quiet"]
     shuffled, ordered = str(frames["shuffled"]), str(frames["ordered"])
     rc, _, err = run(["evaluate", ordered, shuffled, "-o", str(tmp_path / "s"), "--beams", "scan-order", *base],
                      capsys)
@@ -116,7 +116,7 @@ def test_cli_evaluate_refuses_duplicate_methods_and_a_non_empty_directory(frames
     eye = tmp_path / "eye.txt"
     eye.write_text("1 0 0 0\n0 1 0 0\n0 0 1 0\n0 0 0 1\n")
     f = str(frames["ordered"])
-    base = ["evaluate", f, f, "--sensor", "velodyne_vlp16", "--transform", str(eye), "--quiet"]
+    base = ["evaluate", f, f, "--source-sensor", "velodyne_vlp16", "--transform", str(eye), "--quiet"]
     rc, _, err = run([*base, "-o", str(tmp_path / "d"), "--methods", "binning", "binning"], capsys)
     assert rc == 2 and "--methods: binning given twice" in err and not (tmp_path / "d").exists()
     rc, _, err = run([*base, "-o", str(tmp_path / "d"), "--min-fitness", "nan"], capsys)
@@ -156,7 +156,7 @@ def test_an_empty_transform_file_is_one_line_in_a_real_process(frames, tmp_path)
     empty.write_text("")
     f = str(frames["ordered"])
     proc = subprocess.run([sys.executable, "-m", "slr_ray.cli", "evaluate", f, f, "-o", str(tmp_path / "o"),
-                           "--transform", str(empty), "--sensor", "velodyne_vlp16", "--quiet"],
+                           "--transform", str(empty), "--source-sensor", "velodyne_vlp16", "--quiet"],
                           capture_output=True, text=True)
     assert proc.returncode == 2 and proc.stdout == "" and not (tmp_path / "o").exists()
     assert proc.stderr.count("\n") == 1 and proc.stderr.startswith("slr-ray: error: --transform"), proc.stderr

@@ -356,7 +356,7 @@ LAYERS = (
     ("input/output", {"io"}),
     ("core", {"core"}),
     ("patterns", {"pattern", "sensors", "spherical", "scan"}),
-    ("measures", {"metrics"}),
+    ("measures", {"metrics", "reports"}),
     ("ray casting", {"raycast"}),
     ("backends", {"backends", "accumulator"}),
     ("simulation", {"effects", "scenes", "meshscan"}),

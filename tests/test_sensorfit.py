@@ -14,7 +14,7 @@ from slr_ray.cli import main
 from slr_ray.errors import FormatError, OutputError, SlrNote
 from slr_ray.io import PointCloud, write_cloud
 from slr_ray.sensorfit import fit_card
-from slr_ray.sensors import beams_outside, card_dict, read_card, sensor, write_card
+from slr_ray.sensors import BeamPattern, beams_outside, card_dict, read_card, sensor, write_card
 
 DATA = next((p / "shared" / "data" for p in Path(__file__).resolve().parents[1:4] if (p / "shared" / "data").is_dir()),
             Path(__file__).resolve().parents[2] / "shared" / "data")
@@ -190,3 +190,47 @@ def test_convert_says_the_target_beams_the_source_never_saw_and_refuses_nothing(
         # refused at its first frame (the convert's empty-frame check, #48 item 7) or at its end (#45 item 5)
         with pytest.raises((InputValueError, OutputError), match="returned no point|no pulse of the target sensor"):
             convert_sequence(seq, tmp_path / "out2", str(tmp_path / "sky.json"), half=0)
+
+
+def test_a_frame_whose_beams_come_out_twice_is_flagged_not_passed_as_a_good_fit():
+    # failed before (#45): BALM's OS0-64-like frames (deskewed: their points do not all leave one origin)
+    # fitted 109 beams for 64 rings with a fine quality report and no word. Here a 16-beam unit whose
+    # points leave two origins 0.15 m apart in height: each beam found twice, close pairs
+    from slr_ray.errors import SlrWarning
+    from slr_ray.sensors import SENSORS
+    from slr_ray.sensorfit import _split_beams
+    table = BeamPattern(tuple(np.arange(16) * 2.0 - 15.0), 360, name="toy16")
+    f = _frame(table, drop=0.0, seed=1)
+    pts = f.points.copy()
+    pts[::2, 2] += 0.15
+    pts[:, :2] *= np.where(np.arange(len(pts)) % 4 < 2, 1.0, 3.0)[:, None]  # some far, some near: two elevations
+    with pytest.warns(SlrWarning, match="one beam seen twice"):
+        card = fit_card(PointCloud(pts, {}, np.zeros(3)), ring=False)
+    assert card.meta["fit"]["split_beams"] > 0 and card.n_beams > 16
+    clean = fit_card(_frame(table, drop=0.0, seed=1), ring=False)
+    assert clean.meta["fit"]["split_beams"] == 0 and clean.n_beams == 16
+    assert all(_split_beams(sensor(n).elevation_deg) == 0 for n in SENSORS)  # non-uniform units are not split
+
+
+def test_frames_without_rings_take_their_beams_from_a_card_fitted_without_rings():
+    # failed before (#45): a ring-less PCD sequence (BALM's) had no beams for the rays' per-laser fit, though
+    # its card (fitted from such frames) defines its beams as elevation bands
+    from slr_ray.sequence.sources import known_beams
+    table = BeamPattern(tuple(np.arange(16) * 2.0 - 15.0), 360, name="toy16")
+    f = _frame(table, drop=0.0, seed=2)
+    card = fit_card(PointCloud(f.points, {}, np.zeros(3)), ring=False)
+    assert card.meta["beams_from"] == "elevation bands"
+    shuffled = np.random.default_rng(0).permutation(len(f.points))  # no scan order to read
+    beams = known_beams(f.points[shuffled], {}, read_card_of(card))
+    el = np.asarray(card.elevation_deg)[beams]
+    want = np.asarray(table.elevation_deg)[np.asarray(f.attributes["ring"], int)[shuffled]]
+    assert np.all(beams >= 0) and np.allclose(el, want, atol=0.05)
+    assert known_beams(f.points[shuffled], {}, table) is None  # a table of rings: not guessed from bands
+
+
+def read_card_of(card, tmp=None):
+    """``card`` written and read back (the meta that tells its beams are bands round-trips)."""
+    import tempfile
+    with tempfile.TemporaryDirectory() as d:
+        write_card(Path(d) / "c.json", card)
+        return read_card(Path(d) / "c.json")

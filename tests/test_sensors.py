@@ -305,3 +305,19 @@ def test_a_sensor_file_of_impossible_values_is_named_in_the_error(tmp_path, cont
     path.write_text(json.dumps(content))
     with pytest.raises(InputValueError, match=f"^{path}: "):  # was: "elevation_deg must be ..." of no file
         read_ouster_metadata(path)
+
+
+def test_a_fitted_pattern_takes_its_columns_from_azimuth_not_from_the_files_order():
+    # failed before (#45): the step was taken between points next in the file; a Hesai PCD lists a beam's
+    # points out of firing order (steps -0.2, +0.8, -0.4 ...), which halved its 1800 columns to 900
+    from slr_ray.sensors import fitted_pattern
+    rng = np.random.default_rng(0)
+    base = BeamPattern((5.0, 0.0, -5.0), 100, name="toy")
+    az = np.radians((np.arange(1800) + 0.5) * 0.2)
+    pts, beams = [], []
+    for b, e in enumerate(np.radians([5.0, 0.0, -5.0])):
+        pts.append(10 * np.stack([np.cos(e) * np.cos(az), np.cos(e) * np.sin(az), np.full_like(az, np.sin(e))], 1))
+        beams.append(np.full(len(az), b))
+    order = rng.permutation(3 * len(az))
+    p, b = np.concatenate(pts)[order], np.concatenate(beams)[order]
+    assert fitted_pattern(p, b, base).columns == 1800

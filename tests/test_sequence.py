@@ -266,3 +266,33 @@ def test_a_registered_metric_reaches_the_sequence_tables(drive, monkeypatch):
     assert [r["ratio"]["ratio"] for r in rows] == [r["points_out"] / r["points"]["target_points"] for r in rows]
     assert [r["sim/real"] for r in res["frames"][0]["table"]] == [r["ratio"]["ratio"] for r in rows]
     assert all("sim/real" in r for r in res["mean"])
+
+
+def test_a_target_sensors_held_out_frame_is_scored_on_its_own_table_reach_apart(tmp_path, drive, capsys):
+    # failed before (#45): sequence evaluate had no --target-sensor; a frame of another unit among the source's
+    # was scored on the source's table. Here a VLP-32C frame (down to -25 deg) held out among VLP-16 frames
+    # (+-15 deg): its grid is the VLP-32C's, and its beams below what the VLP-16 saw are scored apart
+    root, poses = drive
+    other = tmp_path / "vlp32"
+    synthetic_drive(other, n_frames=3, sensor="velodyne_vlp32c", step=0.8, moving=False)
+    files = [root / "velodyne" / "000000.bin", other / "velodyne" / "000001.bin", root / "velodyne" / "000002.bin"]
+    from slr_ray.sequence.frames import write_kitti_poses
+    write_kitti_poses(tmp_path / "poses.txt", poses[:3])
+    out = tmp_path / "ev"
+    r = _Run(capsys)("sequence", "evaluate", *files, "--poses", tmp_path / "poses.txt", "--holdout", "1",
+                     "--half", "1", "--source-sensor", "velodyne_vlp16", "--target-sensor", "velodyne_vlp32c",
+                     "--methods", "zbuffer", "nearest", "rays", "-o", out, "--quiet")
+    assert r.returncode == 0, r.stderr
+    res = json.loads((out / "evaluation.json").read_text())
+    f = res["frames"][0]
+    assert f["pattern"]["beams"] == 32 and f["target_sensor"] == "velodyne_vlp32c"
+    lo, hi = f["source_elevation_range_deg"]
+    table = sensor("velodyne_vlp32c")
+    assert f["target_beams_out_of_reach"] == int(np.sum((np.asarray(table.elevation_deg) < lo) |
+                                                        (np.asarray(table.elevation_deg) > hi))) > 0
+    for row in f["table"]:
+        assert row["target points out of reach"] > 0 and row["target points in reach"] > 0
+        assert row["points in reach"] + row["points out of reach"] == row["points"] or row["method"].startswith("no SLR")
+    near = {r["method"]: r for r in f["table"]}["nearest (binning of the union)"]
+    assert near["F@5cm in reach"] > near["F@5cm"]  # what the source never saw pulls the whole frame's score down
+    assert "F@5cm in reach" in (out / "table.md").read_text()

@@ -1,6 +1,7 @@
 """Sequence layouts (slr_ray.sequence.layouts): the registry and detection, a toy layout by the
 recipe of docs/architecture.md, and the refusals of poses files (#47 item 2, #48 items 5 and 10)."""
 
+import json
 from pathlib import Path
 
 import numpy as np
@@ -240,3 +241,35 @@ def test_a_tum_trajectory_gives_frames_named_by_time_the_pose_of_their_time(tmp_
     tum.write_text("".join(f"{100 + 0.1 * k + 0.05:.6f} {k} 0 0 0 0 0 1\n" for k in range(6)))  # 50 ms off
     with pytest.raises(InputValueError, match=r"traj\.tum: 6 poses for 3 frames, and frame 0 \(time 100\.000000 s"):
         read_sequence(files, tum)
+
+
+def _ouster_directory(root, lift_mm):
+    """A toy Ouster directory: 3 beams (+10, 0, -10 deg) x 16 columns at 2 m from a lidar origin
+    ``lift_mm`` above the sensor origin, the points in the sensor frame (as Ouster's xyz), 2 frames."""
+    root.mkdir()
+    alt = np.array([10.0, 0.0, -10.0])
+    az = np.radians(np.arange(16) * 22.5)
+    e = np.radians(alt)[:, None]
+    d = np.stack([np.cos(e) * np.cos(az), np.cos(e) * np.sin(az), np.sin(e) * np.ones_like(az)], axis=-1)
+    xyz = 2.0 * d + np.array([0.0, 0.0, lift_mm / 1000.0])
+    for i in range(2):
+        np.savez(root / f"f{i}.npz", xyz=xyz, range_mm=np.full((3, 16), 2000, np.uint32))
+    m = np.eye(4)
+    m[2, 3] = lift_mm
+    (root / "meta.json").write_text(json.dumps({"beam_altitude_angles": alt.tolist(), "beam_azimuth_angles": [0] * 3,
+                                                "lidar_mode": "16x10", "lidar_to_sensor_transform": m.ravel().tolist()}))
+    (root / "poses.txt").write_text("1 0 0 0 0 1 0 0 0 0 1 0\n1 0 0 1 0 1 0 0 0 0 1 0\n")
+    return xyz.reshape(-1, 3)
+
+
+def test_an_ouster_frame_is_moved_to_the_lidar_origin_its_beams_start_from(tmp_path):
+    # failed before (#45): the points stayed in the sensor frame, 36 mm below the beams' origin on an OS1, so
+    # each beam's points lay at an elevation that changes with range (0.4 deg at 5 m)
+    xyz = _ouster_directory(tmp_path / "os", 500.0)
+    seq = read_sequence(tmp_path / "os")
+    assert np.allclose(seq.layout.origin, [0, 0, 0.5])
+    f = seq.read(1)
+    el = np.degrees(np.arcsin(f.points[:, 2] / np.linalg.norm(f.points, axis=1)))
+    assert np.allclose(el, np.array([10.0, 0.0, -10.0])[f.attributes["ring"]], atol=1e-9)  # each beam's own
+    assert np.allclose(f.world(), xyz + [1.0, 0, 0])  # the world points unchanged (frame 1 is 1 m along x)
+    assert np.allclose(seq.trajectory(tmp_path / "os" / "poses.txt")[0], seq.poses)  # a given trajectory too

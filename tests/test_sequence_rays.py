@@ -194,3 +194,28 @@ def test_rays_are_the_same_a_thousand_kilometres_away(drive, rays_of_frame_1):
     a = rays_of_frame_1
     b = simulate_holdout(dataclasses.replace(seq, poses=far), 1, "rays", sensor="velodyne_vlp16", half=1, pattern=pat)
     assert len(a) > 1000 and np.array_equal(a.keys, b.keys) and np.allclose(a.ranges, b.ranges, atol=1e-6)
+
+
+def test_each_lasers_firing_phase_in_its_column_is_fitted_where_its_points_agree():
+    # failed before (#45): rays cast every laser through its column's centre; an Ouster's beams fire at the
+    # column's edge (0.17 deg off on an OS1-128: 3 cm at 10 m), a Hesai's at its centre
+    import math
+    from slr_ray.sequence.rays import fit_azimuth_phases
+    rng = np.random.default_rng(0)
+    columns, D = 1024, 2 * math.pi / 1024
+    want = np.array([0.45, -0.45, 0.0, 0.2]) * D
+    frames = []
+    for _ in range(2):
+        pts, beams = [], []
+        for laser in range(4):
+            h = rng.choice(columns, 500, replace=False)
+            az = want[laser] + (h + 0.5) * D + rng.normal(0, 0.01 * D, 500)
+            if laser == 3:
+                az = rng.uniform(0, 2 * math.pi, 500)  # azimuths spread (a motion-compensated frame): no phase
+            r = rng.uniform(2, 30, 500)
+            pts.append(np.column_stack([r * np.cos(az), r * np.sin(az), np.zeros(500)]))
+            beams.append(np.full(500, laser))
+        frames.append((np.concatenate(pts), np.concatenate(beams)))
+    got, coherence = fit_azimuth_phases(frames, 4, columns)
+    assert np.allclose(got[:3], want[:3], atol=0.02 * D) and got[3] == 0.0
+    assert coherence[:3].min() > 0.99 and coherence[3] < 0.2

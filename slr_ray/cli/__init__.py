@@ -276,14 +276,23 @@ def _evaluate_parser(sub) -> None:
     p.add_argument("a", help=f"frame A, the primary, in its sensor's frame ({_FORMATS})")
     p.add_argument("b", help="frame B, the real scan to re-simulate, in its sensor's frame")
     p.add_argument("-o", "--output", required=True, help="a new or empty directory for the tables and figure")
-    p.add_argument("--sensor", default="velodyne_hdl64e_s2", type=A.sensor_name, metavar="NAME",
-                   help="the sensor's beam table (default velodyne_hdl64e_s2, KITTI's; see scan --help)")
+    p.add_argument("--source-sensor", type=A.sensor_name, metavar="NAME",
+                   help=f"frame A's sensor: {A.SENSOR_HELP} (default velodyne_hdl64e_s2, KITTI's; --sensor, its "
+                        "old name, still works)")
+    p.add_argument("--sensor", dest="old_sensor", type=A.sensor_name, metavar="NAME", help=argparse.SUPPRESS)
+    p.add_argument("--target-sensor", type=A.sensor_name, metavar="NAME",
+                   help="frame B's sensor when it is another unit (default the source's): B is re-simulated as "
+                        "that unit at its pose (--transform or --extrinsic; docs/cross_sensor.md)")
     p.add_argument("--beams", default="auto", choices=["auto", "scan-order", "none"],
                    help="each point's beam: auto (a 'ring' field, else the scan order of a KITTI .bin), "
                         "scan-order, or none (elevation bands of the shipped table)")
     p.add_argument("--methods", nargs="+", default=list(EVALUATE_METHODS), choices=list(EVALUATE_METHODS),
                    metavar="M", help=f"methods scored (default all: {', '.join(EVALUATE_METHODS)})")
     p.add_argument("--transform", metavar="FILE", help="B's pose in A's frame (4 x 4 text) instead of registering")
+    p.add_argument("--extrinsic", metavar="FILE",
+                   help="B's pose as a rig's extrinsic from A's sensor to B's: a 4 x 4 (text, or JSON holding one, "
+                        "as SensorsCalibration writes) mapping A's coordinates into B's frame, the inverse of "
+                        "--transform")
     p.add_argument("--seen-threshold", type=A.positive_float, default=paper.SIMILARITY_THRESHOLD, metavar="M",
                    help="B's point is seen from A within this (m, default 0.1)")
     p.add_argument("--min-fitness", type=float, default=0.3, metavar="F",

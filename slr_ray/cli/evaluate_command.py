@@ -4,20 +4,26 @@ subcommand stands alone: flags in, library call, files and one JSON line out."""
 
 from __future__ import annotations
 
+import json
 import sys
+import warnings
 from pathlib import Path
 
 import numpy as np
 
 from ..arrays import as_rigid_pose
-from ..errors import InputValueError, OutputError
-from ..evaluate import EVALUATION_FILES, evaluate_pair, evaluation_table, write_evaluation
+from ..errors import InputValueError, OutputError, SlrError, SlrWarning
+from ..evaluate import EVALUATION_FILES, evaluate_pair, evaluation_table, reach_table, write_evaluation
 from ..io import read_cloud
 from ..io.outputs import LOCK_NAME, OutputPlan
 from ..plotting import evaluation_figure, save_figure
+from ..sensors import sensor
 from .commands import emit
 
-__all__ = ["evaluate", "read_matrix"]
+__all__ = ["evaluate", "read_matrix", "read_extrinsic"]
+
+#: frame A's sensor when none is named (KITTI's)
+DEFAULT_SENSOR = "velodyne_hdl64e_s2"
 
 
 def read_matrix(path, flag: str = "--transform") -> np.ndarray:
@@ -47,6 +53,60 @@ def read_matrix(path, flag: str = "--transform") -> np.ndarray:
     return np.array(rows, np.float64)
 
 
+def _matrices(node, found: list) -> list:
+    """Every 4 x 4 (or 3 x 4) list of numbers in a JSON document, depth first."""
+    if isinstance(node, list) and len(node) in (3, 4) and all(
+            isinstance(r, list) and len(r) == 4 and all(isinstance(v, (int, float)) and not isinstance(v, bool)
+                                                         for v in r) for r in node):
+        found.append(node)
+    elif isinstance(node, dict):
+        for v in node.values():
+            _matrices(v, found)
+    elif isinstance(node, list):
+        for v in node:
+            _matrices(v, found)
+    return found
+
+
+def read_extrinsic(path, flag: str = "--extrinsic") -> np.ndarray:
+    """A rig's extrinsic: a text matrix (:func:`read_matrix`), or a JSON document holding exactly one 4 x 4
+    (or 3 x 4) list of numbers, wherever it is (SensorsCalibration's ``param.sensor_calib.data``)."""
+    try:
+        text = Path(path).read_text()
+    except UnicodeDecodeError:
+        raise InputValueError(f"{flag} {path}: not a matrix (a binary file)") from None
+    if not text.lstrip().startswith(("{", "[")):
+        return read_matrix(path, flag)
+    try:
+        found = _matrices(json.loads(text), [])
+    except json.JSONDecodeError as exc:
+        raise InputValueError(f"{flag} {path}: not JSON ({exc})") from None
+    if len(found) != 1:
+        raise InputValueError(f"{flag} {path}: holds {len(found)} 4 x 4 matrices of numbers, not one")
+    return np.array(found[0], np.float64)
+
+
+def _sensor_flags(args) -> None:
+    """``--source-sensor`` resolved; ``--sensor``, its old name, said so on one line."""
+    if args.old_sensor is not None:
+        if args.source_sensor is not None:
+            raise InputValueError("--sensor and --source-sensor: give --source-sensor (--sensor is its old name)")
+        warnings.warn("evaluate --sensor is --source-sensor now (the old name still works)", SlrWarning, stacklevel=2)
+        args.source_sensor = args.old_sensor
+    args.source_sensor = args.source_sensor or DEFAULT_SENSOR
+    for flag, name in (("--source-sensor", args.source_sensor), ("--target-sensor", args.target_sensor)):
+        try:
+            if name is not None:
+                sensor(name)  # a card that is no card, or no file: one line now, before any frame is read
+        except SlrError as exc:
+            raise type(exc)(f"{flag}: {exc}") from None
+    if args.transform and args.extrinsic:
+        raise InputValueError("--transform and --extrinsic: give one (--extrinsic is --transform's inverse)")
+    if args.target_sensor not in (None, args.source_sensor) and not (args.transform or args.extrinsic):
+        raise InputValueError(f"--target-sensor {args.target_sensor}: another unit sits elsewhere on the rig: give "
+                              "B's pose (--transform, B's pose in A's frame, or --extrinsic, A's to B's)")
+
+
 def _foreign_files(out: Path) -> list:
     """What an existing output directory holds besides the evaluation's own files and the lock."""
     if not out.is_dir():
@@ -64,7 +124,9 @@ def evaluate(args):
     plan = OutputPlan(force=args.force)
     for path in (args.a, args.b):
         plan.read(path, fmt=args.input_format)  # --input-format bin reads a .label beside any name
+    _sensor_flags(args)
     plan.read(args.transform, sidecars=False)  # a text matrix: nothing is read beside it
+    plan.read(args.extrinsic, sidecars=False)
     out = plan.directory(args.output)
     for name in EVALUATION_FILES.values():
         plan.write(out / name)
@@ -93,23 +155,28 @@ def _beams(cloud, mode: str, what: str):
 
 
 def _evaluate(args, out):
-    transform = None
+    transform = extrinsic = None
     if args.transform:
         transform = as_rigid_pose(read_matrix(args.transform), f"--transform {args.transform}")
+    if args.extrinsic:
+        extrinsic = read_extrinsic(args.extrinsic)
     clouds = [read_cloud(p, args.input_format, allow_empty=False) for p in (args.a, args.b)]
     frames = []  # each in its sensor's frame: a file that records its scanner's position (.npz, .pcd, .e57)
     for c in clouds:  # holds world coordinates, moved to that position in float64
         frames.append(c.points - np.asarray(c.origin, np.float64) if c.origin is not None else c.points)
     beams = [_beams(c, args.beams, f"frame {k} ({p})") for c, k, p in zip(clouds, "AB", (args.a, args.b))]
     try:
-        res = evaluate_pair(frames[0], frames[1], a_beams=beams[0], b_beams=beams[1], sensor=args.sensor,
-                            methods=args.methods, transform=transform, seen_threshold=args.seen_threshold,
-                            min_fitness=args.min_fitness, progress=not args.quiet)
+        res = evaluate_pair(frames[0], frames[1], a_beams=beams[0], b_beams=beams[1],
+                            source_sensor=args.source_sensor, target_sensor=args.target_sensor,
+                            methods=args.methods, transform=transform, extrinsic=extrinsic,
+                            seen_threshold=args.seen_threshold, min_fitness=args.min_fitness, progress=not args.quiet)
     except InputValueError as exc:  # the library names a_beams / b_beams: say the flag and the file
         msg = str(exc)
         for key, name, path in (("a_beams", "A", args.a), ("b_beams", "B", args.b)):
             if msg.startswith(key):
                 msg = f"--beams {args.beams}: frame {name} ({path}){msg[len(key):]}"
+        if msg.startswith("extrinsic"):
+            msg = f"--extrinsic {args.extrinsic}{msg[len('extrinsic'):]}"
         raise InputValueError(msg) from None
     for key, name, path in (("a", "A", args.a), ("b", "B", args.b)):
         how = res["patterns"][key]["beams"]
@@ -121,11 +188,14 @@ def _evaluate(args, out):
         print(f"slr-ray: note: {out} also holds {len(foreign)} file(s) not written by this run: "
               f"{', '.join(foreign[:5])}{' ...' if len(foreign) > 5 else ''}", file=sys.stderr)
     paths = write_evaluation(res, out, force=True,  # the plan checked --force file by file
-                             inputs={"a": str(args.a), "b": str(args.b), "sensor": args.sensor, "beams": args.beams,
+                             inputs={"a": str(args.a), "b": str(args.b), "sensor": args.source_sensor,
+                                     "target_sensor": args.target_sensor or args.source_sensor,
+                                     "transform": args.transform, "extrinsic": args.extrinsic, "beams": args.beams,
                                      "origins": [None if c.origin is None else np.asarray(c.origin).tolist()
                                                  for c in clouds], "other_files_in_directory": foreign})
     paths["figure"] = str(out / EVALUATION_FILES["figure"])
     save_figure(evaluation_figure(res), paths["figure"])
     emit({"a": str(args.a), "b": str(args.b), "output_dir": str(out), "files": paths,
           "registration": res["registration"], "unseen_share": res["unseen_share"], "seconds": res["seconds"],
-          "other_files_in_directory": foreign, "table": evaluation_table(res)})
+          "other_files_in_directory": foreign, "table": evaluation_table(res),
+          "source_reach": res["source_reach"], "reach_table": reach_table(res)})

@@ -14,7 +14,8 @@ from ..io.outputs import LOCK_NAME, OutputPlan, resolve
 from ..errors import InputValueError, OutputError, SlrWarning
 from ..sequence import (REMOVE_MOVING, SeeThrough, convert_sequence, evaluate_sequence, read_sequence,
                         read_trajectory, register_chain, write_kitti_poses)
-from ..sequence.holdout import GRID_SOURCES, lidar4d_holdout
+from ..sequence.holdout import GRID_SOURCES, lidar4d_holdout, one_frame_refusal
+from ..sequence.terrestrial import AUTO
 from ..sequence.methods import REGISTRY, method_options, methods_with, option_keys
 from . import arguments as A
 from .commands import emit
@@ -112,12 +113,19 @@ def add_sequence_parser(sub) -> None:
                    help="lidar4d: LiDAR4D's KITTI-360 split (51 frames, frames 10, 20, 30, 40 held out, every other "
                         "frame the scene); its clamped depth errors are in every table either way")
     q.add_argument("--source-sensor", type=A.sensor_name, metavar="NAME",
-                   help=f"the frames' sensor (default {SOURCE_SENSOR}, KITTI's); fitted to each held-out frame "
-                        "(--sensor, its old name, still works)")
+                   help=f"the frames' sensor, a spinning unit's (fitted to each held-out frame; --sensor, its old "
+                        f"name, still works); not given: a frame with a ring field or in {SOURCE_SENSOR}'s scan "
+                        "order (KITTI's) is scored on that table, any other (a terrestrial scanner's) on a uniform "
+                        "grid fitted to it; the output says which")
     _deprecated_sensor(q)
+    q.add_argument("--target-sensor", type=A.sensor_name, metavar="NAME|CARD",
+                   help="the held-out frames' own unit where it is not the source's (" + A.SENSOR_HELP + "): each "
+                        "is scored on its grid, re-simulated from the source frames; the target's beams outside "
+                        "what the source frames saw are scored apart ('in reach' / 'out of reach' columns)")
     defaults = methods_with("default")
     q.add_argument("--methods", nargs="+", default=defaults, choices=methods_with("holdout"),
-                   help=f"methods (default {' '.join(defaults)})")
+                   help=f"methods (default {' '.join(defaults)}; on a terrestrial scanner's frames rays casts "
+                        "the fitted grid's pulse centres, no beams being there, and embree-sources is refused)")
     q.add_argument("--grid-from", choices=list(GRID_SOURCES), default="target",
                    help="where each held-out frame's scoring grid (row elevations, column count) is fitted: target "
                         "(default) its own points, others the other frames of its window (strictly leak-free)")
@@ -207,6 +215,7 @@ def _sensors(args) -> None:
                       stacklevel=2)
         setattr(args, dest, old)
     if args.sequence_cmd == "evaluate":
+        args.scored_sensor = args.source_sensor or AUTO  # none named: spinning or terrestrial, frame by frame
         args.source_sensor = args.source_sensor or SOURCE_SENSOR
     elif args.target_sensor is None:
         raise InputValueError("sequence convert: name the target sensor (--target-sensor NAME)")
@@ -217,6 +226,8 @@ def _load(args):
                         args.input_format, args.origins, args.scan_field, args.layout)
     if args.register and (args.poses or args.origins):
         raise InputValueError("--register with --poses or --origins: give one")
+    if args.sequence_cmd == "evaluate" and len(seq) < 2:
+        raise InputValueError(one_frame_refusal(seq))
     if seq.poses is None and not args.register:
         raise InputValueError(f"{seq.root or seq.paths[0]}: the sequence has no poses: give --poses FILE "
                               "or --register")
@@ -301,9 +312,9 @@ def _check_evaluate_output(out: Path, force: bool) -> None:
 def _evaluate(args, seq, holdout, out):
     seq, regs = _poses_of(args, seq)
     drop, st = args.moving
-    res = evaluate_sequence(seq, holdout, args.source_sensor, args.methods, args.half, args.radius,
+    res = evaluate_sequence(seq, holdout, args.scored_sensor, args.methods, args.half, args.radius,
                             drop_moving=drop, progress=not args.quiet, see_through=st, grid_from=args.grid_from,
-                            method_options=args.method_options)
+                            method_options=args.method_options, target_sensor=args.target_sensor)
     res |= {"protocol": args.protocol, "grid_from": args.grid_from, "registration": regs,
             "pose_source": seq.pose_source, "inputs": [str(p) for p in seq.paths]}
     files = write_sequence_evaluation(res, out, force=True)  # out: planned and locked above
@@ -312,10 +323,25 @@ def _evaluate(args, seq, holdout, out):
         with atomic_path(files["poses"]) as tmp:
             write_kitti_poses(tmp, seq.poses)
     table, mean = sequence_summary(res)
+    grids = _grids(res)
     if not args.quiet:
-        sys.stderr.write(f"mean over {len(holdout)} held-out frame(s):\n{table}\n")
+        sys.stderr.write("".join(f"scoring grid: {g}\n" for g in grids)
+                         + f"mean over {len(holdout)} held-out frame(s):\n{table}\n")
     emit({"output_dir": str(out), "files": files, "frames": len(seq), "holdout": [seq.names[h] for h in holdout],
-          "pose_source": seq.pose_source, "seconds": res["seconds"], "mean": mean})
+          "pose_source": seq.pose_source, "seconds": res["seconds"],
+          "sensor_kind": sorted({f["sensor_kind"] for f in res["frames"]}), "scoring_grid": grids,
+          "in_view_share": [round(f["in_view_share"], 4) for f in res["frames"]], "mean": mean})
+
+
+def _grids(res) -> list[str]:
+    """Each held-out frame's scoring grid in one line (frames on the same kind of grid named together)."""
+    by: dict = {}
+    for f in res["frames"]:
+        by.setdefault(f["grid"].split(":")[0], []).append(f)
+    return [f"frame(s) {', '.join(f['frame'] for f in fs)}: {fs[0]['grid']}"
+            + (" (the first frame's)" if len(fs) > 1 else "")
+            + f"; {', '.join(format(f['in_view_share'], '.1%') for f in fs)} of the held-out scan in its view"
+            for fs in by.values()]
 
 
 def _convert(args, seq, out):

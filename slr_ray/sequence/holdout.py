@@ -33,6 +33,8 @@ from ..errors import InputValueError, SlrWarning
 from ..evaluate import THRESHOLDS, evaluation_table, fitted_pattern, frame_beams, score_simulation, scoring_target
 from ..metrics import PAPER_THRESHOLD
 from ..options import Options
+from ..metrics import metric_columns
+from ..sensors import beams_outside, source_elevation_range
 from ..sensors import sensor as shipped_sensor
 from .estimators import FPA_GAP
 from .frames import Sequence
@@ -40,11 +42,12 @@ from .methods import (LABELS, REGISTRY, HeldOut, adjacent_frame, check_methods, 
                       methods_with)
 from .methods import method as registered_method
 from .sources import SeeThrough, known_beams
+from .terrestrial import AUTO, DEFAULT_SPINNING, SPINNING, TERRESTRIAL, ScoringGrid, is_terrestrial, sensor_kind, terrestrial_grid
 from .union import FrameCache, accumulate, to_frame, window
 
 __all__ = ["METHODS", "LABELS", "HoldoutOptions", "evaluate_holdout", "evaluate_sequence", "mean_rows", "DEFAULT_METHODS",
            "clamped_depth_errors", "lidar4d_holdout", "LIDAR4D_MAX_DEPTH", "holdout_ray_model", "simulate_holdout",
-           "GRID_SOURCES", "others_pattern"]
+           "GRID_SOURCES", "others_pattern", "scoring_grid", "one_frame_refusal"]
 
 #: LiDAR4D's depth clamp (utils/metrics.py, compute_depth_errors: min 1e-6, max 80 m)
 LIDAR4D_MAX_DEPTH = 80.0
@@ -94,7 +97,8 @@ def _held_beams(seq: Sequence, target: int, frame, base):
     if beams is None:
         warnings.warn(f"frame {seq.names[target]}: beams not known (no ring field, not in {base.name}'s scan order "
                       f"of {base.n_beams} rings: another sensor (--source-sensor), or shuffled points?): scored on "
-                      "the shipped table's grid, not one fitted to the frame", SlrWarning, stacklevel=3)
+                      f"{base.name}'s grid as given (the shipped table or card), not one fitted to the frame",
+                      SlrWarning, stacklevel=3)
         return None
     used = len(np.unique(beams[beams >= 0]))
     if 2 * used < base.n_beams:
@@ -110,7 +114,9 @@ class HoldoutOptions(Options):
     Attributes
     ----------
     sensor : str or BeamPattern
-        The frames' sensor (its shipped table, or the pattern).
+        The frames' sensor (its shipped table or card, or the pattern): a spinning unit's; or
+        ``"terrestrial"`` (a uniform grid fitted to each held-out frame), or ``"auto"`` (each held-out
+        frame's kind from its points: :func:`scoring_grid`, :mod:`slr_ray.sequence.terrestrial`).
     methods : sequence of str
         A subset of :data:`METHODS`.
     half : int or None
@@ -135,6 +141,11 @@ class HoldoutOptions(Options):
     method_options : dict or None
         The registered methods' other options by flat key (``PREFIX_FIELD``:
         :func:`slr_ray.sequence.methods.method_options`); over ``fpa_gap`` where both name it.
+    target_sensor : str, BeamPattern or None
+        The held-out frames' own unit where it is not ``sensor`` (a shipped name, a card's path or a
+        pattern): their grid is fitted on its table, never the source's; the other frames stay
+        ``sensor``'s. The target's beams outside the elevations the source frames saw are scored
+        apart (:func:`reach_split`). None: the frames' sensor.
     """
 
     sensor: object = "velodyne_hdl64e_s2"
@@ -148,6 +159,7 @@ class HoldoutOptions(Options):
     see_through: SeeThrough | None = None
     grid_from: str = "target"
     method_options: dict | None = None
+    target_sensor: object = None
 
     @classmethod
     def of(cls, options=None, /, **keywords):
@@ -195,6 +207,99 @@ def others_pattern(others, base, cache: FrameCache):
     return fitted_pattern(np.concatenate(pts), np.concatenate(beams), base)
 
 
+def _table_of(sensor):
+    return shipped_sensor(sensor) if isinstance(sensor, str) else sensor
+
+
+def reach_split(others, base, pattern, cache: FrameCache) -> dict:
+    """Which of ``pattern``'s rows (a target unit's grid) the source frames ``others`` could fill: a
+    beam outside the elevations they saw from their own origins (1st-99th percentile,
+    :func:`~slr_ray.sensors.source_elevation_range`, as :func:`~slr_ray.sensors.conversion_reach`
+    says a conversion's) is out of reach. Returns ``rows_out`` (``(rows,)`` bool) and what the
+    result reports."""
+    lo, hi = source_elevation_range(np.concatenate([cache.get(i)[0].points for i in others]))
+    out = beams_outside(pattern, (lo, hi))
+    rows_out = np.zeros(pattern.n_beams, bool)
+    if len(out):
+        rows_out[pattern.rows_of_beams(out)] = True
+    return {"rows_out": rows_out, "report": {
+        "source_elevation_range_deg": [round(lo, 3), round(hi, 3)], "target_beams_out_of_reach": int(len(out)),
+        "target_beams_out_of_reach_deg": sorted(round(float(pattern.elevation_deg[b]), 3) for b in out)}}
+
+
+def _reach_targets(b, beams, pat, u, rows_out, seen_threshold) -> dict:
+    """The held-out frame's points on the target's beams in and out of the source's reach, each scored
+    as a target of its own (:func:`slr_ray.evaluate.scoring_target`); a part with no point: absent."""
+    keys, _ = pat.pulse_ids(b, np.zeros(3))
+    out_pt = (keys >= 0) & rows_out[np.maximum(keys, 0) // pat.columns]
+    parts = {}
+    for name, m in (("in reach", ~out_pt), ("out of reach", out_pt)):
+        if m.any() and (keys[m] >= 0).any():
+            parts[name] = scoring_target(b[m], pat, None if beams is None else beams[m], u, seen_threshold,
+                                         splits=HOLDOUT_SPLITS)
+    return parts
+
+
+def _reach_columns(parts, rows_out, pat, sim, img, thresholds, res) -> dict:
+    """A method's F-score, depth errors and points on the target's rows in / out of the source's reach
+    (its simulation's points and image cut to those rows; the rows cut away count as empty in both)."""
+    keys, _ = pat.pulse_ids(sim, np.zeros(3))
+    sim_out = (keys >= 0) & rows_out[np.maximum(keys, 0) // pat.columns]
+    cols = {}
+    for name, target in parts.items():
+        keep_rows = rows_out if name == "out of reach" else ~rows_out
+        im = np.where(keep_rows[:, None], img, np.nan)
+        pts = sim[sim_out] if name == "out of reach" else sim[~sim_out]
+        c = metric_columns(score_simulation(target, pts, im, thresholds), res)
+        cols |= {f"{k} {name}": c[k] for k in ("F@5cm", "depth_medae_m", "depth_rmse_m") if k in c}
+        cols[f"points {name}"] = int(len(pts))
+        cols[f"target points {name}"] = int(len(target.points))
+    return cols
+
+
+def scoring_grid(seq: Sequence, target: int, frame, sensor, grid_from: str, others, cache: FrameCache) -> ScoringGrid:
+    """The held-out frame's scoring grid (:class:`~slr_ray.sequence.terrestrial.ScoringGrid`): ``sensor`` a
+    beam table (or its name, a card): spinning, that table fitted to the frame (or to ``others``); ``"auto"``:
+    spinning on :data:`~slr_ray.sequence.terrestrial.DEFAULT_SPINNING` where the frame is in its scan order
+    or has a ring field, else terrestrial; ``"terrestrial"``: a uniform grid fitted to the frame (or to the
+    adjacent frame of ``others``)."""
+    if isinstance(sensor, str) and sensor == AUTO:
+        default = shipped_sensor(DEFAULT_SPINNING)
+        sensor = default if sensor_kind(frame.points, frame.attributes, default) == SPINNING else TERRESTRIAL
+    if is_terrestrial(sensor):
+        own = grid_from == "target"
+        source = frame if own else cache.get(adjacent_frame(others, target))[0]
+        pattern, how, yaw = terrestrial_grid(source.points, f"frame {seq.names[source.index]}", turn_columns=own)
+        if not own:  # the steps of the adjacent setup's grid; its columns from the frame's own x axis
+            how += f" (frame {seq.names[source.index]}, the adjacent one: --grid-from others)"
+        return ScoringGrid(TERRESTRIAL, pattern, None, None, how, yaw)
+    base = shipped_sensor(sensor) if isinstance(sensor, str) else sensor
+    if grid_from == "others":
+        return ScoringGrid(SPINNING, others_pattern(others, base, cache), _beams(frame, base), base,
+                           f"spinning: {base.name}'s beam table fitted to the other frames of the window")
+    beams = _held_beams(seq, target, frame, base)
+    if beams is None:
+        return ScoringGrid(SPINNING, base, None, base, f"spinning: {base.name}'s shipped table (the frame's beams "
+                                                       "not known)")
+    return ScoringGrid(SPINNING, fitted_pattern(frame.points, beams, base), beams, base,
+                       f"spinning: {base.name}'s beam table fitted to the frame")
+
+
+def _check_kind(grid: ScoringGrid, methods, see_through=None) -> None:
+    """Refuse, before any method runs, the methods (and the see-through removal) that need the frames' beam
+    table on a terrestrial grid."""
+    if grid.base is None and see_through is not None:
+        raise InputValueError(f"--remove-moving visibility casts the frames' own beams: {grid.how.split(':')[0]} "
+                              "frames have none (leave it out, or name the frames' sensor if they are a spinning "
+                              "unit's: --source-sensor)")
+    if grid.base is None:
+        need = [m for m in methods if REGISTRY[m].needs_source_sensor]
+        if need:
+            raise InputValueError(f"{', '.join(need)} need(s) the frames' beam table ({REGISTRY[need[0]].source_why}): "
+                                  f"{grid.how.split(':')[0]} frames have none; use embree-knn, or name the frames' "
+                                  "sensor if they are a spinning unit's (--source-sensor)")
+
+
 def evaluate_holdout(seq: Sequence, target: int, options: HoldoutOptions | None = None, *,
                      cache: FrameCache | None = None, **keywords) -> dict:
     """Frame ``target`` re-simulated from the other frames of its window by every method
@@ -206,25 +311,31 @@ def evaluate_holdout(seq: Sequence, target: int, options: HoldoutOptions | None 
         raise InputValueError(f"grid_from {o.grid_from!r}: choose from {list(GRID_SOURCES)}")
     methods = check_methods(o.methods, "holdout")
     settings, gap = o.methods_settings(methods), o.flat_options()["fpa_gap"]
-    base = shipped_sensor(sensor) if isinstance(sensor, str) else sensor
+    cross = o.target_sensor is not None
+    if cross and o.grid_from == "others":
+        raise InputValueError("grid_from 'others' fits the held-out frame's grid on the other frames: they are the "
+                              "source's, not the target sensor's (use grid_from 'target')")
+    if cross and isinstance(sensor, str) and sensor == AUTO:
+        raise InputValueError("a target sensor is scored against the source frames' own table: name it "
+                              "(--source-sensor)")
     cache = cache or FrameCache(seq)
     others = window(seq, target, half, radius)
     if not others:
         raise InputValueError(f"frame {seq.names[target]}: no other frame in its window")
     fb, _ = cache.get(target)
-    b = fb.points
-    beams = _held_beams(seq, target, fb, base) if o.grid_from == "target" else _beams(fb, base)
-    if o.grid_from == "others":
-        pat = others_pattern(others, base, cache)
-    else:
-        pat = fitted_pattern(b, beams, base) if beams is not None else base
+    grid = scoring_grid(seq, target, fb, o.target_sensor if cross else sensor, o.grid_from, others, cache)
+    _check_kind(grid, methods, see_through)
+    pat, beams, base = grid.pattern, grid.beams, grid.base
+    if cross:  # the grid is the target's; the other frames (their beams, the rays' fit) the source's
+        tbase, base = grid.base, _table_of(sensor)
+    b, pose = grid.turned(fb.points), grid.turned_pose(fb.pose)  # the frame in its grid's axes
     band_keys, _ = pat.pulse_ids(b, np.zeros(3))
     in_view = band_keys >= 0
     if not in_view.any():
         raise InputValueError(f"{seq.paths[target]}: none of its points lies within {pat.name}'s view about "
                               "its origin (is the frame in its sensor's frame?)")
     union = accumulate(seq, others, drop_moving=drop_moving, cache=cache, see_through=see_through, exclude=(target,))
-    u = to_frame(union.points, fb.pose)
+    u = to_frame(union.points, pose)
     # scored as slr-ray evaluate scores a pair (the same target, every registered metric's block), split
     # by seen / unseen only
     scored = scoring_target(b, pat, beams, u, seen_threshold, splits=HOLDOUT_SPLITS)
@@ -232,7 +343,11 @@ def evaluate_holdout(seq: Sequence, target: int, options: HoldoutOptions | None 
     adj = adjacent_frame(others, target)
     rows, extra = [], {}
     infos = {REGISTRY[m].info: None for m in REGISTRY if REGISTRY[m].info}  # every key, run or not
-    held = HeldOut(seq, target, others, union, u, pat, base, cache, fb.pose, drop_moving, see_through)
+    held = HeldOut(seq, target, others, union, u, pat, base, cache, pose, drop_moving, see_through,
+                   target_base=tbase if cross else None)
+    reach = reach_split(others, base, pat, cache) if cross else None
+    parts = _reach_targets(b, beams, pat, u, reach["rows_out"], seen_threshold) if cross else {}
+    by_reach = {}
     for m in methods:
         t0 = time.perf_counter()
         ret, sim, info = REGISTRY[m].simulate(held, settings[m])
@@ -241,16 +356,23 @@ def evaluate_holdout(seq: Sequence, target: int, options: HoldoutOptions | None 
         img = ret.image(pat)
         blocks = score_simulation(scored, sim, img, thresholds)
         extra[m] = clamped_depth_errors(real_img["range"], img)
+        if cross:
+            by_reach[m] = _reach_columns(parts, reach["rows_out"], pat, sim, img, thresholds, {
+                "thresholds": [float(x) for x in thresholds], "seen_threshold": seen_threshold})
         rows.append({"method": m, "label": LABELS[m], "points_out": int(len(sim)), "pulses_returned": int(len(ret)),
                      "seconds": round(time.perf_counter() - t0, 3)} | blocks)
     res = {"frame": seq.names[target], "fpa_gap_m": gap} | infos | {"index": int(target), "window": [seq.names[i] for i in others],
            "adjacent": seq.names[adj], "union_points": int(len(union)), "removed": union.removed,
            "see_through": see_through.to_dict() if see_through else None,
-           "target_points_in_view": int(len(b_in)), "unseen_share": float(np.mean(~seen)),
+           "target_points_in_view": int(len(b_in)), "in_view_share": float(len(b_in) / len(b)),
+           "unseen_share": float(np.mean(~seen)), "sensor_kind": grid.kind, "grid": grid.how,
+           "grid_yaw_deg": float(np.degrees(grid.yaw)),
            "pattern": pat.to_dict() | {"beams_known": beams is not None, "grid_from": o.grid_from},
-           "thresholds": [float(x) for x in thresholds], "seen_threshold": seen_threshold, "rows": rows}
+           "thresholds": [float(x) for x in thresholds], "seen_threshold": seen_threshold, "rows": rows,
+           "target_sensor": (getattr(tbase, "name", None) if cross else None)} | (reach["report"] if cross else {})
     res["table"] = [{"frame": res["frame"]} | r
                     | {"lidar4d_depth_rmse_m": extra[m][0], "lidar4d_depth_medae_m": extra[m][1]}
+                    | by_reach.get(m, {})
                     for m, r in zip(methods, evaluation_table(res))]
     return res
 
@@ -261,17 +383,16 @@ def simulate_holdout(seq: Sequence, target: int, method: str = "rays", sensor: s
     default the target's fitted table as :func:`evaluate_holdout` fits it). The held-out frame's points
     are read for its table only: every method's returns depend on its pose and the other frames."""
     m = registered_method(method, "holdout")
-    base = shipped_sensor(sensor) if isinstance(sensor, str) else sensor
     cache = FrameCache(seq)
     others = window(seq, target, half)
     if not others:
         raise InputValueError(f"frame {seq.names[target]}: no other frame in its window")
     fb, _ = cache.get(target)
-    if pattern is None:
-        beams = _held_beams(seq, target, fb, base)
-        pattern = fitted_pattern(fb.points, beams, base) if beams is not None else base
+    grid = scoring_grid(seq, target, fb, sensor, "target", others, cache)
+    _check_kind(grid, (method,))
+    base, pattern, pose = grid.base, grid.pattern if pattern is None else pattern, grid.turned_pose(fb.pose)
     union = accumulate(seq, others, drop_moving=drop_moving, cache=cache)
-    held = HeldOut(seq, target, others, union, to_frame(union.points, fb.pose), pattern, base, cache, fb.pose,
+    held = HeldOut(seq, target, others, union, to_frame(union.points, pose), pattern, base, cache, pose,
                    drop_moving)
     return m.simulate(held, HoldoutOptions.of(None, fpa_gap=gap).methods_settings((method,))[method])[0]
 
@@ -299,11 +420,20 @@ def mean_rows(tables: list[list[dict]]) -> list[dict]:
     return out
 
 
+def one_frame_refusal(seq: Sequence) -> str:
+    """Why a sequence of one frame cannot be evaluated (one line)."""
+    return (f"{seq.root or seq.paths[0]}: a sequence of {len(seq)} frame (one scan): a held-out frame is "
+            "re-simulated from the other frames, so evaluation needs two or more (a campaign's registered setups, "
+            "a drive's frames); slr-ray scan or augment re-simulate one scan from other positions")
+
+
 def evaluate_sequence(seq: Sequence, holdout, sensor: str = "velodyne_hdl64e_s2", methods=DEFAULT_METHODS,
                       half: int | None = 2, radius: float | None = None, drop_moving: bool = True,
                       progress: bool = False, **kw) -> dict:
     """Every held-out frame (sequence indices) by :func:`evaluate_holdout`; ``mean`` over them."""
     holdout = [int(h) for h in holdout]
+    if len(seq) < 2:
+        raise InputValueError(one_frame_refusal(seq))
     if not holdout:
         raise InputValueError("no frame held out")
     bad = [h for h in holdout if not 0 <= h < len(seq)]
@@ -311,6 +441,8 @@ def evaluate_sequence(seq: Sequence, holdout, sensor: str = "velodyne_hdl64e_s2"
         raise InputValueError(f"held-out frame(s) {bad} not in a sequence of {len(seq)} frames")
     t0 = time.perf_counter()
     st = kw.get("see_through")
+    if kw.get("target_sensor") is not None:
+        seq = seq.of_mixed_sensors()  # the held-out frames may be another unit's
     cache = FrameCache(seq, size=2 * (half or 2) + 3 + (2 * st.half if st else 0))
     options = HoldoutOptions.of(None, sensor=sensor, methods=methods, half=half, radius=radius,
                                 drop_moving=drop_moving, **kw)
@@ -318,5 +450,5 @@ def evaluate_sequence(seq: Sequence, holdout, sensor: str = "velodyne_hdl64e_s2"
               for h in tqdm(holdout, desc="held-out frames", disable=not progress)]
     return {"frames": frames, "mean": mean_rows([f["table"] for f in frames]),
             "methods": list(methods), "window": {"half": half, "radius": radius}, "drop_moving": drop_moving,
-            "see_through": st.to_dict() if st else None,
+            "see_through": st.to_dict() if st else None, "target_sensor": frames[0].get("target_sensor"),
             "seconds": round(time.perf_counter() - t0, 3)}

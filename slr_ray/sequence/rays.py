@@ -46,10 +46,11 @@ from numba import njit
 from scipy.spatial import cKDTree
 
 from ..errors import InputValueError
+from ..pattern import pulse_directions
 from .estimators import FPA_GAP, PulseReturns
 
 __all__ = ["RayModel", "fit_ray_model", "fit_range_bias", "pattern_ray_model", "frame_motion", "sweep_offsets", "cast_rays",
-           "RAY_NEIGHBOURS"]
+           "cast_grid_rays", "RAY_NEIGHBOURS", "fit_azimuth_phases", "PHASE_COHERENCE"]
 
 #: the plane's points (the union's nearest to the first cluster); chosen on the KITTI frames
 #: (benchmarks/sequence_rays.py)
@@ -85,6 +86,7 @@ class RayModel:
                 "median_residual_deg": self.residual_deg,
                 "height_m": [round(float(x), 4) for x in self.height],
                 "elevation_deg": [round(math.degrees(x), 4) for x in self.elevation],
+                "azimuth_offset_deg": [round(math.degrees(x), 4) for x in self.azimuth_offset],
                 "range_bias_m": None if self.range_bias is None else [round(float(x), 4) for x in self.range_bias]}
 
 
@@ -240,6 +242,33 @@ def fit_range_bias(model: RayModel, frames, k: int = 32, stride: int = 8) -> Ray
     return dataclasses.replace(model, range_bias=bias)
 
 
+#: a laser's azimuth phase is fitted where its points' phasors agree this well (1: every point at one
+#: phase of its column; a motion-compensated frame's azimuths, as KITTI's, spread and keep phase 0)
+PHASE_COHERENCE = 0.9
+
+
+def fit_azimuth_phases(frames, n_lasers: int, columns: int) -> tuple[np.ndarray, np.ndarray]:
+    """Where within a column each laser fires, from frames' own points: ``frames`` a list of ``(points,
+    beams)`` (each in its own frame). A laser's offset (radians: its column's centre is ``offset + (h +
+    1/2) 2 pi / columns``) is the mean phase of its points' azimuths in the column, taken where their
+    phasors agree (:data:`PHASE_COHERENCE`), else 0 (the column's centre). An Ouster's beams fire at
+    the column's edge (its beam azimuth angles), a Hesai's at its centre. Returns the offsets and each
+    laser's coherence."""
+    D = 2 * math.pi / int(columns)
+    acc = np.zeros(n_lasers, complex)
+    cnt = np.zeros(n_lasers)
+    for p, b in frames:
+        p = np.asarray(p, np.float64)
+        b = np.asarray(b, np.int64)
+        ph = np.exp(1j * (2 * math.pi / D) * (np.arctan2(p[:, 1], p[:, 0]) - 0.5 * D))
+        acc += np.bincount(b, weights=ph.real, minlength=n_lasers)[:n_lasers] + \
+            1j * np.bincount(b, weights=ph.imag, minlength=n_lasers)[:n_lasers]
+        cnt += np.bincount(b, minlength=n_lasers)[:n_lasers]
+    coherence = np.abs(acc) / np.maximum(cnt, 1)
+    offset = np.where((coherence >= PHASE_COHERENCE) & (cnt >= 20), np.angle(acc) * D / (2 * math.pi), 0.0)
+    return offset, coherence
+
+
 def pattern_ray_model(pattern) -> RayModel:
     """A beam table's ideal rays: each row's beam from the origin at its elevation, its azimuth
     offset, no motion."""
@@ -328,6 +357,45 @@ def cast_rays(points, pattern, model: RayModel | None = None, motion=(0.0, 0.0, 
     if model.range_bias is not None:
         t = t + model.range_bias[L]
     hit = origin + t[:, None] * d
+    keys, ranges = pattern.pulse_ids(hit, np.zeros(3))
+    ok = np.flatnonzero(keys >= 0)
+    o = np.lexsort((ok, ranges[ok], keys[ok]))
+    kk = keys[ok][o]
+    win = ok[o][np.r_[True, kk[1:] != kk[:-1]]] if len(kk) else ok[:0]
+    return PulseReturns(keys[win].astype(np.int64), ranges[win], hit[win], sel[first][win].astype(np.int64))
+
+
+def cast_grid_rays(points, pattern, gap: float = FPA_GAP, neighbours: int = RAY_NEIGHBOURS,
+                   max_shift: float = MAX_SHIFT) -> PulseReturns:
+    """:func:`cast_rays` for a uniform grid (a terrestrial scanner's :class:`~slr_ray.ScanPattern`: no lasers,
+    no sweep, no range bias): each pulse's ray from the origin through its centre, the first cluster of
+    ``points`` (float64, the scanner's frame) in the pulse, and where the ray meets the plane of the
+    ``neighbours`` points nearest it (as :func:`cast_rays`; else the cluster's centroid projected onto the
+    ray), binned nearest per pulse."""
+    pts = np.ascontiguousarray(points, np.float64)
+    if not gap > 0:
+        raise InputValueError(f"the fpa gap must be > 0 m, got {gap}")
+    if int(neighbours) < 3:
+        raise InputValueError(f"a plane takes 3 or more neighbours, got {neighbours}")
+    keys, ranges = pattern.pulse_ids(pts, np.zeros(3))
+    sel = np.flatnonzero(keys >= 0)
+    o = np.lexsort((sel, ranges[sel], keys[sel]))
+    key, r, sel = keys[sel][o], ranges[sel][o], sel[o]
+    if not len(key):
+        return PulseReturns(np.zeros(0, np.int64), np.zeros(0), np.zeros((0, 3)), np.zeros(0, np.int64))
+    member, pno, first = _first_clusters(key, r, gap)
+    n = np.bincount(pno[member]).astype(np.float64)
+    cen = np.column_stack([np.bincount(pno[member], weights=pts[sel[member], j]) for j in range(3)]) / n[:, None]
+    d = pulse_directions(pattern.unravel(key[first]), pattern)
+    origin = np.zeros_like(d)
+    t = np.einsum("mi,mi->m", cen, d)
+    lo = r[first] - max_shift
+    if len(pts) >= neighbours:
+        tree = cKDTree(pts)
+        for s in range(0, len(t), _BLOCK):
+            b = slice(s, s + _BLOCK)
+            t[b] = _onto_plane(pts, tree, origin[b], d[b], t[b], lo[b], int(neighbours))
+    hit = t[:, None] * d
     keys, ranges = pattern.pulse_ids(hit, np.zeros(3))
     ok = np.flatnonzero(keys >= 0)
     o = np.lexsort((ok, ranges[ok], keys[ok]))

@@ -103,13 +103,25 @@ class SourceView:
     image: np.ndarray
 
 
+#: a card whose beams are its elevation bands (``meta["beams_from"]``: fitted from frames without a ring field)
+BEAMS_FROM_BANDS = "elevation bands"
+
+
 def known_beams(points, attributes, base):
     """Each point's beam in ``base``'s table: a ``ring`` field, else the file's scan order
-    (:func:`~slr_ray.sensors.scan_order_beams`); ``None`` where neither tells."""
+    (:func:`~slr_ray.sensors.scan_order_beams`), else, for a card fitted from frames without rings
+    (``meta["beams_from"]`` :data:`BEAMS_FROM_BANDS`: its beams *are* its elevation bands), the band
+    each point falls in (-1 outside them); ``None`` where none tells."""
     ring = attributes.get("ring")
     if ring is not None:
         return np.asarray(ring, np.int64)
-    return scan_order_beams(points, base.n_beams)
+    order = scan_order_beams(points, base.n_beams)
+    if order is None and getattr(base, "meta", {}).get("beams_from") == BEAMS_FROM_BANDS and len(points):
+        bands = base.with_(min_range=None, max_range=None)  # the band by elevation alone, at any range
+        keys, _ = bands.pulse_ids(np.asarray(points, np.float64), np.zeros(3))
+        rows = np.where(keys >= 0, keys // base.columns, -1)
+        return np.where(rows >= 0, np.asarray(base.beam_of_row)[np.maximum(rows, 0)], -1).astype(np.int64)
+    return order
 
 
 def source_sensor_problem(points, attributes, base) -> str | None:

@@ -12,6 +12,8 @@ it refuses what it does not take) and, where a frame is not one file in its sens
 
 from __future__ import annotations
 
+import dataclasses
+
 import os
 import re
 from dataclasses import dataclass, field
@@ -146,6 +148,9 @@ class Sequence:
     layout: FrameSource | None = None
     pose_files: tuple = ()
     _beams: tuple | None = field(default=None, repr=False, compare=False)
+    #: frames of more than one unit (a target sensor's held-out frames among a source's): their beam
+    #: counts not checked against each other
+    mixed_sensors: bool = False
 
     def __post_init__(self):
         if self.layout is None:
@@ -170,7 +175,11 @@ class Sequence:
             raise InputValueError(f"{len(P)} poses for {len(self)} frames")
         files = self.pose_files if pose_files is None else pose_files
         return Sequence(self.paths, P, self.names, source, self.root, self.input_format, self.layout, files,
-                        self._beams)
+                        self._beams, self.mixed_sensors)
+
+    def of_mixed_sensors(self) -> "Sequence":
+        """These frames, not checked to be of one unit (a target sensor's frames among the source's)."""
+        return dataclasses.replace(self, mixed_sensors=True)
 
     def trajectory(self, path) -> tuple[np.ndarray, str]:
         """The sensor poses of a trajectory file given for these frames (target poses, other poses), read as
@@ -183,7 +192,7 @@ class Sequence:
             raise InputValueError("the sequence has no poses: give a trajectory or register the frames")
         pts, attrs = self.layout.frame(self, i)
         ring = attrs.get("ring")
-        if ring is not None and len(ring):  # one sensor a sequence: the frames' beam counts agree
+        if ring is not None and len(ring) and not self.mixed_sensors:  # one sensor: the frames' beam counts agree
             beams = int(np.max(ring)) + 1
             if self._beams is None:
                 self._beams = (beams, str(self.paths[i]))

@@ -1,6 +1,7 @@
 """An E57 file of several scans: each scan a frame, its pose (rotation quaternion and translation)
 the frame's: a frame's points are in its scanner's own axes at its origin, as the scanner recorded
-them; the file read once a process. A scan without a pose, or whose quaternion is not of norm 1, is
+them; the file read once a process. A scan without a pose (of two or more: a file of one scan is that
+scan at the file's origin, as E57 reads an absent pose), or whose quaternion is not of norm 1, is
 refused.
 """
 
@@ -55,6 +56,8 @@ def read_e57_sequence(path) -> Sequence:
     scans = _e57_scans(str(p), os.path.getmtime(p))
     poses = np.repeat(np.eye(4)[None], len(scans), 0)
     for i, c in enumerate(scans):
+        if c.origin is None and len(scans) == 1:  # one scan: at the file's origin (E57 reads no pose so)
+            continue
         if c.origin is None:
             raise InputValueError(f"{p}: scan {i} has no pose (no scanner origin): a sequence needs each scan's")
         poses[i, :3, 3] = c.origin

@@ -136,6 +136,7 @@ class HeldOut:
     pose: np.ndarray    # the held-out frame's pose (where its pulses start)
     drop_moving: bool = True
     see_through: SeeThrough | None = None
+    target_base: object = None  # the held-out frame's own unit where it is not ``base`` (a target sensor)
 
 
 @dataclass

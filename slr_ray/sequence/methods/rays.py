@@ -4,21 +4,28 @@ of its window (:func:`holdout_ray_model`), the motion taken from the poses."""
 
 from __future__ import annotations
 
+import dataclasses
 import warnings
 
 from ...errors import SlrWarning
-from ..rays import RayModel, cast_rays, fit_range_bias, fit_ray_model, frame_motion, pattern_ray_model
+from ..rays import (RayModel, cast_grid_rays, cast_rays, fit_azimuth_phases, fit_range_bias, fit_ray_model,
+                    frame_motion, pattern_ray_model)
 from ..sources import known_beams
 from .base import HeldOut, RaysOptions, SequenceMethod
 
-__all__ = ["Rays", "METHOD", "holdout_ray_model"]
+__all__ = ["Rays", "METHOD", "holdout_ray_model", "GRID_RAYS"]
+
+#: what ``rays`` casts for a terrestrial scanner's frame (its ``ray_model``'s ``what``)
+GRID_RAYS = ("a terrestrial scanner has no beams: each pulse of its fitted grid cast from its origin through the "
+             "pulse's centre onto the union's planes (no lasers, no sweep, no range bias fitted)")
 
 
 def holdout_ray_model(seq, others, base, pattern, cache) -> RayModel:
     """The sensor's rays fitted from the frames ``others`` (never the held-out frame): their own points,
     their beams (a ``ring`` field or the scan order) and their motion from the poses
-    (:func:`~slr_ray.sequence.rays.fit_ray_model`), and each laser's range bias against the others'
-    frames (:func:`~slr_ray.sequence.rays.fit_range_bias`). Where a frame's beams are not known, the
+    (:func:`~slr_ray.sequence.rays.fit_ray_model`), where in its column each laser fires
+    (:func:`~slr_ray.sequence.rays.fit_azimuth_phases`, in ``pattern``'s columns), and each laser's
+    range bias against the others' frames (:func:`~slr_ray.sequence.rays.fit_range_bias`). Where a frame's beams are not known, the
     pattern's own rays."""
     frames, worlds, unknown = [], [], []
     for i in others:
@@ -37,12 +44,17 @@ def holdout_ray_model(seq, others, base, pattern, cache) -> RayModel:
                       + ("" if frames else "; rays casts the table's ideal rays"), SlrWarning, stacklevel=2)
     if not frames:
         return pattern_ray_model(pattern)
-    return fit_range_bias(fit_ray_model(frames, base.n_beams), worlds)
+    model = fit_ray_model(frames, base.n_beams)
+    if pattern is not None:  # where in its column each laser fires (an Ouster's at the edge): its rays cast there
+        offset, _ = fit_azimuth_phases([(p, b) for p, b, _ in frames], base.n_beams, pattern.columns)
+        model = dataclasses.replace(model, azimuth_offset=offset)
+    return fit_range_bias(model, worlds)
 
 
 class Rays(SequenceMethod):
     """The sensor's rays onto the union's planes: a held-out frame's rays fitted from the other frames
-    (reported as ``ray_model``); a conversion casts the target table's own rays (no motion)."""
+    (reported as ``ray_model``); a terrestrial scanner's frame (no beams: ``held.base`` None) its fitted
+    grid's pulse centres (:data:`GRID_RAYS`); a conversion casts the target table's own rays (no motion)."""
 
     name = "rays"
     label = "beam rays onto the union's planes"
@@ -54,6 +66,14 @@ class Rays(SequenceMethod):
         return cast_rays(points, pattern, gap=options.gap, neighbours=options.neighbours, max_shift=options.max_shift)
 
     def simulate(self, held: HeldOut, options: RaysOptions):
+        if held.base is None:  # a terrestrial scanner: no beams, its grid's pulse centres from its origin
+            ret = cast_grid_rays(held.u, held.pattern, gap=options.gap, neighbours=options.neighbours,
+                                 max_shift=options.max_shift)
+            return ret, ret.points, {"source": "grid", "what": GRID_RAYS}
+        if held.target_base is not None:  # another unit than the frames': its table's own rays, as convert casts
+            ret = self.returns(held.u, held.pattern, options)
+            return ret, ret.points, pattern_ray_model(held.pattern).to_dict() | {
+                "why": "the held-out frame is of another unit (target sensor): its table's ideal rays"}
         model = holdout_ray_model(held.seq, held.others, held.base, held.pattern, held.cache)
         ret = cast_rays(held.u, held.pattern, model, frame_motion(held.seq.poses, held.target), gap=options.gap,
                         neighbours=options.neighbours, max_shift=options.max_shift)

@@ -1,0 +1,161 @@
+"""Which grid a held-out frame is scored on: a spinning unit's beam table, or a terrestrial scanner's own grid.
+
+A held-out frame is scored on its sensor's grid (every method fills it; the target is the frame's
+points in its view). Two kinds of sensor (:data:`KINDS`):
+
+``spinning``
+    A unit of beams (a Velodyne, Ouster, Hesai... or a card): its beam table fitted to the frame
+    (:func:`slr_ray.sensors.fitted_pattern`) where the frame's beams are known (a ``ring`` field,
+    the scan order of a KITTI ``.bin``). Named by ``sensor`` (``--source-sensor``).
+``terrestrial``
+    A terrestrial laser scanner: one uniform angular grid about its origin, fitted to the frame's
+    own points (:func:`terrestrial_grid`: the embree backend's primary fit,
+    :func:`slr_ray.backends.embree.fit.fit_primary_pattern`, as ``slr-ray scan`` and ``augment``
+    fit a primary; its zenith rows cut to those the frame fired), never a spinning unit's table. The frame has no beams: methods that need the
+    frames' beam table (``needs_source_sensor``) are refused, and ``rays`` casts the grid's pulse
+    centres (:func:`slr_ray.sequence.rays.cast_grid_rays`).
+
+``sensor="auto"`` (:data:`AUTO`; ``sequence evaluate`` without ``--source-sensor``) decides for
+each held-out frame (:func:`sensor_kind`): a frame with a ``ring`` field or in the scan order of
+:data:`DEFAULT_SPINNING` (KITTI's) is spinning, on that table, as before; any other frame is
+terrestrial. A frame that is neither (no ring, no scan order, no uniform grid holds it as a scan)
+is refused, naming ``--source-sensor``.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+import numpy as np
+
+from ..backends.embree.fit import FIT_MIN_SINGLE, fit_primary_pattern, fit_quality
+from ..errors import InputValueError
+from .sources import known_beams
+
+__all__ = ["AUTO", "SPINNING", "TERRESTRIAL", "KINDS", "DEFAULT_SPINNING", "ScoringGrid", "sensor_kind",
+           "terrestrial_grid", "is_terrestrial", "column_phase", "turn"]
+
+#: decide the kind from each held-out frame (``--source-sensor`` not given)
+AUTO = "auto"
+SPINNING, TERRESTRIAL = "spinning", "terrestrial"
+KINDS = (SPINNING, TERRESTRIAL)
+#: the spinning unit taken where none is named and a frame is in its scan order (KITTI's)
+DEFAULT_SPINNING = "velodyne_hdl64e_s2"
+
+
+@dataclass(frozen=True)
+class ScoringGrid:
+    """A held-out frame's scoring grid: its ``kind`` (:data:`KINDS`), the ``pattern`` every method
+    fills, the frame's ``beams`` (spinning, where known), the frames' beam table ``base`` (spinning;
+    None for a terrestrial scanner) and ``how``, one line saying which grid and why."""
+
+    kind: str
+    pattern: object
+    beams: np.ndarray | None
+    base: object | None
+    how: str
+    yaw: float = 0.0    # radians: the grid's first column's edge, from the frame's x axis (terrestrial)
+
+    def to_dict(self) -> dict:
+        return {"kind": self.kind, "how": self.how, "yaw_deg": float(np.degrees(self.yaw))}
+
+    def turned(self, points) -> np.ndarray:
+        """``points`` (the frame's own axes) in the grid's: turned by ``-yaw`` about z (float64)."""
+        return turn(points, self.yaw)
+
+    def turned_pose(self, pose) -> np.ndarray:
+        """The frame's ``pose`` (its axes to the world) with the grid's axes: ``pose @ Rz(yaw)``."""
+        c, s = np.cos(self.yaw), np.sin(self.yaw)
+        out = np.array(pose, np.float64, copy=True)
+        out[:3, :2] = np.column_stack([pose[:3, 0] * c + pose[:3, 1] * s, -pose[:3, 0] * s + pose[:3, 1] * c])
+        return out
+
+
+def turn(points, yaw: float) -> np.ndarray:
+    """``points`` turned by ``-yaw`` about z (float64; ``yaw`` 0: themselves)."""
+    p = np.asarray(points, np.float64)
+    if yaw == 0.0:
+        return p
+    c, s = np.cos(yaw), np.sin(yaw)
+    out = p.copy()
+    out[:, 0] = p[:, 0] * c + p[:, 1] * s
+    out[:, 1] = -p[:, 0] * s + p[:, 1] * c
+    return out
+
+
+def is_terrestrial(sensor) -> bool:
+    """Whether ``sensor`` (a held-out evaluation's ``sensor``) asks for the terrestrial grid."""
+    return isinstance(sensor, str) and sensor == TERRESTRIAL
+
+
+def sensor_kind(points, attributes, base) -> str:
+    """:data:`SPINNING` where the frame's beams are known in ``base``'s table (a ``ring`` field, its
+    scan order), else :data:`TERRESTRIAL`."""
+    return SPINNING if known_beams(points, attributes, base) is not None else TERRESTRIAL
+
+
+def terrestrial_grid(points, what: str, turn_columns: bool = True) -> tuple:
+    """``(pattern, how, yaw)``: the uniform grid fitted to ``points`` (the scanner at the origin, its
+    zenith axis the frame's z), a line saying so with the fit's quality (the share of occupied pulses
+    holding one point), and where its columns start (radians from the frame's x axis; 0 unless
+    ``turn_columns``): a scan exported in world axes (a campaign's LAS) has its columns turned by its
+    setup's heading, and a grid whose columns start at 0 would split them
+    (:func:`column_phase`). Refused, naming ``what`` and ``--source-sensor``, where the points show
+    no grid or the fitted one holds them as no scan would (under
+    :data:`~slr_ray.backends.embree.fit.FIT_MIN_SINGLE`)."""
+    p = np.asarray(points, np.float64)
+    why, yaw = None, 0.0
+    try:
+        pattern, _, quality = fit_primary_pattern(p, np.zeros(3), min_quality=0.0)
+    except InputValueError:
+        why = "its points show no grid of rows and columns about its origin"
+    else:
+        if getattr(pattern, "has_beams", False):  # in the fit's beam-table scan order: a spinning unit's
+            why = "it is stored ring after ring as a spinning unit's frame"
+        elif turn_columns:
+            yaw = column_phase(p, pattern)
+            quality = fit_quality(turn(p, yaw), pattern)
+        if why is None and not quality >= FIT_MIN_SINGLE:
+            why = (f"the uniform grid fitted to it holds one point in {quality:.0%} of its occupied pulses "
+                   f"(a scan's: {FIT_MIN_SINGLE:.0%} or more)")
+    if why is not None:
+        raise InputValueError(f"{what}: not a terrestrial scan ({why}) and no spinning unit's beams known (no ring "
+                              "field, not in a shipped table's scan order): name the frames' sensor "
+                              "(--source-sensor NAME or card.json)")
+    pattern = _zenith_extent(pattern, turn(p, yaw))
+    how = (f"terrestrial: a uniform grid fitted to the frame, {pattern.zenith_resolution:.5g} deg (zenith) x "
+           f"{pattern.azimuth_resolution:.5g} deg (azimuth), zenith {pattern.zenith_range[0]:.4g} to {pattern.zenith_range[1]:.4g} deg; one "
+           f"point in {quality:.1%} of its occupied pulses" + (f"; its columns from {np.degrees(yaw):.4g} deg azimuth"
+                                                            if yaw else ""))
+    return pattern, how, yaw
+
+
+def column_phase(points, pattern) -> float:
+    """Where the columns of ``pattern``'s azimuth step start (radians, within a column of 0), from
+    ``points``: a scan's points sit mid-column, so the circular mean of their azimuth modulo a
+    column, less half a column, is the columns' start."""
+    p = np.asarray(points, np.float64)
+    step = 2 * np.pi / pattern.shape[1]
+    ang = np.arctan2(p[:, 1], p[:, 0]) * (2 * np.pi / step)
+    keep = np.hypot(p[:, 0], p[:, 1]) > 0
+    if not keep.any():
+        return 0.0
+    phase = np.arctan2(np.mean(np.sin(ang[keep])), np.mean(np.cos(ang[keep]))) / (2 * np.pi) * step
+    yaw = float(np.mod(phase - step / 2, step))
+    yaw = yaw - step if yaw > step / 2 else yaw  # within half a column of 0
+    return 0.0 if abs(yaw) < 1e-4 * step else yaw
+
+
+def _zenith_extent(pattern, points):
+    """``pattern`` (a uniform grid fitted to ``points``) cut to the zenith rows the scan fired: from its
+    highest row that holds a point to its lowest, whole rows (the grid's rows unmoved). A scanner fires
+    no pulse above its field of view (30 deg from the zenith, say): a grid from the zenith would score
+    the other setups' points there as returns the frame dropped."""
+    keys, _ = pattern.pulse_ids(points, np.zeros(3))
+    rows = keys[keys >= 0] // pattern.shape[1]
+    if not len(rows):
+        return pattern
+    lo, hi = pattern.zenith_range
+    step = pattern.zenith_resolution
+    return pattern.with_(zenith_range=(lo + int(rows.min()) * step, min(hi, lo + (int(rows.max()) + 1) * step)),
+                         name="fitted to the frame")
