@@ -255,3 +255,21 @@ def test_fill_gives_the_pulses_the_meshes_miss_the_unions_first_peak_only():
         want = f.keys[~np.isin(f.keys, half.keys) & (count[f.keys] >= least)]
         assert np.array_equal(out.keys[~mine], want)
     assert fill_missing(half, pts, pat, 0) is half
+
+
+def test_rings_whose_ids_are_not_in_elevation_order_are_meshed_by_elevation():
+    """A unit whose ring ids do not follow elevation (a Pandar64's): each ring is joined to the rings next
+    to it in elevation (elevation_rows), the mesh the one of ordered ids (#46; before, ids were taken for
+    elevation order and triangles spanned the frame's height)."""
+    from slr_ray.sequence.embree_rays import elevation_rows
+
+    pat = sensor("velodyne_vlp16")
+    pts, beams = _frame(pat, pattern_ray_model(pat))
+    perm = np.random.default_rng(2).permutation(pat.n_beams)
+    ids = perm[beams]                                  # the same rings under scrambled ids
+    assert np.array_equal(elevation_rows(pts, ids), elevation_rows(pts, beams))
+    ordered = frame_mesh(pts, elevation_rows(pts, beams), pat.n_beams)
+    assert len(frame_mesh(pts, elevation_rows(pts, ids), pat.n_beams)) == len(ordered)
+    el = np.degrees(np.arctan2(pts[:, 2], np.hypot(pts[:, 0], pts[:, 1])))
+    assert np.all(np.ptp(el[ordered], axis=1) < 4.0)   # rings 2 deg apart: neighbours only
+    assert np.array_equal(elevation_rows(pts, np.full(len(pts), -1)), np.full(len(pts), -1))

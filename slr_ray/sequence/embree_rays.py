@@ -55,12 +55,13 @@ from ..errors import InputValueError, SlrWarning
 from ..evaluate import scan_order_beams
 from ..raycast import RayScene
 from .estimators import FPA_GAP, PulseReturns, fpa_returns
-from .rays import RayModel, fit_ray_model, frame_motion, pattern_ray_model, sweep_offsets
+from .rays import (PHASE_COHERENCE, RayModel, fit_ray_model, frame_motion, pattern_ray_model,
+                   sweep_offsets)
 from .union import rotate
 
 __all__ = ["frame_mesh", "MeshFrames", "rays_of_model", "cast_embree_rays", "mesh_range_bias", "union_meshes",
            "frame_beams", "fit_embree_model", "fill_missing", "frame_surface", "frame_points_beams", "frame_ray_model",
-           "combined_model", "MAX_RATIO", "MAX_STEP_DEG", "MAX_STEP_COLUMNS", "EMBREE_GAP", "WEAK_RATIO"]
+           "combined_model", "with_azimuth_phases", "elevation_rows", "MAX_RATIO", "MAX_STEP_DEG", "MAX_STEP_COLUMNS", "EMBREE_GAP", "WEAK_RATIO"]
 
 #: a triangle's ranges (from its frame's origin) differ by at most this share of the nearest
 MAX_RATIO = 0.3
@@ -156,9 +157,11 @@ def _step_deg(columns) -> float:
     return MAX_STEP_DEG if not columns else MAX_STEP_COLUMNS * 360.0 / columns
 
 
-def _mesh(points, beams, pose, n_beams, model, step_deg, max_ratio, weak_ratio):
-    """One frame's ``(scene, faces, raw, weak)`` (:meth:`MeshFrames.add`)."""
-    faces = frame_mesh(points, beams, n_beams, max_ratio, step_deg)
+def _mesh(points, beams, pose, rows, model, step_deg, max_ratio, weak_ratio):
+    """One frame's ``(scene, faces, raw, weak)`` (:meth:`MeshFrames.add`); ``rows`` each point's ring in
+    elevation order (None: ``beams`` are)."""
+    ring = np.asarray(beams if rows is None else rows, np.int64)
+    faces = frame_mesh(points, ring, int(ring.max()) + 1 if len(ring) else 0, max_ratio, step_deg)
     P = np.asarray(pose, np.float64)
     local = _unbiased(points, beams, model)
     world = rotate(local, P[:3, :3]) + P[:3, 3]
@@ -191,7 +194,9 @@ class MeshFrames:
         without, ``max_step_deg`` or :data:`MAX_STEP_DEG`)."""
         if key not in self._scenes:
             step = self.max_step_deg if self.max_step_deg is not None else _step_deg(columns)
-            self._scenes[key] = _mesh(points, beams, pose, n_beams, model, step, self.max_ratio, self.weak_ratio)
+            b = np.asarray(beams, np.int64)
+            self._scenes[key] = _mesh(points, b, pose, np.where(b < n_beams, b, -1), model, step, self.max_ratio,
+                                      self.weak_ratio)
         scene, faces, raw, weak = self._scenes[key]
         return scene, faces, offset, raw, weak
 
@@ -430,6 +435,24 @@ def _selection_key(drop_moving, see_through, exclude, i):
     return bool(drop_moving), see_through.key if see_through else None, excl
 
 
+def elevation_rows(points, beams) -> np.ndarray:
+    """Each point's ring ranked by its ring's mean elevation in the frame, highest 0 (-1 stays -1): a
+    ring's mesh joins the rings next to it in elevation, whatever their ids (a unit's ring ids need
+    not be in elevation order)."""
+    p = np.asarray(points, np.float64)
+    b = np.asarray(beams, np.int64)
+    ok = b >= 0
+    if not ok.any():
+        return b
+    n = int(b[ok].max()) + 1
+    el = np.arctan2(p[ok, 2], np.hypot(p[ok, 0], p[ok, 1]))
+    cnt = np.bincount(b[ok], minlength=n)
+    mean = np.where(cnt > 0, np.bincount(b[ok], el, n) / np.maximum(cnt, 1), -np.inf)
+    rank = np.empty(n, np.int64)
+    rank[np.argsort(-mean, kind="stable")] = np.arange(n)
+    return np.where(ok, rank[np.maximum(b, 0)], -1)
+
+
 def frame_surface(cache, i: int, base, drop_moving: bool = True, see_through=None, exclude=(),
                   max_ratio: float = MAX_RATIO, weak_ratio: float | None = WEAK_RATIO) -> tuple:
     """Frame ``i``'s raw mesh (:meth:`MeshFrames.add` without a model: its kept points, its rings):
@@ -442,12 +465,13 @@ def frame_surface(cache, i: int, base, drop_moving: bool = True, see_through=Non
 
     def make():
         f, _ = cache.get(i)
-        pts, beams, _ = frame_points_beams(cache, i, base)
+        pts, beams, known = frame_points_beams(cache, i, base)
         if keep is not None:
             pts, beams = pts[keep], None if beams is None else beams[keep]
         if beams is None:
             return None, np.zeros((0, 3), np.int64), None, None, len(pts)
-        return _mesh(pts, beams, f.pose, base.n_beams, None, _step_deg(base.columns), max_ratio,
+        rows = elevation_rows(pts, beams) if known else beams
+        return _mesh(pts, beams, f.pose, rows, None, _step_deg(base.columns), max_ratio,
                      weak_ratio) + (len(pts),)
 
     return cache.state(i, key, make)
@@ -506,6 +530,34 @@ def frame_ray_model(cache, seq, i: int, base) -> RayModel | None:
             return None
 
     return cache.state(int(i), ("embree-rays model", _base_key(base)), make)
+
+
+def with_azimuth_phases(model: RayModel, cache, frames, base, columns: int) -> RayModel:
+    """``model`` with where in its column each laser fires (``columns`` a turn) from the frames' own
+    points (:func:`~slr_ray.sequence.rays.fit_azimuth_phases`; each frame's phasor sums held on
+    ``cache``); frames whose beams are not known left out; none: ``model`` as it is."""
+    acc, cnt = np.zeros(base.n_beams, complex), np.zeros(base.n_beams)
+    D = 2 * math.pi / int(columns)
+    for i in frames:
+        pts, beams, known = frame_points_beams(cache, int(i), base)
+        if not known or not len(pts):
+            continue
+
+        def make(pts=pts, beams=beams):  # fit_azimuth_phases' sums, a frame's
+            ok = beams >= 0
+            b = beams[ok]
+            ph = np.exp(1j * int(columns) * (np.arctan2(pts[ok, 1], pts[ok, 0]) - 0.5 * D))
+            return (np.bincount(b, ph.real, base.n_beams)[:base.n_beams]
+                    + 1j * np.bincount(b, ph.imag, base.n_beams)[:base.n_beams],
+                    np.bincount(b, minlength=base.n_beams)[:base.n_beams].astype(np.float64))
+
+        a, c = cache.state(int(i), ("embree-rays phasors", _base_key(base), int(columns)), make)
+        acc, cnt = acc + a, cnt + c
+    if not cnt.any():
+        return model
+    coherence = np.abs(acc) / np.maximum(cnt, 1)
+    offset = np.where((coherence >= PHASE_COHERENCE) & (cnt >= 20), np.angle(acc) * D / (2 * math.pi), 0.0)
+    return dataclasses.replace(model, azimuth_offset=offset)
 
 
 def combined_model(models) -> RayModel:

@@ -13,7 +13,7 @@ import numpy as np
 
 from ...errors import InputValueError
 from ..embree_rays import (EMBREE_GAP, MAX_RATIO, WEAK_RATIO, MeshFrames, cast_embree_rays, fill_missing,
-                           fit_embree_model, union_meshes)
+                           fit_embree_model, union_meshes, with_azimuth_phases)
 from ..rays import frame_motion, pattern_ray_model
 from ..union import to_frame
 from .base import HeldOut, MethodOptions, SequenceMethod, TargetFrame
@@ -82,6 +82,8 @@ class EmbreeRays(SequenceMethod):
     def simulate(self, held: HeldOut, options: EmbreeRaysOptions):
         model, surfaces = fit_embree_model(held.seq, held.others, held.base, held.cache, held.drop_moving,
                                            held.see_through, (held.target,))
+        if model.source == "fitted":  # where in its column each laser fires (an Ouster's at the edge)
+            model = with_azimuth_phases(model, held.cache, held.others, held.base, held.pattern.columns)
         if (options.max_ratio, options.weak) != (MAX_RATIO, WEAK_RATIO):  # the fit's biases on the defaults' meshes
             surfaces = union_meshes(held.cache, held.others, held.base, None, held.drop_moving, held.see_through,
                                     (held.target,), options.meshes)
