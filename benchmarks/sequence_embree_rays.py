@@ -15,14 +15,14 @@ out; ``rays`` and ``embree-rays`` one after the other in the same run, their ord
   frame.
 
 Writes benchmarks/results/sequence_embree_rays.json (``--ouster``: also the Ouster OS1-128's frames,
-frame 1 held out from 0 and 2, into sequence_embree_rays_ouster.json)."""
+each held out from the others, into sequence_embree_rays_ouster.json; the other units' figures of
+docs/sequences.md are the command line's, benchmarks/results/sequence_embree_rays_sensors/)."""
 
 from __future__ import annotations
 
 import argparse
 import os
 import statistics
-import tempfile
 import time
 from pathlib import Path
 
@@ -127,25 +127,13 @@ def speed(seq, runs):
     return {"runs": runs, "median_cpu_s": med, "all_cpu_s": rec}
 
 
-def ouster(tmp: Path):
-    """The Ouster OS1-128's three frames of shared/data (ouster_os1_128/: each frame's xyz grid, its rows
-    the rings, highest first; the poses in KITTI form), frame 1 held out from frames 0 and 2: each
-    frame written as an .npz of its returns (``points``, ``ring``, ``intensity``) for the sequence
-    reader."""
-    src = DATA / "ouster_os1_128"
-    files = []
-    for i in range(3):
-        z = np.load(src / f"os1_128_frame{i:02d}.npz")
-        ok = z["range_mm"] > 0
-        ring = np.broadcast_to(np.arange(ok.shape[0])[:, None], ok.shape)
-        f = tmp / f"os1_128_{i:06d}.npz"
-        np.savez(f, points=z["xyz"][ok].astype(np.float64), ring=ring[ok].astype(np.int64),
-                 intensity=z["reflectivity"][ok].astype(np.float32))
-        files.append(str(f))
-    seq = read_sequence(files, str(next(src.glob("*_poses_kitti.txt"))))
-    ev = H.evaluate_sequence(seq, [1], sensor="ouster_os1_128", methods=METHODS, half=1)
+def ouster():
+    """The Ouster OS1-128's three frames of shared/data (ouster_os1_128/, read by its layout: the lidar
+    origin, the poses), every frame held out from the others (``--half 1``), on its own grid."""
+    seq = read_sequence(str(DATA / "ouster_os1_128"))
+    ev = H.evaluate_sequence(seq, [0, 1, 2], sensor="ouster_os1_128", methods=METHODS, half=1)
     rows = directions(ev)
-    fill = H.evaluate_sequence(seq, [1], sensor="ouster_os1_128", methods=("embree-rays",), half=1,
+    fill = H.evaluate_sequence(seq, [0, 1, 2], sensor="ouster_os1_128", methods=("embree-rays",), half=1,
                                method_options={"embree_rays_fill": 1})
     return {"mean": rows + [directions(fill)[0] | {"method": "embree-rays, fill 1"}]}
 
@@ -160,8 +148,7 @@ def main():
     a.ouster = a.ouster or a.ouster_only
     res = {"machine": machine(), "load_before": os.getloadavg()}
     if a.ouster:
-        with tempfile.TemporaryDirectory() as tmp:
-            res["ouster_os1_128"] = ouster(Path(tmp))
+        res["ouster_os1_128"] = ouster()
         show(res["ouster_os1_128"]["mean"])
         save("sequence_embree_rays_ouster", res | {"load_after": os.getloadavg()})
         if a.ouster_only:
