@@ -8,10 +8,14 @@ start included: on a shared machine, CPU seconds / workers is what 2 free cores 
 writes benchmarks/results/bench_sequence.json.
 
     python benchmarks/bench_sequence.py [--frames 100] [--half 30] [--workers 2] [--runs 3] [--drive DIR]
-                                        [--estimator nearest [embree-sources ...]]
+                                        [--estimator nearest [embree-sources ...]] [--target NAME] [--dask]
                                         (each in turn on the same drive; another than nearest is saved as
-                                        bench_sequence_NAME.json; embree-sources gets --source-sensor, the
-                                        drive's HDL-64E S2)
+                                        bench_sequence_NAME.json; a method that needs the frames' sensor,
+                                        embree-sources or embree-rays, gets --source-sensor, the drive's
+                                        HDL-64E S2; --dask: on a local dask.distributed cluster of --workers
+                                        worker processes, --scheduler, saved as bench_sequence_NAME_dask.json)
+
+The command's progress bar (stderr) is kept: its last line goes into the results.
 """
 
 from __future__ import annotations
@@ -30,6 +34,7 @@ from pathlib import Path
 
 from common import machine, save
 
+from slr_ray.sequence.methods import REGISTRY
 from slr_ray.sequence.synthetic import synthetic_drive
 
 
@@ -41,6 +46,9 @@ def main() -> None:
     ap.add_argument("--runs", type=int, default=3)
     ap.add_argument("--drive", help="an existing drive (KITTI layout) instead of making one")
     ap.add_argument("--estimator", nargs="+", default=["nearest"], help="convert's --estimator (default nearest)")
+    ap.add_argument("--target", default="velodyne_vlp16", help="the target sensor (default velodyne_vlp16)")
+    ap.add_argument("--dask", action="store_true", help="on a local dask.distributed cluster of --workers workers")
+    ap.add_argument("--suffix", default="", help="appended to the results' names (bench_sequence_NAME_SUFFIX.json)")
     a = ap.parse_args()
     env = dict(os.environ, PYTHONPATH=str(Path(__file__).resolve().parents[1]))
     with tempfile.TemporaryDirectory() as tmp:
@@ -49,40 +57,92 @@ def main() -> None:
         if not a.drive:
             synthetic_drive(drive, n_frames=a.frames, sensor="velodyne_hdl64e_s2")
         made = time.perf_counter() - t0
-        for est in a.estimator:
-            one(a, est, drive, tmp, env, made)
+        cluster = None
+        if a.dask:
+            from dask.distributed import LocalCluster
+            cluster = LocalCluster(n_workers=a.workers, threads_per_worker=1, processes=True, dashboard_address=None)
+        try:
+            for est in a.estimator:
+                one(a, est, drive, tmp, env, made, cluster)
+        finally:
+            if cluster is not None:
+                cluster.close()
 
 
-def one(a, estimator, drive, tmp, env, made) -> None:
+def _rss_gib(pid) -> float:
+    try:
+        with open(f"/proc/{pid}/status") as f:
+            return next(int(line.split()[1]) for line in f if line.startswith("VmHWM")) / 2**20
+    except (OSError, StopIteration):
+        return float("nan")
+
+
+def one(a, estimator, drive, tmp, env, made, cluster=None) -> None:
     """`--runs` runs of one estimator. Its peak is the largest of any child so far (the estimators run
-    before it included): run the one of larger memory last, or alone."""
+    before it included): run the one of larger memory last, or alone. On a Dask cluster the workers'
+    peaks (VmHWM) and CPU seconds are read from the workers' processes."""
     runs = []
-    extra = ["--source-sensor", "velodyne_hdl64e_s2"] if estimator == "embree-sources" else []
+    extra = ["--source-sensor", "velodyne_hdl64e_s2"] if REGISTRY[estimator].needs_source_sensor else []
+    if cluster is not None:
+        extra += ["--scheduler", cluster.scheduler_address]
     for k in range(a.runs):
         out = Path(tmp) / f"out_{estimator}_{k}"
         cmd = [sys.executable, "-m", "slr_ray.cli", "sequence", "convert", str(drive),
-               "--sensor", "velodyne_vlp16", "--estimator", estimator, "--half", str(a.half),
-               "--workers", str(a.workers), *extra, "-o", str(out), "--quiet"]
+               "--target-sensor", a.target, "--estimator", estimator, "--half", str(a.half),
+               *(["--workers", str(a.workers)] if cluster is None else []), *extra, "-o", str(out)]
+        workers_cpu0 = _workers_cpu(cluster)
         t0, ru0 = time.perf_counter(), resource.getrusage(resource.RUSAGE_CHILDREN)
         res = subprocess.run(cmd, capture_output=True, text=True, env=env)
         wall, ru = time.perf_counter() - t0, resource.getrusage(resource.RUSAGE_CHILDREN)
-        cpu = (ru.ru_utime + ru.ru_stime) - (ru0.ru_utime + ru0.ru_stime)
+        cpu = (ru.ru_utime + ru.ru_stime) - (ru0.ru_utime + ru0.ru_stime) + _workers_cpu(cluster) - workers_cpu0
         if res.returncode:
             sys.exit(res.stderr)
         doc = json.loads(res.stdout)
         runs.append({"wall_s": round(wall, 2), "seconds_per_frame": doc["seconds_per_frame"],
                      "cpu_seconds": round(cpu, 1), "cpu_seconds_per_frame": round(cpu / a.frames, 4),
-                     "load_average": os.getloadavg()[0], "points": doc["points"]})
+                     "load_average": os.getloadavg()[0], "points": doc["points"],
+                     "progress_tail": res.stderr.replace("\r", "\n").strip().splitlines()[-1:]})
+        if cluster is not None:
+            runs[-1]["workers_peak_gib"] = _workers_peak(cluster)
         print(estimator, runs[-1], flush=True)
         shutil.rmtree(out)
     peak = resource.getrusage(resource.RUSAGE_CHILDREN).ru_maxrss / 2**20  # KiB -> GiB
+    if cluster is not None:
+        peak = max([peak, *_workers_peak(cluster)])
     out = {"machine": machine(), "frames": a.frames, "half": a.half, "workers": a.workers, "estimator": estimator,
+           "target": a.target, "dask": cluster is not None,
            "drive_seconds": round(made, 1), "runs": runs,
            "median_seconds_per_frame": statistics.median(r["seconds_per_frame"] for r in runs),
            "median_cpu_seconds_per_frame": statistics.median(r["cpu_seconds_per_frame"] for r in runs),
            "largest_process_peak_gib": round(peak, 3), "peak_of": "every process so far, earlier estimators included"}
     print(json.dumps({k: v for k, v in out.items() if k != "machine"}))
-    save("bench_sequence" if estimator == "nearest" else f"bench_sequence_{estimator}", out)
+    name = "bench_sequence" if estimator == "nearest" else f"bench_sequence_{estimator}"
+    save(name + ("_dask" if cluster is not None else "") + (f"_{a.suffix}" if a.suffix else ""), out)
+
+
+def _worker_pids(cluster) -> list:
+    if cluster is None:
+        return []
+    from dask.distributed import Client
+    with Client(cluster) as c:
+        return list(c.run(os.getpid).values())
+
+
+def _workers_cpu(cluster) -> float:
+    """CPU seconds so far of the cluster's worker processes (0 without one)."""
+    total = 0.0
+    for pid in _worker_pids(cluster):
+        try:
+            with open(f"/proc/{pid}/stat") as f:
+                fields = f.read().rsplit(")", 1)[1].split()
+            total += (int(fields[11]) + int(fields[12])) / os.sysconf("SC_CLK_TCK")
+        except OSError:
+            pass
+    return total
+
+
+def _workers_peak(cluster) -> list:
+    return [round(_rss_gib(pid), 3) for pid in _worker_pids(cluster)]
 
 
 

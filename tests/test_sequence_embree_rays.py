@@ -158,3 +158,118 @@ def test_frames_of_unknown_rings_are_meshed_by_the_tables_rows(tmp_path):
     real = dict(zip(*[a.tolist() for a in pat.pulse_ids(fb.points, np.zeros(3))]))
     err = np.abs(ret.ranges - np.array([real.get(k, np.nan) for k in ret.keys.tolist()]))
     assert len(ret) > 0.8 * len(real) and np.nanmedian(err) < 0.01
+
+
+@pytest.fixture(scope="module")
+def drive(tmp_path_factory):
+    from slr_ray.sequence.synthetic import synthetic_drive
+    root = tmp_path_factory.mktemp("drive") / "seq"
+    synthetic_drive(root, n_frames=4, sensor="velodyne_vlp16", step=0.8, moving=False)
+    return root
+
+
+def test_embree_rays_is_a_sequence_method_of_both_commands(drive, tmp_path, capsys):
+    """Registered (#46): ``sequence evaluate --methods embree-rays`` scores it beside the others, its held-out
+    frame's sensor fitted on the other frames (reported); ``sequence convert --estimator embree-rays``
+    writes every frame, its points on what the frames saw."""
+    import json
+
+    from conftest import CliRun
+    from slr_ray.io import read_cloud
+
+    run = CliRun(capsys)
+    r = run("sequence", "evaluate", drive, "--holdout", "1", "2", "--half", "1", "--source-sensor", "velodyne_vlp16",
+            "--methods", "nearest", "embree-rays", "-o", tmp_path / "ev", "--quiet")
+    assert r.returncode == 0, r.stderr
+    res = json.loads((tmp_path / "ev" / "evaluation.json").read_text())
+    frame = res["frames"][0]
+    assert frame["ray_model"]["source"] == "fitted" and frame["ray_model"]["lasers"] == 16
+    mean = {row["method"]: row for row in json.loads(r.stdout)["mean"]}
+    er = mean["the fitted sensor cast with Embree onto the frames' ring meshes"]
+    near = mean["nearest (binning of the union)"]
+    # the drive's surfaces are planes: the meshes of the other frames hold them, the fitted rays meet them
+    assert er["F@5cm"] >= near["F@5cm"] and er["depth_medae_m"] < 0.02 and er["drop_accuracy"] > 0.9, er
+    r = run("sequence", "convert", drive, "--target-sensor", "velodyne_vlp16", "--source-sensor", "velodyne_vlp16",
+            "--estimator", "embree-rays", "--half", "1", "-o", tmp_path / "conv", "--quiet")
+    assert r.returncode == 0, r.stderr
+    seq_frames = sorted((drive / "velodyne").glob("*.bin"))
+    out = sorted((tmp_path / "conv" / "velodyne").glob("*.bin"))
+    assert [f.name for f in out] == [f.name for f in seq_frames]
+    for a, b in zip(out, seq_frames):  # the target is the source at the same poses: its own frames again
+        got, real = read_cloud(a).points, read_cloud(b).points
+        assert 0.9 * len(real) < len(got) <= len(real) * 1.01
+        from scipy.spatial import cKDTree
+        assert np.median(cKDTree(real).query(got)[0]) < 0.05
+
+
+def test_each_frames_mesh_and_fit_are_made_once_while_the_cache_holds_it(drive, monkeypatch):
+    """Per-frame state on the cache (FrameCache.state, #46): two held-out frames sharing the frames cache mesh and fit each frame once, and
+    their returns are those of a fresh cache each; a frame the cache lets go takes its state with it."""
+    import slr_ray.sequence.embree_rays as E
+    from slr_ray.sequence import FrameCache, read_sequence
+
+    seq = read_sequence(drive)
+    made = []
+    mesh, fit = E._mesh, E.fit_ray_model
+    monkeypatch.setattr(E, "_mesh", lambda *a: made.append("mesh") or mesh(*a))
+    monkeypatch.setattr(E, "fit_ray_model", lambda *a, **k: made.append("fit") or fit(*a, **k))
+    pat = sensor("velodyne_vlp16")
+    cache = FrameCache(seq)
+    held = []
+    for t in (1, 2):
+        others = [i for i in range(4) if i != t]
+        model, surfaces = E.fit_embree_model(seq, others, pat, cache, exclude=(t,))
+        held.append(cast_embree_rays(np.zeros((sum(len(cache.get(i)[1]) for i in others), 3)), pat, model,
+                                     surfaces=surfaces, pose=seq.poses[t]))
+    assert made.count("mesh") == 4 and made.count("fit") == 4   # frames 0..3, once each, not 3 + 3
+    for t, ret in zip((1, 2), held):
+        others = [i for i in range(4) if i != t]
+        model, surfaces = E.fit_embree_model(seq, others, pat, FrameCache(seq), exclude=(t,))
+        fresh = cast_embree_rays(np.zeros((sum(len(cache.get(i)[1]) for i in others), 3)), pat, model,
+                                 surfaces=surfaces, pose=seq.poses[t])
+        assert np.array_equal(fresh.keys, ret.keys) and np.allclose(fresh.ranges, ret.ranges)
+    small = FrameCache(seq, size=2)
+    small.state(0, "k", lambda: 1)
+    small.get(1), small.get(2)
+    assert small.state(0, "k", lambda: 2) == 2   # frame 0 let go: its state went with it
+
+
+def test_fill_gives_the_pulses_the_meshes_miss_the_unions_first_peak_only():
+    """--embree-rays-fill (#46 item 3): the returns kept as they are; a pulse they miss takes fpa's return of
+    the union where it holds at least ``least`` of its points, and no other pulse."""
+    from slr_ray.sequence.embree_rays import fill_missing
+    from slr_ray.sequence.estimators import PulseReturns, fpa_returns
+
+    pat = sensor("velodyne_vlp16")
+    rng = np.random.default_rng(1)
+    pts = rng.normal(size=(4000, 3)) * [20, 20, 1]
+    f = fpa_returns(pts, pat)
+    half = PulseReturns(f.keys[::2], f.ranges[::2] + 1.0, f.points[::2], f.index[::2])  # "the meshes'" returns
+    keys, _ = pat.pulse_ids(pts, np.zeros(3))
+    count = np.bincount(keys[keys >= 0])
+    for least in (1, 2):
+        out = fill_missing(half, pts, pat, least)
+        assert np.all(np.diff(out.keys) > 0)
+        mine = np.isin(out.keys, half.keys)
+        assert np.array_equal(out.ranges[mine], half.ranges)   # the meshes' returns as they were
+        want = f.keys[~np.isin(f.keys, half.keys) & (count[f.keys] >= least)]
+        assert np.array_equal(out.keys[~mine], want)
+    assert fill_missing(half, pts, pat, 0) is half
+
+
+def test_rings_whose_ids_are_not_in_elevation_order_are_meshed_by_elevation():
+    """A unit whose ring ids do not follow elevation (a Pandar64's): each ring is joined to the rings next
+    to it in elevation (elevation_rows), the mesh the one of ordered ids (#46; before, ids were taken for
+    elevation order and triangles spanned the frame's height)."""
+    from slr_ray.sequence.embree_rays import elevation_rows
+
+    pat = sensor("velodyne_vlp16")
+    pts, beams = _frame(pat, pattern_ray_model(pat))
+    perm = np.random.default_rng(2).permutation(pat.n_beams)
+    ids = perm[beams]                                  # the same rings under scrambled ids
+    assert np.array_equal(elevation_rows(pts, ids), elevation_rows(pts, beams))
+    ordered = frame_mesh(pts, elevation_rows(pts, beams), pat.n_beams)
+    assert len(frame_mesh(pts, elevation_rows(pts, ids), pat.n_beams)) == len(ordered)
+    el = np.degrees(np.arctan2(pts[:, 2], np.hypot(pts[:, 0], pts[:, 1])))
+    assert np.all(np.ptp(el[ordered], axis=1) < 4.0)   # rings 2 deg apart: neighbours only
+    assert np.array_equal(elevation_rows(pts, np.full(len(pts), -1)), np.full(len(pts), -1))

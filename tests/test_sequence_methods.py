@@ -69,14 +69,17 @@ _Run = CliRun
 
 def test_the_registry_holds_every_method_once_with_its_capabilities():
     assert list(M.REGISTRY) == ["zbuffer", "adjacent", "nearest", "fpa", "rays", "embree-knn", "embree-sources",
-                                "tsdf"]
+                                "tsdf", "embree-rays"]
     assert M.methods_with("default") == ["zbuffer", "adjacent", "nearest", "fpa", "rays"]
-    assert M.methods_with("convert") == ["nearest", "fpa", "rays", "embree-knn", "embree-sources", "tsdf"]
-    assert M.methods_with("needs_source_sensor") == ["embree-sources"]
+    assert M.methods_with("convert") == ["nearest", "fpa", "rays", "embree-knn", "embree-sources", "tsdf",
+                                         "embree-rays"]
+    assert M.methods_with("needs_source_sensor") == ["embree-sources", "embree-rays"]
     assert M.option_keys()["fpa_gap"][2] == ["fpa", "rays"]   # fpa's and rays' gap: one setting, one flag
     assert M.method_options() == {"fpa_gap": 0.1, "rays_neighbours": 64, "rays_max_shift": 0.3, "tsdf_voxel": 0.05,
-                                  "tsdf_truncation": 0.25, "tsdf_xy_bound": 50.0, "tsdf_z_bound": 5.0}
-    with pytest.raises(InputValueError, match="known: \\['fpa_gap', "):
+                                  "tsdf_truncation": 0.25, "tsdf_xy_bound": 50.0, "tsdf_z_bound": 5.0,
+                                  "embree_rays_gap": 0.2, "embree_rays_max_ratio": 0.3, "embree_rays_weak_ratio": 0.1,
+                                  "embree_rays_fill": 0}
+    with pytest.raises(InputValueError, match="known: \\['embree_rays_fill', .*'fpa_gap', "):
         M.method_options({"fpa_gapp": 0.2})
     with pytest.raises(InputValueError, match="fpa given twice"):
         M.check_methods(("fpa", "nearest", "fpa"), "holdout")
@@ -170,6 +173,10 @@ def test_the_library_takes_method_options_and_refuses_a_method_twice(drive):
     (["convert", "--sensor", "velodyne_vlp16", "--target-sensor", "velodyne_vlp16"], "--sensor and --target-sensor"),
     (["convert", "--target-sensor", "velodyne_vlp16", "--estimator", "embree-sources"],
      "--estimator embree-sources needs the frames' sensor (--source-sensor)"),
+    (["convert", "--target-sensor", "velodyne_vlp16", "--estimator", "embree-rays"],
+     "--estimator embree-rays needs the frames' sensor (--source-sensor)"),
+    (["evaluate", "--holdout", "1", "--methods", "embree-rays", "--embree-rays-gap", "0"],
+     "--embree-rays-gap must be > 0"),
 ])
 def test_flags_that_would_be_ignored_or_unreachable_are_refused_in_one_line(drive, tmp_path, capsys, flags,
                                                                             message):

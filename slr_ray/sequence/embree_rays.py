@@ -54,13 +54,15 @@ from numba import njit
 from ..errors import InputValueError, SlrWarning
 from ..evaluate import scan_order_beams
 from ..raycast import RayScene
-from .estimators import FPA_GAP, PulseReturns
-from .rays import RayModel, fit_ray_model, frame_motion, pattern_ray_model, sweep_offsets
+from .estimators import FPA_GAP, PulseReturns, fpa_returns
+from .rays import (PHASE_COHERENCE, RayModel, fit_ray_model, frame_motion, pattern_ray_model,
+                   sweep_offsets)
 from .sources import ring_beams
 from .union import rotate
 
 __all__ = ["frame_mesh", "MeshFrames", "rays_of_model", "cast_embree_rays", "mesh_range_bias", "union_meshes",
-           "frame_beams", "fit_embree_model", "MAX_RATIO", "MAX_STEP_DEG", "MAX_STEP_COLUMNS", "EMBREE_GAP", "WEAK_RATIO"]
+           "frame_beams", "fit_embree_model", "fill_missing", "frame_surface", "frame_points_beams", "frame_ray_model",
+           "combined_model", "with_azimuth_phases", "elevation_rows", "MAX_RATIO", "MAX_STEP_DEG", "MAX_STEP_COLUMNS", "EMBREE_GAP", "WEAK_RATIO"]
 
 #: a triangle's ranges (from its frame's origin) differ by at most this share of the nearest
 MAX_RATIO = 0.3
@@ -73,6 +75,10 @@ MAX_STEP_DEG = 0.4
 #: frame: the road far off, or a skin from an edge to what lies behind it): a ray takes it only where
 #: no frame's mesh gives it a strong one
 WEAK_RATIO = 0.1
+#: every this many points of a frame fitted for its own lasers' lines (frame_ray_model)
+FIT_STRIDE = 8
+#: every this many points of a frame cast for the range biases (mesh_range_bias)
+BIAS_STRIDE = 8
 #: rounds of the range biases' fit against meshes that hold the same lasers' points (mesh_range_bias)
 BIAS_ROUNDS = 1
 #: the first-peak gap over the frames' surfaces (m): the frames' meshes of one surface lie within it
@@ -146,13 +152,39 @@ def _unbiased(points, beams, model: RayModel | None):
     return p - bias[:, None] * d
 
 
+def _step_deg(columns) -> float:
+    """A triangle's azimuth reach (degrees) for a sensor of ``columns`` a turn (:data:`MAX_STEP_COLUMNS`;
+    :data:`MAX_STEP_DEG` where not given)."""
+    return MAX_STEP_DEG if not columns else MAX_STEP_COLUMNS * 360.0 / columns
+
+
+def _mesh(points, beams, pose, rows, model, step_deg, max_ratio, weak_ratio):
+    """One frame's ``(scene, faces, raw, weak)`` (:meth:`MeshFrames.add`); ``rows`` each point's ring in
+    elevation order (None: ``beams`` are)."""
+    ring = np.asarray(beams if rows is None else rows, np.int64)
+    faces = frame_mesh(points, ring, int(ring.max()) + 1 if len(ring) else 0, max_ratio, step_deg)
+    P = np.asarray(pose, np.float64)
+    local = _unbiased(points, beams, model)
+    world = rotate(local, P[:3, :3]) + P[:3, 3]
+    scene = RayScene.triangles(world, faces) if len(faces) else None
+    # a raw mesh keeps its vertices' lasers: the cast takes their biases out of its hits
+    raw = np.asarray(beams, np.int64) if model is None or model.range_bias is None else None
+    weak = None
+    if weak_ratio is not None and len(faces):
+        r = np.linalg.norm(np.asarray(points, np.float64), axis=1)[faces]
+        weak = np.ptp(r, axis=1) > weak_ratio * r.min(axis=1)
+    return scene, faces, raw, weak
+
+
 class MeshFrames:
     """The Embree scenes of frames' meshes in the world frame, one a frame, built once each
     (:meth:`add`) and cast into by every target that holds them (:func:`cast_embree_rays`)."""
 
     def __init__(self, max_ratio: float = MAX_RATIO, max_step_deg: float | None = None,
-                 weak_ratio: float | None = WEAK_RATIO):
+                 weak_ratio: float | None = WEAK_RATIO, on_cache: bool = False):
         self.max_ratio, self.max_step_deg, self.weak_ratio = max_ratio, max_step_deg, weak_ratio
+        #: raw meshes held on the frames cache instead (:func:`union_meshes`, :func:`frame_surface`)
+        self.on_cache = on_cache
         self._scenes: dict = {}
 
     def add(self, key, points, beams, pose, n_beams: int, model: RayModel | None = None, offset: int = 0,
@@ -162,20 +194,10 @@ class MeshFrames:
         ``columns``: its sensor's columns a turn (a triangle's azimuth reach: :data:`MAX_STEP_COLUMNS`;
         without, ``max_step_deg`` or :data:`MAX_STEP_DEG`)."""
         if key not in self._scenes:
-            step = self.max_step_deg if self.max_step_deg is not None else \
-                MAX_STEP_DEG if not columns else MAX_STEP_COLUMNS * 360.0 / columns
-            faces = frame_mesh(points, beams, n_beams, self.max_ratio, step)
-            P = np.asarray(pose, np.float64)
-            local = _unbiased(points, beams, model)
-            world = rotate(local, P[:3, :3]) + P[:3, 3]
-            scene = RayScene.triangles(world, faces) if len(faces) else None
-            # a raw mesh keeps its vertices' lasers: the cast takes their biases out of its hits
-            raw = np.asarray(beams, np.int64) if model is None or model.range_bias is None else None
-            weak = None
-            if self.weak_ratio is not None and len(faces):
-                r = np.linalg.norm(np.asarray(points, np.float64), axis=1)[faces]
-                weak = np.ptp(r, axis=1) > self.weak_ratio * r.min(axis=1)
-            self._scenes[key] = (scene, faces, raw, weak)
+            step = self.max_step_deg if self.max_step_deg is not None else _step_deg(columns)
+            b = np.asarray(beams, np.int64)
+            self._scenes[key] = _mesh(points, b, pose, np.where(b < n_beams, b, -1), model, step, self.max_ratio,
+                                      self.weak_ratio)
         scene, faces, raw, weak = self._scenes[key]
         return scene, faces, offset, raw, weak
 
@@ -293,6 +315,25 @@ def cast_embree_rays(points, pattern, model: RayModel | None = None, motion=(0.0
     return PulseReturns(keys[win].astype(np.int64), ranges[win], hit[win], index[win])
 
 
+def fill_missing(ret: PulseReturns, points, pattern, least: int = 1, gap: float = FPA_GAP) -> PulseReturns:
+    """``ret`` with the pulses it misses (no mesh met) that hold at least ``least`` of the union's
+    ``points`` (the target's frame) given their first-peak average
+    (:func:`~slr_ray.sequence.estimators.fpa_returns`): the gaps of the meshes (depth jumps, rings
+    too far apart) filled from the union. On the KITTI frames it trades depth and drop accuracy for
+    coverage (the real frame's side of the Chamfer distance; docs/sequences.md)."""
+    if least < 1 or not len(points):
+        return ret
+    f = fpa_returns(points, pattern, gap)
+    keys, _ = pattern.pulse_ids(points, np.zeros(3))
+    keys = keys[keys >= 0]
+    held = np.searchsorted(np.sort(keys), f.keys, side="right") - np.searchsorted(np.sort(keys), f.keys)
+    add = np.flatnonzero((held >= least) & ~np.isin(f.keys, ret.keys))
+    k = np.concatenate([ret.keys, f.keys[add]])
+    o = np.argsort(k, kind="stable")
+    return PulseReturns(k[o], np.concatenate([ret.ranges, f.ranges[add]])[o],
+                        np.concatenate([ret.points, f.points[add]])[o], np.concatenate([ret.index, f.index[add]])[o])
+
+
 def mesh_range_bias(model: RayModel, frames, surfaces, stride: int = 8, reach: float = 0.2,
                     rounds: int = BIAS_ROUNDS) -> RayModel:
     """``model`` with each laser's range bias measured against meshes: ``frames`` ``(points, beams, pose,
@@ -303,32 +344,46 @@ def mesh_range_bias(model: RayModel, frames, surfaces, stride: int = 8, reach: f
     ``reach``). The meshes hold the same lasers' points of the other frames: one round sees a part of
     a laser's bias, the next rounds (``rounds`` in all, the hits cast once) the rest. One frame: no
     bias."""
-    L = len(model.elevation)
     if len(frames) < 2:
         return model
     casts = []
     for j, (p, beams, pose, motion) in enumerate(frames):
-        p = np.asarray(p, np.float64)[::stride]
-        lasers = np.asarray(beams, np.int64)[::stride]
-        origin = sweep_offsets(p, motion, model.skew)
-        origin[:, 2] += model.height[lasers]
-        dv = p - origin
-        r = np.linalg.norm(dv, axis=1)
-        dv /= r[:, None]
-        P = np.asarray(pose, np.float64)
-        ow, dw = rotate(origin, P[:3, :3]) + P[:3, 3], rotate(dv, P[:3, :3])
         rest = [s for i, s in enumerate(surfaces) if i != j and s[0] is not None]
-        hits = [(scene.intersect_each(ow, dw, tnear=TNEAR), faces, raw) for scene, faces, _, raw, _ in rest]
+        lasers, r, ow, dw = _bias_rays(model, p, beams, pose, motion, stride)
+        hits = []
+        for scene, faces, _, raw, _ in rest:
+            h = scene.intersect_each(ow, dw, tnear=TNEAR)
+            hits.append((h.distances, h.primitives, faces, raw))
         casts.append((lasers, r, hits))
+    return dataclasses.replace(model, range_bias=_biases(casts, len(model.elevation), reach, rounds))
+
+
+def _bias_rays(model: RayModel, points, beams, pose, motion, stride: int):
+    """A frame's every ``stride``-th point as a ray along its laser from its firing point (world): its
+    lasers, ranges, origins and directions."""
+    p = np.asarray(points, np.float64)[::stride]
+    lasers = np.asarray(beams, np.int64)[::stride]
+    origin = sweep_offsets(p, motion, model.skew)
+    origin[:, 2] += model.height[lasers]
+    dv = p - origin
+    r = np.linalg.norm(dv, axis=1)
+    dv /= np.maximum(r, 1e-9)[:, None]
+    P = np.asarray(pose, np.float64)
+    return lasers, r, rotate(origin, P[:3, :3]) + P[:3, 3], rotate(dv, P[:3, :3])
+
+
+def _biases(casts, L: int, reach: float, rounds: int) -> np.ndarray:
+    """Each laser's range bias from ``casts`` (``(lasers, ranges, hits)`` a frame, ``hits`` its rays'
+    ``(distances, primitives, faces, raw)`` on each other frame's mesh): :func:`mesh_range_bias`."""
     bias = np.zeros(L)
     for _ in range(max(1, int(rounds))):
         along_all, laser_all = [], []
         for lasers, r, hits in casts:
             t = np.full((len(r), max(len(hits), 1)), np.inf)
-            for k, (h, faces, raw) in enumerate(hits):
-                t[:, k] = h.distances
+            for k, (dist, prims, faces, raw) in enumerate(hits):
+                t[:, k] = dist
                 if raw is not None:
-                    _debias(t[:, k], h.primitives, faces, raw, bias)
+                    _debias(t[:, k], prims, faces, raw, bias)
             along = r - _first_peak(t, FPA_GAP)[0]
             ok = np.isfinite(along) & (np.abs(along) < reach)
             along_all.append(along[ok])
@@ -341,7 +396,7 @@ def mesh_range_bias(model: RayModel, frames, surfaces, stride: int = 8, reach: f
         lo, hi = starts[:-1] + (n - 1) // 2, starts[:-1] + n // 2  # each laser's median
         bias = np.where(n >= 50, 0.5 * (along[np.minimum(lo, len(along) - 1)] + along[np.minimum(hi, len(along) - 1)]),
                         0.0)
-    return dataclasses.replace(model, range_bias=bias)
+    return bias
 
 
 def frame_beams(frame, base, seq=None):
@@ -354,26 +409,101 @@ def frame_beams(frame, base, seq=None):
     return scan_order_beams(frame.points, base.n_beams)
 
 
+def _base_key(base) -> tuple:
+    return base.name, base.shape, tuple(np.round(np.asarray(base.elevation_deg, np.float64), 9).tolist())
+
+
+def frame_points_beams(cache, i: int, base) -> tuple[np.ndarray, np.ndarray | None, bool]:
+    """Frame ``i``'s points in its own axes, their rings and whether they are known (its ``ring``
+    field, its scan order); not known: the rows of ``base``'s table its points fall in (None where
+    it has no point). Held on ``cache`` while it holds the frame."""
+    def make():
+        f, _ = cache.get(int(i))
+        pts = cache.own_points(int(i))
+        beams = frame_beams(f, base, cache.seq)  # a ring field checked against base, naming the file
+        if beams is not None:
+            return pts, beams, True
+        if not len(pts):
+            return pts, None, False
+        keys, _ = base.pulse_ids(pts, np.zeros(3))
+        return pts, np.where(keys >= 0, keys // base.columns, -1), False
+
+    return cache.state(int(i), ("embree-rays beams", _base_key(base)), make)
+
+
+def _selection_key(drop_moving, see_through, exclude, i):
+    # what a frame's kept points depend on: the excluded frames only where they vote (see-through)
+    excl = tuple(sorted(int(e) for e in exclude if e != i)) if see_through is not None else ()
+    return bool(drop_moving), see_through.key if see_through else None, excl
+
+
+def elevation_rows(points, beams) -> np.ndarray:
+    """Each point's ring ranked by its ring's mean elevation in the frame, highest 0 (-1 stays -1): a
+    ring's mesh joins the rings next to it in elevation, whatever their ids (a unit's ring ids need
+    not be in elevation order)."""
+    p = np.asarray(points, np.float64)
+    b = np.asarray(beams, np.int64)
+    ok = b >= 0
+    if not ok.any():
+        return b
+    n = int(b[ok].max()) + 1
+    el = np.arctan2(p[ok, 2], np.hypot(p[ok, 0], p[ok, 1]))
+    cnt = np.bincount(b[ok], minlength=n)
+    mean = np.where(cnt > 0, np.bincount(b[ok], el, n) / np.maximum(cnt, 1), -np.inf)
+    rank = np.empty(n, np.int64)
+    rank[np.argsort(-mean, kind="stable")] = np.arange(n)
+    return np.where(ok, rank[np.maximum(b, 0)], -1)
+
+
+def frame_surface(cache, i: int, base, drop_moving: bool = True, see_through=None, exclude=(),
+                  max_ratio: float = MAX_RATIO, weak_ratio: float | None = WEAK_RATIO) -> tuple:
+    """Frame ``i``'s raw mesh (:meth:`MeshFrames.add` without a model: its kept points, its rings):
+    ``(scene, faces, raw, weak, points)``, ``points`` how many it kept (None scene: no ring known or
+    no triangle). Built once while ``cache`` holds the frame, for every target and model."""
+    i = int(i)
+    keep, _ = cache.selection(i, drop_moving, see_through, exclude)
+    key = ("embree-rays mesh", _base_key(base), _selection_key(drop_moving, see_through, exclude, i), max_ratio,
+           weak_ratio)
+
+    def make():
+        f, _ = cache.get(i)
+        pts, beams, known = frame_points_beams(cache, i, base)
+        if keep is not None:
+            pts, beams = pts[keep], None if beams is None else beams[keep]
+        if beams is None:
+            return None, np.zeros((0, 3), np.int64), None, None, len(pts)
+        rows = elevation_rows(pts, beams) if known else beams
+        return _mesh(pts, beams, f.pose, rows, None, _step_deg(base.columns), max_ratio,
+                     weak_ratio) + (len(pts),)
+
+    return cache.state(i, key, make)
+
+
 def union_meshes(cache, frames, base, model: RayModel | None = None, drop_moving: bool = True, see_through=None,
                  exclude=(), meshes: MeshFrames | None = None) -> list:
-    # model None: raw meshes (the same for every model: reusable across targets), the biases taken out
-    # of the hits by cast_embree_rays; a model: its biases taken out of the vertices
     """The surfaces of ``frames`` (sequence indices, in the union's order: ``offset`` of each frame's
     first point in :func:`~slr_ray.sequence.union.accumulate`'s union of them) for
     :func:`cast_embree_rays`: each frame's kept points meshed by its rings (``base``'s beam count), its
-    lasers' range biases (``model``) taken out. ``meshes`` keeps them between targets (a frame's
-    mesh is built once). A frame whose rings are not known (no ``ring`` field, not in scan order) is
-    meshed by the rows of ``base``'s table its points fall in."""
-    meshes = meshes if meshes is not None else MeshFrames()
+    lasers' range biases (``model``) taken out. Without a model the raw meshes (the same for every
+    model; the cast takes the biases out of the hits) are held on ``cache`` (:func:`frame_surface`:
+    built once while it holds the frame; ``meshes`` of ``on_cache`` gives their settings); ``meshes``
+    keeps them instead (and those of a model). A
+    frame whose rings are not known (no ``ring`` field, not in scan order) is meshed by the rows of
+    ``base``'s table its points fall in."""
     out, offset = [], 0
     for i in frames:
-        f, _ = cache.get(int(i))
-        keep, _ = cache.selection(int(i), drop_moving, see_through, exclude)
-        pts = cache.own_points(int(i))
-        beams = frame_beams(f, base, cache.seq)
-        if beams is None and len(pts):  # rings not known: each point's row of the base table
-            keys, _ = base.pulse_ids(pts, np.zeros(3))
-            beams = np.where(keys >= 0, keys // base.columns, -1)
+        i = int(i)
+        if model is None and (meshes is None or meshes.on_cache):
+            held = meshes or MeshFrames()
+            scene, faces, raw, weak, n = frame_surface(cache, i, base, drop_moving, see_through, exclude,
+                                                       held.max_ratio, held.weak_ratio)
+            out.append((scene, faces, offset, raw, weak))
+            offset += n
+            continue
+        meshes = meshes if meshes is not None and not meshes.on_cache else MeshFrames()
+        f, _ = cache.get(i)
+        keep, _ = cache.selection(i, drop_moving, see_through, exclude)
+        pts, beams, _ = frame_points_beams(cache, i, base)
         if keep is not None:
             pts = pts[keep]
             beams = None if beams is None else beams[keep]
@@ -381,36 +511,130 @@ def union_meshes(cache, frames, base, model: RayModel | None = None, drop_moving
             out.append((None, np.zeros((0, 3), np.int64), offset, None, None))
         else:
             bias = None if model is None or model.range_bias is None else model.range_bias.tobytes()
-            key = (int(i), bias, len(pts), model.height.tobytes() if bias else None)
+            key = (i, bias, len(pts), model.height.tobytes() if bias else None)
             out.append(meshes.add(key, pts, beams, f.pose, base.n_beams, model, offset, base.columns))
         offset += len(pts)
     return out
 
 
-def fit_embree_model(seq, others, base, cache, meshes: MeshFrames | None = None,
-                     drop_moving: bool = True, see_through=None, exclude=()) -> tuple[RayModel, list]:
-    """``rays``' sensor fitted on the frames ``others`` (never a held-out one): each laser's line and
-    the sweep's skew (:func:`~slr_ray.sequence.rays.fit_ray_model`) on their own points, each laser's
-    range bias against the other frames' raw meshes (:func:`mesh_range_bias`); and the frames' raw
-    meshes (:func:`union_meshes`, the union's order), which :func:`cast_embree_rays` casts into.
-    Frames whose beams are not known are left out of the fit; none known: ``base``'s ideal rays.
-    ``meshes`` keeps the frames' meshes between targets (a sliding window builds each once)."""
-    surfaces = union_meshes(cache, others, base, None, drop_moving, see_through, exclude, meshes)
-    frames, known_surfaces, unknown = [], [], []
+def frame_ray_model(cache, seq, i: int, base) -> RayModel | None:
+    """Frame ``i``'s own lasers' lines and sweep skew (:func:`~slr_ray.sequence.rays.fit_ray_model` on its
+    points alone), None where its rings are not known; held on ``cache`` while it holds the frame."""
+    def make():
+        pts, beams, known = frame_points_beams(cache, i, base)
+        if not known or not len(pts):
+            return None
+        ok = beams >= 0
+        try:
+            return fit_ray_model([(pts[ok], beams[ok], frame_motion(seq.poses, int(i)))], base.n_beams,
+                                 stride=FIT_STRIDE)
+        except InputValueError:  # too few points on its lasers
+            return None
+
+    return cache.state(int(i), ("embree-rays model", _base_key(base)), make)
+
+
+def with_azimuth_phases(model: RayModel, cache, frames, base, columns: int) -> RayModel:
+    """``model`` with where in its column each laser fires (``columns`` a turn) from the frames' own
+    points (:func:`~slr_ray.sequence.rays.fit_azimuth_phases`; each frame's phasor sums held on
+    ``cache``); frames whose beams are not known left out; none: ``model`` as it is."""
+    acc, cnt = np.zeros(base.n_beams, complex), np.zeros(base.n_beams)
+    D = 2 * math.pi / int(columns)
+    for i in frames:
+        pts, beams, known = frame_points_beams(cache, int(i), base)
+        if not known or not len(pts):
+            continue
+
+        def make(pts=pts, beams=beams):  # fit_azimuth_phases' sums, a frame's
+            ok = beams >= 0
+            b = beams[ok]
+            ph = np.exp(1j * int(columns) * (np.arctan2(pts[ok, 1], pts[ok, 0]) - 0.5 * D))
+            return (np.bincount(b, ph.real, base.n_beams)[:base.n_beams]
+                    + 1j * np.bincount(b, ph.imag, base.n_beams)[:base.n_beams],
+                    np.bincount(b, minlength=base.n_beams)[:base.n_beams].astype(np.float64))
+
+        a, c = cache.state(int(i), ("embree-rays phasors", _base_key(base), int(columns)), make)
+        acc, cnt = acc + a, cnt + c
+    if not cnt.any():
+        return model
+    coherence = np.abs(acc) / np.maximum(cnt, 1)
+    offset = np.where((coherence >= PHASE_COHERENCE) & (cnt >= 20), np.angle(acc) * D / (2 * math.pi), 0.0)
+    return dataclasses.replace(model, azimuth_offset=offset)
+
+
+def combined_model(models) -> RayModel:
+    """One sensor from frames' own fits: each laser's elevation and height, the skew, the median over
+    the frames."""
+    if len(models) == 1:
+        return models[0]
+    med = [np.median(np.stack([getattr(m, n) for m in models]), axis=0)
+           for n in ("elevation", "height", "azimuth_offset")]
+    return RayModel(*med, float(np.median([m.skew for m in models])) + 0.0, "fitted",
+                    round(float(np.median([m.residual_deg for m in models])), 5))
+
+
+def _frame_bias_casts(cache, seq, j: int, model: RayModel, base, targets, surfaces, sel):
+    """Frame ``j``'s every :data:`BIAS_STRIDE`-th point cast along its laser (``model``, its own fit) onto each
+    frame of ``targets``' raw mesh (``surfaces``); each frame pair's hits held on ``cache`` with ``j``."""
+    def rays():
+        pts, beams, _ = frame_points_beams(cache, j, base)
+        ok = beams >= 0
+        f, _ = cache.get(j)
+        return _bias_rays(model, pts[ok], beams[ok], f.pose, frame_motion(seq.poses, j), BIAS_STRIDE)
+
+    lasers, r, ow, dw = cache.state(j, ("embree-rays bias rays", _base_key(base)), rays)
+    hits = []
+    for k, (scene, faces, _, raw, _) in zip(targets, surfaces):
+        if k == j or scene is None:
+            continue
+
+        def cast(scene=scene):
+            h = scene.intersect_each(ow, dw, tnear=TNEAR)
+            return h.distances, h.primitives
+
+        dist, prims = cache.state(j, ("embree-rays bias cast", int(k), _base_key(base), sel), cast)
+        hits.append((dist, prims, faces, raw))
+    return lasers, r, hits
+
+
+def fit_embree_model(seq, others, base, cache, drop_moving: bool = True, see_through=None, exclude=(),
+                     joint: bool = False) -> tuple[RayModel, list]:
+    """``rays``' sensor fitted on the frames ``others`` (never a held-out one) and their raw meshes
+    (:func:`union_meshes`, the union's order), which :func:`cast_embree_rays` casts into. Each frame's
+    lasers' lines and sweep skew fitted on its own points (:func:`frame_ray_model`), the median over
+    ``others``; each laser's range bias against the other frames' raw meshes (:func:`mesh_range_bias`,
+    each frame's points cast along its own fit's rays). Each frame's fit, mesh and casts are held on
+    ``cache`` (:meth:`~slr_ray.sequence.union.FrameCache.state`): a sequence's held-out frames and a conversion's targets fit and mesh
+    each frame once. ``joint``: the lines fitted on all of ``others``' points together (``rays``'
+    fit; nothing held but the meshes). Frames whose beams are not known are left out of the fit;
+    none known: ``base``'s ideal rays."""
+    surfaces = union_meshes(cache, others, base, None, drop_moving, see_through, exclude)
+    known, unknown = [], []
     for i, surface in zip(others, surfaces):
-        f, _ = cache.get(int(i))
-        b = frame_beams(f, base, cache.seq)
-        if b is None or not len(f.points):
+        _, b, ok = frame_points_beams(cache, int(i), base)
+        model = None if joint or not ok else frame_ray_model(cache, seq, int(i), base)
+        if not ok or (not joint and model is None):
             unknown.append(seq.names[int(i)])
             continue
-        known = b >= 0
-        frames.append((f.points[known], b[known], f.pose, frame_motion(seq.poses, int(i))))
-        known_surfaces.append(surface)
+        known.append((int(i), surface, model))
     if unknown:
         warnings.warn(f"frame(s) {', '.join(unknown)}: beams not known (no ring field, not in {base.name}'s scan "
                       f"order of {base.n_beams} rings): left out of the rays' fit, meshed by the table's rows"
-                      + ("" if frames else "; the table's ideal rays cast"), SlrWarning, stacklevel=2)
-    if not frames:
+                      + ("" if known else "; the table's ideal rays cast"), SlrWarning, stacklevel=2)
+    if not known:
         return pattern_ray_model(base), surfaces
-    model = fit_ray_model([(p, b, v) for p, b, _, v in frames], base.n_beams)
-    return mesh_range_bias(model, frames, known_surfaces), surfaces
+    if joint:
+        frames = []
+        for i, _, _ in known:
+            pts, b, _ = frame_points_beams(cache, i, base)
+            ok = b >= 0
+            frames.append((pts[ok], b[ok], cache.get(i)[0].pose, frame_motion(seq.poses, i)))
+        model = fit_ray_model([(p, b, v) for p, b, _, v in frames], base.n_beams)
+        return mesh_range_bias(model, frames, [s for _, s, _ in known], BIAS_STRIDE), surfaces
+    model = combined_model([m for _, _, m in known])
+    if len(known) < 2:
+        return model, surfaces
+    sel = _selection_key(drop_moving, see_through, exclude, -1)
+    idx, surf = [i for i, _, _ in known], [s for _, s, _ in known]
+    casts = [_frame_bias_casts(cache, seq, j, m, base, idx, surf, sel) for j, _, m in known]
+    return dataclasses.replace(model, range_bias=_biases(casts, base.n_beams, 0.2, BIAS_ROUNDS)), surfaces

@@ -144,6 +144,7 @@ class FrameCache:
         if key not in self._states:
             self._states[key] = method.sequence_state(self.seq, self, options)
         return self._states[key]
+        self._state: dict = {}
 
     def get(self, i: int) -> tuple[Frame, np.ndarray]:
         if i in self._held:
@@ -156,9 +157,19 @@ class FrameCache:
         self._held[i] = item
         while len(self._held) > self.size:
             gone, _ = self._held.popitem(last=False)
-            for d in (self._kept, self._views, self._discs):
+            for d in (self._kept, self._views, self._discs, self._state):
                 d.pop(gone, None)
         return item
+
+    def state(self, i: int, key, make):
+        """What a method derives from frame ``i`` (``make()``, its meshes, its own fit: a method's
+        per-frame state), made once while the frame is held and gone with it; ``key`` names it
+        (the method and its settings)."""
+        self.get(i)
+        held = self._state.setdefault(i, {})
+        if key not in held:
+            held[key] = make()
+        return held[key]
 
     def own_points(self, i: int) -> np.ndarray:
         """Frame ``i``'s points in its own axes (float64; from the world ones where not kept)."""

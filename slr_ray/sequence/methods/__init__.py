@@ -13,7 +13,7 @@ from __future__ import annotations
 from collections.abc import Mapping
 
 from ...errors import InputValueError
-from . import adjacent, embree_knn, embree_sources, fpa, nearest, rays, tsdf, zbuffer
+from . import adjacent, embree_knn, embree_rays, embree_sources, fpa, nearest, rays, tsdf, zbuffer
 from .adjacent import adjacent_frame
 from .base import FirstPeakOptions, HeldOut, MethodOptions, NoOptions, RaysOptions, SequenceMethod, TargetFrame
 from .rays import holdout_ray_model
@@ -25,7 +25,8 @@ __all__ = ["REGISTRY", "LABELS", "SequenceMethod", "MethodOptions", "NoOptions",
 #: name -> method, in the order of the tables' rows
 REGISTRY: dict[str, SequenceMethod] = {m.name: m for m in (zbuffer.METHOD, adjacent.METHOD, nearest.METHOD,
                                                            fpa.METHOD, rays.METHOD, embree_knn.METHOD,
-                                                           embree_sources.METHOD, tsdf.METHOD)}
+                                                           embree_sources.METHOD, tsdf.METHOD,
+                                                           embree_rays.METHOD)}
 
 
 class _Labels(Mapping):

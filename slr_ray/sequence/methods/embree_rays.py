@@ -1,0 +1,105 @@
+"""``embree-rays``: ``rays``' fitted sensor cast with Embree onto each source frame's ring mesh
+(:mod:`slr_ray.sequence.embree_rays`). For a held-out frame the sensor is fitted on the *other* frames
+of its window (each frame's own fit, the median; the range biases against the other frames' meshes);
+a conversion casts the target table's own rays. Each frame's mesh, fit and casts are per-frame state
+on the frames cache: a sequence builds each once."""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+from typing import ClassVar
+
+import numpy as np
+
+from ...errors import InputValueError
+from ..embree_rays import (EMBREE_GAP, MAX_RATIO, WEAK_RATIO, MeshFrames, cast_embree_rays, fill_missing,
+                           fit_embree_model, union_meshes, with_azimuth_phases)
+from ..rays import frame_motion, pattern_ray_model
+from ..union import to_frame
+from .base import HeldOut, MethodOptions, SequenceMethod, TargetFrame
+
+__all__ = ["EmbreeRaysOptions", "EmbreeRays", "METHOD"]
+
+
+@dataclass(frozen=True)
+class EmbreeRaysOptions(MethodOptions):
+    """The ``embree-rays`` method's settings (:func:`~slr_ray.sequence.embree_rays.cast_embree_rays`).
+
+    Attributes
+    ----------
+    gap : float
+        The first-peak gap over the frames' meshes (m): the return is the mean of the frames' hits
+        within it of the nearest.
+    max_ratio : float
+        A mesh triangle's ranges (from its frame's origin) differ by at most this share of the nearest.
+    weak_ratio : float
+        A triangle whose ranges differ by more than this share of the nearest is weak: a ray takes it
+        only where no frame's mesh has a strong one (0: no weak rule).
+    fill : int
+        Pulses no mesh meets that hold at least this many union points take the union's first-peak
+        average (0: none; 1: every such pulse: more coverage, less depth and drop accuracy).
+    """
+
+    PREFIX: ClassVar[str] = "embree_rays"
+    gap: float = EMBREE_GAP
+    max_ratio: float = MAX_RATIO
+    weak_ratio: float = WEAK_RATIO
+    fill: int = 0
+
+    def check(self) -> None:
+        for name in ("gap", "max_ratio"):
+            v = getattr(self, name)
+            if not (isinstance(v, (int, float)) and v > 0):
+                raise InputValueError(f"--embree-rays-{name.replace('_', '-')} must be > 0, got {v}")
+        if not (isinstance(self.weak_ratio, (int, float)) and 0 <= self.weak_ratio):
+            raise InputValueError(f"--embree-rays-weak-ratio must be >= 0, got {self.weak_ratio}")
+        if not (isinstance(self.fill, (int, np.integer)) and self.fill >= 0):
+            raise InputValueError(f"--embree-rays-fill must be a count >= 0, got {self.fill}")
+
+    @property
+    def weak(self):
+        return self.weak_ratio or None
+
+    @property
+    def meshes(self) -> MeshFrames:
+        """The frames' raw meshes of these settings, held on the frames cache."""
+        return MeshFrames(self.max_ratio, weak_ratio=self.weak, on_cache=True)
+
+
+class EmbreeRays(SequenceMethod):
+    """The fitted sensor's rays cast by Embree onto the frames' ring meshes (reported as ``ray_model``
+    for a held-out frame); a conversion casts the target table's own rays (no motion). Needs the
+    frames' own sensor: its rings make the meshes."""
+
+    name = "embree-rays"
+    label = "the fitted sensor cast with Embree onto the frames' ring meshes"
+    options = EmbreeRaysOptions
+    needs_source_sensor = True
+    source_why = "their meshes join their own sensor's rings"
+    info = "ray_model"
+
+    def simulate(self, held: HeldOut, options: EmbreeRaysOptions):
+        model, surfaces = fit_embree_model(held.seq, held.others, held.base, held.cache, held.drop_moving,
+                                           held.see_through, (held.target,))
+        if model.source == "fitted":  # where in its column each laser fires (an Ouster's at the edge)
+            model = with_azimuth_phases(model, held.cache, held.others, held.base, held.pattern.columns)
+        if (options.max_ratio, options.weak) != (MAX_RATIO, WEAK_RATIO):  # the fit's biases on the defaults' meshes
+            surfaces = union_meshes(held.cache, held.others, held.base, None, held.drop_moving, held.see_through,
+                                    (held.target,), options.meshes)
+        ret = cast_embree_rays(held.u, held.pattern, model, frame_motion(held.seq.poses, held.target), options.gap,
+                               surfaces=surfaces, pose=held.pose)
+        ret = fill_missing(ret, held.u, held.pattern, options.fill)
+        return ret, ret.points, model.to_dict()
+
+    def convert_frame(self, frame: TargetFrame, options: EmbreeRaysOptions):
+        union = frame.union()
+        surfaces = union_meshes(frame.cache, frame.frames, frame.source, None, frame.drop_moving,
+                                frame.see_through, (), options.meshes)
+        u = to_frame(union.points, frame.pose)
+        ret = cast_embree_rays(u, frame.pattern, pattern_ray_model(frame.pattern), gap=options.gap, surfaces=surfaces,
+                               pose=frame.pose)
+        ret = fill_missing(ret, u, frame.pattern, options.fill)
+        return ret, {n: v[ret.index] for n, v in union.attributes.items()}
+
+
+METHOD = EmbreeRays()
