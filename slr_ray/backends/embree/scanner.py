@@ -22,7 +22,7 @@ from .fit import fit_primary_pattern, fitted_grid_holds
 from .discs import (PULSE_REACH_CAP, chunk_normals, disc_radii, fallback_directions, fan_polygons, limit_incidence,
                     neighbourhoods, pulse_centre_reach)
 from .options import EmbreeOptions, refuse_cast
-from .pulsegrid import pulse_grid_spacing_normals
+from .pulsegrid import pulse_grid_spacing_normals, require_a_scan_from
 
 __all__ = ["DiscScanner", "PRIMARY_VIEW_TOLERANCE", "same_pulse_grid"]
 
@@ -162,6 +162,8 @@ class DiscScanner(Scanner):
         # float32, Embree's precision (4 B a point instead of 8: 0.8 GB on a 209 M-point primary); for
         # the embree engine written straight into the radius column of Embree's vertex buffer (shared)
         step("disc radii")
+        if isinstance(o.radius, str) and o.radius == "footprint" and not grid:  # the grid pass checked it
+            require_a_scan_from(pts, o.primary_origin, o.primary_grid)  # else discs as wide as crowded pulses
         r64 = disc_radii(pts, o.radius, k=o.k, radius_scale=o.radius_scale,
                          primary_origin=o.primary_origin, primary_resolution=o.primary_grid,
                          min_radius=o.min_radius, fallback_radius=o.fallback_radius, spacing=spacing)
