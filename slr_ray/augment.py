@@ -39,10 +39,10 @@ from typing import NamedTuple
 import numpy as np
 
 from . import __version__
-from .backends import (options_for, prepare, primary_from_cloud, require_rays, require_streamable,
+from .backends import (enclosed_note, options_for, prepare, primary_from_cloud, require_rays, require_streamable,
                        scanner_class)
 from .effects import Effects, effect_cloud, simulate
-from .errors import InputValueError, MissingDependencyError, OutputError, SlrError, refuse_memory
+from .errors import InputValueError, MissingDependencyError, OutputError, SlrError, SlrWarning, refuse_memory
 from .io import PointCloud, atomic_path, check_format, read_cloud, write_cloud
 from .io.manifest import (JOURNAL, MANIFEST, append_journal, refuse_strangers, refuse_theirs, resumable,
                           same_settings)
@@ -152,6 +152,9 @@ def _scan_job(job, cloud):
         scan = scanner.scan(job["origin"], pattern)
         sub = cloud.subset(scan.indices)
     sub.origin = np.asarray(job["origin"], float)
+    note = enclosed_note(scan, job["path"])  # said once for all such scans (_Told)
+    if note:
+        warnings.warn(note, SlrWarning, stacklevel=2)
     entry = {"file": Path(job["path"]).name, "position": job["position"], "height": job["height"],
              "origin": list(job["origin"]), "points": len(scan)}
     return sub, entry, t0
