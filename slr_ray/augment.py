@@ -152,11 +152,11 @@ def _scan_job(job, cloud):
         scan = scanner.scan(job["origin"], pattern)
         sub = cloud.subset(scan.indices)
     sub.origin = np.asarray(job["origin"], float)
-    note = enclosed_note(scan, job["path"])  # said once for all such scans (_Told)
-    if note:
-        warnings.warn(note, SlrWarning, stacklevel=2)
     entry = {"file": Path(job["path"]).name, "position": job["position"], "height": job["height"],
              "origin": list(job["origin"]), "points": len(scan)}
+    note = enclosed_note(scan, job["path"])
+    if note:  # said by the run, once for all such scans (_Told), as the writer's warnings are
+        entry["_warnings"] = [(note, SlrWarning)]
     return sub, entry, t0
 
 
@@ -190,7 +190,8 @@ def _write_job(job, sub, entry, t0):
     staged = [(str(stage), str(final))]
     if labels is not None and labels.exists():
         staged.insert(0, (str(labels), str(label_destinations(final)[0])))
-    return {**entry, "seconds": round(time.perf_counter() - t0, 4), "_staged": staged, "_warnings": told}
+    return {**entry, "seconds": round(time.perf_counter() - t0, 4), "_staged": staged,
+            "_warnings": entry.get("_warnings", []) + told}
 
 
 def _publish(staged, ext) -> list:
