@@ -39,10 +39,10 @@ from typing import NamedTuple
 import numpy as np
 
 from . import __version__
-from .backends import (options_for, prepare, primary_from_cloud, require_rays, require_streamable,
+from .backends import (enclosed_note, options_for, prepare, primary_from_cloud, require_rays, require_streamable,
                        scanner_class)
 from .effects import Effects, effect_cloud, simulate
-from .errors import InputValueError, MissingDependencyError, OutputError, SlrError, refuse_memory
+from .errors import InputValueError, MissingDependencyError, OutputError, SlrError, SlrWarning, refuse_memory
 from .io import PointCloud, atomic_path, check_format, read_cloud, write_cloud
 from .io.manifest import (JOURNAL, MANIFEST, append_journal, refuse_strangers, refuse_theirs, resumable,
                           same_settings)
@@ -154,6 +154,9 @@ def _scan_job(job, cloud):
     sub.origin = np.asarray(job["origin"], float)
     entry = {"file": Path(job["path"]).name, "position": job["position"], "height": job["height"],
              "origin": list(job["origin"]), "points": len(scan)}
+    note = enclosed_note(scan, job["path"])
+    if note:  # said by the run, once for all such scans (_Told), as the writer's warnings are
+        entry["_warnings"] = [(note, SlrWarning)]
     return sub, entry, t0
 
 
@@ -187,7 +190,8 @@ def _write_job(job, sub, entry, t0):
     staged = [(str(stage), str(final))]
     if labels is not None and labels.exists():
         staged.insert(0, (str(labels), str(label_destinations(final)[0])))
-    return {**entry, "seconds": round(time.perf_counter() - t0, 4), "_staged": staged, "_warnings": told}
+    return {**entry, "seconds": round(time.perf_counter() - t0, 4), "_staged": staged,
+            "_warnings": entry.get("_warnings", []) + told}
 
 
 def _publish(staged, ext) -> list:

@@ -72,6 +72,24 @@ def test_a_primary_origin_far_outside_the_cloud_is_refused_before_its_discs_are_
     assert not out.exists()
 
 
+@pytest.mark.parametrize("more", [{"orientation": "primary"}, {"neighbours": "knn"}])
+def test_footprint_discs_from_a_primary_origin_far_outside_the_cloud_are_refused(more):
+    """#48: the refusal above covered the pulse-grid path only; radius='footprint' without the grid
+    (discs facing the primary, or kNN normals) sized 8,000 points' discs from 1 km: tan(0.2 deg) x 1 km,
+    3.5 m each, every one under hundreds of others. The same crowding check refuses it; from the
+    cloud's own scanner the footprint discs stay within the pulse's width at the farthest point."""
+    import math
+
+    rng = np.random.default_rng(0)
+    pts = np.column_stack([rng.uniform(-20, 20, 8000), rng.uniform(-20, 20, 8000), rng.normal(-1.5, 0.02, 8000)])
+    for far in ([1000.0, 0, 0], [0, 300.0, 50.0]):
+        with pytest.raises(InputValueError, match=r"^primary_origin \(.*\): the cloud is no scan from there"):
+            prepare(pts, "embree", radius="footprint", primary_origin=far, primary_resolution=0.2, **more)
+    near = prepare(pts, "embree", radius="footprint", primary_origin=[0.0, 0, 0], primary_resolution=0.2, **more)
+    reach = float(np.max(np.linalg.norm(pts, axis=1)))
+    assert float(np.max(near.radii)) <= reach * math.tan(math.radians(0.2)) * (1 + 1e-6)
+
+
 def test_k_is_bounded_before_any_work_and_a_neighbour_chunk_within_its_memory_cap(monkeypatch, tmp_path, capsys):
     """#48: `--k 1000000` allocated 74 GiB before refusing. k is refused above MAX_K from the options
     alone, and the kd-tree's answers are taken a chunk at a time: distances and indices of at most

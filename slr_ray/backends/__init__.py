@@ -35,10 +35,11 @@ from .base import Backend, BackendOptions, Scanner, require_streamable, streams
 from .binning import BinningOptions, BinningScanner
 from .embree import DiscScanner, EmbreeOptions
 from .embree.fit import fit_primary_pattern
+from .embree.scanner import ENCLOSED_SHARE
 
 __all__ = ["Backend", "BACKENDS", "BackendEntry", "Scanner", "BackendOptions", "prepare", "simulate_scan",
            "options_for", "scanner_class", "backends_with", "require_rays", "require_streamable", "streams",
-           "available_backends", "BinningOptions", "EmbreeOptions", "primary_from_cloud"]
+           "available_backends", "BinningOptions", "EmbreeOptions", "primary_from_cloud", "enclosed_note"]
 
 
 class BackendEntry(NamedTuple):
@@ -181,6 +182,18 @@ def simulate_scan(points, origin, pattern, backend: str | Backend = Backend.BINN
 def available_backends() -> list[str]:
     """Backends whose dependencies load on this machine."""
     return [str(b) for b in BACKENDS if b != Backend.EMBREE or embree_available()]
+
+
+def enclosed_note(scan, name) -> str | None:
+    """What to say of a scan that stands among points (``Scan.info['enclosed_share']`` over
+    :data:`~.embree.scanner.ENCLOSED_SHARE`: a disc backend's rays stop on the discs around it), or None."""
+    share = (getattr(scan, "info", None) or {}).get("enclosed_share", 0.0)
+    if not share > ENCLOSED_SHARE:
+        return None
+    return (f"{name}: its scanner stands among points (over {ENCLOSED_SHARE:.0%} of its rays stop on discs "
+            "within two of their radii of it): the embree backend's discs are surfaces and hide what lies beyond "
+            "them, where binning sees between the points, so it keeps far fewer points than binning would "
+            "(docs/augment.md)")
 
 
 def primary_from_cloud(cloud, backend, options: dict, name) -> dict:

@@ -177,6 +177,19 @@ def _require_a_scan(sorted_keys, unseen: int, origin, primary) -> None:
             "leave them out (kNN discs)", flags={"primary_origin": "--primary-origin"})
 
 
+def require_a_scan_from(points, origin, primary) -> None:
+    """Refuse ``points`` as a scan from ``origin`` with ``primary`` (degrees or a pattern) when they crowd
+    its pulses (:data:`MAX_POINTS_PER_PULSE`): the check of the pulse-grid path, for the paths that size
+    discs from the primary without its grid (``radius='footprint'``: a disc as wide as its pulse at its
+    range, a whole pulse of points under each)."""
+    pts = np.ascontiguousarray(points, np.float64)
+    if len(pts) < MIN_POINTS_CHECKED:
+        return
+    keys, _ = _grid_pattern(primary).pulse_ids(pts, origin)
+    keys = np.sort(keys[keys >= 0])
+    _require_a_scan(keys, 0, origin, primary)
+
+
 def _grid_pattern(primary):
     """The pattern whose pulses make the pulse grid: ``primary`` (degrees or a
     pattern) as a pattern, a beam table's per-beam azimuth offsets set to 0."""
