@@ -252,10 +252,22 @@ def _debias(t, prims, faces, beams, bias):
     """Hits ``t`` on a raw mesh moved back by the mean range bias of their triangle's corners' lasers
     (in place): each corner was read that much long along its own ray, which from a nearby origin is
     nearly the cast ray."""
-    hit = np.flatnonzero(prims >= 0)
-    b = beams[faces[prims[hit]]]
-    ok = (b >= 0) & (b < len(bias))
-    t[hit] -= np.where(ok, bias[np.clip(b, 0, len(bias) - 1)], 0.0).mean(axis=1)
+    _debias_kernel(t, np.asarray(prims, np.int64), faces, beams, np.asarray(bias, np.float64))
+
+
+@njit(cache=True)
+def _debias_kernel(t, prims, faces, beams, bias):
+    L = len(bias)
+    for i in range(len(t)):
+        p = prims[i]
+        if p < 0:
+            continue
+        s = 0.0
+        for c in range(3):
+            b = beams[faces[p, c]]
+            if 0 <= b < L:
+                s += bias[b]
+        t[i] -= s / 3.0
 
 
 def _first_peak(t, gap):
@@ -285,8 +297,11 @@ def cast_embree_rays(points, pattern, model: RayModel | None = None, motion=(0.0
     dw = rotate(d, P[:3, :3])
     live = [s for s in surfaces if s[0] is not None]
     shape = (len(d), max(len(live), 1))
-    t, prims = np.full(shape, np.inf), np.full(shape, -1, np.int64)
-    ts, ps = np.full(shape, np.inf), np.full(shape, -1, np.int64)  # the first strong hit
+    if live:  # every column written below (ts, ps: the first strong hit)
+        t, prims, ts, ps = np.empty(shape), np.empty(shape, np.int64), np.empty(shape), np.empty(shape, np.int64)
+    else:
+        t, prims = np.full(shape, np.inf), np.full(shape, -1, np.int64)
+        ts, ps = t.copy(), prims.copy()  # the first strong hit
     for k, (scene, faces, _, raw, weak) in enumerate(live):
         h = scene.intersect_each(ow, dw, tnear=TNEAR)
         tk, pk = h.distances, h.primitives
@@ -321,7 +336,7 @@ def cast_embree_rays(points, pattern, model: RayModel | None = None, motion=(0.0
         index[m] = corners[np.arange(len(m)), np.argmin(dist, axis=1)]
     keys, ranges = pattern.pulse_ids(hit, np.zeros(3))
     ok = np.flatnonzero(keys >= 0)
-    o = np.lexsort((ok, ranges[ok], keys[ok]))
+    o = np.lexsort((ranges[ok], keys[ok]))  # stable: a tie stays in ray order
     kk = keys[ok][o]
     win = ok[o][np.r_[True, kk[1:] != kk[:-1]]] if len(kk) else ok[:0]
     return PulseReturns(keys[win].astype(np.int64), ranges[win], hit[win], index[win])
