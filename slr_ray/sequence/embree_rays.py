@@ -76,7 +76,7 @@ MAX_STEP_DEG = 0.4
 #: no frame's mesh gives it a strong one
 WEAK_RATIO = 0.1
 #: every this many points of a frame fitted for its own lasers' lines (frame_ray_model)
-FIT_STRIDE = 16
+FIT_STRIDE = 8
 #: every this many points of a frame cast for the range biases (mesh_range_bias)
 BIAS_STRIDE = 16
 #: rounds of the range biases' fit against meshes that hold the same lasers' points (mesh_range_bias)
