@@ -273,3 +273,32 @@ def test_rings_whose_ids_are_not_in_elevation_order_are_meshed_by_elevation():
     el = np.degrees(np.arctan2(pts[:, 2], np.hypot(pts[:, 0], pts[:, 1])))
     assert np.all(np.ptp(el[ordered], axis=1) < 4.0)   # rings 2 deg apart: neighbours only
     assert np.array_equal(elevation_rows(pts, np.full(len(pts), -1)), np.full(len(pts), -1))
+
+
+def test_weak_triangles_and_the_hits_debias_follow_their_rules():
+    """The weak flags the zipper gives (a triangle's range spread over its nearest, #46 item 4) are the
+    rule's own (ptp of the corners' ranges > weak_ratio x the nearest), and the compiled debias takes
+    the mean of the corners' lasers' biases out of each hit (a corner of no known laser: 0)."""
+    from slr_ray.sequence.embree_rays import _debias
+
+    pat = sensor("velodyne_vlp16")
+    pts, beams = _frame(pat, pattern_ray_model(pat))
+    pts = pts * np.random.default_rng(1).uniform(0.93, 1.07, (len(pts), 1))  # ranges that differ
+    scene, faces, _, raw, weak = MeshFrames().add(0, pts, beams, np.eye(4), pat.n_beams)
+    assert scene is not None and np.array_equal(faces, frame_mesh(pts, beams, pat.n_beams))
+    r = np.linalg.norm(pts, axis=1)[faces]
+    spread, near = np.ptp(r, axis=1), r.min(axis=1)
+    clear = np.abs(spread - 0.1 * near) > 1e-9 * near
+    assert 0 < weak.sum() < len(weak)
+    assert np.array_equal(weak[clear], (spread > 0.1 * near)[clear])
+    rng = np.random.default_rng(2)
+    b = raw.copy()
+    b[rng.random(len(b)) < 0.1] = -1
+    bias = rng.normal(0, 0.05, pat.n_beams)
+    prims = rng.integers(-1, len(faces), 1000)
+    t = rng.uniform(1, 50, 1000)
+    got = t.copy()
+    _debias(got, prims, faces, b, bias)
+    corner = b[faces[np.maximum(prims, 0)]]
+    want = t - np.where(prims >= 0, np.where(corner >= 0, bias[np.maximum(corner, 0)], 0.0).mean(axis=1), 0.0)
+    assert np.allclose(got, want, rtol=0, atol=1e-12)

@@ -78,7 +78,7 @@ WEAK_RATIO = 0.1
 #: every this many points of a frame fitted for its own lasers' lines (frame_ray_model)
 FIT_STRIDE = 8
 #: every this many points of a frame cast for the range biases (mesh_range_bias)
-BIAS_STRIDE = 8
+BIAS_STRIDE = 16
 #: rounds of the range biases' fit against meshes that hold the same lasers' points (mesh_range_bias)
 BIAS_ROUNDS = 1
 #: the first-peak gap over the frames' surfaces (m): the frames' meshes of one surface lie within it
@@ -88,9 +88,10 @@ TNEAR = 1.0
 
 
 @njit(cache=True)
-def _zipper(order, starts, az, rng, max_step, max_ratio, out):
+def _zipper(order, starts, az, rng, max_step, max_ratio, out, spread):
     """Triangles joining each ring (``order[starts[b]:starts[b+1]]``, by azimuth) to the next;
-    returns how many were written into ``out``."""
+    returns how many were written into ``out`` (each one's range spread over its nearest in ``spread``:
+    the weak rule's measure, made here rather than by a second pass over the faces)."""
     n = 0
     for b in range(len(starts) - 2):
         a0, a1 = starts[b], starts[b + 1]
@@ -114,6 +115,7 @@ def _zipper(order, starts, az, rng, max_step, max_ratio, out):
             if rhi - rlo > max_ratio * rlo:
                 continue
             out[n, 0], out[n, 1], out[n, 2] = p, q, r
+            spread[n] = (rhi - rlo) / rlo if rlo > 0 else 0.0
             n += 1
     return n
 
@@ -123,6 +125,11 @@ def frame_mesh(points, beams, n_beams: int, max_ratio: float = MAX_RATIO,
     """``(f, 3) int64``: the triangles of one frame's rings (module docstring); ``points`` in the
     frame's own axes, ``beams`` each point's ring (0 the highest, rings adjacent in elevation
     adjacent in number; -1: not known, left out)."""
+    return _frame_mesh(points, beams, n_beams, max_ratio, max_step_deg)[0]
+
+
+def _frame_mesh(points, beams, n_beams, max_ratio, max_step_deg):
+    """:func:`frame_mesh`'s faces and each one's range spread over its nearest range."""
     p = np.asarray(points, np.float64)
     b = np.asarray(beams, np.int64)
     if b.shape != (len(p),):
@@ -133,8 +140,9 @@ def frame_mesh(points, beams, n_beams: int, max_ratio: float = MAX_RATIO,
     order = keep[np.lexsort((az[keep], b[keep]))]
     starts = np.searchsorted(b[order], np.arange(n_beams + 1))
     out = np.empty((2 * len(order) + 4, 3), np.int64)
-    n = _zipper(order, starts, az, rng, math.radians(max_step_deg), float(max_ratio), out)
-    return out[:n]
+    spread = np.empty(len(out))
+    n = _zipper(order, starts, az, rng, math.radians(max_step_deg), float(max_ratio), out, spread)
+    return out[:n], spread[:n]
 
 
 def _unbiased(points, beams, model: RayModel | None):
@@ -162,7 +170,7 @@ def _mesh(points, beams, pose, rows, model, step_deg, max_ratio, weak_ratio):
     """One frame's ``(scene, faces, raw, weak)`` (:meth:`MeshFrames.add`); ``rows`` each point's ring in
     elevation order (None: ``beams`` are)."""
     ring = np.asarray(beams if rows is None else rows, np.int64)
-    faces = frame_mesh(points, ring, int(ring.max()) + 1 if len(ring) else 0, max_ratio, step_deg)
+    faces, spread = _frame_mesh(points, ring, int(ring.max()) + 1 if len(ring) else 0, max_ratio, step_deg)
     P = np.asarray(pose, np.float64)
     local = _unbiased(points, beams, model)
     world = rotate(local, P[:3, :3]) + P[:3, 3]
@@ -171,8 +179,7 @@ def _mesh(points, beams, pose, rows, model, step_deg, max_ratio, weak_ratio):
     raw = np.asarray(beams, np.int64) if model is None or model.range_bias is None else None
     weak = None
     if weak_ratio is not None and len(faces):
-        r = np.linalg.norm(np.asarray(points, np.float64), axis=1)[faces]
-        weak = np.ptp(r, axis=1) > weak_ratio * r.min(axis=1)
+        weak = spread > weak_ratio
     return scene, faces, raw, weak
 
 
@@ -245,10 +252,22 @@ def _debias(t, prims, faces, beams, bias):
     """Hits ``t`` on a raw mesh moved back by the mean range bias of their triangle's corners' lasers
     (in place): each corner was read that much long along its own ray, which from a nearby origin is
     nearly the cast ray."""
-    hit = np.flatnonzero(prims >= 0)
-    b = beams[faces[prims[hit]]]
-    ok = (b >= 0) & (b < len(bias))
-    t[hit] -= np.where(ok, bias[np.clip(b, 0, len(bias) - 1)], 0.0).mean(axis=1)
+    _debias_kernel(t, np.asarray(prims, np.int64), faces, beams, np.asarray(bias, np.float64))
+
+
+@njit(cache=True)
+def _debias_kernel(t, prims, faces, beams, bias):
+    L = len(bias)
+    for i in range(len(t)):
+        p = prims[i]
+        if p < 0:
+            continue
+        s = 0.0
+        for c in range(3):
+            b = beams[faces[p, c]]
+            if 0 <= b < L:
+                s += bias[b]
+        t[i] -= s / 3.0
 
 
 def _first_peak(t, gap):
@@ -278,17 +297,25 @@ def cast_embree_rays(points, pattern, model: RayModel | None = None, motion=(0.0
     dw = rotate(d, P[:3, :3])
     live = [s for s in surfaces if s[0] is not None]
     shape = (len(d), max(len(live), 1))
-    t, prims = np.full(shape, np.inf), np.full(shape, -1, np.int64)
-    ts, ps = np.full(shape, np.inf), np.full(shape, -1, np.int64)  # the first strong hit
+    if live:  # every column written below (ts, ps: the first strong hit)
+        t, prims, ts, ps = np.empty(shape), np.empty(shape, np.int64), np.empty(shape), np.empty(shape, np.int64)
+    else:
+        t, prims = np.full(shape, np.inf), np.full(shape, -1, np.int64)
+        ts, ps = t.copy(), prims.copy()  # the first strong hit
     for k, (scene, faces, _, raw, weak) in enumerate(live):
         h = scene.intersect_each(ow, dw, tnear=TNEAR)
-        t[:, k], prims[:, k] = h.distances, h.primitives
-        ts[:, k], ps[:, k] = h.distances, h.primitives
+        tk, pk = h.distances, h.primitives
+        sk, qk = tk.copy(), pk.copy()
         if weak is not None:
-            _strong(scene, weak, ow, dw, ts[:, k], ps[:, k])
+            _strong(scene, weak, ow, dw, sk, qk)
         if raw is not None and model.range_bias is not None:
-            _debias(t[:, k], prims[:, k], faces, raw, model.range_bias)
-            _debias(ts[:, k], ps[:, k], faces, raw, model.range_bias)
+            moved = np.flatnonzero(qk != pk)  # the strong hit differs from the first: debiased on its own
+            sm = sk[moved]
+            _debias(sm, qk[moved], faces, raw, model.range_bias)
+            _debias(tk, pk, faces, raw, model.range_bias)
+            sk = tk.copy()
+            sk[moved] = sm
+        t[:, k], prims[:, k], ts[:, k], ps[:, k] = tk, pk, sk, qk
     strong = np.isfinite(ts).any(axis=1)
     t[strong], prims[strong] = ts[strong], ps[strong]
     tt, first = _first_peak(t, gap)
@@ -309,7 +336,7 @@ def cast_embree_rays(points, pattern, model: RayModel | None = None, motion=(0.0
         index[m] = corners[np.arange(len(m)), np.argmin(dist, axis=1)]
     keys, ranges = pattern.pulse_ids(hit, np.zeros(3))
     ok = np.flatnonzero(keys >= 0)
-    o = np.lexsort((ok, ranges[ok], keys[ok]))
+    o = np.lexsort((ranges[ok], keys[ok]))  # stable: a tie stays in ray order
     kk = keys[ok][o]
     win = ok[o][np.r_[True, kk[1:] != kk[:-1]]] if len(kk) else ok[:0]
     return PulseReturns(keys[win].astype(np.int64), ranges[win], hit[win], index[win])
