@@ -554,6 +554,10 @@ def _augment(input_path, out, config, ground, run: _Run) -> dict:
     if not fresh:  # an extension or a resume writes only names no run recorded: any file there is another's
         refuse_theirs(jobs, out, ext)
     manifest = _manifest(settings, input_path, config, pattern, positions, cells, done)
+    given = config.backend_options or {}
+    # what the input added to the options (its primary, as `scan` takes it): settings hold the options
+    # as given, which with the input's digest decide it; this says what ran
+    manifest["backend_options_from_input"] = {k: v for k, v in backend_options.items() if k not in given}
 
     journal = out / JOURNAL
     last_write = [0.0]

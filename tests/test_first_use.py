@@ -131,6 +131,10 @@ def test_augment_with_embree_fits_a_sensor_frames_primary_as_scan_does(tmp_path)
     fitted = prepare(cloud.points, "embree", primary_origin=[0, 0, 0], primary_pattern="fit")
     for s in m["scans"]:
         assert s["points"] == len(fitted.scan(s["origin"], "velodyne_vlp16"))
+    # the manifest says what ran, not only the options given (it recorded no primary: #48 review)
+    assert m["backend_options_from_input"] == {"primary_origin": [0.0, 0.0, 0.0], "primary_pattern": "fit"}
+    on_disk = json.loads((tmp_path / "out" / "manifest.json").read_text())
+    assert on_disk["backend_options_from_input"] == m["backend_options_from_input"]
 
 
 # --- 14. a first run's numba compiling is said once, a cached kernel says nothing -------------------------------
