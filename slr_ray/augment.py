@@ -553,11 +553,7 @@ def _augment(input_path, out, config, ground, run: _Run) -> dict:
     jobs = _jobs(positions, done, out, config, run, backend_options)
     if not fresh:  # an extension or a resume writes only names no run recorded: any file there is another's
         refuse_theirs(jobs, out, ext)
-    manifest = _manifest(settings, input_path, config, pattern, positions, cells, done)
-    given = config.backend_options or {}
-    # what the input added to the options (its primary, as `scan` takes it): settings hold the options
-    # as given, which with the input's digest decide it; this says what ran
-    manifest["backend_options_from_input"] = {k: v for k, v in backend_options.items() if k not in given}
+    manifest = _manifest(settings, input_path, config, pattern, positions, cells, done, backend_options)
 
     journal = out / JOURNAL
     last_write = [0.0]
@@ -708,12 +704,16 @@ def _run_jobs(jobs, cloud, input_path, config, run: _Run, backend_options, done_
         _run_serial(jobs, cloud, done_one)
 
 
-def _manifest(settings, input_path, config, pattern, positions, cells, done) -> dict:
-    """The manifest of a run, before its new scans: the settings, the positions and the scans done."""
+def _manifest(settings, input_path, config, pattern, positions, cells, done, backend_options) -> dict:
+    """The manifest of a run, before its new scans: the settings, the positions and the scans done,
+    and what the input added to the backend's options (its primary, as `scan` takes it: the settings
+    hold the options as given, which with the input's digest decide it; this says what ran)."""
+    given = config.backend_options or {}
     return {"software": f"slr_ray {__version__}", "settings": settings, "input": str(input_path),
             "n_requested": config.n, "seed": config.seed, "pattern": pattern.to_dict(), "backend": config.backend,
             "heights": list(config.scan_heights), "effects": settings.get("effects"),
-            "positions": positions.tolist(), "stages": cells.stages, "scans": list(done.values())}
+            "positions": positions.tolist(), "stages": cells.stages, "scans": list(done.values()),
+            "backend_options_from_input": {k: v for k, v in backend_options.items() if k not in given}}
 
 
 def _clean_up(nothing_recorded, complete, jobs, manifest_path, journal, write_manifest) -> None:
