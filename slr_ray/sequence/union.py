@@ -135,6 +135,7 @@ class FrameCache:
         self._views: dict = {}
         self._discs: dict = {}
         self._states: dict = {}
+        self._state: dict = {}
 
     def method_state(self, method, options):
         """``method.sequence_state(seq, cache, options)`` built once for this cache (one sequence's
@@ -144,7 +145,6 @@ class FrameCache:
         if key not in self._states:
             self._states[key] = method.sequence_state(self.seq, self, options)
         return self._states[key]
-        self._state: dict = {}
 
     def get(self, i: int) -> tuple[Frame, np.ndarray]:
         if i in self._held:
