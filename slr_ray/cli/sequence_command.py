@@ -264,6 +264,7 @@ def sequence(args):
                                   "51 (no window)")
     args.method_options = method_options_from(args)
     method_options(args.method_options)  # every method's options checked, before anything is read
+    _unused_method_flags(args)
     if args.half is None and not (args.sequence_cmd == "evaluate" and args.protocol == "lidar4d"):
         args.half = HALF
     seq = _load(args)
@@ -300,6 +301,18 @@ def sequence(args):
             plan.write(out / name, sidecars=False, resumed=True)
         with plan:
             _convert(args, seq, out)
+
+
+def _unused_method_flags(args) -> None:
+    """A method's flag given while no method it sets is run is refused (as a backend's option is with
+    another backend), not ignored: ``--tsdf-voxel 0.1 --methods zbuffer`` would score without it."""
+    run = [args.estimator] if args.sequence_cmd == "convert" else args.methods
+    keys = option_keys()
+    for key in args.method_options:
+        if not set(keys[key][2]) & set(run):
+            flag = "--estimator" if args.sequence_cmd == "convert" else "--methods"
+            raise InputValueError(f"--{key.replace('_', '-')} does not apply to {flag} {' '.join(run)} "
+                                  f"(it sets {', '.join(keys[key][2])})")
 
 
 def _check_evaluate_output(out: Path, force: bool) -> None:
