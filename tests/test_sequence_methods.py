@@ -181,6 +181,13 @@ def test_the_library_takes_method_options_and_refuses_a_method_twice(drive):
      "--tsdf-voxel does not apply to --methods zbuffer nearest (it sets tsdf)"),
     (["convert", "--target-sensor", "velodyne_vlp16", "--embree-rays-fill", "1"],
      "--embree-rays-fill does not apply to --estimator nearest (it sets embree-rays)"),
+    (["evaluate", "--holdout", "1", "--target-sensor", "velodyne_vlp16"],
+     "--target-sensor velodyne_vlp16 without --source-sensor"),
+    (["evaluate", "--holdout", "1", "--source-sensor", "velodyne_vlp16", "--target-sensor", "velodyne_vlp16",
+      "--grid-from", "others"], "--grid-from others with --target-sensor"),
+    (["evaluate", "--holdout", "1", "--source-sensor", "velodyne_vlp16", "--target-sensor", "no_such_card.json"],
+     "--target-sensor: no_such_card.json: no such sensor card"),
+    (["convert", "--target-sensor", "no_such_card.json"], "--target-sensor: no_such_card.json: no such sensor card"),
 ])
 def test_flags_that_would_be_ignored_or_unreachable_are_refused_in_one_line(drive, tmp_path, capsys, flags,
                                                                             message):
