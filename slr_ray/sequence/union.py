@@ -134,8 +134,8 @@ class FrameCache:
         self._kept: dict = {}
         self._views: dict = {}
         self._discs: dict = {}
-        self._states: dict = {}
-        self._state: dict = {}
+        self._states: dict = {}  # a method's per-sequence state (method_state)
+        self._state: dict = {}  # per frame: what methods derive from it (state)
 
     def method_state(self, method, options):
         """``method.sequence_state(seq, cache, options)`` built once for this cache (one sequence's
