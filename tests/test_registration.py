@@ -170,6 +170,10 @@ def test_cli_evaluate_and_sequence_register_refuse_unrelated_frames_in_one_line(
     assert len(regs) == 1 and seq.pose_source == "register"
     rc = main(["evaluate", *map(str, files), "-o", str(out), "--transform", str(files[0]), "--accept-registration"])
     assert rc == 2 and "--accept-registration with --transform" in capsys.readouterr().err
+    (tmp_path / "eye.txt").write_text("1 0 0 0\n0 1 0 0\n0 0 1 0\n0 0 0 1\n")
+    rc = main(["evaluate", *map(str, files), "-o", str(out), "--transform", str(tmp_path / "eye.txt"),
+               "--min-fitness", "0.9", "--source-sensor", "velodyne_vlp16", "--beams", "none", "--quiet"])
+    assert rc == 2 and "--min-fitness with --transform" in capsys.readouterr().err  # ignored before
 
 
 @pytest.mark.skipif(not (DATA / "pump_tls.e57").exists() or not (DATA / "kitti_hdl64_000000.bin").exists(),

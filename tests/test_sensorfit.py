@@ -108,6 +108,9 @@ def test_cli_fit_writes_a_card_and_says_its_quality(tmp_path, capsys):
     out = json.loads(capsys.readouterr().out)
     assert out["beams"] == 16 and out["share_assigned"] > 0.99 and "ring field" in out["how"]
     assert sensor(str(tmp_path / "c.json")).name == "c"
+    f = str(tmp_path / "f.pcd")
+    assert main(["sensor", "fit", f, f, "-o", str(tmp_path / "d.json")]) == 2  # fitted twice over before
+    assert "named twice among the frames" in capsys.readouterr().err and not (tmp_path / "d.json").exists()
 
 
 def test_what_is_not_a_spinning_units_frame_is_refused():

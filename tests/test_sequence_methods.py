@@ -177,12 +177,34 @@ def test_the_library_takes_method_options_and_refuses_a_method_twice(drive):
      "--estimator embree-rays needs the frames' sensor (--source-sensor)"),
     (["evaluate", "--holdout", "1", "--methods", "embree-rays", "--embree-rays-gap", "0"],
      "--embree-rays-gap must be > 0"),
+    (["evaluate", "--holdout", "1", "--methods", "zbuffer", "nearest", "--tsdf-voxel", "0.1"],
+     "--tsdf-voxel does not apply to --methods zbuffer nearest (it sets tsdf)"),
+    (["convert", "--target-sensor", "velodyne_vlp16", "--embree-rays-fill", "1"],
+     "--embree-rays-fill does not apply to --estimator nearest (it sets embree-rays)"),
+    (["evaluate", "--holdout", "1", "--target-sensor", "velodyne_vlp16"],
+     "--target-sensor velodyne_vlp16 without --source-sensor"),
+    (["evaluate", "--holdout", "1", "--source-sensor", "velodyne_vlp16", "--target-sensor", "velodyne_vlp16",
+      "--grid-from", "others"], "--grid-from others with --target-sensor"),
+    (["evaluate", "--holdout", "1", "--source-sensor", "velodyne_vlp16", "--target-sensor", "no_such_card.json"],
+     "--target-sensor: no_such_card.json: no such sensor card"),
+    (["convert", "--target-sensor", "no_such_card.json"], "--target-sensor: no_such_card.json: no such sensor card"),
 ])
 def test_flags_that_would_be_ignored_or_unreachable_are_refused_in_one_line(drive, tmp_path, capsys, flags,
                                                                             message):
     r = _Run(capsys)("sequence", flags[0], drive, *flags[1:], "-o", tmp_path / "out", "--quiet")
     assert r.returncode == 2 and message in r.stderr and r.stderr.count("\n") == 1, r.stderr
     assert not (tmp_path / "out").exists()
+
+
+def test_a_held_out_frame_posed_away_from_its_window_is_refused_not_scored_empty(drive, tmp_path, capsys):
+    rows = np.loadtxt(drive / "poses.txt").reshape(-1, 12)
+    rows[1, [3, 7, 11]] += 5000.0  # frame 1 posed 8.7 km from the others: nothing of theirs in its view
+    np.savetxt(tmp_path / "far.txt", rows)
+    r = _Run(capsys)("sequence", "evaluate", drive, "--poses", tmp_path / "far.txt", "--holdout", "1", "--half", "1",
+                     "--source-sensor", "velodyne_vlp16", "--methods", "nearest", "-o", tmp_path / "out", "--quiet")
+    assert r.returncode == 2 and "frame 000001: at its pose none of the" in r.stderr, r.stderr
+    assert "the frames do not overlap there" in r.stderr and "Traceback" not in r.stderr
+    assert not (tmp_path / "out" / "evaluation.json").exists()
 
 
 def test_the_old_sensor_flag_works_with_a_line_and_a_wrong_source_sensor_is_said(drive, tmp_path, capsys):

@@ -296,7 +296,7 @@ def _evaluate_parser(sub) -> None:
                         "--transform")
     p.add_argument("--seen-threshold", type=A.positive_float, default=paper.SIMILARITY_THRESHOLD, metavar="M",
                    help="B's point is seen from A within this (m, default 0.1)")
-    p.add_argument("--min-fitness", type=float, default=REGISTRATION_BOUNDS["min_fitness"], metavar="F",
+    p.add_argument("--min-fitness", type=float, default=None, metavar="F",  # None: not given (see evaluate)
                    help="refuse a registration fitting worse: share of B's points with an A point within 0.2 m "
                         f"(default {REGISTRATION_BOUNDS['min_fitness']:g}; the other checks: --accept-registration)")
     p.add_argument("--accept-registration", action="store_true",

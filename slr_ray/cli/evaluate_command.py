@@ -17,6 +17,7 @@ from ..evaluate import EVALUATION_FILES, evaluate_pair, evaluation_table, reach_
 from ..io import read_cloud
 from ..io.outputs import LOCK_NAME, OutputPlan
 from ..plotting import evaluation_figure, save_figure
+from ..registration import REGISTRATION_BOUNDS
 from ..sensors import sensor
 from .commands import emit
 
@@ -116,8 +117,13 @@ def _foreign_files(out: Path) -> list:
 
 
 def evaluate(args):
+    given = args.min_fitness is not None  # the default is None: a bound given with B's pose is refused
+    args.min_fitness = REGISTRATION_BOUNDS["min_fitness"] if args.min_fitness is None else args.min_fitness
     if not 0 <= args.min_fitness <= 1:  # nan too
         raise InputValueError(f"--min-fitness {args.min_fitness}: a share of B's points, in [0, 1]")
+    if given and (args.transform or args.extrinsic):
+        raise InputValueError(f"--min-fitness with {'--transform' if args.transform else '--extrinsic'}: "
+                              "nothing is registered (B's pose is given)")
     if args.accept_registration and (args.transform or args.extrinsic):
         raise InputValueError(f"--accept-registration with {'--transform' if args.transform else '--extrinsic'}: "
                               "nothing is registered (B's pose is given)")

@@ -58,6 +58,12 @@ def sensor_command(args):
 def fit(args):
     if Path(args.output).suffix.lower() != ".json":
         raise InputValueError(f"-o {args.output}: a card is written as JSON (.json)")
+    seen: dict = {}
+    for f in args.frames:  # one frame given twice would weigh its beams' drop rates and ranges twice
+        r = Path(f).resolve()
+        if r in seen:
+            raise InputValueError(f"{f}: named twice among the frames (as {seen[r]})")
+        seen[r] = f
     plan = OutputPlan(force=args.force)
     for f in args.frames:
         plan.read(f, fmt=args.input_format)

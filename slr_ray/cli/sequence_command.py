@@ -11,7 +11,8 @@ from pathlib import Path
 from ..evaluate import sequence_summary, write_sequence_evaluation
 from ..io import atomic_path
 from ..io.outputs import LOCK_NAME, OutputPlan, resolve
-from ..errors import InputValueError, OutputError, SlrWarning
+from ..sensors import sensor
+from ..errors import InputValueError, OutputError, SlrError, SlrWarning
 from ..sequence import (REMOVE_MOVING, SeeThrough, convert_sequence, evaluate_sequence, read_sequence,
                         read_trajectory, register_chain, write_kitti_poses)
 from ..sequence.holdout import GRID_SOURCES, lidar4d_holdout, one_frame_refusal
@@ -217,6 +218,19 @@ def _sensors(args) -> None:
         warnings.warn(f"sequence {args.sequence_cmd} --sensor is {new} now (the old name still works)", SlrWarning,
                       stacklevel=2)
         setattr(args, dest, old)
+    for flag in ("--source-sensor", "--target-sensor"):
+        name = getattr(args, flag[2:].replace("-", "_"), None)
+        try:
+            if name is not None:
+                sensor(name)  # a card that is no card, or no file: one line now, before any frame is read
+        except SlrError as exc:
+            raise type(exc)(f"{flag}: {exc}") from None
+    if args.sequence_cmd == "evaluate" and args.target_sensor is not None and args.source_sensor is None:
+        raise InputValueError(f"--target-sensor {args.target_sensor} without --source-sensor: a target unit is "
+                              "re-simulated from the source frames' own table: name it (--source-sensor)")
+    if args.sequence_cmd == "evaluate" and args.target_sensor is not None and args.grid_from == "others":
+        raise InputValueError("--grid-from others with --target-sensor: the other frames are the source's, not the "
+                              "target unit's (use --grid-from target)")
     if args.sequence_cmd == "evaluate":
         args.scored_sensor = args.source_sensor or AUTO  # none named: spinning or terrestrial, frame by frame
         args.source_sensor = args.source_sensor or SOURCE_SENSOR
@@ -264,6 +278,7 @@ def sequence(args):
                                   "51 (no window)")
     args.method_options = method_options_from(args)
     method_options(args.method_options)  # every method's options checked, before anything is read
+    _unused_method_flags(args)
     if args.half is None and not (args.sequence_cmd == "evaluate" and args.protocol == "lidar4d"):
         args.half = HALF
     seq = _load(args)
@@ -300,6 +315,18 @@ def sequence(args):
             plan.write(out / name, sidecars=False, resumed=True)
         with plan:
             _convert(args, seq, out)
+
+
+def _unused_method_flags(args) -> None:
+    """A method's flag given while no method it sets is run is refused (as a backend's option is with
+    another backend), not ignored: ``--tsdf-voxel 0.1 --methods zbuffer`` would score without it."""
+    run = [args.estimator] if args.sequence_cmd == "convert" else args.methods
+    keys = option_keys()
+    for key in args.method_options:
+        if not set(keys[key][2]) & set(run):
+            flag = "--estimator" if args.sequence_cmd == "convert" else "--methods"
+            raise InputValueError(f"--{key.replace('_', '-')} does not apply to {flag} {' '.join(run)} "
+                                  f"(it sets {', '.join(keys[key][2])})")
 
 
 def _check_evaluate_output(out: Path, force: bool) -> None:

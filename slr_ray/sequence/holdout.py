@@ -338,6 +338,10 @@ def evaluate_holdout(seq: Sequence, target: int, options: HoldoutOptions | None 
     keep = Keep(drop_moving, see_through, (target,))
     union = accumulate(seq, others, keep, cache=cache)
     u = to_frame(union.points, pose)
+    if len(u) and not np.any(pat.pulse_ids(u, np.zeros(3))[0] >= 0):  # as slr-ray evaluate refuses a pair
+        raise InputValueError(f"frame {seq.names[target]}: at its pose none of the {len(u)} points of its window "
+                              f"({', '.join(seq.names[i] for i in others)}) lies within its view: the frames do not "
+                              "overlap there; check the poses")
     # scored as slr-ray evaluate scores a pair (the same target, every registered metric's block), split
     # by seen / unseen only
     scored = scoring_target(b, pat, beams, u, seen_threshold, splits=HOLDOUT_SPLITS)
