@@ -17,6 +17,8 @@ from slr_ray.registration import (REGISTRATION_BOUNDS, Registration, check_regis
                                   registration_checks)
 from slr_ray.sensors import BeamPattern
 
+from test_evaluate import room as _room  # the room scene the pair tests register
+
 SMALL = BeamPattern(np.linspace(2.0, -24.0, 16), 360, max_range=120.0, name="small")
 DATA = next((p / "shared" / "data" for p in Path(__file__).resolve().parents[1:4] if (p / "shared" / "data").is_dir()),
             Path(__file__).resolve().parents[1] / ".." / "shared" / "data")
@@ -60,17 +62,6 @@ def test_each_check_fails_past_its_bound_alone_and_names_its_figure_and_bound():
     for bad in ({"max_tilt": 90}, {"min_fitness": math.nan}, {"min_fitness": -1}, {"min_fitness": True}):
         with pytest.raises(InputValueError, match="bounds: "):
             registration_checks(_reg(), bad)
-
-
-def _room():
-    trimesh = pytest.importorskip("trimesh")
-    box = trimesh.creation.box(extents=[30, 20, 8])
-    box.invert()
-    pillar = trimesh.creation.box(extents=[1, 1, 8])
-    pillar.apply_translation([4, 3, 0])
-    car = trimesh.creation.box(extents=[4, 1.8, 1.5])
-    car.apply_translation([-5, -3, -3.25])
-    return trimesh.util.concatenate([box, pillar, car])
 
 
 def _street():
