@@ -177,6 +177,8 @@ def test_the_library_takes_method_options_and_refuses_a_method_twice(drive):
      "--estimator embree-rays needs the frames' sensor (--source-sensor)"),
     (["evaluate", "--holdout", "1", "--methods", "embree-rays", "--embree-rays-gap", "0"],
      "--embree-rays-gap must be > 0"),
+    (["evaluate", "--holdout", "1", "--methods", "embree-rays", "--embree-rays-weak-ratio", "0.3"],
+     "--embree-rays-weak-ratio (0.3) must be under --embree-rays-max-ratio (0.3)"),
     (["evaluate", "--holdout", "1", "--methods", "zbuffer", "nearest", "--tsdf-voxel", "0.1"],
      "--tsdf-voxel does not apply to --methods zbuffer nearest (it sets tsdf)"),
     (["convert", "--target-sensor", "velodyne_vlp16", "--embree-rays-fill", "1"],

@@ -53,6 +53,10 @@ class EmbreeRaysOptions(MethodOptions):
                 raise InputValueError(f"--embree-rays-{name.replace('_', '-')} must be > 0, got {v}")
         if not (isinstance(self.weak_ratio, (int, float)) and 0 <= self.weak_ratio):
             raise InputValueError(f"--embree-rays-weak-ratio must be >= 0, got {self.weak_ratio}")
+        if self.weak_ratio and self.weak_ratio >= self.max_ratio:  # no triangle kept could be weak
+            raise InputValueError(f"--embree-rays-weak-ratio ({self.weak_ratio}) must be under --embree-rays-max-ratio "
+                                  f"({self.max_ratio}): triangles beyond max-ratio are not meshed, so none would be "
+                                  "weak (0 turns the weak rule off)")
         if not (isinstance(self.fill, (int, np.integer)) and self.fill >= 0):
             raise InputValueError(f"--embree-rays-fill must be a count >= 0, got {self.fill}")
 
