@@ -127,6 +127,9 @@ def test_cli_reads_a_rigs_extrinsic_json(tmp_path):
     p.write_text(json.dumps({"one": E.tolist(), "two": E.tolist()}))
     with pytest.raises(InputValueError, match="2 4 x 4 matrices"):
         read_extrinsic(p)
+    p.write_text(json.dumps({"transform": E.ravel().tolist()}))  # ROS style: order not known, said
+    with pytest.raises(InputValueError, match=r"0 4 x 4 matrices .*a flat list of 16 numbers is not read"):
+        read_extrinsic(p)
 
 
 @pytest.mark.skipif(not DATA.is_dir(), reason="../shared/data/hesai_p64_qt64 (the Pandar64 + QT64 rig) is absent")

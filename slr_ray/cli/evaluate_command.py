@@ -69,6 +69,15 @@ def _matrices(node, found: list) -> list:
     return found
 
 
+def _has_flat16(node) -> bool:
+    """Whether ``node`` (parsed JSON) holds a flat list of 16 numbers (a ROS-style matrix)."""
+    if isinstance(node, list) and len(node) == 16 and all(isinstance(v, (int, float)) and not isinstance(v, bool)
+                                                          for v in node):
+        return True
+    children = node.values() if isinstance(node, dict) else node if isinstance(node, list) else ()
+    return any(_has_flat16(v) for v in children)
+
+
 def read_extrinsic(path, flag: str = "--extrinsic") -> np.ndarray:
     """A rig's extrinsic: a text matrix (:func:`read_matrix`), or a JSON document holding exactly one 4 x 4
     (or 3 x 4) list of numbers, wherever it is (SensorsCalibration's ``param.sensor_calib.data``)."""
@@ -83,7 +92,9 @@ def read_extrinsic(path, flag: str = "--extrinsic") -> np.ndarray:
     except json.JSONDecodeError as exc:
         raise InputValueError(f"{flag} {path}: not JSON ({exc})") from None
     if len(found) != 1:
-        raise InputValueError(f"{flag} {path}: holds {len(found)} 4 x 4 matrices of numbers, not one")
+        flat = " (a flat list of 16 numbers is not read: its order, by rows or by columns, is not known; give the "\
+            "matrix as 4 lists of 4, rows first)" if not found and _has_flat16(json.loads(text)) else ""
+        raise InputValueError(f"{flag} {path}: holds {len(found)} 4 x 4 matrices of numbers, not one{flat}")
     return np.array(found[0], np.float64)
 
 
