@@ -31,6 +31,7 @@ process (``results/NAME_speed.json``).
 from __future__ import annotations
 
 import argparse
+import contextlib
 import os
 import sys
 import time
@@ -58,8 +59,9 @@ SETTINGS = {"before": {"primary_image": False},
 RMSE_BOUND, DROP_BOUND = 0.2, 0.95
 
 
-def _evaluate(points, beams, sensor, setting: dict, methods) -> dict:
-    """``evaluate_pair(F, F, transform=identity)`` with ``setting`` given to every embree scanner."""
+@contextlib.contextmanager
+def _embree_given(setting: dict):
+    """``evaluate_pair`` inside gives ``setting`` to every embree scanner it prepares."""
     def prep(pts, backend, **opts):
         if backend == "embree":
             opts.update(setting)
@@ -67,10 +69,16 @@ def _evaluate(points, beams, sensor, setting: dict, methods) -> dict:
 
     ev.prepare = prep
     try:
-        return ev.evaluate_pair(points, points, a_beams=beams, b_beams=beams, transform=np.eye(4), sensor=sensor,
-                                methods=methods)
+        yield
     finally:
         ev.prepare = prepare
+
+
+def _evaluate(points, beams, sensor, setting: dict, methods) -> dict:
+    """``evaluate_pair(F, F, transform=identity)`` with ``setting`` given to every embree scanner."""
+    with _embree_given(setting):
+        return ev.evaluate_pair(points, points, a_beams=beams, b_beams=beams, transform=np.eye(4), sensor=sensor,
+                                methods=methods)
 
 
 def run_frame(label, path, sensor, beams_from, settings) -> list[dict]:
@@ -132,17 +140,8 @@ def pair(data: Path, settings) -> list[dict]:
           "|---|---|---|---|---|---|---|---|")
     for name in settings:
         setting = {k: v for k, v in SETTINGS[name].items() if k != "primary_image"}
-
-        def prep(pts, backend, **opts):
-            if backend == "embree":
-                opts.update(setting)
-            return prepare(pts, backend, **opts)
-
-        ev.prepare = prep
-        try:
+        with _embree_given(setting):
             res = ev.evaluate_pair(a, b, methods=METHODS if name == settings[0] else METHODS[1:])
-        finally:
-            ev.prepare = prepare
         for r, raw in zip(ev.evaluation_table(res), res["rows"]):
             row = {"pair": "000000 -> 000001", "method": raw["method"],
                    "setting": "-" if raw["method"] == "binning" else name, "points": r["points"],

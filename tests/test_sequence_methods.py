@@ -145,6 +145,11 @@ def test_a_method_builds_its_sequence_state_once_for_every_held_out_frame(drive,
     assert len(stateful.built) == 2   # another run (another cache): built again
     a, b = accumulate(seq, [0, 2], Keep(False), cache=cache), accumulate(seq, [0, 2], drop_moving=False)
     assert np.array_equal(a.points, b.points) and a.removed == b.removed
+    # held-out targets share a frame's selection where nothing sees through (the excluded frame does
+    # not vote there): one mask for frame 0 whichever target is held out; with see-through, one each
+    masks = [cache.selection(0, Keep(True, None, (target,)))[0] for target in (1, 2)]
+    assert masks[0] is masks[1]  # one mask made, not one a target
+    assert Keep(True, None, (1,)).key(0) == Keep(True, None, (2,)).key(0) == Keep(True).key(0)
 
 
 def test_the_library_takes_method_options_and_refuses_a_method_twice(drive):

@@ -58,7 +58,7 @@ from .estimators import FPA_GAP, PulseReturns, fpa_returns
 from .rays import (PHASE_COHERENCE, RayModel, fit_ray_model, frame_motion, pattern_ray_model,
                    sweep_offsets)
 from .sources import ring_beams
-from .union import rotate
+from .union import Keep, rotate
 
 __all__ = ["frame_mesh", "MeshFrames", "rays_of_model", "cast_embree_rays", "mesh_range_bias", "union_meshes",
            "frame_beams", "fit_embree_model", "fill_missing", "frame_surface", "frame_points_beams", "frame_ray_model",
@@ -458,12 +458,6 @@ def frame_points_beams(cache, i: int, base) -> tuple[np.ndarray, np.ndarray | No
     return cache.state(int(i), ("embree-rays beams", _base_key(base)), make)
 
 
-def _selection_key(drop_moving, see_through, exclude, i):
-    # what a frame's kept points depend on: the excluded frames only where they vote (see-through)
-    excl = tuple(sorted(int(e) for e in exclude if e != i)) if see_through is not None else ()
-    return bool(drop_moving), see_through.key if see_through else None, excl
-
-
 def elevation_rows(points, beams) -> np.ndarray:
     """Each point's ring ranked by its ring's mean elevation in the frame, highest 0 (-1 stays -1): a
     ring's mesh joins the rings next to it in elevation, whatever their ids (a unit's ring ids need
@@ -489,7 +483,7 @@ def frame_surface(cache, i: int, base, drop_moving: bool = True, see_through=Non
     no triangle). Built once while ``cache`` holds the frame, for every target and model."""
     i = int(i)
     keep, _ = cache.selection(i, drop_moving, see_through, exclude)
-    key = ("embree-rays mesh", _base_key(base), _selection_key(drop_moving, see_through, exclude, i), max_ratio,
+    key = ("embree-rays mesh", _base_key(base), Keep.of(drop_moving, see_through, exclude).key(i), max_ratio,
            weak_ratio)
 
     def make():
@@ -661,7 +655,7 @@ def fit_embree_model(seq, others, base, cache, drop_moving: bool = True, see_thr
     model = combined_model([m for _, _, m in known])
     if len(known) < 2:
         return model, surfaces
-    sel = _selection_key(drop_moving, see_through, exclude, -1)
+    sel = Keep.of(drop_moving, see_through, exclude).key(-1)
     idx, surf = [i for i, _, _ in known], [s for _, s, _ in known]
     casts = [_frame_bias_casts(cache, seq, j, m, base, idx, surf, sel) for j, _, m in known]
     return dataclasses.replace(model, range_bias=_biases(casts, base.n_beams, 0.2, BIAS_ROUNDS)), surfaces

@@ -115,8 +115,12 @@ class Keep:
         return cls(bool(keep), see_through, tuple(sorted(int(e) for e in exclude)))
 
     def key(self, i: int) -> tuple:
-        """What frame ``i``'s selection depends on (its own index never excludes it)."""
-        return (bool(self.drop_moving), self.see_through.key if self.see_through else None,
+        """What frame ``i``'s selection depends on: the excluded frames only where they would vote
+        (``see_through``; its own index never excludes it), so that held-out targets share a frame's
+        selection, points and discs where nothing sees through."""
+        if self.see_through is None:
+            return bool(self.drop_moving), None, ()
+        return (bool(self.drop_moving), self.see_through.key,
                 tuple(sorted(int(e) for e in self.exclude if e != i)))
 
 
