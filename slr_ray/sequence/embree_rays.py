@@ -52,12 +52,11 @@ import numpy as np
 from numba import njit
 
 from ..errors import InputValueError, SlrWarning
-from ..evaluate import scan_order_beams
 from ..raycast import RayScene
 from .estimators import FPA_GAP, PulseReturns, fpa_returns
 from .rays import (PHASE_COHERENCE, RayModel, fit_ray_model, frame_motion, pattern_ray_model,
                    sweep_offsets)
-from .sources import ring_beams
+from .sources import known_beams
 from .union import Keep, rotate
 
 __all__ = ["frame_mesh", "MeshFrames", "rays_of_model", "cast_embree_rays", "mesh_range_bias", "union_meshes",
@@ -428,12 +427,11 @@ def _biases(casts, L: int, reach: float, rounds: int) -> np.ndarray:
 
 def frame_beams(frame, base, seq=None):
     """A frame's beams: its ``ring`` field (checked against ``base``, naming the frame and, given its
-    sequence ``seq``, its file), else its scan order (KITTI's ``.bin``), else None."""
-    ring = frame.attributes.get("ring")
-    if ring is not None:
-        where = f" ({seq.paths[frame.index]})" if seq is not None else ""
-        return ring_beams(ring, base, f"frame {frame.name}{where}")
-    return scan_order_beams(frame.points, base.n_beams)
+    sequence ``seq``, its file), else its scan order (KITTI's ``.bin``), else, for a card whose beams are its
+    elevation bands (fitted from frames without rings), the band each point falls in (``rays``' beams:
+    :func:`~slr_ray.sequence.sources.known_beams`), else None."""
+    where = f" ({seq.paths[frame.index]})" if seq is not None and frame.attributes.get("ring") is not None else ""
+    return known_beams(frame.points, frame.attributes, base, f"frame {frame.name}{where}")
 
 
 def _base_key(base) -> tuple:
