@@ -328,3 +328,26 @@ def test_weak_triangles_and_the_hits_debias_follow_their_rules():
     corner = b[faces[np.maximum(prims, 0)]]
     want = t - np.where(prims >= 0, np.where(corner >= 0, bias[np.maximum(corner, 0)], 0.0).mean(axis=1), 0.0)
     assert np.allclose(got, want, rtol=0, atol=1e-12)
+
+
+def test_a_laser_too_sparse_to_fit_keeps_its_tables_elevation():
+    """#46: ``fit_ray_model`` gives a laser with too few points the others' mean elevation (the middle of
+    the fan); cast there it returned in another laser's pulses (a Pandar64's 5 deg laser, 8 points a frame,
+    cast at -3.73 deg took the -3.71 deg laser's road: F@5cm of that row 0.17). Its table's elevation is kept."""
+    from slr_ray.sequence.embree_rays import table_unfitted
+    from slr_ray.sequence.rays import fit_ray_model
+
+    base = sensor("velodyne_vlp16")
+    el = np.radians(np.asarray(base.elevation_deg))
+    az = np.radians(np.arange(0, 360, 0.5))
+    pts, beams = [], []
+    for b, e in enumerate(el):
+        a = az[:5] if b == 7 else az  # laser 7: 5 points, too few for its line
+        r = 8.0 + 2.0 * np.sin(3 * a)
+        pts.append(np.column_stack([r * np.cos(e) * np.cos(a), r * np.cos(e) * np.sin(a), r * np.sin(e)]))
+        beams.append(np.full(len(a), b))
+    pts, beams = np.concatenate(pts), np.concatenate(beams)
+    model = table_unfitted(fit_ray_model([(pts, beams, np.zeros(3))], base.n_beams, stride=1), pts, beams, base)
+    np.testing.assert_allclose(model.elevation, el, atol=1e-6)  # the fitted lasers' and laser 7's own
+    others = np.delete(model.elevation, 7)
+    assert np.abs(others - model.elevation[7]).min() > np.radians(0.5)  # in no other laser's band

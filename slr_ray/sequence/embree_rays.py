@@ -61,7 +61,7 @@ from .union import Keep, rotate
 
 __all__ = ["frame_mesh", "MeshFrames", "rays_of_model", "cast_embree_rays", "mesh_range_bias", "union_meshes",
            "frame_beams", "fit_embree_model", "fill_missing", "frame_surface", "frame_points_beams", "frame_ray_model",
-           "combined_model", "with_azimuth_phases", "elevation_rows", "MAX_RATIO", "MAX_STEP_DEG", "MAX_STEP_COLUMNS", "EMBREE_GAP", "WEAK_RATIO"]
+           "combined_model", "with_azimuth_phases", "table_unfitted", "elevation_rows", "MAX_RATIO", "MAX_STEP_DEG", "MAX_STEP_COLUMNS", "EMBREE_GAP", "WEAK_RATIO"]
 
 #: a triangle's ranges (from its frame's origin) differ by at most this share of the nearest
 MAX_RATIO = 0.3
@@ -536,6 +536,25 @@ def union_meshes(cache, frames, base, model: RayModel | None = None, drop_moving
     return out
 
 
+#: a laser's line is fitted on at least this many points farther than 2 m from the spin axis (rays' fit)
+FIT_LEAST = 20
+
+
+def table_unfitted(model: RayModel, points, beams, base) -> RayModel:
+    """``model`` (fitted on ``points``, their lasers ``beams``) with each laser whose line had too few
+    points to fit (:data:`FIT_LEAST`; ``fit_ray_model`` gives it the others' mean elevation, the
+    middle of the fan) at its elevation in ``base``'s table: a Pandar64's 5 deg laser, 8 points a frame
+    under the sky, cast at -3.7 deg beside its -3.71 deg one took that laser's pulses on the road."""
+    p = np.asarray(points, np.float64)
+    b = np.asarray(beams, np.int64)
+    far = np.hypot(p[:, 0], p[:, 1]) > 2.0
+    few = np.bincount(b[far & (b >= 0)], minlength=len(model.elevation))[:len(model.elevation)] < FIT_LEAST
+    table = np.radians(np.asarray(base.elevation_deg, np.float64))
+    if not few.any() or len(table) != len(model.elevation):
+        return model
+    return dataclasses.replace(model, elevation=np.where(few, table, model.elevation))
+
+
 def frame_ray_model(cache, seq, i: int, base) -> RayModel | None:
     """Frame ``i``'s own lasers' lines and sweep skew (:func:`~slr_ray.sequence.rays.fit_ray_model` on its
     points alone), None where its rings are not known; held on ``cache`` while it holds the frame."""
@@ -545,10 +564,11 @@ def frame_ray_model(cache, seq, i: int, base) -> RayModel | None:
             return None
         ok = beams >= 0
         try:
-            return fit_ray_model([(pts[ok], beams[ok], frame_motion(seq.poses, int(i)))], base.n_beams,
-                                 stride=FIT_STRIDE)
+            model = fit_ray_model([(pts[ok], beams[ok], frame_motion(seq.poses, int(i)))], base.n_beams,
+                                  stride=FIT_STRIDE)
         except InputValueError:  # too few points on its lasers
             return None
+        return table_unfitted(model, pts[ok][::FIT_STRIDE], beams[ok][::FIT_STRIDE], base)
 
     return cache.state(int(i), ("embree-rays model", _base_key(base)), make)
 
