@@ -281,14 +281,15 @@ def _strong(scene, weak, ow, dw, t, prims, layers: int = 4):
     t[todo], prims[todo] = np.inf, -1
 
 
-def _edge_hits(live, model, ow, dw, P, t, prims, ts, ps):
+def _edge_hits(live, model, ow, dw, P, hits):
     """Where no frame's mesh meets a ray, the ray tilted up and down in elevation by
     :data:`EDGE_RESIDUALS` of ``model``'s fit residual (its lasers' points lie that near their lines),
-    cast again; the nearest hit of each frame's taken along the ray (in place; ``t``, ``prims``: each
-    frame's hits, ``ts``, ``ps``: its first strong ones). A ray cast along a ring of a frame seen from
+    cast again; the nearest hit of each frame's taken along the ray (in place; ``hits``: ``(t, prims, ts,
+    ps)``, each frame's hits and its first strong ones). A ray cast along a ring of a frame seen from
     where it was fired runs along the ring's vertices: where the ring is the mesh's edge (its lowest,
     or no strip joins it on one side: a Pandar64's two lowest lasers missed 66 and 88 % of their
     pulses) the ray grazes the edge and meets it or not by rounding."""
+    t, prims, ts, ps = hits
     delta = math.radians(EDGE_RESIDUALS * model.residual_deg) if np.isfinite(model.residual_deg) else 0.0
     none = np.flatnonzero(~np.isfinite(t).any(axis=1))
     if not delta > 0 or not len(none):
@@ -379,7 +380,7 @@ def cast_embree_rays(points, pattern, model: RayModel | None = None, motion=(0.0
             sk[moved] = sm
         t[:, k], prims[:, k], ts[:, k], ps[:, k] = tk, pk, sk, qk
     if live:  # rays along a mesh's open edge (its lowest ring, a ring with no strip on one side)
-        _edge_hits(live, model, ow, dw, P, t, prims, ts, ps)
+        _edge_hits(live, model, ow, dw, P, (t, prims, ts, ps))
     strong = np.isfinite(ts).any(axis=1)
     t[strong], prims[strong] = ts[strong], ps[strong]
     tt, first = _first_peak(t, gap)
