@@ -17,7 +17,8 @@ source frame instead, and the rays are cast by Embree:
   pulses sampled, seen from where they were fired; the road between two rings
   metres apart is the triangle between them. A triangle whose ranges differ
   by more than :data:`WEAK_RATIO` of the nearest is *weak* (edge-on from its
-  frame: far road, or a skin from an edge to the background);
+  frame: far road, or a skin from an edge to the background); rings farther apart in elevation
+  than :data:`RATIO_STEP_DEG` may span ratios wider in proportion (:func:`ratio_widening`);
 * **one Embree scene a frame** (:class:`MeshFrames`, world coordinates), built
   once and reused by every target whose window holds the frame, whatever the
   model (a raw mesh keeps its vertices' lasers; or, given a model, each vertex
@@ -36,7 +37,7 @@ source frame instead, and the rays are cast by Embree:
   the return the mean of the frames' hits within ``gap`` of it (the
   first-peak average's rule over the frames' surfaces), moved by the laser's
   range bias, binned into the target's image nearest per pulse as a real
-  point is.
+  point is; a ray no mesh meets cast again tilted by the fit's residual (an open edge it grazes).
 
 Measured against ``rays`` on the KITTI frames in
 ``benchmarks/sequence_embree_rays.py`` (docs/sequences.md).
@@ -75,8 +76,8 @@ MAX_STEP_DEG = 0.4
 #: no frame's mesh gives it a strong one
 WEAK_RATIO = 0.1
 #: rings up to this far apart in elevation (deg) keep MAX_RATIO and WEAK_RATIO; farther, the ratios grow with
-#: the step (ratio_widening): every ring pair of the HDL-64E (0.33-0.5 deg, where the ratios were chosen) and
-#: the OS1-128 keeps them
+#: the step (ratio_widening): every ring pair of the HDL-64E (0.33-0.74 deg, where the ratios were chosen)
+#: and the OS1-128 keeps them
 RATIO_STEP_DEG = 1.0
 #: every this many points of a frame fitted for its own lasers' lines (frame_ray_model)
 FIT_STRIDE = 8
