@@ -164,6 +164,12 @@ def interleaved(n):
              "slr_ray discs, ties, two queries": lambda: scene.intersect(ORIGIN, dirs, ties=1.0, one_pass=False),
              # one thread: its CPU time is the work a cast does, steady on a shared machine
              "slr_ray discs, ties, 1 thread": lambda: scene.intersect(ORIGIN, dirs, ties=1.0, n_threads=1),
+             # Embree's packet width (default: the widest native, 16 here) on one thread: on the loaded
+             # machine of 3 December 2026 which is cheapest changed from run to run (docs/speed.md)
+             "slr_ray discs, ties, 1 thread, packets of 8":
+                 lambda: scene.intersect(ORIGIN, dirs, ties=1.0, n_threads=1, packet=8),
+             "slr_ray discs, ties, 1 thread, one ray at a time":
+                 lambda: scene.intersect(ORIGIN, dirs, ties=1.0, n_threads=1, packet=1),
              "pcu": lambda: isect.intersect_rays(o, d32)}
     for f in casts.values():
         f()
