@@ -1,6 +1,6 @@
 """Sensor effects (slr_ray.effects): each effect's cost against the ideal scan, and the KITTI drop fit.
 
-    python benchmarks/bench_effects.py [--repeat 3]
+    python benchmarks/bench_effects.py [--repeat 3] [--only divergence ...]
 
 1. Cost. The KITTI HDL-64E frame of ../shared/data (124,668 points) prepared once
    per backend (binning; embree with discs from the frame's own beam-table pulse
@@ -51,21 +51,26 @@ INCIDENCE_EDGES = [0, 15, 30, 45, 60, 75, 85, 90]
 
 
 def measure(fn, repeat):
-    times = []
+    """Median wall and process-CPU seconds of ``repeat`` runs, the peak of one more, the output."""
+    times, cpu = [], []
     for _ in range(repeat):
-        t0 = time.perf_counter()
+        c0, t0 = time.process_time(), time.perf_counter()
         out = fn()
         times.append(time.perf_counter() - t0)
+        cpu.append(time.process_time() - c0)
     tracemalloc.start()
     fn()
     peak = tracemalloc.get_traced_memory()[1]
     tracemalloc.stop()
-    return statistics.median(times), peak, out
+    return statistics.median(times), statistics.median(cpu), peak, out
 
 
 def main(argv=None):
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     ap.add_argument("--repeat", type=int, default=3)
+    ap.add_argument("--only", nargs="*", default=None, metavar="WORD",
+                    help="part 1: only the cases whose name holds one of these words, and the ideal scan "
+                         "(saved as bench_effects_only.json; no figure)")
     args = ap.parse_args(argv)
     if not KITTI.exists():
         sys.exit(f"{KITTI} is absent")
@@ -110,7 +115,8 @@ def main(argv=None):
             print(f"  {edges[i]:>3}-{edges[i + 1]:<3} {t['real']['rate'][i]:7.2%} ({t['real']['pulses'][i]:>6,})"
                   f"  {t['model']['rate'][i]:7.2%}  {t['resimulated']['rate'][i]:7.2%} "
                   f"({t['resimulated']['pulses'][i]:>6,})")
-    figure(tables)
+    if args.only is None:
+        figure(tables)
 
     # --- 1: cost of each effect against the ideal scan, same run
     moving = [pose(ORIGIN - [1.0, 0, 0]), pose(ORIGIN, yaw_deg=2.0)]  # 10 m/s and 20 deg/s at 10 Hz
@@ -127,22 +133,27 @@ def main(argv=None):
               Effects(divergence_mrad=3.0, motion=True, range_noise="sensor", ray_drop=model, min_range=2.0,
                       max_range_at="sensor", intensity="carry"), {"poses": moving})]
     rows = []
+    if args.only is not None:
+        cases = [c for c in cases if c[0] == "ideal" or any(w in c[0] for w in args.only)]
     for backend, sc in scanners.items():
         simulate(sc, ORIGIN, hdl, intensity=inten)  # compile
-        ideal_t = None
+        ideal_t = ideal_c = None
         for name, eff, kw in cases:
             if eff.divergence_mrad and backend != "embree":
                 continue
             origin = None if "poses" in kw else ORIGIN
-            t, peak, es = measure(lambda: simulate(sc, origin, hdl, eff, intensity=inten, **kw), args.repeat)
-            ideal_t = t if name == "ideal" else ideal_t
+            t, c, peak, es = measure(lambda: simulate(sc, origin, hdl, eff, intensity=inten, **kw), args.repeat)
+            if name == "ideal":
+                ideal_t, ideal_c = t, c
             rows.append({"backend": backend, "effect": name, "seconds": t, "x_ideal": t / ideal_t,
+                         "cpu_seconds": c, "cpu_x_ideal": c / ideal_c,
                          "peak_mib": peak / 2**20, "returns": len(es),
                          "multiple": int(np.count_nonzero(es.number_of_returns > 1))})
             r = rows[-1]
-            print(f"{backend:<8} {name:<66} {t:8.3f} s  x{r['x_ideal']:5.2f}  {r['peak_mib']:7.1f} MiB  "
-                  f"{len(es):>7,} returns ({r['multiple']:,} of pulses with several)", flush=True)
-    save("bench_effects", {"machine": machine(), "inputs": {"cloud": KITTI.name, "points": len(pts),
+            print(f"{backend:<8} {name:<66} {t:8.3f} s  x{r['x_ideal']:5.2f}  cpu {c:7.3f} s  x{r['cpu_x_ideal']:5.2f}"
+                  f"  {r['peak_mib']:7.1f} MiB  {len(es):>7,} returns ({r['multiple']:,} of pulses with several)",
+                  flush=True)
+    save("bench_effects" if args.only is None else "bench_effects_only", {"machine": machine(), "inputs": {"cloud": KITTI.name, "points": len(pts),
                                                            "pattern": "velodyne_hdl64e_s2", "origin": ORIGIN.tolist(),
                                                            "repeat": args.repeat, "embree_options": emb_opts},
                            "cost": rows, "drop_model": model.to_dict(), "drop_fit_seconds": fit_seconds,

@@ -162,18 +162,30 @@ def interleaved(n):
     casts = {"slr_ray discs": lambda: scene.intersect(ORIGIN, dirs),
              "slr_ray discs, ties": lambda: scene.intersect(ORIGIN, dirs, ties=1.0),
              "slr_ray discs, ties, two queries": lambda: scene.intersect(ORIGIN, dirs, ties=1.0, one_pass=False),
+             # one thread: its CPU time is the work a cast does, steady on a shared machine
+             "slr_ray discs, ties, 1 thread": lambda: scene.intersect(ORIGIN, dirs, ties=1.0, n_threads=1),
+             # Embree's packet width (default: the widest native, 16 here) on one thread: on the loaded
+             # machine of 3 December 2026 which is cheapest changed from run to run (docs/speed.md)
+             "slr_ray discs, ties, 1 thread, packets of 8":
+                 lambda: scene.intersect(ORIGIN, dirs, ties=1.0, n_threads=1, packet=8),
+             "slr_ray discs, ties, 1 thread, one ray at a time":
+                 lambda: scene.intersect(ORIGIN, dirs, ties=1.0, n_threads=1, packet=1),
              "pcu": lambda: isect.intersect_rays(o, d32)}
     for f in casts.values():
         f()
     times = {k: [] for k in casts}
+    cpu = {k: [] for k in casts}
     for _ in range(REPEAT):
         for k, f in casts.items():
-            t0 = time.perf_counter()
+            c0, t0 = time.process_time(), time.perf_counter()
             f()
             times[k].append(time.perf_counter() - t0)
+            cpu[k].append(time.process_time() - c0)  # all threads of the process
     print(json.dumps({"engine": "interleaved", "points": n, "rays": len(dirs),
                       "cast_seconds": {k: float(np.median(v)) for k, v in times.items()},
-                      "cast_seconds_all": times}))
+                      "cast_seconds_all": times,
+                      "cast_cpu_seconds": {k: float(np.median(v)) for k, v in cpu.items()},
+                      "cast_cpu_seconds_all": cpu}))
 
 
 def main(argv=None):
@@ -208,6 +220,12 @@ def main(argv=None):
                 "cast_x_faster": c["pcu"] / c["slr_ray discs, ties"],
                 "cast_x_faster_without_ties": c["pcu"] / c["slr_ray discs"],
                 "one_pass_x_faster_than_two_queries": c["slr_ray discs, ties, two queries"] / c["slr_ray discs, ties"]}
+            u = inter.get("cast_cpu_seconds")
+            if u:  # process CPU (pcu casts on one thread: its CPU is its wall time on a quiet machine)
+                ratios["interleaved"]["cpu"] = {
+                    "cast_x_less_cpu": u["pcu"] / u["slr_ray discs, ties"],
+                    "cast_x_less_cpu_without_ties": u["pcu"] / u["slr_ray discs"],
+                    "one_thread_x_less_cpu": u["pcu"] / u["slr_ray discs, ties, 1 thread"]}
     else:
         ratios = None
     print(f"{'engine':<33} {'build s':>8} {'cast s':>7} {'peak+ GiB':>10} {'rays hit':>10} {'points hit':>11}")
@@ -229,6 +247,12 @@ def main(argv=None):
                   + ", ".join(f"{k} {v:.3f} s" for k, v in inter["cast_seconds"].items())
                   + f"; ties {q['cast_x_faster']:.2f}x pcu, no ties {q['cast_x_faster_without_ties']:.2f}x, "
                     f"one query {q['one_pass_x_faster_than_two_queries']:.2f}x two")
+            if "cpu" in q:
+                print("their process CPU (medians): "
+                      + ", ".join(f"{k} {v:.3f} s" for k, v in inter["cast_cpu_seconds"].items())
+                      + f"; pcu / ties {q['cpu']['cast_x_less_cpu']:.2f}, pcu / no ties "
+                        f"{q['cpu']['cast_x_less_cpu_without_ties']:.2f}, pcu / ties on one thread "
+                        f"{q['cpu']['one_thread_x_less_cpu']:.2f}")
     save("bench_pcu", {"machine": machine(), "inputs": vars(args), "rows": rows, "interleaved": inter,
                        "ratios": ratios})
 
