@@ -12,7 +12,8 @@ Part 2, terrestrial scans from their own origins: forest_tls_riegl.laz (its patt
 zenith x 0.622 deg azimuth, zenith 30-130) and pump_tls.e57 (origin 0, its pose the identity; its
 pattern only fitted), each scanned with the known pattern (the forest) or its fitted one (the pump) by
 binning and by embree with the primary's pattern given or ``primary_pattern='fit'``, with and without
-``primary_image``: points out and the share of binning's.
+``primary_image`` (without it, also with ``pulse_cells``): points out, their share of binning's count,
+and the share of binning's points among them (binning's is the primary's own image there).
 
 Part 3, away from the origin: frame 000001 re-simulated from frame 000000 (registered, as
 ``slr-ray evaluate`` does), embree with the beam-table grid, ``silhouettes`` on (the default) and off:
@@ -108,8 +109,9 @@ FOREST = ScanPattern(azimuth_resolution=0.622, zenith_resolution=0.048, zenith_r
 
 def terrestrial(data: Path) -> list[dict]:
     rows = []
-    print("\n| scan | primary pattern | scanned with | primary_image | points | share of binning's |")
-    print("|---|---|---|---|---|---|")
+    print("\n| scan | primary pattern | scanned with | primary_image | pulse_cells | points | share of binning's "
+          "| binning's points among them |")
+    print("|---|---|---|---|---|---|---|---|")
     for name, known in (("forest_tls_riegl.laz", FOREST), ("pump_tls.e57", None)):
         pts = read_cloud(data / name).points
         fitted = prepare(pts, "embree", primary_origin=np.zeros(3), primary_pattern="fit")
@@ -118,17 +120,18 @@ def terrestrial(data: Path) -> list[dict]:
         for label, prim in (("given", known), ("fit", "fit")):
             if prim is None:
                 continue
-            for primary_image in (True, False):
+            for primary_image, cells in ((True, False), (False, False), (False, True)):
                 s = prepare(pts, "embree", primary_origin=np.zeros(3), primary_pattern=prim,
-                            primary_image=primary_image).scan(np.zeros(3), scan_with)
+                            primary_image=primary_image, pulse_cells=cells).scan(np.zeros(3), scan_with)
+                same = np.intersect1d(s.indices, b.indices).size  # binning's own points among them
                 r = {"scan": name, "primary_pattern": label, "fitted": fitted.primary_fit,
                      "fitted_pattern": fitted.options.primary_grid.to_dict(),
                      "scanned_with": "known" if known is not None else "fitted", "primary_image": primary_image,
-                     "points": len(s), "binning_points": len(b), "share": len(s) / len(b),
-                     "primary_view": s.info["primary_view"]}
+                     "pulse_cells": cells, "points": len(s), "binning_points": len(b), "share": len(s) / len(b),
+                     "same_points_share": same / len(b), "primary_view": s.info["primary_view"]}
                 rows.append(r)
-                print(f"| {name} | {label} | {r['scanned_with']} | {primary_image} | {len(s):,} | "
-                      f"{r['share']:.4f} |", flush=True)
+                print(f"| {name} | {label} | {r['scanned_with']} | {primary_image} | {cells} | {len(s):,} | "
+                      f"{r['share']:.4f} | {r['same_points_share']:.4f} |", flush=True)
         print(f"  fitted: {fitted.primary_fit}", flush=True)
     return rows
 

@@ -14,6 +14,8 @@ First, the step edge of tests/test_embree_silhouettes.py (a wall 5 m in front of
 zenith 70-110, scanned exactly with ``scan_mesh`` from the origin): pulses returned more than 0.5 m off
 the exact scan of the mesh at the origin and 1 m away, binning and embree with ``primary_image=False``
 (the discs themselves) with and without ``silhouettes``; then the same for the scene mirrored across y.
+
+``--pulse-cells`` adds ``pulse_cells=True`` (on top of the silhouettes) as a setting of both parts.
 """
 
 from __future__ import annotations
@@ -39,22 +41,24 @@ def _quad(x, y0, y1, z0, z1):
     return trimesh.Trimesh(v, [[0, 1, 2], [0, 2, 3]], process=False)
 
 
-def step_edge() -> list[dict]:
+def step_edge(cells: bool = False) -> list[dict]:
     import trimesh
 
     mesh = trimesh.util.concatenate([_quad(5.0, -1.0, 0.0, -1.0, 1.0), _quad(10.0, -4.0, 4.0, -3.0, 3.0)])
-    rows = _step_edge(mesh, "")
+    rows = _step_edge(mesh, "", cells)
     # the scene mirrored across y: the rule has no side (its counts at +y and -y swap)
     mirror = trimesh.Trimesh(mesh.vertices * [1, -1, 1], mesh.faces[:, ::-1], process=False)
-    return rows + _step_edge(mirror, "mirrored scene, ")
+    return rows + _step_edge(mirror, "mirrored scene, ", cells)
 
 
-def _step_edge(mesh, scene: str) -> list[dict]:
+def _step_edge(mesh, scene: str, cells: bool = False) -> list[dict]:
     pat = ScanPattern(resolution=0.5, zenith_range=(70, 110))
     pts = scan_mesh(mesh, [0, 0, 0], pat).points
     grid = {"primary_origin": [0.0, 0.0, 0.0], "primary_resolution": 0.5, "primary_image": False}
     scanners = {"binning": prepare(pts, "binning"), "embree, silhouettes": prepare(pts, "embree", **grid),
                 "embree, no silhouettes": prepare(pts, "embree", silhouettes=False, **grid)}
+    if cells:
+        scanners["embree, silhouettes + pulse cells"] = prepare(pts, "embree", pulse_cells=True, **grid)
     rows = []
     if not scene:
         print("| position | " + " | ".join(scanners) + " |")
@@ -77,8 +81,10 @@ def main(argv=None) -> None:
     ap.add_argument("--scenes", default="ground-only,rect-1000")
     ap.add_argument("--primary-resolution", type=float, default=0.1)
     ap.add_argument("--positions", type=int, default=3)
+    ap.add_argument("--pulse-cells", action="store_true", help="add pulse_cells=True as a setting")
+    ap.add_argument("--name", default="bench_silhouettes", help="results/<name>.json")
     args = ap.parse_args(argv)
-    edge = step_edge()
+    edge = step_edge(args.pulse_cells)
     rng = np.random.default_rng(0)  # bench_tradeoff's positions
     n = 6
     dist = np.linspace(3, 30, n)
@@ -93,6 +99,8 @@ def main(argv=None) -> None:
         truths = [scan_mesh(scene, p, pattern).points for p in positions]
         settings = {"binning": ("binning", {}), "embree, silhouettes (new)": ("embree", {**grid}),
                     "embree, no silhouettes (before)": ("embree", {**grid, "silhouettes": False})}
+        if args.pulse_cells:
+            settings["embree, silhouettes + pulse cells"] = ("embree", {**grid, "pulse_cells": True})
         for label, (backend, opts) in settings.items():
             t0 = time.perf_counter()
             sc = prepare(pts, backend, **opts)
@@ -112,7 +120,7 @@ def main(argv=None) -> None:
             out.append(row)
             print(f"| {name} | {label} | {row['coverage']:.1%} | {row['precision']:.1%} | {sum(npts):,} | "
                   f"{prep:.2f} | {row['cast_seconds_median']:.2f} |", flush=True)
-    save("bench_silhouettes", {"machine": machine(), "inputs": vars(args), "positions": positions.tolist(),
+    save(args.name, {"machine": machine(), "inputs": vars(args), "positions": positions.tolist(),
                                "step_edge": edge, "results": out})
 
 

@@ -35,9 +35,10 @@ from slr_ray.scenes import scene_from_spec  # noqa: E402
 DISTANCE_BANDS = [(0, 7.5), (7.5, 17.5), (17.5, 40)]
 
 
-def configs(quick: bool, primary_res: float):
+def configs(quick: bool, primary_res: float, cells: bool = False):
     """Backend settings: binning, then embree discs by orientation, radius,
-    tie window and engine (exact discs; polygon fans in Embree and in Open3D)."""
+    tie window and engine (exact discs; polygon fans in Embree and in Open3D); with ``cells``, each
+    setting that knows the primary (origin and resolution) also with ``pulse_cells=True`` (" cells")."""
     out = [{"name": "binning", "backend": "binning"}]
 
     def embree(orientation="normal", radius="spacing", scale=1.0, ties=1.0, engine="embree", segments=3, k=6,
@@ -72,6 +73,9 @@ def configs(quick: bool, primary_res: float):
         if c.get("radius") == "footprint" or c.get("orientation") == "primary" or c.get("neighbours") == "pulse-grid":
             c["primary_origin"] = [0.0, 0.0, 0.0]
             c["primary_resolution"] = primary_res
+    if cells:
+        out += [{**c, "name": c["name"] + " cells", "pulse_cells": True} for c in out
+                if "primary_origin" in c and c["engine"] != "open3d"]
     return out
 
 
@@ -84,6 +88,8 @@ def main(argv=None):
     ap.add_argument("--max-range", type=float, default=60.0)
     ap.add_argument("--seed", type=int, default=0)
     ap.add_argument("--quick", action="store_true")
+    ap.add_argument("--pulse-cells", action="store_true",
+                    help="also each setting that knows the primary with pulse_cells=True (names end ' cells')")
     ap.add_argument("--only", nargs="+", help="run only the settings whose name contains one of these")
     ap.add_argument("--name", default="bench_tradeoff",
                     help="results/<name>.json and results/<name>.png (a partial run keeps the full one)")
@@ -104,7 +110,7 @@ def main(argv=None):
         truths = [{"center": scan_mesh(scene, p, secondary),
                    "nearest": scan_mesh(scene, p, secondary, mode="nearest", supersample=3)}
                   for p in positions]
-        for cfg in [c for c in configs(args.quick, args.primary_resolution)
+        for cfg in [c for c in configs(args.quick, args.primary_resolution, args.pulse_cells)
                     if not args.only or any(o in c["name"] for o in args.only)]:
             # one prepared scanner per cloud and setting, every position a query
             t0 = time.perf_counter()
@@ -133,7 +139,7 @@ def main(argv=None):
     print_table(summary)
     plot(summary, RESULTS / ("tradeoff.png" if args.name == "bench_tradeoff" else f"{args.name}.png"))
     save(args.name, {"machine": machine(), "inputs": {
-        "scenes": args.scenes, "only": args.only, "positions": positions.tolist(), "primary_resolution": args.primary_resolution,
+        "scenes": args.scenes, "only": args.only, "pulse_cells": args.pulse_cells, "positions": positions.tolist(), "primary_resolution": args.primary_resolution,
         "secondary": secondary.to_dict(), "similarity_threshold_m": 0.10,
         "truth": {"center": "one ray per pulse centre", "nearest": "3 x 3 sub-rays per pulse + centre"}},
         "summary": summary, "rows": rows})

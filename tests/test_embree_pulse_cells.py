@@ -103,3 +103,25 @@ def test_a_disc_stops_beyond_a_silhouette_side_pulse_in_azimuth():
     _, (pulses, _, dist) = sc.scan_and_rays(P, pattern)
     off = np.abs(dist - np.array([exact.get(p, np.nan) for p in map(tuple, pulses.tolist())]))  # where it returned
     assert np.count_nonzero(truth.ranges < 6) >= 5 and np.count_nonzero(off > 0.5) == 0
+
+
+def test_from_the_primary_origin_another_pattern_returns_nothing_where_the_primary_lost_a_pulse():
+    """Why ``pulse_cells`` is not the default (docs/backends.md): from the primary's origin the cut is
+    exact, so a ray of another pattern returns only a point of the primary's pulse it passes through,
+    and nothing where the primary lost that pulse; the discs without it let a neighbour's disc stand in."""
+    primary = ScanPattern(resolution=1.0, zenith_range=(60, 120))
+    pts = scan_mesh(_street(), P, primary).points
+    pts = pts[np.random.default_rng(2).random(len(pts)) > 0.2]  # 20 % of the primary's pulses lost
+    own, _ = primary.pulse_ids(pts, P)
+    other = ScanPattern(resolution=0.7, zenith_range=(60, 120))
+    dirs, v, h = other.rays()
+    ray_pulse = dict(zip(zip(v.tolist(), h.tolist()), primary.pulse_ids(10.0 * dirs, P)[0].tolist()))
+    wrong, in_lost = {}, {}
+    for cells in (True, False):
+        sc = prepare(pts, "embree", primary_origin=P, primary_resolution=1.0, primary_image=False, pulse_cells=cells)
+        _, (pulses, idx, _) = sc.scan_and_rays(P, other)
+        through = np.array([ray_pulse[p] for p in map(tuple, pulses.tolist())])
+        wrong[cells] = np.count_nonzero(own[idx] != through)  # a point of another pulse than the ray's
+        in_lost[cells] = np.count_nonzero(~np.isin(through, own))  # a pulse with no return (lost, or sky)
+    assert wrong[True] == in_lost[True] == 0
+    assert in_lost[False] > 0.05 * len(pts) and wrong[False] >= in_lost[False]  # 5,220, 6,213 (9,249 points)
