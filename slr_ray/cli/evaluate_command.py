@@ -13,7 +13,7 @@ import numpy as np
 
 from ..arrays import as_rigid_pose
 from ..errors import InputValueError, OutputError, SlrError, SlrWarning
-from ..evaluate import EVALUATION_FILES, evaluate_pair, evaluation_table, reach_table, write_evaluation
+from ..evaluate import EVALUATION_FILES, evaluate_pair, evaluation_table, reach_table, rig_extrinsic, write_evaluation
 from ..io import read_cloud
 from ..io.outputs import LOCK_NAME, OutputPlan
 from ..plotting import evaluation_figure, save_figure
@@ -147,6 +147,7 @@ def evaluate(args):
     _sensor_flags(args)
     plan.read(args.transform, sidecars=False)  # a text matrix: nothing is read beside it
     plan.read(args.extrinsic, sidecars=False)
+    poses = _given_poses(args)  # NaN, a scale or shear: one line before any frame is read
     out = plan.directory(args.output)
     for name in EVALUATION_FILES.values():
         plan.write(out / name)
@@ -157,7 +158,18 @@ def evaluate(args):
         raise OutputError(f"-o {args.output} exists and is not empty ({len(held)} entries: {', '.join(names[:3])}"
                           f"{', ...' if len(names) > 3 else ''}); --force replaces its evaluation files")
     with plan:
-        _evaluate(args, out)
+        _evaluate(args, out, *poses)
+
+
+def _given_poses(args) -> tuple:
+    """``(transform, extrinsic)`` read from their files and checked (a rigid pose; a rig's extrinsic taken as
+    its nearest rotation, said once), or None each."""
+    transform = extrinsic = None
+    if args.transform:
+        transform = as_rigid_pose(read_matrix(args.transform), f"--transform {args.transform}")
+    if args.extrinsic:
+        extrinsic = rig_extrinsic(read_extrinsic(args.extrinsic), f"--extrinsic {args.extrinsic}")
+    return transform, extrinsic
 
 
 def _beams(cloud, mode: str, what: str):
@@ -174,12 +186,7 @@ def _beams(cloud, mode: str, what: str):
     return {"auto": "auto", "scan-order": "scan-order", "none": None}[mode]
 
 
-def _evaluate(args, out):
-    transform = extrinsic = None
-    if args.transform:
-        transform = as_rigid_pose(read_matrix(args.transform), f"--transform {args.transform}")
-    if args.extrinsic:
-        extrinsic = read_extrinsic(args.extrinsic)
+def _evaluate(args, out, transform, extrinsic):
     clouds = [read_cloud(p, args.input_format, allow_empty=False) for p in (args.a, args.b)]
     frames = []  # each in its sensor's frame: a file that records its scanner's position (.npz, .pcd, .e57)
     for c in clouds:  # holds world coordinates, moved to that position in float64
