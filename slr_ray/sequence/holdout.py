@@ -47,7 +47,7 @@ from .union import FrameCache, Keep, accumulate, to_frame, window
 
 __all__ = ["METHODS", "LABELS", "HoldoutOptions", "evaluate_holdout", "evaluate_sequence", "mean_rows", "DEFAULT_METHODS",
            "clamped_depth_errors", "lidar4d_holdout", "LIDAR4D_MAX_DEPTH", "holdout_ray_model", "simulate_holdout",
-           "GRID_SOURCES", "others_pattern", "scoring_grid", "one_frame_refusal"]
+           "GRID_SOURCES", "others_pattern", "scoring_grid", "one_frame_refusal", "check_held_out_kinds"]
 
 #: LiDAR4D's depth clamp (utils/metrics.py, compute_depth_errors: min 1e-6, max 80 m)
 LIDAR4D_MAX_DEPTH = 80.0
@@ -299,6 +299,33 @@ def _check_kind(grid: ScoringGrid, methods, see_through=None) -> None:
             raise InputValueError(f"{', '.join(need)} need(s) the frames' beam table ({REGISTRY[need[0]].source_why}): "
                                   f"{grid.how.split(':')[0]} frames have none; use embree-knn, or name the frames' "
                                   "sensor if they are a spinning unit's (--source-sensor)")
+
+
+def check_held_out_kinds(seq: Sequence, holdout, sensor, methods, see_through=None) -> None:
+    """With ``sensor`` ``"auto"``, refuse up front (before any window is read, any grid fitted, any frame
+    registered) the methods and the see-through removal that need the frames' beam table where a held-out
+    frame is terrestrial (:func:`_check_kind`'s refusal, naming the frames). A frame whose header holds a
+    ``ring`` field is spinning without reading it (:meth:`~slr_ray.sequence.layouts.FrameSource.fields`);
+    any other is read, its points only, and decided as :func:`scoring_grid` decides."""
+    if not (isinstance(sensor, str) and sensor == AUTO):
+        return
+    if see_through is None and not any(REGISTRY[m].needs_source_sensor for m in methods if m in REGISTRY):
+        return
+    default = shipped_sensor(DEFAULT_SPINNING)
+    flat = []
+    for h in holdout:
+        names = seq.layout.fields(seq, h)
+        if names is not None and "ring" in names:
+            continue
+        pts, attrs = seq.layout.frame(seq, h)
+        if sensor_kind(pts, attrs, default) == TERRESTRIAL:
+            flat.append(seq.names[h])
+    if flat:
+        try:
+            _check_kind(ScoringGrid(TERRESTRIAL, None, None, None, "terrestrial"), methods, see_through)
+        except InputValueError as exc:
+            raise InputValueError(f"held-out frame(s) {', '.join(flat)} (no ring field, not in {default.name}'s "
+                                  f"scan order): {exc}") from None
 
 
 def evaluate_holdout(seq: Sequence, target: int, options: HoldoutOptions | None = None, *,
