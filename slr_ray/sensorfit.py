@@ -58,7 +58,8 @@ from .io import PointCloud, read_cloud
 from .sensors import BeamPattern, scan_order_beams
 from .sequence.rays import beam_lines
 
-__all__ = ["fit_card", "RING_FIELDS", "MAX_BEAMS", "MIN_ASSIGNED", "MAX_RESIDUAL_DEG"]
+__all__ = ["fit_card", "RING_FIELDS", "MAX_BEAMS", "MIN_ASSIGNED", "MAX_RESIDUAL_DEG", "MAX_FOREIGN_SHARE",
+           "MAX_RING_SHIFT_DEG"]
 
 #: the attributes that record each point's beam, first found used
 RING_FIELDS = ("ring", "laser_number", "channel", "laser_id")
@@ -172,7 +173,7 @@ def _assign(el, z0, u, t):
 
 
 def fit_card(frames, ring: str | bool = "auto", name: str | None = None, source: str | None = None,
-             input_format: str | None = None) -> BeamPattern:
+             input_format: str | None = None, allow_mixed: bool = False) -> BeamPattern:
     """A spinning unit's card from ``frames`` (module docstring).
 
     Parameters
@@ -186,6 +187,9 @@ def fit_card(frames, ring: str | bool = "auto", name: str | None = None, source:
         The card's name (default ``"fitted"``) and where its frames came from (default: their paths).
     input_format : str, optional
         Files' format, overriding their extension (``".pcd.bin"``).
+    allow_mixed : bool
+        Fit frames that look like two units' anyway. Default False: refused
+        (:data:`MAX_FOREIGN_SHARE`, :data:`MAX_RING_SHIFT_DEG`), naming two frames that disagree.
 
     Returns
     -------
@@ -217,6 +221,8 @@ def fit_card(frames, ring: str | bool = "auto", name: str | None = None, source:
     assigned = off <= 0.5 * _band_gaps(el)[R]  # within its beam's band
     share = float(assigned.mean())
     resid = float(np.median(off))
+    if not allow_mixed:  # before the quality check: two units' rings fit no line, and this says why
+        _refuse_mixed(fr, fid[ok], R, n, t, use_rings)
     if (share < MIN_ASSIGNED and not use_rings) or resid > MAX_RESIDUAL_DEG:  # rings say where points go
         _not_spinning(labels, f"{share:.0%} of the points on {n} beams, median {resid:.3f} deg off them; a "
                               f"spinning unit's: over {MIN_ASSIGNED:.0%}, under {MAX_RESIDUAL_DEG} deg")
@@ -239,6 +245,54 @@ def fit_card(frames, ring: str | bool = "auto", name: str | None = None, source:
     return BeamPattern(tuple((el + 0.0).tolist()), columns, tuple((np.round(offsets, 5) + 0.0).tolist()),
                        min_range=round(float(rr.min()), 3), max_range=round(float(rr.max()), 3),
                        name=name or "fitted", meta=meta)
+
+
+#: frames of one unit: at most this share of a frame's points lies on beams another frame hardly uses
+#: (under :data:`_HARDLY` of its even share a beam); two units' frames put far more there
+MAX_FOREIGN_SHARE = 0.1
+_HARDLY = 0.02
+#: ... and each beam's median elevation in two frames within this (degrees, median over the beams)
+MAX_RING_SHIFT_DEG = 0.1
+
+
+def _foreign_shares(fid, R, n, n_frames) -> np.ndarray:
+    """``[i, j]``: the share of frame ``i``'s points on beams frame ``j`` hardly uses."""
+    counts = np.zeros((n_frames, n))
+    np.add.at(counts, (fid, R), 1)
+    total = counts.sum(axis=1, keepdims=True)
+    hardly = counts < _HARDLY * np.maximum(total, 1) / n  # [j, beam]
+    return (counts @ hardly.T.astype(float)) / np.maximum(total, 1)
+
+
+def _refuse_mixed(fr, fid, R, n, t, use_rings) -> None:
+    """Refuse frames of two units (one line naming two that disagree): a frame with over
+    :data:`MAX_FOREIGN_SHARE` of its points on beams (rings, or beams voted from the points) another frame
+    hardly uses (a 128-ring unit's frame beside a 64-ring one's), or rings whose elevations in two frames
+    differ by over :data:`MAX_RING_SHIFT_DEG` (median over the rings both use: two units of one ring count)."""
+    if len(fr) < 2:
+        return
+    shares = _foreign_shares(fid, R, n, len(fr))
+    i, j = np.unravel_index(int(np.argmax(shares)), shares.shape)
+    if shares[i, j] > MAX_FOREIGN_SHARE:
+        raise InputValueError(f"{fr[i][2]} and {fr[j][2]}: {shares[i, j]:.0%} of the first's points lie on beams the "
+                              f"second hardly returns from ({n} beams fitted from both): frames of two units, not "
+                              "fitted as one card (--allow-mixed-frames to fit them anyway)")
+    if not use_rings:  # voted beams: each point went to the nearest beam, so their elevations agree by construction
+        return
+    el = np.degrees(np.arctan(t))
+    med = np.full((len(fr), n), np.nan)
+    for k in range(len(fr)):
+        mine = fid == k
+        for b in np.unique(R[mine]):
+            med[k, b] = np.median(el[mine][R[mine] == b])
+    for a in range(len(fr)):
+        for b in range(a + 1, len(fr)):
+            both = np.isfinite(med[a]) & np.isfinite(med[b])
+            shift = float(np.median(np.abs(med[a, both] - med[b, both]))) if both.any() else 0.0
+            if shift > MAX_RING_SHIFT_DEG:
+                raise InputValueError(f"{fr[a][2]} and {fr[b][2]}: their beams' elevations differ by {shift:.3g} deg "
+                                      f"(median over {int(both.sum())} beams): frames of two units, not fitted as one "
+                                      "card (--allow-mixed-frames to fit them anyway)")
 
 
 def _rings(fr, ring) -> tuple[list, bool]:

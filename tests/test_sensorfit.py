@@ -237,3 +237,36 @@ def read_card_of(card, tmp=None):
     with tempfile.TemporaryDirectory() as d:
         write_card(Path(d) / "c.json", card)
         return read_card(Path(d) / "c.json")
+
+
+@pytest.mark.parametrize("a, b, ring, fits", [
+    ("velodyne_vlp32c", "ouster_os1_128", True, True),    # ring numbers of two extents: 32 and 128 rings
+    ("velodyne_vlp32c", "ouster_os1_128", False, True),   # beams from the points: each unit's on its own beams
+    ("velodyne_vlp32c", "velodyne_hdl32e", True, False),  # 32 rings each, at other elevations: no line fits
+])
+def test_frames_of_two_units_are_refused_naming_them_and_fitted_on_request(a, b, ring, fits, tmp_path, capsys):
+    """Frames of one unit fit (two frames, other drops and ranges); a frame of another unit among them is
+    refused in one line naming both frames, and fitted when asked (reliab: a Pandar64 and a QT64 frame gave
+    one 113-beam card with a split-beam warning only). Failed before: a card was fitted."""
+    one = [_frame(sensor(a, columns=512), seed=s, drop=d) for s, d in ((1, 0.1), (2, 0.3))]
+    assert fit_card(one, ring=ring).n_beams == sensor(a).n_beams
+    two = [one[0], _frame(sensor(b, columns=512), seed=3)]
+    with pytest.raises(InputValueError, match=r"frame [01] and frame [01]: .*frames of two units") as exc, \
+            warnings.catch_warnings():
+        warnings.simplefilter("ignore")
+        fit_card(two, ring=ring)
+    assert "--allow-mixed-frames" in str(exc.value)
+    with warnings.catch_warnings(), pytest.raises(InputValueError, match="not a spinning") if not fits else \
+            warnings.catch_warnings():
+        warnings.simplefilter("ignore")
+        assert fit_card(two, ring=ring, allow_mixed=True).n_beams > sensor(a).n_beams
+    if ring:
+        return
+    paths = [write_cloud(tmp_path / f"{k}.ply", PointCloud(c.points, {})) for k, c in enumerate(two)]
+    assert main(["sensor", "fit", *map(str, paths), "-o", str(tmp_path / "c.json")]) == 2
+    err = capsys.readouterr().err
+    assert err.count("\n") == 1 and "0.ply" in err and "1.ply" in err and "frames of two units" in err
+    assert not (tmp_path / "c.json").exists()
+    with warnings.catch_warnings():
+        warnings.simplefilter("ignore")
+        assert main(["sensor", "fit", *map(str, paths), "-o", str(tmp_path / "c.json"), "--allow-mixed-frames"]) == 0

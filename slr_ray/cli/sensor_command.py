@@ -40,6 +40,9 @@ def add_sensor_parser(sub) -> None:
                         "(from the points' elevations only)")
     q.add_argument("--name", help="the card's name (default: the output's stem)")
     q.add_argument("--source", help="where the frames came from, kept in the card (default: their paths)")
+    q.add_argument("--allow-mixed-frames", action="store_true",
+                   help="fit frames that look like two units' (beams one frame hardly returns from holding another's "
+                        "points, or rings at other elevations) as one card anyway; refused by default")
     A.add_input_format(q)
     q.add_argument("--force", action="store_true", help="overwrite an existing output")
     q = ssub.add_parser("show", help="a shipped sensor's or a card's table, as one JSON line")
@@ -72,7 +75,7 @@ def fit(args):
         t0 = time.perf_counter()
         ring = {"auto": "auto", "field": True, "points": False}[args.rings]
         card = fit_card(list(args.frames), ring=ring, name=args.name or Path(args.output).stem, source=args.source,
-                        input_format=args.input_format)
+                        input_format=args.input_format, allow_mixed=args.allow_mixed_frames)
         with atomic_path(Path(args.output)) as tmp:
             tmp.write_text(json.dumps(card_dict(card), indent=1) + "\n")
     q = card.meta["fit"]
