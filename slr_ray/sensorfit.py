@@ -59,7 +59,7 @@ from .sensors import BeamPattern, scan_order_beams
 from .sequence.rays import beam_lines
 
 __all__ = ["fit_card", "RING_FIELDS", "MAX_BEAMS", "MIN_ASSIGNED", "MAX_RESIDUAL_DEG", "MAX_FOREIGN_SHARE",
-           "MAX_RING_SHIFT_DEG"]
+           "MAX_RING_SHIFT_DEG", "merge_split_beams"]
 
 #: the attributes that record each point's beam, first found used
 RING_FIELDS = ("ring", "laser_number", "channel", "laser_id")
@@ -150,6 +150,59 @@ def _warn_split(el, labels) -> int:
                       "(frames not in the sensor's own axes, several sweeps merged, or a moving unit's frame): "
                       "check the card (its fit quality: split_beams)", SlrWarning, stacklevel=3)
     return split
+
+
+def merge_split_beams(card: BeamPattern, max_gap_deg: float) -> BeamPattern:
+    """``card`` (fitted without rings) with its split beams merged: the two beams closest in elevation,
+    while under ``max_gap_deg`` apart, become one, repeatedly (a deskewed frame's beam seen at two
+    elevations: BALM's OS0-64-like frames, 109 beams, merge at 0.45 deg into the unit's 64). A merged
+    beam's elevation and height are its two's weighted by their points, its azimuth offset their
+    weighted circular mean within a column, its drop rate what neither returned (``d1 + d2 - 1``, at
+    least 0: the halves' pulses apart), its points their sum. ``meta["fit"]["merged"]`` says what was
+    merged. Refused (ValueError naming the argument): a card whose beams are rings, a bound that is not
+    a positive number, or one at half the merged beams' median gap or over (it would merge a unit's own
+    neighbouring beams)."""
+    if not (isinstance(max_gap_deg, (int, float)) and not isinstance(max_gap_deg, bool) and max_gap_deg > 0):
+        raise InputValueError(f"max_gap_deg must be a number of degrees > 0, got {max_gap_deg!r}")
+    meta = dict(card.meta)
+    if "ring" in meta or meta.get("beams_from") != "elevation bands":  # fit_card's mark of a card without rings
+        raise InputValueError(f"card {card.name!r}: its beams are the frames' rings, not voted from the points: "
+                              "none is split (merge_split_beams, --merge-split-beams)")
+    n = card.n_beams
+    order = np.argsort(card.elevation_deg)
+
+    def col(key, default):
+        v = meta.get(key)
+        return list(np.asarray(v if v is not None else [default] * n, float)[order])
+
+    el, w, h = list(np.asarray(card.elevation_deg, float)[order]), col("points", 1.0), col("height_m", 0.0)
+    d = col("drop_rate", 0.0)
+    step = 360.0 / card.columns
+    ph = list(np.exp(2j * np.pi * np.asarray(card.azimuth_offset_deg, float)[order] / step))
+    while len(el) > 1:
+        g = np.diff(el)
+        i = int(np.argmin(g))
+        if g[i] >= max_gap_deg:
+            break
+        a, b = w[i], w[i + 1]
+        el[i:i + 2] = [(el[i] * a + el[i + 1] * b) / (a + b)]
+        h[i:i + 2] = [(h[i] * a + h[i + 1] * b) / (a + b)]
+        ph[i:i + 2] = [(ph[i] * a + ph[i + 1] * b) / (a + b)]
+        d[i:i + 2] = [max(0.0, d[i] + d[i + 1] - 1.0)]
+        w[i:i + 2] = [a + b]
+    gaps = np.diff(el)
+    if len(gaps) and max_gap_deg >= 0.5 * float(np.median(gaps)):
+        raise InputValueError(f"max_gap_deg {max_gap_deg:g}: at half the merged beams' median gap "
+                              f"({float(np.median(gaps)):.3g} deg) or over: it merges the unit's own neighbouring "
+                              "beams, not one beam seen twice (--merge-split-beams)")
+    off = np.angle(np.asarray(ph)) * step / (2 * np.pi)
+    fit = dict(meta.get("fit", {}))
+    fit["merged"] = {"max_gap_deg": max_gap_deg, "beams_before": n, "beams_merged": n - len(el)}
+    fit["split_beams"] = _split_beams(el)
+    meta |= {"height_m": [round(float(x), 5) + 0.0 for x in h], "drop_rate": [round(float(x), 5) + 0.0 for x in d],
+             "points": [int(x) for x in w], "fit": fit}
+    return BeamPattern(tuple(round(float(e), 5) + 0.0 for e in el), card.columns, tuple((np.round(off, 5) + 0.0).tolist()),
+                       min_range=card.min_range, max_range=card.max_range, name=card.name, meta=meta)
 
 
 def _apparent(el_deg, z0, rho):
