@@ -460,10 +460,18 @@ def one_frame_refusal(seq: Sequence) -> str:
             "a drive's frames); slr-ray scan or augment re-simulate one scan from other positions")
 
 
-def evaluate_sequence(seq: Sequence, holdout, sensor: str = "velodyne_hdl64e_s2", methods=DEFAULT_METHODS,
+def evaluate_sequence(seq: Sequence, holdout, sensor: str = AUTO, methods=DEFAULT_METHODS,
                       half: int | None = 2, radius: float | None = None, drop_moving: bool = True,
                       progress: bool = False, **kw) -> dict:
-    """Every held-out frame (sequence indices) by :func:`evaluate_holdout`; ``mean`` over them."""
+    """Every held-out frame (sequence indices) by :func:`evaluate_holdout`; ``mean`` over them.
+
+    ``sensor`` (:class:`HoldoutOptions`' ``sensor``) defaults to ``"auto"``, as ``slr-ray sequence
+    evaluate`` without ``--source-sensor``: each held-out frame with a ring field or in
+    ``velodyne_hdl64e_s2``'s scan order (KITTI's) is scored on that spinning unit's table, as the
+    old default scored it; any other on a terrestrial scanner's grid fitted to it (the old default
+    scored it on the HDL-64E's table, with a warning). Name the sensor (``"velodyne_hdl64e_s2"``, a card)
+    for the old behaviour everywhere, and with ``target_sensor`` (a target unit is re-simulated from
+    the source frames' own table: ``"auto"`` is refused there)."""
     holdout = [int(h) for h in holdout]
     if len(seq) < 2:
         raise InputValueError(one_frame_refusal(seq))
