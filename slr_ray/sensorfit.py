@@ -310,8 +310,7 @@ MAX_RING_SHIFT_DEG = 0.1
 
 def _foreign_shares(fid, R, n, n_frames) -> np.ndarray:
     """``[i, j]``: the share of frame ``i``'s points on beams frame ``j`` hardly uses."""
-    counts = np.zeros((n_frames, n))
-    np.add.at(counts, (fid, R), 1)
+    counts = np.bincount(np.asarray(fid, np.int64) * n + R, minlength=n_frames * n).reshape(n_frames, n).astype(float)
     total = counts.sum(axis=1, keepdims=True)
     hardly = counts < _HARDLY * np.maximum(total, 1) / n  # [j, beam]
     return (counts @ hardly.T.astype(float)) / np.maximum(total, 1)
@@ -332,12 +331,13 @@ def _refuse_mixed(fr, fid, R, n, t, use_rings) -> None:
                               "fitted as one card (--allow-mixed-frames to fit them anyway)")
     if not use_rings:  # voted beams: each point went to the nearest beam, so their elevations agree by construction
         return
-    el = np.degrees(np.arctan(t))
-    med = np.full((len(fr), n), np.nan)
-    for k in range(len(fr)):
-        mine = fid == k
-        for b in np.unique(R[mine]):
-            med[k, b] = np.median(el[mine][R[mine] == b])
+    key = np.asarray(fid, np.int64) * n + R  # each frame's beam: its points' median elevation, one sort
+    order = np.argsort(key, kind="stable")
+    groups, starts = np.unique(key[order], return_index=True)
+    el = np.degrees(np.arctan(t))[order]
+    med = np.full(len(fr) * n, np.nan)
+    med[groups] = [np.median(part) for part in np.split(el, starts[1:])]
+    med = med.reshape(len(fr), n)
     for a in range(len(fr)):
         for b in range(a + 1, len(fr)):
             both = np.isfinite(med[a]) & np.isfinite(med[b])
