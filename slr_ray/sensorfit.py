@@ -58,7 +58,8 @@ from .io import PointCloud, read_cloud
 from .sensors import BeamPattern, scan_order_beams
 from .sequence.rays import beam_lines
 
-__all__ = ["fit_card", "RING_FIELDS", "MAX_BEAMS", "MIN_ASSIGNED", "MAX_RESIDUAL_DEG"]
+__all__ = ["fit_card", "RING_FIELDS", "MAX_BEAMS", "MIN_ASSIGNED", "MAX_RESIDUAL_DEG", "MAX_FOREIGN_SHARE",
+           "MAX_RING_SHIFT_DEG", "merge_split_beams"]
 
 #: the attributes that record each point's beam, first found used
 RING_FIELDS = ("ring", "laser_number", "channel", "laser_id")
@@ -151,6 +152,59 @@ def _warn_split(el, labels) -> int:
     return split
 
 
+def merge_split_beams(card: BeamPattern, max_gap_deg: float) -> BeamPattern:
+    """``card`` (fitted without rings) with its split beams merged: the two beams closest in elevation,
+    while under ``max_gap_deg`` apart, become one, repeatedly (a deskewed frame's beam seen at two
+    elevations: BALM's OS0-64-like frames, 109 beams, merge at 0.45 deg into the unit's 64). A merged
+    beam's elevation and height are its two's weighted by their points, its azimuth offset their
+    weighted circular mean within a column, its drop rate what neither returned (``d1 + d2 - 1``, at
+    least 0: the halves' pulses apart), its points their sum. ``meta["fit"]["merged"]`` says what was
+    merged. Refused (ValueError naming the argument): a card whose beams are rings, a bound that is not
+    a positive number, or one at half the merged beams' median gap or over (it would merge a unit's own
+    neighbouring beams)."""
+    if not (isinstance(max_gap_deg, (int, float)) and not isinstance(max_gap_deg, bool) and max_gap_deg > 0):
+        raise InputValueError(f"max_gap_deg must be a number of degrees > 0, got {max_gap_deg!r}")
+    meta = dict(card.meta)
+    if "ring" in meta or meta.get("beams_from") != "elevation bands":  # fit_card's mark of a card without rings
+        raise InputValueError(f"card {card.name!r}: its beams are the frames' rings, not voted from the points: "
+                              "none is split (merge_split_beams, --merge-split-beams)")
+    n = card.n_beams
+    order = np.argsort(card.elevation_deg)
+
+    def col(key, default):
+        v = meta.get(key)
+        return list(np.asarray(v if v is not None else [default] * n, float)[order])
+
+    el, w, h = list(np.asarray(card.elevation_deg, float)[order]), col("points", 1.0), col("height_m", 0.0)
+    d = col("drop_rate", 0.0)
+    step = 360.0 / card.columns
+    ph = list(np.exp(2j * np.pi * np.asarray(card.azimuth_offset_deg, float)[order] / step))
+    while len(el) > 1:
+        g = np.diff(el)
+        i = int(np.argmin(g))
+        if g[i] >= max_gap_deg:
+            break
+        a, b = w[i], w[i + 1]
+        el[i:i + 2] = [(el[i] * a + el[i + 1] * b) / (a + b)]
+        h[i:i + 2] = [(h[i] * a + h[i + 1] * b) / (a + b)]
+        ph[i:i + 2] = [(ph[i] * a + ph[i + 1] * b) / (a + b)]
+        d[i:i + 2] = [max(0.0, d[i] + d[i + 1] - 1.0)]
+        w[i:i + 2] = [a + b]
+    gaps = np.diff(el)
+    if len(gaps) and max_gap_deg >= 0.5 * float(np.median(gaps)):
+        raise InputValueError(f"max_gap_deg {max_gap_deg:g}: at half the merged beams' median gap "
+                              f"({float(np.median(gaps)):.3g} deg) or over: it merges the unit's own neighbouring "
+                              "beams, not one beam seen twice (--merge-split-beams)")
+    off = np.angle(np.asarray(ph)) * step / (2 * np.pi)
+    fit = dict(meta.get("fit", {}))
+    fit["merged"] = {"max_gap_deg": max_gap_deg, "beams_before": n, "beams_merged": n - len(el)}
+    fit["split_beams"] = _split_beams(el)
+    meta |= {"height_m": [round(float(x), 5) + 0.0 for x in h], "drop_rate": [round(float(x), 5) + 0.0 for x in d],
+             "points": [int(x) for x in w], "fit": fit}
+    return BeamPattern(tuple(round(float(e), 5) + 0.0 for e in el), card.columns, tuple((np.round(off, 5) + 0.0).tolist()),
+                       min_range=card.min_range, max_range=card.max_range, name=card.name, meta=meta)
+
+
 def _apparent(el_deg, z0, rho):
     """The elevation, seen from the origin, of beams ``(el_deg, z0)`` at horizontal distance ``rho``."""
     return np.degrees(np.arctan(np.tan(np.radians(el_deg)) + z0 / rho))
@@ -172,7 +226,7 @@ def _assign(el, z0, u, t):
 
 
 def fit_card(frames, ring: str | bool = "auto", name: str | None = None, source: str | None = None,
-             input_format: str | None = None) -> BeamPattern:
+             input_format: str | None = None, allow_mixed: bool = False) -> BeamPattern:
     """A spinning unit's card from ``frames`` (module docstring).
 
     Parameters
@@ -186,6 +240,9 @@ def fit_card(frames, ring: str | bool = "auto", name: str | None = None, source:
         The card's name (default ``"fitted"``) and where its frames came from (default: their paths).
     input_format : str, optional
         Files' format, overriding their extension (``".pcd.bin"``).
+    allow_mixed : bool
+        Fit frames that look like two units' anyway. Default False: refused
+        (:data:`MAX_FOREIGN_SHARE`, :data:`MAX_RING_SHIFT_DEG`), naming two frames that disagree.
 
     Returns
     -------
@@ -217,6 +274,8 @@ def fit_card(frames, ring: str | bool = "auto", name: str | None = None, source:
     assigned = off <= 0.5 * _band_gaps(el)[R]  # within its beam's band
     share = float(assigned.mean())
     resid = float(np.median(off))
+    if not allow_mixed:  # before the quality check: two units' rings fit no line, and this says why
+        _refuse_mixed(fr, fid[ok], R, n, t, use_rings)
     if (share < MIN_ASSIGNED and not use_rings) or resid > MAX_RESIDUAL_DEG:  # rings say where points go
         _not_spinning(labels, f"{share:.0%} of the points on {n} beams, median {resid:.3f} deg off them; a "
                               f"spinning unit's: over {MIN_ASSIGNED:.0%}, under {MAX_RESIDUAL_DEG} deg")
@@ -239,6 +298,54 @@ def fit_card(frames, ring: str | bool = "auto", name: str | None = None, source:
     return BeamPattern(tuple((el + 0.0).tolist()), columns, tuple((np.round(offsets, 5) + 0.0).tolist()),
                        min_range=round(float(rr.min()), 3), max_range=round(float(rr.max()), 3),
                        name=name or "fitted", meta=meta)
+
+
+#: frames of one unit: at most this share of a frame's points lies on beams another frame hardly uses
+#: (under :data:`_HARDLY` of its even share a beam); two units' frames put far more there
+MAX_FOREIGN_SHARE = 0.1
+_HARDLY = 0.02
+#: ... and each beam's median elevation in two frames within this (degrees, median over the beams)
+MAX_RING_SHIFT_DEG = 0.1
+
+
+def _foreign_shares(fid, R, n, n_frames) -> np.ndarray:
+    """``[i, j]``: the share of frame ``i``'s points on beams frame ``j`` hardly uses."""
+    counts = np.bincount(np.asarray(fid, np.int64) * n + R, minlength=n_frames * n).reshape(n_frames, n).astype(float)
+    total = counts.sum(axis=1, keepdims=True)
+    hardly = counts < _HARDLY * np.maximum(total, 1) / n  # [j, beam]
+    return (counts @ hardly.T.astype(float)) / np.maximum(total, 1)
+
+
+def _refuse_mixed(fr, fid, R, n, t, use_rings) -> None:
+    """Refuse frames of two units (one line naming two that disagree): a frame with over
+    :data:`MAX_FOREIGN_SHARE` of its points on beams (rings, or beams voted from the points) another frame
+    hardly uses (a 128-ring unit's frame beside a 64-ring one's), or rings whose elevations in two frames
+    differ by over :data:`MAX_RING_SHIFT_DEG` (median over the rings both use: two units of one ring count)."""
+    if len(fr) < 2:
+        return
+    shares = _foreign_shares(fid, R, n, len(fr))
+    i, j = np.unravel_index(int(np.argmax(shares)), shares.shape)
+    if shares[i, j] > MAX_FOREIGN_SHARE:
+        raise InputValueError(f"{fr[i][2]} and {fr[j][2]}: {shares[i, j]:.0%} of the first's points lie on beams the "
+                              f"second hardly returns from ({n} beams fitted from both): frames of two units, not "
+                              "fitted as one card (--allow-mixed-frames to fit them anyway)")
+    if not use_rings:  # voted beams: each point went to the nearest beam, so their elevations agree by construction
+        return
+    key = np.asarray(fid, np.int64) * n + R  # each frame's beam: its points' median elevation, one sort
+    order = np.argsort(key, kind="stable")
+    groups, starts = np.unique(key[order], return_index=True)
+    el = np.degrees(np.arctan(t))[order]
+    med = np.full(len(fr) * n, np.nan)
+    med[groups] = [np.median(part) for part in np.split(el, starts[1:])]
+    med = med.reshape(len(fr), n)
+    for a in range(len(fr)):
+        for b in range(a + 1, len(fr)):
+            both = np.isfinite(med[a]) & np.isfinite(med[b])
+            shift = float(np.median(np.abs(med[a, both] - med[b, both]))) if both.any() else 0.0
+            if shift > MAX_RING_SHIFT_DEG:
+                raise InputValueError(f"{fr[a][2]} and {fr[b][2]}: their beams' elevations differ by {shift:.3g} deg "
+                                      f"(median over {int(both.sum())} beams): frames of two units, not fitted as one "
+                                      "card (--allow-mixed-frames to fit them anyway)")
 
 
 def _rings(fr, ring) -> tuple[list, bool]:

@@ -204,3 +204,22 @@ def test_cli_cross_sensor_end_to_end(rig, tmp_path, capsys):
     assert sum(res["source_reach"]["points"].values()) == sum(row["target points"] for row in res["reach_table"])
     table = (tmp_path / "out" / "table.md").read_text()
     assert table.startswith("| method |") and "| binning | outside source FOV |" in table
+
+
+@pytest.mark.parametrize("matrix, message", [
+    ([[float("nan"), 0, 0, 0], [0, 1, 0, 0], [0, 0, 1, 0], [0, 0, 0, 1]], "1 NaN or inf value(s)"),
+    ([[2.0, 0, 0, 0], [0, 1, 0, 0], [0, 0, 1, 0], [0, 0, 0, 1]], "its 3 x 3 part is not a rotation"),
+])
+def test_cli_refuses_a_bad_extrinsic_before_reading_any_frame(tmp_path, capsys, matrix, message):
+    """A NaN or a scale in --extrinsic is said before the frames are read: the frames here are not point
+    files at all, so reading either would fail first (reliab, #46 leftover)."""
+    a, b = tmp_path / "a.xyz", tmp_path / "b.xyz"
+    a.write_text("not a point\n")
+    b.write_text("not a point\n")
+    rig = tmp_path / "rig.json"
+    rig.write_text(json.dumps({"data": matrix}))
+    r = CliRun(capsys)("evaluate", a, b, "-o", tmp_path / "o", "--extrinsic", rig, "--target-sensor",
+                       "velodyne_vlp16")
+    assert r.returncode == 2 and r.stderr.count("\n") == 1, r.stderr
+    assert f"--extrinsic {rig}: {message}" in r.stderr
+    assert not (tmp_path / "o").exists()

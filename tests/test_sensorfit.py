@@ -237,3 +237,87 @@ def read_card_of(card, tmp=None):
     with tempfile.TemporaryDirectory() as d:
         write_card(Path(d) / "c.json", card)
         return read_card(Path(d) / "c.json")
+
+
+@pytest.mark.parametrize("a, b, ring, fits", [
+    ("velodyne_vlp32c", "ouster_os1_128", True, True),    # ring numbers of two extents: 32 and 128 rings
+    ("velodyne_vlp32c", "ouster_os1_128", False, True),   # beams from the points: each unit's on its own beams
+    ("velodyne_vlp32c", "velodyne_hdl32e", True, False),  # 32 rings each, at other elevations: no line fits
+])
+def test_frames_of_two_units_are_refused_naming_them_and_fitted_on_request(a, b, ring, fits, tmp_path, capsys):
+    """Frames of one unit fit (two frames, other drops and ranges); a frame of another unit among them is
+    refused in one line naming both frames, and fitted when asked (reliab: a Pandar64 and a QT64 frame gave
+    one 113-beam card with a split-beam warning only). Failed before: a card was fitted."""
+    one = [_frame(sensor(a, columns=512), seed=s, drop=d) for s, d in ((1, 0.1), (2, 0.3))]
+    assert fit_card(one, ring=ring).n_beams == sensor(a).n_beams
+    two = [one[0], _frame(sensor(b, columns=512), seed=3)]
+    with pytest.raises(InputValueError, match=r"frame [01] and frame [01]: .*frames of two units") as exc, \
+            warnings.catch_warnings():
+        warnings.simplefilter("ignore")
+        fit_card(two, ring=ring)
+    assert "--allow-mixed-frames" in str(exc.value)
+    with warnings.catch_warnings(), pytest.raises(InputValueError, match="not a spinning") if not fits else \
+            warnings.catch_warnings():
+        warnings.simplefilter("ignore")
+        assert fit_card(two, ring=ring, allow_mixed=True).n_beams > sensor(a).n_beams
+    if ring:
+        return
+    paths = [write_cloud(tmp_path / f"{k}.ply", PointCloud(c.points, {})) for k, c in enumerate(two)]
+    assert main(["sensor", "fit", *map(str, paths), "-o", str(tmp_path / "c.json")]) == 2
+    err = capsys.readouterr().err
+    assert err.count("\n") == 1 and "0.ply" in err and "1.ply" in err and "frames of two units" in err
+    assert not (tmp_path / "c.json").exists()
+    with warnings.catch_warnings():
+        warnings.simplefilter("ignore")
+        assert main(["sensor", "fit", *map(str, paths), "-o", str(tmp_path / "c.json"), "--allow-mixed-frames"]) == 0
+
+
+def _split_frame(table, shift_deg=0.1, seed=4):
+    """A frame of ``table`` (no ring field) whose beams each come out at two elevations ``shift_deg``
+    apart: the half of the turn at positive y raised (a deskewed frame's beam, as BALM's)."""
+    f = _frame(table, drop=0.0, seed=seed)
+    p = f.points.copy()
+    rho = np.hypot(p[:, 0], p[:, 1])
+    up = p[:, 1] > 0
+    p[up, 2] = rho[up] * np.tan(np.arctan2(p[up, 2], rho[up]) + np.radians(shift_deg))
+    return PointCloud(p, {}, np.zeros(3))
+
+
+def test_split_beams_merge_into_the_units_beams_in_the_library_the_cli_and_the_script(tmp_path, capsys, monkeypatch):
+    """#45 leftover (reliab): --merge-split-beams merges each beam seen at two elevations into one, by the
+    rule docs/sequence_sensors/balm_card.py used (now calling the library): the unit's beams, their
+    points kept, no drop made up; a bound that would merge the unit's own beams, or a card of rings,
+    refused. Failed before: no such function or flag."""
+    import runpy
+    import sys
+
+    from slr_ray.errors import SlrWarning
+    from slr_ray.sensorfit import merge_split_beams
+
+    table = BeamPattern(tuple(np.arange(16) * 2.0 - 15.0), 360, name="toy16")
+    frame = _split_frame(table)
+    with pytest.warns(SlrWarning, match="one beam seen twice"):
+        card = fit_card(frame, ring=False)
+    assert card.n_beams == 32
+    merged = merge_split_beams(card, 0.45)
+    assert merged.n_beams == 16 and merged.meta["fit"]["split_beams"] == 0
+    assert np.allclose(merged.elevation_deg, np.asarray(table.elevation_deg) + 0.05, atol=0.01)
+    assert sum(merged.meta["points"]) == sum(card.meta["points"])
+    assert max(merged.meta["drop_rate"]) < 0.02 < min(card.meta["drop_rate"])  # each half drops half the turn
+    assert merged.meta["fit"]["merged"] == {"max_gap_deg": 0.45, "beams_before": 32, "beams_merged": 16}
+    with pytest.raises(InputValueError, match="own neighbouring beams"):
+        merge_split_beams(card, 1.5)
+    with pytest.raises(InputValueError, match="rings"):
+        merge_split_beams(fit_card(_frame(table, drop=0.0)), 0.45)
+    # the command: the card merged, no split-beam warning
+    write_cloud(tmp_path / "f.ply", frame)
+    assert main(["sensor", "fit", str(tmp_path / "f.ply"), "-o", str(tmp_path / "c.json"),
+                 "--merge-split-beams", "0.45"]) == 0
+    r = capsys.readouterr()
+    assert json.loads(r.out)["beams"] == 16 and "seen twice" not in r.err
+    assert np.allclose(sensor(str(tmp_path / "c.json")).elevation_deg, merged.elevation_deg, atol=1e-5)
+    # the docs' script: the library's merge, rounded as it writes its card
+    script = Path(__file__).resolve().parents[1] / "docs" / "sequence_sensors" / "balm_card.py"
+    monkeypatch.setattr(sys, "argv", [str(script), str(tmp_path / "f.ply"), str(tmp_path / "s.json")])
+    runpy.run_path(str(script), run_name="__main__")
+    assert read_card(tmp_path / "s.json").elevation_deg == tuple(round(e, 4) for e in merged.elevation_deg)

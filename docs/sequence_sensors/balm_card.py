@@ -6,9 +6,7 @@ their points, give the unit's 64. Run from the repository root: python docs/sequ
 import sys
 import warnings
 
-import numpy as np
-
-from slr_ray.sensorfit import fit_card
+from slr_ray.sensorfit import fit_card, merge_split_beams
 from slr_ray.sensors import BeamPattern, write_card
 
 frame = sys.argv[1] if len(sys.argv) > 1 else "../shared/data/balm_os0_64/full20.pcd"
@@ -17,16 +15,7 @@ with warnings.catch_warnings(record=True) as said:
     warnings.simplefilter("always")
     fitted = fit_card(frame, name="balm_os0_64_fitted")
 print(fitted.n_beams, "beams fitted;", fitted.meta["fit"], *[str(w.message) for w in said], sep="\n")
-order = np.argsort(fitted.elevation_deg)
-el = list(np.asarray(fitted.elevation_deg)[order])
-w = list(np.asarray(fitted.meta["points"], float)[order])
-while len(el) > 1:
-    g = np.diff(el)
-    i = int(np.argmin(g))
-    if g[i] >= 0.45:
-        break
-    el[i:i + 2] = [(el[i] * w[i] + el[i + 1] * w[i + 1]) / (w[i] + w[i + 1])]
-    w[i:i + 2] = [w[i] + w[i + 1]]
+el = merge_split_beams(fitted, 0.45).elevation_deg  # the close pairs merged (slr-ray sensor fit --merge-split-beams)
 card = BeamPattern(tuple(round(float(e), 4) for e in el), fitted.columns, name="balm_os0_64",
                    meta={"source": f"{fitted.meta['source']}; close pairs (< 0.45 deg) merged by "
                                    "docs/sequence_sensors/balm_card.py", "beams_from": "elevation bands"})

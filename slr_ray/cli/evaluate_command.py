@@ -13,7 +13,7 @@ import numpy as np
 
 from ..arrays import as_rigid_pose
 from ..errors import InputValueError, OutputError, SlrError, SlrWarning
-from ..evaluate import EVALUATION_FILES, evaluate_pair, evaluation_table, reach_table, write_evaluation
+from ..evaluate import EVALUATION_FILES, evaluate_pair, evaluation_table, reach_table, rig_extrinsic, write_evaluation
 from ..io import read_cloud
 from ..io.outputs import LOCK_NAME, OutputPlan
 from ..plotting import evaluation_figure, save_figure
@@ -54,28 +54,27 @@ def read_matrix(path, flag: str = "--transform") -> np.ndarray:
     return np.array(rows, np.float64)
 
 
-def _matrices(node, found: list) -> list:
-    """Every 4 x 4 (or 3 x 4) list of numbers in a JSON document, depth first."""
-    if isinstance(node, list) and len(node) in (3, 4) and all(
-            isinstance(r, list) and len(r) == 4 and all(isinstance(v, (int, float)) and not isinstance(v, bool)
-                                                         for v in r) for r in node):
-        found.append(node)
-    elif isinstance(node, dict):
-        for v in node.values():
-            _matrices(v, found)
-    elif isinstance(node, list):
-        for v in node:
-            _matrices(v, found)
-    return found
+def _number(v) -> bool:
+    return isinstance(v, (int, float)) and not isinstance(v, bool)
 
 
-def _has_flat16(node) -> bool:
-    """Whether ``node`` (parsed JSON) holds a flat list of 16 numbers (a ROS-style matrix)."""
-    if isinstance(node, list) and len(node) == 16 and all(isinstance(v, (int, float)) and not isinstance(v, bool)
-                                                          for v in node):
-        return True
-    children = node.values() if isinstance(node, dict) else node if isinstance(node, list) else ()
-    return any(_has_flat16(v) for v in children)
+def _lists(node):
+    """Every list in a parsed JSON document, depth first."""
+    if isinstance(node, list):
+        yield node
+    for v in node.values() if isinstance(node, dict) else node if isinstance(node, list) else ():
+        yield from _lists(v)
+
+
+def _matrices(doc) -> list:
+    """Every 4 x 4 (or 3 x 4) list of numbers in a parsed JSON document, depth first."""
+    return [n for n in _lists(doc) if len(n) in (3, 4) and all(isinstance(r, list) and len(r) == 4
+                                                                and all(map(_number, r)) for r in n)]
+
+
+def _has_flat16(doc) -> bool:
+    """Whether a parsed JSON document holds a flat list of 16 numbers (a ROS-style matrix)."""
+    return any(len(n) == 16 and all(map(_number, n)) for n in _lists(doc))
 
 
 def read_extrinsic(path, flag: str = "--extrinsic") -> np.ndarray:
@@ -88,12 +87,13 @@ def read_extrinsic(path, flag: str = "--extrinsic") -> np.ndarray:
     if not text.lstrip().startswith(("{", "[")):
         return read_matrix(path, flag)
     try:
-        found = _matrices(json.loads(text), [])
+        doc = json.loads(text)
     except json.JSONDecodeError as exc:
         raise InputValueError(f"{flag} {path}: not JSON ({exc})") from None
+    found = _matrices(doc)
     if len(found) != 1:
         flat = " (a flat list of 16 numbers is not read: its order, by rows or by columns, is not known; give the "\
-            "matrix as 4 lists of 4, rows first)" if not found and _has_flat16(json.loads(text)) else ""
+            "matrix as 4 lists of 4, rows first)" if not found and _has_flat16(doc) else ""
         raise InputValueError(f"{flag} {path}: holds {len(found)} 4 x 4 matrices of numbers, not one{flat}")
     return np.array(found[0], np.float64)
 
@@ -147,6 +147,7 @@ def evaluate(args):
     _sensor_flags(args)
     plan.read(args.transform, sidecars=False)  # a text matrix: nothing is read beside it
     plan.read(args.extrinsic, sidecars=False)
+    poses = _given_poses(args)  # NaN, a scale or shear: one line before any frame is read
     out = plan.directory(args.output)
     for name in EVALUATION_FILES.values():
         plan.write(out / name)
@@ -157,7 +158,18 @@ def evaluate(args):
         raise OutputError(f"-o {args.output} exists and is not empty ({len(held)} entries: {', '.join(names[:3])}"
                           f"{', ...' if len(names) > 3 else ''}); --force replaces its evaluation files")
     with plan:
-        _evaluate(args, out)
+        _evaluate(args, out, *poses)
+
+
+def _given_poses(args) -> tuple:
+    """``(transform, extrinsic)`` read from their files and checked (a rigid pose; a rig's extrinsic taken as
+    its nearest rotation, said once), or None each."""
+    transform = extrinsic = None
+    if args.transform:
+        transform = as_rigid_pose(read_matrix(args.transform), f"--transform {args.transform}")
+    if args.extrinsic:
+        extrinsic = rig_extrinsic(read_extrinsic(args.extrinsic), f"--extrinsic {args.extrinsic}")
+    return transform, extrinsic
 
 
 def _beams(cloud, mode: str, what: str):
@@ -174,12 +186,7 @@ def _beams(cloud, mode: str, what: str):
     return {"auto": "auto", "scan-order": "scan-order", "none": None}[mode]
 
 
-def _evaluate(args, out):
-    transform = extrinsic = None
-    if args.transform:
-        transform = as_rigid_pose(read_matrix(args.transform), f"--transform {args.transform}")
-    if args.extrinsic:
-        extrinsic = read_extrinsic(args.extrinsic)
+def _evaluate(args, out, transform, extrinsic):
     clouds = [read_cloud(p, args.input_format, allow_empty=False) for p in (args.a, args.b)]
     frames = []  # each in its sensor's frame: a file that records its scanner's position (.npz, .pcd, .e57)
     for c in clouds:  # holds world coordinates, moved to that position in float64

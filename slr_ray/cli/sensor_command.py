@@ -9,12 +9,13 @@ from __future__ import annotations
 
 import json
 import time
+import warnings
 from pathlib import Path
 
-from ..errors import InputValueError
+from ..errors import InputValueError, SlrWarning
 from ..io import atomic_path
 from ..io.outputs import OutputPlan
-from ..sensorfit import RING_FIELDS, fit_card
+from ..sensorfit import RING_FIELDS, fit_card, merge_split_beams
 from ..sensors import card_dict, sensor
 from . import arguments as A
 from .commands import emit
@@ -40,6 +41,13 @@ def add_sensor_parser(sub) -> None:
                         "(from the points' elevations only)")
     q.add_argument("--name", help="the card's name (default: the output's stem)")
     q.add_argument("--source", help="where the frames came from, kept in the card (default: their paths)")
+    q.add_argument("--allow-mixed-frames", action="store_true",
+                   help="fit frames that look like two units' (beams one frame hardly returns from holding another's "
+                        "points, or rings at other elevations) as one card anyway; refused by default")
+    q.add_argument("--merge-split-beams", type=A.positive_float, metavar="DEG",
+                   help="merge beams fitted from the points (no ring field) closer than DEG degrees, two at a time "
+                        "from the closest, weighted by their points: one beam seen at two elevations in deskewed "
+                        "frames (BALM's OS0-64-like frames: 109 beams, 64 at 0.45); off by default")
     A.add_input_format(q)
     q.add_argument("--force", action="store_true", help="overwrite an existing output")
     q = ssub.add_parser("show", help="a shipped sensor's or a card's table, as one JSON line")
@@ -71,8 +79,17 @@ def fit(args):
     with plan:
         t0 = time.perf_counter()
         ring = {"auto": "auto", "field": True, "points": False}[args.rings]
-        card = fit_card(list(args.frames), ring=ring, name=args.name or Path(args.output).stem, source=args.source,
-                        input_format=args.input_format)
+        with warnings.catch_warnings():
+            if args.merge_split_beams:  # the split-beam warning is what the merge answers: said after it, if any
+                warnings.filterwarnings("ignore", message=".*one beam seen twice", category=SlrWarning)
+            card = fit_card(list(args.frames), ring=ring, name=args.name or Path(args.output).stem,
+                            source=args.source, input_format=args.input_format, allow_mixed=args.allow_mixed_frames)
+        if args.merge_split_beams:
+            card = merge_split_beams(card, args.merge_split_beams)
+            if card.meta["fit"]["split_beams"]:
+                warnings.warn(f"--merge-split-beams {args.merge_split_beams:g}: {card.meta['fit']['split_beams']} "
+                              f"of the {card.n_beams} beams still lie under a quarter of the gaps beside them from the "
+                              "next (a larger bound?)", SlrWarning, stacklevel=2)
         with atomic_path(Path(args.output)) as tmp:
             tmp.write_text(json.dumps(card_dict(card), indent=1) + "\n")
     q = card.meta["fit"]
@@ -80,4 +97,5 @@ def fit(args):
           "elevation_range_deg": [min(card.elevation_deg), max(card.elevation_deg)],
           "min_range": card.min_range, "max_range": card.max_range, "how": q["how"],
           "median_off_beam_deg": q["median_off_beam_deg"], "share_assigned": q["share_assigned"],
+          "split_beams": q["split_beams"], "merged": q.get("merged"),
           "seconds": round(time.perf_counter() - t0, 6)})

@@ -15,7 +15,7 @@ from ..sensors import sensor
 from ..errors import InputValueError, OutputError, SlrError, SlrWarning
 from ..sequence import (REMOVE_MOVING, SeeThrough, convert_sequence, evaluate_sequence, read_sequence,
                         read_trajectory, register_chain, write_kitti_poses)
-from ..sequence.holdout import GRID_SOURCES, lidar4d_holdout, one_frame_refusal
+from ..sequence.holdout import GRID_SOURCES, check_held_out_kinds, lidar4d_holdout, one_frame_refusal
 from ..sequence.terrestrial import AUTO
 from ..sequence.methods import REGISTRY, method_options, methods_with, option_keys
 from . import arguments as A
@@ -302,6 +302,7 @@ def sequence(args):
             raise InputValueError(f"--holdout {bad}: not in a sequence of {len(seq)} frames (0 to {len(seq) - 1})")
         names = ("evaluation.json", "table.md", "table.csv") + (("poses.txt",) if args.register else ())
         _check_evaluate_output(out, args.force)
+        check_held_out_kinds(seq, holdout, args.scored_sensor, args.methods, args.moving[1])  # before registering
         for name in names:
             plan.write(out / name, sidecars=False)
         with plan:

@@ -35,6 +35,7 @@ import os
 import warnings
 from pathlib import Path
 
+import laspy
 import numpy as np
 
 from ..errors import FormatError
@@ -42,7 +43,7 @@ from .atomic import atomic_path
 from .cloud import PointCloud
 from .formats import REGISTRY
 
-__all__ = ["read_cloud", "write_cloud", "check_format"]
+__all__ = ["read_cloud", "write_cloud", "check_format", "field_names"]
 
 
 def check_format(path, fmt=None) -> str:
@@ -62,6 +63,39 @@ def check_format(path, fmt=None) -> str:
     if ext not in REGISTRY:
         raise FormatError(f"unknown point-cloud format {ext!r} for {path}; supported: {', '.join(REGISTRY)}")
     return ext
+
+
+def field_names(path, fmt=None) -> frozenset | None:
+    """The attribute names a file's points carry, from its header alone (LAS/LAZ dimensions, PCD
+    ``FIELDS``, PLY vertex properties; x, y, z left out), or None where the header does not tell
+    (another format, an unreadable header: :func:`read_cloud` says why when it reads the file)."""
+    try:
+        ext = check_format(path, fmt)
+        if ext in (".las", ".laz"):
+            with laspy.open(str(path)) as reader:
+                names = list(reader.header.point_format.dimension_names)
+        elif ext in (".pcd", ".ply"):
+            names, end = [], {".pcd": b"DATA", ".ply": b"end_header"}[ext]
+            with open(path, "rb") as f:
+                for _ in range(1000):
+                    words = f.readline().split()
+                    if not words or words[0] == end:
+                        break
+                    if ext == ".pcd" and words[0].upper() == b"FIELDS":
+                        names = [w.decode("ascii", "replace") for w in words[1:]]
+                    elif ext == ".ply" and words[0] == b"element" and names:
+                        break  # the vertex element's properties end where the next element starts
+                    elif ext == ".ply" and words[0] == b"property" and words[1] != b"list":
+                        names.append(words[-1].decode("ascii", "replace"))
+                else:
+                    return None
+                if not words or (ext == ".pcd" and not names):
+                    return None
+        else:
+            return None
+    except Exception:  # noqa: BLE001 - a header that does not tell; reading the file says why
+        return None
+    return frozenset(names) - {"x", "y", "z", "X", "Y", "Z"}
 
 
 #: Coordinates beyond this (metres; a million kilometres) are no scan's: :func:`read_cloud` refuses them

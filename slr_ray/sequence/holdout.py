@@ -47,7 +47,7 @@ from .union import FrameCache, Keep, accumulate, to_frame, window
 
 __all__ = ["METHODS", "LABELS", "HoldoutOptions", "evaluate_holdout", "evaluate_sequence", "mean_rows", "DEFAULT_METHODS",
            "clamped_depth_errors", "lidar4d_holdout", "LIDAR4D_MAX_DEPTH", "holdout_ray_model", "simulate_holdout",
-           "GRID_SOURCES", "others_pattern", "scoring_grid", "one_frame_refusal"]
+           "GRID_SOURCES", "others_pattern", "scoring_grid", "one_frame_refusal", "check_held_out_kinds"]
 
 #: LiDAR4D's depth clamp (utils/metrics.py, compute_depth_errors: min 1e-6, max 80 m)
 LIDAR4D_MAX_DEPTH = 80.0
@@ -301,6 +301,33 @@ def _check_kind(grid: ScoringGrid, methods, see_through=None) -> None:
                                   "sensor if they are a spinning unit's (--source-sensor)")
 
 
+def check_held_out_kinds(seq: Sequence, holdout, sensor, methods, see_through=None) -> None:
+    """With ``sensor`` ``"auto"``, refuse up front (before any window is read, any grid fitted, any frame
+    registered) the methods and the see-through removal that need the frames' beam table where a held-out
+    frame is terrestrial (:func:`_check_kind`'s refusal, naming the frames). A frame whose header holds a
+    ``ring`` field is spinning without reading it (:meth:`~slr_ray.sequence.layouts.FrameSource.fields`);
+    any other is read, its points only, and decided as :func:`scoring_grid` decides."""
+    if not (isinstance(sensor, str) and sensor == AUTO):
+        return
+    if see_through is None and not any(REGISTRY[m].needs_source_sensor for m in methods if m in REGISTRY):
+        return
+    default = shipped_sensor(DEFAULT_SPINNING)
+    flat = []
+    for h in holdout:
+        names = seq.layout.fields(seq, h)
+        if names is not None and "ring" in names:
+            continue
+        pts, attrs = seq.layout.frame(seq, h)
+        if sensor_kind(pts, attrs, default) == TERRESTRIAL:
+            flat.append(seq.names[h])
+    if flat:
+        try:
+            _check_kind(ScoringGrid(TERRESTRIAL, None, None, None, "terrestrial"), methods, see_through)
+        except InputValueError as exc:
+            raise InputValueError(f"held-out frame(s) {', '.join(flat)} (no ring field, not in {default.name}'s "
+                                  f"scan order): {exc}") from None
+
+
 def evaluate_holdout(seq: Sequence, target: int, options: HoldoutOptions | None = None, *,
                      cache: FrameCache | None = None, **keywords) -> dict:
     """Frame ``target`` re-simulated from the other frames of its window by every method
@@ -433,10 +460,18 @@ def one_frame_refusal(seq: Sequence) -> str:
             "a drive's frames); slr-ray scan or augment re-simulate one scan from other positions")
 
 
-def evaluate_sequence(seq: Sequence, holdout, sensor: str = "velodyne_hdl64e_s2", methods=DEFAULT_METHODS,
+def evaluate_sequence(seq: Sequence, holdout, sensor: str = AUTO, methods=DEFAULT_METHODS,
                       half: int | None = 2, radius: float | None = None, drop_moving: bool = True,
                       progress: bool = False, **kw) -> dict:
-    """Every held-out frame (sequence indices) by :func:`evaluate_holdout`; ``mean`` over them."""
+    """Every held-out frame (sequence indices) by :func:`evaluate_holdout`; ``mean`` over them.
+
+    ``sensor`` (:class:`HoldoutOptions`' ``sensor``) defaults to ``"auto"``, as ``slr-ray sequence
+    evaluate`` without ``--source-sensor``: each held-out frame with a ring field or in
+    ``velodyne_hdl64e_s2``'s scan order (KITTI's) is scored on that spinning unit's table, as the
+    old default scored it; any other on a terrestrial scanner's grid fitted to it (the old default
+    scored it on the HDL-64E's table, with a warning). Name the sensor (``"velodyne_hdl64e_s2"``, a card)
+    for the old behaviour everywhere, and with ``target_sensor`` (a target unit is re-simulated from
+    the source frames' own table: ``"auto"`` is refused there)."""
     holdout = [int(h) for h in holdout]
     if len(seq) < 2:
         raise InputValueError(one_frame_refusal(seq))

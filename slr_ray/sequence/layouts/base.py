@@ -23,6 +23,7 @@ import numpy as np
 
 from ...errors import InputTypeError, InputValueError
 from ...io import read_cloud
+from ...io.files import field_names
 from ..poses import frame_stamps, read_trajectory
 
 __all__ = ["Frame", "Sequence", "FrameSource", "SequenceInputs", "REGISTRY", "detect", "layout_class",
@@ -136,6 +137,11 @@ class FrameSource:
         """Frame ``i``'s points in its sensor's frame (float64) and attributes."""
         c = read_cloud(seq.paths[i], seq.input_format, allow_empty=False)
         return sensor_frame_points(c), dict(c.attributes)
+
+    def fields(self, seq: "Sequence", i: int) -> frozenset | None:
+        """Frame ``i``'s attribute names without reading its points (its file's header), or None where
+        that does not tell (:func:`slr_ray.io.files.field_names`)."""
+        return field_names(seq.paths[i], seq.input_format)
 
     def trajectory(self, seq: "Sequence", path) -> tuple[np.ndarray, str]:
         """The poses of a trajectory file given for ``seq`` (its sensor's, one a frame) and how they

@@ -44,6 +44,9 @@ class E57Scans(FrameSource):
         inputs.refuse(path, "E57", "trajectory", "origins", "scan_field", why="its scans carry their poses")
         return read_e57_sequence(path)
 
+    def fields(self, seq, i):
+        return frozenset(_e57_scans(str(seq.paths[i]), os.path.getmtime(seq.paths[i]))[i].attributes)  # read once
+
     def frame(self, seq, i):
         c = _e57_scans(str(seq.paths[i]), os.path.getmtime(seq.paths[i]))[i]
         T = seq.poses[i]  # into the scan's own axes at its origin: R^T (p - t)
