@@ -184,10 +184,15 @@ def fit_ray_model(frames, n_lasers: int, skews=None, stride: int = 2) -> RayMode
     rings = [np.asarray(r, np.int64)[::stride] for _, r, _ in frames]
     motions = [np.asarray(v, np.float64) for _, _, v in frames]
     R = np.concatenate(rings)
+    # what every skew shares, made once: each point's share of the sweep (sweep_offsets' phi - 1/2) and
+    # the points in their lasers' (stable) order, which _lines then finds already sorted
+    halves = [(np.arctan2(p[:, 1], p[:, 0]) + math.pi) / (2 * math.pi) - 0.5 for p in pts]
+    order = np.argsort(R, kind="stable")
+    R = R[order]
 
     def fit(k):
-        P = np.concatenate([p - sweep_offsets(p, v, k) for p, v in zip(pts, motions)])
-        return _lines(P, R, n_lasers)
+        P = np.concatenate([p - (k * h)[:, None] * v[None, :] for p, h, v in zip(pts, halves, motions)])
+        return _lines(P[order], R, n_lasers)
 
     def best_of(grid):
         fits = {float(k): fit(k) for k in grid}
