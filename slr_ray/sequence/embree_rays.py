@@ -320,8 +320,9 @@ def cast_embree_rays(points, pattern, model: RayModel | None = None, motion=(0.0
             sk = tk.copy()
             sk[moved] = sm
         t[:, k], prims[:, k], ts[:, k], ps[:, k] = tk, pk, sk, qk
-    strong = np.isfinite(ts).any(axis=1)
-    t[strong], prims[strong] = ts[strong], ps[strong]
+    strong = np.isfinite(ts).any(axis=1)[:, None]
+    np.copyto(t, ts, where=strong)
+    np.copyto(prims, ps, where=strong)
     tt, first = _first_peak(t, gap)
     hitm = np.flatnonzero(np.isfinite(tt))
     tt = tt[hitm]
@@ -330,20 +331,58 @@ def cast_embree_rays(points, pattern, model: RayModel | None = None, motion=(0.0
         tt = tt + model.range_bias[L]
     hit = origin[hitm] + tt[:, None] * d[hitm]
     # the union point each return stands for: the nearest corner of the first surface's triangle
-    index = np.zeros(len(hitm), np.int64)
-    for k, (_, faces, offset, _, _) in enumerate(live):
-        m = np.flatnonzero(first[hitm] == k)
-        if not len(m):
-            continue
-        corners = faces[prims[hitm[m], k]] + offset
-        dist = np.linalg.norm(pts[corners] - hit[m][:, None, :], axis=2) if len(pts) else np.zeros(corners.shape)
-        index[m] = corners[np.arange(len(m)), np.argmin(dist, axis=1)]
+    index = _nearest_corners(pts, hit, hitm, first, prims, live)
     keys, ranges = pattern.pulse_ids(hit, np.zeros(3))
-    ok = np.flatnonzero(keys >= 0)
-    o = np.lexsort((ranges[ok], keys[ok]))  # stable: a tie stays in ray order
-    kk = keys[ok][o]
-    win = ok[o][np.r_[True, kk[1:] != kk[:-1]]] if len(kk) else ok[:0]
+    win = _pulse_winners(keys, ranges)
     return PulseReturns(keys[win].astype(np.int64), ranges[win], hit[win], index[win])
+
+
+def _nearest_corners(pts, hit, hitm, first, prims, live) -> np.ndarray:
+    """Each return's union point (``hit`` the returns of rays ``hitm``, ``first`` each ray's frame of the
+    first surface, ``prims`` its triangle in each frame of ``live``): the corner of its triangle nearest it
+    (the first corner where ``pts`` is empty), its frame's ``offset`` added."""
+    index = np.zeros(len(hitm), np.int64)
+    fk = first[hitm]
+    for k, (_, faces, offset, _, _) in enumerate(live):
+        m = np.flatnonzero(fk == k)
+        if len(m):
+            _corners_kernel(pts, hit, m, prims[hitm[m], k], np.asarray(faces, np.int64), int(offset), index)
+    return index
+
+
+@njit(cache=True)
+def _corners_kernel(pts, hit, m, prims, faces, offset, index):
+    for j in range(len(m)):
+        i = m[j]
+        best, bd = faces[prims[j], 0] + offset, np.inf
+        if len(pts):
+            for c in range(3):
+                v = faces[prims[j], c] + offset
+                dx, dy, dz = pts[v, 0] - hit[i, 0], pts[v, 1] - hit[i, 1], pts[v, 2] - hit[i, 2]
+                d = math.sqrt((dx * dx + dy * dy) + dz * dz)  # numpy's norm: the same sum, the same order
+                if c == 0 or d < bd:  # the first of equals (argmin's)
+                    best, bd = v, d
+        index[i] = best
+
+
+def _pulse_winners(keys, ranges) -> np.ndarray:
+    """The returns kept, one a pulse (``keys`` each return's, -1 none): its nearest (``ranges``), the first
+    in order of equals; in order of pulse."""
+    keys = np.asarray(keys)
+    best = np.full(int(keys.max()) + 1 if len(keys) else 0, -1, np.int64)
+    _winners_kernel(keys, np.asarray(ranges), best)
+    return best[best >= 0]
+
+
+@njit(cache=True)
+def _winners_kernel(keys, ranges, best):
+    for i in range(len(keys)):
+        k = keys[i]
+        if k < 0:
+            continue
+        b = best[k]
+        if b < 0 or ranges[i] < ranges[b]:
+            best[k] = i
 
 
 def fill_missing(ret: PulseReturns, points, pattern, least: int = 1, gap: float = FPA_GAP) -> PulseReturns:
