@@ -56,3 +56,19 @@ def test_each_return_stands_for_its_triangles_nearest_corner(seed):
     empty = np.zeros((0, 3))  # no union points: the first corner
     np.testing.assert_array_equal(_nearest_corners(empty, hit, hitm, first, prims, live),
                                   _corners_numpy(empty, hit, hitm, first, prims, live))
+
+
+@pytest.mark.parametrize("n_beams", [1, 16, 64, 40000])
+def test_rings_in_azimuth_order_are_lexsorts_order(n_beams):
+    from slr_ray.sequence.embree_rays import _ring_order
+
+    rng = np.random.default_rng(n_beams)
+    n = 3000
+    b = rng.integers(-1, n_beams + 2, n)  # some not known, some beyond the table: left out
+    az = np.round(rng.uniform(-np.pi, np.pi, n), 1)  # many equal azimuths in a ring: they keep their order
+    az[:1000] = np.sort(az[:1000])  # a run, as a scan's
+    keep = np.flatnonzero((b >= 0) & (b < n_beams))
+    order, starts = _ring_order(keep, b, az, n_beams)
+    want = keep[np.lexsort((az[keep], b[keep]))]
+    np.testing.assert_array_equal(order, want)
+    np.testing.assert_array_equal(starts, np.searchsorted(b[want], np.arange(n_beams + 1)))

@@ -139,14 +139,29 @@ def _frame_mesh(points, beams, n_beams, max_ratio, max_step_deg):
     if b.shape != (len(p),):
         raise InputValueError(f"beams must be one a point ({len(p)}), got shape {b.shape}")
     az = np.arctan2(p[:, 1], p[:, 0])
-    rng = np.linalg.norm(p, axis=1)
+    rng = np.sqrt(p[:, 0] * p[:, 0] + p[:, 1] * p[:, 1] + p[:, 2] * p[:, 2])  # np.linalg.norm's sum, 3x faster
     keep = np.flatnonzero((b >= 0) & (b < n_beams))
-    order = keep[np.lexsort((az[keep], b[keep]))]
-    starts = np.searchsorted(b[order], np.arange(n_beams + 1))
+    order, starts = _ring_order(keep, b, az, n_beams)
     out = np.empty((2 * len(order) + 4, 3), np.int64)
     spread = np.empty(len(out))
     n = _zipper(order, starts, az, rng, math.radians(max_step_deg), float(max_ratio), out, spread)
     return out[:n], spread[:n]
+
+
+def _ring_order(keep, b, az, n_beams):
+    """The points ``keep`` by ring ``b``, then azimuth ``az`` (``np.lexsort((az, b))``'s order: equals in
+    the order of ``keep``), and where each ring starts: a radix sort of the rings, then each ring's
+    (a scan's ring is two runs of azimuth: the stable sort's merge finds them)."""
+    if n_beams >= 1 << 15:
+        order = keep[np.lexsort((az[keep], b[keep]))]
+        return order, np.searchsorted(b[order], np.arange(n_beams + 1))
+    order = keep[np.argsort(b[keep].astype(np.int16), kind="stable")]
+    starts = np.searchsorted(b[order], np.arange(n_beams + 1))
+    for lo, hi in zip(starts[:-1], starts[1:]):
+        if hi - lo > 1:
+            ring = order[lo:hi]
+            order[lo:hi] = ring[np.argsort(az[ring], kind="stable")]
+    return order, starts
 
 
 def _unbiased(points, beams, model: RayModel | None):
