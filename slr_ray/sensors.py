@@ -625,7 +625,8 @@ def scan_order_beams(points, n_beams: int = 64) -> np.ndarray | None:
         return None
     r = np.linalg.norm(p, axis=1)
     el = np.arcsin(np.divide(p[:, 2], r, out=np.zeros_like(r), where=r > 0))
-    med = np.array([np.median(el[ring == b]) if np.any(ring == b) else np.nan for b in range(n_beams)])
+    cut = np.searchsorted(ring, np.arange(n_beams + 1))  # ring never falls: each a slice, in file order
+    med = np.array([np.median(el[a:b]) if b > a else np.nan for a, b in zip(cut[:-1], cut[1:])])
     if not np.all(np.isfinite(med)) or np.any(np.diff(med) >= 0):
         return None
     return ring

@@ -42,7 +42,7 @@ def test_bad_origins(bad):
         as_origin(bad)
 
 
-@pytest.mark.parametrize("n", [0, 1, 2, 7, 65536 * 3 + 5])
+@pytest.mark.parametrize("n", [0, 1, 2, 7, 65536 * 3 + 5, (1 << 20) + 3])  # the last: the parallel pass
 @pytest.mark.parametrize("dtype", [np.float64, np.float32])
 def test_bounds_equal_numpy(n, dtype):
     from slr_ray.arrays import bounds

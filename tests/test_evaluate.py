@@ -73,6 +73,17 @@ def test_scan_order_beams_recovers_rings_and_refuses_other_orders():
     assert scan_order_beams(pts[:5], 16) is None
 
 
+def test_scan_order_beams_refuse_rings_whose_elevations_do_not_fall():
+    # each ring's median elevation (its slice of the file) must fall from first to last: two rings
+    # stored in each other's place are refused; a file missing a ring's every point holds too few rings
+    rng = np.random.default_rng(4)
+    pts, beams = ring_ordered_frame(SMALL, rng)
+    a, b = np.flatnonzero(beams == 2), np.flatnonzero(beams == 3)
+    swapped = np.concatenate([pts[beams < 2], pts[b], pts[a], pts[beams > 3]])
+    assert scan_order_beams(swapped, SMALL.n_beams) is None
+    assert scan_order_beams(pts[beams != 5], SMALL.n_beams) is None
+
+
 def test_fitted_pattern_takes_each_beams_median_elevation_and_column_step():
     rng = np.random.default_rng(3)
     true = BeamPattern(np.linspace(2.5, -23.5, 16), 720)

@@ -424,3 +424,39 @@ def test_non_finite_geometry_is_refused_not_answered_with_misses(bad):
     c[3] = [3e38, 0.0, 0.0]  # finite in float64, beyond float32 from the centre it sets
     with pytest.raises(InputValueError, match="float32"):
         RayScene.discs(c, np.full(100, 0.1), centre=[-3e38, 0.0, 0.0])
+
+
+def test_small_and_large_scenes_count_non_finite_rows_alike():
+    # a scene under SERIAL_ROWS rows is checked on one thread: the same count as the parallel pass
+    from slr_ray.raycast.scene import _nonfinite_rows, _nonfinite_rows_serial
+
+    rng = np.random.default_rng(5)
+    v = rng.normal(size=(5000, 3)).astype(np.float32)
+    v[rng.choice(5000, 37, replace=False), rng.integers(0, 3, 37)] = np.inf
+    v[11, 0] = np.nan
+    assert _nonfinite_rows(v, 5000) == _nonfinite_rows_serial(v, 5000) == np.count_nonzero(~np.isfinite(v).all(axis=1))
+    assert _nonfinite_rows_serial(v, 10) == 0
+
+
+@pytest.mark.parametrize("seed", [0, 1])
+def test_quick_build_meets_what_the_default_build_meets(seed):
+    # Embree's quick (Morton) build is another BVH over the same triangles: the same first hits, and
+    # the brute-force nearest triangle's distance
+    rng = np.random.default_rng(seed)
+    v = rng.uniform(-5, 5, size=(600, 3))
+    f = rng.integers(0, 600, size=(400, 3))
+    f = f[(f[:, 0] != f[:, 1]) & (f[:, 1] != f[:, 2]) & (f[:, 0] != f[:, 2])]
+    o = rng.uniform(-1, 1, size=(3000, 3))
+    d = _unit(rng, 3000)
+    a = RayScene.triangles(v, f).intersect_each(o, d)
+    b = RayScene.triangles(v, f, quick=True).intersect_each(o, d)
+    np.testing.assert_array_equal(a.primitives, b.primitives)
+    np.testing.assert_array_equal(a.distances, b.distances)
+    assert (b.primitives >= 0).sum() > 300
+    # brute force (Moller-Trumbore in float64) on the hits
+    hit = np.flatnonzero(b.primitives >= 0)
+    p0, p1, p2 = (v[f[b.primitives[hit], k]] for k in range(3))
+    e1, e2 = p1 - p0, p2 - p0
+    pv = np.cross(d[hit], e2)
+    t = np.einsum("ij,ij->i", np.cross(o[hit] - p0, e1), e2) / np.einsum("ij,ij->i", e1, pv)
+    np.testing.assert_allclose(b.distances[hit], t, rtol=1e-4, atol=1e-4)

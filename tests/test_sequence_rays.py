@@ -80,6 +80,32 @@ def test_a_ray_model_recovers_heights_elevations_and_the_sweeps_skew():
     assert still.residual_deg > 10 * m.residual_deg  # the skew not undone: lines no longer fit
 
 
+def test_the_fit_shares_the_sweep_and_the_lasers_order_over_skews_and_stays_the_brute_force_fit():
+    # #46: fit_ray_model makes each point's sweep share and the lasers' order once, not a skew: the same
+    # model, bit for bit, as fitting each skew's undone points from scratch (sweep_offsets, _lines)
+    from slr_ray.sequence.rays import _lines
+
+    elev = np.radians([2.0, -1.0, -4.0, -7.0, -10.0, -14.0])
+    z0 = np.array([0.21, 0.20, 0.19, 0.10, -0.05, -0.15])
+    v = np.array([0.7, 0.02, 0.0])
+    rng = np.random.default_rng(3)
+    frames = []
+    for s in (0.9, 1.1):
+        p, r = _scan(elev, z0, -0.8, v * s, n_az=240)
+        o = rng.permutation(len(p))  # lasers interleaved: the order is the fit's to make
+        frames.append((p[o] + rng.normal(scale=0.01, size=p.shape), r[o], v * s))
+    skews = [-1.0, -0.85, -0.8, -0.5, 0.0]
+    m = fit_ray_model(frames, len(elev), skews=skews, stride=2)
+    R = np.concatenate([r[::2] for _, r, _ in frames])
+    fits = {k: _lines(np.concatenate([p[::2] - sweep_offsets(p[::2], w, k) for p, _, w in frames]), R, len(elev))
+            for k in skews}
+    k = min(fits, key=lambda s: (fits[s][2], abs(s)))
+    assert m.skew == k
+    np.testing.assert_array_equal(m.height, fits[k][0])
+    np.testing.assert_array_equal(m.elevation, fits[k][1])
+    assert m.residual_deg == round(fits[k][2], 5)
+
+
 def test_a_laser_that_reads_long_or_short_is_found_against_the_other_frames():
     elev = np.radians(np.linspace(2.0, -14.0, 12))
     z0 = np.zeros(12)

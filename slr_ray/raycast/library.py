@@ -28,11 +28,13 @@ BUFFER_NORMAL = 3
 FORMAT_UINT3 = 0x5003
 FORMAT_FLOAT3 = 0x9003
 FORMAT_FLOAT4 = 0x9004
+SCENE_FLAG_DYNAMIC = 1 << 0  # with a low build quality: Embree's quick (Morton) BVH build
 SCENE_FLAG_COMPACT = 1 << 1  # compact acceleration structures (less memory, a slower build)
 SCENE_FLAG_FILTER_FUNCTION_IN_ARGUMENTS = 1 << 3
 RAY_QUERY_FLAG_INVOKE_ARGUMENT_FILTER = 1 << 1
 FEATURE_FLAGS_ALL = 0xFFFFFFFF
 INVALID_ID = 0xFFFFFFFF
+BUILD_QUALITY_LOW = 0
 
 _lock = threading.Lock()
 _lib = None
@@ -58,6 +60,8 @@ class EmbreeLibrary:
         self.release_scene = fn("rtcReleaseScene", None, P)
         self.set_scene_flags = fn("rtcSetSceneFlags", None, P, I)
         self.commit_scene = fn("rtcCommitScene", None, P)
+        self.set_scene_build_quality = fn("rtcSetSceneBuildQuality", None, P, I)
+        self.set_geometry_build_quality = fn("rtcSetGeometryBuildQuality", None, P, I)
         self.new_geometry = fn("rtcNewGeometry", P, P, I)
         self.set_shared_buffer = fn("rtcSetSharedGeometryBuffer", None, P, I, U, I, P, P, P, P)
         self.commit_geometry = fn("rtcCommitGeometry", None, P)

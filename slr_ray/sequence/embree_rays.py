@@ -18,7 +18,7 @@ source frame instead, and the rays are cast by Embree:
   metres apart is the triangle between them. A triangle whose ranges differ
   by more than :data:`WEAK_RATIO` of the nearest is *weak* (edge-on from its
   frame: far road, or a skin from an edge to the background); rings farther apart in elevation
-  than :data:`RATIO_STEP_DEG` may span ratios wider in proportion (:func:`ratio_widening`);
+  than :data:`~slr_ray.sequence.ring_mesh.RATIO_STEP_DEG` may span ratios wider in proportion (:func:`ratio_widening`);
 * **one Embree scene a frame** (:class:`MeshFrames`, world coordinates), built
   once and reused by every target whose window holds the frame, whatever the
   model (a raw mesh keeps its vertices' lasers; or, given a model, each vertex
@@ -57,6 +57,8 @@ from ..raycast import RayScene
 from .estimators import FPA_GAP, PulseReturns, fpa_returns
 from .rays import (PHASE_COHERENCE, RayModel, fit_ray_model, frame_motion, pattern_ray_model,
                    sweep_offsets)
+from .ring_mesh import (MAX_RATIO, MAX_STEP_COLUMNS, MAX_STEP_DEG, WEAK_RATIO, frame_mesh_spread,
+                        frame_mesh, ratio_widening)
 from .sources import known_beams
 from .union import Keep, rotate
 
@@ -64,21 +66,6 @@ __all__ = ["frame_mesh", "MeshFrames", "rays_of_model", "cast_embree_rays", "mes
            "frame_beams", "fit_embree_model", "fill_missing", "frame_surface", "frame_points_beams", "frame_ray_model",
            "combined_model", "with_azimuth_phases", "table_unfitted", "ratio_widening", "elevation_rows", "MAX_RATIO", "MAX_STEP_DEG", "MAX_STEP_COLUMNS", "EMBREE_GAP", "WEAK_RATIO"]
 
-#: a triangle's ranges (from its frame's origin) differ by at most this share of the nearest
-MAX_RATIO = 0.3
-#: a triangle spans at most this many of its sensor's columns of azimuth (no pulses lost between): 0.4 deg
-#: of an HDL-64E's 2,083 columns (chosen on the KITTI frames: 0.8 and 2 deg lost 0.0005 and 0.003 drop accuracy)
-MAX_STEP_COLUMNS = 0.4 * 2083 / 360
-#: the same in degrees where the sensor's columns are not given
-MAX_STEP_DEG = 0.4
-#: a triangle whose ranges differ by more than this share of the nearest is *weak* (seen edge-on from its
-#: frame: the road far off, or a skin from an edge to what lies behind it): a ray takes it only where
-#: no frame's mesh gives it a strong one
-WEAK_RATIO = 0.1
-#: rings up to this far apart in elevation (deg) keep MAX_RATIO and WEAK_RATIO; farther, the ratios grow with
-#: the step (ratio_widening): every ring pair of the HDL-64E (0.33-0.74 deg, where the ratios were chosen)
-#: and the OS1-128 keeps them
-RATIO_STEP_DEG = 1.0
 #: every this many points of a frame fitted for its own lasers' lines (frame_ray_model)
 FIT_STRIDE = 8
 #: every this many points of a frame cast for the range biases (mesh_range_bias)
@@ -94,89 +81,10 @@ TNEAR = 1.0
 #: keeps its points within 3) met more of a Pandar64's pulses (drop accuracy 0.948 to 0.954) but cost the
 #: KITTI frames 0.0006 F@5cm and 0.03 m depth RMSE (1: 0.0002, 0.005 m; docs/sequences.md)
 EDGE_RESIDUALS = 1.0
-
-
-@njit(cache=True)
-def _zipper(order, starts, az, rng, max_step, max_ratio, out, spread, widen):
-    """Triangles joining each ring (``order[starts[b]:starts[b+1]]``, by azimuth) to the next;
-    returns how many were written into ``out`` (each one's range spread over its nearest in ``spread``:
-    the weak rule's measure, made here rather than by a second pass over the faces; both over
-    ``widen[b]``, the ring pair's :func:`ratio_widening`)."""
-    n = 0
-    for b in range(len(starts) - 2):
-        w = widen[b]
-        a0, a1 = starts[b], starts[b + 1]
-        b0, b1 = starts[b + 1], starts[b + 2]
-        if a1 - a0 < 2 or b1 - b0 < 2:
-            continue
-        i, j = a0, b0
-        while i < a1 - 1 or j < b1 - 1:
-            if j == b1 - 1 or (i < a1 - 1 and az[order[i + 1]] < az[order[j + 1]]):
-                p, q, r = order[i], order[i + 1], order[j]
-                i += 1
-            else:
-                p, q, r = order[i], order[j], order[j + 1]
-                j += 1
-            lo = min(az[p], az[q], az[r])
-            hi = max(az[p], az[q], az[r])
-            if hi - lo > max_step:
-                continue
-            rlo = min(rng[p], rng[q], rng[r])
-            rhi = max(rng[p], rng[q], rng[r])
-            if rhi - rlo > max_ratio * w * rlo:
-                continue
-            out[n, 0], out[n, 1], out[n, 2] = p, q, r
-            spread[n] = (rhi - rlo) / rlo / w if rlo > 0 else 0.0
-            n += 1
-    return n
-
-
-def frame_mesh(points, beams, n_beams: int, max_ratio: float = MAX_RATIO,
-               max_step_deg: float = MAX_STEP_DEG) -> np.ndarray:
-    """``(f, 3) int64``: the triangles of one frame's rings (module docstring); ``points`` in the
-    frame's own axes, ``beams`` each point's ring (0 the highest, rings adjacent in elevation
-    adjacent in number; -1: not known, left out)."""
-    return _frame_mesh(points, beams, n_beams, max_ratio, max_step_deg)[0]
-
-
-def _frame_mesh(points, beams, n_beams, max_ratio, max_step_deg):
-    """:func:`frame_mesh`'s faces and each one's range spread over its nearest range."""
-    p = np.asarray(points, np.float64)
-    b = np.asarray(beams, np.int64)
-    if b.shape != (len(p),):
-        raise InputValueError(f"beams must be one a point ({len(p)}), got shape {b.shape}")
-    az = np.arctan2(p[:, 1], p[:, 0])
-    rng = np.linalg.norm(p, axis=1)
-    keep = np.flatnonzero((b >= 0) & (b < n_beams))
-    order = keep[np.lexsort((az[keep], b[keep]))]
-    starts = np.searchsorted(b[order], np.arange(n_beams + 1))
-    out = np.empty((2 * len(order) + 4, 3), np.int64)
-    spread = np.empty(len(out))
-    n = _zipper(order, starts, az, rng, math.radians(max_step_deg), float(max_ratio), out, spread,
-                ratio_widening(p[keep], b[keep], n_beams))
-    return out[:n], spread[:n]
-
-
-def ratio_widening(points, rows, n_rows: int) -> np.ndarray:
-    """``(n_rows,)``: how much wider the range ratio of a triangle between ring ``b`` and ring ``b + 1``
-    may be (:data:`MAX_RATIO`, :data:`WEAK_RATIO` times it): the rings' elevation step (their points'
-    median elevations from the frame's origin) over :data:`RATIO_STEP_DEG`, at least 1. A plane seen at
-    a grazing angle ``a`` from rays ``s`` apart has ranges ``s / a`` apart, so the ratio a surface may
-    span grows with the step: the road between a Pandar64's lowest lasers, 5-6 deg apart (ranges 5.1,
-    6.6 and 9.0 m: ratios 0.29, 0.36), was left unmeshed and their pulses missed."""
-    p = np.asarray(points, np.float64)
-    r = np.asarray(rows, np.int64)
-    out = np.ones(max(int(n_rows), 1))
-    if not len(r) or n_rows < 2:
-        return out
-    el = np.degrees(np.arctan2(p[:, 2], np.hypot(p[:, 0], p[:, 1])))
-    o = np.lexsort((el, r))
-    starts = np.searchsorted(r[o], np.arange(n_rows + 1))
-    n = np.diff(starts)
-    med = np.where(n > 0, el[o][np.minimum(starts[:-1] + n // 2, len(o) - 1)], np.nan)
-    step = np.abs(med[:-1] - med[1:])
-    out[:-1] = np.where(np.isfinite(step), np.maximum(step / RATIO_STEP_DEG, 1.0), 1.0)
-    return out
+#: a frame's mesh is built by Embree's quick (Morton) builder: the same hits; on the KITTI frames a mesh is
+#: cast a few times (its targets' casts, the range biases'), so its build (~0.09 CPU s against ~0.03 quick)
+#: costs more than the quick BVH's slower casts (~+30 %)
+QUICK_BUILD = True
 
 
 def _unbiased(points, beams, model: RayModel | None):
@@ -204,11 +112,11 @@ def _mesh(points, beams, pose, rows, model, step_deg, max_ratio, weak_ratio):
     """One frame's ``(scene, faces, raw, weak)`` (:meth:`MeshFrames.add`); ``rows`` each point's ring in
     elevation order (None: ``beams`` are)."""
     ring = np.asarray(beams if rows is None else rows, np.int64)
-    faces, spread = _frame_mesh(points, ring, int(ring.max()) + 1 if len(ring) else 0, max_ratio, step_deg)
+    faces, spread = frame_mesh_spread(points, ring, int(ring.max()) + 1 if len(ring) else 0, max_ratio, step_deg)
     P = np.asarray(pose, np.float64)
     local = _unbiased(points, beams, model)
     world = rotate(local, P[:3, :3]) + P[:3, 3]
-    scene = RayScene.triangles(world, faces) if len(faces) else None
+    scene = RayScene.triangles(world, faces, quick=QUICK_BUILD) if len(faces) else None
     # a raw mesh keeps its vertices' lasers: the cast takes their biases out of its hits
     raw = np.asarray(beams, np.int64) if model is None or model.range_bias is None else None
     weak = None
@@ -382,8 +290,9 @@ def cast_embree_rays(points, pattern, model: RayModel | None = None, motion=(0.0
         t[:, k], prims[:, k], ts[:, k], ps[:, k] = tk, pk, sk, qk
     if live:  # rays along a mesh's open edge (its lowest ring, a ring with no strip on one side)
         _edge_hits(live, model, ow, dw, P, (t, prims, ts, ps))
-    strong = np.isfinite(ts).any(axis=1)
-    t[strong], prims[strong] = ts[strong], ps[strong]
+    strong = np.isfinite(ts).any(axis=1)[:, None]
+    np.copyto(t, ts, where=strong)
+    np.copyto(prims, ps, where=strong)
     tt, first = _first_peak(t, gap)
     hitm = np.flatnonzero(np.isfinite(tt))
     tt = tt[hitm]
@@ -392,20 +301,58 @@ def cast_embree_rays(points, pattern, model: RayModel | None = None, motion=(0.0
         tt = tt + model.range_bias[L]
     hit = origin[hitm] + tt[:, None] * d[hitm]
     # the union point each return stands for: the nearest corner of the first surface's triangle
-    index = np.zeros(len(hitm), np.int64)
-    for k, (_, faces, offset, _, _) in enumerate(live):
-        m = np.flatnonzero(first[hitm] == k)
-        if not len(m):
-            continue
-        corners = faces[prims[hitm[m], k]] + offset
-        dist = np.linalg.norm(pts[corners] - hit[m][:, None, :], axis=2) if len(pts) else np.zeros(corners.shape)
-        index[m] = corners[np.arange(len(m)), np.argmin(dist, axis=1)]
+    index = _nearest_corners(pts, hit, hitm, first, prims, live)
     keys, ranges = pattern.pulse_ids(hit, np.zeros(3))
-    ok = np.flatnonzero(keys >= 0)
-    o = np.lexsort((ranges[ok], keys[ok]))  # stable: a tie stays in ray order
-    kk = keys[ok][o]
-    win = ok[o][np.r_[True, kk[1:] != kk[:-1]]] if len(kk) else ok[:0]
+    win = _pulse_winners(keys, ranges)
     return PulseReturns(keys[win].astype(np.int64), ranges[win], hit[win], index[win])
+
+
+def _nearest_corners(pts, hit, hitm, first, prims, live) -> np.ndarray:
+    """Each return's union point (``hit`` the returns of rays ``hitm``, ``first`` each ray's frame of the
+    first surface, ``prims`` its triangle in each frame of ``live``): the corner of its triangle nearest it
+    (the first corner where ``pts`` is empty), its frame's ``offset`` added."""
+    index = np.zeros(len(hitm), np.int64)
+    fk = first[hitm]
+    for k, (_, faces, offset, _, _) in enumerate(live):
+        m = np.flatnonzero(fk == k)
+        if len(m):
+            _corners_kernel(pts, hit, m, prims[hitm[m], k], np.asarray(faces, np.int64), int(offset), index)
+    return index
+
+
+@njit(cache=True)
+def _corners_kernel(pts, hit, m, prims, faces, offset, index):
+    for j in range(len(m)):
+        i = m[j]
+        best, bd = faces[prims[j], 0] + offset, np.inf
+        if len(pts):
+            for c in range(3):
+                v = faces[prims[j], c] + offset
+                dx, dy, dz = pts[v, 0] - hit[i, 0], pts[v, 1] - hit[i, 1], pts[v, 2] - hit[i, 2]
+                d = math.sqrt((dx * dx + dy * dy) + dz * dz)  # numpy's norm: the same sum, the same order
+                if c == 0 or d < bd:  # the first of equals (argmin's)
+                    best, bd = v, d
+        index[i] = best
+
+
+def _pulse_winners(keys, ranges) -> np.ndarray:
+    """The returns kept, one a pulse (``keys`` each return's, -1 none): its nearest (``ranges``), the first
+    in order of equals; in order of pulse."""
+    keys = np.asarray(keys)
+    best = np.full(int(keys.max()) + 1 if len(keys) else 0, -1, np.int64)
+    _winners_kernel(keys, np.asarray(ranges), best)
+    return best[best >= 0]
+
+
+@njit(cache=True)
+def _winners_kernel(keys, ranges, best):
+    for i in range(len(keys)):
+        k = keys[i]
+        if k < 0:
+            continue
+        b = best[k]
+        if b < 0 or ranges[i] < ranges[b]:
+            best[k] = i
 
 
 def fill_missing(ret: PulseReturns, points, pattern, least: int = 1, gap: float = FPA_GAP) -> PulseReturns:

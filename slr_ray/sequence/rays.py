@@ -109,12 +109,13 @@ def sweep_offsets(points, motion, skew: float) -> np.ndarray:
     return (skew * (phi - 0.5))[:, None] * np.asarray(motion, np.float64)[None, :]
 
 
-def _lines(P, R, n_lasers):
-    """Per laser the robust line ``z = z0 + rho tan(e)``; the median |angular residual| (degrees)."""
+def _lines(P, R, n_lasers, ordered: bool = False):
+    """Per laser the robust line ``z = z0 + rho tan(e)``; the median |angular residual| (degrees).
+    ``ordered``: ``R`` is sorted already (``P`` C-contiguous, its points in that order)."""
     # each laser's points a slice of one stable sort (the points in the order a mask would give them)
-    order = np.argsort(R, kind="stable")
-    starts = np.searchsorted(R[order], np.arange(n_lasers + 1))
-    Ps = np.ascontiguousarray(P[order])
+    order = None if ordered else np.argsort(R, kind="stable")
+    starts = np.searchsorted(R if ordered else R[order], np.arange(n_lasers + 1))
+    Ps = P if ordered else np.ascontiguousarray(P[order])
     z0, el = np.full(n_lasers, np.nan), np.full(n_lasers, np.nan)
     res = np.empty(len(Ps))
     n = _lines_kernel(Ps, starts, MAX_HEIGHT, z0, el, res)
@@ -184,10 +185,16 @@ def fit_ray_model(frames, n_lasers: int, skews=None, stride: int = 2) -> RayMode
     rings = [np.asarray(r, np.int64)[::stride] for _, r, _ in frames]
     motions = [np.asarray(v, np.float64) for _, _, v in frames]
     R = np.concatenate(rings)
+    # what every skew shares, made once: each point's share of the sweep (sweep_offsets' phi - 1/2) and
+    # the points in their lasers' (stable) order, which _lines then finds already sorted
+    halves = [(np.arctan2(p[:, 1], p[:, 0]) + math.pi) / (2 * math.pi) - 0.5 for p in pts]
+    order = np.argsort(R, kind="stable")
+    R = R[order]
+    pts_o, half_o = np.concatenate(pts)[order], np.concatenate(halves)[order]
+    motion_o = np.concatenate([np.broadcast_to(v, p.shape) for p, v in zip(pts, motions)])[order]
 
     def fit(k):
-        P = np.concatenate([p - sweep_offsets(p, v, k) for p, v in zip(pts, motions)])
-        return _lines(P, R, n_lasers)
+        return _lines(pts_o - (k * half_o)[:, None] * motion_o, R, n_lasers, ordered=True)
 
     def best_of(grid):
         fits = {float(k): fit(k) for k in grid}
