@@ -277,3 +277,25 @@ def test_convert_refuses_force(drive, tmp_path, capsys):
     # (#48 item 16) it had no effect: now said
     r = _cli(capsys, "sequence", "convert", drive, "--target-sensor", SENSOR, "-o", tmp_path / "c", "--force", "--quiet")
     assert r.returncode == 2 and "no --force" in r.stderr and not (tmp_path / "c").exists()
+
+
+def test_a_field_convert_does_not_carry_is_named(drive, tmp_path):
+    # (hostile pass) an E57's colour, a PCD's normals, a LAS's extra dimensions were dropped
+    # from the converted frames without a word; intensity and the labels are carried
+    from slr_ray.io import PointCloud, write_cloud
+    paths = []
+    for i, f in enumerate(sorted((drive / "velodyne").glob("*.bin"))[:2]):
+        c = read_cloud(f)
+        n = len(c)
+        paths.append(tmp_path / "in" / f"f{i}.npz")
+        paths[-1].parent.mkdir(exist_ok=True)
+        write_cloud(paths[-1], PointCloud(c.points, {"intensity": c.attributes["intensity"],
+                                                     "red": np.arange(n) % 256, "normal_x": np.zeros(n)}))
+    poses = tmp_path / "in" / "poses.txt"
+    poses.write_text("1 0 0 0 0 1 0 0 0 0 1 0\n1 0 0 0.8 0 1 0 0 0 0 1 0\n")
+    out = tmp_path / "out"
+    out.mkdir()
+    with pytest.warns(SlrWarning, match=r"not carried.*normal_x, red") as got:
+        convert_sequence(read_sequence(paths, str(poses)), out, SENSOR, half=1, fmt="npz")
+    assert len([w for w in got if "not carried" in str(w.message)]) == 1  # said once, not a frame
+    assert set(read_cloud(out / "velodyne" / "000000.npz").attributes) == {"intensity", "ring"}

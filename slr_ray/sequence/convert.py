@@ -93,6 +93,9 @@ _STAGE = re.compile(r"^\.convert-[0-9a-f]{32}$")
 _STATE: dict = {}
 
 
+CARRIED = ("intensity", "semantic", "instance")  # what a converted frame carries of the union's points
+
+
 def target_poses(poses, offset=(0.0, 0.0, 0.0)) -> np.ndarray:
     """Each pose moved by ``offset`` in its own axes: ``T_i @ translate(offset)``."""
     P = np.array(poses, np.float64)
@@ -110,10 +113,23 @@ def _frame_cloud(seq, i, pose, pattern, settings, cache) -> PointCloud:
     frame = TargetFrame(seq, frames, pose, pattern, cache, Keep(settings["drop_moving"], _see_through(settings)),
                         None if source is None else base_pattern(source))
     ret, carried = m.convert_frame(frame, m.options.from_flat(_flat_options(settings)))
-    attrs = {n: carried[n] for n in ("intensity", "semantic", "instance") if n in carried}
+    attrs = {n: carried[n] for n in CARRIED if n in carried}
     if settings["format"] != "bin":
         attrs["ring"] = pattern.beam_of_row[ret.keys // pattern.columns].astype(np.int32)
     return PointCloud(ret.points, attrs, np.zeros(3))
+
+
+def _say_not_carried(seq, fmt: str) -> None:
+    """One warning naming frame 0's per-point fields a converted frame does not carry (an E57's
+    colour, a PCD's normals, a LAS's extra dimensions): only intensity and the labels are (hostile pass:
+    they were dropped without a word)."""
+    dropped = sorted(n for n, v in seq.read(0).attributes.items()  # all 0 (a LAS's unused flags): nothing lost
+                     if n not in CARRIED and np.ndim(v) >= 1 and np.any(np.asarray(v) != 0))
+    if dropped:
+        ring = "" if fmt == "bin" else ", and the target's own ring"
+        warnings.warn(f"frame {seq.names[0]}: fields not carried into the converted frames: {', '.join(dropped)} "
+                      f"(a return carries the intensity and labels of the point it stands for{ring})", SlrWarning,
+                      stacklevel=3)
 
 
 def _flat_options(settings) -> dict:
@@ -439,6 +455,7 @@ def convert_sequence(seq: Sequence, out, sensor: str, options: ConvertOptions | 
         settings["source_sensor"] = source_sensor
     shipped_sensor(sensor)  # an unknown name or format is refused before anything is written
     check_format(out / "velodyne" / f"000000.{settings['format']}", settings["format"])
+    _say_not_carried(seq, settings["format"])
     labelled = _labelled(seq)
     settings["frames"] = _identity(seq)
     fresh = not (out / MANIFEST).exists()
