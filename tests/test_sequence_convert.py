@@ -290,12 +290,13 @@ def test_a_field_convert_does_not_carry_is_named(drive, tmp_path):
         paths.append(tmp_path / "in" / f"f{i}.npz")
         paths[-1].parent.mkdir(exist_ok=True)
         write_cloud(paths[-1], PointCloud(c.points, {"intensity": c.attributes["intensity"],
-                                                     "red": np.arange(n) % 256, "normal_x": np.zeros(n)}))
+                                                     "red": np.arange(n) % 256, "normal_x": np.ones(n),
+                                                     "unused": np.zeros(n)}))
     poses = tmp_path / "in" / "poses.txt"
     poses.write_text("1 0 0 0 0 1 0 0 0 0 1 0\n1 0 0 0.8 0 1 0 0 0 0 1 0\n")
     out = tmp_path / "out"
     out.mkdir()
-    with pytest.warns(SlrWarning, match=r"not carried.*normal_x, red") as got:
+    with pytest.warns(SlrWarning, match=r"not carried into the converted frames: normal_x, red \(") as got:  # unused: all 0
         convert_sequence(read_sequence(paths, str(poses)), out, SENSOR, half=1, fmt="npz")
     assert len([w for w in got if "not carried" in str(w.message)]) == 1  # said once, not a frame
     assert set(read_cloud(out / "velodyne" / "000000.npz").attributes) == {"intensity", "ring"}
