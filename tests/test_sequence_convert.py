@@ -296,7 +296,8 @@ def test_a_field_convert_does_not_carry_is_named(drive, tmp_path):
     poses.write_text("1 0 0 0 0 1 0 0 0 0 1 0\n1 0 0 0.8 0 1 0 0 0 0 1 0\n")
     out = tmp_path / "out"
     out.mkdir()
-    with pytest.warns(SlrWarning, match=r"not carried into the converted frames: normal_x, red \(") as got:  # unused: all 0
+    # "unused" is all 0: nothing lost, not named
+    with pytest.warns(SlrWarning, match=r"not carried into the converted frames: normal_x, red \(") as got:
         convert_sequence(read_sequence(paths, str(poses)), out, SENSOR, half=1, fmt="npz")
     assert len([w for w in got if "not carried" in str(w.message)]) == 1  # said once, not a frame
     assert set(read_cloud(out / "velodyne" / "000000.npz").attributes) == {"intensity", "ring"}
