@@ -296,3 +296,21 @@ def test_a_target_sensors_held_out_frame_is_scored_on_its_own_table_reach_apart(
     near = {r["method"]: r for r in f["table"]}["nearest (binning of the union)"]
     assert near["F@5cm in reach"] > near["F@5cm"]  # what the source never saw pulls the whole frame's score down
     assert "F@5cm in reach" in (out / "table.md").read_text()
+
+
+def test_evaluate_force_takes_an_earlier_register_runs_poses_away(tmp_path, drive, capsys):
+    # (hostile pass) a --force rerun without --register replaced evaluation.json and the tables but
+    # left the earlier run's registered poses.txt beside them, as if these results had used it
+    root, _ = drive
+    _cli = _Run(capsys)
+    args = ["sequence", "evaluate", root, "--holdout", "1", "--source-sensor", "velodyne_vlp16", "--half", "1",
+            "--methods", "nearest", "--quiet", "--force"]
+    for earlier, kept in (("register", False), ("trajectory", True)):
+        out = tmp_path / earlier
+        out.mkdir()
+        (out / "evaluation.json").write_text(json.dumps({"pose_source": earlier}))
+        (out / "poses.txt").write_text("1 0 0 0 0 1 0 0 0 0 1 0\n")
+        r = _cli(*args, "-o", out)
+        assert r.returncode == 0, r.stderr
+        assert json.loads((out / "evaluation.json").read_text())["pose_source"] != "register"
+        assert (out / "poses.txt").exists() == kept  # not an earlier --register run's: not ours to remove

@@ -4,6 +4,7 @@
 from __future__ import annotations
 
 import argparse
+import json
 import sys
 import warnings
 from pathlib import Path
@@ -300,12 +301,15 @@ def sequence(args):
         bad = [h for h in holdout if not 0 <= h < len(seq)]
         if bad:
             raise InputValueError(f"--holdout {bad}: not in a sequence of {len(seq)} frames (0 to {len(seq) - 1})")
-        names = ("evaluation.json", "table.md", "table.csv") + (("poses.txt",) if args.register else ())
+        stale = None if args.register else _registered_poses(out, args.poses)
+        names = ("evaluation.json", "table.md", "table.csv") + (("poses.txt",) if args.register or stale else ())
         _check_evaluate_output(out, args.force)
         for name in names:
             plan.write(out / name, sidecars=False)
         with plan:
             _evaluate(args, seq, holdout, out)
+            if stale is not None:  # an earlier --register run's: it would stay beside results it is not of
+                stale.unlink(missing_ok=True)
     else:
         if args.force:
             raise InputValueError("sequence convert has no --force: it resumes its own run by itself and never "
@@ -338,7 +342,21 @@ def _check_evaluate_output(out: Path, force: bool) -> None:
     if held:
         raise OutputError(f"{out} is not empty ({', '.join(held[:3])}{', ...' if len(held) > 3 else ''}): "
                           "sequence evaluate writes into a new or empty directory; write elsewhere, or give "
-                          "--force to write among these files (replacing evaluation.json, table.md, table.csv)")
+                          "--force to write among these files (replacing evaluation.json, table.md, table.csv, "
+                          "and an earlier --register run's poses.txt)")
+
+
+def _registered_poses(out: Path, given) -> Path | None:
+    """``out/poses.txt`` where an earlier ``sequence evaluate --register`` wrote it beside its
+    ``evaluation.json`` (a ``--force`` rerun replaces that run's results: its poses go with them;
+    not where this run reads it, ``--poses OUT/poses.txt``: they are then this run's poses too)."""
+    poses, doc = out / "poses.txt", out / "evaluation.json"
+    if any(p != "origins" and resolve(Path(p)) == resolve(poses) for p in given or []):
+        return None
+    try:
+        return poses if poses.is_file() and json.loads(doc.read_text()).get("pose_source") == "register" else None
+    except (OSError, ValueError, AttributeError):
+        return None
 
 
 def _evaluate(args, seq, holdout, out):
