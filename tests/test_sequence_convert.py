@@ -301,3 +301,13 @@ def test_a_field_convert_does_not_carry_is_named(drive, tmp_path):
         convert_sequence(read_sequence(paths, str(poses)), out, SENSOR, half=1, fmt="npz")
     assert len([w for w in got if "not carried" in str(w.message)]) == 1  # said once, not a frame
     assert set(read_cloud(out / "velodyne" / "000000.npz").attributes) == {"intensity", "ring"}
+
+
+def test_a_format_that_carries_the_labels_leaves_no_empty_labels_directory(drive, tmp_path):
+    # (hostile pass) --format ply of a labelled sequence: the labels are in each .ply, and an
+    # empty labels/ was left beside velodyne/ (a SemanticKITTI reader takes it for frames without labels)
+    out = tmp_path / "out"
+    _convert(drive, out, fmt="ply")
+    assert not (out / "labels").exists()
+    assert "semantic" in read_cloud(out / "velodyne" / "000001.ply").attributes
+    assert _convert(drive, out, fmt="ply")["resumed"] == 4

@@ -465,7 +465,8 @@ def convert_sequence(seq: Sequence, out, sensor: str, options: ConvertOptions | 
     done: dict = {}
     try:
         with ExitStack() as held:
-            for sub in ("velodyne", "labels") if labelled else ("velodyne",):
+            # labels/ where they go there (a .bin's): other formats carry them in the frame (no empty labels/)
+            for sub in ("velodyne", "labels") if labelled and settings["format"] == "bin" else ("velodyne",):
                 (out / sub).mkdir(exist_ok=True)
                 # locked as out is: a file written into it by another command meanwhile (scan -o
                 # OUT/velodyne/000011.bin) is refused there, not replaced here
