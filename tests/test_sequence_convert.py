@@ -4,6 +4,7 @@ A tiny synthetic drive (4 frames, VLP-16), converted nearest-a-frame."""
 import errno
 import json
 import shutil
+import warnings
 from types import SimpleNamespace
 
 import numpy as np
@@ -311,3 +312,20 @@ def test_a_format_that_carries_the_labels_leaves_no_empty_labels_directory(drive
     assert not (out / "labels").exists()
     assert "semantic" in read_cloud(out / "velodyne" / "000001.ply").attributes
     assert _convert(drive, out, fmt="ply")["resumed"] == 4
+
+
+def test_frames_without_intensity_converted_to_bin_say_it_is_zero(drive, tmp_path):
+    # (hostile pass) a KITTI .bin's fourth column was filled with 0 without a word
+    paths = []
+    for i, f in enumerate(sorted((drive / "velodyne").glob("*.bin"))[:2]):
+        paths.append(tmp_path / f"f{i}.npy")
+        np.save(paths[-1], read_cloud(f).points)
+    poses = tmp_path / "poses.txt"
+    poses.write_text("1 0 0 0 0 1 0 0 0 0 1 0\n1 0 0 0.8 0 1 0 0 0 0 1 0\n")
+    for fmt, said in (("bin", True), ("npz", False)):
+        out = tmp_path / fmt
+        out.mkdir()
+        with warnings.catch_warnings(record=True) as got:
+            warnings.simplefilter("always")
+            convert_sequence(read_sequence(paths, str(poses)), out, SENSOR, half=1, fmt=fmt)
+        assert any("no intensity field" in str(w.message) for w in got) == said

@@ -123,7 +123,11 @@ def _say_not_carried(seq, fmt: str) -> None:
     """One warning naming frame 0's per-point fields a converted frame does not carry (an E57's
     colour, a PCD's normals, a LAS's extra dimensions): only intensity and the labels are (hostile pass:
     they were dropped without a word)."""
-    dropped = sorted(n for n, v in seq.read(0).attributes.items()  # all 0 (a LAS's unused flags): nothing lost
+    attributes = seq.read(0).attributes
+    if fmt == "bin" and "intensity" not in attributes:  # KITTI's fourth column filled, not said (hostile pass)
+        warnings.warn(f"frame {seq.names[0]}: no intensity field: the converted .bin frames hold 0 as intensity",
+                      SlrWarning, stacklevel=3)
+    dropped = sorted(n for n, v in attributes.items()  # all 0 (a LAS's unused flags): nothing lost
                      if n not in CARRIED and np.ndim(v) >= 1 and np.any(np.asarray(v) != 0))
     if dropped:
         ring = "" if fmt == "bin" else ", and the target's own ring"
