@@ -314,3 +314,19 @@ def test_evaluate_force_takes_an_earlier_register_runs_poses_away(tmp_path, driv
         assert r.returncode == 0, r.stderr
         assert json.loads((out / "evaluation.json").read_text())["pose_source"] != "register"
         assert (out / "poses.txt").exists() == kept  # not an earlier --register run's: not ours to remove
+
+
+def test_radius_alone_is_not_capped_by_the_default_half(tmp_path, drive, capsys):
+    # (hostile pass) --radius 100 alone kept the default --half 2 too: frame 0's window held frames
+    # 1 and 2 of a drive whose every frame lies within 100 m, and nothing said so
+    root, _ = drive
+    _cli = _Run(capsys)
+    base = ["sequence", "evaluate", root, "--holdout", "0", "--source-sensor", "velodyne_vlp16", "--methods",
+            "nearest", "--quiet"]
+    r = _cli(*base, "--radius", "100", "-o", tmp_path / "r")
+    assert r.returncode == 0, r.stderr
+    doc = json.loads((tmp_path / "r" / "evaluation.json").read_text())
+    assert doc["frames"][0]["window"] == ["000001", "000002", "000003", "000004"]
+    r = _cli(*base, "--radius", "100", "--half", "2", "-o", tmp_path / "both")  # both given: both hold
+    assert json.loads((tmp_path / "both" / "evaluation.json").read_text())["frames"][0]["window"] == ["000001",
+                                                                                                       "000002"]

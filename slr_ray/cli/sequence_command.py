@@ -54,8 +54,11 @@ def _common(p):
     p.add_argument("--accept-registration", action="store_true",
                    help="with --register: chain every pose found, even one failing the registration gate (fitness, "
                         "reverse fitness, inlier RMSE, tilt; docs/evaluation.md)")
-    p.add_argument("--half", type=int, help=f"window: frames either side of the target (default {HALF})")
-    p.add_argument("--radius", type=A.positive_float, help="window: frames whose origin is within this (m)")
+    p.add_argument("--half", type=int,
+                   help=f"window: frames either side of the target (default {HALF}; with --radius, both hold)")
+    p.add_argument("--radius", type=A.positive_float,
+                   help="window: frames whose origin is within this (m), however many (alone: not only the default "
+                        "--half's)")
     p.add_argument("--keep-moving", action="store_true",
                    help="keep SemanticKITTI's moving classes (252-259) in the union (default: left out); the "
                         "same as --remove-moving none")
@@ -280,8 +283,9 @@ def sequence(args):
     args.method_options = method_options_from(args)
     method_options(args.method_options)  # every method's options checked, before anything is read
     _unused_method_flags(args)
-    if args.half is None and not (args.sequence_cmd == "evaluate" and args.protocol == "lidar4d"):
-        args.half = HALF
+    lidar4d = args.sequence_cmd == "evaluate" and args.protocol == "lidar4d"
+    if args.half is None and args.radius is None and not lidar4d:
+        args.half = HALF  # not with --radius: its window is every frame within it, not those of the +-2 within it
     seq = _load(args)
     plan = OutputPlan(force=args.force)
     _plan_inputs(plan, args, seq)
