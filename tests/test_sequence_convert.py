@@ -329,3 +329,22 @@ def test_frames_without_intensity_converted_to_bin_say_it_is_zero(drive, tmp_pat
             warnings.simplefilter("always")
             convert_sequence(read_sequence(paths, str(poses)), out, SENSOR, half=1, fmt=fmt)
         assert any("no intensity field" in str(w.message) for w in got) == said
+
+
+def test_a_sensor_card_edited_since_is_not_resumed(drive, tmp_path, capsys):
+    # (hostile pass) --target-sensor card.json edited between runs: the resume kept three frames of
+    # the old card and converted the fourth with the new one, mixed without a word (the manifest held
+    # the card's path only)
+    card = tmp_path / "vlp.json"
+    assert main(["sensor", "show", SENSOR]) == 0
+    card.write_text(capsys.readouterr().out)
+    out = tmp_path / "out"
+    out.mkdir()
+    convert_sequence(read_sequence(drive), out, str(card), half=1)
+    (out / "velodyne" / "000002.bin").unlink()
+    doc = json.loads(card.read_text())
+    doc["elevation_deg"] = [e + 3 for e in doc["elevation_deg"]]
+    card.write_text(json.dumps(doc))
+    with pytest.raises(InputValueError, match="other settings.*sensor_card"):
+        convert_sequence(read_sequence(drive), out, str(card), half=1)
+    assert not (out / "velodyne" / "000002.bin").exists()

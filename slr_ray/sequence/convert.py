@@ -53,7 +53,7 @@ from ..io import PointCloud, atomic_path, check_format, write_cloud
 from ..io.outputs import (LOCK_NAME, clean_stale_parts, content_digest, hold_directory, input_sidecars, label_path,
                           link_new)
 from ..options import Options
-from ..sensors import conversion_reach, sensor as shipped_sensor
+from ..sensors import SENSORS, conversion_reach, sensor as shipped_sensor
 from .estimators import FPA_GAP
 from .frames import Sequence, write_kitti_poses
 from .methods import REGISTRY, TargetFrame, method, method_options, methods_with
@@ -458,6 +458,10 @@ def convert_sequence(seq: Sequence, out, sensor: str, options: ConvertOptions | 
                           "--source-sensor)?", SlrWarning, stacklevel=2)
         settings["source_sensor"] = source_sensor
     shipped_sensor(sensor)  # an unknown name or format is refused before anything is written
+    for key in ("sensor", "source_sensor"):  # a card's content, not its path: one edited since is not resumed
+        name = settings.get(key)
+        if isinstance(name, str) and name not in SENSORS and name.lower().endswith(".json"):
+            settings[f"{key}_card"] = content_digest(name)
     check_format(out / "velodyne" / f"000000.{settings['format']}", settings["format"])
     _say_not_carried(seq, settings["format"])
     labelled = _labelled(seq)
