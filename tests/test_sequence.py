@@ -249,6 +249,9 @@ def test_an_e57_files_scans_are_a_sequence(tmp_path):
     assert np.array_equal(seq.poses[:, 0, 3], [0, 10, 20])
     u = accumulate(seq, [0, 2])
     assert np.abs(u.points - np.vstack([world[0], world[2]])).max() < 1e-5  # pye57 stores float32
+    # (hostile pass) read as one cloud (slr-ray scan campaign.e57): the refusal named a Python function only
+    with pytest.raises(FormatError, match=r"holds 3 scans: .*slr-ray sequence"):
+        read_cloud(path)
 
 
 def test_a_registered_metric_reaches_the_sequence_tables(drive, monkeypatch):
