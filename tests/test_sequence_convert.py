@@ -348,3 +348,22 @@ def test_a_sensor_card_edited_since_is_not_resumed(drive, tmp_path, capsys):
     with pytest.raises(InputValueError, match="other settings.*sensor_card"):
         convert_sequence(read_sequence(drive), out, str(card), half=1)
     assert not (out / "velodyne" / "000002.bin").exists()
+
+
+def test_labels_read_with_the_frames_are_written_as_label_files(drive, tmp_path):
+    # (hostile pass) .npz frames with a semantic field converted to .bin: the labels were staged
+    # beside each .bin, never published, and the frames came out without labels, without a word
+    from slr_ray.io import write_cloud
+    paths = []
+    for i, f in enumerate(sorted((drive / "velodyne").glob("*.bin"))[:2]):
+        paths.append(tmp_path / "in" / f"f{i}.npz")
+        paths[-1].parent.mkdir(exist_ok=True)
+        write_cloud(paths[-1], read_cloud(f))
+    poses = tmp_path / "in" / "poses.txt"
+    poses.write_text("1 0 0 0 0 1 0 0 0 0 1 0\n1 0 0 0.8 0 1 0 0 0 0 1 0\n")
+    out = tmp_path / "out"
+    out.mkdir()
+    convert_sequence(read_sequence(paths, str(poses)), out, SENSOR, half=1)
+    for name in ("000000", "000001"):
+        c = read_cloud(out / "velodyne" / f"{name}.bin")
+        assert "semantic" in c.attributes and len(c.attributes["semantic"]) == len(c)

@@ -346,7 +346,9 @@ def _labelled(seq) -> bool:
     them would strip the labels of every output frame its window reaches (a union carries an
     attribute all its frames have) and keep its moving objects: refused, naming it."""
     if (seq.input_format or Path(seq.paths[0]).suffix).lower().lstrip(".") != "bin" or seq.meta.get("split"):
-        return False
+        # labels read with the frames (a .npz's or .ply's semantic field): written as .label too (they were
+        # staged beside the .bin and never published: hostile pass)
+        return "semantic" in seq.read(0).attributes
     has = [label_path(p) is not None for p in seq.paths]
     if any(has) and not all(has):
         k = has.index(False)
