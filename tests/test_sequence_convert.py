@@ -367,3 +367,18 @@ def test_labels_read_with_the_frames_are_written_as_label_files(drive, tmp_path)
     for name in ("000000", "000001"):
         c = read_cloud(out / "velodyne" / f"{name}.bin")
         assert "semantic" in c.attributes and len(c.attributes["semantic"]) == len(c)
+
+
+def test_a_writers_warning_names_the_frames_not_the_staging_file_once(drive, tmp_path):
+    # (hostile pass) --format npy: "OUT/.convert-TOKEN/velodyne/000000.npy: .npy columns keep values,
+    # not names ..." once a frame, naming the hidden staging file that is gone after the run
+    out = tmp_path / "out"
+    with warnings.catch_warnings(record=True) as got:
+        warnings.simplefilter("always")
+        _convert(drive, out, fmt="npy")
+    said = [str(w.message) for w in got if ".npy columns" in str(w.message)]
+    assert len(said) == 1 and ".convert-" not in said[0] and said[0].startswith(str(out / "velodyne" / "*.npy"))
+    with warnings.catch_warnings(record=True) as got:  # the next conversion in this process says it again
+        warnings.simplefilter("always")
+        _convert(drive, tmp_path / "again", fmt="npy")
+    assert len([w for w in got if ".npy columns" in str(w.message)]) == 1

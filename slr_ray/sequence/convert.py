@@ -147,6 +147,7 @@ def _see_through(settings) -> SeeThrough | None:
 
 
 def _init(seq, poses, settings):
+    _SAID.clear()  # a conversion's writer warnings said once each (_write_frame)
     st = _see_through(settings)
     _STATE.update(seq=seq, poses=poses, settings=settings, pattern=shipped_sensor(settings["sensor"]),
                   cache=FrameCache(seq, 2 * settings["cache"] + 16 + (2 * st.half if st else 0), local=False))
@@ -193,7 +194,7 @@ def _job(block, out, token) -> list:
                               "target pose far from the frames, an --offset or --target-poses away?): nothing "
                               "to write")
         name = f"velodyne/{frame}.{fmt}"
-        _write_frame(stage / name, cloud, fmt, frame)
+        _write_frame(stage / name, cloud, fmt, frame, Path(out) / "velodyne" / f"*.{fmt}")
         entry = {"frame": int(i), "file": name, "points": int(len(cloud)),
                  "seconds": round(time.perf_counter() - t0, 3)}
         staged = [(str(stage / name), name)]
@@ -206,16 +207,28 @@ def _job(block, out, token) -> list:
     return done
 
 
-def _write_frame(path: Path, cloud, fmt, frame) -> None:
+_SAID: set = set()  # the writer's warnings said in this process (once a conversion's frames, not once a frame)
+
+
+def _write_frame(path: Path, cloud, fmt, frame, shown=None) -> None:
     """``write_cloud``, its failures (a full disk in a LAS/LAZ or E57 library, which may
-    not say it as an OSError) one :class:`OutputError` naming the frame."""
-    try:
-        write_cloud(path, cloud, format=fmt)
-    except SlrError:
-        raise
-    except Exception as exc:  # noqa: BLE001 - a writer library's own exception (laspy, lazrs, pye57)
-        why = exc.strerror if isinstance(exc, OSError) and exc.strerror else str(exc) or type(exc).__name__
-        raise OutputError(f"cannot write frame {frame} ({fmt}): {why}") from None
+    not say it as an OSError) one :class:`OutputError` naming the frame. Its warnings (a field
+    the format cannot hold) name ``shown``, the frames' final names, not the hidden staging
+    file, and are said once, not once a frame (hostile pass)."""
+    with warnings.catch_warnings(record=True) as said:
+        warnings.simplefilter("always")
+        try:
+            write_cloud(path, cloud, format=fmt)
+        except SlrError:
+            raise
+        except Exception as exc:  # noqa: BLE001 - a writer library's own exception (laspy, lazrs, pye57)
+            why = exc.strerror if isinstance(exc, OSError) and exc.strerror else str(exc) or type(exc).__name__
+            raise OutputError(f"cannot write frame {frame} ({fmt}): {why}") from None
+    for w in said:
+        text = str(w.message) if shown is None else str(w.message).replace(str(path), str(shown))
+        if text not in _SAID:
+            _SAID.add(text)
+            warnings.warn(text, w.category, stacklevel=2)
 
 
 def _clean_stages(out: Path) -> None:
