@@ -382,3 +382,20 @@ def test_a_writers_warning_names_the_frames_not_the_staging_file_once(drive, tmp
         warnings.simplefilter("always")
         _convert(drive, tmp_path / "again", fmt="npy")
     assert len([w for w in got if ".npy columns" in str(w.message)]) == 1
+
+
+def test_a_frame_copied_under_another_name_is_said(drive, tmp_path):
+    # (hostile pass) the same frame by two paths (a copy) was accumulated at both poses without a word
+    frames = sorted((drive / "velodyne").glob("*.bin"))[:2]
+    copy = tmp_path / "copy.bin"
+    shutil.copyfile(frames[0], copy)
+    shutil.copyfile(drive / "labels" / "000000.label", copy.with_suffix(".label"))
+    poses = tmp_path / "poses.txt"
+    poses.write_text("1 0 0 0 0 1 0 0 0 0 1 0\n1 0 0 0.8 0 1 0 0 0 0 1 0\n")
+    for paths, said in (([frames[0], copy], True), (frames, False)):
+        out = tmp_path / f"out{said}"
+        out.mkdir()
+        with warnings.catch_warnings(record=True) as got:
+            warnings.simplefilter("always")
+            convert_sequence(read_sequence([str(p) for p in paths], str(poses)), out, SENSOR, half=1)
+        assert any("hold the same content" in str(w.message) for w in got) == said

@@ -354,6 +354,19 @@ def _identity(seq) -> list:
     return ["+".join(digest(p) for p in [path, *input_sidecars(path, seq.input_format)]) for path in seq.paths]
 
 
+def _say_copies(seq, identity) -> None:
+    """One warning where two frame files of other paths hold the same content (a frame copied under
+    another name: each is accumulated at its own pose, a ghost of the scene; a link is refused as
+    the same frame named twice). Not refused: a driver may record one frame twice (hostile pass)."""
+    first: dict = {}
+    for i, (path, key) in enumerate(zip(seq.paths, identity)):
+        j = first.setdefault(key, i)
+        if j != i and os.path.realpath(seq.paths[j]) != os.path.realpath(path):
+            warnings.warn(f"frames {seq.names[j]} and {seq.names[i]} hold the same content ({seq.paths[j]}, {path}): "
+                          "a frame copied? each is accumulated at its own pose", SlrWarning, stacklevel=3)
+            return
+
+
 def _labelled(seq) -> bool:
     """Whether the frames carry SemanticKITTI ``.label`` files: all or none. One frame without
     them would strip the labels of every output frame its window reaches (a union carries an
@@ -481,6 +494,7 @@ def convert_sequence(seq: Sequence, out, sensor: str, options: ConvertOptions | 
     _say_not_carried(seq, settings["format"])
     labelled = _labelled(seq)
     settings["frames"] = _identity(seq)
+    _say_copies(seq, settings["frames"])
     fresh = not (out / MANIFEST).exists()
     if fresh:
         _refuse_foreign(out)
