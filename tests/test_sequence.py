@@ -249,6 +249,9 @@ def test_an_e57_files_scans_are_a_sequence(tmp_path):
     assert np.array_equal(seq.poses[:, 0, 3], [0, 10, 20])
     u = accumulate(seq, [0, 2])
     assert np.abs(u.points - np.vstack([world[0], world[2]])).max() < 1e-5  # pye57 stores float32
+    # (hostile pass) read as one cloud (slr-ray scan campaign.e57): the refusal named a Python function only
+    with pytest.raises(FormatError, match=r"holds 3 scans: .*slr-ray sequence"):
+        read_cloud(path)
 
 
 def test_a_registered_metric_reaches_the_sequence_tables(drive, monkeypatch):
@@ -296,3 +299,37 @@ def test_a_target_sensors_held_out_frame_is_scored_on_its_own_table_reach_apart(
     near = {r["method"]: r for r in f["table"]}["nearest (binning of the union)"]
     assert near["F@5cm in reach"] > near["F@5cm"]  # what the source never saw pulls the whole frame's score down
     assert "F@5cm in reach" in (out / "table.md").read_text()
+
+
+def test_evaluate_force_takes_an_earlier_register_runs_poses_away(tmp_path, drive, capsys):
+    # (hostile pass) a --force rerun without --register replaced evaluation.json and the tables but
+    # left the earlier run's registered poses.txt beside them, as if these results had used it
+    root, _ = drive
+    _cli = _Run(capsys)
+    args = ["sequence", "evaluate", root, "--holdout", "1", "--source-sensor", "velodyne_vlp16", "--half", "1",
+            "--methods", "nearest", "--quiet", "--force"]
+    for earlier, kept in (("register", False), ("trajectory", True)):
+        out = tmp_path / earlier
+        out.mkdir()
+        (out / "evaluation.json").write_text(json.dumps({"pose_source": earlier}))
+        (out / "poses.txt").write_text("1 0 0 0 0 1 0 0 0 0 1 0\n")
+        r = _cli(*args, "-o", out)
+        assert r.returncode == 0, r.stderr
+        assert json.loads((out / "evaluation.json").read_text())["pose_source"] != "register"
+        assert (out / "poses.txt").exists() == kept  # not an earlier --register run's: not ours to remove
+
+
+def test_radius_alone_is_not_capped_by_the_default_half(tmp_path, drive, capsys):
+    # (hostile pass) --radius 100 alone kept the default --half 2 too: frame 0's window held frames
+    # 1 and 2 of a drive whose every frame lies within 100 m, and nothing said so
+    root, _ = drive
+    _cli = _Run(capsys)
+    base = ["sequence", "evaluate", root, "--holdout", "0", "--source-sensor", "velodyne_vlp16", "--methods",
+            "nearest", "--quiet"]
+    r = _cli(*base, "--radius", "100", "-o", tmp_path / "r")
+    assert r.returncode == 0, r.stderr
+    doc = json.loads((tmp_path / "r" / "evaluation.json").read_text())
+    assert doc["frames"][0]["window"] == ["000001", "000002", "000003", "000004"]
+    r = _cli(*base, "--radius", "100", "--half", "2", "-o", tmp_path / "both")  # both given: both hold
+    assert json.loads((tmp_path / "both" / "evaluation.json").read_text())["frames"][0]["window"] == ["000001",
+                                                                                                       "000002"]

@@ -4,6 +4,7 @@ A tiny synthetic drive (4 frames, VLP-16), converted nearest-a-frame."""
 import errno
 import json
 import shutil
+import warnings
 from types import SimpleNamespace
 
 import numpy as np
@@ -277,3 +278,124 @@ def test_convert_refuses_force(drive, tmp_path, capsys):
     # (#48 item 16) it had no effect: now said
     r = _cli(capsys, "sequence", "convert", drive, "--target-sensor", SENSOR, "-o", tmp_path / "c", "--force", "--quiet")
     assert r.returncode == 2 and "no --force" in r.stderr and not (tmp_path / "c").exists()
+
+
+def test_a_field_convert_does_not_carry_is_named(drive, tmp_path):
+    # (hostile pass) an E57's colour, a PCD's normals, a LAS's extra dimensions were dropped
+    # from the converted frames without a word; intensity and the labels are carried
+    from slr_ray.io import PointCloud, write_cloud
+    paths = []
+    for i, f in enumerate(sorted((drive / "velodyne").glob("*.bin"))[:2]):
+        c = read_cloud(f)
+        n = len(c)
+        paths.append(tmp_path / "in" / f"f{i}.npz")
+        paths[-1].parent.mkdir(exist_ok=True)
+        write_cloud(paths[-1], PointCloud(c.points, {"intensity": c.attributes["intensity"],
+                                                     "red": np.arange(n) % 256, "normal_x": np.ones(n),
+                                                     "unused": np.zeros(n)}))
+    poses = tmp_path / "in" / "poses.txt"
+    poses.write_text("1 0 0 0 0 1 0 0 0 0 1 0\n1 0 0 0.8 0 1 0 0 0 0 1 0\n")
+    out = tmp_path / "out"
+    out.mkdir()
+    # "unused" is all 0: nothing lost, not named
+    with pytest.warns(SlrWarning, match=r"not carried into the converted frames: normal_x, red \(") as got:
+        convert_sequence(read_sequence(paths, str(poses)), out, SENSOR, half=1, fmt="npz")
+    assert len([w for w in got if "not carried" in str(w.message)]) == 1  # said once, not a frame
+    assert set(read_cloud(out / "velodyne" / "000000.npz").attributes) == {"intensity", "ring"}
+
+
+def test_a_format_that_carries_the_labels_leaves_no_empty_labels_directory(drive, tmp_path):
+    # (hostile pass) --format ply of a labelled sequence: the labels are in each .ply, and an
+    # empty labels/ was left beside velodyne/ (a SemanticKITTI reader takes it for frames without labels)
+    out = tmp_path / "out"
+    _convert(drive, out, fmt="ply")
+    assert not (out / "labels").exists()
+    assert "semantic" in read_cloud(out / "velodyne" / "000001.ply").attributes
+    assert _convert(drive, out, fmt="ply")["resumed"] == 4
+
+
+def test_frames_without_intensity_converted_to_bin_say_it_is_zero(drive, tmp_path):
+    # (hostile pass) a KITTI .bin's fourth column was filled with 0 without a word
+    paths = []
+    for i, f in enumerate(sorted((drive / "velodyne").glob("*.bin"))[:2]):
+        paths.append(tmp_path / f"f{i}.npy")
+        np.save(paths[-1], read_cloud(f).points)
+    poses = tmp_path / "poses.txt"
+    poses.write_text("1 0 0 0 0 1 0 0 0 0 1 0\n1 0 0 0.8 0 1 0 0 0 0 1 0\n")
+    for fmt, said in (("bin", True), ("npz", False)):
+        out = tmp_path / fmt
+        out.mkdir()
+        with warnings.catch_warnings(record=True) as got:
+            warnings.simplefilter("always")
+            convert_sequence(read_sequence(paths, str(poses)), out, SENSOR, half=1, fmt=fmt)
+        assert any("no intensity field" in str(w.message) for w in got) == said
+
+
+def test_a_sensor_card_edited_since_is_not_resumed(drive, tmp_path, capsys):
+    # (hostile pass) --target-sensor card.json edited between runs: the resume kept three frames of
+    # the old card and converted the fourth with the new one, mixed without a word (the manifest held
+    # the card's path only)
+    card = tmp_path / "vlp.json"
+    assert main(["sensor", "show", SENSOR]) == 0
+    card.write_text(capsys.readouterr().out)
+    out = tmp_path / "out"
+    out.mkdir()
+    convert_sequence(read_sequence(drive), out, str(card), half=1)
+    (out / "velodyne" / "000002.bin").unlink()
+    doc = json.loads(card.read_text())
+    doc["elevation_deg"] = [e + 3 for e in doc["elevation_deg"]]
+    card.write_text(json.dumps(doc))
+    with pytest.raises(InputValueError, match="other settings.*sensor_card"):
+        convert_sequence(read_sequence(drive), out, str(card), half=1)
+    assert not (out / "velodyne" / "000002.bin").exists()
+
+
+def test_labels_read_with_the_frames_are_written_as_label_files(drive, tmp_path):
+    # (hostile pass) .npz frames with a semantic field converted to .bin: the labels were staged
+    # beside each .bin, never published, and the frames came out without labels, without a word
+    from slr_ray.io import write_cloud
+    paths = []
+    for i, f in enumerate(sorted((drive / "velodyne").glob("*.bin"))[:2]):
+        paths.append(tmp_path / "in" / f"f{i}.npz")
+        paths[-1].parent.mkdir(exist_ok=True)
+        write_cloud(paths[-1], read_cloud(f))
+    poses = tmp_path / "in" / "poses.txt"
+    poses.write_text("1 0 0 0 0 1 0 0 0 0 1 0\n1 0 0 0.8 0 1 0 0 0 0 1 0\n")
+    out = tmp_path / "out"
+    out.mkdir()
+    convert_sequence(read_sequence(paths, str(poses)), out, SENSOR, half=1)
+    for name in ("000000", "000001"):
+        c = read_cloud(out / "velodyne" / f"{name}.bin")
+        assert "semantic" in c.attributes and len(c.attributes["semantic"]) == len(c)
+
+
+def test_a_writers_warning_names_the_frames_not_the_staging_file_once(drive, tmp_path):
+    # (hostile pass) --format npy: "OUT/.convert-TOKEN/velodyne/000000.npy: .npy columns keep values,
+    # not names ..." once a frame, naming the hidden staging file that is gone after the run
+    out = tmp_path / "out"
+    with warnings.catch_warnings(record=True) as got:
+        warnings.simplefilter("always")
+        _convert(drive, out, fmt="npy")
+    said = [str(w.message) for w in got if ".npy columns" in str(w.message)]
+    assert len(said) == 1 and ".convert-" not in said[0] and said[0].startswith(str(out / "velodyne" / "*.npy"))
+    with warnings.catch_warnings(record=True) as got:  # the next conversion in this process says it again
+        warnings.simplefilter("always")
+        _convert(drive, tmp_path / "again", fmt="npy")
+    assert len([w for w in got if ".npy columns" in str(w.message)]) == 1
+
+
+def test_a_frame_copied_under_another_name_is_said(drive, tmp_path):
+    # (hostile pass) the same frame by two paths (a copy) was accumulated at both poses without a word
+    frames = sorted((drive / "velodyne").glob("*.bin"))[:2]
+    copy = tmp_path / "copy.bin"
+    shutil.copyfile(frames[0], copy)
+    shutil.copyfile(drive / "labels" / "000000.label", copy.with_suffix(".label"))
+    poses = tmp_path / "poses.txt"
+    poses.write_text("1 0 0 0 0 1 0 0 0 0 1 0\n1 0 0 0.8 0 1 0 0 0 0 1 0\n")
+    for paths, said in (([frames[0], copy], True), (frames, False)):
+        out = tmp_path / f"out{said}"
+        out.mkdir()
+        with warnings.catch_warnings(record=True) as got:
+            warnings.simplefilter("always")
+            convert_sequence(read_sequence([str(p) for p in paths], str(poses)), out, SENSOR, half=1)
+        assert any("hold the same content" in str(w.message) for w in got) == said

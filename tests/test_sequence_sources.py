@@ -193,3 +193,21 @@ def test_ring_values_outside_the_sensors_table_are_refused_naming_the_frame_and_
     with pytest.raises(InputValueError, match=r"^frame 000003 \(drive/000003.pcd\): its ring field"):
         frame_beams(frame, base, SimpleNamespace(paths=["a", "b", "c", "drive/000003.pcd"]))
     np.testing.assert_array_equal(known_beams(pts, {"ring": ring % 64}, base, what), ring % 64)  # in range: kept
+
+
+def test_a_ring_field_outside_the_default_table_names_the_held_out_frame(tmp_path):
+    """(hostile pass) an Ouster OS1-128 directory evaluated without --source-sensor was refused as
+    'a frame: its ring field: ...': the frame and the default table it was read with not named."""
+    from slr_ray.io import PointCloud, write_cloud
+    from slr_ray.sequence import evaluate_sequence, read_sequence
+
+    rng = np.random.default_rng(0)
+    paths = []
+    for i in range(2):
+        paths.append(tmp_path / f"f{i}.npz")
+        write_cloud(paths[-1], PointCloud(rng.uniform(-20, 20, (500, 3)), {"ring": np.arange(500) % 128}))
+    poses = tmp_path / "poses.txt"
+    poses.write_text("1 0 0 0 0 1 0 0 0 0 1 0\n1 0 0 0.5 0 1 0 0 0 0 1 0\n")
+    with pytest.raises(InputValueError, match=r"^frame 000001 \(.*f1.npz\), read with the default velodyne_hdl64e_s2's "
+                                              r"table \(no --source-sensor named\): its ring field"):
+        evaluate_sequence(read_sequence([str(p) for p in paths], str(poses)), [1], "auto", ["nearest"], half=1)

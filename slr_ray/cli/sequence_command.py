@@ -4,6 +4,7 @@
 from __future__ import annotations
 
 import argparse
+import json
 import sys
 import warnings
 from pathlib import Path
@@ -53,8 +54,11 @@ def _common(p):
     p.add_argument("--accept-registration", action="store_true",
                    help="with --register: chain every pose found, even one failing the registration gate (fitness, "
                         "reverse fitness, inlier RMSE, tilt; docs/evaluation.md)")
-    p.add_argument("--half", type=int, help=f"window: frames either side of the target (default {HALF})")
-    p.add_argument("--radius", type=A.positive_float, help="window: frames whose origin is within this (m)")
+    p.add_argument("--half", type=int,
+                   help=f"window: frames either side of the target (default {HALF}; with --radius, both hold)")
+    p.add_argument("--radius", type=A.positive_float,
+                   help="window: frames whose origin is within this (m), however many (alone: not only the default "
+                        "--half's)")
     p.add_argument("--keep-moving", action="store_true",
                    help="keep SemanticKITTI's moving classes (252-259) in the union (default: left out); the "
                         "same as --remove-moving none")
@@ -279,8 +283,9 @@ def sequence(args):
     args.method_options = method_options_from(args)
     method_options(args.method_options)  # every method's options checked, before anything is read
     _unused_method_flags(args)
-    if args.half is None and not (args.sequence_cmd == "evaluate" and args.protocol == "lidar4d"):
-        args.half = HALF
+    lidar4d = args.sequence_cmd == "evaluate" and args.protocol == "lidar4d"
+    if args.half is None and args.radius is None and not lidar4d:
+        args.half = HALF  # not with --radius: its window is every frame within it, not those of the +-2 within it
     seq = _load(args)
     plan = OutputPlan(force=args.force)
     _plan_inputs(plan, args, seq)
@@ -300,13 +305,16 @@ def sequence(args):
         bad = [h for h in holdout if not 0 <= h < len(seq)]
         if bad:
             raise InputValueError(f"--holdout {bad}: not in a sequence of {len(seq)} frames (0 to {len(seq) - 1})")
-        names = ("evaluation.json", "table.md", "table.csv") + (("poses.txt",) if args.register else ())
+        stale = None if args.register else _registered_poses(out, args.poses)
+        names = ("evaluation.json", "table.md", "table.csv") + (("poses.txt",) if args.register or stale else ())
         _check_evaluate_output(out, args.force)
         check_held_out_kinds(seq, holdout, args.scored_sensor, args.methods, args.moving[1])  # before registering
         for name in names:
             plan.write(out / name, sidecars=False)
         with plan:
             _evaluate(args, seq, holdout, out)
+            if stale is not None:  # an earlier --register run's: it would stay beside results it is not of
+                stale.unlink(missing_ok=True)
     else:
         if args.force:
             raise InputValueError("sequence convert has no --force: it resumes its own run by itself and never "
@@ -339,7 +347,21 @@ def _check_evaluate_output(out: Path, force: bool) -> None:
     if held:
         raise OutputError(f"{out} is not empty ({', '.join(held[:3])}{', ...' if len(held) > 3 else ''}): "
                           "sequence evaluate writes into a new or empty directory; write elsewhere, or give "
-                          "--force to write among these files (replacing evaluation.json, table.md, table.csv)")
+                          "--force to write among these files (replacing evaluation.json, table.md, table.csv, "
+                          "and an earlier --register run's poses.txt)")
+
+
+def _registered_poses(out: Path, given) -> Path | None:
+    """``out/poses.txt`` where an earlier ``sequence evaluate --register`` wrote it beside its
+    ``evaluation.json`` (a ``--force`` rerun replaces that run's results: its poses go with them;
+    not where this run reads it, ``--poses OUT/poses.txt``: they are then this run's poses too)."""
+    poses, doc = out / "poses.txt", out / "evaluation.json"
+    if any(p != "origins" and resolve(Path(p)) == resolve(poses) for p in given or []):
+        return None
+    try:
+        return poses if poses.is_file() and json.loads(doc.read_text()).get("pose_source") == "register" else None
+    except (OSError, ValueError, AttributeError):
+        return None
 
 
 def _evaluate(args, seq, holdout, out):

@@ -214,7 +214,8 @@ def read_e57_scans(path) -> list:
 def _read_e57(path):
     scans = read_e57_scans(path)
     if len(scans) != 1:
-        raise FormatError(f"{path} holds {len(scans)} scans: read them with slr_ray.io.read_e57_scans")
+        raise FormatError(f"{path} holds {len(scans)} scans: each scan is a frame of `slr-ray sequence` (a campaign), "
+                          "or read them with slr_ray.io.read_e57_scans")
     return scans[0]
 
 

@@ -53,7 +53,7 @@ from ..io import PointCloud, atomic_path, check_format, write_cloud
 from ..io.outputs import (LOCK_NAME, clean_stale_parts, content_digest, hold_directory, input_sidecars, label_path,
                           link_new)
 from ..options import Options
-from ..sensors import conversion_reach, sensor as shipped_sensor
+from ..sensors import SENSORS, conversion_reach, sensor as shipped_sensor
 from .estimators import FPA_GAP
 from .frames import Sequence, write_kitti_poses
 from .methods import REGISTRY, TargetFrame, method, method_options, methods_with
@@ -93,6 +93,9 @@ _STAGE = re.compile(r"^\.convert-[0-9a-f]{32}$")
 _STATE: dict = {}
 
 
+CARRIED = ("intensity", "semantic", "instance")  # what a converted frame carries of the union's points
+
+
 def target_poses(poses, offset=(0.0, 0.0, 0.0)) -> np.ndarray:
     """Each pose moved by ``offset`` in its own axes: ``T_i @ translate(offset)``."""
     P = np.array(poses, np.float64)
@@ -110,10 +113,27 @@ def _frame_cloud(seq, i, pose, pattern, settings, cache) -> PointCloud:
     frame = TargetFrame(seq, frames, pose, pattern, cache, Keep(settings["drop_moving"], _see_through(settings)),
                         None if source is None else base_pattern(source))
     ret, carried = m.convert_frame(frame, m.options.from_flat(_flat_options(settings)))
-    attrs = {n: carried[n] for n in ("intensity", "semantic", "instance") if n in carried}
+    attrs = {n: carried[n] for n in CARRIED if n in carried}
     if settings["format"] != "bin":
         attrs["ring"] = pattern.beam_of_row[ret.keys // pattern.columns].astype(np.int32)
     return PointCloud(ret.points, attrs, np.zeros(3))
+
+
+def _say_not_carried(seq, fmt: str) -> None:
+    """One warning naming frame 0's per-point fields a converted frame does not carry (an E57's
+    colour, a PCD's normals, a LAS's extra dimensions): only intensity and the labels are (hostile pass:
+    they were dropped without a word)."""
+    attributes = seq.read(0).attributes
+    if fmt == "bin" and "intensity" not in attributes:  # KITTI's fourth column filled, not said (hostile pass)
+        warnings.warn(f"frame {seq.names[0]}: no intensity field: the converted .bin frames hold 0 as intensity",
+                      SlrWarning, stacklevel=3)
+    dropped = sorted(n for n, v in attributes.items()  # all 0 (a LAS's unused flags): nothing lost
+                     if n not in CARRIED and np.ndim(v) >= 1 and np.any(np.asarray(v) != 0))
+    if dropped:
+        ring = "" if fmt == "bin" else ", and the target's own ring"
+        warnings.warn(f"frame {seq.names[0]}: fields not carried into the converted frames: {', '.join(dropped)} "
+                      f"(a return carries the intensity and labels of the point it stands for{ring})", SlrWarning,
+                      stacklevel=3)
 
 
 def _flat_options(settings) -> dict:
@@ -127,6 +147,7 @@ def _see_through(settings) -> SeeThrough | None:
 
 
 def _init(seq, poses, settings):
+    _SAID.clear()  # a conversion's writer warnings said once each (_write_frame)
     st = _see_through(settings)
     _STATE.update(seq=seq, poses=poses, settings=settings, pattern=shipped_sensor(settings["sensor"]),
                   cache=FrameCache(seq, 2 * settings["cache"] + 16 + (2 * st.half if st else 0), local=False))
@@ -173,7 +194,7 @@ def _job(block, out, token) -> list:
                               "target pose far from the frames, an --offset or --target-poses away?): nothing "
                               "to write")
         name = f"velodyne/{frame}.{fmt}"
-        _write_frame(stage / name, cloud, fmt, frame)
+        _write_frame(stage / name, cloud, fmt, frame, Path(out) / "velodyne" / f"*.{fmt}")
         entry = {"frame": int(i), "file": name, "points": int(len(cloud)),
                  "seconds": round(time.perf_counter() - t0, 3)}
         staged = [(str(stage / name), name)]
@@ -186,16 +207,28 @@ def _job(block, out, token) -> list:
     return done
 
 
-def _write_frame(path: Path, cloud, fmt, frame) -> None:
+_SAID: set = set()  # the writer's warnings said in this process (once a conversion's frames, not once a frame)
+
+
+def _write_frame(path: Path, cloud, fmt, frame, shown=None) -> None:
     """``write_cloud``, its failures (a full disk in a LAS/LAZ or E57 library, which may
-    not say it as an OSError) one :class:`OutputError` naming the frame."""
-    try:
-        write_cloud(path, cloud, format=fmt)
-    except SlrError:
-        raise
-    except Exception as exc:  # noqa: BLE001 - a writer library's own exception (laspy, lazrs, pye57)
-        why = exc.strerror if isinstance(exc, OSError) and exc.strerror else str(exc) or type(exc).__name__
-        raise OutputError(f"cannot write frame {frame} ({fmt}): {why}") from None
+    not say it as an OSError) one :class:`OutputError` naming the frame. Its warnings (a field
+    the format cannot hold) name ``shown``, the frames' final names, not the hidden staging
+    file, and are said once, not once a frame (hostile pass)."""
+    with warnings.catch_warnings(record=True) as said:
+        warnings.simplefilter("always")
+        try:
+            write_cloud(path, cloud, format=fmt)
+        except SlrError:
+            raise
+        except Exception as exc:  # noqa: BLE001 - a writer library's own exception (laspy, lazrs, pye57)
+            why = exc.strerror if isinstance(exc, OSError) and exc.strerror else str(exc) or type(exc).__name__
+            raise OutputError(f"cannot write frame {frame} ({fmt}): {why}") from None
+    for w in said:
+        text = str(w.message) if shown is None else str(w.message).replace(str(path), str(shown))
+        if text not in _SAID:
+            _SAID.add(text)
+            warnings.warn(text, w.category, stacklevel=2)
 
 
 def _clean_stages(out: Path) -> None:
@@ -321,12 +354,27 @@ def _identity(seq) -> list:
     return ["+".join(digest(p) for p in [path, *input_sidecars(path, seq.input_format)]) for path in seq.paths]
 
 
+def _say_copies(seq, identity) -> None:
+    """One warning where two frame files of other paths hold the same content (a frame copied under
+    another name: each is accumulated at its own pose, a ghost of the scene; a link is refused as
+    the same frame named twice). Not refused: a driver may record one frame twice (hostile pass)."""
+    first: dict = {}
+    for i, (path, key) in enumerate(zip(seq.paths, identity)):
+        j = first.setdefault(key, i)
+        if j != i and os.path.realpath(seq.paths[j]) != os.path.realpath(path):
+            warnings.warn(f"frames {seq.names[j]} and {seq.names[i]} hold the same content ({seq.paths[j]}, {path}): "
+                          "a frame copied? each is accumulated at its own pose", SlrWarning, stacklevel=3)
+            return
+
+
 def _labelled(seq) -> bool:
     """Whether the frames carry SemanticKITTI ``.label`` files: all or none. One frame without
     them would strip the labels of every output frame its window reaches (a union carries an
     attribute all its frames have) and keep its moving objects: refused, naming it."""
     if (seq.input_format or Path(seq.paths[0]).suffix).lower().lstrip(".") != "bin" or seq.meta.get("split"):
-        return False
+        # labels read with the frames (a .npz's or .ply's semantic field): written as .label too (they were
+        # staged beside the .bin and never published: hostile pass)
+        return "semantic" in seq.read(0).attributes
     has = [label_path(p) is not None for p in seq.paths]
     if any(has) and not all(has):
         k = has.index(False)
@@ -438,9 +486,15 @@ def convert_sequence(seq: Sequence, out, sensor: str, options: ConvertOptions | 
                           "--source-sensor)?", SlrWarning, stacklevel=2)
         settings["source_sensor"] = source_sensor
     shipped_sensor(sensor)  # an unknown name or format is refused before anything is written
+    for key in ("sensor", "source_sensor"):  # a card's content, not its path: one edited since is not resumed
+        name = settings.get(key)
+        if isinstance(name, str) and name not in SENSORS and name.lower().endswith(".json"):
+            settings[f"{key}_card"] = content_digest(name)
     check_format(out / "velodyne" / f"000000.{settings['format']}", settings["format"])
+    _say_not_carried(seq, settings["format"])
     labelled = _labelled(seq)
     settings["frames"] = _identity(seq)
+    _say_copies(seq, settings["frames"])
     fresh = not (out / MANIFEST).exists()
     if fresh:
         _refuse_foreign(out)
@@ -448,7 +502,8 @@ def convert_sequence(seq: Sequence, out, sensor: str, options: ConvertOptions | 
     done: dict = {}
     try:
         with ExitStack() as held:
-            for sub in ("velodyne", "labels") if labelled else ("velodyne",):
+            # labels/ where they go there (a .bin's): other formats carry them in the frame (no empty labels/)
+            for sub in ("velodyne", "labels") if labelled and settings["format"] == "bin" else ("velodyne",):
                 (out / sub).mkdir(exist_ok=True)
                 # locked as out is: a file written into it by another command meanwhile (scan -o
                 # OUT/velodyne/000011.bin) is refused there, not replaced here

@@ -266,7 +266,9 @@ def scoring_grid(seq: Sequence, target: int, frame, sensor, grid_from: str, othe
     adjacent frame of ``others``)."""
     if isinstance(sensor, str) and sensor == AUTO:
         default = shipped_sensor(DEFAULT_SPINNING)
-        sensor = default if sensor_kind(frame.points, frame.attributes, default) == SPINNING else TERRESTRIAL
+        what = (f"frame {seq.names[target]} ({seq.paths[target]}), read with the default {DEFAULT_SPINNING}'s table "
+                "(no --source-sensor named)")
+        sensor = default if sensor_kind(frame.points, frame.attributes, default, what) == SPINNING else TERRESTRIAL
     if is_terrestrial(sensor):
         own = grid_from == "target"
         source = frame if own else cache.get(adjacent_frame(others, target))[0]

@@ -88,10 +88,10 @@ def is_terrestrial(sensor) -> bool:
     return isinstance(sensor, str) and sensor == TERRESTRIAL
 
 
-def sensor_kind(points, attributes, base) -> str:
+def sensor_kind(points, attributes, base, what: str = "a frame") -> str:
     """:data:`SPINNING` where the frame's beams are known in ``base``'s table (a ``ring`` field, its
-    scan order), else :data:`TERRESTRIAL`."""
-    return SPINNING if known_beams(points, attributes, base) is not None else TERRESTRIAL
+    scan order), else :data:`TERRESTRIAL` (a ring field outside the table refused naming ``what``)."""
+    return SPINNING if known_beams(points, attributes, base, what) is not None else TERRESTRIAL
 
 
 def terrestrial_grid(points, what: str, turn_columns: bool = True) -> tuple:
