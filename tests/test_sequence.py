@@ -296,3 +296,27 @@ def test_a_target_sensors_held_out_frame_is_scored_on_its_own_table_reach_apart(
     near = {r["method"]: r for r in f["table"]}["nearest (binning of the union)"]
     assert near["F@5cm in reach"] > near["F@5cm"]  # what the source never saw pulls the whole frame's score down
     assert "F@5cm in reach" in (out / "table.md").read_text()
+
+
+def test_read_sequence_takes_an_array_of_poses_and_refuses_other_kinds(drive):
+    # (n, 4, 4) poses crashed ("truth value of an array is ambiguous"); now read as a trajectory file is
+    root, poses = drive
+    bins = sorted((root / "velodyne").glob("*.bin"))
+    seq = read_sequence(bins, poses)
+    assert np.array_equal(seq.poses, poses) and seq.poses.dtype == np.float64
+    assert np.array_equal(read_sequence(root, poses.astype(np.float32)).poses, poses.astype(np.float32))
+    with pytest.raises(InputValueError, match=r"trajectory: an array of poses must be \(n, 4, 4\).*\(5, 3, 4\)"):
+        read_sequence(bins, poses[:, :3])
+    with pytest.raises(InputValueError, match="4 poses for 5 frames"):
+        read_sequence(bins, poses[:4])
+    bad = poses.copy()
+    bad[2, 0, 3] = np.nan
+    with pytest.raises(InputValueError, match=r"trajectory: pose 2 of the array: .*NaN"):
+        read_sequence(bins, bad)
+    bad = poses.copy()
+    bad[3, :3, :3] *= 2
+    with pytest.raises(InputValueError, match=r"pose 3 of the array: .*not a rotation"):
+        read_sequence(bins, bad)
+    for wrong in (poses.tolist(), 3.0, [poses[0]]):
+        with pytest.raises(TypeError, match="trajectory must be a file, a list of pose files"):
+            read_sequence(bins, wrong)
