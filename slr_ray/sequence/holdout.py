@@ -117,7 +117,8 @@ class HoldoutOptions(Options):
     sensor : str or BeamPattern
         The frames' sensor (its shipped table or card, or the pattern): a spinning unit's; or
         ``"terrestrial"`` (a uniform grid fitted to each held-out frame), or ``"auto"`` (each held-out
-        frame's kind from its points: :func:`scoring_grid`, :mod:`slr_ray.sequence.terrestrial`).
+        frame's kind from its points: :func:`scoring_grid`, :mod:`slr_ray.sequence.terrestrial`; the
+        default, as :func:`evaluate_sequence`'s: name ``"velodyne_hdl64e_s2"`` for the old default).
     methods : sequence of str
         A subset of :data:`METHODS`.
     half : int or None
@@ -149,7 +150,7 @@ class HoldoutOptions(Options):
         apart (:func:`reach_split`). None: the frames' sensor.
     """
 
-    sensor: object = "velodyne_hdl64e_s2"
+    sensor: object = AUTO
     methods: tuple = DEFAULT_METHODS
     half: int | None = 2
     radius: float | None = None
@@ -410,11 +411,12 @@ def evaluate_holdout(seq: Sequence, target: int, options: HoldoutOptions | None 
     return res
 
 
-def simulate_holdout(seq: Sequence, target: int, method: str = "rays", sensor: str = "velodyne_hdl64e_s2",
+def simulate_holdout(seq: Sequence, target: int, method: str = "rays", sensor: str = AUTO,
                      half: int | None = 2, drop_moving: bool = True, gap: float = FPA_GAP, pattern=None):
     """What ``method`` returns for the held-out frame ``target`` (a :class:`PulseReturns` in ``pattern``,
     default the target's fitted table as :func:`evaluate_holdout` fits it). The held-out frame's points
-    are read for its table only: every method's returns depend on its pose and the other frames."""
+    are read for its table only: every method's returns depend on its pose and the other frames.
+    ``sensor`` as :class:`HoldoutOptions`' (default ``"auto"``, as :func:`evaluate_sequence`'s)."""
     m = registered_method(method, "holdout")
     cache = FrameCache(seq)
     others = window(seq, target, half)
