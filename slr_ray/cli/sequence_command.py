@@ -313,7 +313,7 @@ def sequence(args):
             raise InputValueError("sequence convert has no --force: it resumes its own run by itself and never "
                                   "writes over what it did not write; write elsewhere, or remove the directory "
                                   "to start again")
-        check_source_frames(seq, args.source_sensor, [args.estimator], args.moving[1])  # before registering
+        check_source_frames(seq, args.source_sensor, [args.estimator])  # before registering
         for name in ("manifest.json", "poses.txt", "calib.txt", "journal.jsonl"):
             plan.write(out / name, sidecars=False, resumed=True)
         with plan:

@@ -342,20 +342,21 @@ def check_held_out_kinds(seq: Sequence, holdout, sensor, methods, see_through=No
                                   f"scan order): {exc}") from None
 
 
-def check_source_frames(seq: Sequence, sensor, methods, see_through=None) -> None:
-    """Refuse up front (``sequence convert``, before any frame is cast) the methods and the see-through
-    removal that need the frames' beam table (:func:`_check_kind`'s refusal) where no frame's beams are
-    known in ``sensor``'s table (:func:`beamless_frames`: a terrestrial campaign's scans, which failed late
-    with no pulse returned); reads frames until the first it knows."""
-    if see_through is None and not any(REGISTRY[m].needs_source_sensor for m in methods if m in REGISTRY):
+def check_source_frames(seq: Sequence, sensor, methods) -> None:
+    """Refuse up front (``sequence convert``, before any frame is cast) the methods that need the frames'
+    beam table (:func:`_check_kind`'s refusal) where no frame's beams are known in ``sensor``'s table
+    (:func:`beamless_frames`: a terrestrial campaign's scans, or another unit's frames), which failed late
+    with no pulse returned; reads frames until the first it knows. (The see-through removal works on
+    such frames, with a warning: not refused.)"""
+    if not any(REGISTRY[m].needs_source_sensor for m in methods if m in REGISTRY):
         return
     base = _table_of(sensor)
     if len(beamless_frames(seq, range(len(seq)), base, until_known=True)) == len(seq):
         try:
-            _check_kind(ScoringGrid(TERRESTRIAL, None, None, None, "terrestrial"), methods, see_through)
+            _check_kind(ScoringGrid(TERRESTRIAL, None, None, None, "terrestrial"), methods)
         except InputValueError as exc:
             raise InputValueError(f"no frame has a ring field or is in {base.name}'s scan order (terrestrial "
-                                  f"scans?): {exc}") from None
+                                  f"scans, or another unit's?): {exc}") from None
 
 
 def evaluate_holdout(seq: Sequence, target: int, options: HoldoutOptions | None = None, *,
