@@ -102,3 +102,16 @@ def test_options_holding_a_profile_compare_and_hash_by_value():
     back = pickle.loads(pickle.dumps(o))  # as a worker process gets it
     assert back == o and hash(back) == hash(o)  # was: ValueError (the profile's counts compared as arrays)
     assert PositionOptions(profile=dataclasses.replace(o.profile, counts=o.profile.counts + 1)) != o
+
+
+def test_the_holdout_entry_points_default_to_the_same_sensor():
+    """#46: ``evaluate_sequence`` defaults to ``"auto"``; ``HoldoutOptions`` (so ``evaluate_holdout``) and
+    ``simulate_holdout`` defaulted to the HDL-64E's table: a frame scored one way, simulated another."""
+    import inspect
+
+    from slr_ray.sequence.holdout import evaluate_sequence, simulate_holdout
+    from slr_ray.sequence.terrestrial import AUTO
+
+    defaults = {inspect.signature(f).parameters["sensor"].default for f in (evaluate_sequence, simulate_holdout)}
+    assert defaults == {HoldoutOptions().sensor} == {HoldoutOptions.of().sensor} == {AUTO}
+    assert HoldoutOptions(sensor="velodyne_hdl64e_s2").sensor == "velodyne_hdl64e_s2"  # naming it still works

@@ -333,3 +333,27 @@ def test_radius_alone_is_not_capped_by_the_default_half(tmp_path, drive, capsys)
     r = _cli(*base, "--radius", "100", "--half", "2", "-o", tmp_path / "both")  # both given: both hold
     assert json.loads((tmp_path / "both" / "evaluation.json").read_text())["frames"][0]["window"] == ["000001",
                                                                                                        "000002"]
+
+
+def test_read_sequence_takes_an_array_of_poses_and_refuses_other_kinds(drive):
+    # (n, 4, 4) poses crashed ("truth value of an array is ambiguous"); now read as a trajectory file is
+    root, poses = drive
+    bins = sorted((root / "velodyne").glob("*.bin"))
+    seq = read_sequence(bins, poses)
+    assert np.array_equal(seq.poses, poses) and seq.poses.dtype == np.float64
+    assert np.array_equal(read_sequence(root, poses.astype(np.float32)).poses, poses.astype(np.float32))
+    with pytest.raises(InputValueError, match=r"trajectory: an array of poses must be \(n, 4, 4\).*\(5, 3, 4\)"):
+        read_sequence(bins, poses[:, :3])
+    with pytest.raises(InputValueError, match="4 poses for 5 frames"):
+        read_sequence(bins, poses[:4])
+    bad = poses.copy()
+    bad[2, 0, 3] = np.nan
+    with pytest.raises(InputValueError, match=r"trajectory: pose 2 of the array: .*NaN"):
+        read_sequence(bins, bad)
+    bad = poses.copy()
+    bad[3, :3, :3] *= 2
+    with pytest.raises(InputValueError, match=r"pose 3 of the array: .*not a rotation"):
+        read_sequence(bins, bad)
+    for wrong in (poses.tolist(), 3.0, [poses[0]]):
+        with pytest.raises(TypeError, match="trajectory must be a file, a list of pose files"):
+            read_sequence(bins, wrong)

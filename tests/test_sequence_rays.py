@@ -245,3 +245,31 @@ def test_each_lasers_firing_phase_in_its_column_is_fitted_where_its_points_agree
     got, coherence = fit_azimuth_phases(frames, 4, columns)
     assert np.allclose(got[:3], want[:3], atol=0.02 * D) and got[3] == 0.0
     assert coherence[:3].min() > 0.99 and coherence[3] < 0.2
+
+
+def test_a_laser_too_sparse_to_fit_keeps_its_tables_elevation_in_rays():
+    """#46: ``rays``' fit gave a laser with too few points the others' mean elevation (the middle of the
+    fan; a Pandar64's 5 deg laser, 8 points a frame, took its neighbour's pulses); it keeps its table's,
+    as ``embree-rays``' does (:func:`~slr_ray.sequence.embree_rays.table_unfitted`). The fitted lasers'
+    elevations are the fit's own."""
+    from types import SimpleNamespace
+
+    base = sensor("velodyne_vlp16")
+    el = np.radians(np.asarray(base.elevation_deg))
+    az = np.radians(np.arange(0, 360, 0.5))
+    pts, beams = [], []
+    for b, e in enumerate(el):
+        a = az[:12] if b == 7 else az  # laser 7: 12 points, 6 at the fit's stride 2, too few for its line
+        r = 8.0 + 2.0 * np.sin(3 * a)
+        pts.append(np.column_stack([r * np.cos(e) * np.cos(a), r * np.cos(e) * np.sin(a), r * np.sin(e)]))
+        beams.append(np.full(len(a), b))
+    pts, ring = np.concatenate(pts), np.concatenate(beams)
+    frame = SimpleNamespace(points=pts, attributes={"ring": ring.astype(np.uint16)})
+    poses = np.repeat(np.eye(4)[None], 3, 0)
+    seq = SimpleNamespace(names=["0", "1", "2"], paths=["a", "b", "c"], poses=poses)
+    cache = SimpleNamespace(get=lambda i: (frame, pts))
+    model = holdout_ray_model(seq, [0, 2], base, None, cache)
+    fitted = fit_ray_model([(pts, ring, np.zeros(3))] * 2, base.n_beams)
+    np.testing.assert_allclose(model.elevation, el, atol=1e-6)
+    assert np.array_equal(np.delete(model.elevation, 7), np.delete(fitted.elevation, 7))
+    assert np.abs(np.delete(model.elevation, 7) - model.elevation[7]).min() > np.radians(0.5)

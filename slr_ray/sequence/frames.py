@@ -24,7 +24,7 @@ import os
 import numpy as np
 from tqdm import tqdm
 
-from ..errors import InputValueError
+from ..errors import InputTypeError, InputValueError
 from ..registration import check_registration, register
 from .layouts import SequenceInputs, detect
 from .layouts.base import Frame, FrameSource, Sequence, layout_class
@@ -32,8 +32,8 @@ from .layouts.e57 import read_e57_sequence
 from .layouts.files import read_file_list
 from .layouts.kitti import read_kitti_layout
 from .layouts.scans import read_split_scans
-from .poses import (POSE_TOLERANCE, kitti_velodyne_poses, read_calib_tr, read_origins, read_pose_files,
-                    read_trajectory, write_kitti_poses)
+from .poses import (POSE_TOLERANCE, check_pose, kitti_velodyne_poses, read_calib_tr, read_origins,
+                    read_pose_files, read_trajectory, write_kitti_poses)
 
 __all__ = ["Sequence", "Frame", "FrameSource", "read_sequence", "read_kitti_layout", "read_file_list",
            "read_trajectory", "read_calib_tr", "read_pose_files", "read_e57_sequence", "read_origins",
@@ -48,7 +48,17 @@ def read_sequence(source, trajectory=None, input_format: str | None = None, orig
     file of several scans in one world frame, split by the per-point ``scan_field`` with
     ``origins`` (:func:`read_split_scans`). ``trajectory`` replaces a layout's own poses (a
     KITTI directory's in KITTI form taken as its ``poses.txt`` is: the camera's, moved by
-    ``calib.txt``'s ``Tr``)."""
+    ``calib.txt``'s ``Tr``), as does an ``(n, 4, 4)`` array of the frames' sensor poses (one a frame,
+    rigid: :func:`pose_array`); any other kind of ``trajectory`` is refused (TypeError)."""
+    if isinstance(trajectory, np.ndarray):
+        if origins is not None:
+            raise InputValueError("give the frames' poses or their origins, not both")
+        return read_sequence(source, None, input_format, origins, scan_field, layout).with_poses(
+            pose_array(trajectory), "poses array")
+    if not (trajectory is None or isinstance(trajectory, (str, os.PathLike))
+            or isinstance(trajectory, (list, tuple)) and all(isinstance(t, (str, os.PathLike)) for t in trajectory)):
+        raise InputTypeError(f"trajectory must be a file, a list of pose files, 'origins' or an (n, 4, 4) array "
+                             f"of poses, got {type(trajectory).__name__}")
     src = [source] if isinstance(source, (str, os.PathLike)) else list(source)
     inputs = SequenceInputs(trajectory, input_format, origins, scan_field)
     if layout is None:
@@ -60,6 +70,15 @@ def read_sequence(source, trajectory=None, input_format: str | None = None, orig
             layout = detect(src[0])
     cls = layout_class(layout)
     return cls.open(src[0] if len(src) == 1 else src, inputs)
+
+
+def pose_array(poses) -> np.ndarray:
+    """``poses`` (an ``(n, 4, 4)`` array of sensor poses, :func:`read_sequence`'s ``trajectory``) as
+    float64, each a rigid pose (:func:`~slr_ray.sequence.poses.check_pose`: real, finite, a rotation)."""
+    P = np.asarray(poses)
+    if P.ndim != 3 or P.shape[1:] != (4, 4) or not len(P):
+        raise InputValueError(f"trajectory: an array of poses must be (n, 4, 4), one a frame, got shape {P.shape}")
+    return np.stack([check_pose(T, f"trajectory: pose {i} of the array") for i, T in enumerate(P)])
 
 
 def register_chain(seq: Sequence, min_fitness: float | None = None, progress: bool = False,

@@ -47,7 +47,8 @@ from .union import FrameCache, Keep, accumulate, to_frame, window
 
 __all__ = ["METHODS", "LABELS", "HoldoutOptions", "evaluate_holdout", "evaluate_sequence", "mean_rows", "DEFAULT_METHODS",
            "clamped_depth_errors", "lidar4d_holdout", "LIDAR4D_MAX_DEPTH", "holdout_ray_model", "simulate_holdout",
-           "GRID_SOURCES", "others_pattern", "scoring_grid", "one_frame_refusal", "check_held_out_kinds"]
+           "GRID_SOURCES", "others_pattern", "scoring_grid", "one_frame_refusal", "check_held_out_kinds",
+           "check_source_frames", "beamless_frames"]
 
 #: LiDAR4D's depth clamp (utils/metrics.py, compute_depth_errors: min 1e-6, max 80 m)
 LIDAR4D_MAX_DEPTH = 80.0
@@ -117,7 +118,8 @@ class HoldoutOptions(Options):
     sensor : str or BeamPattern
         The frames' sensor (its shipped table or card, or the pattern): a spinning unit's; or
         ``"terrestrial"`` (a uniform grid fitted to each held-out frame), or ``"auto"`` (each held-out
-        frame's kind from its points: :func:`scoring_grid`, :mod:`slr_ray.sequence.terrestrial`).
+        frame's kind from its points: :func:`scoring_grid`, :mod:`slr_ray.sequence.terrestrial`; the
+        default, as :func:`evaluate_sequence`'s: name ``"velodyne_hdl64e_s2"`` for the old default).
     methods : sequence of str
         A subset of :data:`METHODS`.
     half : int or None
@@ -149,7 +151,7 @@ class HoldoutOptions(Options):
         apart (:func:`reach_split`). None: the frames' sensor.
     """
 
-    sensor: object = "velodyne_hdl64e_s2"
+    sensor: object = AUTO
     methods: tuple = DEFAULT_METHODS
     half: int | None = 2
     radius: float | None = None
@@ -303,31 +305,60 @@ def _check_kind(grid: ScoringGrid, methods, see_through=None) -> None:
                                   "sensor if they are a spinning unit's (--source-sensor)")
 
 
+def beamless_frames(seq: Sequence, frames, base, until_known: bool = False) -> list:
+    """The names of the frames ``frames`` whose beams ``base``'s table does not know (no ring field, not in
+    its scan order: :func:`~slr_ray.sequence.terrestrial.sensor_kind` terrestrial); ``until_known``: stop at
+    the first frame it knows. A frame whose header holds a ``ring`` field is known without reading it
+    (:meth:`~slr_ray.sequence.layouts.FrameSource.fields`); any other is read, its points only."""
+    flat = []
+    for h in frames:
+        names = seq.layout.fields(seq, h)
+        if names is not None and "ring" in names:
+            kind = SPINNING
+        else:
+            pts, attrs = seq.layout.frame(seq, h)
+            kind = sensor_kind(pts, attrs, base)
+        if kind == TERRESTRIAL:
+            flat.append(seq.names[h])
+        elif until_known:
+            break
+    return flat
+
+
 def check_held_out_kinds(seq: Sequence, holdout, sensor, methods, see_through=None) -> None:
     """With ``sensor`` ``"auto"``, refuse up front (before any window is read, any grid fitted, any frame
     registered) the methods and the see-through removal that need the frames' beam table where a held-out
-    frame is terrestrial (:func:`_check_kind`'s refusal, naming the frames). A frame whose header holds a
-    ``ring`` field is spinning without reading it (:meth:`~slr_ray.sequence.layouts.FrameSource.fields`);
-    any other is read, its points only, and decided as :func:`scoring_grid` decides."""
+    frame is terrestrial (:func:`_check_kind`'s refusal, naming the frames): :func:`beamless_frames` in
+    :data:`~slr_ray.sequence.terrestrial.DEFAULT_SPINNING`'s table, as :func:`scoring_grid` decides."""
     if not (isinstance(sensor, str) and sensor == AUTO):
         return
     if see_through is None and not any(REGISTRY[m].needs_source_sensor for m in methods if m in REGISTRY):
         return
     default = shipped_sensor(DEFAULT_SPINNING)
-    flat = []
-    for h in holdout:
-        names = seq.layout.fields(seq, h)
-        if names is not None and "ring" in names:
-            continue
-        pts, attrs = seq.layout.frame(seq, h)
-        if sensor_kind(pts, attrs, default) == TERRESTRIAL:
-            flat.append(seq.names[h])
+    flat = beamless_frames(seq, holdout, default)
     if flat:
         try:
             _check_kind(ScoringGrid(TERRESTRIAL, None, None, None, "terrestrial"), methods, see_through)
         except InputValueError as exc:
             raise InputValueError(f"held-out frame(s) {', '.join(flat)} (no ring field, not in {default.name}'s "
                                   f"scan order): {exc}") from None
+
+
+def check_source_frames(seq: Sequence, sensor, methods) -> None:
+    """Refuse up front (``sequence convert``, before any frame is cast) the methods that need the frames'
+    beam table (:func:`_check_kind`'s refusal) where no frame's beams are known in ``sensor``'s table
+    (:func:`beamless_frames`: a terrestrial campaign's scans, or another unit's frames), which failed late
+    with no pulse returned; reads frames until the first it knows. (The see-through removal works on
+    such frames, with a warning: not refused.)"""
+    if not any(REGISTRY[m].needs_source_sensor for m in methods if m in REGISTRY):
+        return
+    base = _table_of(sensor)
+    if len(beamless_frames(seq, range(len(seq)), base, until_known=True)) == len(seq):
+        try:
+            _check_kind(ScoringGrid(TERRESTRIAL, None, None, None, "terrestrial"), methods)
+        except InputValueError as exc:
+            raise InputValueError(f"no frame has a ring field or is in {base.name}'s scan order (terrestrial "
+                                  f"scans, or another unit's?): {exc}") from None
 
 
 def evaluate_holdout(seq: Sequence, target: int, options: HoldoutOptions | None = None, *,
@@ -412,11 +443,12 @@ def evaluate_holdout(seq: Sequence, target: int, options: HoldoutOptions | None 
     return res
 
 
-def simulate_holdout(seq: Sequence, target: int, method: str = "rays", sensor: str = "velodyne_hdl64e_s2",
+def simulate_holdout(seq: Sequence, target: int, method: str = "rays", sensor: str = AUTO,
                      half: int | None = 2, drop_moving: bool = True, gap: float = FPA_GAP, pattern=None):
     """What ``method`` returns for the held-out frame ``target`` (a :class:`PulseReturns` in ``pattern``,
     default the target's fitted table as :func:`evaluate_holdout` fits it). The held-out frame's points
-    are read for its table only: every method's returns depend on its pose and the other frames."""
+    are read for its table only: every method's returns depend on its pose and the other frames.
+    ``sensor`` as :class:`HoldoutOptions`' (default ``"auto"``, as :func:`evaluate_sequence`'s)."""
     m = registered_method(method, "holdout")
     cache = FrameCache(seq)
     others = window(seq, target, half)

@@ -7,7 +7,10 @@ from __future__ import annotations
 import dataclasses
 import warnings
 
+import numpy as np
+
 from ...errors import SlrWarning
+from ..embree_rays import table_unfitted
 from ..rays import (RayModel, cast_grid_rays, cast_rays, fit_azimuth_phases, fit_range_bias, fit_ray_model,
                     frame_motion, pattern_ray_model)
 from ..sources import known_beams
@@ -23,7 +26,8 @@ GRID_RAYS = ("a terrestrial scanner has no beams: each pulse of its fitted grid 
 def holdout_ray_model(seq, others, base, pattern, cache) -> RayModel:
     """The sensor's rays fitted from the frames ``others`` (never the held-out frame): their own points,
     their beams (a ``ring`` field or the scan order) and their motion from the poses
-    (:func:`~slr_ray.sequence.rays.fit_ray_model`), where in its column each laser fires
+    (:func:`~slr_ray.sequence.rays.fit_ray_model`; a laser with too few points to fit at its table's
+    elevation, :func:`~slr_ray.sequence.embree_rays.table_unfitted`, as ``embree-rays``'s), where in its column each laser fires
     (:func:`~slr_ray.sequence.rays.fit_azimuth_phases`, in ``pattern``'s columns), and each laser's
     range bias against the others' frames (:func:`~slr_ray.sequence.rays.fit_range_bias`). Where a frame's beams are not known, the
     pattern's own rays."""
@@ -44,7 +48,9 @@ def holdout_ray_model(seq, others, base, pattern, cache) -> RayModel:
                       + ("" if frames else "; rays casts the table's ideal rays"), SlrWarning, stacklevel=2)
     if not frames:
         return pattern_ray_model(pattern)
-    model = fit_ray_model(frames, base.n_beams)
+    model = fit_ray_model(frames, base.n_beams)  # stride 2: a laser too sparse to fit keeps its table's elevation
+    model = table_unfitted(model, np.concatenate([p[::2] for p, _, _ in frames]),
+                           np.concatenate([b[::2] for _, b, _ in frames]), base)
     if pattern is not None:  # where in its column each laser fires (an Ouster's at the edge): its rays cast there
         offset, _ = fit_azimuth_phases([(p, b) for p, b, _ in frames], base.n_beams, pattern.columns)
         model = dataclasses.replace(model, azimuth_offset=offset)
