@@ -173,3 +173,19 @@ def test_posed_reduction_moves_each_point_as_to_frame_does():
     assert len(got[0]) > 1000 and got[2].max() < 6000
     for a, b in zip(got, want):
         assert np.array_equal(a, b)
+
+
+def test_float64_points_compile_the_block_reduction_once():
+    """A cold numba cache compiles a kernel once per argument types: the one-thread, the
+    parallel and the posed reductions hand ``_reduce_block`` and ``row_table`` the same
+    types (a literal 0, an omitted ``base`` and a literal table size were three more)."""
+    from slr_ray.core.beams import _reduce_block
+
+    p = sensor("velodyne_vlp16")
+    pts = np.random.default_rng(0).normal(size=(500, 3)) * 10
+    p.reduce(pts, np.zeros(3), n_threads=1)
+    p.reduce(pts, np.zeros(3), n_threads=2)
+    p.reduce_posed(pts, np.eye(4))
+    row_table(p._cos_edges, ROW_CELLS)
+    assert len([s for s in _reduce_block.signatures if s[0].dtype.bitwidth == 64]) == 1, _reduce_block.signatures
+    assert len(row_table.signatures) == 1, row_table.signatures

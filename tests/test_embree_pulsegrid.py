@@ -122,3 +122,22 @@ def test_bare_ground_precision_of_default_pulse_grid_discs_is_knn_s(position):
     assert default.precision >= knn.precision - 0.01
     assert default.precision >= mean.precision + 0.1
     assert default.coverage >= mean.coverage - 0.01
+
+
+def test_strided_points_reach_the_kernels_contiguous(monkeypatch):
+    """A cold numba cache compiles a kernel once per array layout (``_grid_rows``, ``_pca_normals``:
+    seconds each): a strided view of the points is made contiguous before them."""
+    import numba
+
+    from slr_ray.backends.embree import discs, pulsegrid
+
+    layouts = []
+    for mod, name in ((pulsegrid, "_grid_rows"), (discs, "_pca_normals")):
+        real = getattr(mod, name)
+        monkeypatch.setattr(mod, name, lambda *a, real=real: layouts.append(numba.typeof(a[0]).layout) or real(*a))
+    rng = np.random.default_rng(0)
+    pts = rng.normal(size=(400, 3)) * 5
+    list(pulsegrid.grid_neighbourhoods(pts[::2], np.zeros(3), 6.0, 0.1))
+    discs.estimate_normals(pts[::2], k=4)
+    discs.estimate_normals(np.asfortranarray(pts), k=4)
+    assert layouts and set(layouts) == {"C"}, layouts

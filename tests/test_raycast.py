@@ -460,3 +460,30 @@ def test_quick_build_meets_what_the_default_build_meets(seed):
     pv = np.cross(d[hit], e2)
     t = np.einsum("ij,ij->i", np.cross(o[hit] - p0, e1), e2) / np.einsum("ij,ij->i", e1, pv)
     np.testing.assert_allclose(b.distances[hit], t, rtol=1e-4, atol=1e-4)
+
+
+def test_every_scene_hands_cast_packets_one_argument_type(monkeypatch):
+    """numba compiles cast_packets (about 8 s, a cold cache) once for each tuple of argument
+    types it meets: discs, one disc, oriented discs, bare triangles, triangles with owners and
+    read-only inputs all hand it the same types (they handed it five)."""
+    import numba
+
+    from slr_ray.raycast import scene as scene_module
+
+    seen = set()
+    real = scene_module.cast_packets
+    monkeypatch.setattr(scene_module, "cast_packets",
+                        lambda *a: seen.add(tuple(numba.typeof(x) for x in a)) or real(*a))
+    rng = np.random.default_rng(0)
+    c = rng.normal(size=(20, 3)) + [10.0, 0.0, 0.0]
+    frozen = c.copy()
+    frozen.flags.writeable = False
+    v = np.concatenate([c + [0.0, -0.1, -0.1], c + [0.0, 0.1, -0.1], c + [0.0, 0.0, 0.1]])
+    f = np.arange(60).reshape(3, 20).T
+    scenes = [RayScene.discs(c, np.full(20, 0.3)), RayScene.discs(frozen, np.full(20, 0.3, np.float32)),
+              RayScene.discs(c[:1], [0.3]),
+              RayScene.discs(c, np.full(20, 0.3), normals=_unit(rng, 20).astype(np.float32)),
+              RayScene.triangles(v, f), RayScene.triangles(v, f, owners=(frozen, np.full(20, 0.3), 1, 1.0, None))]
+    for s in scenes:
+        s.intersect(np.zeros(3), _unit(rng, 4))
+    assert len(seen) == 1, seen

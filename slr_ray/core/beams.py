@@ -146,7 +146,7 @@ def _ranges_cells(x, y, z, n, e0, en, scale, last, rmin, rmax, ranges, qs, cells
 
 @njit(cache=True, nogil=True, error_model="numpy")
 def _reduce_block(pts, s, e, ox, oy, oz, edges, lut, scale, offsets, columns, rmin, rmax, x, y, z, phi,
-                  ranges, qs, cells, best_r, best_i, base=0):
+                  ranges, qs, cells, best_r, best_i, base):
     """Reduce pts[s:e] (at most BLOCK) into one thread's per-pulse minimum
     (point ``s + i`` recorded as ``base + s + i``).
 
@@ -214,11 +214,11 @@ def beam_reduce_serial(pts, ox, oy, oz, edges, offsets, columns, rmin, rmax, bes
     (12 ms against 0.7 ms for a 130,000-point frame on a loaded 2-core machine), and a caller that
     reduces one frame at a time (a sequence's window: 61 frames a target) pays it every call."""
     n = len(pts)
-    lut, scale = row_table(edges, ROW_CELLS)
+    lut, scale = row_table(edges, np.int64(ROW_CELLS))  # int64, as from Python: one compile, not two
     x, y, z, phi, ranges, qs, cells = _block_buffers()
     for s in range(0, n, BLOCK):
         _reduce_block(pts, s, min(n, s + BLOCK), ox, oy, oz, edges, lut, scale, offsets, columns, rmin, rmax,
-                      x, y, z, phi, ranges, qs, cells, best_r, best_i)
+                      x, y, z, phi, ranges, qs, cells, best_r, best_i, np.int64(0))
 
 
 @njit(cache=True, error_model="numpy")
@@ -229,7 +229,7 @@ def beam_reduce_posed(pts, rot, tx, ty, tz, edges, offsets, columns, rmin, rmax,
     ``d0 rot[j, 0] + d1 rot[j, 1] + d2 rot[j, 2]``, the same roundings) a block at a time into a
     buffer: no moved copy of the cloud."""
     n = len(pts)
-    lut, scale = row_table(edges, ROW_CELLS)
+    lut, scale = row_table(edges, np.int64(ROW_CELLS))  # int64, as from Python: one compile, not two
     buf = np.empty((BLOCK, 3))
     x, y, z, phi, ranges, qs, cells = _block_buffers()
     for s in range(0, n, BLOCK):
@@ -240,7 +240,7 @@ def beam_reduce_posed(pts, rot, tx, ty, tz, edges, offsets, columns, rmin, rmax,
             d2 = pts[s + i, 2] - tz
             for j in range(3):
                 buf[i, j] = d0 * rot[j, 0] + d1 * rot[j, 1] + d2 * rot[j, 2]
-        _reduce_block(buf, 0, m, 0.0, 0.0, 0.0, edges, lut, scale, offsets, columns, rmin, rmax,
+        _reduce_block(buf, np.int64(0), m, 0.0, 0.0, 0.0, edges, lut, scale, offsets, columns, rmin, rmax,
                       x, y, z, phi, ranges, qs, cells, best_r, best_i, s)
 
 
@@ -251,11 +251,11 @@ def beam_reduce(pts, ox, oy, oz, edges, offsets, columns, rmin, rmax, best_r, be
     share of the points; the caller merges them)."""
     t_count = best_r.shape[0]
     n = len(pts)
-    lut, scale = row_table(edges, ROW_CELLS)
+    lut, scale = row_table(edges, np.int64(ROW_CELLS))  # int64, as from Python: one compile, not two
     for t in prange(t_count):
         lo = n * t // t_count
         hi = n * (t + 1) // t_count
         x, y, z, phi, ranges, qs, cells = _block_buffers()  # each thread its own
         for s in range(lo, hi, BLOCK):
             _reduce_block(pts, s, min(hi, s + BLOCK), ox, oy, oz, edges, lut, scale, offsets, columns, rmin,
-                          rmax, x, y, z, phi, ranges, qs, cells, best_r[t], best_i[t])
+                          rmax, x, y, z, phi, ranges, qs, cells, best_r[t], best_i[t], np.int64(0))

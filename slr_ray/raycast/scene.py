@@ -118,12 +118,13 @@ class RayScene:
         self.n_primitives = int(n_primitives)
         self._buffers = buffers
         # float64 data of the owners (the points) for the filter: contiguous, kept alive here
-        self._owner_centres = np.ascontiguousarray(owner_centres, np.float64)
+        # (read-only, radii strided, no normals float32: every scene hands cast_packets one type, one compile)
+        self._owner_centres = _read_only(np.ascontiguousarray(owner_centres, np.float64))
         # float32 (what Embree holds): for discs a view of the vertex buffer's radius column
         r = np.asarray(owner_radii)
-        self._owner_radii = r if r.dtype == np.float32 and r.ndim == 1 else np.ascontiguousarray(r, np.float32)
+        self._owner_radii = r if r.dtype == np.float32 and r.ndim == 1 and _typed_strided(r) else _strided(r)
         if owner_normals is None:
-            self._owner_normals = np.zeros((0, 3))
+            self._owner_normals = np.zeros((0, 3), np.float32)
         else:
             nrm = np.asarray(owner_normals)
             nrm = np.ascontiguousarray(nrm, np.float32 if nrm.dtype == np.float32 else np.float64)
@@ -256,7 +257,7 @@ class RayScene:
             raise InputValueError(f"disc radii must be finite and > 0 in float32 ({bad} are not)")
         centre = _centre_of(c) if centre is None else as_origin(centre, "centre")
         vbuf = shared if shared is not None else np.empty((len(c), 4), np.float32)
-        _fill_vertices(c, centre, r, vbuf)  # one parallel pass, no float64 temporaries
+        _fill_vertices(_read_only(c), centre, r, vbuf)  # one parallel pass, no float64 temporaries
         _check_finite(vbuf, len(c), "centres")
         # Embree builds from its float32 buffer: a file-mapped primary's pages (24 B a point) need not stay
         # resident through the build; the tie rule reads back the few it needs
@@ -288,7 +289,7 @@ class RayScene:
         """``(n,) float32`` radii of the discs (or of the discs a triangle fan stands
         for) as Embree and the tie rule use them; for discs, a read-only view of
         the vertex buffer."""
-        v = self._owner_radii.view()
+        v = self._owner_radii[:len(self._owner_centres)]  # not _strided's padding
         v.flags.writeable = False
         return v
 
@@ -538,6 +539,25 @@ def _spare_bytes(a: np.ndarray) -> int:
     if not owner.flags.c_contiguous:
         return 0
     return int(owner.ctypes.data + owner.nbytes - (a.ctypes.data + a.nbytes))
+
+
+def _read_only(a: np.ndarray) -> np.ndarray:
+    v = a.view()
+    v.flags.writeable = False
+    return v
+
+
+def _typed_strided(r) -> bool:
+    return len(r) > 1 and not r.flags.c_contiguous
+
+
+def _strided(r) -> np.ndarray:
+    """``r`` as float32 in a column of an ``(n, 2)`` buffer (at least 2 rows, zeros after ``r``):
+    strided as the radius column of a disc scene's vertex buffer is (numba calls 1 row
+    contiguous), so numba compiles cast_packets for one layout (about 8 s each) whatever the scene."""
+    out = np.zeros((max(len(r), 2), 2), np.float32)[:, 0]
+    out[:len(r)] = r
+    return out
 
 
 def _check_finite(vbuf, n, what):

@@ -159,7 +159,7 @@ def estimate_normals(points, k: int = 10, primary_origin=None, chunk: int = 1 <<
     """Unit normals ``(n, 3)`` by PCA of each point and its ``k`` nearest
     neighbours (smallest eigenvector); collinear or empty neighbourhoods take
     the direction to ``primary_origin`` (or +z) made orthogonal to the line."""
-    pts = np.asarray(points, np.float64)
+    pts = np.ascontiguousarray(points, np.float64)  # one layout: _pca_normals compiles once (3.5 s a layout)
     if len(pts) < 2:  # no neighbours: the fallback direction
         return np.array(fallback_directions(pts, primary_origin))
     out = np.empty((len(pts), 3))

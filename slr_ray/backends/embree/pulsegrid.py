@@ -52,7 +52,7 @@ def grid_neighbourhoods(points, primary_origin, primary_resolution, gate: float 
     itself at distance 0 (``counts`` says how many are real). Memory: three
     ``(n,)`` arrays and one chunk's ``(c, 8)`` arrays.
     """
-    pts = np.asarray(points)
+    pts = np.ascontiguousarray(points)  # one layout: _grid_rows compiles once
     n = len(pts)
     if n == 0:
         return
