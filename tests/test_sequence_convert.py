@@ -277,3 +277,46 @@ def test_convert_refuses_force(drive, tmp_path, capsys):
     # (#48 item 16) it had no effect: now said
     r = _cli(capsys, "sequence", "convert", drive, "--target-sensor", SENSOR, "-o", tmp_path / "c", "--force", "--quiet")
     assert r.returncode == 2 and "no --force" in r.stderr and not (tmp_path / "c").exists()
+
+
+@pytest.mark.parametrize("workers,least", [(2, 16), (2, 1), (3, 4), (1, 8)])
+def test_a_pools_runs_are_consecutive_frames_covering_the_work_in_order(workers, least):
+    # (#46 item 4) a worker converts runs of consecutive frames (its cache slides: each frame read and
+    # meshed once by it), never blocks handed out in turn (each block's window read anew)
+    rng = np.random.default_rng(workers * 100 + least)
+    for n in (1, 7, 40, 200):
+        todo = sorted(rng.choice(n + 5, size=n, replace=False).tolist()) if n < 40 else list(range(n))
+        runs = C._spans(todo, workers, least)
+        assert [i for r in runs for i in r] == todo
+        assert all(r == list(range(r[0], r[0] + len(r))) for r in runs)
+        for r, nxt in zip(runs, runs[1:]):  # a run shorter than least ends at a gap in the work
+            assert len(r) >= least or nxt[0] != r[-1] + 1
+        if todo == list(range(n)):
+            assert len(runs) <= -(-n // least) and len(runs) <= max(1, 2 * workers * (1 + int(np.log2(n + 1))))
+
+
+def test_two_worker_processes_write_what_one_writes_each_frame_recorded_alone(drive, tmp_path, monkeypatch):
+    # (#46 item 4) the pool's workers each take runs of frames and report every frame as it is written
+    one = _convert(drive, tmp_path / "one", block=4)
+    monkeypatch.setattr(C, "_SPAN_LEAST", 1)  # 4 frames: runs of one or two frames, both workers busy
+    two = _convert(drive, tmp_path / "two", block=4, workers=2)
+    assert one["written"] == two["written"] == 4 and one["points"] == two["points"]
+    a, b = _bytes(tmp_path / "one"), _bytes(tmp_path / "two")
+    for d in (a, b):
+        d.pop(C.JOURNAL)
+    assert a == b
+    journal = [json.loads(line) for line in (tmp_path / "two" / C.JOURNAL).read_text().splitlines()]
+    assert sorted(e["frame"] for e in journal) == [0, 1, 2, 3]
+
+
+def test_a_schedulers_workers_each_get_a_run_of_consecutive_blocks():
+    # (#46 item 4) on Dask each worker is asked for one run of consecutive blocks (loosely: another
+    # takes them where it is gone)
+    client = SimpleNamespace(scheduler_info=lambda: {"workers": {"tcp://b": {}, "tcp://a": {}}})
+    blocks = [[4 * k + j for j in range(4)] for k in range(5)]
+    placed = C._dask_places(client, blocks)
+    assert [b for b, _ in placed] == blocks
+    asked = [w["workers"] for _, w in placed]
+    assert asked == [["tcp://a"]] * 3 + [["tcp://b"]] * 2 and all(w["allow_other_workers"] for _, w in placed)
+    one = SimpleNamespace(scheduler_info=lambda: {"workers": {"tcp://a": {}}})
+    assert [w for _, w in C._dask_places(one, blocks)] == [{}] * 5

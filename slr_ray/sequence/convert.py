@@ -33,6 +33,7 @@ import importlib.util
 import json
 import multiprocessing
 import os
+import queue
 import re
 import shutil
 import signal
@@ -42,7 +43,6 @@ from dataclasses import dataclass
 import time
 import uuid
 from collections.abc import Sequence as SequenceABC
-from functools import partial
 from pathlib import Path
 
 import numpy as np
@@ -91,6 +91,9 @@ JOURNAL = "journal.jsonl"
 STAGE_PREFIX = ".convert-"
 _STAGE = re.compile(r"^\.convert-[0-9a-f]{32}$")
 _STATE: dict = {}
+#: the fewest frames of a worker's run of consecutive frames (:func:`_spans`): a run's first frames
+#: read and mesh the window behind them, which the worker before held
+_SPAN_LEAST = 16
 
 
 def target_poses(poses, offset=(0.0, 0.0, 0.0)) -> np.ndarray:
@@ -132,13 +135,42 @@ def _init(seq, poses, settings):
                   cache=FrameCache(seq, 2 * settings["cache"] + 16 + (2 * st.half if st else 0), local=False))
 
 
-def _init_worker(seq, poses, settings):
+def _init_worker(seq, poses, settings, done=None):
     """A pool worker's start: Ctrl-C reaches the whole process group, and the parent decides (its pool's
     exit terminates the workers): a worker ignores SIGINT, never printing a KeyboardInterrupt's traceback.
-    It starts with SIGINT and SIGTERM blocked (the parent's mask while it starts the pool), let in here."""
+    It starts with SIGINT and SIGTERM blocked (the parent's mask while it starts the pool), let in here.
+    ``done``: the queue a span's frames are reported on as each is written (:func:`_span_job`)."""
     signal.signal(signal.SIGINT, signal.SIG_IGN)
     signal.pthread_sigmask(signal.SIG_UNBLOCK, {signal.SIGINT, signal.SIGTERM})
     _init(seq, poses, settings)
+    _STATE["done"] = done
+
+
+def _spans(todo, workers: int, least: int) -> list:
+    """``todo`` (frame indices, ascending) cut into runs of consecutive frames for ``workers`` processes:
+    a worker converts a run in order, so each frame of it is read and meshed once by that worker (its
+    window slides) where blocks handed out in turn made each worker read and mesh every frame of its
+    blocks' windows anew (twice the frames with ``half`` 2 and blocks of 4). The runs shrink as the
+    work left does (a run is a ``2 * workers``-th of what is left, at least ``least`` frames): a fast
+    worker never waits long on a slow one's last run. A gap in ``todo`` (frames resumed) ends a run."""
+    out, k, n = [], 0, len(todo)
+    while k < n:
+        size = max(int(least), -(-(n - k) // (2 * max(1, int(workers)))))
+        run = [todo[k]]
+        while len(run) < size and k + len(run) < n and todo[k + len(run)] == run[-1] + 1:
+            run.append(todo[k + len(run)])
+        out.append(run)
+        k += len(run)
+    return out
+
+
+def _span_job(span, out, token) -> int:
+    """A pool worker converts the consecutive frames of ``span`` (:func:`_spans`) one at a time, putting
+    each frame's entries on the run's queue as it is written (the parent records them: progress a
+    frame, not a run); returns how many."""
+    for i in span:
+        _STATE["done"].put(_job([i], out, token))
+    return len(span)
 
 
 def _dask_job(block, out, seq, poses, settings, token) -> list:
@@ -149,6 +181,18 @@ def _dask_job(block, out, seq, poses, settings, token) -> list:
         _init(seq, poses, settings)
         _STATE["token"] = token
     return _job(block, out, token)
+
+
+def _dask_places(client, blocks) -> list:
+    """``(block, submit's keywords)``: the blocks cut into as many runs of consecutive frames as the
+    scheduler has workers, each run's blocks asked of one worker (loosely: another takes them where
+    it is gone), so that a worker's cache slides along its run (each frame read and meshed once by
+    it) instead of each block's window being read anew by whichever worker gets it."""
+    workers = sorted(client.scheduler_info().get("workers", {}))
+    if len(workers) < 2 or len(blocks) < 2:
+        return [(b, {}) for b in blocks]
+    per = -(-len(blocks) // len(workers))
+    return [(b, {"workers": [workers[k // per]], "allow_other_workers": True}) for k, b in enumerate(blocks)]
 
 
 def _stage(out, token) -> Path:
@@ -494,7 +538,8 @@ def _run_blocks(seq, out, P, settings, blocks, o: ConvertOptions, token, record)
 
         with Client(o.scheduler) as client:
             shared = client.scatter([seq, P, settings], broadcast=True)  # once, not once a block
-            futures = [client.submit(_dask_job, b, str(out), *shared, token, pure=False) for b in blocks]
+            futures = [client.submit(_dask_job, b, str(out), *shared, token, pure=False, **where)
+                       for b, where in _dask_places(client, blocks)]
             try:
                 for fut in as_completed(futures):
                     record(fut.result())
@@ -516,12 +561,27 @@ def _run_blocks(seq, out, P, settings, blocks, o: ConvertOptions, token, record)
         ctx = multiprocessing.get_context("spawn")
         mask = signal.pthread_sigmask(signal.SIG_BLOCK, {signal.SIGINT, signal.SIGTERM})  # a child's
         try:  # a worker interrupted while it starts prints no traceback of its half-read start-up data
-            pool = ctx.Pool(o.workers, initializer=_init_worker, initargs=(seq, P, settings))
+            reports = ctx.Queue()
+            pool = ctx.Pool(o.workers, initializer=_init_worker, initargs=(seq, P, settings, reports))
         finally:
             signal.pthread_sigmask(signal.SIG_SETMASK, mask)
         with pool:
-            for entries in pool.imap_unordered(partial(_job, out=str(out), token=token), blocks):
+            todo = [i for b in blocks for i in b]
+            runs = [pool.apply_async(_span_job, (span, str(out), token))
+                    for span in _spans(todo, o.workers, max(o.block, _SPAN_LEAST))]
+            left = len(todo)
+            while left:
+                try:
+                    entries = reports.get(timeout=0.2)
+                except queue.Empty:
+                    for r in runs:
+                        if r.ready() and not r.successful():
+                            r.get()  # a worker's exception, raised here
+                    continue
                 record(entries)
+                left -= len(entries)
+            for r in runs:
+                r.get()
 
 
 def _convert(seq, out, P, settings, done, o: ConvertOptions, progress, inputs) -> dict:
