@@ -320,3 +320,23 @@ def test_a_schedulers_workers_each_get_a_run_of_consecutive_blocks():
     assert asked == [["tcp://a"]] * 3 + [["tcp://b"]] * 2 and all(w["allow_other_workers"] for _, w in placed)
     one = SimpleNamespace(scheduler_info=lambda: {"workers": {"tcp://a": {}}})
     assert [w for _, w in C._dask_places(one, blocks)] == [{}] * 5
+
+
+def test_a_workers_cache_holds_its_window_reading_each_frame_once(tmp_path, monkeypatch):
+    # (#46 item 4) the window slides: each frame read once, and no more frames held than a window
+    # (with embree-rays each held frame keeps its mesh's Embree scene: 20 held for --half 2 was 1.46 GiB)
+    from slr_ray.sequence.union import FrameCache
+    root = tmp_path / "seq"
+    synthetic_drive(root, n_frames=8, sensor=SENSOR, step=0.8)
+    reads, held, real = [], [], FrameCache.get
+
+    def get(self, i):
+        if i not in self._held:
+            reads.append(i)
+        out = real(self, i)
+        held.append(len(self._held))
+        return out
+
+    monkeypatch.setattr(FrameCache, "get", get)
+    _convert(root, tmp_path / "out", half=1, block=3)
+    assert sorted(reads) == list(range(8)) and max(held) <= 2 * 1 + 2

@@ -129,10 +129,22 @@ def _see_through(settings) -> SeeThrough | None:
     return None if st is None else SeeThrough(settings["source_sensor"], st["margin_m"], st["votes"], st["half"])
 
 
+def _cache_frames(settings, st) -> int:
+    """Frames a worker's cache holds: a window of ``half`` frames either side (its frames' see-through
+    neighbours too) slid one frame a target needs ``2 * half + 1`` (and ``2 * st.half`` more), one spare;
+    a window of a radius, of no known width, 16 more than twice ``cache``. A frame held beyond its
+    window only costs memory (with embree-rays its mesh's Embree scene: 20 frames held for
+    ``--half 2`` peaked at 1.46 GiB a process)."""
+    extra = 2 * st.half if st else 0
+    if settings["radius"] is None and settings["half"] is not None:
+        return 2 * int(settings["half"]) + 2 + extra
+    return 2 * settings["cache"] + 16 + extra
+
+
 def _init(seq, poses, settings):
     st = _see_through(settings)
     _STATE.update(seq=seq, poses=poses, settings=settings, pattern=shipped_sensor(settings["sensor"]),
-                  cache=FrameCache(seq, 2 * settings["cache"] + 16 + (2 * st.half if st else 0), local=False))
+                  cache=FrameCache(seq, _cache_frames(settings, st), local=False))
 
 
 def _init_worker(seq, poses, settings, done=None):
