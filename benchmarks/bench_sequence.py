@@ -136,6 +136,7 @@ def one(a, estimator, drive, tmp, env, made, cluster=None) -> None:
                      "progress_tail": res.stderr.replace("\r", "\n").strip().splitlines()[-1:]})
         if cluster is not None:
             runs[-1]["workers_peak_gib"] = _workers_peak(cluster)
+            runs[-1]["workers_memory_limit_gib"] = _workers_memory_limit(cluster)
         print(estimator, runs[-1], flush=True)
         shutil.rmtree(out)
     peak = resource.getrusage(resource.RUSAGE_CHILDREN).ru_maxrss / 2**20  # KiB -> GiB
@@ -178,6 +179,14 @@ def _workers_cpu(cluster) -> float:
         except OSError:
             pass
     return total
+
+
+def _workers_memory_limit(cluster) -> list:
+    """Each worker's memory limit (GiB; None: none)."""
+    from dask.distributed import Client
+    with Client(cluster) as c:
+        info = c.scheduler_info()["workers"].values()
+    return [round(w["memory_limit"] / 2**30, 2) if w.get("memory_limit") else None for w in info]
 
 
 def _workers_peak(cluster) -> list:

@@ -309,17 +309,18 @@ def test_two_worker_processes_write_what_one_writes_each_frame_recorded_alone(dr
     assert sorted(e["frame"] for e in journal) == [0, 1, 2, 3]
 
 
-def test_a_schedulers_workers_each_get_a_run_of_consecutive_blocks():
-    # (#46 item 4) on Dask each worker is asked for one run of consecutive blocks (loosely: another
-    # takes them where it is gone)
-    client = SimpleNamespace(scheduler_info=lambda: {"workers": {"tcp://b": {}, "tcp://a": {}}})
-    blocks = [[4 * k + j for j in range(4)] for k in range(5)]
-    placed = C._dask_places(client, blocks)
-    assert [b for b, _ in placed] == blocks
-    asked = [w["workers"] for _, w in placed]
-    assert asked == [["tcp://a"]] * 3 + [["tcp://b"]] * 2 and all(w["allow_other_workers"] for _, w in placed)
-    one = SimpleNamespace(scheduler_info=lambda: {"workers": {"tcp://a": {}}})
-    assert [w for _, w in C._dask_places(one, blocks)] == [{}] * 5
+def test_a_schedulers_blocks_are_chains_of_consecutive_frames():
+    # (#46 item 4) on Dask each block of a chain depends on the one before, so it runs where that one
+    # did: a worker's cache slides along the chain's consecutive frames
+    blocks = [[4 * k + j for j in range(4)] for k in range(50)] + [[200, 201]]
+    for workers in (1, 2, 3):
+        chains = C._dask_chains(blocks, workers, 4)
+        assert [i for c in chains for b in c for i in b] == list(range(202))
+        for c in chains:
+            frames = [i for b in c for i in b]
+            assert frames == list(range(frames[0], frames[0] + len(frames)))
+            assert all(1 <= len(b) <= 4 for b in c)
+        assert len(chains) >= min(workers, 2) and len(chains) <= 202 // 16
 
 
 def test_a_workers_cache_holds_its_window_reading_each_frame_once(tmp_path, monkeypatch):

@@ -185,9 +185,10 @@ def _span_job(span, out, token) -> int:
     return len(span)
 
 
-def _dask_job(block, out, seq, poses, settings, token) -> list:
+def _dask_job(block, out, seq, poses, settings, token, after=None) -> list:
     """A block on a Dask worker: the worker's state set up by its first block of this conversion
-    (``token``), then kept (its frames cache) for the next blocks it gets."""
+    (``token``), then kept (its frames cache) for the next blocks it gets; ``after``: the block
+    before it in its chain (:func:`_dask_chains`), whose result is not used."""
     if _STATE.get("token") != token:
         _STATE.clear()
         _init(seq, poses, settings)
@@ -195,16 +196,16 @@ def _dask_job(block, out, seq, poses, settings, token) -> list:
     return _job(block, out, token)
 
 
-def _dask_places(client, blocks) -> list:
-    """``(block, submit's keywords)``: the blocks cut into as many runs of consecutive frames as the
-    scheduler has workers, each run's blocks asked of one worker (loosely: another takes them where
-    it is gone), so that a worker's cache slides along its run (each frame read and meshed once by
-    it) instead of each block's window being read anew by whichever worker gets it."""
-    workers = sorted(client.scheduler_info().get("workers", {}))
-    if len(workers) < 2 or len(blocks) < 2:
-        return [(b, {}) for b in blocks]
-    per = -(-len(blocks) // len(workers))
-    return [(b, {"workers": [workers[k // per]], "allow_other_workers": True}) for k, b in enumerate(blocks)]
+def _dask_chains(blocks, workers: int, size: int) -> list:
+    """The blocks as chains of consecutive frames (the frames of a :func:`_spans` run, in blocks of
+    ``size``): on Dask each block of a chain is submitted depending on the one before, so the
+    scheduler runs it where that one ran (its result is there) and the worker's cache slides along
+    the chain (each frame read and meshed once by it), where blocks free to go anywhere had each
+    block's window read and meshed anew by whichever worker got it. A block's entries are recorded
+    as it ends: progress a block."""
+    todo = [i for b in blocks for i in b]
+    return [[run[k:k + size] for k in range(0, len(run), size)]
+            for run in _spans(todo, workers, max(size, _SPAN_LEAST))]
 
 
 def _stage(out, token) -> Path:
@@ -550,8 +551,13 @@ def _run_blocks(seq, out, P, settings, blocks, o: ConvertOptions, token, record)
 
         with Client(o.scheduler) as client:
             shared = client.scatter([seq, P, settings], broadcast=True)  # once, not once a block
-            futures = [client.submit(_dask_job, b, str(out), *shared, token, pure=False, **where)
-                       for b, where in _dask_places(client, blocks)]
+            futures = []
+            workers = max(1, len(client.scheduler_info().get("workers", {})))
+            for chain in _dask_chains(blocks, workers, o.block):
+                before = None
+                for b in chain:
+                    before = client.submit(_dask_job, b, str(out), *shared, token, before, pure=False)
+                    futures.append(before)
             try:
                 for fut in as_completed(futures):
                     record(fut.result())
