@@ -197,15 +197,16 @@ def _dask_job(block, out, seq, poses, settings, token, after=None) -> list:
 
 
 def _dask_chains(blocks, workers: int, size: int) -> list:
-    """The blocks as chains of consecutive frames (the frames of a :func:`_spans` run, in blocks of
-    ``size``): on Dask each block of a chain is submitted depending on the one before, so the
+    """The blocks as chains of consecutive frames, one a worker (``workers``; :func:`_spans` runs, in
+    blocks of ``size``): on Dask each block of a chain is submitted depending on the one before, so the
     scheduler runs it where that one ran (its result is there) and the worker's cache slides along
     the chain (each frame read and meshed once by it), where blocks free to go anywhere had each
     block's window read and meshed anew by whichever worker got it. A block's entries are recorded
     as it ends: progress a block."""
     todo = [i for b in blocks for i in b]
-    return [[run[k:k + size] for k in range(0, len(run), size)]
-            for run in _spans(todo, workers, max(size, _SPAN_LEAST))]
+    per = max(size, -(-len(todo) // max(1, int(workers))))  # one chain a worker: with more, a worker
+    # freed took the head of another chain before the next block of its own (its window meshed anew)
+    return [[run[k:k + size] for k in range(0, len(run), size)] for run in _spans(todo, workers, per)]
 
 
 def _stage(out, token) -> Path:
