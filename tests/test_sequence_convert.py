@@ -399,3 +399,67 @@ def test_a_frame_copied_under_another_name_is_said(drive, tmp_path):
             warnings.simplefilter("always")
             convert_sequence(read_sequence([str(p) for p in paths], str(poses)), out, SENSOR, half=1)
         assert any("hold the same content" in str(w.message) for w in got) == said
+
+
+@pytest.mark.parametrize("workers,least", [(2, 16), (2, 1), (3, 4), (1, 8)])
+def test_a_pools_runs_are_consecutive_frames_covering_the_work_in_order(workers, least):
+    # (#46 item 4) a worker converts runs of consecutive frames (its cache slides: each frame read and
+    # meshed once by it), never blocks handed out in turn (each block's window read anew)
+    rng = np.random.default_rng(workers * 100 + least)
+    for n in (1, 7, 40, 200):
+        todo = sorted(rng.choice(n + 5, size=n, replace=False).tolist()) if n < 40 else list(range(n))
+        runs = C._spans(todo, workers, least)
+        assert [i for r in runs for i in r] == todo
+        assert all(r == list(range(r[0], r[0] + len(r))) for r in runs)
+        for r, nxt in zip(runs, runs[1:]):  # a run shorter than least ends at a gap in the work
+            assert len(r) >= least or nxt[0] != r[-1] + 1
+        if todo == list(range(n)):
+            assert len(runs) <= -(-n // least) and len(runs) <= max(1, 2 * workers * (1 + int(np.log2(n + 1))))
+
+
+def test_two_worker_processes_write_what_one_writes_each_frame_recorded_alone(drive, tmp_path, monkeypatch):
+    # (#46 item 4) the pool's workers each take runs of frames and report every frame as it is written
+    one = _convert(drive, tmp_path / "one", block=4)
+    monkeypatch.setattr(C, "_SPAN_LEAST", 1)  # 4 frames: runs of one or two frames, both workers busy
+    two = _convert(drive, tmp_path / "two", block=4, workers=2)
+    assert one["written"] == two["written"] == 4 and one["points"] == two["points"]
+    a, b = _bytes(tmp_path / "one"), _bytes(tmp_path / "two")
+    for d in (a, b):
+        d.pop(C.JOURNAL)
+    assert a == b
+    journal = [json.loads(line) for line in (tmp_path / "two" / C.JOURNAL).read_text().splitlines()]
+    assert sorted(e["frame"] for e in journal) == [0, 1, 2, 3]
+
+
+def test_a_schedulers_blocks_are_chains_of_consecutive_frames():
+    # (#46 item 4) on Dask each block of a chain depends on the one before, so it runs where that one
+    # did: a worker's cache slides along the chain's consecutive frames
+    blocks = [[4 * k + j for j in range(4)] for k in range(50)] + [[200, 201]]
+    for workers in (1, 2, 3):
+        chains = C._dask_chains(blocks, workers, 4)
+        assert [i for c in chains for b in c for i in b] == list(range(202))
+        for c in chains:
+            frames = [i for b in c for i in b]
+            assert frames == list(range(frames[0], frames[0] + len(frames)))
+            assert all(1 <= len(b) <= 4 for b in c)
+        assert len(chains) == workers  # one a worker: a freed worker goes on with its own chain
+
+
+def test_a_workers_cache_holds_its_window_reading_each_frame_once(tmp_path, monkeypatch):
+    # (#46 item 4) the window slides: each frame read once, and no more frames held than a window
+    # (with embree-rays each held frame keeps its mesh's Embree scene: 20 held for --half 2 was 1.46 GiB)
+    from slr_ray.sequence.union import FrameCache
+    root = tmp_path / "seq"
+    synthetic_drive(root, n_frames=8, sensor=SENSOR, step=0.8)
+    reads, held, real = [], [], FrameCache.get
+
+    def get(self, i):
+        if i not in self._held:
+            reads.append(i)
+        out = real(self, i)
+        held.append(len(self._held))
+        return out
+
+    monkeypatch.setattr(FrameCache, "get", get)
+    _convert(root, tmp_path / "out", half=1, block=3)
+    assert sorted(reads) == list(range(8)) and max(held) <= 2 * 1 + 2

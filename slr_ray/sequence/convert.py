@@ -33,6 +33,7 @@ import importlib.util
 import json
 import multiprocessing
 import os
+import queue
 import re
 import shutil
 import signal
@@ -42,7 +43,6 @@ from dataclasses import dataclass
 import time
 import uuid
 from collections.abc import Sequence as SequenceABC
-from functools import partial
 from pathlib import Path
 
 import numpy as np
@@ -91,6 +91,9 @@ JOURNAL = "journal.jsonl"
 STAGE_PREFIX = ".convert-"
 _STAGE = re.compile(r"^\.convert-[0-9a-f]{32}$")
 _STATE: dict = {}
+#: the fewest frames of a worker's run of consecutive frames (:func:`_spans`): a run's first frames
+#: read and mesh the window behind them, which the worker before held
+_SPAN_LEAST = 16
 
 
 CARRIED = ("intensity", "semantic", "instance")  # what a converted frame carries of the union's points
@@ -146,30 +149,85 @@ def _see_through(settings) -> SeeThrough | None:
     return None if st is None else SeeThrough(settings["source_sensor"], st["margin_m"], st["votes"], st["half"])
 
 
+def _cache_frames(settings, st) -> int:
+    """Frames a worker's cache holds: a window of ``half`` frames either side (its frames' see-through
+    neighbours too) slid one frame a target needs ``2 * half + 1`` (and ``2 * st.half`` more), one spare;
+    a window of a radius, of no known width, 16 more than twice ``cache``. A frame held beyond its
+    window only costs memory (with embree-rays its mesh's Embree scene: 20 frames held for
+    ``--half 2`` peaked at 1.46 GiB a process)."""
+    extra = 2 * st.half if st else 0
+    if settings["radius"] is None and settings["half"] is not None:
+        return 2 * int(settings["half"]) + 2 + extra
+    return 2 * settings["cache"] + 16 + extra
+
+
 def _init(seq, poses, settings):
     _SAID.clear()  # a conversion's writer warnings said once each (_write_frame)
     st = _see_through(settings)
     _STATE.update(seq=seq, poses=poses, settings=settings, pattern=shipped_sensor(settings["sensor"]),
-                  cache=FrameCache(seq, 2 * settings["cache"] + 16 + (2 * st.half if st else 0), local=False))
+                  cache=FrameCache(seq, _cache_frames(settings, st), local=False))
 
 
-def _init_worker(seq, poses, settings):
+def _init_worker(seq, poses, settings, done=None):
     """A pool worker's start: Ctrl-C reaches the whole process group, and the parent decides (its pool's
     exit terminates the workers): a worker ignores SIGINT, never printing a KeyboardInterrupt's traceback.
-    It starts with SIGINT and SIGTERM blocked (the parent's mask while it starts the pool), let in here."""
+    It starts with SIGINT and SIGTERM blocked (the parent's mask while it starts the pool), let in here.
+    ``done``: the queue a span's frames are reported on as each is written (:func:`_span_job`)."""
     signal.signal(signal.SIGINT, signal.SIG_IGN)
     signal.pthread_sigmask(signal.SIG_UNBLOCK, {signal.SIGINT, signal.SIGTERM})
     _init(seq, poses, settings)
+    _STATE["done"] = done
 
 
-def _dask_job(block, out, seq, poses, settings, token) -> list:
+def _spans(todo, workers: int, least: int) -> list:
+    """``todo`` (frame indices, ascending) cut into runs of consecutive frames for ``workers`` processes:
+    a worker converts a run in order, so each frame of it is read and meshed once by that worker (its
+    window slides) where blocks handed out in turn made each worker read and mesh every frame of its
+    blocks' windows anew (twice the frames with ``half`` 2 and blocks of 4). The runs shrink as the
+    work left does (a run is a ``2 * workers``-th of what is left, at least ``least`` frames): a fast
+    worker never waits long on a slow one's last run. A gap in ``todo`` (frames resumed) ends a run."""
+    out, k, n = [], 0, len(todo)
+    while k < n:
+        size = max(int(least), -(-(n - k) // (2 * max(1, int(workers)))))
+        run = [todo[k]]
+        while len(run) < size and k + len(run) < n and todo[k + len(run)] == run[-1] + 1:
+            run.append(todo[k + len(run)])
+        out.append(run)
+        k += len(run)
+    return out
+
+
+def _span_job(span, out, token) -> int:
+    """A pool worker converts the consecutive frames of ``span`` (:func:`_spans`) one at a time, putting
+    each frame's entries on the run's queue as it is written (the parent records them: progress a
+    frame, not a run); returns how many."""
+    for i in span:
+        _STATE["done"].put(_job([i], out, token))
+    return len(span)
+
+
+def _dask_job(block, out, seq, poses, settings, token, after=None) -> list:
     """A block on a Dask worker: the worker's state set up by its first block of this conversion
-    (``token``), then kept (its frames cache) for the next blocks it gets."""
+    (``token``), then kept (its frames cache) for the next blocks it gets; ``after``: the block
+    before it in its chain (:func:`_dask_chains`), whose result is not used."""
     if _STATE.get("token") != token:
         _STATE.clear()
         _init(seq, poses, settings)
         _STATE["token"] = token
     return _job(block, out, token)
+
+
+def _dask_chains(blocks, workers: int, size: int) -> list:
+    """The blocks as chains of consecutive frames, one a worker (``workers``; :func:`_spans` runs, in
+    blocks of ``size``): on Dask each block of a chain is submitted depending on the one before, so the
+    scheduler runs it where that one ran (its result is there) and the worker's cache slides along
+    the chain (each frame read and meshed once by it), where blocks free to go anywhere had each
+    block's window read and meshed anew by whichever worker got it. A block's entries are recorded
+    as it ends: progress a block."""
+    todo = [i for b in blocks for i in b]
+    per = max(size, -(-len(todo) // max(1, int(workers))))  # one chain a worker: with more, a worker
+    # freed took the head of another chain before the next block of its own (its window meshed anew)
+    return [[run[k:k + size] for k in range(0, len(run), size)] for run in _spans(todo, workers, per)]
 
 
 def _stage(out, token) -> Path:
@@ -549,7 +607,13 @@ def _run_blocks(seq, out, P, settings, blocks, o: ConvertOptions, token, record)
 
         with Client(o.scheduler) as client:
             shared = client.scatter([seq, P, settings], broadcast=True)  # once, not once a block
-            futures = [client.submit(_dask_job, b, str(out), *shared, token, pure=False) for b in blocks]
+            futures = []
+            workers = max(1, len(client.scheduler_info().get("workers", {})))
+            for chain in _dask_chains(blocks, workers, o.block):
+                before = None
+                for b in chain:
+                    before = client.submit(_dask_job, b, str(out), *shared, token, before, pure=False)
+                    futures.append(before)
             try:
                 for fut in as_completed(futures):
                     record(fut.result())
@@ -571,12 +635,27 @@ def _run_blocks(seq, out, P, settings, blocks, o: ConvertOptions, token, record)
         ctx = multiprocessing.get_context("spawn")
         mask = signal.pthread_sigmask(signal.SIG_BLOCK, {signal.SIGINT, signal.SIGTERM})  # a child's
         try:  # a worker interrupted while it starts prints no traceback of its half-read start-up data
-            pool = ctx.Pool(o.workers, initializer=_init_worker, initargs=(seq, P, settings))
+            reports = ctx.Queue()
+            pool = ctx.Pool(o.workers, initializer=_init_worker, initargs=(seq, P, settings, reports))
         finally:
             signal.pthread_sigmask(signal.SIG_SETMASK, mask)
         with pool:
-            for entries in pool.imap_unordered(partial(_job, out=str(out), token=token), blocks):
+            todo = [i for b in blocks for i in b]
+            runs = [pool.apply_async(_span_job, (span, str(out), token))
+                    for span in _spans(todo, o.workers, max(o.block, _SPAN_LEAST))]
+            left = len(todo)
+            while left:
+                try:
+                    entries = reports.get(timeout=0.2)
+                except queue.Empty:
+                    for r in runs:
+                        if r.ready() and not r.successful():
+                            r.get()  # a worker's exception, raised here
+                    continue
                 record(entries)
+                left -= len(entries)
+            for r in runs:
+                r.get()
 
 
 def _convert(seq, out, P, settings, done, o: ConvertOptions, progress, inputs) -> dict:
