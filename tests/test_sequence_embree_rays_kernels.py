@@ -72,3 +72,27 @@ def test_rings_in_azimuth_order_are_lexsorts_order(n_beams):
     want = keep[np.lexsort((az[keep], b[keep]))]
     np.testing.assert_array_equal(order, want)
     np.testing.assert_array_equal(starts, np.searchsorted(b[want], np.arange(n_beams + 1)))
+
+
+def test_ratio_widening_takes_each_rings_middle_elevation_as_a_full_sort_does():
+    # the ring medians by a partial sort of each ring (was a lexsort of the whole frame): the same
+    # widening on rings of odd and even sizes, empty rings and points of no ring
+    from slr_ray.sequence.ring_mesh import RATIO_STEP_DEG, ratio_widening
+    rng = np.random.default_rng(7)
+    for n_rows in (1, 2, 5, 16):
+        for n in (0, 1, 9, 400):
+            rows = rng.integers(-1, n_rows + 1, n)
+            rows[rows == 3] = 4  # an empty ring
+            pts = rng.normal(size=(n, 3)) * [10.0, 10.0, 3.0]
+            got = ratio_widening(pts, rows, n_rows)
+            want = np.ones(max(n_rows, 1))
+            el = np.degrees(np.arctan2(pts[:, 2], np.hypot(pts[:, 0], pts[:, 1])))
+            med = np.full(n_rows, np.nan)
+            for k in range(n_rows):
+                e = np.sort(el[rows == k])
+                if len(e):
+                    med[k] = e[len(e) // 2]
+            if n_rows >= 2:
+                step = np.abs(np.diff(med))
+                want[:-1] = np.where(np.isfinite(step), np.maximum(step / RATIO_STEP_DEG, 1.0), 1.0)
+            assert np.array_equal(got, want)

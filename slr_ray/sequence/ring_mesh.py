@@ -92,8 +92,9 @@ def frame_mesh_spread(points, beams, n_beams, max_ratio, max_step_deg):
     order, starts = _ring_order(keep, b, az, n_beams)
     out = np.empty((2 * len(order) + 4, 3), np.int64)
     spread = np.empty(len(out))
+    el = np.degrees(np.arctan2(p[:, 2], np.hypot(p[:, 0], p[:, 1])))
     n = _zipper(order, starts, az, rng, math.radians(max_step_deg), float(max_ratio), out, spread,
-                ratio_widening(p[keep], b[keep], n_beams))
+                _widening(el, order, starts, n_beams))
     return out[:n], spread[:n]
 
 
@@ -110,10 +111,24 @@ def ratio_widening(points, rows, n_rows: int) -> np.ndarray:
     if not len(r) or n_rows < 2:
         return out
     el = np.degrees(np.arctan2(p[:, 2], np.hypot(p[:, 0], p[:, 1])))
-    o = np.lexsort((el, r))
-    starts = np.searchsorted(r[o], np.arange(n_rows + 1))
-    n = np.diff(starts)
-    med = np.where(n > 0, el[o][np.minimum(starts[:-1] + n // 2, len(o) - 1)], np.nan)
+    keep = np.flatnonzero((r >= 0) & (r < n_rows))
+    o = keep[np.argsort(r[keep], kind="stable")]
+    return _widening(el, o, np.searchsorted(r[o], np.arange(n_rows + 1)), n_rows)
+
+
+def _widening(el, order, starts, n_rows: int) -> np.ndarray:
+    """:func:`ratio_widening` of the points' elevations ``el`` (deg) grouped by ring (``order[starts[b]:
+    starts[b+1]]`` ring ``b``'s, in any order): each ring's median is its sorted elevations' middle
+    element (``n // 2``), found by a partial sort of the ring alone."""
+    out = np.ones(max(int(n_rows), 1))
+    if n_rows < 2:
+        return out
+    med = np.full(n_rows, np.nan)
+    for k in range(n_rows):
+        lo, hi = starts[k], starts[k + 1]
+        if hi > lo:
+            ring = el[order[lo:hi]]
+            med[k] = np.partition(ring, (hi - lo) // 2)[(hi - lo) // 2]
     step = np.abs(med[:-1] - med[1:])
     out[:-1] = np.where(np.isfinite(step), np.maximum(step / RATIO_STEP_DEG, 1.0), 1.0)
     return out
