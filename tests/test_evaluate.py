@@ -355,3 +355,31 @@ def test_a_new_metric_is_one_module_and_its_registry_entry(tmp_path, monkeypatch
     with open(paths["splits"], newline="") as f:
         parts = {r["part"] for r in csv.DictReader(f)}
     assert parts == {"points", "image", "ratio"}
+
+
+def test_cli_evaluate_says_when_a_frame_is_scored_against_itself(tmp_path, capsys):
+    """``evaluate A A`` (the same file, a copy, or the same points in another format) scores perfectly
+    whatever the simulation does: one line says so, and the run goes on (a self-check is allowed)."""
+    import shutil
+
+    from slr_ray.cli import main
+    from slr_ray.io import PointCloud, write_cloud
+
+    a, beams = offset_beams_frame()
+    pa, pb = tmp_path / "a.npz", tmp_path / "b.npz"
+    write_cloud(pa, PointCloud(a, {"ring": beams.astype(np.int32)}))
+    write_cloud(pb, PointCloud(a + [0.01, 0, 0], {"ring": beams.astype(np.int32)}))
+    shutil.copy(pa, tmp_path / "copy.npz")
+    write_cloud(tmp_path / "a.ply", PointCloud(a, {"ring": beams.astype(np.int32)}))
+    eye = tmp_path / "eye.txt"
+    np.savetxt(eye, np.eye(4))
+    for k, (second, same) in enumerate([(pa, "the same file"), (tmp_path / "copy.npz", "the same points"),
+                                        (tmp_path / "a.ply", "the same points"), (pb, None)]):
+        assert main(["evaluate", str(pa), str(second), "-o", str(tmp_path / f"o{k}"), "--quiet",
+                     "--source-sensor", "velodyne_vlp16", "--methods", "zbuffer", "--transform", str(eye)]) == 0
+        lines = [ln for ln in capsys.readouterr().err.splitlines() if "itself" in ln]  # the CLI's one-line warnings
+        if same:
+            assert len(lines) == 1 and lines[0].startswith("slr-ray: warning: ") and same in lines[0] \
+                and str(second) in lines[0]
+        else:
+            assert not lines

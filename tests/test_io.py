@@ -1027,3 +1027,49 @@ def test_coordinates_beyond_a_million_kilometres_are_refused_naming_the_file(tmp
         warnings.simplefilter("error")  # a numpy warning is a failure, not a second message
         assert main(["scan", str(src), "-o", str(tmp_path / "o.npz"), "--resolution", "1"]) == 2
     assert not (tmp_path / "o.npz").exists()
+
+
+@pytest.mark.parametrize("ext", [".npy", ".bin", ".pcd", ".ply"])
+def test_coarse_float32_coordinates_warn_once_near_origin_ones_do_not(tmp_path, ext):
+    """float32 coordinates far from the origin (UTM: 0.5 m steps at 5e6 m) warn, naming the file, the
+    largest magnitude and the resolution; float32 sensor-frame ones (a KITTI frame) read silently (#f32)."""
+    import warnings
+
+    from slr_ray.errors import SlrWarning
+    from slr_ray.io.files import COARSE_RESOLUTION
+
+    rng = np.random.default_rng(0)
+    near = rng.uniform(-80, 80, (50, 3)).astype(np.float32)
+    for offset, coarse in [(0.0, False), (5e6, True), (8000.0, False), (20000.0, True)]:
+        pts = (near.astype(np.float64) + offset).astype(np.float32)
+        path = tmp_path / f"c{int(offset)}{ext}"
+        if ext == ".npy":
+            np.save(path, pts)
+        elif ext == ".bin":
+            np.column_stack([pts, np.zeros(len(pts), np.float32)]).astype("<f4").tofile(path)
+        elif ext == ".pcd":
+            path.write_bytes(b"VERSION .7\nFIELDS x y z\nSIZE 4 4 4\nTYPE F F F\nCOUNT 1 1 1\nWIDTH %d\nHEIGHT 1\n"
+                             b"POINTS %d\nDATA binary\n" % (len(pts), len(pts)) + pts.astype("<f4").tobytes())
+        else:
+            path.write_bytes(b"ply\nformat binary_little_endian 1.0\nelement vertex %d\nproperty float x\n"
+                             b"property float y\nproperty float z\nend_header\n" % len(pts)
+                             + pts.astype("<f4").tobytes())
+        with warnings.catch_warnings(record=True) as said:
+            warnings.simplefilter("always")
+            cloud = read_cloud(path)
+        coarse_said = [w for w in said if issubclass(w.category, SlrWarning) and "float32" in str(w.message)]
+        assert np.array_equal(cloud.points, pts.astype(np.float64))  # read as stored, whichever
+        big = float(np.abs(pts).max())
+        assert (np.spacing(np.float32(big)) > COARSE_RESOLUTION) == coarse
+        if coarse:
+            assert len(coarse_said) == 1, [str(w.message) for w in said]
+            msg = str(coarse_said[0].message)
+            assert "\n" not in msg and str(path) in msg and f"{big:.6g}" in msg and "float64" in msg
+            assert f"{float(np.spacing(np.float32(big))):g} m" in msg
+        else:
+            assert not coarse_said
+    f64 = tmp_path / "f64.npy"  # float64 at 5e6 m: 1e-9 m steps, silent
+    np.save(f64, near.astype(np.float64) + 5e6)
+    with warnings.catch_warnings():
+        warnings.simplefilter("error")
+        read_cloud(f64)

@@ -5,6 +5,7 @@ subcommand stands alone: flags in, library call, files and one JSON line out."""
 from __future__ import annotations
 
 import json
+import os
 import sys
 import warnings
 from pathlib import Path
@@ -186,8 +187,23 @@ def _beams(cloud, mode: str, what: str):
     return {"auto": "auto", "scan-order": "scan-order", "none": None}[mode]
 
 
+def _warn_self_check(a, b, clouds) -> None:
+    """One line when B is A (the same file, or the same points under another name): a frame scored
+    against itself scores perfectly whatever the simulation does. Warned of, not refused: a deliberate
+    self-check is one."""
+    if os.path.samefile(a, b):
+        same = f"the same file ({a})" if os.path.abspath(a) == os.path.abspath(b) else f"the same file ({a}, {b})"
+    elif clouds[0].points.shape == clouds[1].points.shape and np.array_equal(clouds[0].points, clouds[1].points):
+        same = f"the same points ({a}, {b})"
+    else:
+        return
+    warnings.warn(f"evaluate: frames A and B are {same}: the scores compare a frame with itself and say "
+                  "nothing of the simulation (fine as a self-check)", SlrWarning, stacklevel=3)
+
+
 def _evaluate(args, out, transform, extrinsic):
     clouds = [read_cloud(p, args.input_format, allow_empty=False) for p in (args.a, args.b)]
+    _warn_self_check(args.a, args.b, clouds)
     frames = []  # each in its sensor's frame: a file that records its scanner's position (.npz, .pcd, .e57)
     for c in clouds:  # holds world coordinates, moved to that position in float64
         frames.append(c.points - np.asarray(c.origin, np.float64) if c.origin is not None else c.points)

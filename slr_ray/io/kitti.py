@@ -40,7 +40,7 @@ def _read_kitti(path):
             raise FormatError(f"{lab}: {len(words)} labels for {len(a)} points of {path}")
         attrs["semantic"] = (words & 0xFFFF).astype(np.uint16)
         attrs["instance"] = (words >> 16).astype(np.uint16)
-    return PointCloud(a[:, :3].astype(np.float64), attrs, np.zeros(3), {"labels": str(lab) if lab else None})
+    return PointCloud(a[:, :3], attrs, np.zeros(3), {"labels": str(lab) if lab else None})
 
 
 def _label_words(path, cloud) -> np.ndarray:

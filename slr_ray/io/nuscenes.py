@@ -33,7 +33,7 @@ def _read(path):
     if len(a) and not (np.all(ring == np.round(ring)) and ring.min() >= 0):
         raise FormatError(f"{path}: the fifth float of a point is not a ring number (not integers >= 0: "
                           f"{ring[:3].tolist()}...): not a nuScenes .pcd.bin")
-    return PointCloud(a[:, :3].astype(np.float64), {"intensity": a[:, 3].copy(), "ring": ring.astype(np.int32)},
+    return PointCloud(a[:, :3], {"intensity": a[:, 3].copy(), "ring": ring.astype(np.int32)},
                       np.zeros(3), {"layout": "nuScenes .pcd.bin: float32 x, y, z, intensity, ring"})
 
 

@@ -89,7 +89,7 @@ def read(path) -> tuple:
         raise FormatError(f"{path}: PCD DATA {kind} is not supported (ascii, binary and binary_compressed are)")
     if not {"x", "y", "z"} <= set(fields):
         raise FormatError(f"{path}: no x, y, z fields")
-    pts = np.column_stack([data["x"], data["y"], data["z"]]).astype(np.float64)
+    pts = np.column_stack([data["x"], data["y"], data["z"]])  # as stored: read_cloud warns of coarse float32
     attrs = {name: np.array(data[name]) for name in fields if name not in ("x", "y", "z") and name != "_"}
     vp = header.get("VIEWPOINT")
     origin = np.array([float(v) for v in vp[:3]]) if vp and len(vp) >= 3 else None

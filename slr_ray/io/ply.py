@@ -33,7 +33,7 @@ def _read_ply(path):
     names = v.dtype.names
     if not {"x", "y", "z"} <= set(names):
         raise FormatError(f"{path}: vertex element lacks x, y, z")
-    pts = np.column_stack([v["x"], v["y"], v["z"]]).astype(np.float64)
+    pts = np.column_stack([v["x"], v["y"], v["z"]])  # as stored: read_cloud warns of coarse float32
     return PointCloud(pts, {n: np.asarray(v[n]) for n in names if n not in ("x", "y", "z")})
 
 
