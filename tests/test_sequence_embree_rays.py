@@ -355,6 +355,36 @@ def test_a_laser_too_sparse_to_fit_keeps_its_tables_elevation():
     assert np.abs(others - model.elevation[7]).min() > np.radians(0.5)  # in no other laser's band
 
 
+@pytest.mark.parametrize("joint", [False, True])
+def test_a_laser_too_sparse_to_fit_keeps_its_tables_elevation_in_both_fits(drive, monkeypatch, joint):
+    """#46: ``fit_embree_model``'s per-frame fit kept a sparse laser at its table's elevation
+    (:func:`table_unfitted`), its joint fit (``joint=True``, ``rays``' fit) gave it the others' mean (the
+    middle of the fan, another laser's band). The drive's frames are in scan order: their beams are the
+    table's rows, and the table was read by id (a VLP-16's beam 7 is at 7 deg, its row 7 at 1 deg: the
+    sparse laser was cast in the 7 deg laser's band). Laser 7 left with 5 points beyond 2 m of the axis
+    (the rest pulled within it): both fits keep it at its row's elevation."""
+    import slr_ray.sequence.embree_rays as E
+    from slr_ray.sequence import FrameCache, read_sequence
+
+    own = E.frame_points_beams
+
+    def sparse(cache, i, base):
+        pts, beams, known = own(cache, i, base)
+        pull = (beams == 7) & (np.cumsum(beams == 7) > 5)
+        pts = pts.copy()
+        pts[pull] *= (1.0 / np.hypot(pts[pull, 0], pts[pull, 1]))[:, None]  # 1 m from the axis
+        return pts, beams, known
+
+    monkeypatch.setattr(E, "frame_points_beams", sparse)
+    seq = read_sequence(drive)
+    pat = sensor("velodyne_vlp16")
+    model, _ = E.fit_embree_model(seq, [0, 2, 3], pat, FrameCache(seq), exclude=(1,), joint=joint)
+    el = np.radians(pat.elevation_deg)[pat.beam_of_row]  # by row
+    assert model.source == "fitted"
+    assert abs(model.elevation[7] - el[7]) < np.radians(0.05), np.degrees(model.elevation[7])
+    assert np.abs(np.delete(model.elevation, 7) - model.elevation[7]).min() > np.radians(0.5)  # in no other band
+
+
 def test_rays_along_a_meshs_open_edges_meet_it():
     """#46: a frame re-scanned along its own lasers from its own pose: the lowest and highest rings are the
     mesh's edges and their rays graze them (met or not by rounding: a Pandar64's lowest lasers missed 66 and

@@ -247,24 +247,29 @@ def test_each_lasers_firing_phase_in_its_column_is_fitted_where_its_points_agree
     assert coherence[:3].min() > 0.99 and coherence[3] < 0.2
 
 
-def test_a_laser_too_sparse_to_fit_keeps_its_tables_elevation_in_rays():
+@pytest.mark.parametrize("stored", ["ring field", "scan order"])
+def test_a_laser_too_sparse_to_fit_keeps_its_tables_elevation_in_rays(stored):
     """#46: ``rays``' fit gave a laser with too few points the others' mean elevation (the middle of the
     fan; a Pandar64's 5 deg laser, 8 points a frame, took its neighbour's pulses); it keeps its table's,
     as ``embree-rays``' does (:func:`~slr_ray.sequence.embree_rays.table_unfitted`). The fitted lasers'
-    elevations are the fit's own."""
+    elevations are the fit's own. A frame in scan order (no ring field) gives its beams as the table's
+    rows (a VLP-16's table is not top first): the table is read by row there (it was read by id: row 7,
+    1 deg, was cast at beam 7's 7 deg)."""
     from types import SimpleNamespace
 
     base = sensor("velodyne_vlp16")
     el = np.radians(np.asarray(base.elevation_deg))
+    if stored == "scan order":  # ring after ring, highest first, each a turn from the front
+        el = el[base.beam_of_row]
     az = np.radians(np.arange(0, 360, 0.5))
     pts, beams = [], []
     for b, e in enumerate(el):
-        a = az[:12] if b == 7 else az  # laser 7: 12 points, 6 at the fit's stride 2, too few for its line
+        a = az[::60] if b == 7 else az  # laser 7: 12 points, 6 at the fit's stride 2, too few for its line
         r = 8.0 + 2.0 * np.sin(3 * a)
         pts.append(np.column_stack([r * np.cos(e) * np.cos(a), r * np.cos(e) * np.sin(a), r * np.sin(e)]))
         beams.append(np.full(len(a), b))
     pts, ring = np.concatenate(pts), np.concatenate(beams)
-    frame = SimpleNamespace(points=pts, attributes={"ring": ring.astype(np.uint16)})
+    frame = SimpleNamespace(points=pts, attributes={"ring": ring.astype(np.uint16)} if stored == "ring field" else {})
     poses = np.repeat(np.eye(4)[None], 3, 0)
     seq = SimpleNamespace(names=["0", "1", "2"], paths=["a", "b", "c"], poses=poses)
     cache = SimpleNamespace(get=lambda i: (frame, pts))
@@ -273,3 +278,28 @@ def test_a_laser_too_sparse_to_fit_keeps_its_tables_elevation_in_rays():
     np.testing.assert_allclose(model.elevation, el, atol=1e-6)
     assert np.array_equal(np.delete(model.elevation, 7), np.delete(fitted.elevation, 7))
     assert np.abs(np.delete(model.elevation, 7) - model.elevation[7]).min() > np.radians(0.5)
+
+
+def test_a_tables_ideal_rays_are_by_row_and_cast_as_the_same_rays_by_beam():
+    """#46: :func:`pattern_ray_model`'s lasers are the table's rows (highest first), not its beam ids (a
+    Pandar64's ids are not in elevation order); nothing indexes it by beam (no height, no range bias, its
+    azimuth offsets by row too): cast, the same rays listed by beam id return the same pulses."""
+    import dataclasses
+
+    pat = sensor("hesai_pandar64_pjlab").with_(columns=360)
+    assert not np.array_equal(pat.beam_of_row, np.arange(pat.n_beams))  # ids not in elevation order
+    m = pattern_ray_model(pat)
+    np.testing.assert_allclose(np.degrees(m.elevation), np.asarray(pat.elevation_deg)[pat.beam_of_row])
+    np.testing.assert_allclose(np.degrees(m.azimuth_offset), np.asarray(pat.azimuth_offset_deg)[pat.beam_of_row])
+    assert not m.height.any() and m.range_bias is None
+    by_id = dataclasses.replace(m, elevation=np.radians(np.asarray(pat.elevation_deg, np.float64)),
+                                azimuth_offset=np.radians(np.asarray(pat.azimuth_offset_deg, np.float64)))
+    rng = np.random.default_rng(0)
+    xy = rng.uniform(-30, 30, (15_000, 2))
+    road = np.column_stack([xy, np.full(len(xy), -1.8)])
+    a = rng.uniform(-np.pi, np.pi, 8_000)
+    wall = np.column_stack([20 * np.cos(a), 20 * np.sin(a), rng.uniform(-1.8, 6, len(a))])
+    u = np.concatenate([road, wall])
+    got, want = cast_rays(u, pat, m), cast_rays(u, pat, by_id)
+    assert len(got) > 1000
+    assert np.array_equal(got.keys, want.keys) and np.allclose(got.ranges, want.ranges)

@@ -59,7 +59,7 @@ from .rays import (PHASE_COHERENCE, RayModel, fit_ray_model, frame_motion, patte
                    sweep_offsets)
 from .ring_mesh import (MAX_RATIO, MAX_STEP_COLUMNS, MAX_STEP_DEG, WEAK_RATIO, frame_mesh_spread,
                         frame_mesh, ratio_widening)
-from .sources import known_beams
+from .sources import beams_are_rows, known_beams
 from .union import Keep, rotate
 
 __all__ = ["frame_mesh", "MeshFrames", "rays_of_model", "cast_embree_rays", "mesh_range_bias", "union_meshes",
@@ -554,16 +554,20 @@ def union_meshes(cache, frames, base, model: RayModel | None = None, drop_moving
 FIT_LEAST = 20
 
 
-def table_unfitted(model: RayModel, points, beams, base) -> RayModel:
+def table_unfitted(model: RayModel, points, beams, base, rows: bool = False) -> RayModel:
     """``model`` (fitted on ``points``, their lasers ``beams``) with each laser whose line had too few
     points to fit (:data:`FIT_LEAST`; ``fit_ray_model`` gives it the others' mean elevation, the
     middle of the fan) at its elevation in ``base``'s table: a Pandar64's 5 deg laser, 8 points a frame
-    under the sky, cast at -3.7 deg beside its -3.71 deg one took that laser's pulses on the road."""
+    under the sky, cast at -3.7 deg beside its -3.71 deg one took that laser's pulses on the road.
+    ``rows``: ``beams`` are the table's rows (a frame in scan order:
+    :func:`~slr_ray.sequence.sources.beams_are_rows`), not its ids: the table read by row."""
     p = np.asarray(points, np.float64)
     b = np.asarray(beams, np.int64)
     far = np.hypot(p[:, 0], p[:, 1]) > 2.0
     few = np.bincount(b[far & (b >= 0)], minlength=len(model.elevation))[:len(model.elevation)] < FIT_LEAST
     table = np.radians(np.asarray(base.elevation_deg, np.float64))
+    if rows:
+        table = table[np.asarray(base.beam_of_row)]
     if not few.any() or len(table) != len(model.elevation):
         return model
     return dataclasses.replace(model, elevation=np.where(few, table, model.elevation))
@@ -582,7 +586,9 @@ def frame_ray_model(cache, seq, i: int, base) -> RayModel | None:
                                   stride=FIT_STRIDE)
         except InputValueError:  # too few points on its lasers
             return None
-        return table_unfitted(model, pts[ok][::FIT_STRIDE], beams[ok][::FIT_STRIDE], base)
+        f, _ = cache.get(int(i))
+        return table_unfitted(model, pts[ok][::FIT_STRIDE], beams[ok][::FIT_STRIDE], base,
+                              beams_are_rows(f.points, f.attributes, base))
 
     return cache.state(int(i), ("embree-rays model", _base_key(base)), make)
 
@@ -659,7 +665,8 @@ def fit_embree_model(seq, others, base, cache, drop_moving: bool = True, see_thr
     each frame's points cast along its own fit's rays). Each frame's fit, mesh and casts are held on
     ``cache`` (:meth:`~slr_ray.sequence.union.FrameCache.state`): a sequence's held-out frames and a conversion's targets fit and mesh
     each frame once. ``joint``: the lines fitted on all of ``others``' points together (``rays``'
-    fit; nothing held but the meshes). Frames whose beams are not known are left out of the fit;
+    fit, a laser too sparse to fit at its table's elevation as here: :func:`table_unfitted`; nothing held
+    but the meshes). Frames whose beams are not known are left out of the fit;
     none known: ``base``'s ideal rays."""
     surfaces = union_meshes(cache, others, base, None, drop_moving, see_through, exclude)
     known, unknown = [], []
@@ -682,7 +689,10 @@ def fit_embree_model(seq, others, base, cache, drop_moving: bool = True, see_thr
             pts, b, _ = frame_points_beams(cache, i, base)
             ok = b >= 0
             frames.append((pts[ok], b[ok], cache.get(i)[0].pose, frame_motion(seq.poses, i)))
-        model = fit_ray_model([(p, b, v) for p, b, _, v in frames], base.n_beams)
+        model = fit_ray_model([(p, b, v) for p, b, _, v in frames], base.n_beams)  # stride 2, as table_unfitted's
+        rows = all(beams_are_rows(cache.get(i)[0].points, cache.get(i)[0].attributes, base) for i, _, _ in known)
+        model = table_unfitted(model, np.concatenate([p[::2] for p, _, _, _ in frames]),
+                               np.concatenate([b[::2] for _, b, _, _ in frames]), base, rows)
         return mesh_range_bias(model, frames, [s for _, s, _ in known], BIAS_STRIDE), surfaces
     model = combined_model([m for _, _, m in known])
     if len(known) < 2:

@@ -120,7 +120,7 @@ BEAMS_FROM_BANDS = "elevation bands"
 def known_beams(points, attributes, base, what: str = "a frame"):
     """Each point's beam in ``base``'s table: a ``ring`` field (checked: :func:`ring_beams`, naming
     ``what``), else the file's scan order
-    (:func:`~slr_ray.sensors.scan_order_beams`), else, for a card fitted from frames without rings
+    (:func:`~slr_ray.sensors.scan_order_beams`: the table's rows, not its ids: :func:`beams_are_rows`), else, for a card fitted from frames without rings
     (``meta["beams_from"]`` :data:`BEAMS_FROM_BANDS`: its beams *are* its elevation bands), the band
     each point falls in (-1 outside them); ``None`` where none tells."""
     ring = attributes.get("ring")
@@ -133,6 +133,14 @@ def known_beams(points, attributes, base, what: str = "a frame"):
         rows = np.where(keys >= 0, keys // base.columns, -1)
         return np.where(rows >= 0, np.asarray(base.beam_of_row)[np.maximum(rows, 0)], -1).astype(np.int64)
     return order
+
+
+def beams_are_rows(points, attributes, base) -> bool:
+    """Whether :func:`known_beams` gives the frame's beams as ``base``'s range-image rows (its file's scan
+    order: ring 0 the highest, a KITTI ``.bin``'s), not its table's ids: an HDL-64E's, a VLP-16's or a
+    Pandar64's table does not list its beams top first, and a lookup in the table by beam
+    (``elevation_deg[beam]``) then takes ``elevation_deg[beam_of_row[beam]]``."""
+    return attributes.get("ring") is None and scan_order_beams(points, base.n_beams) is not None
 
 
 def source_sensor_problem(points, attributes, base) -> str | None:
