@@ -191,43 +191,36 @@ def bounds(points) -> tuple[np.ndarray, np.ndarray]:
 SERIAL_ROWS = 1 << 20
 
 
+@njit(cache=True)
+def _bounds_of_chunk(a, c, chunks, los, his):
+    """Chunk ``c`` of ``chunks`` (rows ``c * n // chunks`` on) of ``a``: its per-column min and max."""
+    n = a.shape[0]
+    s = c * n // chunks
+    e = (c + 1) * n // chunks
+    for j in range(3):
+        lo = np.float64(a[s, j])
+        hi = lo
+        for i in range(s + 1, e):
+            x = np.float64(a[i, j])
+            if x < lo:
+                lo = x
+            elif x > hi:
+                hi = x
+        los[c, j] = lo
+        his[c, j] = hi
+
+
 @njit(cache=True, parallel=True)
 def _chunk_bounds(a, chunks, los, his):
-    n = a.shape[0]
     for c in prange(chunks):
-        s = c * n // chunks
-        e = (c + 1) * n // chunks
-        for j in range(3):
-            lo = np.float64(a[s, j])
-            hi = lo
-            for i in range(s + 1, e):
-                x = np.float64(a[i, j])
-                if x < lo:
-                    lo = x
-                elif x > hi:
-                    hi = x
-            los[c, j] = lo
-            his[c, j] = hi
+        _bounds_of_chunk(a, c, chunks, los, his)
 
 
 @njit(cache=True)
 def _serial_bounds(a, chunks, los, his):
     """:func:`_chunk_bounds` on one thread (the same chunks, the same answer)."""
-    n = a.shape[0]
     for c in range(chunks):
-        s = c * n // chunks
-        e = (c + 1) * n // chunks
-        for j in range(3):
-            lo = np.float64(a[s, j])
-            hi = lo
-            for i in range(s + 1, e):
-                x = np.float64(a[i, j])
-                if x < lo:
-                    lo = x
-                elif x > hi:
-                    hi = x
-            los[c, j] = lo
-            his[c, j] = hi
+        _bounds_of_chunk(a, c, chunks, los, his)
 
 
 def file_mapping(a):

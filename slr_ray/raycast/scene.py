@@ -569,13 +569,18 @@ def _check_finite(vbuf, n, what):
                               f"(|coordinate - centre| < 3.4e38): {bad} of {n} rows are not")
 
 
+@njit(cache=True)
+def _row_nonfinite(vbuf, i):
+    """1 where row ``i`` of ``vbuf[:, :3]`` holds a NaN or an infinity, else 0."""
+    return 0 if np.isfinite(vbuf[i, 0]) and np.isfinite(vbuf[i, 1]) and np.isfinite(vbuf[i, 2]) else 1
+
+
 @njit(cache=True, parallel=True)
 def _nonfinite_rows(vbuf, n):
     """Rows of ``vbuf[:n, :3]`` with a NaN or an infinity (one parallel pass, no temporaries)."""
     bad = 0
     for i in prange(n):
-        if not (np.isfinite(vbuf[i, 0]) and np.isfinite(vbuf[i, 1]) and np.isfinite(vbuf[i, 2])):
-            bad += 1
+        bad += _row_nonfinite(vbuf, i)
     return bad
 
 
@@ -584,8 +589,7 @@ def _nonfinite_rows_serial(vbuf, n):
     """:func:`_nonfinite_rows` on one thread (small scenes: waking the others costs more)."""
     bad = 0
     for i in range(n):
-        if not (np.isfinite(vbuf[i, 0]) and np.isfinite(vbuf[i, 1]) and np.isfinite(vbuf[i, 2])):
-            bad += 1
+        bad += _row_nonfinite(vbuf, i)
     return bad
 
 
