@@ -94,13 +94,20 @@ def test_dense_mode_equals_binning_the_samples(table_kind):
     np.testing.assert_array_equal(ms.pulses, ref.pulses)
 
 
-@pytest.mark.parametrize("band_pulses", [1, 120 * 7, 120 * 60 - 1])
-def test_dense_mode_in_zenith_bands_is_the_same_scan(band_pulses):
-    # a row per band, 7 rows a band, and bands not dividing the rows: the same arrays
+@pytest.fixture(scope="module")
+def dense_whole():
+    """The dense scan of a scene in one band, and the scene and pattern it was made with
+    (computed once: each band size compares its banded scan of the same inputs with it)."""
     sc = rectangle_scene(5, seed=1, ground_radius=4.0, xy_range=(-4, 4), z_range=(-1, 1))
     p = ScanPattern(3.0)  # 60 x 120 pulses
-    whole = scan_mesh(sc, [0.3, -0.2, 0.1], p, mode="dense", spacing=0.02)
-    banded = scan_mesh(sc, [0.3, -0.2, 0.1], p, mode="dense", spacing=0.02, band_pulses=band_pulses)
+    return sc, p, scan_mesh(sc, [0.3, -0.2, 0.1], p, mode="dense", spacing=0.04)
+
+
+@pytest.mark.parametrize("band_pulses", [1, 120 * 7, 120 * 60 - 1])
+def test_dense_mode_in_zenith_bands_is_the_same_scan(dense_whole, band_pulses):
+    # a row per band, 7 rows a band, and bands not dividing the rows: the same arrays
+    sc, p, whole = dense_whole
+    banded = scan_mesh(sc, [0.3, -0.2, 0.1], p, mode="dense", spacing=0.04, band_pulses=band_pulses)
     for name in ("points", "labels", "ranges", "pulses"):
         np.testing.assert_array_equal(getattr(banded, name), getattr(whole, name))
 
