@@ -203,7 +203,6 @@ def _warn_self_check(a, b, clouds) -> None:
 
 def _evaluate(args, out, transform, extrinsic):
     clouds = [read_cloud(p, args.input_format, allow_empty=False) for p in (args.a, args.b)]
-    _warn_self_check(args.a, args.b, clouds)
     frames = []  # each in its sensor's frame: a file that records its scanner's position (.npz, .pcd, .e57)
     for c in clouds:  # holds world coordinates, moved to that position in float64
         frames.append(c.points - np.asarray(c.origin, np.float64) if c.origin is not None else c.points)
@@ -222,6 +221,7 @@ def _evaluate(args, out, transform, extrinsic):
         if msg.startswith("extrinsic"):
             msg = f"--extrinsic {args.extrinsic}{msg[len('extrinsic'):]}"
         raise InputValueError(msg) from None
+    _warn_self_check(args.a, args.b, clouds)  # once scored: a refusal stays its one line
     for key, name, path in (("a", "A", args.a), ("b", "B", args.b)):
         how = res["patterns"][key]["beams"]
         if how.startswith("none:"):
