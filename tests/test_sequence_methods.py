@@ -248,14 +248,3 @@ def test_a_ring_field_on_few_of_the_sensors_beams_is_a_problem_of_the_named_sens
     assert "on 16 of velodyne_hdl64e_s2's 64 beams" in source_sensor_problem(pts, ring, sensor("velodyne_hdl64e_s2"))
     assert source_sensor_problem(pts, ring, sensor("velodyne_vlp16")) is None
     assert "scan order" in source_sensor_problem(pts, {}, sensor("velodyne_vlp16"))
-
-
-def test_convert_refuses_embree_rays_when_no_frame_is_of_the_source_sensor(drive, tmp_path, capsys):
-    """#46: embree-rays with a --source-sensor whose table knows none of the frames warned a frame, then
-    failed late ("no pulse of the target sensor returns"); refused up front in one line, nothing written."""
-    r = _Run(capsys)("sequence", "convert", drive, "--target-sensor", "velodyne_vlp16", "--half", "1",
-                     "--source-sensor", "velodyne_hdl64e_s2", "--estimator", "embree-rays", "-o", tmp_path / "c",
-                     "--quiet")
-    assert r.returncode == 2 and r.stderr.count("\n") == 1, r.stderr
-    assert "no frame has a ring field or is in velodyne_hdl64e_s2's scan order" in r.stderr
-    assert not (tmp_path / "c").exists()

@@ -181,19 +181,3 @@ def test_the_librarys_default_sensor_is_auto_as_the_commands(campaigns):
     assert res["frames"][0]["sensor_kind"] == TERRESTRIAL and res["frames"][0]["in_view_share"] == 1.0
     with pytest.raises(InputValueError, match="name it"):
         evaluate_sequence(seq, [1], methods=["nearest"], half=1, target_sensor="velodyne_vlp16")
-
-
-def test_convert_refuses_a_beam_estimator_on_terrestrial_frames_up_front(campaigns, tmp_path, capsys, monkeypatch):
-    """sequence convert --estimator embree-rays --source-sensor X on a terrestrial campaign: refused in one
-    line before any frame is cast or anything written (#46; failed before: each frame warned "not in X's
-    scan order", then convert failed late with no pulse of the target sensor returned). Frames are read
-    only until one is known in X's table: a spinning sequence reads one."""
-    from slr_ray.sequence import holdout
-
-    c = campaigns["files"]
-    monkeypatch.setattr(holdout, "terrestrial_grid", lambda *a, **k: pytest.fail("a grid was fitted"))
-    r = CliRun(capsys)("sequence", "convert", *c["paths"], *c["flags"], "--estimator", "embree-rays",
-                       "--source-sensor", "velodyne_vlp16", "--target-sensor", "ouster_os1_64", "-o", tmp_path / "o")
-    assert r.returncode == 2 and r.stderr.count("\n") == 1, r.stderr
-    assert "no frame has a ring field or is in velodyne_vlp16's scan order" in r.stderr
-    assert "embree-rays need(s) the frames' beam table" in r.stderr and not (tmp_path / "o").exists()

@@ -16,7 +16,7 @@ from ..sensors import sensor
 from ..errors import InputValueError, OutputError, SlrError, SlrWarning
 from ..sequence import (REMOVE_MOVING, SeeThrough, convert_sequence, evaluate_sequence, read_sequence,
                         read_trajectory, register_chain, write_kitti_poses)
-from ..sequence.holdout import (GRID_SOURCES, check_held_out_kinds, check_source_frames, lidar4d_holdout,
+from ..sequence.holdout import (GRID_SOURCES, check_held_out_kinds, lidar4d_holdout,
                                one_frame_refusal)
 from ..sequence.terrestrial import AUTO
 from ..sequence.methods import REGISTRY, method_options, methods_with, option_keys
@@ -321,7 +321,6 @@ def sequence(args):
             raise InputValueError("sequence convert has no --force: it resumes its own run by itself and never "
                                   "writes over what it did not write; write elsewhere, or remove the directory "
                                   "to start again")
-        check_source_frames(seq, args.source_sensor, [args.estimator])  # before registering
         for name in ("manifest.json", "poses.txt", "calib.txt", "journal.jsonl"):
             plan.write(out / name, sidecars=False, resumed=True)
         with plan:

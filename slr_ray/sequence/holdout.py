@@ -48,7 +48,7 @@ from .union import FrameCache, Keep, accumulate, to_frame, window
 __all__ = ["METHODS", "LABELS", "HoldoutOptions", "evaluate_holdout", "evaluate_sequence", "mean_rows", "DEFAULT_METHODS",
            "clamped_depth_errors", "lidar4d_holdout", "LIDAR4D_MAX_DEPTH", "holdout_ray_model", "simulate_holdout",
            "GRID_SOURCES", "others_pattern", "scoring_grid", "one_frame_refusal", "check_held_out_kinds",
-           "check_source_frames", "beamless_frames"]
+           "beamless_frames"]
 
 #: LiDAR4D's depth clamp (utils/metrics.py, compute_depth_errors: min 1e-6, max 80 m)
 LIDAR4D_MAX_DEPTH = 80.0
@@ -342,23 +342,6 @@ def check_held_out_kinds(seq: Sequence, holdout, sensor, methods, see_through=No
         except InputValueError as exc:
             raise InputValueError(f"held-out frame(s) {', '.join(flat)} (no ring field, not in {default.name}'s "
                                   f"scan order): {exc}") from None
-
-
-def check_source_frames(seq: Sequence, sensor, methods) -> None:
-    """Refuse up front (``sequence convert``, before any frame is cast) the methods that need the frames'
-    beam table (:func:`_check_kind`'s refusal) where no frame's beams are known in ``sensor``'s table
-    (:func:`beamless_frames`: a terrestrial campaign's scans, or another unit's frames), which failed late
-    with no pulse returned; reads frames until the first it knows. (The see-through removal works on
-    such frames, with a warning: not refused.)"""
-    if not any(REGISTRY[m].needs_source_sensor for m in methods if m in REGISTRY):
-        return
-    base = _table_of(sensor)
-    if len(beamless_frames(seq, range(len(seq)), base, until_known=True)) == len(seq):
-        try:
-            _check_kind(ScoringGrid(TERRESTRIAL, None, None, None, "terrestrial"), methods)
-        except InputValueError as exc:
-            raise InputValueError(f"no frame has a ring field or is in {base.name}'s scan order (terrestrial "
-                                  f"scans, or another unit's?): {exc}") from None
 
 
 def evaluate_holdout(seq: Sequence, target: int, options: HoldoutOptions | None = None, *,
