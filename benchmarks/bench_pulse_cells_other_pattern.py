@@ -28,12 +28,13 @@ from pathlib import Path
 import numpy as np
 
 sys.path.insert(0, str(Path(__file__).resolve().parent))
+from bench_sensors import street_frame  # noqa: E402
 from common import machine, save  # noqa: E402
 
 from slr_ray import ScanPattern, agreement, scan_mesh  # noqa: E402
 from slr_ray.backends import prepare  # noqa: E402
 from slr_ray.io import read_cloud  # noqa: E402
-from slr_ray.sensors import miscalibrated, sensor, sensor_noise  # noqa: E402
+from slr_ray.sensors import sensor  # noqa: E402
 
 DATA = next((p for p in (Path(__file__).resolve().parents[i] / "shared" / "data" for i in (1, 2, 3)) if p.is_dir()),
             Path("/work/shared/data"))
@@ -71,19 +72,7 @@ def kitti_nominal() -> dict:
 
 
 def frame_with_truth(seed: int = 0) -> list[dict]:
-    import trimesh
-
-    box = trimesh.creation.box(extents=[40, 30, 8])
-    box.invert()
-    cyl = trimesh.creation.cylinder(radius=0.8, height=8.0)
-    cyl.apply_translation([3.0, 2.0, 0.0])
-    car = trimesh.creation.box(extents=[4, 1.8, 1.5])
-    car.apply_translation([6, -4, -3.25])
-    mesh = trimesh.util.concatenate([box, cyl, car])
-    nominal = sensor("velodyne_hdl64e_s2")
-    o = np.array([0.0, 0.0, -2.0])
-    frame = scan_mesh(mesh, o, miscalibrated(nominal, seed=seed))
-    pts, _ = sensor_noise(frame.points, o, frame.pulses[:, 0], seed=seed)
+    mesh, o, pts = street_frame(seed)
     grid = {"primary_origin": o, "primary_pattern": "velodyne_hdl64e_s2"}
     settings = {"binning": ("binning", {}), "discs": ("embree", grid),
                 "discs, pulse_cells": ("embree", {**grid, "pulse_cells": True}),

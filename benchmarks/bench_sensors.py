@@ -187,19 +187,13 @@ def with_truth():
     return rows
 
 
-def real_frame_with_truth(seed: int = 0):
-    """A frame with a real sensor's departures from its table, with ground truth.
-
-    A street-like box (40 x 30 x 8 m) with a parked car and a pillar, scanned
-    as an HDL-64E whose beams are off their nominal table (per-beam elevation
-    and azimuth offsets of 0.1 deg, per-beam range offsets of 3 cm), with 1 cm
-    range noise and 10 % of pulses lost; re-scanned with the nominal table, a
-    VLP-16 and 0.4 deg from its own origin and from 1 m and 3 m aside, against
-    exact scans of the box: points out (against binning's), coverage and
-    precision (10 cm)."""
+def street_frame(seed: int = 0):
+    """``(mesh, origin, points)``: :func:`real_frame_with_truth`'s scene (a 40 x 30 x 8 m street-like box,
+    a parked car, a pillar) scanned from ``origin`` as a miscalibrated HDL-64E with range noise and lost
+    pulses (``seed``)."""
     import trimesh
 
-    from slr_ray import agreement, scan_mesh
+    from slr_ray import scan_mesh
     from slr_ray.sensors import miscalibrated, sensor_noise
 
     box = trimesh.creation.box(extents=[40, 30, 8])
@@ -213,6 +207,22 @@ def real_frame_with_truth(seed: int = 0):
     o = np.array([0.0, 0.0, -2.0])
     frame = scan_mesh(mesh, o, miscalibrated(nominal, seed=seed))
     pts, _ = sensor_noise(frame.points, o, frame.pulses[:, 0], seed=seed)
+    return mesh, o, pts
+
+
+def real_frame_with_truth(seed: int = 0):
+    """A frame with a real sensor's departures from its table, with ground truth.
+
+    A street-like box (40 x 30 x 8 m) with a parked car and a pillar, scanned
+    as an HDL-64E whose beams are off their nominal table (per-beam elevation
+    and azimuth offsets of 0.1 deg, per-beam range offsets of 3 cm), with 1 cm
+    range noise and 10 % of pulses lost; re-scanned with the nominal table, a
+    VLP-16 and 0.4 deg from its own origin and from 1 m and 3 m aside, against
+    exact scans of the box: points out (against binning's), coverage and
+    precision (10 cm)."""
+    from slr_ray import agreement, scan_mesh
+
+    mesh, o, pts = street_frame(seed)
     rows = []
     for backend, opts in BACKENDS:
         if opts:

@@ -136,16 +136,10 @@ def test_frames_of_unknown_rings_are_meshed_by_the_tables_rows(tmp_path):
     """The synthetic drive's frames (scanned along the table's pulse centres) with their points
     shuffled: no scan order, no rings; they are meshed by the table's rows, and the held-out frame is
     re-scanned from the others."""
-    from slr_ray.sequence import FrameCache, accumulate, read_sequence, to_frame, window
+    from slr_ray.sequence import FrameCache, accumulate, to_frame, window
     from slr_ray.sequence.embree_rays import fit_embree_model
-    from slr_ray.sequence.synthetic import synthetic_drive
 
-    synthetic_drive(tmp_path / "seq", n_frames=3, sensor="velodyne_vlp16", step=0.8, moving=False)
-    rng = np.random.default_rng(0)
-    for f in sorted((tmp_path / "seq" / "velodyne").glob("*.bin")):
-        a = np.fromfile(f, np.float32).reshape(-1, 4)
-        a[rng.permutation(len(a))].tofile(f)
-    seq = read_sequence(tmp_path / "seq")
+    seq = _shuffled_drive(tmp_path)
     pat = sensor("velodyne_vlp16")
     cache = FrameCache(seq)
     others = window(seq, 1, 1)
@@ -167,16 +161,10 @@ def test_frames_of_a_card_fitted_without_rings_take_its_bands_and_the_sensor_is_
     synthetic frames (no ring field, no scan order) take the bands and fit the lasers, no warning."""
     import warnings as W
 
-    from slr_ray.sequence import FrameCache, read_sequence, window
+    from slr_ray.sequence import FrameCache, window
     from slr_ray.sequence.embree_rays import fit_embree_model
-    from slr_ray.sequence.synthetic import synthetic_drive
 
-    synthetic_drive(tmp_path / "seq", n_frames=3, sensor="velodyne_vlp16", step=0.8, moving=False)
-    rng = np.random.default_rng(0)
-    for f in sorted((tmp_path / "seq" / "velodyne").glob("*.bin")):
-        a = np.fromfile(f, np.float32).reshape(-1, 4)
-        a[rng.permutation(len(a))].tofile(f)
-    seq = read_sequence(tmp_path / "seq")
+    seq = _shuffled_drive(tmp_path)
     base = sensor("velodyne_vlp16")
     card = base.with_(meta={**base.meta, "beams_from": "elevation bands"})
     with W.catch_warnings():
@@ -437,3 +425,16 @@ def test_rings_far_apart_in_elevation_mesh_the_road_between_them():
     f2 = frame_mesh(pole, rows, pat.n_beams)
     moved = near & (rows == low - 1)
     assert moved.sum() > 10 and not (moved[f2].any(axis=1) & ~moved[f2].all(axis=1)).any()
+
+
+def _shuffled_drive(tmp_path):
+    """Three VLP-16 frames of a synthetic drive, each file's points shuffled: no ring field, no scan order."""
+    from slr_ray.sequence import read_sequence
+    from slr_ray.sequence.synthetic import synthetic_drive
+
+    synthetic_drive(tmp_path / "seq", n_frames=3, sensor="velodyne_vlp16", step=0.8, moving=False)
+    rng = np.random.default_rng(0)
+    for f in sorted((tmp_path / "seq" / "velodyne").glob("*.bin")):
+        a = np.fromfile(f, np.float32).reshape(-1, 4)
+        a[rng.permutation(len(a))].tofile(f)
+    return read_sequence(tmp_path / "seq")
