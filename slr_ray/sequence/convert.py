@@ -122,11 +122,10 @@ def _frame_cloud(seq, i, pose, pattern, settings, cache) -> PointCloud:
     return PointCloud(ret.points, attrs, np.zeros(3))
 
 
-def _say_not_carried(seq, fmt: str) -> None:
+def _say_not_carried(seq, fmt: str, attributes) -> None:
     """One warning naming frame 0's per-point fields a converted frame does not carry (an E57's
     colour, a PCD's normals, a LAS's extra dimensions): only intensity and the labels are (hostile pass:
-    they were dropped without a word)."""
-    attributes = seq.read(0).attributes
+    they were dropped without a word); ``attributes``: frame 0's."""
     if fmt == "bin" and "intensity" not in attributes:  # KITTI's fourth column filled, not said (hostile pass)
         warnings.warn(f"frame {seq.names[0]}: no intensity field: the converted .bin frames hold 0 as intensity",
                       SlrWarning, stacklevel=3)
@@ -425,14 +424,14 @@ def _say_copies(seq, identity) -> None:
             return
 
 
-def _labelled(seq) -> bool:
+def _labelled(seq, attributes) -> bool:
     """Whether the frames carry SemanticKITTI ``.label`` files: all or none. One frame without
     them would strip the labels of every output frame its window reaches (a union carries an
     attribute all its frames have) and keep its moving objects: refused, naming it."""
     if (seq.input_format or Path(seq.paths[0]).suffix).lower().lstrip(".") != "bin" or seq.meta.get("split"):
         # labels read with the frames (a .npz's or .ply's semantic field): written as .label too (they were
         # staged beside the .bin and never published: hostile pass)
-        return "semantic" in seq.read(0).attributes
+        return "semantic" in attributes  # frame 0's
     has = [label_path(p) is not None for p in seq.paths]
     if any(has) and not all(has):
         k = has.index(False)
@@ -536,8 +535,8 @@ def convert_sequence(seq: Sequence, out, sensor: str, options: ConvertOptions | 
     if m.needs_source_sensor and source_sensor is None:
         raise InputValueError(f"the {estimator} estimator needs the frames' own sensor (source_sensor, "
                               f"--source-sensor): {m.source_why}")
+    probe = seq.read(0) if source_sensor is not None else None
     if source_sensor is not None:
-        probe = seq.read(0)
         why = source_sensor_problem(probe.points, probe.attributes, shipped_sensor(source_sensor))
         if why is not None:  # its rays (see-through) and pulse grids (embree-sources) are then the table's
             warnings.warn(f"frame {seq.names[0]}: {why}: are the frames of this sensor (source_sensor, "
@@ -549,8 +548,9 @@ def convert_sequence(seq: Sequence, out, sensor: str, options: ConvertOptions | 
         if isinstance(name, str) and name not in SENSORS and name.lower().endswith(".json"):
             settings[f"{key}_card"] = content_digest(name)
     check_format(out / "velodyne" / f"000000.{settings['format']}", settings["format"])
-    _say_not_carried(seq, settings["format"])
-    labelled = _labelled(seq)
+    first = probe if probe is not None else seq.read(0)  # read once: fields, labels, the conversion's reach
+    _say_not_carried(seq, settings["format"], first.attributes)
+    labelled = _labelled(seq, first.attributes)
     settings["frames"] = _identity(seq)
     _say_copies(seq, settings["frames"])
     fresh = not (out / MANIFEST).exists()
@@ -568,8 +568,8 @@ def convert_sequence(seq: Sequence, out, sensor: str, options: ConvertOptions | 
                 held.enter_context(hold_directory(out / sub))
                 clean_stale_parts(out / sub, locked=True)
             done.update(_resume(out, settings, seq, labelled))
-            summary = _convert(seq, out, P, settings, done, o, progress, inputs)
-        return summary | conversion_reach(shipped_sensor(sensor), seq.read(0).points, summary["points"])  # (#45)
+            summary = _convert(seq, out, P, settings, done, o, progress, inputs, labelled)
+        return summary | conversion_reach(shipped_sensor(sensor), first.points, summary["points"])  # (#45)
     except BaseException:
         if fresh and not done:  # nothing converted: leave nothing (none of these files was there before)
             for name in (MANIFEST, JOURNAL, "poses.txt", "calib.txt"):
@@ -658,8 +658,7 @@ def _run_blocks(seq, out, P, settings, blocks, o: ConvertOptions, token, record)
                 r.get()
 
 
-def _convert(seq, out, P, settings, done, o: ConvertOptions, progress, inputs) -> dict:
-    labelled = _labelled(seq)
+def _convert(seq, out, P, settings, done, o: ConvertOptions, progress, inputs, labelled: bool) -> dict:
     doc = {"settings": settings, "inputs": inputs or {"sequence": [str(p) for p in seq.paths]},
            "pose_source": seq.pose_source}
     for name, text in ((MANIFEST, json.dumps(doc) + "\n"), ("calib.txt", "Tr: 1 0 0 0 0 1 0 0 0 0 1 0\n")):
