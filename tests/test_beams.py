@@ -175,17 +175,30 @@ def test_posed_reduction_moves_each_point_as_to_frame_does():
         assert np.array_equal(a, b)
 
 
-def test_float64_points_compile_the_block_reduction_once():
+def test_float64_points_compile_the_block_reduction_once(tmp_path):
     """A cold numba cache compiles a kernel once per argument types: the one-thread, the
     parallel and the posed reductions hand ``_reduce_block`` and ``row_table`` the same
-    types (a literal 0, an omitted ``base`` and a literal table size were three more)."""
-    from slr_ray.core.beams import _reduce_block
+    types (a literal 0, an omitted ``base`` and a literal table size were three more).
+    Run in a process with an empty cache of its own: ``_reduce_block`` is called from compiled
+    callers only, so a warm cache loads them and its signatures stay empty (the test passed
+    cold only)."""
+    import os
+    import subprocess
+    import sys
+    import textwrap
 
-    p = sensor("velodyne_vlp16")
-    pts = np.random.default_rng(0).normal(size=(500, 3)) * 10
-    p.reduce(pts, np.zeros(3), n_threads=1)
-    p.reduce(pts, np.zeros(3), n_threads=2)
-    p.reduce_posed(pts, np.eye(4))
-    row_table(p._cos_edges, ROW_CELLS)
-    assert len([s for s in _reduce_block.signatures if s[0].dtype.bitwidth == 64]) == 1, _reduce_block.signatures
-    assert len(row_table.signatures) == 1, row_table.signatures
+    code = textwrap.dedent("""
+        import numpy as np
+        from slr_ray.core.beams import ROW_CELLS, _reduce_block, row_table
+        from slr_ray.sensors import sensor
+        p = sensor("velodyne_vlp16")
+        pts = np.random.default_rng(0).normal(size=(500, 3)) * 10
+        p.reduce(pts, np.zeros(3), n_threads=1)
+        p.reduce(pts, np.zeros(3), n_threads=2)
+        p.reduce_posed(pts, np.eye(4))
+        row_table(p._cos_edges, ROW_CELLS)
+        print(len([s for s in _reduce_block.signatures if s[0].dtype.bitwidth == 64]), len(row_table.signatures))
+    """)
+    env = {**os.environ, "NUMBA_CACHE_DIR": str(tmp_path / "numba")}
+    r = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, env=env, check=True)
+    assert r.stdout.split() == ["1", "1"], r.stdout + r.stderr
