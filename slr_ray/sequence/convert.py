@@ -568,7 +568,7 @@ def convert_sequence(seq: Sequence, out, sensor: str, options: ConvertOptions | 
                 held.enter_context(hold_directory(out / sub))
                 clean_stale_parts(out / sub, locked=True)
             done.update(_resume(out, settings, seq, labelled))
-            summary = _convert(seq, out, P, settings, done, o, progress, inputs, labelled)
+            summary = _convert(seq, out, P, settings, done, o, progress, inputs)
         return summary | conversion_reach(shipped_sensor(sensor), first.points, summary["points"])  # (#45)
     except BaseException:
         if fresh and not done:  # nothing converted: leave nothing (none of these files was there before)
@@ -658,7 +658,8 @@ def _run_blocks(seq, out, P, settings, blocks, o: ConvertOptions, token, record)
                 r.get()
 
 
-def _convert(seq, out, P, settings, done, o: ConvertOptions, progress, inputs, labelled: bool) -> dict:
+def _convert(seq, out, P, settings, done, o: ConvertOptions, progress, inputs) -> dict:
+    labelled = _labelled(seq, seq.read(0).attributes)  # (a ninth parameter would pass convert_sequence's)
     doc = {"settings": settings, "inputs": inputs or {"sequence": [str(p) for p in seq.paths]},
            "pose_source": seq.pose_source}
     for name, text in ((MANIFEST, json.dumps(doc) + "\n"), ("calib.txt", "Tr: 1 0 0 0 0 1 0 0 0 0 1 0\n")):
