@@ -181,3 +181,33 @@ def test_the_librarys_default_sensor_is_auto_as_the_commands(campaigns):
     assert res["frames"][0]["sensor_kind"] == TERRESTRIAL and res["frames"][0]["in_view_share"] == 1.0
     with pytest.raises(InputValueError, match="name it"):
         evaluate_sequence(seq, [1], methods=["nearest"], half=1, target_sensor="velodyne_vlp16")
+
+
+@pytest.mark.parametrize("register", [False, True])
+def test_convert_refuses_embree_rays_on_terrestrial_frames_up_front(campaigns, tmp_path, capsys, monkeypatch, register):
+    """sequence convert --estimator embree-rays --source-sensor X on a terrestrial campaign: refused in one
+    line before any frame is cast, any chain registered or anything written (failed before: late, with no
+    pulse of the target sensor returned). The rule is the method's (its frame 0 makes no ring mesh by the
+    table's elevation bands: a scan's points a few degrees apart), not the scan order: ring-less spinning
+    frames not in scan order convert (test_sequence_embree_rays)."""
+    from slr_ray.cli import sequence_command
+    from slr_ray.sequence import convert
+
+    from slr_ray.io import PointCloud, write_cloud
+
+    c = campaigns["files"]
+    paths, flags = c["paths"], c["flags"]
+    if register:  # the setups in their own axes (the scanner at the origin), their poses to be registered
+        seq = read_sequence(paths, origins=flags[1])
+        (tmp_path / "own").mkdir()
+        paths = [tmp_path / "own" / f"setup_{i}.ply" for i in range(len(seq))]
+        for i, p in enumerate(paths):
+            write_cloud(p, PointCloud(seq.read(i).points))
+        flags = ["--register"]
+    monkeypatch.setattr(convert, "_convert", lambda *a, **k: pytest.fail("a frame was cast"))
+    monkeypatch.setattr(sequence_command, "register_chain", lambda *a, **k: pytest.fail("the chain was registered"))
+    r = CliRun(capsys)("sequence", "convert", *paths, *flags, "--estimator", "embree-rays",
+                       "--source-sensor", "velodyne_vlp16", "--target-sensor", "ouster_os1_64", "-o", tmp_path / "o")
+    assert r.returncode == 2 and r.stderr.count("\n") == 1, r.stderr
+    assert "make no triangle of a ring mesh" in r.stderr and "velodyne_vlp16's elevation bands" in r.stderr
+    assert not (tmp_path / "o").exists()

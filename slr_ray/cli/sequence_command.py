@@ -18,6 +18,7 @@ from ..sequence import (REMOVE_MOVING, SeeThrough, convert_sequence, evaluate_se
                         read_trajectory, register_chain, write_kitti_poses)
 from ..sequence.holdout import (GRID_SOURCES, check_held_out_kinds, lidar4d_holdout,
                                one_frame_refusal)
+from ..sequence.convert import check_source_frame
 from ..sequence.terrestrial import AUTO
 from ..sequence.methods import REGISTRY, method_options, methods_with, option_keys
 from . import arguments as A
@@ -321,6 +322,8 @@ def sequence(args):
             raise InputValueError("sequence convert has no --force: it resumes its own run by itself and never "
                                   "writes over what it did not write; write elsewhere, or remove the directory "
                                   "to start again")
+        if args.register:  # before registering (convert_sequence checks it where the poses are given)
+            check_source_frame(seq, args.estimator, args.source_sensor, args.method_options)
         for name in ("manifest.json", "poses.txt", "calib.txt", "journal.jsonl"):
             plan.write(out / name, sidecars=False, resumed=True)
         with plan:

@@ -60,7 +60,7 @@ from .methods import REGISTRY, TargetFrame, method, method_options, methods_with
 from .sources import SeeThrough, base_pattern, source_sensor_problem
 from .union import FrameCache, Keep, window
 
-__all__ = ["ConvertOptions", "convert_sequence", "target_poses", "MANIFEST", "JOURNAL", "CONVERT_ESTIMATORS"]
+__all__ = ["ConvertOptions", "convert_sequence", "check_source_frame", "target_poses", "MANIFEST", "JOURNAL", "CONVERT_ESTIMATORS"]
 
 
 
@@ -494,6 +494,30 @@ class ConvertOptions(Options):
     method_options: dict | None = None
 
 
+def check_source_frame(seq: Sequence, estimator: str, source_sensor, given_options=None, frame=None) -> None:
+    """Refuse, before any frame is cast or file written, an estimator that can do nothing with the
+    sequence's first frame (``frame``, read if not given) of the source sensor ``source_sensor`` (``given_options``: the
+    methods' options by flat key)
+    (:meth:`~slr_ray.sequence.methods.SequenceMethod.source_problem`): ``embree-rays`` on frames that
+    make no ring mesh by the beams it finds (a ring field, the scan order, else the table's elevation
+    bands): a terrestrial campaign's scans, which failed late with no pulse returned. Frames not in
+    the scan order that fill the bands (a spinning unit's, shuffled) mesh and are not refused."""
+    m = method(estimator, "convert", what="estimator")
+    if not m.needs_source_sensor or source_sensor is None:
+        return
+    if frame is None:
+        pts, attrs = seq.layout.frame(seq, 0)  # its own axes; no pose needed (before registering)
+    else:
+        pts, attrs = frame.points, frame.attributes
+    base = shipped_sensor(source_sensor)
+    why = m.source_problem(pts, attrs, base, m.options.from_flat(method_options(given_options)))
+    if why is not None:
+        raise InputValueError(f"frame {seq.names[0]} ({seq.paths[0]}): {why}: the {estimator} estimator needs "
+                              f"{base.name}'s beams in the frames ({m.source_why}) and would return no pulse; name "
+                              "the frames' own sensor (--source-sensor), or use an estimator without it (nearest, "
+                              "fpa, embree-knn)")
+
+
 def convert_sequence(seq: Sequence, out, sensor: str, options: ConvertOptions | None = None, *, poses=None,
                      progress: bool = False, inputs: dict | None = None, **keywords) -> dict:
     """Write ``seq`` re-simulated as ``sensor`` into the directory ``out`` (module docstring).
@@ -537,6 +561,7 @@ def convert_sequence(seq: Sequence, out, sensor: str, options: ConvertOptions | 
                               f"--source-sensor): {m.source_why}")
     probe = seq.read(0) if source_sensor is not None else None
     if source_sensor is not None:
+        check_source_frame(seq, estimator, source_sensor, flat, probe)
         why = source_sensor_problem(probe.points, probe.attributes, shipped_sensor(source_sensor))
         if why is not None:  # its rays (see-through) and pulse grids (embree-sources) are then the table's
             warnings.warn(f"frame {seq.names[0]}: {why}: are the frames of this sensor (source_sensor, "
