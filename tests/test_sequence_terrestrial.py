@@ -211,3 +211,29 @@ def test_convert_refuses_embree_rays_on_terrestrial_frames_up_front(campaigns, t
     assert r.returncode == 2 and r.stderr.count("\n") == 1, r.stderr
     assert "make no triangle of a ring mesh" in r.stderr and "velodyne_vlp16's elevation bands" in r.stderr
     assert not (tmp_path / "o").exists()
+
+
+@pytest.mark.parametrize("shuffled", [False, True])
+def test_auto_takes_a_ringless_drive_of_another_unit_for_spinning(tmp_path, shuffled):
+    """sensor="auto" (sequence evaluate without --source-sensor) on a ring-less VLP-16 drive: spinning on
+    VLP-16's table, found by its 16-ring scan order or, its points shuffled, by its elevation bands (failed
+    before: decided by HDL-64E's scan order alone, it was terrestrial); a terrestrial scan stays terrestrial."""
+    from slr_ray.sensors import sensor
+    from slr_ray.sequence.synthetic import synthetic_drive
+    from slr_ray.sequence.terrestrial import SPINNING, auto_sensor
+
+    synthetic_drive(tmp_path / "seq", n_frames=3, sensor="velodyne_vlp16", step=0.8, moving=False)
+    if shuffled:
+        rng = np.random.default_rng(0)
+        for f in sorted((tmp_path / "seq" / "velodyne").glob("*.bin")):
+            a = np.fromfile(f, np.float32).reshape(-1, 4)
+            a[rng.permutation(len(a))].tofile(f)
+    seq = read_sequence(tmp_path / "seq")
+    res = evaluate_sequence(seq, [1], methods=["nearest"], half=1)
+    frame = res["frames"][0]
+    assert frame["sensor_kind"] == SPINNING and "velodyne_vlp16" in frame["grid"], frame["grid"]
+    assert frame["in_view_share"] > 0.99
+    scan = corridor_campaign(tmp_path / "c", resolution=RESOLUTION, form="files")
+    t = read_sequence(scan["paths"], origins=scan["flags"][1])
+    assert auto_sensor(t.read(0).points, {}) is None
+    assert auto_sensor(seq.read(0).points, {}).elevation_deg == sensor("velodyne_vlp16").elevation_deg
