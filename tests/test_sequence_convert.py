@@ -463,3 +463,28 @@ def test_a_workers_cache_holds_its_window_reading_each_frame_once(tmp_path, monk
     monkeypatch.setattr(FrameCache, "get", get)
     _convert(root, tmp_path / "out", half=1, block=3)
     assert sorted(reads) == list(range(8)) and max(held) <= 2 * 1 + 2
+
+
+def test_the_input_format_is_a_setting_a_resume_compares(drive, tmp_path):
+    """The frames read as another format (--input-format bin: KITTI's four floats a point, where the first
+    run read the nuScenes .pcd.bin files as named, five) are other frames of the same files: refused, not
+    resumed into the first run's directory (failed before: the format was not recorded, and the run
+    resumed, mixing the two). Given as the files' own format, it is the same run: resumed."""
+    src = tmp_path / "frames"
+    src.mkdir()
+    for f in sorted((drive / "velodyne").glob("*.bin")):
+        a = np.fromfile(f, np.float32).reshape(-1, 4)
+        a = a[: len(a) // 4 * 4]  # whole points in both formats
+        np.column_stack([a, np.zeros(len(a), np.float32)]).astype(np.float32).tofile(src / f"{f.stem}.pcd.bin")
+    paths, poses = sorted(src.glob("*.pcd.bin")), read_sequence(drive).poses
+    out = tmp_path / "out"
+    out.mkdir()
+
+    def run(fmt):
+        return convert_sequence(read_sequence(paths, poses, input_format=fmt), out, SENSOR, half=1, block=4)
+
+    assert run(None)["written"] == 4
+    assert run("pcd.bin")["resumed"] == 4
+    with pytest.raises(InputValueError, match=r"other settings \(input_format\)"):
+        run("bin")
+    assert json.loads((out / C.MANIFEST).read_text())["settings"].get("input_format") is None

@@ -494,6 +494,22 @@ class ConvertOptions(Options):
     method_options: dict | None = None
 
 
+def _input_format(seq) -> str | None:
+    """The format the frames are read as (``--input-format``), where it is not the one each frame's name
+    says (None: as named): a rerun reading them as another format (a ``.bin`` as nuScenes' five floats,
+    not KITTI's four) makes other frames of the same files, so it is a setting a resume compares."""
+    if not seq.input_format:
+        return None
+    fmt = check_format(seq.paths[0], seq.input_format)
+    named = []
+    for p in seq.paths:
+        try:
+            named.append(check_format(p))
+        except SlrError:
+            return fmt
+    return None if set(named) == {fmt} else fmt
+
+
 def check_source_frame(seq: Sequence, estimator: str, source_sensor, given_options=None, frame=None) -> None:
     """Refuse, before any frame is cast or file written, an estimator that can do nothing with the
     sequence's first frame (``frame``, read if not given) of the source sensor ``source_sensor`` (``given_options``: the
@@ -545,6 +561,9 @@ def convert_sequence(seq: Sequence, out, sensor: str, options: ConvertOptions | 
                 "offset": [float(x) for x in offset], "drop_moving": bool(drop_moving), "format": fmt.lstrip("."),
                 "fpa_gap": float(flat["fpa_gap"]), "frames": [], "poses": np.round(P, 12).reshape(len(P), -1).tolist(),
                 "cache": int(half or 8)}
+    given = _input_format(seq)
+    if given is not None:  # only where it reads the frames otherwise than their names say (as method options)
+        settings["input_format"] = given
     fields = {f.name for f in dataclasses.fields(ConvertOptions)}
     extra = {k: v for k, v in (o.method_options or {}).items() if k not in fields}
     if extra:  # only where given: a manifest written before method options resumes as it was
