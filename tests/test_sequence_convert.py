@@ -488,3 +488,31 @@ def test_the_input_format_is_a_setting_a_resume_compares(drive, tmp_path):
     with pytest.raises(InputValueError, match=r"other settings \(input_format\)"):
         run("bin")
     assert json.loads((out / C.MANIFEST).read_text())["settings"].get("input_format") is None
+
+
+def test_target_poses_and_an_offset_are_both_applied_and_said(drive, tmp_path, capsys):
+    """--target-poses with --offset: the offset moves each target pose in its own axes (neither is ignored);
+    poses.txt holds the poses cast from; the help of both flags says so (it did not: an offset beside a
+    trajectory read as one of them ignored)."""
+    from slr_ray.sequence import read_trajectory
+
+    seq = read_sequence(drive)
+    target = seq.poses.copy()
+    c, s_ = np.cos(0.3), np.sin(0.3)
+    target[:, :3, :3] = target[:, :3, :3] @ np.array([[c, -s_, 0], [s_, c, 0], [0, 0, 1]])  # turned: axes matter
+    tp = tmp_path / "target.txt"
+    np.savetxt(tp, target[:, :3, :].reshape(len(target), 12))
+    out = tmp_path / "out"
+    assert main(["sequence", "convert", str(drive), "--target-sensor", SENSOR, "--half", "1", "--target-poses",
+                 str(tp), "--offset", "1", "0", "0.5", "-o", str(out), "--quiet"]) == 0
+    capsys.readouterr()
+    given = seq.trajectory(str(tp))[0]  # as the command reads it (a KITTI directory's: the camera's, by Tr)
+    want = given.copy()
+    want[:, :3, 3] += given[:, :3, :3] @ np.array([1.0, 0.0, 0.5])
+    np.testing.assert_allclose(read_trajectory(out / "poses.txt", len(seq)), want, atol=1e-9)
+    try:
+        main(["sequence", "convert", "--help"])
+    except SystemExit:
+        pass
+    text = " ".join(capsys.readouterr().out.split())
+    assert "with --target-poses, in each target pose's own axes (both applied)" in text

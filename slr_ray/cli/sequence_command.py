@@ -154,9 +154,11 @@ def add_sequence_parser(sub) -> None:
                    help="the input frames' own sensor (fitted to each frame whose beams are known: a ring field "
                         "or a KITTI .bin's order), for --remove-moving visibility and --estimator embree-sources")
     q.add_argument("--offset", nargs=3, type=A.finite_float, default=[0.0, 0.0, 0.0], metavar=("DX", "DY", "DZ"),
-                   help="the target sensor's offset in each frame's own axes (m)")
+                   help="the target sensor's offset in each frame's own axes (m); with --target-poses, in each "
+                        "target pose's own axes (both applied)")
     q.add_argument("--target-poses", help="a trajectory of target poses (one a frame) instead of the frames' poses "
-                                           "(for a KITTI directory, KITTI form is the camera's, as its poses.txt)")
+                                           "(for a KITTI directory, KITTI form is the camera's, as its poses.txt); "
+                                           "--offset moves each in its own axes; poses.txt holds the poses cast from")
     q.add_argument("--format", default="bin", help="frame format (default bin: KITTI; others carry a ring field)")
     q.add_argument("--workers", type=A.positive_int, default=1, help="worker processes (default 1)")
     q.add_argument("--scheduler", metavar="ADDRESS",
