@@ -516,3 +516,36 @@ def test_target_poses_and_an_offset_are_both_applied_and_said(drive, tmp_path, c
         pass
     text = " ".join(capsys.readouterr().out.split())
     assert "with --target-poses, in each target pose's own axes (both applied)" in text
+
+
+def test_a_dask_workers_threads_do_not_share_a_frames_cache(drive, monkeypatch):
+    """A Dask worker of several threads runs blocks at once: each thread holds its own state (its frames
+    cache, not thread-safe), kept for its next blocks; they shared the module's, which a thread's first
+    block cleared and set up while another read it (failed before: one cache for both threads)."""
+    import threading
+
+    seq = read_sequence(drive)
+    settings = {"sensor": SENSOR, "radius": None, "half": 1, "cache": 1, "drop_moving": True}
+    barrier, seen, lock = threading.Barrier(2), {}, threading.Lock()
+
+    def job(block, out, token, state=None):
+        cache = (C._STATE if state is None else state).get("cache")
+        barrier.wait(timeout=10)  # both threads' blocks at once
+        with lock:
+            seen.setdefault(threading.get_ident(), []).append(id(cache))
+        return []
+
+    monkeypatch.setattr(C, "_job", job)
+
+    def blocks():
+        for b in ([0], [1]):
+            C._dask_job(b, "out", seq, seq.poses, settings, "a" * 32)
+
+    threads = [threading.Thread(target=blocks) for _ in range(2)]
+    for t in threads:
+        t.start()
+    for t in threads:
+        t.join(timeout=30)
+    ids = list(seen.values())
+    assert len(ids) == 2 and all(len(set(i)) == 1 and len(i) == 2 for i in ids), ids  # kept between its blocks
+    assert ids[0][0] != ids[1][0]  # not shared

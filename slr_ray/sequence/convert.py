@@ -40,6 +40,7 @@ import signal
 import warnings
 from contextlib import ExitStack
 from dataclasses import dataclass
+import threading
 import time
 import uuid
 from collections.abc import Sequence as SequenceABC
@@ -160,10 +161,11 @@ def _cache_frames(settings, st) -> int:
     return 2 * settings["cache"] + 16 + extra
 
 
-def _init(seq, poses, settings):
+def _init(seq, poses, settings, state=None):
+    """Set up a process's conversion state (``state``: a Dask worker thread's own instead)."""
     _SAID.clear()  # a conversion's writer warnings said once each (_write_frame)
     st = _see_through(settings)
-    _STATE.update(seq=seq, poses=poses, settings=settings, pattern=shipped_sensor(settings["sensor"]),
+    (_STATE if state is None else state).update(seq=seq, poses=poses, settings=settings, pattern=shipped_sensor(settings["sensor"]),
                   cache=FrameCache(seq, _cache_frames(settings, st), local=False))
 
 
@@ -205,15 +207,23 @@ def _span_job(span, out, token) -> int:
     return len(span)
 
 
+#: a Dask worker thread's own conversion state (:func:`_dask_job`)
+_THREAD = threading.local()
+
+
 def _dask_job(block, out, seq, poses, settings, token, after=None) -> list:
-    """A block on a Dask worker: the worker's state set up by its first block of this conversion
+    """A block on a Dask worker: the worker thread's state set up by its first block of this conversion
     (``token``), then kept (its frames cache) for the next blocks it gets; ``after``: the block
-    before it in its chain (:func:`_dask_chains`), whose result is not used."""
-    if _STATE.get("token") != token:
-        _STATE.clear()
-        _init(seq, poses, settings)
-        _STATE["token"] = token
-    return _job(block, out, token)
+    before it in its chain (:func:`_dask_chains`), whose result is not used. Each thread of a worker
+    (``--nthreads``) holds its own state: one frames cache (not thread-safe) shared by its threads was
+    cleared, set up and read by two blocks at once (two conversions' too)."""
+    state = getattr(_THREAD, "state", None)
+    if state is None or state.get("token") != token:
+        state = {}
+        _init(seq, poses, settings, state)
+        state["token"] = token
+        _THREAD.state = state
+    return _job(block, out, token, state)
 
 
 def _dask_chains(blocks, workers: int, size: int) -> list:
@@ -234,11 +244,11 @@ def _stage(out, token) -> Path:
     return Path(out) / f"{STAGE_PREFIX}{token}"
 
 
-def _job(block, out, token) -> list:
+def _job(block, out, token, state=None) -> list:
     """Convert the frames of ``block`` into the run's staging directory (never under a final
     name: a worker of an interrupted run that goes on writing writes only there, and that
     directory is gone or never published). Each entry says what to publish (``_staged``)."""
-    s = _STATE
+    s = _STATE if state is None else state  # (a Dask worker thread's own: _dask_job)
     stage = _stage(out, token)
     fmt = s["settings"]["format"]
     done = []
