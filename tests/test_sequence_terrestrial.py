@@ -237,3 +237,10 @@ def test_auto_takes_a_ringless_drive_of_another_unit_for_spinning(tmp_path, shuf
     t = read_sequence(scan["paths"], origins=scan["flags"][1])
     assert auto_sensor(t.read(0).points, {}) is None
     assert auto_sensor(seq.read(0).points, {}).elevation_deg == sensor("velodyne_vlp16").elevation_deg
+    # a scan of 38 rows stored row after row is in the scan order of 38 rings, a Pandar40P's count, but
+    # its rows span 58 to -89 deg: not that unit (the docs' 4-deg corridor)
+    rows = np.radians(np.r_[np.arange(58.0, -87.0, -4.0), -89.0])
+    az = np.radians(np.arange(0.0, 360.0, 4.0))
+    el, a = np.repeat(rows, len(az)), np.tile(az, len(rows))
+    scan = 5 * np.column_stack([np.cos(el) * np.cos(a), np.cos(el) * np.sin(a), np.sin(el)])
+    assert len(rows) == sensor("hesai_pandar40p").n_beams and auto_sensor(scan, {}) is None

@@ -101,6 +101,9 @@ def sensor_kind(points, attributes, base, what: str = "a frame") -> str:
 #: a ring-less frame not in scan order is a shipped sensor's where this share of its points lies within
 #: :data:`BAND_TOLERANCE_DEG` (or a quarter of the table's least beam spacing) of one of its beams' elevations
 BAND_SHARE = 0.9
+#: a frame in the scan order of a shipped table's ring count is that sensor's where its rings' median
+#: elevations lie within this of the table's (median over the rings; another unit of the model: tenths)
+SCAN_ORDER_TOLERANCE_DEG = 1.0
 BAND_TOLERANCE_DEG = 0.1
 
 
@@ -108,7 +111,8 @@ def auto_sensor(points, attributes, what: str = "a frame"):
     """The shipped sensor's table a frame's beams are known in, for ``sensor="auto"`` (module docstring);
     None: terrestrial. A ``ring`` field or :data:`DEFAULT_SPINNING`'s scan order: that table (a ring
     field outside it refused naming ``what``); else the shipped table of the frame's ring count in whose
-    scan order it is (several: the one whose elevations are nearest the rings' medians); else the table
+    scan order it is, its rings' elevations near the table's (:data:`SCAN_ORDER_TOLERANCE_DEG`; several:
+    the nearest); else the table
     on whose elevation bands its points lie (:data:`BAND_SHARE`), marked as giving its beams by its bands
     (``meta["beams_from"]``: :func:`~slr_ray.sequence.sources.known_beams`). Decided by HDL-64E's scan
     order alone, a ring-less VLP-16 drive was terrestrial."""
@@ -129,8 +133,10 @@ def auto_sensor(points, attributes, what: str = "a frame"):
         cut = np.searchsorted(rings, np.arange(n + 1))
         med = np.array([np.median(el[a:b]) for a, b in zip(cut[:-1], cut[1:])])  # highest first
         cols = _columns(az, rings)
-        return min(same, key=lambda t: (round(float(np.median(np.abs(np.sort(t.elevation_deg)[::-1] - med))), 2),
-                                        abs(np.log(cols / t.columns))))
+        off = {t.name: float(np.median(np.abs(np.sort(t.elevation_deg)[::-1] - med))) for t in same}
+        near = [t for t in same if off[t.name] <= SCAN_ORDER_TOLERANCE_DEG]  # a scan of 38 rows is no Pandar40P
+        if near:
+            return min(near, key=lambda t: (round(off[t.name], 2), abs(np.log(cols / t.columns))))
     fits = []
     for t in tables:
         e = np.sort(np.asarray(t.elevation_deg, np.float64))
