@@ -125,8 +125,9 @@ def add_sequence_parser(sub) -> None:
     q.add_argument("--source-sensor", type=A.sensor_name, metavar="NAME",
                    help=f"the frames' sensor, a spinning unit's (fitted to each held-out frame; --sensor, its old "
                         f"name, still works); not given: a frame with a ring field or in {SOURCE_SENSOR}'s scan "
-                        "order (KITTI's) is scored on that table, any other (a terrestrial scanner's) on a uniform "
-                        "grid fitted to it; the output says which")
+                        "order (KITTI's) is scored on that table, a ring-less one in another shipped sensor's scan "
+                        "order or elevation bands on that sensor's, any other (a terrestrial scanner's) on a "
+                        "uniform grid fitted to it; the output says which")
     _deprecated_sensor(q)
     q.add_argument("--target-sensor", type=A.sensor_name, metavar="NAME|CARD",
                    help="the held-out frames' own unit where it is not the source's (" + A.SENSOR_HELP + "): each "
