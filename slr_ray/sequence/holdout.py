@@ -41,7 +41,7 @@ from .frames import Sequence
 from .methods import (LABELS, REGISTRY, HeldOut, adjacent_frame, check_methods, holdout_ray_model, method_options,
                       methods_with)
 from .methods import method as registered_method
-from .sources import SeeThrough, known_beams
+from .sources import BEAMS_FROM_BANDS, SeeThrough, known_beams
 from .terrestrial import (AUTO, DEFAULT_SPINNING, SPINNING, TERRESTRIAL, ScoringGrid, auto_sensor, is_terrestrial,
                           sensor_kind, terrestrial_grid)
 from .union import FrameCache, Keep, accumulate, to_frame, window
@@ -272,6 +272,11 @@ def scoring_grid(seq: Sequence, target: int, frame, sensor, grid_from: str, othe
                 "(no --source-sensor named)")
         found = auto_sensor(frame.points, frame.attributes, what)
         sensor = found if found is not None else TERRESTRIAL
+        if found is not None and grid_from != "others" and found.meta.get("beams_from") == BEAMS_FROM_BANDS:
+            beams = known_beams(frame.points, frame.attributes, found)  # found by its bands: they are its beams
+            return ScoringGrid(SPINNING, fitted_pattern(frame.points, beams, found), beams, found,
+                               f"spinning: {found.name}'s beam table fitted to the frame (no ring field, not in "
+                               "scan order: its points on that table's elevation bands, its beams)")
     if is_terrestrial(sensor):
         own = grid_from == "target"
         source = frame if own else cache.get(adjacent_frame(others, target))[0]
