@@ -2,7 +2,7 @@
 
     python benchmarks/bench_effects.py [--repeat 3] [--only divergence ...]
 
-1. Cost. The KITTI HDL-64E frame of ../shared/data (124,668 points) prepared once
+1. Cost. The KITTI HDL-64E frame of --data (default $SLR_RAY_DATA, else the shared/data above the checkout) (124,668 points) prepared once
    per backend (binning; embree with discs from the frame's own beam-table pulse
    grid, ``primary_pattern='velodyne_hdl64e_s2'``), re-scanned with its own table
    (64 x 2083 pulses) from 1 m aside: the ideal scan, then each effect alone and
@@ -35,7 +35,7 @@ import numpy as np
 
 sys.path.insert(0, str(Path(__file__).resolve().parent))
 
-from common import machine, save  # noqa: E402
+from common import data_dir, machine, save  # noqa: E402
 
 from slr_ray import prepare  # noqa: E402
 from slr_ray.backends.embree import estimate_normals  # noqa: E402
@@ -43,7 +43,7 @@ from slr_ray.effects import Effects, fit_ray_drop, frame_pulses, pose, rings_fro
 from slr_ray.effects.raydrop import drop_rates, incidence_deg  # noqa: E402
 from slr_ray.sensors import sensor  # noqa: E402
 
-KITTI = Path(__file__).resolve().parents[2] / "shared" / "data" / "kitti_hdl64_000000.bin"
+KITTI_NAME = "kitti_hdl64_000000.bin"  # in --data (default: common.data_dir(): $SLR_RAY_DATA or shared/data above)
 FIGURES = Path(__file__).resolve().parents[1] / "docs" / "figures"
 ORIGIN = np.array([0.0, 1.0, 0.0])
 RANGE_EDGES = [0, 5, 10, 15, 20, 30, 40, 60, 80]
@@ -71,9 +71,13 @@ def main(argv=None):
     ap.add_argument("--only", nargs="*", default=None, metavar="WORD",
                     help="part 1: only the cases whose name holds one of these words, and the ideal scan "
                          "(saved as bench_effects_only.json; no figure)")
+    ap.add_argument("--data", type=Path, default=None,
+                    help="the real-data directory (default: $SLR_RAY_DATA, else the shared/data found above the "
+                         "checkout: a git worktree's too)")
     args = ap.parse_args(argv)
+    KITTI = (args.data or data_dir()) / KITTI_NAME
     if not KITTI.exists():
-        sys.exit(f"{KITTI} is absent")
+        sys.exit(f"{KITTI} is absent (give --data DIR or SLR_RAY_DATA)")
     a = np.fromfile(KITTI, np.float32).reshape(-1, 4).astype(np.float64)
     pts, inten = np.ascontiguousarray(a[:, :3]), a[:, 3]
     hdl = sensor("velodyne_hdl64e_s2")

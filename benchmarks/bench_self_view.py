@@ -1,7 +1,7 @@
 """Each KITTI frame re-simulated from itself at its own pose (issue #38): the embree backend's
 primary view against the disc cast it replaced.
 
-For each ``kitti_hdl64_00000{0..3}.bin`` of ../shared/data: ``evaluate_pair(F, F, transform=identity)``
+For each ``kitti_hdl64_00000{0..3}.bin`` of --data (default $SLR_RAY_DATA, else the shared/data above the checkout): ``evaluate_pair(F, F, transform=identity)``
 (beams from the scan order, the frame's fitted table), methods binning, embree (beam-table grid) and
 embree (primary beams), once with the default ``primary_image=True`` (a scan from the primary's own
 origin with its own pattern returns its own image) and once with ``primary_image=False`` (the discs
@@ -32,14 +32,14 @@ from pathlib import Path
 import numpy as np
 
 sys.path.insert(0, str(Path(__file__).resolve().parent))
-from common import machine, save  # noqa: E402
+from common import data_dir, machine, save  # noqa: E402
 
 import slr_ray.evaluate as ev  # noqa: E402
 from slr_ray import ScanPattern  # noqa: E402
 from slr_ray.backends import prepare  # noqa: E402
 from slr_ray.io import read_cloud  # noqa: E402
 
-DATA = Path(__file__).resolve().parents[1] / ".." / "shared" / "data"
+DATA = data_dir()  # $SLR_RAY_DATA, else the shared/data above the checkout (a git worktree's too)
 METHODS = ("binning", "embree-grid", "embree-beams")
 
 
@@ -69,7 +69,9 @@ def run(frame: Path, primary_image: bool) -> list[dict]:
 
 def main(argv=None) -> None:
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
-    ap.add_argument("--data", type=Path, default=DATA)
+    ap.add_argument("--data", type=Path, default=DATA,
+                    help="the real-data directory (default: $SLR_RAY_DATA, else the shared/data found above the "
+                         "checkout)")
     ap.add_argument("--frames", nargs="*", default=[f"kitti_hdl64_00000{i}.bin" for i in range(4)])
     ap.add_argument("--terrestrial-only", action="store_true",
                     help="part 2 only (results/bench_self_view_terrestrial.json)")

@@ -21,6 +21,21 @@ if _CHECKOUT not in sys.path[:1]:
     sys.path.insert(0, _CHECKOUT)
 
 
+def data_dir(start=None) -> Path:
+    """The real-data directory (``shared/data``): ``$SLR_RAY_DATA`` where set, else the first
+    ``shared/data`` found walking up from ``start`` (default this script's checkout): the main
+    checkout's parent holds it, a git worktree's (``/work/wt/NAME``) lies a level further down. Where
+    none is found, the path the main checkout's layout gives (the caller says it is absent)."""
+    env = os.environ.get("SLR_RAY_DATA")
+    if env:
+        return Path(env)
+    here = Path(start or _CHECKOUT).resolve()
+    for d in (here, *here.parents):
+        if (d / "shared" / "data").is_dir():
+            return d / "shared" / "data"
+    return here.parent / "shared" / "data"
+
+
 def machine() -> dict:
     cpu = "unknown"
     try:

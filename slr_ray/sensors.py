@@ -390,6 +390,46 @@ def write_card(path, pattern: BeamPattern) -> None:
         f.write(text)
 
 
+#: a card's per-beam lists (one a beam) and the range of each value: (low, high, integers)
+_CARD_BEAM_LISTS = {"drop_rate": (0.0, 1.0, False), "height_m": (-math.inf, math.inf, False),
+                    "points": (0, math.inf, True), "vertical_offset_m": (-math.inf, math.inf, False),
+                    "horizontal_offset_m": (-math.inf, math.inf, False)}
+#: a card's scalars and their ranges (low, high): a range's accuracy, a nominal reach
+_CARD_SCALARS = {"range_accuracy_m": (0.0, math.inf), "max_range_m_nominal": (0.0, math.inf)}
+
+
+def _check_card_meta(path, d: dict) -> None:
+    """A card's own fields beyond the pattern's checked on load, each refused in one line naming it: its
+    ``beams`` the count of ``elevation_deg``, each per-beam list (:data:`_CARD_BEAM_LISTS`: a drop rate
+    in [0, 1], heights and offsets finite, points counts) one finite value a beam in its range, each scalar
+    (:data:`_CARD_SCALARS`) finite in its range. A drop rate of 1.5 was read as it was."""
+    n = len(d["elevation_deg"])
+    beams = d.get("beams")
+    if beams is not None and (isinstance(beams, bool) or beams != n):
+        raise FormatError(f"{path}: its beams ({beams!r}) is not the number of its elevation_deg ({n})")
+    for key, (lo, hi, whole) in _CARD_BEAM_LISTS.items():
+        v = d.get(key)
+        if v is None:
+            continue
+        ok = isinstance(v, list) and len(v) == n
+        bad = None if ok else v
+        for k, x in enumerate(v if ok else []):
+            if (isinstance(x, bool) or not isinstance(x, (int, float)) or not math.isfinite(x) or not lo <= x <= hi
+                    or whole and x != int(x)):
+                bad = f"{x!r} (beam {k})"
+                break
+        if bad is not None:
+            what = {(0.0, 1.0): "a rate in [0, 1]", (0, math.inf): "a count >= 0"}.get((lo, hi), "a finite number")
+            raise FormatError(f"{path}: its {key} must be a list of {n} values, one a beam, each {what}; got {bad}"
+                              if ok else f"{path}: its {key} must be a list of {n} values, one a beam; got "
+                              f"{type(v).__name__}{f' of {len(v)}' if isinstance(v, list) else ''}")
+    for key, (lo, hi) in _CARD_SCALARS.items():
+        x = d.get(key)
+        if x is not None and (isinstance(x, bool) or not isinstance(x, (int, float)) or not math.isfinite(x)
+                              or not lo <= x <= hi):
+            raise FormatError(f"{path}: its {key} must be a finite number >= {lo:g}, got {x!r}")
+
+
 def read_card(path, **changes) -> BeamPattern:
     """A :class:`BeamPattern` from a sensor card (:func:`write_card`; the shipped tables are cards too;
     an Ouster metadata JSON is read by :func:`read_ouster_metadata`). Keywords override fields.
@@ -408,6 +448,7 @@ def read_card(path, **changes) -> BeamPattern:
     if not isinstance(d, dict) or not isinstance(d.get("elevation_deg"), list):
         raise FormatError(f"{path}: not a sensor card (a JSON object with an elevation_deg list and columns; "
                           "`slr-ray sensor fit` writes one)")
+    _check_card_meta(path, d)
     try:
         return BeamPattern.from_table(d, **changes)
     except SlrError as exc:

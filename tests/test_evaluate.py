@@ -383,3 +383,40 @@ def test_cli_evaluate_says_when_a_frame_is_scored_against_itself(tmp_path, capsy
                 and str(second) in lines[0]
         else:
             assert not lines
+
+
+def test_cli_evaluate_turns_an_e57_frame_into_its_scanners_axes(tmp_path, capsys, monkeypatch):
+    """An E57 scan whose pose has a rotation (a tilted, turned scanner): evaluate takes the frame in the
+    scanner's own axes, R^T (p - t), as the sequence's E57 layout does, and records the rotation beside the
+    origin; it took p - t only (world axes: a beam table applied about the world's z), the rotation read and
+    dropped. Failed before."""
+    import importlib
+
+    pye57 = pytest.importorskip("pye57")
+    from slr_ray.cli import main
+    from slr_ray.errors import InputValueError as Stop
+
+    evaluate_command = importlib.import_module("slr_ray.cli.evaluate_command")
+
+    local = np.random.default_rng(0).normal(size=(200, 3)) * 5
+    half = np.radians([20.0, 35.0])  # 40 deg about z, then 70 deg about x
+    qz = np.array([np.cos(half[0]), 0, 0, np.sin(half[0])])
+    qx = np.array([np.cos(half[1]), np.sin(half[1]), 0, 0])
+    w1, v1, w2, v2 = qz[0], qz[1:], qx[0], qx[1:]
+    q = np.r_[w1 * w2 - v1 @ v2, w1 * v2 + w2 * v1 + np.cross(v1, v2)]
+    paths = []
+    for name in "ab":
+        paths.append(tmp_path / f"{name}.e57")
+        e = pye57.E57(str(paths[-1]), mode="w")
+        e.write_scan_raw({"cartesianX": local[:, 0], "cartesianY": local[:, 1], "cartesianZ": local[:, 2]},
+                         name=name, translation=np.array([3.0, 4.0, 1.0]), rotation=q)
+        e.close()
+    seen = []
+
+    def pair(a, b, **kw):
+        seen.extend([a, b])
+        raise Stop("stop")
+
+    monkeypatch.setattr(evaluate_command, "evaluate_pair", pair)
+    assert main(["evaluate", *map(str, paths), "-o", str(tmp_path / "ev"), "--quiet", "--methods", "zbuffer"]) == 2
+    assert len(seen) == 2 and all(np.abs(f - local).max() < 1e-4 for f in seen)

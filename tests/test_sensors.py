@@ -321,3 +321,32 @@ def test_a_fitted_pattern_takes_its_columns_from_azimuth_not_from_the_files_orde
     order = rng.permutation(3 * len(az))
     p, b = np.concatenate(pts)[order], np.concatenate(beams)[order]
     assert fitted_pattern(p, b, base).columns == 1800
+
+
+@pytest.mark.parametrize("field, value, said", [
+    ("drop_rate", [1.5] * 16, "its drop_rate must be a list of 16 values, one a beam, each a rate in [0, 1]; got 1.5"),
+    ("drop_rate", [0.1] * 3, "its drop_rate must be a list of 16 values, one a beam; got list of 3"),
+    ("points", [-1] * 16, "its points must be a list of 16 values, one a beam, each a count >= 0"),
+    ("height_m", [float("nan")] * 16, "its height_m must be a list of 16 values"),
+    ("beams", 17, "its beams (17) is not the number of its elevation_deg (16)"),
+    ("range_accuracy_m", -0.03, "its range_accuracy_m must be a finite number >= 0"),
+])
+def test_a_cards_fields_out_of_range_are_refused_on_load_naming_the_field(tmp_path, capsys, field, value, said):
+    """A sensor card's own fields are checked when it is read (a drop rate of 1.5 was read as it was): one line
+    naming the field, in the library and on the command line (exit 2)."""
+    import json
+
+    from slr_ray.cli import main
+    from slr_ray.errors import SlrError
+    from slr_ray.sensors import card_dict, read_card
+
+    d = card_dict(sensor("velodyne_vlp16")) | {"drop_rate": [0.0] * 16, field: value}
+    path = tmp_path / "card.json"
+    path.write_text(json.dumps(d))
+    with pytest.raises(SlrError) as err:
+        read_card(path)
+    assert said in str(err.value) and "\n" not in str(err.value)
+    assert main(["sequence", "convert", str(tmp_path / "nowhere"), "--target-sensor", str(path), "-o",
+                 str(tmp_path / "o")]) == 2
+    e = capsys.readouterr().err
+    assert e.count("\n") == 1 and e.startswith("slr-ray: error:") and said in e, e

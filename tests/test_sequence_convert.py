@@ -463,3 +463,89 @@ def test_a_workers_cache_holds_its_window_reading_each_frame_once(tmp_path, monk
     monkeypatch.setattr(FrameCache, "get", get)
     _convert(root, tmp_path / "out", half=1, block=3)
     assert sorted(reads) == list(range(8)) and max(held) <= 2 * 1 + 2
+
+
+def test_the_input_format_is_a_setting_a_resume_compares(drive, tmp_path):
+    """The frames read as another format (--input-format bin: KITTI's four floats a point, where the first
+    run read the nuScenes .pcd.bin files as named, five) are other frames of the same files: refused, not
+    resumed into the first run's directory (failed before: the format was not recorded, and the run
+    resumed, mixing the two). Given as the files' own format, it is the same run: resumed."""
+    src = tmp_path / "frames"
+    src.mkdir()
+    for f in sorted((drive / "velodyne").glob("*.bin")):
+        a = np.fromfile(f, np.float32).reshape(-1, 4)
+        a = a[: len(a) // 4 * 4]  # whole points in both formats
+        np.column_stack([a, np.zeros(len(a), np.float32)]).astype(np.float32).tofile(src / f"{f.stem}.pcd.bin")
+    paths, poses = sorted(src.glob("*.pcd.bin")), read_sequence(drive).poses
+    out = tmp_path / "out"
+    out.mkdir()
+
+    def run(fmt):
+        return convert_sequence(read_sequence(paths, poses, input_format=fmt), out, SENSOR, half=1, block=4)
+
+    assert run(None)["written"] == 4
+    assert run("pcd.bin")["resumed"] == 4
+    with pytest.raises(InputValueError, match=r"other settings \(input_format\)"):
+        run("bin")
+    assert json.loads((out / C.MANIFEST).read_text())["settings"].get("input_format") is None
+
+
+def test_target_poses_and_an_offset_are_both_applied_and_said(drive, tmp_path, capsys):
+    """--target-poses with --offset: the offset moves each target pose in its own axes (neither is ignored);
+    poses.txt holds the poses cast from; the help of both flags says so (it did not: an offset beside a
+    trajectory read as one of them ignored)."""
+    from slr_ray.sequence import read_trajectory
+
+    seq = read_sequence(drive)
+    target = seq.poses.copy()
+    c, s_ = np.cos(0.3), np.sin(0.3)
+    target[:, :3, :3] = target[:, :3, :3] @ np.array([[c, -s_, 0], [s_, c, 0], [0, 0, 1]])  # turned: axes matter
+    tp = tmp_path / "target.txt"
+    np.savetxt(tp, target[:, :3, :].reshape(len(target), 12))
+    out = tmp_path / "out"
+    assert main(["sequence", "convert", str(drive), "--target-sensor", SENSOR, "--half", "1", "--target-poses",
+                 str(tp), "--offset", "1", "0", "0.5", "-o", str(out), "--quiet"]) == 0
+    capsys.readouterr()
+    given = seq.trajectory(str(tp))[0]  # as the command reads it (a KITTI directory's: the camera's, by Tr)
+    want = given.copy()
+    want[:, :3, 3] += given[:, :3, :3] @ np.array([1.0, 0.0, 0.5])
+    np.testing.assert_allclose(read_trajectory(out / "poses.txt", len(seq)), want, atol=1e-9)
+    try:
+        main(["sequence", "convert", "--help"])
+    except SystemExit:
+        pass
+    text = " ".join(capsys.readouterr().out.split())
+    assert "with --target-poses, in each target pose's own axes (both applied)" in text
+
+
+def test_a_dask_workers_threads_do_not_share_a_frames_cache(drive, monkeypatch):
+    """A Dask worker of several threads runs blocks at once: each thread holds its own state (its frames
+    cache, not thread-safe), kept for its next blocks; they shared the module's, which a thread's first
+    block cleared and set up while another read it (failed before: one cache for both threads)."""
+    import threading
+
+    seq = read_sequence(drive)
+    settings = {"sensor": SENSOR, "radius": None, "half": 1, "cache": 1, "drop_moving": True}
+    barrier, seen, lock = threading.Barrier(2), {}, threading.Lock()
+
+    def job(block, out, token, state=None):
+        cache = (C._STATE if state is None else state).get("cache")
+        barrier.wait(timeout=10)  # both threads' blocks at once
+        with lock:
+            seen.setdefault(threading.get_ident(), []).append(id(cache))
+        return []
+
+    monkeypatch.setattr(C, "_job", job)
+
+    def blocks():
+        for b in ([0], [1]):
+            C._dask_job(b, "out", seq, seq.poses, settings, "a" * 32)
+
+    threads = [threading.Thread(target=blocks) for _ in range(2)]
+    for t in threads:
+        t.start()
+    for t in threads:
+        t.join(timeout=30)
+    ids = list(seen.values())
+    assert len(ids) == 2 and all(len(set(i)) == 1 and len(i) == 2 for i in ids), ids  # kept between its blocks
+    assert ids[0][0] != ids[1][0]  # not shared

@@ -427,14 +427,37 @@ def test_rings_far_apart_in_elevation_mesh_the_road_between_them():
     assert moved.sum() > 10 and not (moved[f2].any(axis=1) & ~moved[f2].all(axis=1)).any()
 
 
-def _shuffled_drive(tmp_path):
-    """Three VLP-16 frames of a synthetic drive, each file's points shuffled: no ring field, no scan order."""
+def _shuffled_drive(tmp_path, unit="velodyne_vlp16", n_frames=3):
+    """Three VLP-16 frames of a synthetic drive (or ``n_frames`` of ``unit``), each file's points shuffled:
+    no ring field, no scan order."""
     from slr_ray.sequence import read_sequence
     from slr_ray.sequence.synthetic import synthetic_drive
 
-    synthetic_drive(tmp_path / "seq", n_frames=3, sensor="velodyne_vlp16", step=0.8, moving=False)
+    synthetic_drive(tmp_path / "seq", n_frames=n_frames, sensor=unit, step=0.8, moving=False)
     rng = np.random.default_rng(0)
     for f in sorted((tmp_path / "seq" / "velodyne").glob("*.bin")):
         a = np.fromfile(f, np.float32).reshape(-1, 4)
         a[rng.permutation(len(a))].tofile(f)
     return read_sequence(tmp_path / "seq")
+
+
+def test_convert_meshes_ringless_frames_not_in_scan_order_by_the_bands(tmp_path, capsys):
+    """``sequence convert --estimator embree-rays`` on ring-less HDL-64E frames not in scan order (the
+    benchmark drive's kind): not refused up front (their points fill the table's elevation bands, which
+    mesh: :func:`~slr_ray.sequence.embree_rays.mesh_problem`), every frame written. The up-front refusal
+    of a terrestrial campaign (test_sequence_terrestrial) must not catch them: an earlier refusal by scan
+    order did, and was taken out."""
+    import json
+
+    from conftest import CliRun
+    from slr_ray.sequence.embree_rays import mesh_problem
+
+    seq = _shuffled_drive(tmp_path, "velodyne_hdl64e_s2", n_frames=2)
+    f = seq.read(0)
+    assert mesh_problem(f.points, f.attributes, sensor("velodyne_hdl64e_s2")) is None
+    r = CliRun(capsys)("sequence", "convert", tmp_path / "seq", "--estimator", "embree-rays", "--source-sensor",
+                       "velodyne_hdl64e_s2", "--target-sensor", "velodyne_vlp16", "--half", "1", "-o",
+                       tmp_path / "out", "--quiet")
+    assert r.returncode == 0, r.stderr
+    assert json.loads(r.stdout.strip().splitlines()[-1])["written"] == 2
+    assert len(list((tmp_path / "out" / "velodyne").iterdir())) == 2

@@ -285,3 +285,26 @@ def test_directory_layouts_take_one_trajectory_file_through_one_check():
         one_trajectory("d", ["a", "b"], "an Ouster directory")
     with pytest.raises(InputValueError, match="a KITTI sequence's frames are each in their sensor's frame"):
         one_trajectory("d", "origins", "a KITTI sequence")
+
+
+def test_e57_files_placed_by_their_recorded_poses_keep_their_rotation(tmp_path):
+    """E57 files with --poses origins: each frame in its scanner's own axes, R^T (p - t), its pose's rotation
+    the file's, as an E57 of several scans gives; the rotation was read and dropped (the frame taken in the
+    world's axes: a tilted scanner's rows about the world's z). Failed before."""
+    pye57 = pytest.importorskip("pye57")
+    local = np.random.default_rng(1).normal(size=(40, 3)) * 4
+    half = np.radians(25.0)
+    q = np.array([np.cos(half), np.sin(half), 0.0, 0.0])  # 50 deg about x: a tilted scanner
+    paths = []
+    for k in range(2):
+        paths.append(tmp_path / f"s{k}.e57")
+        e = pye57.E57(str(paths[-1]), mode="w")
+        e.write_scan_raw({"cartesianX": local[:, 0], "cartesianY": local[:, 1], "cartesianZ": local[:, 2]},
+                         name=f"s{k}", translation=np.array([5.0 * k + 1, 2.0, 1.0]), rotation=q)
+        e.close()
+    seq = read_sequence(paths, "origins")
+    c, s = np.cos(2 * half), np.sin(2 * half)
+    np.testing.assert_allclose(seq.poses[1, :3, :3], [[1, 0, 0], [0, c, -s], [0, s, c]], atol=1e-9)
+    np.testing.assert_allclose(seq.poses[:, :3, 3], [[1, 2, 1], [6, 2, 1]])
+    for i in range(2):
+        np.testing.assert_allclose(seq.read(i).points, local, atol=1e-4)

@@ -181,3 +181,70 @@ def test_the_librarys_default_sensor_is_auto_as_the_commands(campaigns):
     assert res["frames"][0]["sensor_kind"] == TERRESTRIAL and res["frames"][0]["in_view_share"] == 1.0
     with pytest.raises(InputValueError, match="name it"):
         evaluate_sequence(seq, [1], methods=["nearest"], half=1, target_sensor="velodyne_vlp16")
+
+
+@pytest.mark.parametrize("register", [False, True])
+def test_convert_refuses_embree_rays_on_terrestrial_frames_up_front(campaigns, tmp_path, capsys, monkeypatch, register):
+    """sequence convert --estimator embree-rays --source-sensor X on a terrestrial campaign: refused in one
+    line before any frame is cast, any chain registered or anything written (failed before: late, with no
+    pulse of the target sensor returned). The rule is the method's (its frame 0 makes no ring mesh by the
+    table's elevation bands: a scan's points a few degrees apart), not the scan order: ring-less spinning
+    frames not in scan order convert (test_sequence_embree_rays)."""
+    from slr_ray.cli import sequence_command
+    from slr_ray.sequence import convert
+
+    from slr_ray.io import PointCloud, write_cloud
+
+    c = campaigns["files"]
+    paths, flags = c["paths"], c["flags"]
+    if register:  # the setups in their own axes (the scanner at the origin), their poses to be registered
+        seq = read_sequence(paths, origins=flags[1])
+        (tmp_path / "own").mkdir()
+        paths = [tmp_path / "own" / f"setup_{i}.ply" for i in range(len(seq))]
+        for i, p in enumerate(paths):
+            write_cloud(p, PointCloud(seq.read(i).points))
+        flags = ["--register"]
+    monkeypatch.setattr(convert, "_convert", lambda *a, **k: pytest.fail("a frame was cast"))
+    monkeypatch.setattr(sequence_command, "register_chain", lambda *a, **k: pytest.fail("the chain was registered"))
+    r = CliRun(capsys)("sequence", "convert", *paths, *flags, "--estimator", "embree-rays",
+                       "--source-sensor", "velodyne_vlp16", "--target-sensor", "ouster_os1_64", "-o", tmp_path / "o")
+    assert r.returncode == 2 and r.stderr.count("\n") == 1, r.stderr
+    assert "make no triangle of a ring mesh" in r.stderr and "velodyne_vlp16's elevation bands" in r.stderr
+    assert not (tmp_path / "o").exists()
+
+
+@pytest.mark.parametrize("shuffled", [False, True])
+def test_auto_takes_a_ringless_drive_of_another_unit_for_spinning(tmp_path, shuffled):
+    """sensor="auto" (sequence evaluate without --source-sensor) on a ring-less VLP-16 drive: spinning on
+    VLP-16's table, found by its 16-ring scan order or, its points shuffled, by its elevation bands (failed
+    before: decided by HDL-64E's scan order alone, it was terrestrial); a terrestrial scan stays terrestrial."""
+    from slr_ray.sensors import sensor
+    from slr_ray.sequence.synthetic import synthetic_drive
+    from slr_ray.sequence.terrestrial import SPINNING, auto_sensor
+
+    synthetic_drive(tmp_path / "seq", n_frames=3, sensor="velodyne_vlp16", step=0.8, moving=False)
+    if shuffled:
+        rng = np.random.default_rng(0)
+        for f in sorted((tmp_path / "seq" / "velodyne").glob("*.bin")):
+            a = np.fromfile(f, np.float32).reshape(-1, 4)
+            a[rng.permutation(len(a))].tofile(f)
+    seq = read_sequence(tmp_path / "seq")
+    import warnings
+
+    with warnings.catch_warnings():
+        warnings.simplefilter("error")  # its beams known (scan order, or its bands): no "beams not known"
+        res = evaluate_sequence(seq, [1], methods=["nearest"], half=1)
+    frame = res["frames"][0]
+    assert frame["sensor_kind"] == SPINNING and "velodyne_vlp16's beam table fitted to the frame" in frame["grid"]
+    assert frame["in_view_share"] > 0.99
+    scan = corridor_campaign(tmp_path / "c", resolution=RESOLUTION, form="files")
+    t = read_sequence(scan["paths"], origins=scan["flags"][1])
+    assert auto_sensor(t.read(0).points, {}) is None
+    assert auto_sensor(seq.read(0).points, {}).elevation_deg == sensor("velodyne_vlp16").elevation_deg
+    # a scan of 38 rows stored row after row is in the scan order of 38 rings, a Pandar40P's count, but
+    # its rows span 58 to -89 deg: not that unit (the docs' 4-deg corridor)
+    rows = np.radians(np.r_[np.arange(58.0, -87.0, -4.0), -89.0])
+    az = np.radians(np.arange(0.0, 360.0, 4.0))
+    el, a = np.repeat(rows, len(az)), np.tile(az, len(rows))
+    scan = 5 * np.column_stack([np.cos(el) * np.cos(a), np.cos(el) * np.sin(a), np.sin(el)])
+    assert len(rows) == sensor("hesai_pandar40p").n_beams and auto_sensor(scan, {}) is None

@@ -204,8 +204,12 @@ def _warn_self_check(a, b, clouds) -> None:
 def _evaluate(args, out, transform, extrinsic):
     clouds = [read_cloud(p, args.input_format, allow_empty=False) for p in (args.a, args.b)]
     frames = []  # each in its sensor's frame: a file that records its scanner's position (.npz, .pcd, .e57)
-    for c in clouds:  # holds world coordinates, moved to that position in float64
-        frames.append(c.points - np.asarray(c.origin, np.float64) if c.origin is not None else c.points)
+    for c in clouds:  # holds world coordinates, moved to that position in float64, and turned into the
+        # scanner's own axes where the file records them (an E57 pose's rotation: its beams' elevations are
+        # about the scanner's axis, not the world's z)
+        own = c.points - np.asarray(c.origin, np.float64) if c.origin is not None else c.points
+        rot = c.meta.get("e57_rotation")
+        frames.append(own @ np.asarray(rot, np.float64) if rot is not None and c.origin is not None else own)
     beams = [_beams(c, args.beams, f"frame {k} ({p})") for c, k, p in zip(clouds, "AB", (args.a, args.b))]
     try:
         res = evaluate_pair(frames[0], frames[1], a_beams=beams[0], b_beams=beams[1],
@@ -236,7 +240,9 @@ def _evaluate(args, out, transform, extrinsic):
                                      "target_sensor": args.target_sensor or args.source_sensor,
                                      "transform": args.transform, "extrinsic": args.extrinsic, "beams": args.beams,
                                      "origins": [None if c.origin is None else np.asarray(c.origin).tolist()
-                                                 for c in clouds], "other_files_in_directory": foreign})
+                                                 for c in clouds],
+                                     "rotations": [c.meta.get("e57_rotation") if c.origin is not None else None
+                                                   for c in clouds], "other_files_in_directory": foreign})
     paths["figure"] = str(out / EVALUATION_FILES["figure"])
     save_figure(evaluation_figure(res), paths["figure"])
     emit({"a": str(args.a), "b": str(args.b), "output_dir": str(out), "files": paths,

@@ -18,6 +18,7 @@ from ..sequence import (REMOVE_MOVING, SeeThrough, convert_sequence, evaluate_se
                         read_trajectory, register_chain, write_kitti_poses)
 from ..sequence.holdout import (GRID_SOURCES, check_held_out_kinds, lidar4d_holdout,
                                one_frame_refusal)
+from ..sequence.convert import check_source_frame
 from ..sequence.terrestrial import AUTO
 from ..sequence.methods import REGISTRY, method_options, methods_with, option_keys
 from . import arguments as A
@@ -124,8 +125,9 @@ def add_sequence_parser(sub) -> None:
     q.add_argument("--source-sensor", type=A.sensor_name, metavar="NAME",
                    help=f"the frames' sensor, a spinning unit's (fitted to each held-out frame; --sensor, its old "
                         f"name, still works); not given: a frame with a ring field or in {SOURCE_SENSOR}'s scan "
-                        "order (KITTI's) is scored on that table, any other (a terrestrial scanner's) on a uniform "
-                        "grid fitted to it; the output says which")
+                        "order (KITTI's) is scored on that table, a ring-less one in another shipped sensor's scan "
+                        "order or elevation bands on that sensor's, any other (a terrestrial scanner's) on a "
+                        "uniform grid fitted to it; the output says which")
     _deprecated_sensor(q)
     q.add_argument("--target-sensor", type=A.sensor_name, metavar="NAME|CARD",
                    help="the held-out frames' own unit where it is not the source's (" + A.SENSOR_HELP + "): each "
@@ -153,9 +155,11 @@ def add_sequence_parser(sub) -> None:
                    help="the input frames' own sensor (fitted to each frame whose beams are known: a ring field "
                         "or a KITTI .bin's order), for --remove-moving visibility and --estimator embree-sources")
     q.add_argument("--offset", nargs=3, type=A.finite_float, default=[0.0, 0.0, 0.0], metavar=("DX", "DY", "DZ"),
-                   help="the target sensor's offset in each frame's own axes (m)")
+                   help="the target sensor's offset in each frame's own axes (m); with --target-poses, in each "
+                        "target pose's own axes (both applied)")
     q.add_argument("--target-poses", help="a trajectory of target poses (one a frame) instead of the frames' poses "
-                                           "(for a KITTI directory, KITTI form is the camera's, as its poses.txt)")
+                                           "(for a KITTI directory, KITTI form is the camera's, as its poses.txt); "
+                                           "--offset moves each in its own axes; poses.txt holds the poses cast from")
     q.add_argument("--format", default="bin", help="frame format (default bin: KITTI; others carry a ring field)")
     q.add_argument("--workers", type=A.positive_int, default=1, help="worker processes (default 1)")
     q.add_argument("--scheduler", metavar="ADDRESS",
@@ -321,6 +325,8 @@ def sequence(args):
             raise InputValueError("sequence convert has no --force: it resumes its own run by itself and never "
                                   "writes over what it did not write; write elsewhere, or remove the directory "
                                   "to start again")
+        if args.register:  # before registering (convert_sequence checks it where the poses are given)
+            check_source_frame(seq, args.estimator, args.source_sensor, args.method_options)
         for name in ("manifest.json", "poses.txt", "calib.txt", "journal.jsonl"):
             plan.write(out / name, sidecars=False, resumed=True)
         with plan:

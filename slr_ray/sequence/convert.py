@@ -40,6 +40,7 @@ import signal
 import warnings
 from contextlib import ExitStack
 from dataclasses import dataclass
+import threading
 import time
 import uuid
 from collections.abc import Sequence as SequenceABC
@@ -60,7 +61,7 @@ from .methods import REGISTRY, TargetFrame, method, method_options, methods_with
 from .sources import SeeThrough, base_pattern, source_sensor_problem
 from .union import FrameCache, Keep, window
 
-__all__ = ["ConvertOptions", "convert_sequence", "target_poses", "MANIFEST", "JOURNAL", "CONVERT_ESTIMATORS"]
+__all__ = ["ConvertOptions", "convert_sequence", "check_source_frame", "target_poses", "MANIFEST", "JOURNAL", "CONVERT_ESTIMATORS"]
 
 
 
@@ -160,10 +161,11 @@ def _cache_frames(settings, st) -> int:
     return 2 * settings["cache"] + 16 + extra
 
 
-def _init(seq, poses, settings):
+def _init(seq, poses, settings, state=None):
+    """Set up a process's conversion state (``state``: a Dask worker thread's own instead)."""
     _SAID.clear()  # a conversion's writer warnings said once each (_write_frame)
     st = _see_through(settings)
-    _STATE.update(seq=seq, poses=poses, settings=settings, pattern=shipped_sensor(settings["sensor"]),
+    (_STATE if state is None else state).update(seq=seq, poses=poses, settings=settings, pattern=shipped_sensor(settings["sensor"]),
                   cache=FrameCache(seq, _cache_frames(settings, st), local=False))
 
 
@@ -205,15 +207,23 @@ def _span_job(span, out, token) -> int:
     return len(span)
 
 
+#: a Dask worker thread's own conversion state (:func:`_dask_job`)
+_THREAD = threading.local()
+
+
 def _dask_job(block, out, seq, poses, settings, token, after=None) -> list:
-    """A block on a Dask worker: the worker's state set up by its first block of this conversion
+    """A block on a Dask worker: the worker thread's state set up by its first block of this conversion
     (``token``), then kept (its frames cache) for the next blocks it gets; ``after``: the block
-    before it in its chain (:func:`_dask_chains`), whose result is not used."""
-    if _STATE.get("token") != token:
-        _STATE.clear()
-        _init(seq, poses, settings)
-        _STATE["token"] = token
-    return _job(block, out, token)
+    before it in its chain (:func:`_dask_chains`), whose result is not used. Each thread of a worker
+    (``--nthreads``) holds its own state: one frames cache (not thread-safe) shared by its threads was
+    cleared, set up and read by two blocks at once (two conversions' too)."""
+    state = getattr(_THREAD, "state", None)
+    if state is None or state.get("token") != token:
+        state = {}
+        _init(seq, poses, settings, state)
+        state["token"] = token
+        _THREAD.state = state
+    return _job(block, out, token, state)
 
 
 def _dask_chains(blocks, workers: int, size: int) -> list:
@@ -234,11 +244,11 @@ def _stage(out, token) -> Path:
     return Path(out) / f"{STAGE_PREFIX}{token}"
 
 
-def _job(block, out, token) -> list:
+def _job(block, out, token, state=None) -> list:
     """Convert the frames of ``block`` into the run's staging directory (never under a final
     name: a worker of an interrupted run that goes on writing writes only there, and that
     directory is gone or never published). Each entry says what to publish (``_staged``)."""
-    s = _STATE
+    s = _STATE if state is None else state  # (a Dask worker thread's own: _dask_job)
     stage = _stage(out, token)
     fmt = s["settings"]["format"]
     done = []
@@ -494,6 +504,46 @@ class ConvertOptions(Options):
     method_options: dict | None = None
 
 
+def _input_format(seq) -> str | None:
+    """The format the frames are read as (``--input-format``), where it is not the one each frame's name
+    says (None: as named): a rerun reading them as another format (a ``.bin`` as nuScenes' five floats,
+    not KITTI's four) makes other frames of the same files, so it is a setting a resume compares."""
+    if not seq.input_format:
+        return None
+    fmt = check_format(seq.paths[0], seq.input_format)
+    named = []
+    for p in seq.paths:
+        try:
+            named.append(check_format(p))
+        except SlrError:
+            return fmt
+    return None if set(named) == {fmt} else fmt
+
+
+def check_source_frame(seq: Sequence, estimator: str, source_sensor, given_options=None, frame=None) -> None:
+    """Refuse, before any frame is cast or file written, an estimator that can do nothing with the
+    sequence's first frame (``frame``, read if not given) of the source sensor ``source_sensor`` (``given_options``: the
+    methods' options by flat key)
+    (:meth:`~slr_ray.sequence.methods.SequenceMethod.source_problem`): ``embree-rays`` on frames that
+    make no ring mesh by the beams it finds (a ring field, the scan order, else the table's elevation
+    bands): a terrestrial campaign's scans, which failed late with no pulse returned. Frames not in
+    the scan order that fill the bands (a spinning unit's, shuffled) mesh and are not refused."""
+    m = method(estimator, "convert", what="estimator")
+    if not m.needs_source_sensor or source_sensor is None:
+        return
+    if frame is None:
+        pts, attrs = seq.layout.frame(seq, 0)  # its own axes; no pose needed (before registering)
+    else:
+        pts, attrs = frame.points, frame.attributes
+    base = shipped_sensor(source_sensor)
+    why = m.source_problem(pts, attrs, base, m.options.from_flat(method_options(given_options)))
+    if why is not None:
+        raise InputValueError(f"frame {seq.names[0]} ({seq.paths[0]}): {why}: the {estimator} estimator needs "
+                              f"{base.name}'s beams in the frames ({m.source_why}) and would return no pulse; name "
+                              "the frames' own sensor (--source-sensor), or use an estimator without it (nearest, "
+                              "fpa, embree-knn)")
+
+
 def convert_sequence(seq: Sequence, out, sensor: str, options: ConvertOptions | None = None, *, poses=None,
                      progress: bool = False, inputs: dict | None = None, **keywords) -> dict:
     """Write ``seq`` re-simulated as ``sensor`` into the directory ``out`` (module docstring).
@@ -521,6 +571,9 @@ def convert_sequence(seq: Sequence, out, sensor: str, options: ConvertOptions | 
                 "offset": [float(x) for x in offset], "drop_moving": bool(drop_moving), "format": fmt.lstrip("."),
                 "fpa_gap": float(flat["fpa_gap"]), "frames": [], "poses": np.round(P, 12).reshape(len(P), -1).tolist(),
                 "cache": int(half or 8)}
+    given = _input_format(seq)
+    if given is not None:  # only where it reads the frames otherwise than their names say (as method options)
+        settings["input_format"] = given
     fields = {f.name for f in dataclasses.fields(ConvertOptions)}
     extra = {k: v for k, v in (o.method_options or {}).items() if k not in fields}
     if extra:  # only where given: a manifest written before method options resumes as it was
@@ -537,6 +590,7 @@ def convert_sequence(seq: Sequence, out, sensor: str, options: ConvertOptions | 
                               f"--source-sensor): {m.source_why}")
     probe = seq.read(0) if source_sensor is not None else None
     if source_sensor is not None:
+        check_source_frame(seq, estimator, source_sensor, flat, probe)
         why = source_sensor_problem(probe.points, probe.attributes, shipped_sensor(source_sensor))
         if why is not None:  # its rays (see-through) and pulse grids (embree-sources) are then the table's
             warnings.warn(f"frame {seq.names[0]}: {why}: are the frames of this sensor (source_sensor, "

@@ -64,6 +64,7 @@ from .union import Keep, rotate
 
 __all__ = ["frame_mesh", "MeshFrames", "rays_of_model", "cast_embree_rays", "mesh_range_bias", "union_meshes",
            "frame_beams", "fit_embree_model", "fill_missing", "frame_surface", "frame_points_beams", "frame_ray_model",
+           "mesh_problem",
            "combined_model", "with_azimuth_phases", "table_unfitted", "ratio_widening", "elevation_rows", "MAX_RATIO", "MAX_STEP_DEG", "MAX_STEP_COLUMNS", "EMBREE_GAP", "WEAK_RATIO"]
 
 #: every this many points of a frame fitted for its own lasers' lines (frame_ray_model)
@@ -468,6 +469,30 @@ def frame_points_beams(cache, i: int, base) -> tuple[np.ndarray, np.ndarray | No
         return pts, np.where(keys >= 0, keys // base.columns, -1), False
 
     return cache.state(int(i), ("embree-rays beams", _base_key(base)), make)
+
+
+def mesh_problem(points, attributes, base, max_ratio: float = MAX_RATIO) -> str | None:
+    """Why a frame (``points`` in its own axes, its ``attributes``) gives no ring mesh with ``base``'s table
+    (None where it gives one): the beams :func:`frame_points_beams` finds (a ``ring`` field, the scan order,
+    else the rows of ``base``'s elevation bands its points fall in) meshed as :func:`frame_surface` meshes
+    them, with no triangle. A terrestrial scan's points fill the bands a few degrees apart in azimuth, over
+    a triangle's reach (:data:`MAX_STEP_COLUMNS`): no triangle, and no pulse returns; a spinning unit's
+    frame, in scan order or not, meshes. One frame's mesh, without its Embree scene: a cheap up-front check."""
+    pts = np.asarray(points, np.float64)
+    beams = known_beams(pts, attributes, base)
+    known = beams is not None
+    if not known and len(pts):
+        keys, _ = base.pulse_ids(pts, np.zeros(3))
+        beams = np.where(keys >= 0, keys // base.columns, -1)
+    if beams is None or not (beams >= 0).any():
+        return f"none of its points lies in {base.name}'s elevation bands (no ring field, not in its scan order)"
+    rows = elevation_rows(pts, beams) if known else beams
+    faces, _ = frame_mesh_spread(pts, rows, int(rows.max()) + 1, max_ratio, _step_deg(base.columns))
+    if len(faces):
+        return None
+    how = "its rings" if known else f"{base.name}'s elevation bands (no ring field, not in its scan order)"
+    return (f"its points, by {how}, make no triangle of a ring mesh (points of a ring over "
+            f"{_step_deg(base.columns):.2g} deg apart in azimuth: a terrestrial scan's?)")
 
 
 def elevation_rows(points, beams) -> np.ndarray:

@@ -41,8 +41,9 @@ from .frames import Sequence
 from .methods import (LABELS, REGISTRY, HeldOut, adjacent_frame, check_methods, holdout_ray_model, method_options,
                       methods_with)
 from .methods import method as registered_method
-from .sources import SeeThrough, known_beams
-from .terrestrial import AUTO, DEFAULT_SPINNING, SPINNING, TERRESTRIAL, ScoringGrid, is_terrestrial, sensor_kind, terrestrial_grid
+from .sources import BEAMS_FROM_BANDS, SeeThrough, known_beams
+from .terrestrial import (AUTO, DEFAULT_SPINNING, SPINNING, TERRESTRIAL, ScoringGrid, auto_sensor, is_terrestrial,
+                          sensor_kind, terrestrial_grid)
 from .union import FrameCache, Keep, accumulate, to_frame, window
 
 __all__ = ["METHODS", "LABELS", "HoldoutOptions", "evaluate_holdout", "evaluate_sequence", "mean_rows", "DEFAULT_METHODS",
@@ -263,14 +264,19 @@ def _reach_columns(parts, rows_out, pat, sim, img, thresholds, res) -> dict:
 def scoring_grid(seq: Sequence, target: int, frame, sensor, grid_from: str, others, cache: FrameCache) -> ScoringGrid:
     """The held-out frame's scoring grid (:class:`~slr_ray.sequence.terrestrial.ScoringGrid`): ``sensor`` a
     beam table (or its name, a card): spinning, that table fitted to the frame (or to ``others``); ``"auto"``:
-    spinning on :data:`~slr_ray.sequence.terrestrial.DEFAULT_SPINNING` where the frame is in its scan order
-    or has a ring field, else terrestrial; ``"terrestrial"``: a uniform grid fitted to the frame (or to the
+    spinning on the shipped table :func:`~slr_ray.sequence.terrestrial.auto_sensor` finds (a ring field,
+    a shipped sensor's scan order or elevation bands), else terrestrial; ``"terrestrial"``: a uniform grid fitted to the frame (or to the
     adjacent frame of ``others``)."""
     if isinstance(sensor, str) and sensor == AUTO:
-        default = shipped_sensor(DEFAULT_SPINNING)
         what = (f"frame {seq.names[target]} ({seq.paths[target]}), read with the default {DEFAULT_SPINNING}'s table "
                 "(no --source-sensor named)")
-        sensor = default if sensor_kind(frame.points, frame.attributes, default, what) == SPINNING else TERRESTRIAL
+        found = auto_sensor(frame.points, frame.attributes, what)
+        sensor = found if found is not None else TERRESTRIAL
+        if found is not None and grid_from != "others" and found.meta.get("beams_from") == BEAMS_FROM_BANDS:
+            beams = known_beams(frame.points, frame.attributes, found)  # found by its bands: they are its beams
+            return ScoringGrid(SPINNING, fitted_pattern(frame.points, beams, found), beams, found,
+                               f"spinning: {found.name}'s beam table fitted to the frame (no ring field, not in "
+                               "scan order: its points on that table's elevation bands, its beams)")
     if is_terrestrial(sensor):
         own = grid_from == "target"
         source = frame if own else cache.get(adjacent_frame(others, target))[0]
@@ -307,7 +313,8 @@ def _check_kind(grid: ScoringGrid, methods, see_through=None) -> None:
 
 def beamless_frames(seq: Sequence, frames, base, until_known: bool = False) -> list:
     """The names of the frames ``frames`` whose beams ``base``'s table does not know (no ring field, not in
-    its scan order: :func:`~slr_ray.sequence.terrestrial.sensor_kind` terrestrial); ``until_known``: stop at
+    its scan order: :func:`~slr_ray.sequence.terrestrial.sensor_kind` terrestrial; ``base`` None: no shipped
+    table, :func:`~slr_ray.sequence.terrestrial.auto_sensor`); ``until_known``: stop at
     the first frame it knows. A frame whose header holds a ``ring`` field is known without reading it
     (:meth:`~slr_ray.sequence.layouts.FrameSource.fields`); any other is read, its points only."""
     flat = []
@@ -317,7 +324,10 @@ def beamless_frames(seq: Sequence, frames, base, until_known: bool = False) -> l
             kind = SPINNING
         else:
             pts, attrs = seq.layout.frame(seq, h)
-            kind = sensor_kind(pts, attrs, base)
+            if base is None:
+                kind = SPINNING if auto_sensor(pts, attrs) is not None else TERRESTRIAL
+            else:
+                kind = sensor_kind(pts, attrs, base)
         if kind == TERRESTRIAL:
             flat.append(seq.names[h])
         elif until_known:
@@ -328,20 +338,19 @@ def beamless_frames(seq: Sequence, frames, base, until_known: bool = False) -> l
 def check_held_out_kinds(seq: Sequence, holdout, sensor, methods, see_through=None) -> None:
     """With ``sensor`` ``"auto"``, refuse up front (before any window is read, any grid fitted, any frame
     registered) the methods and the see-through removal that need the frames' beam table where a held-out
-    frame is terrestrial (:func:`_check_kind`'s refusal, naming the frames): :func:`beamless_frames` in
-    :data:`~slr_ray.sequence.terrestrial.DEFAULT_SPINNING`'s table, as :func:`scoring_grid` decides."""
+    frame is terrestrial (:func:`_check_kind`'s refusal, naming the frames): :func:`beamless_frames` in no
+    shipped table (:func:`~slr_ray.sequence.terrestrial.auto_sensor`), as :func:`scoring_grid` decides."""
     if not (isinstance(sensor, str) and sensor == AUTO):
         return
     if see_through is None and not any(REGISTRY[m].needs_source_sensor for m in methods if m in REGISTRY):
         return
-    default = shipped_sensor(DEFAULT_SPINNING)
-    flat = beamless_frames(seq, holdout, default)
+    flat = beamless_frames(seq, holdout, None)
     if flat:
         try:
             _check_kind(ScoringGrid(TERRESTRIAL, None, None, None, "terrestrial"), methods, see_through)
         except InputValueError as exc:
-            raise InputValueError(f"held-out frame(s) {', '.join(flat)} (no ring field, not in {default.name}'s "
-                                  f"scan order): {exc}") from None
+            raise InputValueError(f"held-out frame(s) {', '.join(flat)} (no ring field, in no shipped sensor's "
+                                  f"scan order or elevation bands): {exc}") from None
 
 
 def evaluate_holdout(seq: Sequence, target: int, options: HoldoutOptions | None = None, *,

@@ -16,8 +16,10 @@ points in its view). Two kinds of sensor (:data:`KINDS`):
     centres (:func:`slr_ray.sequence.rays.cast_grid_rays`).
 
 ``sensor="auto"`` (:data:`AUTO`; ``sequence evaluate`` without ``--source-sensor``) decides for
-each held-out frame (:func:`sensor_kind`): a frame with a ``ring`` field or in the scan order of
-:data:`DEFAULT_SPINNING` (KITTI's) is spinning, on that table, as before; any other frame is
+each held-out frame (:func:`auto_sensor`): a frame with a ``ring`` field or in the scan order of
+:data:`DEFAULT_SPINNING` (KITTI's) is spinning, on that table, as before; a ring-less frame in the scan
+order of another shipped sensor (a VLP-16's ``.bin``: 16 rings), or whose points lie on a shipped
+sensor's elevation bands (not in scan order), is spinning on that sensor's table; any other frame is
 terrestrial. A frame that is neither (no ring, no scan order, no uniform grid holds it as a scan)
 is refused, naming ``--source-sensor``.
 """
@@ -30,9 +32,11 @@ import numpy as np
 
 from ..backends.embree.fit import FIT_MIN_SINGLE, fit_primary_pattern, fit_quality
 from ..errors import InputValueError
-from .sources import known_beams
+from ..sensors import SENSORS, scan_order_beams
+from ..sensors import sensor as shipped_sensor
+from .sources import BEAMS_FROM_BANDS, known_beams
 
-__all__ = ["AUTO", "SPINNING", "TERRESTRIAL", "KINDS", "DEFAULT_SPINNING", "ScoringGrid", "sensor_kind",
+__all__ = ["AUTO", "SPINNING", "TERRESTRIAL", "KINDS", "DEFAULT_SPINNING", "ScoringGrid", "sensor_kind", "auto_sensor",
            "terrestrial_grid", "is_terrestrial", "column_phase", "turn"]
 
 #: decide the kind from each held-out frame (``--source-sensor`` not given)
@@ -92,6 +96,72 @@ def sensor_kind(points, attributes, base, what: str = "a frame") -> str:
     """:data:`SPINNING` where the frame's beams are known in ``base``'s table (a ``ring`` field, its
     scan order), else :data:`TERRESTRIAL` (a ring field outside the table refused naming ``what``)."""
     return SPINNING if known_beams(points, attributes, base, what) is not None else TERRESTRIAL
+
+
+#: a ring-less frame not in scan order is a shipped sensor's where this share of its points lies within
+#: :data:`BAND_TOLERANCE_DEG` (or a quarter of the table's least beam spacing) of one of its beams' elevations
+BAND_SHARE = 0.9
+#: a frame in the scan order of a shipped table's ring count is that sensor's where its rings' median
+#: elevations lie within this of the table's (median over the rings; another unit of the model: tenths)
+SCAN_ORDER_TOLERANCE_DEG = 1.0
+BAND_TOLERANCE_DEG = 0.1
+
+
+def auto_sensor(points, attributes, what: str = "a frame"):
+    """The shipped sensor's table a frame's beams are known in, for ``sensor="auto"`` (module docstring);
+    None: terrestrial. A ``ring`` field or :data:`DEFAULT_SPINNING`'s scan order: that table (a ring
+    field outside it refused naming ``what``); else the shipped table of the frame's ring count in whose
+    scan order it is, its rings' elevations near the table's (:data:`SCAN_ORDER_TOLERANCE_DEG`; several:
+    the nearest); else the table
+    on whose elevation bands its points lie (:data:`BAND_SHARE`), marked as giving its beams by its bands
+    (``meta["beams_from"]``: :func:`~slr_ray.sequence.sources.known_beams`). Decided by HDL-64E's scan
+    order alone, a ring-less VLP-16 drive was terrestrial."""
+    default = shipped_sensor(DEFAULT_SPINNING)
+    if known_beams(points, attributes, default, what) is not None:
+        return default
+    p = np.asarray(points, np.float64)
+    if len(p) < 2:
+        return None
+    tables = [shipped_sensor(name) for name in SENSORS]
+    u = np.unwrap(np.arctan2(p[:, 1], p[:, 0]))
+    n = int(np.floor((u.max() - u[0]) / (2 * np.pi) + 1e-9)) + 1  # the rings, were it in scan order
+    same = [t for t in tables if t.n_beams == n]
+    rings = scan_order_beams(p, n) if same else None
+    el = np.degrees(np.arctan2(p[:, 2], np.hypot(p[:, 0], p[:, 1])))
+    az = np.arctan2(p[:, 1], p[:, 0])
+    if rings is not None:
+        cut = np.searchsorted(rings, np.arange(n + 1))
+        med = np.array([np.median(el[a:b]) for a, b in zip(cut[:-1], cut[1:])])  # highest first
+        cols = _columns(az, rings)
+        off = {t.name: float(np.median(np.abs(np.sort(t.elevation_deg)[::-1] - med))) for t in same}
+        near = [t for t in same if off[t.name] <= SCAN_ORDER_TOLERANCE_DEG]  # a scan of 38 rows is no Pandar40P
+        if near:
+            return min(near, key=lambda t: (round(off[t.name], 2), abs(np.log(cols / t.columns))))
+    fits = []
+    for t in tables:
+        e = np.sort(np.asarray(t.elevation_deg, np.float64))
+        if len(e) < 2:
+            continue
+        tol = min(BAND_TOLERANCE_DEG, float(np.min(np.diff(e))) / 4)
+        k = np.clip(np.searchsorted(e, el), 1, len(e) - 1)
+        near = np.where(np.abs(el - e[k]) < np.abs(el - e[k - 1]), k, k - 1)
+        on = np.abs(el - e[near]) <= tol
+        share = float(np.mean(on))
+        if share >= BAND_SHARE:  # tables of one fan (a VLP-16's, an XT16's): the nearer column count
+            fits.append(((-round(share, 2), abs(np.log(_columns(az[on], near[on]) / t.columns))), t))
+    if not fits:
+        return None
+    best = min(fits, key=lambda f: f[0])[1]
+    return best.with_(meta={**best.meta, "beams_from": BEAMS_FROM_BANDS})
+
+
+def _columns(az, rings) -> float:
+    """Columns a turn from the median azimuth step between points of one ring next in azimuth."""
+    o = np.lexsort((az, rings))
+    a, r = az[o], rings[o]
+    d = np.diff(a)[(np.diff(r) == 0)]
+    d = d[d > 1e-9]
+    return float(2 * np.pi / np.median(d)) if len(d) else 1.0
 
 
 def terrestrial_grid(points, what: str, turn_columns: bool = True) -> tuple:

@@ -8,7 +8,8 @@ frames named by their times, ``1630577758.569490.pcd``: each frame the pose of i
 
 Or the files in one world frame (:class:`WorldFiles`), each frame moved to its scanner's origin
 when read (its axes the world's): the origins a text file gives (``x y z`` a line), or
-``poses="origins"``, those the files record (``.npz`` origin, ``.pcd`` VIEWPOINT, ``.e57`` pose).
+``poses="origins"``, those the files record (``.npz`` origin, ``.pcd`` VIEWPOINT, ``.e57`` pose; an
+E57 pose's rotation gives the frame its scanner's axes, as an E57 of several scans does).
 A file that records none, or files that all record 0, 0, 0 (the readers' default), are refused.
 """
 
@@ -20,7 +21,7 @@ import numpy as np
 
 from ...errors import InputValueError
 from ...io import read_cloud
-from ..poses import frame_stamps, read_origins, read_pose_files, read_trajectory
+from ..poses import check_pose, frame_stamps, read_origins, read_pose_files, read_trajectory
 from .base import FrameSource, Sequence, SequenceInputs
 
 __all__ = ["FileList", "WorldFiles", "LAYOUT", "read_file_list", "frame_files"]
@@ -69,15 +70,19 @@ class WorldFiles(FrameSource):
 
     def frame(self, seq, i):
         c = read_cloud(seq.paths[i], seq.input_format, allow_empty=False)
-        return c.points - seq.poses[i][:3, 3], dict(c.attributes)
+        T = seq.poses[i]  # its axes the world's, or an E57 pose's rotation's (poses 'origins'): R^T (p - t)
+        own = c.points - T[:3, 3]
+        return (own if np.array_equal(T[:3, :3], np.eye(3)) else own @ T[:3, :3]), dict(c.attributes)
 
     def trajectory(self, seq, path):
         raise InputValueError(f"{path}: frames in one world frame are placed by their origins, not a trajectory")
 
 
-def _recorded_origins(files, input_format) -> np.ndarray:
+def _recorded_origins(files, input_format, rotations=None) -> np.ndarray:
     """The scanner origin each file records; one that records none refused, as are two or more at
-    exactly 0, 0, 0 (the readers' default where a file holds no origin: a .bin, a PCD's VIEWPOINT)."""
+    exactly 0, 0, 0 (the readers' default where a file holds no origin: a .bin, a PCD's VIEWPOINT).
+    ``rotations`` (an ``(n, 3, 3)`` array): each file's recorded axes set there (an E57 pose's rotation,
+    as the E57 layout takes a scan's; it was dropped: the scan taken in the world's axes)."""
     out = np.zeros((len(files), 3))
     for i, p in enumerate(files):
         c = read_cloud(p, input_format, allow_empty=False)
@@ -85,6 +90,9 @@ def _recorded_origins(files, input_format) -> np.ndarray:
             raise InputValueError(f"{p}: records no scanner origin (poses 'origins' needs one in every file: "
                                   ".npz origin, .pcd VIEWPOINT, .e57 pose)")
         out[i] = np.asarray(c.origin, np.float64)
+        if rotations is not None and c.meta.get("e57_rotation") is not None:
+            rot = np.column_stack([c.meta["e57_rotation"], np.zeros(3)])
+            rotations[i] = check_pose(rot, f"{p}'s E57 pose")[:3, :3]
     at_zero = np.flatnonzero(~out.any(axis=1))
     if len(at_zero) > 1 or len(at_zero) == len(files):
         raise InputValueError(f"{files[at_zero[0]]}: records no scanner origin (0, 0, 0, as {len(at_zero)} of the "
@@ -109,7 +117,9 @@ def read_file_list(paths, trajectory=None, input_format: str | None = None, orig
         if origins is not None:
             poses[:, :3, 3] = read_origins(origins, len(files))
             return Sequence(files, poses, names, "origins file", None, input_format, WorldFiles(), [origins])
-        poses[:, :3, 3] = _recorded_origins(files, input_format)
+        rotations = poses[:, :3, :3].copy()
+        poses[:, :3, 3] = _recorded_origins(files, input_format, rotations)
+        poses[:, :3, :3] = rotations
         return Sequence(files, poses, names, "origins", None, input_format, WorldFiles())
     if isinstance(trajectory, (list, tuple)):  # one pose file a frame
         if len(trajectory) != len(files):

@@ -191,6 +191,12 @@ class SequenceMethod:
     source_why: ClassVar[str] = ""
     info: ClassVar[str | None] = None
 
+    def source_problem(self, points, attributes, base, options) -> str | None:
+        """Why the method can do nothing with a frame (``points`` in its own axes, its ``attributes``)
+        of the source sensor ``base`` (None: it can): a conversion checks its first frame with it before
+        any frame is cast (``needs_source_sensor`` methods)."""
+        return None
+
     def sequence_state(self, seq: Sequence, cache: FrameCache, options):
         """What the method builds once for the sequence ``seq`` (module docstring); None: nothing."""
         return None

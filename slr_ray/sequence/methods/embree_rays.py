@@ -13,7 +13,7 @@ import numpy as np
 
 from ...errors import InputValueError
 from ..embree_rays import (EMBREE_GAP, MAX_RATIO, WEAK_RATIO, MeshFrames, cast_embree_rays, fill_missing,
-                           fit_embree_model, union_meshes, with_azimuth_phases)
+                           fit_embree_model, mesh_problem, union_meshes, with_azimuth_phases)
 from ..rays import frame_motion, pattern_ray_model
 from ..union import to_frame
 from .base import HeldOut, MethodOptions, SequenceMethod, TargetFrame
@@ -81,6 +81,9 @@ class EmbreeRays(SequenceMethod):
     needs_source_sensor = True
     source_why = "their meshes join their own sensor's rings"
     info = "ray_model"
+
+    def source_problem(self, points, attributes, base, options: EmbreeRaysOptions):
+        return mesh_problem(points, attributes, base, options.max_ratio)
 
     def simulate(self, held: HeldOut, options: EmbreeRaysOptions):
         model, surfaces = fit_embree_model(held.seq, held.others, held.base, held.cache, held.drop_moving,
