@@ -60,6 +60,7 @@ def fit_primary_pattern(points, origin, min_quality: float = FIT_MIN_SINGLE):
     base = sensor(FIT_SENSOR)
     beams = scan_order_beams(p, base.n_beams)
     if beams is not None:
+        beams = np.asarray(base.beam_of_row)[beams]  # rows to the table's beam ids (fitted_pattern's, pulse_ids')
         pattern = fitted_pattern(p, beams, base)
         quality = fit_quality(p, pattern, beams)
         how = f"beam table: {FIT_SENSOR} fitted to the cloud's {base.n_beams} rings (scan order)"
