@@ -352,7 +352,7 @@ def test_the_method_name_check_sees_comparisons():
 #: The layers of docs/architecture.md, bottom up: a module imports only modules of its own
 #: layer or below (the package's ``__init__`` sits above them all).
 LAYERS = (
-    ("base", {"errors", "arrays", "threads", "paper", "progress", "options"}),
+    ("base", {"errors", "arrays", "threads", "paper", "progress", "options", "lazy"}),
     ("input/output", {"io"}),
     ("core", {"core"}),
     ("patterns", {"pattern", "sensors", "spherical", "scan"}),

@@ -43,11 +43,14 @@ from dataclasses import dataclass
 
 import numpy as np
 from numba import njit
-from scipy.spatial import cKDTree
 
+from .. import lazy
 from ..errors import InputValueError
 from ..pattern import pulse_directions
 from .estimators import FPA_GAP, PulseReturns
+
+#: scipy.spatial, loaded on first use (slr_ray.lazy: the command line starts without it)
+scipy_spatial = lazy.module("scipy.spatial")
 
 __all__ = ["RayModel", "fit_ray_model", "fit_range_bias", "pattern_ray_model", "frame_motion", "sweep_offsets", "cast_rays",
            "cast_grid_rays", "RAY_NEIGHBOURS", "fit_azimuth_phases", "PHASE_COHERENCE"]
@@ -250,7 +253,7 @@ def fit_range_bias(model: RayModel, frames, k: int = 32, stride: int = 8) -> Ray
     found = [[] for _ in range(L)]
     for j, (w, beams, pose, motion) in enumerate(frames):
         rest = np.concatenate([f[0] for i, f in enumerate(frames) if i != j])
-        tree = cKDTree(rest)
+        tree = scipy_spatial.cKDTree(rest)
         P = np.asarray(pose, np.float64)
         pw = np.asarray(w[::stride], np.float64)
         local = (pw - P[:3, 3]) @ P[:3, :3]  # into frame j
@@ -379,7 +382,7 @@ def cast_rays(points, pattern, model: RayModel | None = None, motion=(0.0, 0.0, 
     t = np.einsum("mi,mi->m", cen - origin, d)  # the cluster's centroid projected onto the ray
     lo = r[first] - max_shift  # the plane is taken where it meets the ray past the cluster's start
     if len(pts) >= neighbours:
-        tree = cKDTree(pts)
+        tree = scipy_spatial.cKDTree(pts)
         for s in range(0, len(t), _BLOCK):
             b = slice(s, s + _BLOCK)
             t[b] = _onto_plane(pts, tree, origin[b], d[b], t[b], lo[b], int(neighbours))
@@ -420,7 +423,7 @@ def cast_grid_rays(points, pattern, gap: float = FPA_GAP, neighbours: int = RAY_
     t = np.einsum("mi,mi->m", cen, d)
     lo = r[first] - max_shift
     if len(pts) >= neighbours:
-        tree = cKDTree(pts)
+        tree = scipy_spatial.cKDTree(pts)
         for s in range(0, len(t), _BLOCK):
             b = slice(s, s + _BLOCK)
             t[b] = _onto_plane(pts, tree, origin[b], d[b], t[b], lo[b], int(neighbours))
