@@ -5,9 +5,10 @@ imports the library the first time one of its names is read
 (``trimesh.Trimesh``), then holds the library's names itself. A command that
 never meshes, draws or builds a k-d tree does not pay for the import:
 ``slr-ray --help`` and the quick commands start without trimesh, the figures'
-library, scipy's signal, ndimage and spatial packages (measured in
-docs/cli.md). A library's own errors (it is not installed) surface at first
-use, naming it.
+library, scipy's signal, ndimage and spatial packages (``import slr_ray.cli``:
+7.9 s to 3.7 s on a loaded 2-core machine, about half; numba's import and
+the ray engine's compiled callback stay). A library's own errors (it is not
+installed) surface at first use, naming it.
 """
 
 from __future__ import annotations
