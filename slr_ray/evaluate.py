@@ -182,8 +182,8 @@ def _beams_of(points, beams, base, what):
         found = scan_order_beams(points, base.n_beams)
         why = (f"the points are not stored ring after ring in {base.n_beams} rings of one turn each, highest "
                "beam first (a KITTI .bin's order)") if found is None else _beam_spread_problem(points, found, base)
-        if why is None:
-            return found, "scan order"
+        if why is None:  # the scan order's rows as the table's beam ids, as an array's (fitted_pattern, pulse_ids)
+            return np.asarray(base.beam_of_row)[found], "scan order"
         if beams == "scan-order":
             raise InputValueError(f"{what}: not in scan order: {why}")
         return None, f"none: not in scan order ({why})"

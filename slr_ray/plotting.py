@@ -14,17 +14,18 @@ from __future__ import annotations
 
 from pathlib import Path
 
-import matplotlib
 import numpy as np
-from matplotlib.backend_bases import FigureCanvasBase
-from matplotlib.figure import Figure
-from matplotlib.lines import Line2D
-from matplotlib.patches import Patch
 
+from . import lazy
 from .errors import InputTypeError, InputValueError
 from .io import atomic_path
 from .metrics import full_pairs, series
 from .paper import NEAR_DISTANCE, PRIMARY_RESOLUTION, PRIMARY_RESOLUTION_FINE, Q1_SCENES, Q2_SCENES
+
+#: the figures' library, loaded when a figure is made (slr_ray.lazy: a command that draws nothing skips it)
+mpl = lazy.module("matplotlib")
+mpl_figure, mpl_lines, mpl_patches = (lazy.module(f"matplotlib.{m}") for m in ("figure", "lines", "patches"))
+mpl_backends = lazy.module("matplotlib.backend_bases")
 
 __all__ = ["save_figure", "check_figure_path", "validation_figure", "paper_figure", "comparison_figure", "demo_figure",
            "distances_figure", "cells_figure", "range_image_figure", "evaluation_figure"]
@@ -33,7 +34,7 @@ DPI = 110
 
 
 def _figure(**kw):
-    return Figure(**kw)
+    return mpl_figure.Figure(**kw)
 
 
 def check_figure_path(path) -> str:
@@ -46,7 +47,7 @@ def check_figure_path(path) -> str:
         (:class:`~slr_ray.io.outputs.OutputPlan` runs it), not after it.
     """
     fmt = Path(path).suffix[1:].lower() or "png"
-    known = FigureCanvasBase.get_supported_filetypes()
+    known = mpl_backends.FigureCanvasBase.get_supported_filetypes()
     if fmt not in known:
         raise InputValueError(f"{path}: cannot write a figure as {fmt!r}; formats: {', '.join(sorted(known))}")
     return fmt
@@ -225,9 +226,9 @@ def demo_figure(primary, positions, rows, n_rectangles: int):
         ax[0].annotate(str(i), p[:2], xytext=(5, 5), textcoords="offset points", fontsize=11, fontweight="bold",
                        bbox={"boxstyle": "round,pad=0.15", "fc": "white", "ec": "none", "alpha": 0.8})
     ax[0].scatter([0], [0], marker="*", c="gold", s=150, edgecolor="k", zorder=3)
-    handles = [Patch(color=c, label=k) for k, c in colours.items()] + [
-        Line2D([], [], ls="", marker="^", c="k", label="SLR positions (numbered)"),
-        Line2D([], [], ls="", marker="*", c="gold", mec="k", ms=12, label="primary scanner")]
+    handles = [mpl_patches.Patch(color=c, label=k) for k, c in colours.items()] + [
+        mpl_lines.Line2D([], [], ls="", marker="^", c="k", label="SLR positions (numbered)"),
+        mpl_lines.Line2D([], [], ls="", marker="*", c="gold", mec="k", ms=12, label="primary scanner")]
     ax[0].legend(handles=handles, loc="upper right", fontsize=8)
     ax[0].set(xlim=(-60, 60), ylim=(-60, 60), aspect="equal", xlabel="x (m)", ylabel="y (m)",
               title=f"primary scan, top view ({n_rectangles} rectangles)")
@@ -273,7 +274,7 @@ def distances_figure(original, slr, sweep, max_distance: float = 40.0):
             a.stairs(h.density(kind), h.edges, label=f"{kind.replace('_', '-')} (peak {h.peak(kind):.1f} m)")
         a.set(title=f"{title}, {h.n_scans} scans", xlim=(0.3, max_distance), xscale="log")
     if sweep:
-        cmap = matplotlib.colormaps["viridis"]
+        cmap = mpl.colormaps["viridis"]
         for i, (height, h) in enumerate(sorted(sweep.items())):
             c = cmap(i / max(1, len(sweep) - 1))
             for a, kind in ((ax[1, 0], "ground"), (ax[1, 1], "non_ground")):
@@ -328,16 +329,16 @@ def cells_figure(cells, positions=None, points=None):
             ax.scatter(cells.centres[m, 0] - x0, cells.centres[m, 1] - y0, marker="s", s=12, c=colour,
                        alpha=0.8 if st == "kept" else 0.5, rasterized=True)
         if st in skipped:
-            handles.append(Patch(color="none", label=f"not run: {_STAGE_WORDS[st]}"))
+            handles.append(mpl_patches.Patch(color="none", label=f"not run: {_STAGE_WORDS[st]}"))
             continue
         words = "candidates kept" if st == "kept" else "removed: " + _STAGE_WORDS[st]
-        handles.append(Patch(color=colour, label=f"{words} ({int(m.sum()):,})"))
+        handles.append(mpl_patches.Patch(color=colour, label=f"{words} ({int(m.sum()):,})"))
     if positions is not None and len(positions):
         xy = np.asarray(positions)[:, :2] - shift
         ax.scatter(xy[:, 0], xy[:, 1], marker="^", c="k", s=50, zorder=3)
         for i, p in enumerate(xy, 1):
             ax.annotate(str(i), p, xytext=(4, 4), textcoords="offset points", fontsize=10, fontweight="bold")
-        handles.append(Line2D([], [], ls="", marker="^", c="k", label=f"positions drawn ({len(xy)})"))
+        handles.append(mpl_lines.Line2D([], [], ls="", marker="^", c="k", label=f"positions drawn ({len(xy)})"))
     ax.legend(handles=handles, loc="best", fontsize=9)
     ax.ticklabel_format(useOffset=False, style="plain")
     ax.set(aspect="equal", xlabel=f"x (m{f', from {x0:,.0f}' if x0 else ''})",
@@ -396,7 +397,7 @@ def evaluation_figure(result: dict, max_range: float = 50.0, max_error: float = 
                      f"return or drop right {100 * img['accuracy']:.1f} %", fontsize=12, loc="left")
     if err is not None:
         fig.colorbar(err, ax=list(axes[1:]), label="simulated - real (m)", pad=0.01, fraction=0.03)
-        axes[1].legend(handles=[Patch(color="0.5", label="only one of real and simulated returns")],
+        axes[1].legend(handles=[mpl_patches.Patch(color="0.5", label="only one of real and simulated returns")],
                        loc="upper right", fontsize=10, framealpha=0.9)
     for ax in axes:
         ax.set_yticks([])

@@ -31,8 +31,8 @@ from dataclasses import dataclass, field
 from pathlib import Path
 
 import numpy as np
-from scipy.spatial import cKDTree
 
+from . import lazy
 from .arrays import as_points
 from .backends import prepare
 from .errors import InputValueError, MissingDependencyError, SlrNote, SlrWarning
@@ -42,6 +42,9 @@ from .paper import (CELL_SIZE, GROUND_COUNT_RADIUS, GROUND_HEIGHT_RADIUS, MIN_GR
 from .pattern import ScanPattern
 from .progress import bar as progress_bar
 from .progress import phase
+
+#: scipy.spatial, loaded on first use (slr_ray.lazy: the command line starts without it)
+scipy_spatial = lazy.module("scipy.spatial")
 
 __all__ = ["CandidateCells", "AzimuthProfile", "CellOptions", "PositionOptions", "candidate_cells", "select_positions",
            "azimuth_histogram", "minimum_profile", "default_profile", "suggest_resolution",
@@ -200,7 +203,7 @@ def _ground_tree(points, is_ground):
     g = points[is_ground]
     centre = g[:, :2].mean(axis=0) if len(g) else np.zeros(2)
     # unbalanced, non-compact: 3x faster to build on 2e7 points, and the counts are exact either way
-    return cKDTree(g[:, :2] - centre, balanced_tree=False, compact_nodes=False), g, centre
+    return scipy_spatial.cKDTree(g[:, :2] - centre, balanced_tree=False, compact_nodes=False), g, centre
 
 
 def _check_ground(points, is_ground):
@@ -480,7 +483,7 @@ def suggest_resolution(points, position, *, radius: float = 30.0, k: int = 8, qu
     rng = np.random.default_rng(seed)
     probe = near if len(near) <= sample else rng.choice(near, sample, replace=False)
     c = pts[near].mean(axis=0)
-    tree = cKDTree(pts[near] - c)
+    tree = scipy_spatial.cKDTree(pts[near] - c)
     dist, _ = tree.query(pts[probe] - c, k=k + 1, workers=-1)
     s = dist[:, 1:].mean(axis=1)
     ang = np.degrees(np.quantile(s / d[probe], quantile))

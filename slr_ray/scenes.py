@@ -16,13 +16,17 @@ from dataclasses import dataclass, field
 from pathlib import Path
 
 import numpy as np
-import trimesh
 from numba import njit
-from scipy.spatial.transform import Rotation
 
+from . import lazy
 from .effects import Effects
 from .errors import InputValueError, refuse_memory
 from .paper import SCANNER_HEIGHT
+
+#: trimesh, loaded on first use (slr_ray.lazy: the command line starts without it)
+trimesh = lazy.module("trimesh")
+#: scipy.spatial.transform, loaded on first use (slr_ray.lazy)
+spatial_transform = lazy.module("scipy.spatial.transform")
 
 __all__ = ["RectangleScene", "rectangle_scene", "load_scene_spec", "scene_from_spec", "scene_effects",
            "dense_samples", "SCENES_DIR", "MESH_FORMATS"]
@@ -178,7 +182,7 @@ def rectangle_scene(
     rng = np.random.default_rng(seed)
     sides = rng.uniform(*side_range, size=(n, 2))
     centres = np.column_stack([rng.uniform(*xy_range, size=(n, 2)), rng.uniform(*z_range, size=n)])
-    rot = Rotation.random(n, random_state=rng).as_matrix() if n else np.empty((0, 3, 3))
+    rot = spatial_transform.Rotation.random(n, random_state=rng).as_matrix() if n else np.empty((0, 3, 3))
 
     ring, edge_normals, apothem = _ground_polygon(ground_radius, ground_z, ground_segments)
 

@@ -50,13 +50,15 @@ import warnings
 from pathlib import Path
 
 import numpy as np
-from scipy.ndimage import gaussian_filter1d
-from scipy.signal import find_peaks
 
+from . import lazy
 from .errors import InputValueError, SlrWarning
 from .io import PointCloud, read_cloud
 from .sensors import BeamPattern, scan_order_beams
 from .sequence.rays import beam_lines
+
+#: scipy.ndimage and scipy.signal, loaded on first use (slr_ray.lazy: the command line starts without them)
+scipy_ndimage, scipy_signal = lazy.module("scipy.ndimage"), lazy.module("scipy.signal")
 
 __all__ = ["fit_card", "RING_FIELDS", "MAX_BEAMS", "MIN_ASSIGNED", "MAX_RESIDUAL_DEG", "MAX_FOREIGN_SHARE",
            "MAX_RING_SHIFT_DEG", "merge_split_beams"]
@@ -126,8 +128,8 @@ def _vote_beams(u, t):
     sharp = [float(np.square(votes_of(t[far], u[far], h)).sum()) for h in _HEIGHTS] if far.sum() >= 1000 else [0]
     best = int(np.argmax(sharp))
     h = _HEIGHTS[best] if sharp[best] > 1.1 * sharp[0] else 0.0  # ties, and a gain under 10 %: 0
-    g = gaussian_filter1d(votes(h), 1.0)
-    peaks, _ = find_peaks(g, prominence=3.0, distance=max(1, int(0.06 / _BIN_DEG)))
+    g = scipy_ndimage.gaussian_filter1d(votes(h), 1.0)
+    peaks, _ = scipy_signal.find_peaks(g, prominence=3.0, distance=max(1, int(0.06 / _BIN_DEG)))
     return lo + (peaks + 0.5) * _BIN_DEG, np.full(len(peaks), h)
 
 

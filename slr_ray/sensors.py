@@ -673,7 +673,7 @@ def scan_order_beams(points, n_beams: int = 64) -> np.ndarray | None:
     return ring
 
 
-def fitted_pattern(points, beams, base: BeamPattern, columns: int | None = None) -> BeamPattern:
+def fitted_pattern(points, beams, base: BeamPattern, columns: int | None = None, rows: bool = False) -> BeamPattern:
     """``base`` with each beam's elevation the median elevation of its points in this frame.
 
     A real unit's beams are not where another unit's table says (the shipped
@@ -682,8 +682,23 @@ def fitted_pattern(points, beams, base: BeamPattern, columns: int | None = None)
     zero (the points' azimuths are where they were measured); ``columns``
     defaults to ``360 /`` the median azimuth step between a beam's
     points next in azimuth (not in the file's order: a Hesai PCD lists them out of firing order), rounded. Beams with no point keep ``base``'s elevation.
+
+    ``beams`` are ``base``'s beam ids (table positions, as a ``ring`` field records them); ``rows``:
+    they are its range-image rows instead (0 the highest: a KITTI ``.bin``'s scan order,
+    :func:`scan_order_beams`), taken to the ids first. Either way beam ``i`` of the result is ``base``'s
+    beam ``i`` (its ``meta``'s per-beam values stay its own): a table whose ids are not in elevation
+    order (a VLP-16's, a Pandar64's) read by row gave a row's median to the beam of that id, and a row
+    with no point the elevation of another beam.
     """
     p = as_points(points, "points")
+    if rows:
+        r = np.asarray(beams)
+        if r.ndim != 1 or len(r) != len(p) or r.dtype.kind not in "iu" or (
+                len(r) and (r.min() < -1 or r.max() >= base.n_beams)):
+            raise InputValueError(f"beams (rows=True) must be one range-image row a point in [-1, {base.n_beams}) "
+                                  f"({len(p)} integers), got shape {r.shape}, dtype {r.dtype}")
+        r = r.astype(np.int64)
+        beams = np.where(r >= 0, base.beam_of_row[np.maximum(r, 0)], -1)
     base.rows_of_beams(beams, len(p))  # checks the beam ids
     b = np.asarray(beams, np.int64)
     r = np.linalg.norm(p, axis=1)

@@ -352,7 +352,7 @@ def test_the_method_name_check_sees_comparisons():
 #: The layers of docs/architecture.md, bottom up: a module imports only modules of its own
 #: layer or below (the package's ``__init__`` sits above them all).
 LAYERS = (
-    ("base", {"errors", "arrays", "threads", "paper", "progress", "options"}),
+    ("base", {"errors", "arrays", "threads", "paper", "progress", "options", "lazy"}),
     ("input/output", {"io"}),
     ("core", {"core"}),
     ("patterns", {"pattern", "sensors", "spherical", "scan"}),
@@ -532,3 +532,23 @@ def test_the_layout_identity_check_sees_comparisons():
     assert _layout_identity_tests(ast.parse("x = seq.meta.get('layout') == 'e57'")) == [1]
     assert _layout_identity_tests(ast.parse("if name != 'kitti': pass")) == [1]
     assert _layout_identity_tests(ast.parse("if seq.poses is None: pass")) == []
+
+
+#: libraries the command line starts without (slr_ray.lazy: imported where first used)
+LAZY_LIBRARIES = ("trimesh", "matplotlib", "scipy.signal", "scipy.ndimage", "scipy.spatial", "open3d", "dask")
+
+
+def test_the_command_line_starts_without_the_heavy_libraries():
+    """``import slr_ray.cli`` (``slr-ray --help``, every quick command) loaded trimesh, matplotlib and
+    scipy's signal package (with scipy.stats) at start: over half of its 2.3 s (#46 leftover). They are
+    bound by :func:`slr_ray.lazy.module` and imported on first use, which the stand-in does."""
+    import subprocess
+    import sys
+
+    code = ("import sys, slr_ray.cli; print(' '.join(m for m in %r if m in sys.modules)); "
+            "from slr_ray.scenes import trimesh; trimesh.Trimesh; print('trimesh' in sys.modules)") % (LAZY_LIBRARIES,)
+    out = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, cwd=PKG.parent,
+                         env={**__import__("os").environ, "PYTHONPATH": str(PKG.parent)})
+    assert out.returncode == 0, out.stderr
+    loaded, used = out.stdout.splitlines()
+    assert loaded == "" and used == "True", out.stdout

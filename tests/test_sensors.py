@@ -350,3 +350,35 @@ def test_a_cards_fields_out_of_range_are_refused_on_load_naming_the_field(tmp_pa
                  str(tmp_path / "o")]) == 2
     e = capsys.readouterr().err
     assert e.count("\n") == 1 and e.startswith("slr-ray: error:") and said in e, e
+
+
+@pytest.mark.parametrize("name", ["velodyne_vlp16", "hesai_pandar64_pjlab"])
+def test_a_fitted_pattern_is_by_beam_id_whether_its_beams_came_as_ids_or_rows(name):
+    """``fitted_pattern`` took its beams for the table's ids; given a frame's scan order (rows, a KITTI
+    ``.bin``'s: ``slr_ray.evaluate``'s 'scan-order' beams) it gave row ``i``'s median to beam ``i`` and a row
+    with no point another beam's elevation (a VLP-16's and a Pandar64's ids are not in elevation order).
+    Beam ``i`` of the fit is the table's beam ``i`` whichever way its beams came (``rows=True``, and
+    'scan-order' beams are ids)."""
+    from slr_ray.evaluate import frame_beams
+    from slr_ray.sensors import fitted_pattern
+
+    base = sensor(name).with_(columns=360)
+    unit = base.with_(elevation_deg=tuple(np.asarray(base.elevation_deg) + 0.2), azimuth_offset_deg=None)
+    dirs, rows, _ = unit.rays()  # row after row, each a turn from the front: a scan order
+    pts = dirs * 10.0
+    assert not np.array_equal(base.beam_of_row, np.arange(base.n_beams))
+    ids = base.beam_of_row[rows]
+    want = np.asarray(unit.elevation_deg)
+    by_id, by_row = fitted_pattern(pts, ids, base), fitted_pattern(pts, rows, base, rows=True)
+    np.testing.assert_allclose(by_id.elevation_deg, want, atol=1e-6)
+    assert by_row.elevation_deg == by_id.elevation_deg and by_row.columns == by_id.columns == 360
+    beams, how = frame_beams(pts, "scan-order", base)
+    assert how == "scan order" and np.array_equal(beams, ids)
+    np.testing.assert_allclose(fitted_pattern(pts, beams, base).elevation_deg, want, atol=1e-6)
+    gone = rows != 3  # a row with no point keeps its own beam's table elevation
+    part = fitted_pattern(pts[gone], rows[gone], base, rows=True)
+    lost = base.beam_of_row[3]
+    assert part.elevation_deg[lost] == base.elevation_deg[lost]
+    np.testing.assert_allclose(np.delete(part.elevation_deg, lost), np.delete(want, lost), atol=1e-6)
+    with pytest.raises(ValueError, match="rows=True"):
+        fitted_pattern(pts, rows + base.n_beams, base, rows=True)

@@ -68,6 +68,7 @@ def _frame(pat, model):
 def test_a_ring_mesh_joins_rings_and_leaves_depth_jumps_open():
     pat = sensor("velodyne_vlp16")
     pts, beams = _frame(pat, pattern_ray_model(pat))
+    beams = pat.rows_of_beams(beams)  # the lasers (ids) as rings in elevation order, as frame_mesh takes them
     faces = frame_mesh(pts, beams, pat.n_beams)
     b = beams[faces]
     assert len(faces) > 1.5 * len(pts)  # two triangles a point, about: the rings joined
@@ -91,7 +92,7 @@ def test_a_frame_rescanned_by_its_own_lasers_returns_its_own_ranges(vertices):
     pat = sensor("velodyne_vlp16")
     base = pattern_ray_model(pat)
     L = pat.n_beams
-    height = np.linspace(0.2, -0.1, L)
+    height = np.linspace(0.2, -0.1, L)[pat.rows_of_beams(np.arange(L))]  # by id: falling with elevation
     # raw meshes take the mean bias of a triangle's corners out: exact for one bias, per-laser biases
     # are taken out of the vertices exactly
     bias = np.full(L, 0.03) if vertices == "raw" else np.random.default_rng(0).uniform(-0.04, 0.07, L)
@@ -299,10 +300,11 @@ def test_weak_triangles_and_the_hits_debias_follow_their_rules():
     pts, beams = _frame(pat, pattern_ray_model(pat))
     pts = pts * np.random.default_rng(1).uniform(0.93, 1.07, (len(pts), 1))  # ranges that differ
     scene, faces, _, raw, weak = MeshFrames().add(0, pts, beams, np.eye(4), pat.n_beams)
-    assert scene is not None and np.array_equal(faces, frame_mesh(pts, beams, pat.n_beams))
+    rows = pat.rows_of_beams(beams)  # the rings in elevation order (the lasers are ids)
+    assert scene is not None and np.array_equal(faces, frame_mesh(pts, rows, pat.n_beams))
     r = np.linalg.norm(pts, axis=1)[faces]
     from slr_ray.sequence.embree_rays import ratio_widening
-    w = ratio_widening(pts, beams, pat.n_beams)[beams[faces].min(axis=1)]  # the ring pair's (2 deg apart: 2)
+    w = ratio_widening(pts, rows, pat.n_beams)[rows[faces].min(axis=1)]  # the ring pair's (2 deg apart: 2)
     spread, near = np.ptp(r, axis=1), r.min(axis=1) * w
     clear = np.abs(spread - 0.1 * near) > 1e-9 * near
     assert 0 < weak.sum() < len(weak)
@@ -349,28 +351,30 @@ def test_a_laser_too_sparse_to_fit_keeps_its_tables_elevation_in_both_fits(drive
     (:func:`table_unfitted`), its joint fit (``joint=True``, ``rays``' fit) gave it the others' mean (the
     middle of the fan, another laser's band). The drive's frames are in scan order: their beams are the
     table's rows, and the table was read by id (a VLP-16's beam 7 is at 7 deg, its row 7 at 1 deg: the
-    sparse laser was cast in the 7 deg laser's band). Laser 7 left with 5 points beyond 2 m of the axis
-    (the rest pulled within it): both fits keep it at its row's elevation."""
+    sparse laser was cast in the 7 deg laser's band); the frames' beams are the table's ids now, the scan
+    order's rows taken to ids. Row 7's laser left with 5 points beyond 2 m of the axis (the rest pulled
+    within it): both fits keep it at its own elevation."""
     import slr_ray.sequence.embree_rays as E
     from slr_ray.sequence import FrameCache, read_sequence
 
     own = E.frame_points_beams
+    pat = sensor("velodyne_vlp16")
+    s = pat.beam_of_row[7]  # row 7's beam: 1 deg (beam 7 is at 7 deg)
 
     def sparse(cache, i, base):
         pts, beams, known = own(cache, i, base)
-        pull = (beams == 7) & (np.cumsum(beams == 7) > 5)
+        pull = (beams == s) & (np.cumsum(beams == s) > 5)
         pts = pts.copy()
         pts[pull] *= (1.0 / np.hypot(pts[pull, 0], pts[pull, 1]))[:, None]  # 1 m from the axis
         return pts, beams, known
 
     monkeypatch.setattr(E, "frame_points_beams", sparse)
     seq = read_sequence(drive)
-    pat = sensor("velodyne_vlp16")
     model, _ = E.fit_embree_model(seq, [0, 2, 3], pat, FrameCache(seq), exclude=(1,), joint=joint)
-    el = np.radians(pat.elevation_deg)[pat.beam_of_row]  # by row
+    el = np.radians(pat.elevation_deg)  # by id
     assert model.source == "fitted"
-    assert abs(model.elevation[7] - el[7]) < np.radians(0.05), np.degrees(model.elevation[7])
-    assert np.abs(np.delete(model.elevation, 7) - model.elevation[7]).min() > np.radians(0.5)  # in no other band
+    assert abs(model.elevation[s] - el[s]) < np.radians(0.05), np.degrees(model.elevation[s])
+    assert np.abs(np.delete(model.elevation, s) - model.elevation[s]).min() > np.radians(0.5)  # in no other band
 
 
 def test_rays_along_a_meshs_open_edges_meet_it():
@@ -407,7 +411,7 @@ def test_rings_far_apart_in_elevation_mesh_the_road_between_them():
     with np.errstate(divide="ignore"):
         t = np.where(d[:, 2] < -1e-3, -1.8 / np.minimum(d[:, 2], -1e-3), np.inf)
     ok = t < 60
-    pts, rows = (o + t[:, None] * d)[ok], las[ok]
+    pts, rows = (o + t[:, None] * d)[ok], pat.rows_of_beams(las[ok])  # the lasers (ids) as rows
     el = math.pi / 2 - np.asarray(pat.row_zenith)
     w = ratio_widening(pts, rows, pat.n_beams)
     step = np.degrees(np.abs(el[:-1] - el[1:]))
@@ -461,3 +465,81 @@ def test_convert_meshes_ringless_frames_not_in_scan_order_by_the_bands(tmp_path,
     assert r.returncode == 0, r.stderr
     assert json.loads(r.stdout.strip().splitlines()[-1])["written"] == 2
     assert len(list((tmp_path / "out" / "velodyne").iterdir())) == 2
+
+
+def _ply_drive(root, ring):
+    """The synthetic drive's four VLP-16 frames as PLY files (the points in scan order); ``ring(i)``: frame
+    ``i`` records a ring field (the table's ids) or not (its beams then its file's scan order: rows)."""
+    from slr_ray.io import PointCloud, read_cloud, write_cloud
+    from slr_ray.sequence import read_sequence
+    from slr_ray.sequence.synthetic import synthetic_drive
+    from slr_ray.sensors import scan_order_beams
+
+    poses = synthetic_drive(root / "seq", n_frames=4, sensor="velodyne_vlp16", step=0.8, moving=False)
+    base, files = sensor("velodyne_vlp16"), []
+    for i, f in enumerate(sorted((root / "seq" / "velodyne").glob("*.bin"))):
+        c = read_cloud(f)
+        attrs = dict(c.attributes)
+        if ring(i):
+            attrs["ring"] = base.beam_of_row[scan_order_beams(c.points, base.n_beams)].astype(np.uint16)
+        files.append(root / f"{i:06d}.ply")
+        write_cloud(files[-1], PointCloud(c.points, attrs, np.zeros(3)))
+    return read_sequence(files, poses)
+
+
+@pytest.fixture(scope="module")
+def mixed(tmp_path_factory):
+    """The drive with a ring field on frames 0 and 2 only (1 and 3 in scan order), and with it on all."""
+    return (_ply_drive(tmp_path_factory.mktemp("mixed"), lambda i: i % 2 == 0),
+            _ply_drive(tmp_path_factory.mktemp("rings"), lambda i: True))
+
+
+def test_a_sequence_mixing_ring_fields_and_scan_order_takes_every_frames_beams_by_one_rule(mixed):
+    """A sequence whose frames record a ring field (the table's ids) or not (their file's scan order: the
+    table's rows) took each frame's beams by its own rule: a VLP-16's ids interleave in elevation, so
+    ``embree-rays``' median over the frames' fits, ``rays``' joint fit and the z-buffer's grid fitted to the
+    other frames mixed lasers 15 deg apart. Every frame's beams are the table's ids now: the mixed
+    sequence gives what the all-ring one gives, the table's own elevations by id."""
+    from slr_ray.sequence import FrameCache
+    from slr_ray.sequence.embree_rays import fit_embree_model, frame_points_beams
+    from slr_ray.sequence.holdout import others_pattern
+    from slr_ray.sequence.methods.rays import holdout_ray_model
+
+    seq, rings = mixed
+    base = sensor("velodyne_vlp16")
+    cm, cr = FrameCache(seq), FrameCache(rings)
+    for i in range(4):
+        assert np.array_equal(frame_points_beams(cm, i, base)[1], frame_points_beams(cr, i, base)[1]), i
+    table = np.asarray(base.elevation_deg)
+    for joint in (False, True):
+        m, _ = fit_embree_model(seq, [0, 2, 3], base, cm, exclude=(1,), joint=joint)
+        r, _ = fit_embree_model(rings, [0, 2, 3], base, cr, exclude=(1,), joint=joint)
+        assert m.source == "fitted"
+        np.testing.assert_allclose(m.elevation, r.elevation, atol=1e-12)
+        np.testing.assert_allclose(np.degrees(m.elevation), table, atol=0.05)
+    m, r = (holdout_ray_model(s, [0, 2, 3], base, None, c) for s, c in ((seq, cm), (rings, cr)))
+    np.testing.assert_allclose(np.degrees(m.elevation), table, atol=0.05)
+    np.testing.assert_allclose(m.elevation, r.elevation, atol=1e-12)
+    grid = others_pattern([0, 2, 3], base, cm)
+    np.testing.assert_allclose(grid.elevation_deg, others_pattern([0, 2, 3], base, cr).elevation_deg, atol=1e-12)
+    np.testing.assert_allclose(grid.elevation_deg, table, atol=0.05)
+
+
+@pytest.mark.parametrize("model", [False, True])
+def test_a_mesh_with_a_model_joins_rings_next_in_elevation_whatever_their_ids(model):
+    """``MeshFrames.add`` (the meshes of a model: ``union_meshes`` given one) joined a frame's rings in the
+    order of their ids, where :func:`frame_surface` (the raw meshes) joined them in elevation order: a
+    VLP-16's ring ids interleave in elevation (id 0 -15 deg, id 1 +1 deg), so id order zipped rings up to
+    16 deg apart. Both join each ring to the rings next to it in elevation: the mesh of the rows."""
+    pat = sensor("velodyne_vlp16")
+    m = pattern_ray_model(pat)
+    pts, _ = _frame(pat, m)
+    rows = pat.pulse_ids(pts, np.zeros(3))[0] // pat.columns  # each point's ring in elevation order
+    ids = pat.beam_of_row[rows]  # as a ring field records them
+    assert not np.array_equal(ids, rows)
+    fitted = dataclasses.replace(m, range_bias=np.zeros(pat.n_beams), source="fitted") if model else None
+    _, faces, _, raw, _ = MeshFrames().add(0, pts, ids, np.eye(4), pat.n_beams, fitted)
+    assert np.array_equal(faces, frame_mesh(pts, rows, pat.n_beams))
+    el = np.degrees(np.arctan2(pts[:, 2], np.hypot(pts[:, 0], pts[:, 1])))
+    assert len(faces) > 1.5 * len(pts) and np.all(np.ptp(el[faces], axis=1) < 4.0)  # rings 2 deg apart
+    assert raw is None if model else np.array_equal(raw, ids)  # a raw mesh keeps its vertices' lasers (ids)

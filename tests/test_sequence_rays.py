@@ -132,7 +132,7 @@ def test_rays_meet_the_plane_not_the_near_edge_of_a_pulse():
     ret = cast_rays(road, pat)
     model = pattern_ray_model(pat)
     row = ret.keys // pat.columns
-    exact = 1.73 / np.sin(-model.elevation[row])
+    exact = 1.73 / np.sin(-model.elevation[pat.beam_of_row[row]])  # lasers by beam id
     near = exact < 15  # well inside the road
     assert near.sum() > 1000 and np.median(np.abs(ret.ranges - exact)[near]) < 0.005
     fpa_err = np.abs(estimate(road, pat, "fpa").ranges - 1.73 / np.sin(-model.elevation[row]))
@@ -254,7 +254,7 @@ def test_a_laser_too_sparse_to_fit_keeps_its_tables_elevation_in_rays(stored):
     as ``embree-rays``' does (:func:`~slr_ray.sequence.embree_rays.table_unfitted`). The fitted lasers'
     elevations are the fit's own. A frame in scan order (no ring field) gives its beams as the table's
     rows (a VLP-16's table is not top first): the table is read by row there (it was read by id: row 7,
-    1 deg, was cast at beam 7's 7 deg)."""
+    1 deg, was cast at beam 7's 7 deg); the model's lasers are the table's ids either way (RayModel)."""
     from types import SimpleNamespace
 
     base = sensor("velodyne_vlp16")
@@ -274,26 +274,27 @@ def test_a_laser_too_sparse_to_fit_keeps_its_tables_elevation_in_rays(stored):
     seq = SimpleNamespace(names=["0", "1", "2"], paths=["a", "b", "c"], poses=poses)
     cache = SimpleNamespace(get=lambda i: (frame, pts))
     model = holdout_ray_model(seq, [0, 2], base, None, cache)
-    fitted = fit_ray_model([(pts, ring, np.zeros(3))] * 2, base.n_beams)
-    np.testing.assert_allclose(model.elevation, el, atol=1e-6)
-    assert np.array_equal(np.delete(model.elevation, 7), np.delete(fitted.elevation, 7))
-    assert np.abs(np.delete(model.elevation, 7) - model.elevation[7]).min() > np.radians(0.5)
+    ids = ring if stored == "ring field" else base.beam_of_row[ring]
+    sparse = 7 if stored == "ring field" else base.beam_of_row[7]
+    fitted = fit_ray_model([(pts, ids, np.zeros(3))] * 2, base.n_beams)
+    np.testing.assert_allclose(model.elevation, np.radians(np.asarray(base.elevation_deg)), atol=1e-6)  # by id
+    assert np.array_equal(np.delete(model.elevation, sparse), np.delete(fitted.elevation, sparse))
+    assert np.abs(np.delete(model.elevation, sparse) - model.elevation[sparse]).min() > np.radians(0.5)
 
 
-def test_a_tables_ideal_rays_are_by_row_and_cast_as_the_same_rays_by_beam():
-    """#46: :func:`pattern_ray_model`'s lasers are the table's rows (highest first), not its beam ids (a
-    Pandar64's ids are not in elevation order); nothing indexes it by beam (no height, no range bias, its
-    azimuth offsets by row too): cast, the same rays listed by beam id return the same pulses."""
+def test_a_tables_ideal_rays_are_by_beam_id_and_cast_as_the_same_rays_by_row():
+    """#46: :func:`pattern_ray_model`'s lasers are the table's beam ids (a Pandar64's ids are not in
+    elevation order), as a fitted model's (RayModel: one order, whatever the source); cast, the same rays
+    listed by row (highest first) return the same pulses."""
     import dataclasses
 
     pat = sensor("hesai_pandar64_pjlab").with_(columns=360)
     assert not np.array_equal(pat.beam_of_row, np.arange(pat.n_beams))  # ids not in elevation order
     m = pattern_ray_model(pat)
-    np.testing.assert_allclose(np.degrees(m.elevation), np.asarray(pat.elevation_deg)[pat.beam_of_row])
-    np.testing.assert_allclose(np.degrees(m.azimuth_offset), np.asarray(pat.azimuth_offset_deg)[pat.beam_of_row])
+    np.testing.assert_allclose(np.degrees(m.elevation), np.asarray(pat.elevation_deg))
+    np.testing.assert_allclose(np.degrees(m.azimuth_offset), np.asarray(pat.azimuth_offset_deg))
     assert not m.height.any() and m.range_bias is None
-    by_id = dataclasses.replace(m, elevation=np.radians(np.asarray(pat.elevation_deg, np.float64)),
-                                azimuth_offset=np.radians(np.asarray(pat.azimuth_offset_deg, np.float64)))
+    by_id = dataclasses.replace(m, elevation=m.elevation[pat.beam_of_row], azimuth_offset=m.azimuth_offset[pat.beam_of_row])
     rng = np.random.default_rng(0)
     xy = rng.uniform(-30, 30, (15_000, 2))
     road = np.column_stack([xy, np.full(len(xy), -1.8)])
@@ -303,3 +304,38 @@ def test_a_tables_ideal_rays_are_by_row_and_cast_as_the_same_rays_by_beam():
     got, want = cast_rays(u, pat, m), cast_rays(u, pat, by_id)
     assert len(got) > 1000
     assert np.array_equal(got.keys, want.keys) and np.allclose(got.ranges, want.ranges)
+
+
+@pytest.mark.parametrize("name", ["velodyne_vlp16", "hesai_pandar64_pjlab"])
+def test_a_ray_models_dict_is_by_beam_id_whatever_gave_the_beams_and_reads_back(name):
+    """A sensor's ``ray_model`` (RayModel.to_dict, in ``sequence evaluate``'s results) listed its lasers by
+    the table's ids where the frames had a ring field, by its rows where they were in scan order: the same
+    unit gave two dicts (a VLP-16's and a Pandar64's ids are not in elevation order). The lists are by id
+    whatever the source (a table's ideal rays too), and :meth:`RayModel.from_dict` reads them back."""
+    from types import SimpleNamespace
+
+    from slr_ray.sequence.methods.rays import holdout_ray_model
+    from slr_ray.sequence.rays import RayModel
+
+    base = sensor(name)
+    az = np.radians(np.arange(0, 360, 1.0))
+    dicts = []
+    for stored in ("ring field", "scan order"):
+        ids = np.arange(base.n_beams) if stored == "ring field" else base.beam_of_row  # scan order: top first
+        pts = np.concatenate([np.column_stack([(8 + 2 * np.sin(3 * az)) * np.cos(e) * np.cos(az),
+                                               (8 + 2 * np.sin(3 * az)) * np.cos(e) * np.sin(az),
+                                               (8 + 2 * np.sin(3 * az)) * np.sin(e)])
+                              for e in np.radians(np.asarray(base.elevation_deg))[ids]])
+        ring = np.repeat(ids, len(az)).astype(np.uint16)
+        frame = SimpleNamespace(points=pts, attributes={"ring": ring} if stored == "ring field" else {})
+        seq = SimpleNamespace(names=["0", "1", "2"], paths=["a", "b", "c"], poses=np.repeat(np.eye(4)[None], 3, 0))
+        model = holdout_ray_model(seq, [0, 2], base, None, SimpleNamespace(get=lambda i, f=frame: (f, f.points)))
+        dicts.append(model.to_dict())
+    assert dicts[0] == dicts[1]
+    np.testing.assert_allclose(dicts[0]["elevation_deg"], base.elevation_deg, atol=1e-3)
+    for d in (dicts[0], pattern_ray_model(base).to_dict()):
+        back = RayModel.from_dict(d)
+        assert back.to_dict() == d
+    np.testing.assert_allclose(pattern_ray_model(base).to_dict()["elevation_deg"], base.elevation_deg, atol=1e-4)
+    with pytest.raises(ValueError, match="per-laser"):
+        RayModel.from_dict({**dicts[0], "lasers": base.n_beams + 1})

@@ -31,9 +31,12 @@ frame's points into the poses' (world) frame.
 from __future__ import annotations
 
 import numpy as np
-from scipy.spatial.transform import Rotation, Slerp
 
+from .. import lazy
 from ..errors import InputValueError
+
+#: scipy.spatial.transform, loaded on first use (slr_ray.lazy)
+spatial_transform = lazy.module("scipy.spatial.transform")
 
 __all__ = ["pose", "as_poses", "interpolate_poses", "column_sectors", "column_times", "azimuth_times", "to_frame", "rotate",
            "to_firing_frames", "deskew"]
@@ -44,7 +47,7 @@ def pose(translation=(0.0, 0.0, 0.0), yaw_deg: float = 0.0, pitch_deg: float = 0
     """``(4, 4)`` sensor-to-world transform: rotation yaw (about z), then pitch
     (y), then roll (x), intrinsic, and the sensor origin ``translation``."""
     out = np.eye(4)
-    out[:3, :3] = Rotation.from_euler("ZYX", [yaw_deg, pitch_deg, roll_deg], degrees=True).as_matrix()
+    out[:3, :3] = spatial_transform.Rotation.from_euler("ZYX", [yaw_deg, pitch_deg, roll_deg], degrees=True).as_matrix()
     out[:3, 3] = np.asarray(translation, np.float64)
     return out
 
@@ -77,7 +80,7 @@ def interpolate_poses(poses, times):
     p = as_poses(poses)
     t = np.clip(np.asarray(times, np.float64), 0.0, 1.0)
     knots = np.linspace(0.0, 1.0, len(p))
-    rot = Slerp(knots, Rotation.from_matrix(p[:, :3, :3]))(t).as_matrix()
+    rot = spatial_transform.Slerp(knots, spatial_transform.Rotation.from_matrix(p[:, :3, :3]))(t).as_matrix()
     origin = np.column_stack([np.interp(t, knots, p[:, i, 3]) for i in range(3)])
     return rot.reshape(-1, 3, 3), origin
 

@@ -16,12 +16,15 @@ import warnings
 from dataclasses import asdict, dataclass
 
 import numpy as np
-from scipy.spatial import cKDTree
 
+from .. import lazy
 from ..arrays import as_points
 from ..errors import InputValueError
 from ..paper import SIMILARITY_THRESHOLD
 from .cellgrid import CellGrid, GridUnsuitable
+
+#: scipy.spatial, loaded on first use (slr_ray.lazy: the command line starts without it)
+scipy_spatial = lazy.module("scipy.spatial")
 
 __all__ = ["similarity", "agreement", "Agreement", "nearest", "nearest_distances"]
 
@@ -59,7 +62,7 @@ def nearest(query, reference, n_threads: int | None = None, upper_bound: float =
     if len(r) == 0 or len(q) == 0:
         return np.full(len(q), np.inf), np.full(len(q), len(r), np.intp)
     c = r.mean(axis=0)
-    d, i = cKDTree(r - c).query(q - c, k=1, workers=kd_workers, distance_upper_bound=upper_bound)
+    d, i = scipy_spatial.cKDTree(r - c).query(q - c, k=1, workers=kd_workers, distance_upper_bound=upper_bound)
     return d, i.astype(np.intp)
 
 

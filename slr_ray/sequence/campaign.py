@@ -28,12 +28,15 @@ import math
 from pathlib import Path
 
 import numpy as np
-import trimesh
 
+from .. import lazy
 from ..errors import InputValueError, MissingDependencyError
 from ..io import PointCloud, write_cloud
 from ..meshscan import scan_mesh
 from ..pattern import ScanPattern
+
+#: trimesh, loaded on first use (slr_ray.lazy: the command line starts without it)
+trimesh = lazy.module("trimesh")
 
 __all__ = ["corridor_mesh", "corridor_campaign", "CAMPAIGN_FORMS", "SCANNER_HEIGHT", "LENGTH", "WIDTH"]
 

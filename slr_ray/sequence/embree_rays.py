@@ -59,7 +59,7 @@ from .rays import (PHASE_COHERENCE, RayModel, fit_ray_model, frame_motion, patte
                    sweep_offsets)
 from .ring_mesh import (MAX_RATIO, MAX_STEP_COLUMNS, MAX_STEP_DEG, WEAK_RATIO, frame_mesh_spread,
                         frame_mesh, ratio_widening)
-from .sources import beams_are_rows, known_beams
+from .sources import known_beams
 from .union import Keep, rotate
 
 __all__ = ["frame_mesh", "MeshFrames", "rays_of_model", "cast_embree_rays", "mesh_range_bias", "union_meshes",
@@ -138,16 +138,19 @@ class MeshFrames:
         self._scenes: dict = {}
 
     def add(self, key, points, beams, pose, n_beams: int, model: RayModel | None = None, offset: int = 0,
-            columns: int | None = None):
-        """Frame ``key``'s mesh: ``points`` in its own axes, ``beams`` its rings, ``pose`` its pose;
-        ``model``: its lasers' range biases taken out; ``offset``: the union index of its first point;
+            columns: int | None = None, rows=None):
+        """Frame ``key``'s mesh: ``points`` in its own axes, ``beams`` its rings (lasers, by id), ``pose`` its
+        pose; ``model``: its lasers' range biases taken out; ``offset``: the union index of its first point;
         ``columns``: its sensor's columns a turn (a triangle's azimuth reach: :data:`MAX_STEP_COLUMNS`;
-        without, ``max_step_deg`` or :data:`MAX_STEP_DEG`)."""
+        without, ``max_step_deg`` or :data:`MAX_STEP_DEG`); ``rows``: each point's ring in elevation order
+        (default :func:`elevation_rows`: rings joined to the rings next to them in elevation, as
+        :func:`frame_surface`'s, whatever their ids: a VLP-16's ids interleave, id order zips rings 15 deg apart)."""
         if key not in self._scenes:
             step = self.max_step_deg if self.max_step_deg is not None else _step_deg(columns)
             b = np.asarray(beams, np.int64)
-            self._scenes[key] = _mesh(points, b, pose, np.where(b < n_beams, b, -1), model, step, self.max_ratio,
-                                      self.weak_ratio)
+            b = np.where(b < n_beams, b, -1)
+            self._scenes[key] = _mesh(points, b, pose, elevation_rows(points, b) if rows is None else rows, model,
+                                      step, self.max_ratio, self.weak_ratio)
         scene, faces, raw, weak = self._scenes[key]
         return scene, faces, offset, raw, weak
 
@@ -454,9 +457,10 @@ def _base_key(base) -> tuple:
 
 
 def frame_points_beams(cache, i: int, base) -> tuple[np.ndarray, np.ndarray | None, bool]:
-    """Frame ``i``'s points in its own axes, their rings and whether they are known (its ``ring``
-    field, its scan order); not known: the rows of ``base``'s table its points fall in (None where
-    it has no point). Held on ``cache`` while it holds the frame."""
+    """Frame ``i``'s points in its own axes, their rings (``base``'s beam ids) and whether they are known
+    (its ``ring`` field, its scan order: :func:`frame_beams`); not known: the beams of the rows of
+    ``base``'s table its points fall in (None where it has no point). Held on ``cache`` while it holds
+    the frame."""
     def make():
         f, _ = cache.get(int(i))
         pts = cache.own_points(int(i))
@@ -465,8 +469,8 @@ def frame_points_beams(cache, i: int, base) -> tuple[np.ndarray, np.ndarray | No
             return pts, beams, True
         if not len(pts):
             return pts, None, False
-        keys, _ = base.pulse_ids(pts, np.zeros(3))
-        return pts, np.where(keys >= 0, keys // base.columns, -1), False
+        keys, _ = base.pulse_ids(pts, np.zeros(3))  # the band's beam id, as known frames' (one rule a sequence)
+        return pts, np.where(keys >= 0, np.asarray(base.beam_of_row)[np.maximum(keys, 0) // base.columns], -1), False
 
     return cache.state(int(i), ("embree-rays beams", _base_key(base)), make)
 
@@ -530,7 +534,7 @@ def frame_surface(cache, i: int, base, drop_moving: bool = True, see_through=Non
             pts, beams = pts[keep], None if beams is None else beams[keep]
         if beams is None:
             return None, np.zeros((0, 3), np.int64), None, None, len(pts)
-        rows = elevation_rows(pts, beams) if known else beams
+        rows = elevation_rows(pts, beams) if known else base.rows_of_beams(beams)
         return _mesh(pts, beams, f.pose, rows, None, _step_deg(base.columns), max_ratio,
                      weak_ratio) + (len(pts),)
 
@@ -561,7 +565,7 @@ def union_meshes(cache, frames, base, model: RayModel | None = None, drop_moving
         meshes = meshes if meshes is not None and not meshes.on_cache else MeshFrames()
         f, _ = cache.get(i)
         keep, _ = cache.selection(i, drop_moving, see_through, exclude)
-        pts, beams, _ = frame_points_beams(cache, i, base)
+        pts, beams, known = frame_points_beams(cache, i, base)
         if keep is not None:
             pts = pts[keep]
             beams = None if beams is None else beams[keep]
@@ -570,7 +574,8 @@ def union_meshes(cache, frames, base, model: RayModel | None = None, drop_moving
         else:
             bias = None if model is None or model.range_bias is None else model.range_bias.tobytes()
             key = (i, bias, len(pts), model.height.tobytes() if bias else None)
-            out.append(meshes.add(key, pts, beams, f.pose, base.n_beams, model, offset, base.columns))
+            out.append(meshes.add(key, pts, beams, f.pose, base.n_beams, model, offset, base.columns,
+                                  None if known else base.rows_of_beams(beams)))  # frame_surface's rings
         offset += len(pts)
     return out
 
@@ -584,8 +589,8 @@ def table_unfitted(model: RayModel, points, beams, base, rows: bool = False) -> 
     points to fit (:data:`FIT_LEAST`; ``fit_ray_model`` gives it the others' mean elevation, the
     middle of the fan) at its elevation in ``base``'s table: a Pandar64's 5 deg laser, 8 points a frame
     under the sky, cast at -3.7 deg beside its -3.71 deg one took that laser's pulses on the road.
-    ``rows``: ``beams`` are the table's rows (a frame in scan order:
-    :func:`~slr_ray.sequence.sources.beams_are_rows`), not its ids: the table read by row."""
+    ``rows``: ``beams`` are the table's rows, not its ids (a frame's beams are its ids whichever gave
+    them, its scan order too: :func:`frame_points_beams`): the table read by row."""
     p = np.asarray(points, np.float64)
     b = np.asarray(beams, np.int64)
     far = np.hypot(p[:, 0], p[:, 1]) > 2.0
@@ -611,9 +616,7 @@ def frame_ray_model(cache, seq, i: int, base) -> RayModel | None:
                                   stride=FIT_STRIDE)
         except InputValueError:  # too few points on its lasers
             return None
-        f, _ = cache.get(int(i))
-        return table_unfitted(model, pts[ok][::FIT_STRIDE], beams[ok][::FIT_STRIDE], base,
-                              beams_are_rows(f.points, f.attributes, base))
+        return table_unfitted(model, pts[ok][::FIT_STRIDE], beams[ok][::FIT_STRIDE], base)
 
     return cache.state(int(i), ("embree-rays model", _base_key(base)), make)
 
@@ -715,9 +718,8 @@ def fit_embree_model(seq, others, base, cache, drop_moving: bool = True, see_thr
             ok = b >= 0
             frames.append((pts[ok], b[ok], cache.get(i)[0].pose, frame_motion(seq.poses, i)))
         model = fit_ray_model([(p, b, v) for p, b, _, v in frames], base.n_beams)  # stride 2, as table_unfitted's
-        rows = all(beams_are_rows(cache.get(i)[0].points, cache.get(i)[0].attributes, base) for i, _, _ in known)
         model = table_unfitted(model, np.concatenate([p[::2] for p, _, _, _ in frames]),
-                               np.concatenate([b[::2] for _, b, _, _ in frames]), base, rows)
+                               np.concatenate([b[::2] for _, b, _, _ in frames]), base)
         return mesh_range_bias(model, frames, [s for _, s, _ in known], BIAS_STRIDE), surfaces
     model = combined_model([m for _, _, m in known])
     if len(known) < 2:

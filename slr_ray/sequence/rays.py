@@ -43,11 +43,14 @@ from dataclasses import dataclass
 
 import numpy as np
 from numba import njit
-from scipy.spatial import cKDTree
 
+from .. import lazy
 from ..errors import InputValueError
 from ..pattern import pulse_directions
 from .estimators import FPA_GAP, PulseReturns
+
+#: scipy.spatial, loaded on first use (slr_ray.lazy: the command line starts without it)
+scipy_spatial = lazy.module("scipy.spatial")
 
 __all__ = ["RayModel", "fit_ray_model", "fit_range_bias", "pattern_ray_model", "frame_motion", "sweep_offsets", "cast_rays",
            "cast_grid_rays", "RAY_NEIGHBOURS", "fit_azimuth_phases", "PHASE_COHERENCE"]
@@ -71,7 +74,12 @@ _BLOCK = 32_768
 
 @dataclass(frozen=True)
 class RayModel:
-    """Each laser's ray (arrays by laser) and the sweep's skew (module docstring)."""
+    """Each laser's ray (arrays by laser) and the sweep's skew (module docstring).
+
+    The lasers are the table's beam ids (laser ``i`` the table's beam ``i``, as a ``ring`` field numbers
+    them), whatever gave them: a frame's ring field, its file's scan order (rows taken to ids), a table's
+    ideal rays (:func:`pattern_ray_model`). :meth:`to_dict` writes the per-laser lists in that order and
+    :meth:`from_dict` reads them back."""
 
     elevation: np.ndarray       # (L,) radians
     height: np.ndarray          # (L,) m: where the laser's ray crosses the spin axis
@@ -88,6 +96,22 @@ class RayModel:
                 "elevation_deg": [round(math.degrees(x), 4) for x in self.elevation],
                 "azimuth_offset_deg": [round(math.degrees(x), 4) for x in self.azimuth_offset],
                 "range_bias_m": None if self.range_bias is None else [round(float(x), 4) for x in self.range_bias]}
+
+    @classmethod
+    def from_dict(cls, d: dict) -> "RayModel":
+        """The model :meth:`to_dict` wrote (its values as rounded there), lasers by beam id."""
+        try:
+            n = int(d["lasers"])
+            lists = [np.asarray(d[k], np.float64) for k in ("elevation_deg", "height_m", "azimuth_offset_deg")]
+            bias = d.get("range_bias_m")
+            bias = None if bias is None else np.asarray(bias, np.float64)
+        except (KeyError, TypeError, ValueError) as exc:
+            raise InputValueError(f"not a ray model's dict ({type(exc).__name__}: {exc})") from None
+        if any(v.shape != (n,) for v in lists + ([] if bias is None else [bias])):
+            raise InputValueError(f"a ray model's per-laser lists must hold {n} values each (its 'lasers')")
+        el, height, az = lists
+        return cls(np.radians(el), height, np.radians(az), float(d.get("skew", 0.0)), str(d.get("source", "pattern")),
+                   float(d.get("median_residual_deg", math.nan)), bias)
 
 
 def frame_motion(poses, i: int) -> np.ndarray:
@@ -229,7 +253,7 @@ def fit_range_bias(model: RayModel, frames, k: int = 32, stride: int = 8) -> Ray
     found = [[] for _ in range(L)]
     for j, (w, beams, pose, motion) in enumerate(frames):
         rest = np.concatenate([f[0] for i, f in enumerate(frames) if i != j])
-        tree = cKDTree(rest)
+        tree = scipy_spatial.cKDTree(rest)
         P = np.asarray(pose, np.float64)
         pw = np.asarray(w[::stride], np.float64)
         local = (pw - P[:3, 3]) @ P[:3, :3]  # into frame j
@@ -277,10 +301,11 @@ def fit_azimuth_phases(frames, n_lasers: int, columns: int) -> tuple[np.ndarray,
 
 
 def pattern_ray_model(pattern) -> RayModel:
-    """A beam table's ideal rays: each row's beam from the origin at its elevation, its azimuth
-    offset, no motion."""
-    return RayModel(math.pi / 2 - np.asarray(pattern.row_zenith, np.float64), np.zeros(pattern.n_beams),
-                    np.asarray(pattern.row_offsets, np.float64), 0.0, "pattern")
+    """A beam table's ideal rays: each beam from the origin at its elevation, its azimuth offset, no
+    motion; lasers by beam id (:class:`RayModel`), as a fitted model's."""
+    row = pattern.rows_of_beams(np.arange(pattern.n_beams))  # each beam's row
+    return RayModel((math.pi / 2 - np.asarray(pattern.row_zenith, np.float64))[row], np.zeros(pattern.n_beams),
+                    np.asarray(pattern.row_offsets, np.float64)[row], 0.0, "pattern")
 
 
 def _first_clusters(key, r, gap):
@@ -357,7 +382,7 @@ def cast_rays(points, pattern, model: RayModel | None = None, motion=(0.0, 0.0, 
     t = np.einsum("mi,mi->m", cen - origin, d)  # the cluster's centroid projected onto the ray
     lo = r[first] - max_shift  # the plane is taken where it meets the ray past the cluster's start
     if len(pts) >= neighbours:
-        tree = cKDTree(pts)
+        tree = scipy_spatial.cKDTree(pts)
         for s in range(0, len(t), _BLOCK):
             b = slice(s, s + _BLOCK)
             t[b] = _onto_plane(pts, tree, origin[b], d[b], t[b], lo[b], int(neighbours))
@@ -398,7 +423,7 @@ def cast_grid_rays(points, pattern, gap: float = FPA_GAP, neighbours: int = RAY_
     t = np.einsum("mi,mi->m", cen, d)
     lo = r[first] - max_shift
     if len(pts) >= neighbours:
-        tree = cKDTree(pts)
+        tree = scipy_spatial.cKDTree(pts)
         for s in range(0, len(t), _BLOCK):
             b = slice(s, s + _BLOCK)
             t[b] = _onto_plane(pts, tree, origin[b], d[b], t[b], lo[b], int(neighbours))

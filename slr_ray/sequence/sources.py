@@ -120,26 +120,30 @@ BEAMS_FROM_BANDS = "elevation bands"
 def known_beams(points, attributes, base, what: str = "a frame"):
     """Each point's beam in ``base``'s table: a ``ring`` field (checked: :func:`ring_beams`, naming
     ``what``), else the file's scan order
-    (:func:`~slr_ray.sensors.scan_order_beams`: the table's rows, not its ids: :func:`beams_are_rows`), else, for a card fitted from frames without rings
+    (:func:`~slr_ray.sensors.scan_order_beams`: the table's rows, given as its ids), else, for a card fitted from frames without rings
     (``meta["beams_from"]`` :data:`BEAMS_FROM_BANDS`: its beams *are* its elevation bands), the band
-    each point falls in (-1 outside them); ``None`` where none tells."""
+    each point falls in (-1 outside them); ``None`` where none tells. The beams are ``base``'s ids (table
+    positions) whichever gave them: the scan order's rows are taken to ids (``base.beam_of_row``)."""
     ring = attributes.get("ring")
     if ring is not None:
         return ring_beams(ring, base, what)
     order = scan_order_beams(points, base.n_beams)
-    if order is None and getattr(base, "meta", {}).get("beams_from") == BEAMS_FROM_BANDS and len(points):
+    if order is not None:  # the file's rows as the table's beam ids, as a ring field gives them
+        return np.asarray(base.beam_of_row)[order]
+    if getattr(base, "meta", {}).get("beams_from") == BEAMS_FROM_BANDS and len(points):
         bands = base.with_(min_range=None, max_range=None)  # the band by elevation alone, at any range
         keys, _ = bands.pulse_ids(np.asarray(points, np.float64), np.zeros(3))
         rows = np.where(keys >= 0, keys // base.columns, -1)
         return np.where(rows >= 0, np.asarray(base.beam_of_row)[np.maximum(rows, 0)], -1).astype(np.int64)
-    return order
+    return None
 
 
 def beams_are_rows(points, attributes, base) -> bool:
-    """Whether :func:`known_beams` gives the frame's beams as ``base``'s range-image rows (its file's scan
-    order: ring 0 the highest, a KITTI ``.bin``'s), not its table's ids: an HDL-64E's, a VLP-16's or a
-    Pandar64's table does not list its beams top first, and a lookup in the table by beam
-    (``elevation_deg[beam]``) then takes ``elevation_deg[beam_of_row[beam]]``."""
+    """Whether the frame's beams come from its file's scan order (ring 0 the highest, a KITTI ``.bin``'s:
+    ``base``'s range-image rows), not a ring field. :func:`known_beams` gives them as the table's ids
+    either way (``beam_of_row[row]``): an HDL-64E's, a VLP-16's or a Pandar64's table does not list its
+    beams top first, and every frame of a sequence has its beams by the same rule (a mixed sequence's
+    lasers, fits and meshes by id)."""
     return attributes.get("ring") is None and scan_order_beams(points, base.n_beams) is not None
 
 
@@ -164,6 +168,7 @@ def source_view(local, attributes, base, what: str = "a frame") -> SourceView:
         beams = ring_beams(ring, base, what)
     else:
         beams = scan_order_beams(local, base.n_beams)
+        beams = None if beams is None else np.asarray(base.beam_of_row)[beams]  # rows to ids: known_beams'
     pat = fitted_pattern(local, beams, base) if beams is not None else base
     keys, ranges, _ = pat.reduce(local, np.zeros(3))
     img = np.full(pat.n_pulses, np.nan)

@@ -28,14 +28,17 @@ from __future__ import annotations
 from pathlib import Path
 
 import numpy as np
-import trimesh
 
+from .. import lazy
 from ..io import PointCloud, atomic_path, write_cloud
 from ..meshscan import scan_mesh
 from ..errors import InputValueError
 from ..sensors import miscalibrated, sensor_noise
 from ..sensors import sensor as shipped_sensor
 from .frames import write_kitti_poses
+
+#: trimesh, loaded on first use (slr_ray.lazy: the command line starts without it)
+trimesh = lazy.module("trimesh")
 
 __all__ = ["synthetic_drive", "street_mesh", "KITTI_TR", "ROAD", "BUILDING", "CAR", "MOVING_CAR", "REAL_UNIT", "UNITS",
            "MOVING_SPEED"]

@@ -12,13 +12,16 @@ import math
 
 import numpy as np
 from numba import njit, prange
-from scipy.spatial import cKDTree
 
+from ... import lazy
 from ...arrays import as_origin, bounds
 from ...errors import InputValueError
 from ...pattern import as_pattern
 from ...raycast import padded_rows
 from .options import RADIUS_MODES
+
+#: scipy.spatial, loaded on first use (slr_ray.lazy: the command line starts without it)
+scipy_spatial = lazy.module("scipy.spatial")
 
 __all__ = ["neighbourhoods", "disc_radii", "estimate_normals", "chunk_normals", "fallback_directions",
            "limit_incidence", "turned", "pca_normal", "fan_polygons", "primary_steps", "footprint_angle",
@@ -45,7 +48,7 @@ def neighbourhoods(points, k: int, chunk: int = 1 << 20):
         return
     chunk = max(1, min(chunk, _NEIGHBOUR_BYTES // (16 * (k + 1))))  # a chunk's distances and indices
     c = 0.5 * np.add(*bounds(pts))
-    tree = cKDTree(pts - c, balanced_tree=False, compact_nodes=False)
+    tree = scipy_spatial.cKDTree(pts - c, balanced_tree=False, compact_nodes=False)
     for s in range(0, n, chunk):
         q = pts[s:s + chunk] - c
         d, i = tree.query(q, k=k + 1, workers=-1)

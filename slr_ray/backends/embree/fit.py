@@ -28,12 +28,15 @@ from __future__ import annotations
 import math
 
 import numpy as np
-from scipy.spatial import cKDTree
 
+from ... import lazy
 from ...arrays import as_origin
 from ...errors import InputValueError
 from ...pattern import ScanPattern
 from ...sensors import fitted_pattern, scan_order_beams, sensor
+
+#: scipy.spatial, loaded on first use (slr_ray.lazy: the command line starts without it)
+scipy_spatial = lazy.module("scipy.spatial")
 
 __all__ = ["fit_primary_pattern", "fitted_grid_holds", "fit_quality", "FIT", "FIT_SENSOR", "FIT_STEP_TOLERANCE",
            "FIT_MIN_SINGLE"]
@@ -60,6 +63,7 @@ def fit_primary_pattern(points, origin, min_quality: float = FIT_MIN_SINGLE):
     base = sensor(FIT_SENSOR)
     beams = scan_order_beams(p, base.n_beams)
     if beams is not None:
+        beams = np.asarray(base.beam_of_row)[beams]  # rows to the table's beam ids (fitted_pattern's, pulse_ids')
         pattern = fitted_pattern(p, beams, base)
         quality = fit_quality(p, pattern, beams)
         how = f"beam table: {FIT_SENSOR} fitted to the cloud's {base.n_beams} rings (scan order)"
@@ -159,7 +163,7 @@ def _rough_steps(theta, phi, sectors):
         th, ph = theta[m], phi[m]
         st = np.sin(th)
         xy = np.column_stack([th, ph * st])
-        _, idx = cKDTree(xy).query(xy, k=min(7, len(m)))
+        _, idx = scipy_spatial.cKDTree(xy).query(xy, k=min(7, len(m)))
         dth = th[idx[:, 1:]] - th[:, None]
         dah = (ph[idx[:, 1:]] - ph[:, None]) * st[:, None]
         up = (np.abs(dah) < 0.25 * np.abs(dth)) & (dth != 0)
@@ -181,7 +185,7 @@ def _right_offsets(th, ph, v0, sth, sph):
     a row ``v0`` and a quarter of the offset along the sphere (a pulse's other returns left out)."""
     st = np.sin(th)
     xy = np.column_stack([th * sth, ph * st * sph])
-    _, idx = cKDTree(xy).query(xy, k=min(9, len(th)))
+    _, idx = scipy_spatial.cKDTree(xy).query(xy, k=min(9, len(th)))
     dth = np.abs(th[idx[:, 1:]] - th[:, None])
     dph = ph[idx[:, 1:]] - ph[:, None]
     ok = (dph > 0) & (dth < 0.5 * v0) & (dth < 0.25 * dph * st[:, None])
@@ -198,7 +202,7 @@ def _row_offsets(theta, phi, sectors, v0: float, h0: float):
     for m in sectors:
         th, ph = theta[m], phi[m]
         xy = np.column_stack([th / v0, ph * (2.0 / h0)])
-        _, idx = cKDTree(xy).query(xy, k=min(9, len(m)))
+        _, idx = scipy_spatial.cKDTree(xy).query(xy, k=min(9, len(m)))
         dth = th[idx[:, 1:]] - th[:, None]
         dah = np.abs(ph[idx[:, 1:]] - ph[:, None]) * np.sin(th)[:, None]
         # within its column (half a column either side), a pulse's other returns left out by the cone

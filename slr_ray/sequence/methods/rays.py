@@ -13,7 +13,7 @@ from ...errors import SlrWarning
 from ..embree_rays import table_unfitted
 from ..rays import (RayModel, cast_grid_rays, cast_rays, fit_azimuth_phases, fit_range_bias, fit_ray_model,
                     frame_motion, pattern_ray_model)
-from ..sources import beams_are_rows, known_beams
+from ..sources import known_beams
 from .base import HeldOut, RaysOptions, SequenceMethod
 
 __all__ = ["Rays", "METHOD", "holdout_ray_model", "GRID_RAYS"]
@@ -31,7 +31,7 @@ def holdout_ray_model(seq, others, base, pattern, cache) -> RayModel:
     (:func:`~slr_ray.sequence.rays.fit_azimuth_phases`, in ``pattern``'s columns), and each laser's
     range bias against the others' frames (:func:`~slr_ray.sequence.rays.fit_range_bias`). Where a frame's beams are not known, the
     pattern's own rays."""
-    frames, worlds, unknown, rows = [], [], [], []
+    frames, worlds, unknown = [], [], []
     for i in others:
         f, w = cache.get(i)
         beams = known_beams(f.points, f.attributes, base, f"frame {seq.names[i]} ({seq.paths[i]})")  # out of the table: refused, named
@@ -41,7 +41,6 @@ def holdout_ray_model(seq, others, base, pattern, cache) -> RayModel:
         base.rows_of_beams(beams, len(f.points))  # one a point
         known = beams >= 0  # -1: a point whose beam is not known
         frames.append((f.points[known], beams[known], frame_motion(seq.poses, i)))
-        rows.append(beams_are_rows(f.points, f.attributes, base))
         worlds.append((w[known], beams[known], seq.poses[i], frames[-1][2]))
     if unknown:
         warnings.warn(f"frame(s) {', '.join(unknown)}: beams not known (no ring field, not in {base.name}'s scan "
@@ -51,7 +50,7 @@ def holdout_ray_model(seq, others, base, pattern, cache) -> RayModel:
         return pattern_ray_model(pattern)
     model = fit_ray_model(frames, base.n_beams)  # stride 2: a laser too sparse to fit keeps its table's elevation
     model = table_unfitted(model, np.concatenate([p[::2] for p, _, _ in frames]),
-                           np.concatenate([b[::2] for _, b, _ in frames]), base, all(rows))
+                           np.concatenate([b[::2] for _, b, _ in frames]), base)
     if pattern is not None:  # where in its column each laser fires (an Ouster's at the edge): its rays cast there
         offset, _ = fit_azimuth_phases([(p, b) for p, b, _ in frames], base.n_beams, pattern.columns)
         model = dataclasses.replace(model, azimuth_offset=offset)
