@@ -18,8 +18,7 @@ import numpy as np
 from numba import njit
 
 __all__ = ["in_index_order", "OutputPool", "mark_records", "place_records", "place_records_pulses", "mark_alive",
-           "place_alive", "place_alive_pulses", "mark_dense", "place_dense", "place_dense_pulses",
-           "lowest_bit", "mark_bit"]
+           "place_alive", "place_alive_pulses", "mark_dense", "place_dense"]
 
 _ONE = np.uint64(1)
 _M1 = np.uint64(0x5555555555555555)
@@ -125,57 +124,21 @@ def place_alive_pulses(tab, lose, bits, rank, n_columns, pulses, ranges, idx):
             _place_record_pulse(tab, j, bits, rank, n_columns, pulses, ranges, idx)
 
 
-@njit(cache=True, inline="always", error_model="numpy")
-def lowest_bit(x):
-    """Position of the lowest set bit of ``x`` (a non-zero uint64)."""
-    return _popcount((x & (~x + _ONE)) - _ONE)
-
-
-@njit(cache=True, inline="always", error_model="numpy")
-def mark_bit(bits, i):
-    """Set bit ``i`` of a bitmap of uint64 words."""
-    _mark(bits, i)
+@njit(cache=True, nogil=True, error_model="numpy")
+def mark_dense(bidx, bits):
+    for k in range(bidx.shape[0]):
+        if bidx[k] >= 0:
+            _mark(bits, bidx[k])
 
 
 @njit(cache=True, nogil=True, error_model="numpy")
-def mark_dense(rec, occupied, bits):
-    """Dense records ``rec[key] = (range, index)`` of the keys set in ``occupied``: mark their winners."""
-    for w in range(occupied.shape[0]):
-        word = occupied[w]
-        while word:
-            k = (w << 6) + lowest_bit(word)
-            word &= word - _ONE
-            _mark(bits, np.int64(rec[k, 1]))
-
-
-@njit(cache=True, nogil=True, error_model="numpy")
-def place_dense(rec, occupied, bits, rank, keys, ranges, idx):
-    for w in range(occupied.shape[0]):
-        word = occupied[w]
-        while word:
-            k = (w << 6) + lowest_bit(word)
-            word &= word - _ONE
-            i = np.int64(rec[k, 1])
+def place_dense(bidx, branges, bits, rank, keys, ranges, idx):
+    for k in range(bidx.shape[0]):
+        i = bidx[k]
+        if i >= 0:
             p = _place(bits, rank, i)
             keys[p] = k
-            ranges[p] = rec[k, 0]
-            idx[p] = i
-
-
-@njit(cache=True, nogil=True, error_model="numpy")
-def place_dense_pulses(rec, occupied, bits, rank, n_columns, pulses, ranges, idx):
-    """As :func:`place_dense`, each key written as its pulse ``(row, column)``."""
-    for w in range(occupied.shape[0]):
-        word = occupied[w]
-        while word:
-            k = (w << 6) + lowest_bit(word)
-            word &= word - _ONE
-            i = np.int64(rec[k, 1])
-            p = _place(bits, rank, i)
-            v = k // n_columns
-            pulses[p, 0] = v
-            pulses[p, 1] = k - v * n_columns
-            ranges[p] = rec[k, 0]
+            ranges[p] = branges[k]
             idx[p] = i
 
 

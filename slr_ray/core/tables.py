@@ -9,10 +9,9 @@ refused, so a bad chunk leaves the state untouched.
 Tables are of three kinds, by the pattern's size:
 
 - **dense** (``16 * n_pulses * n_threads`` bytes within
-  :attr:`BinTables.dense_bytes`, 256 MiB; 0.144 deg has 3.1e6 pulses): one
-  16-byte record ``(range, index)`` per pulse and a bitmap of the occupied
-  pulses, one table per thread; threads split the points and the tables
-  merge, in parallel, in O(occupied bins) when the result is asked for;
+  :attr:`BinTables.dense_bytes`, 256 MiB; 0.144 deg has 3.1e6 pulses): plain
+  per-pulse arrays, one per thread; threads split the points and the tables
+  merge, in parallel, in O(pulses) when the result is asked for;
 - **slots** (``4 * n_pulses`` within :attr:`BinTables.slot_bytes`, 512 MiB;
   SYNS's 0.036 deg has 3.75e7 pulses): int32 slots per pulse pointing into
   compact records ``(key, range, index)`` (:mod:`slr_ray.core.slots`). While
@@ -51,8 +50,8 @@ from ..arrays import unravel_ids
 from ..errors import InputValueError, StateError
 from ..threads import default_threads
 from .grid import BLOCK, block_keys, block_keys_range, count_nonfinite, kernel_params, ranges_into, scratch
-from .order import (in_index_order, lowest_bit, mark_alive, mark_bit, mark_dense, mark_records, place_alive, place_alive_pulses,
-                    place_dense, place_dense_pulses, place_records, place_records_pulses)
+from .order import (in_index_order, mark_alive, mark_dense, mark_records, place_alive, place_alive_pulses,
+                    place_dense, place_records, place_records_pulses)
 from .slots import GROUP, INITIAL_CAPACITY, RECORD, SlotTable, mark_losers, owner
 
 __all__ = ["BinTables"]
@@ -73,18 +72,12 @@ _COMPACT_MAX_POINTS = 2**32 - 1
 _GROW_LOCK = threading.Lock()
 
 
-# --- dense per-pulse records ---------------------------------------------------
+# --- dense per-pulse arrays ----------------------------------------------------
 
 @njit(cache=True, nogil=True, error_model="numpy")
 def _reduce_dense(points, ox, oy, oz, d_theta, d_phi, th0, th1, nv, nh, rmin, rmax,
-                  rec, occupied, offset, start, stop):
-    """Bin points[start:stop] into dense per-pulse records; returns new bins.
-
-    ``rec[key] = (range, index)``, float64 (indices exact below 2**53), ``(inf, -1)``
-    empty: a look-up and its update touch one cache line (two arrays took two at
-    every improvement, a fifth of the points at 0.144 deg). A new bin sets its bit
-    in ``occupied``, which the read-out, merge and clear follow.
-    """
+                  branges, bidx, offset, start, stop):
+    """Bin points[start:stop] into dense per-pulse arrays; returns new bins."""
     x, y, z, th, ph, keys, ranges = scratch()
     new = 0
     for s in range(start, stop, BLOCK):
@@ -97,48 +90,29 @@ def _reduce_dense(points, ox, oy, oz, d_theta, d_phi, th0, th1, nv, nh, rmin, rm
                 continue
             r = ranges[i]
             # indices only grow within a table: a strict < keeps ties on the lowest
-            if r < rec[key, 0]:
-                if rec[key, 1] < 0.0:
-                    mark_bit(occupied, key)
+            if r < branges[key]:
+                if bidx[key] < 0:
                     new += 1
-                rec[key, 0] = r
-                rec[key, 1] = offset + s + i
+                branges[key] = r
+                bidx[key] = offset + s + i
     return new
 
 
 @njit(cache=True, nogil=True, error_model="numpy")
-def _merge_dense(rec, occupied, orec, oocc, start, stop):
-    """Fold another table's occupied bins in words [start, stop) of its bitmap in; returns new bins."""
+def _merge_dense(branges, bidx, oranges, oidx, start, stop):
+    """Fold keys [start, stop) of another table into this one; returns new bins."""
     new = 0
-    for w in range(start, stop):
-        word = oocc[w]
-        while word:
-            k = (w << 6) + lowest_bit(word)
-            word &= word - np.uint64(1)
-            r = orec[k, 0]
-            j = orec[k, 1]
-            i = rec[k, 1]
-            if i < 0.0:
-                mark_bit(occupied, k)
-                new += 1
-            if i < 0.0 or r < rec[k, 0] or (r == rec[k, 0] and j < i):
-                rec[k, 0] = r
-                rec[k, 1] = j
+    for k in range(start, stop):
+        j = oidx[k]
+        if j < 0:
+            continue
+        i = bidx[k]
+        if i < 0:
+            new += 1
+        if i < 0 or oranges[k] < branges[k] or (oranges[k] == branges[k] and j < i):
+            branges[k] = oranges[k]
+            bidx[k] = j
     return new
-
-
-@njit(cache=True, nogil=True, error_model="numpy")
-def _clear_dense(rec, occupied):
-    """Empty the occupied bins (and the bitmap)."""
-    for w in range(occupied.shape[0]):
-        word = occupied[w]
-        if word:
-            occupied[w] = 0
-            while word:
-                k = (w << 6) + lowest_bit(word)
-                word &= word - np.uint64(1)
-                rec[k, 0] = np.inf
-                rec[k, 1] = -1.0
 
 
 # --- hash tables of records (key, r, idx) ---------------------------------------
@@ -246,55 +220,50 @@ def _merge_hash(src, dst):
 
 
 class _DenseTable:
-    """Per-pulse records (range, index) and a bitmap of the occupied pulses (few-pulse
-    patterns): read-out, clear and merge follow the bitmap in key order."""
+    """Per-pulse arrays (range, index): used when the pattern has few pulses."""
 
-    __slots__ = ("rec", "occupied", "count")
+    __slots__ = ("ranges", "idx", "count")
 
     def __init__(self, n_pulses: int):
-        self.rec = np.empty((n_pulses, 2), np.float64)
-        self.rec[:, 0] = np.inf
-        self.rec[:, 1] = -1.0
-        self.occupied = np.zeros((n_pulses + 63) >> 6, np.uint64)
+        self.ranges = np.full(n_pulses, np.inf)
+        self.idx = np.full(n_pulses, -1, dtype=np.int64)
         self.count = 0
 
     def reduce(self, points, params, offset, start, stop) -> None:
-        self.count += _reduce_dense(points, *params, self.rec, self.occupied, offset, start, stop)
+        self.count += _reduce_dense(points, *params, self.ranges, self.idx, offset, start, stop)
 
     def absorb(self, other: "_DenseTable", pool=None, n_parts: int = 1) -> None:
         """Fold ``other`` in (its entries stay: they are dominated now, so a
         later absorb of the same table changes nothing)."""
         if not other.count:
             return
-        n = len(self.occupied)
+        n = len(self.idx)
         step = -(-n // n_parts)
-        parts = [(a, min(a + step, n)) for a in range(0, n, step)]  # whole words: no two parts share one
-        args = (self.rec, self.occupied, other.rec, other.occupied)
+        parts = [(a, min(a + step, n)) for a in range(0, n, step)]
+        args = (self.ranges, self.idx, other.ranges, other.idx)
         if pool is None or len(parts) == 1:
             self.count += sum(_merge_dense(*args, a, b) for a, b in parts)
         else:
             self.count += sum(pool.map(lambda ab: _merge_dense(*args, *ab), parts))
 
-    def clear(self) -> None:
-        """Empty the table, in O(occupied bins + pulses / 64)."""
-        _clear_dense(self.rec, self.occupied)
+    def clear(self, keys=None) -> None:
+        """Empty the table: only at ``keys`` when every occupied bin is among them."""
+        if keys is None:
+            self.ranges.fill(np.inf)
+            self.idx.fill(-1)
+        else:
+            self.ranges[keys] = np.inf
+            self.idx[keys] = -1
         self.count = 0
 
-    def extract(self, n_points: int, n_columns: int = 0, alloc=None):
-        """Occupied bins ``(keys, ranges, indices)`` in index order (every index below
-        ``n_points``); ``n_columns``: pulses ``(m, 2)`` in place of the keys.
-        ``alloc(m)``: the output arrays (default: new ones)."""
-        if n_columns:
-            place = lambda *out: place_dense_pulses(self.rec, self.occupied, out[0], out[1],  # noqa: E731
-                                                    np.int64(n_columns), *out[2:])
-        else:
-            place = lambda *out: place_dense(self.rec, self.occupied, *out)  # noqa: E731
-        return in_index_order(n_points, self.count, lambda bits: mark_dense(self.rec, self.occupied, bits),
-                              place, (2,) if n_columns else (), alloc)
+    def extract(self, n_points: int):
+        """Occupied bins ``(keys, ranges, indices)`` sorted by index (every index below ``n_points``)."""
+        return in_index_order(n_points, self.count, lambda bits: mark_dense(self.idx, bits),
+                               lambda *out: place_dense(self.idx, self.ranges, *out))
 
     @property
     def nbytes(self) -> int:
-        return self.rec.nbytes + self.occupied.nbytes
+        return self.ranges.nbytes + self.idx.nbytes
 
 
 class _HashTable:
@@ -430,6 +399,9 @@ class BinTables:
         self.tables = [self._new_table(i) for i in range(self.n_threads)]
         self.n_points = 0
         self._params = kernel_params(origin, pattern)
+        #: occupied keys of the merged dense table when no add() came after
+        #: the merge: then they are all that reset() has to clear
+        self._touched = None
         #: own slot tables: the others are folded into the first since the last add()
         self._folded = False
         #: own slot tables: (records of each table, which of them another table beats, winners) since the last add()
@@ -452,8 +424,8 @@ class BinTables:
         self._resolution = None
         self._word_aligned = True
         if self.kind == "dense":
-            for t in self.tables:  # each at the bins it filled: O(occupied)
-                t.clear()
+            for t in self.tables:
+                t.clear(self._touched)
         elif self.kind == "slots":
             if self._private and len(self.tables) > 1 and self.tables[0].count > self.parallel_records:
                 with ThreadPoolExecutor(len(self.tables)) as pool:  # each its own slot array: in parallel
@@ -464,6 +436,7 @@ class BinTables:
         else:
             self._compact = self.pattern.n_pulses <= _COMPACT_MAX_PULSES
             self.tables = [self._new_table(i) for i in range(len(self.tables))]
+        self._touched = None
         return self
 
     def _new_table(self, i: int = 0):
@@ -498,6 +471,7 @@ class BinTables:
         n = len(points)
         if n == 0:
             return 0
+        self._touched = None
         if self._private:
             return self._add_private(points, finite)
         if not self.dense:
@@ -657,7 +631,7 @@ class BinTables:
 
     def _merged(self):
         """Dense tables: fold all into the first (threads split the points; the
-        merge splits the keys and visits the occupied bins only)."""
+        merge splits the keys)."""
         first, *rest = self.tables
         if any(t.count for t in rest):
             with ThreadPoolExecutor(self.n_threads) as pool:
@@ -687,8 +661,8 @@ class BinTables:
         ``as_pulses=True``: ``(m, 2) int64`` pulses ``(row, column)`` in place
         of the flat keys (what :class:`~slr_ray.Scan` holds: written once,
         with no flat keys in between). ``pool``: an
-        :class:`~slr_ray.core.order.OutputPool` those arrays come from
-        (``as_pulses=True``; without ``release``).
+        :class:`~slr_ray.core.order.OutputPool` those arrays come from (slot
+        and hash tables, ``as_pulses=True``).
 
         Winners are put in index order without a sort (one bit a point, then
         each bin's record written at its rank), carrying key and range along.
@@ -704,11 +678,10 @@ class BinTables:
         """
         if self.tables is None:
             raise StateError("these tables were released by winners(release=True)")
-        if self.dense:  # pulses written directly (no flat keys in between), into pooled arrays
-            keys, ranges, idx = self._merged().extract(
-                self.n_points, self.pattern.shape[1] if as_pulses else 0,
-                pool.take if pool is not None and as_pulses else None)
-            return keys, (ranges if with_ranges else None), idx
+        if self.dense:
+            keys, ranges, idx = self._merged().extract(self.n_points)
+            self._touched = keys
+            return self._out(keys, as_pulses), (ranges if with_ranges else None), idx
         m = self.n_bins
         if not release:
             return self._winners_in_place(m, with_ranges, as_pulses, pool)
