@@ -588,3 +588,74 @@ def test_own_slot_tables_marked_side_by_side_only_on_whole_words(monkeypatch, fi
     np.testing.assert_array_equal(t.winners()[2], brute_force_scan(pts, np.zeros(3), pattern))
     t.reset(np.zeros(3))
     assert t._word_aligned
+
+
+def _definition_winners(points, origin, pattern):
+    """The nearest-in-pulse rule straight from its definition, with libm and
+    Python loops only (no slr_ray kernel): ``(keys, ranges, indices)`` in index order."""
+    import math
+
+    d_theta, d_phi, th0, th1 = pattern.radians
+    rmin, rmax = pattern.range_limits
+    nv, nh = pattern.shape
+    best = {}
+    for i, (x, y, z) in enumerate(np.asarray(points, np.float64).tolist()):
+        dx, dy, dz = x - origin[0], y - origin[1], z - origin[2]
+        r = math.sqrt(dx * dx + dy * dy + dz * dz)
+        if r == 0.0 or r < rmin or r > rmax:
+            continue
+        theta = math.atan2(math.hypot(dx, dy), dz)
+        if theta < th0 or theta > th1:
+            continue
+        phi = math.atan2(dy, dx)
+        phi = phi + 2 * math.pi if phi < 0 else phi
+        key = min(int(math.floor((theta - th0) / d_theta)), nv - 1) * nh + min(int(math.floor(phi / d_phi)), nh - 1)
+        if key not in best or (r, i) < best[key]:
+            best[key] = (r, i)
+    won = sorted((i, k, r) for k, (r, i) in best.items())
+    return (np.array([k for _, k, _ in won], np.int64), np.array([r for _, _, r in won], np.float64),
+            np.array([i for i, _, _ in won], np.int64))
+
+
+# offsets from the scanner, multiples of 1/1024 m (exact after a shift by 1e6 m): the poles
+# (dx = dy = 0), the azimuth wrap (dy = 0, +-1/1024 with dx > 0), the axes, and any grid point
+_SPECIAL = [(0.0, 0.0, 5.0), (0.0, 0.0, -5.0), (0.0, 0.0, 0.0), (7.0, 0.0, 1.0), (7.0, 2 ** -10, 1.0),
+            (7.0, -(2 ** -10), 1.0), (-7.0, 0.0, 1.0), (0.0, 7.0, 0.0), (0.0, -7.0, -3.0), (3.0, 4.0, 0.0),
+            (-4.0, 3.0, 0.0), (4.0, -3.0, 0.0)]
+_OFFSET = st.one_of(st.sampled_from(_SPECIAL),
+                    st.tuples(*[st.integers(-20 * 1024, 20 * 1024).map(lambda v: v / 1024)] * 3))
+
+
+@settings(max_examples=30, deadline=None)
+@given(offsets=st.lists(_OFFSET, max_size=40), repeat=st.lists(st.integers(0, 39), max_size=10),
+       res=st.sampled_from([3.0, 20.0, 45.0]), shift=st.sampled_from([0.0, 1e6]),
+       limits=st.sampled_from([{}, {"zenith_range": (10.0, 150.0), "min_range": 2.0, "max_range": 15.0}]),
+       n_threads=st.sampled_from([1, 2]))
+def test_every_table_kind_keeps_the_nearest_point_of_each_pulse_as_defined(offsets, repeat, res, shift, limits,
+                                                                            n_threads):
+    # ties (repeated rows, equal ranges in one pulse), the poles, the azimuth wrap and the
+    # view and range limits, 1e6 m from the coordinates' origin, in chunks, every table
+    # kind, the dense read-out as keys and as pulses into pooled arrays: the same
+    # (keys, ranges, indices) as the definition computed with libm by plain loops
+    from slr_ray.core.order import OutputPool
+
+    origin = np.array([shift + 1.5, shift - 2.25, 0.75])
+    pts = origin + np.array(offsets + [offsets[j] for j in repeat if j < len(offsets)], np.float64).reshape(-1, 3)
+    pattern = ScanPattern(res, **limits)
+    want = _definition_winners(pts, origin, pattern)
+    mp = pytest.MonkeyPatch()
+    try:
+        for kind in ("dense", "slots", "shared-slots", "hash"):
+            t = _tables(kind, origin, pattern, n_threads, mp)
+            for _ in range(2):  # the second time on reset tables
+                half = len(pts) // 2
+                t.add(pts[:half])
+                t.add(pts[half:])
+                for a, b in zip(t.winners(), want):
+                    np.testing.assert_array_equal(a, b)
+                pulses, ranges, idx = t.winners(as_pulses=True, pool=OutputPool())
+                np.testing.assert_array_equal(pulses[:, 0] * pattern.shape[1] + pulses[:, 1], want[0])
+                np.testing.assert_array_equal(idx, want[2])
+                t.reset(origin)
+    finally:
+        mp.undo()
