@@ -15,7 +15,7 @@ from ..io.outputs import LOCK_NAME, OutputPlan, resolve
 from ..sensors import sensor
 from ..errors import InputValueError, OutputError, SlrError, SlrWarning
 from ..sequence import (REMOVE_MOVING, SeeThrough, convert_sequence, evaluate_sequence, read_sequence,
-                        read_trajectory, register_chain, write_kitti_poses)
+                        register_chain, write_kitti_poses)
 from ..sequence.holdout import (GRID_SOURCES, check_held_out_kinds, lidar4d_holdout,
                                one_frame_refusal)
 from ..sequence.convert import check_source_frame
