@@ -198,15 +198,20 @@ def open_edge_skirts(points, rows, n_rows: int, faces, max_ratio: float = MAX_RA
     seg = (r_[a] == r_[b]) & (az[b] - az[a] <= math.radians(max_step_deg)) & (hi - lo <= max_ratio * lo)
     a, b, spread = a[seg], b[seg], ((hi - lo) / np.maximum(lo, 1e-12))[seg]
     n, parts = len(p), []
-    key = np.minimum(a, b) * n + np.maximum(a, b)
+    pos = np.full(n, -1, np.int64)
+    pos[order] = np.arange(len(order))
     for side in (0, 1):  # 0: the ring above (a lower row), 1: below
-        open_ = ~np.isin(key, _covered_edges(f, r_, 2 * side - 1, n)) & (half[r_[a], side] != 0)
+        open_ = ~_covered_edges(f, r_, 2 * side - 1, pos)[a] & (half[r_[a], side] != 0)
         sa, sb, t = a[open_], b[open_], half[r_[a[open_]], side]
         parts.append(((sa, sb, sb, sa), (0 * t, 0 * t, t, t), (0 * t,) * 4, spread[open_], None))
     # a cap about each point on an open edge (a ray through the point meets its inside, not a corner) and
     # each where its ring's run ends (no stretch beyond it in azimuth: a lone point, a thin object's end)
-    ends = keep[~(np.isin(keep, a) & np.isin(keep, b))]
-    end = np.unique(np.concatenate([ends] + [c for q in parts for c in q[0][:2]]))
+    right, left, mark = np.zeros(n, bool), np.zeros(n, bool), np.zeros(n, bool)
+    right[a], left[b] = True, True
+    mark[keep] = ~(right[keep] & left[keep])  # not joined on both sides: a run's end
+    for q in parts:
+        mark[q[0][0]] = mark[q[0][1]] = True
+    end = np.flatnonzero(mark)
     up, dn = half[r_[end], 0], half[r_[end], 1]
     col = math.radians(share * column) + 0 * up
     parts.append(((end,) * 4, (up, dn, dn, up), (-col, -col, col, col), 0 * up, end))
@@ -250,18 +255,19 @@ def _quads(parts, n: int):
             np.concatenate(sp).astype(np.float64))
 
 
-def _covered_edges(faces, rows, side: int, n: int) -> np.ndarray:
-    """The stretches of ring (``min * n + max`` of their two points) a triangle of ``faces`` joins to the
-    ring ``side`` of theirs (-1 above, 1 below), sorted."""
+def _covered_edges(faces, rows, side: int, pos) -> np.ndarray:
+    """``(n,) bool``: whether the stretch of ring from each point to the next in its ring's azimuth order
+    (``pos`` each point's place in that order) is joined by a triangle of ``faces`` to the ring ``side`` of
+    theirs (-1 above, 1 below): a zipper's triangle holds two points next in one ring."""
+    out = np.zeros(len(pos), bool)
     if not len(faces):
-        return np.zeros(0, np.int64)
+        return out
     fr = rows[faces]
-    keys = []
     for i, j, k in ((0, 1, 2), (1, 2, 0), (0, 2, 1)):
         m = (fr[:, i] == fr[:, j]) & (np.sign(fr[:, k] - fr[:, i]) == side)
         u, v = faces[m, i], faces[m, j]
-        keys.append(np.minimum(u, v) * n + np.maximum(u, v))
-    return np.unique(np.concatenate(keys))
+        out[np.where(pos[u] < pos[v], u, v)] = True
+    return out
 
 
 def skirt_vertices(points, parents, shifts) -> np.ndarray:
