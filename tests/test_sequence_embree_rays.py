@@ -467,7 +467,7 @@ def test_a_far_object_one_ring_met_is_met_again_from_the_same_pose():
     row = 20
     pts, rows = _far_bar(pat, model, row)
     assert len(frame_mesh(pts, rows, pat.n_beams)) == 0  # one ring: no triangle
-    parents, shifts, tri, _ = open_edge_skirts(pts, rows, pat.n_beams, np.zeros((0, 3), np.int64))
+    _, shifts, tri, _ = open_edge_skirts(pts, rows, pat.n_beams, np.zeros((0, 3), np.int64))
     assert len(tri) and np.all(np.abs(shifts[:, 0]) < math.radians(0.2))  # within the step to the next ring
     surf = MeshFrames().add(0, pts, rows, np.eye(4), pat.n_beams, columns=pat.columns)
     assert surf[0] is not None and surf[1].max() < len(pts)  # the skirts' corners stand for their points
@@ -493,7 +493,7 @@ def test_returns_in_pulses_the_frames_fired_from_the_target_pose_left_empty_are_
 
     pat = sensor("hesai_pandar64_pjlab")
     model = pattern_ray_model(pat)
-    o, d, las = rays_of_model(pat, model)
+    o, d, _ = rays_of_model(pat, model)
     ok = (np.abs(np.arctan2(d[:, 1], d[:, 0])) < math.radians(10)) & (np.abs(d[:, 2]) < 0.1)
     wall = o[ok] + 50.0 * d[ok]
     keys, ranges = pat.pulse_ids(wall, np.zeros(3))

@@ -15,7 +15,7 @@ import numpy as np
 
 from .estimators import PulseReturns
 
-__all__ = ["SAME_POSE_M", "same_pose_frames", "pulses_voted", "keep_voted"]
+__all__ = ["SAME_POSE_M", "keep_voted", "pulses_voted", "same_pose_frames"]
 
 #: a source frame whose origin lies within this (m) of the target's was recorded from its pose: its pulses
 #: are the target's (a standing Pandar64's frames lie 0.5 mm apart; KITTI's 0.7 m, the OS1-128's 0.25 m)
