@@ -57,8 +57,9 @@ from ..raycast import RayScene
 from .estimators import FPA_GAP, PulseReturns, fpa_returns
 from .rays import (PHASE_COHERENCE, RayModel, fit_ray_model, frame_motion, pattern_ray_model,
                    sweep_offsets)
+from . import ring_mesh
 from .ring_mesh import (MAX_RATIO, MAX_STEP_COLUMNS, MAX_STEP_DEG, WEAK_RATIO, frame_mesh_spread,
-                        frame_mesh, ratio_widening)
+                        frame_mesh, open_edge_skirts, ratio_widening, skirt_vertices)
 from .sources import known_beams
 from .union import Keep, rotate
 
@@ -80,8 +81,10 @@ TNEAR = 1.0
 #: a ray no mesh meets is cast again tilted up and down by this many of its lasers' fit residuals (the
 #: median angle of their points off their lines: a mesh's edge is known to within it). 3 (rays' line fit
 #: keeps its points within 3) met more of a Pandar64's pulses (drop accuracy 0.948 to 0.954) but cost the
-#: KITTI frames 0.0006 F@5cm and 0.03 m depth RMSE (1: 0.0002, 0.005 m; docs/sequences.md)
-EDGE_RESIDUALS = 1.0
+#: KITTI frames 0.0006 F@5cm and 0.03 m depth RMSE (1: 0.0002, 0.005 m; docs/sequences.md). 0: off, since the
+#: meshes' open edges have skirts (ring_mesh.open_edge_skirts: the Pandar64's pulses the same without it, the
+#: KITTI frames' F@5cm, RMSE, drop accuracy and Chamfer distance better)
+EDGE_RESIDUALS = 0.0
 #: a frame's mesh is built by Embree's quick (Morton) builder: the same hits; on the KITTI frames a mesh is
 #: cast a few times (its targets' casts, the range biases'), so its build (~0.09 CPU s against ~0.03 quick)
 #: costs more than the quick BVH's slower casts (~+30 %)
@@ -116,14 +119,30 @@ def _mesh(points, beams, pose, rows, model, step_deg, max_ratio, weak_ratio):
     faces, spread = frame_mesh_spread(points, ring, int(ring.max()) + 1 if len(ring) else 0, max_ratio, step_deg)
     P = np.asarray(pose, np.float64)
     local = _unbiased(points, beams, model)
-    world = rotate(local, P[:3, :3]) + P[:3, 3]
-    scene = RayScene.triangles(world, faces, quick=QUICK_BUILD) if len(faces) else None
+    verts, faces, spread, cast = _skirted(points, ring, faces, spread, local, max_ratio, step_deg)
+    world = rotate(verts, P[:3, :3]) + P[:3, 3]
+    scene = RayScene.triangles(world, cast, quick=QUICK_BUILD) if len(faces) else None
     # a raw mesh keeps its vertices' lasers: the cast takes their biases out of its hits
     raw = np.asarray(beams, np.int64) if model is None or model.range_bias is None else None
     weak = None
     if weak_ratio is not None and len(faces):
         weak = spread > weak_ratio
     return scene, faces, raw, weak
+
+
+def _skirted(points, ring, faces, spread, local, max_ratio, step_deg):
+    """The mesh's open edges closed (:func:`~slr_ray.sequence.ring_mesh.open_edge_skirts`, of ``SKIRT_SHARE``
+    then): ``(vertices, faces, spread, cast)``, ``cast`` the triangles Embree holds (into ``vertices``: the
+    points ``local``, then the skirts'), ``faces`` the same with each skirt vertex its point's (the hits' debias
+    and nearest corners read the points)."""
+    share = ring_mesh.SKIRT_SHARE
+    n_rows = int(ring.max()) + 1 if len(ring) else 0
+    parents, shifts, tri, sp = open_edge_skirts(points, ring, n_rows, faces, max_ratio, step_deg, share)
+    if not len(tri):
+        return local, faces, spread, faces
+    of = np.concatenate([np.arange(len(local)), parents])
+    return (np.concatenate([local, skirt_vertices(local, parents, shifts)]), np.concatenate([faces, of[tri]]),
+            np.concatenate([spread, sp]), np.concatenate([faces, tri]))
 
 
 class MeshFrames:

@@ -15,6 +15,7 @@ from ...errors import InputValueError
 from ..embree_rays import (EMBREE_GAP, MAX_RATIO, WEAK_RATIO, MeshFrames, cast_embree_rays, fill_missing,
                            fit_embree_model, mesh_problem, union_meshes, with_azimuth_phases)
 from ..rays import frame_motion, pattern_ray_model
+from ..same_pose import keep_voted
 from ..union import to_frame
 from .base import HeldOut, MethodOptions, SequenceMethod, TargetFrame
 
@@ -95,6 +96,8 @@ class EmbreeRays(SequenceMethod):
                                     (held.target,), options.meshes)
         ret = cast_embree_rays(held.u, held.pattern, model, frame_motion(held.seq.poses, held.target), options.gap,
                                surfaces=surfaces, pose=held.pose)
+        if held.target_base is None:  # the frames' own sensor fired again: those fired from its pose vote
+            ret = keep_voted(ret, held.u, held.union.source, held.union.origins, held.pose[:3, 3], held.pattern)
         ret = fill_missing(ret, held.u, held.pattern, options.fill)
         return ret, ret.points, model.to_dict()
 
