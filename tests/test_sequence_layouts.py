@@ -306,3 +306,11 @@ def test_a_tum_trajectory_written_w_first_is_warned_of(tmp_path):
             read_trajectory(t, 6)
         said = [str(x.message) for x in w if issubclass(x.category, SlrWarning)]
         assert len(said) == warned and all(str(t) in s and "qw" in s for s in said), (name, said)
+
+
+def test_a_poses_path_that_is_a_directory_is_refused_naming_it(tmp_path):
+    # (hostile2 pass) --poses DIR said "[Errno 21] Is a directory: 'DIR'": Python's words, not what was wrong
+    d = tmp_path / "poses"
+    d.mkdir()
+    with pytest.raises(InputValueError, match=r"poses: a directory, not a poses file"):
+        read_trajectory(d, 2)

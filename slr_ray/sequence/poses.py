@@ -44,6 +44,8 @@ def _lines(path: Path) -> list[tuple[int, str]]:
         text = Path(path).read_text()
     except UnicodeDecodeError:
         raise FormatError(f"{path}: not a text file") from None
+    except IsADirectoryError:
+        raise InputValueError(f"{path}: a directory, not a poses file") from None
     return [(i + 1, s) for i, s in enumerate(text.splitlines()) if s.strip() and not s.lstrip().startswith("#")]
 
 
