@@ -380,3 +380,11 @@ def test_evaluate_force_over_a_pair_evaluation_takes_its_splits_and_figure_away(
         for name in ("splits.csv", "evaluation.png"):  # not beside a pair evaluation's results: not ours to remove
             assert (out / name).exists() == kept
         assert ("splits.csv" in r.stderr) == (not kept)  # said, as the pair command says what it leaves
+
+
+def test_a_negative_half_is_refused_naming_the_flag(tmp_path, drive, capsys):
+    # (hostile2 pass) --half -1 said "the window's half width must be >= 0, got -1": no flag named
+    root, _ = drive
+    r = _Run(capsys)("sequence", "convert", root, "--target-sensor", "velodyne_vlp16", "--half", "-1",
+                     "-o", tmp_path / "o")
+    assert r.returncode == 2 and "argument --half: must be >= 0" in r.stderr, r.stderr

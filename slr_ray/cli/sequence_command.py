@@ -55,7 +55,7 @@ def _common(p):
     p.add_argument("--accept-registration", action="store_true",
                    help="with --register: chain every pose found, even one failing the registration gate (fitness, "
                         "reverse fitness, inlier RMSE, tilt; docs/evaluation.md)")
-    p.add_argument("--half", type=int,
+    p.add_argument("--half", type=A.non_negative_int,
                    help=f"window: frames either side of the target (default {HALF}; with --radius, both hold)")
     p.add_argument("--radius", type=A.positive_float,
                    help="window: frames whose origin is within this (m), however many (alone: not only the default "
