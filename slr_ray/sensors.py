@@ -450,11 +450,32 @@ def read_card(path, **changes) -> BeamPattern:
                           "`slr-ray sensor fit` writes one)")
     _check_card_meta(path, d)
     try:
-        return BeamPattern.from_table(d, **changes)
+        return _degrees_checked(BeamPattern.from_table(d, **changes), path)
     except SlrError as exc:
         raise FormatError(f"{path}: not a sensor card ({exc})") from None
     except (TypeError, ValueError) as exc:
         raise FormatError(f"{path}: not a sensor card ({type(exc).__name__}: {exc})") from None
+
+
+#: a unit's file whose beams (4 or more) span less than this (degrees) is warned of: radians written as
+#: degrees (a VLP-16's 30 deg are 0.52 rad); every shipped unit spans 26 deg or more
+RADIANS_SPAN_DEG = 2.0
+
+
+_RADIANS_SAID: set = set()  # said once a process: a command reads a card more than once (checks, then use)
+
+
+def _degrees_checked(pattern: BeamPattern, path) -> BeamPattern:
+    """``pattern``, with one warning where its elevations look like radians."""
+    el = np.asarray(pattern.elevation_deg)
+    if len(el) >= 4 and el.max() - el.min() < RADIANS_SPAN_DEG:
+        text = (f"{path}: its {len(el)} beams span {el.max() - el.min():.3g} deg ({el.min():+.3g} ... "
+                f"{el.max():+.3g}): radians? (elevations are degrees; as radians they would span "
+                f"{math.degrees(el.max() - el.min()):.3g} deg)")
+        if text not in _RADIANS_SAID:
+            _RADIANS_SAID.add(text)
+            warnings.warn(text, SlrWarning, stacklevel=3)
+    return pattern
 
 
 def beams_outside(target: BeamPattern, elevation_range_deg) -> np.ndarray:
@@ -599,8 +620,8 @@ def read_ouster_metadata(path, **changes) -> BeamPattern:
         cols = int(str(mode).split("x")[0])
     name = (d.get("sensor_info") or {}).get("prod_line") or Path(path).stem
     # offsets as the metadata gives them (the shipped ouster tables are these files' numbers)
-    return BeamPattern(alt, int(cols), az, name=name,
-                       meta={"source": str(path), "format": "ouster metadata"}).with_(**changes)
+    return _degrees_checked(BeamPattern(alt, int(cols), az, name=name,
+                                        meta={"source": str(path), "format": "ouster metadata"}).with_(**changes), path)
 
 
 @_sensor_file("sensor table JSON")
@@ -611,7 +632,7 @@ def read_sensor_table(path, **changes) -> BeamPattern:
     d = json.loads(Path(path).read_text())
     if not isinstance(d, dict) or "elevation_deg" not in d:
         raise InputValueError(f"{path}: no elevation_deg (not a beam table as slr_ray/data/sensors/*.json?)")
-    return BeamPattern.from_table({"name": Path(path).stem, **d, "file": str(path)}, **changes)
+    return _degrees_checked(BeamPattern.from_table({"name": Path(path).stem, **d, "file": str(path)}, **changes), path)
 
 
 def read_sensor_file(path, **changes) -> BeamPattern:

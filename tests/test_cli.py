@@ -460,3 +460,22 @@ def test_a_scan_of_no_point_in_the_pattern_is_an_empty_output(tmp_path, cloud_pl
     assert len(read_cloud(out)) == 0
     with np.load(image) as got:
         assert (got["index"] == -1).all() and got["index"].shape == (180, 360)
+
+
+def test_a_sensor_scan_that_carries_the_inputs_ring_field_says_so(tmp_path, capsys):
+    # (hostile2 pass) scan --sensor velodyne_vlp16 of a Pandar64 frame wrote the Pandar64's ring (0-63) as the
+    # output's 'ring' without a word; slr-ray sensor fit of that output then fitted a 46-beam card for a
+    # VLP-16 scan (it reads 'ring' as each point's beam)
+    rng = np.random.default_rng(0)
+    d = rng.normal(size=(4000, 3))
+    d[:, 2] *= 0.2
+    pts = d / np.linalg.norm(d, axis=1, keepdims=True) * rng.uniform(3, 20, (4000, 1))
+    src = tmp_path / "frame.pcd"
+    write_cloud(src, PointCloud(pts, {"ring": rng.integers(0, 64, 4000).astype(np.uint16),
+                                      "intensity": np.ones(4000, np.float32)}, origin=np.zeros(3)))
+    for i, flags in enumerate((["--sensor", "velodyne_vlp16"], ["--resolution", "1"])):
+        out = tmp_path / f"out{i}.pcd"
+        assert main(["scan", str(src), "-o", str(out), "--quiet", *flags]) == 0
+        err = capsys.readouterr().err
+        assert ("'ring'" in err and "velodyne_vlp16" in err) == (i == 0), err  # a uniform grid has no beams to mistake
+        assert "ring" in read_cloud(out).attributes  # carried, as every attribute is: said, not dropped

@@ -204,6 +204,29 @@ def test_pcd_round_trip(tmp_path, binary):
     np.testing.assert_array_equal(back.origin, c.origin)
 
 
+@pytest.mark.parametrize("binary", [True, False])
+def test_pcd_writes_back_every_field_it_reads_exactly(tmp_path, binary):
+    # (hostile2 pass) a field of COUNT 3 (a PCL descriptor) was read but refused by the writer, so a scan
+    # of such a PCD failed at its end; ascii PCD wrote every value as %.10g: a Hesai frame's float64
+    # timestamps (1.6e9 s) lost their fractions (0.47 s), a uint64 beyond 2**53 its last digits
+    rng = np.random.default_rng(3)
+    n = 40
+    c = PointCloud(rng.normal(size=(n, 3)) * 10 + [636000.123456789, 849000.987654321, 0],
+                   {"timestamp": 1635236490.0 + rng.uniform(0, 0.1, n),
+                    "t": np.uint64(2**63) + np.arange(n, dtype=np.uint64),
+                    "label": rng.integers(-100, 100, n).astype(np.int8),
+                    "intensity": rng.uniform(0, 255, n).astype(np.float32),
+                    "hist": rng.normal(size=(n, 3)).astype(np.float32)}, origin=np.array([1.5, -2.25, 0.125]))
+    write_cloud(tmp_path / "c.pcd", c, binary=binary)
+    back = read_cloud(tmp_path / "c.pcd")
+    np.testing.assert_array_equal(back.points, c.points)
+    np.testing.assert_array_equal(back.origin, c.origin)
+    assert set(back.attributes) == set(c.attributes)
+    for k, v in c.attributes.items():
+        assert back.attributes[k].dtype == v.dtype and back.attributes[k].shape == v.shape, k
+        np.testing.assert_array_equal(back.attributes[k], v, err_msg=k)
+
+
 def test_pcd_read_by_open3d(tmp_path):
     o3d = pytest.importorskip("open3d")
     c = PointCloud(np.random.default_rng(0).normal(size=(50, 3)) + [5e5, 4e6, 0],

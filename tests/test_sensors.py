@@ -382,3 +382,26 @@ def test_a_fitted_pattern_is_by_beam_id_whether_its_beams_came_as_ids_or_rows(na
     np.testing.assert_allclose(np.delete(part.elevation_deg, lost), np.delete(want, lost), atol=1e-6)
     with pytest.raises(ValueError, match="rows=True"):
         fitted_pattern(pts, rows + base.n_beams, base, rows=True)
+
+
+def test_a_card_whose_elevations_look_like_radians_is_warned_of(tmp_path):
+    # (hostile2 pass) a beam table written with radians under elevation_deg (a VLP-16's -15..+15 deg as
+    # -0.26..+0.26) was taken as a 16-beam unit 0.5 deg tall: scans and conversions of a few hundred
+    # points and no word; every shipped unit spans 10 deg or more
+    import warnings
+    from slr_ray.errors import SlrWarning
+    from slr_ray.sensors import _shipped_table, read_card, read_sensor_file
+    for name in SENSORS:
+        table = _shipped_table(name)
+        for radians in (False, True):
+            d = dict(table, elevation_deg=[math.radians(e) if radians else e for e in table["elevation_deg"]])
+            for reader in (read_card, read_sensor_file):
+                path = tmp_path / f"{name}_{radians}_{reader.__name__}.json"
+                path.write_text(json.dumps(d))
+                with warnings.catch_warnings(record=True) as w:
+                    warnings.simplefilter("always")
+                    reader(path)
+                    reader(path)  # a command reads a card more than once: said once
+                said = [str(x.message) for x in w if issubclass(x.category, SlrWarning) and "radians" in str(x.message)]
+                assert len(said) == radians, (name, reader.__name__, said)
+                assert all(str(path) in s for s in said)

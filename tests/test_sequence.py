@@ -357,3 +357,34 @@ def test_read_sequence_takes_an_array_of_poses_and_refuses_other_kinds(drive):
     for wrong in (poses.tolist(), 3.0, [poses[0]]):
         with pytest.raises(TypeError, match="trajectory must be a file, a list of pose files"):
             read_sequence(bins, wrong)
+
+
+def test_evaluate_force_over_a_pair_evaluation_takes_its_splits_and_figure_away(tmp_path, drive, capsys):
+    # (hostile2 pass) sequence evaluate --force into the directory of an earlier `slr-ray evaluate A B`
+    # replaced evaluation.json and the tables but left that run's splits.csv and evaluation.png beside
+    # them without a word: a figure and splits of another pair, read as this run's
+    root, _ = drive
+    _cli = _Run(capsys)
+    args = ["sequence", "evaluate", root, "--holdout", "1", "--source-sensor", "velodyne_vlp16", "--half", "1",
+            "--methods", "nearest", "--quiet", "--force"]
+    for earlier, kept in (({"inputs": {"a": "a.bin", "b": "b.bin"}}, False), (None, True)):
+        out = tmp_path / ("pair" if earlier else "loose")
+        out.mkdir()
+        if earlier is not None:
+            (out / "evaluation.json").write_text(json.dumps(earlier))
+        (out / "splits.csv").write_text("split,part\n")
+        (out / "evaluation.png").write_bytes(b"\x89PNG")
+        r = _cli(*args, "-o", out)
+        assert r.returncode == 0, r.stderr
+        assert isinstance(json.loads((out / "evaluation.json").read_text())["inputs"], list)
+        for name in ("splits.csv", "evaluation.png"):  # not beside a pair evaluation's results: not ours to remove
+            assert (out / name).exists() == kept
+        assert ("splits.csv" in r.stderr) == (not kept)  # said, as the pair command says what it leaves
+
+
+def test_a_negative_half_is_refused_naming_the_flag(tmp_path, drive, capsys):
+    # (hostile2 pass) --half -1 said "the window's half width must be >= 0, got -1": no flag named
+    root, _ = drive
+    r = _Run(capsys)("sequence", "convert", root, "--target-sensor", "velodyne_vlp16", "--half", "-1",
+                     "-o", tmp_path / "o")
+    assert r.returncode == 2 and "argument --half: must be >= 0" in r.stderr, r.stderr

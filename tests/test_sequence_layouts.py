@@ -308,3 +308,32 @@ def test_e57_files_placed_by_their_recorded_poses_keep_their_rotation(tmp_path):
     np.testing.assert_allclose(seq.poses[:, :3, 3], [[1, 2, 1], [6, 2, 1]])
     for i in range(2):
         np.testing.assert_allclose(seq.read(i).points, local, atol=1e-4)
+
+
+def test_a_tum_trajectory_written_w_first_is_warned_of(tmp_path):
+    # (hostile2 pass) TUM lines are time x y z qx qy qz qw; a drive written qw first (w x y z, Eigen's and
+    # E57's order) read as every frame turned upside down (a near-identity 1 0 0 0 is 180 deg about x),
+    # converted without a word; a mount that is upside down both ways read is not warned of
+    import warnings
+    from scipy.spatial.transform import Rotation
+    from slr_ray.errors import SlrWarning
+    rng = np.random.default_rng(5)
+    rots = Rotation.from_euler("zyx", np.c_[rng.uniform(-3, 3, 6), rng.uniform(-0.05, 0.05, (6, 2))])
+    q = rots.as_quat()  # x y z w
+    for name, quats, warned in (("xyzw", q, False), ("wxyz", q[:, [3, 0, 1, 2]], True),
+                                ("ceiling", (rots * Rotation.from_euler("x", np.pi)).as_quat(), False)):
+        t = tmp_path / f"{name}.txt"
+        t.write_text("".join(f"{i * 0.1} {i} 0 0 " + " ".join(map(repr, qq.tolist())) + "\n" for i, qq in enumerate(quats)))
+        with warnings.catch_warnings(record=True) as w:
+            warnings.simplefilter("always")
+            read_trajectory(t, 6)
+        said = [str(x.message) for x in w if issubclass(x.category, SlrWarning)]
+        assert len(said) == warned and all(str(t) in s and "qw" in s for s in said), (name, said)
+
+
+def test_a_poses_path_that_is_a_directory_is_refused_naming_it(tmp_path):
+    # (hostile2 pass) --poses DIR said "[Errno 21] Is a directory: 'DIR'": Python's words, not what was wrong
+    d = tmp_path / "poses"
+    d.mkdir()
+    with pytest.raises(InputValueError, match=r"poses: a directory, not a poses file"):
+        read_trajectory(d, 2)

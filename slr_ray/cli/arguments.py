@@ -22,7 +22,7 @@ from ..sensors import SENSORS, read_sensor_file, sensor
 
 __all__ = ["add_pattern", "pattern_from", "add_backend", "backend_from", "add_ground", "ground_from",
            "add_input_format", "add_effects", "effects_from", "check_effects", "finite_float", "positive_float",
-           "positive_int"]
+           "positive_int", "non_negative_int"]
 
 
 def finite_float(text: str) -> float:
@@ -41,6 +41,17 @@ def positive_float(text: str) -> float:
     v = finite_float(text)
     if not v > 0:
         raise argparse.ArgumentTypeError(f"must be > 0, got {text!r}")
+    return v
+
+
+def non_negative_int(text: str) -> int:
+    """An argparse type: an integer >= 0."""
+    try:
+        v = int(text)
+    except ValueError:
+        raise argparse.ArgumentTypeError(f"not an integer: {text!r}") from None
+    if v < 0:
+        raise argparse.ArgumentTypeError(f"must be >= 0, got {text!r}")
     return v
 
 

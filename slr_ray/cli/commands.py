@@ -37,6 +37,7 @@ from ..plotting import (check_figure_path, cells_figure, comparison_figure, dist
 from ..positions import (AzimuthProfile, default_profile, ground_labels, require_positions,
                          select_positions)
 from ..scan import Scan, check_range_image
+from ..sensorfit import RING_FIELDS
 from ..scenes import MESH_FORMATS, scene_effects, scene_from_spec
 from ..io.streaming import STREAMED_FORMATS, checked_bounds, las_bounds
 from ..streaming import scan_las
@@ -88,6 +89,7 @@ def scan(args):
         if not said:
             _check_returns(result, bounds)
         kept = _keep(args, sub, result)
+        _say_carried_rings(args, sub, pattern, kept)
         # the range image is made before anything is written: an error there leaves no scan behind
         image = _range_image(args, sub, result, skip=kept) if args.range_image or args.png else None
         t1 = time.perf_counter()
@@ -207,6 +209,19 @@ def _keep(args, sub, result) -> set:
     for name, (_, values) in added.items():
         sub.attributes[name] = values
     return set(added)
+
+
+def _say_carried_rings(args, sub, pattern, kept) -> None:
+    """A sensor's scan that carries the input's ring field (each point's beam on the input's unit) says so
+    in one line: a reader of the output (``slr-ray sensor fit``, ``evaluate``) takes it for the scan's beams."""
+    carried = [k for k in RING_FIELDS if k in sub.attributes and k not in kept]
+    if carried and pattern.has_beams:
+        name = getattr(pattern, "name", None) or "the sensor"
+        warnings.warn(f"{args.output}: {', '.join(map(repr, carried))} carried from {args.input}: each point's "
+                      f"beam on the input's unit, not one of {name}'s {pattern.shape[0]} "
+                      "beams it was scanned by (slr-ray sensor fit and evaluate read it as the scan's beams); "
+                      "--keep-ring writes the scan's own once the input's is renamed or dropped", SlrWarning,
+                      stacklevel=2)
 
 
 def _range_image(args, sub, result, skip=()) -> dict:

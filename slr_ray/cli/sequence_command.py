@@ -56,7 +56,7 @@ def _common(p):
     p.add_argument("--accept-registration", action="store_true",
                    help="with --register: chain every pose found, even one failing the registration gate (fitness, "
                         "reverse fitness, inlier RMSE, tilt; docs/evaluation.md)")
-    p.add_argument("--half", type=int,
+    p.add_argument("--half", type=A.non_negative_int,
                    help=f"window: frames either side of the target (default {HALF}; with --radius, both hold)")
     p.add_argument("--radius", type=A.positive_float,
                    help="window: frames whose origin is within this (m), however many (alone: not only the default "
@@ -313,6 +313,8 @@ def sequence(args):
         stale = None if args.register else _registered_poses(out, args.poses)
         names = ("evaluation.json", "table.md", "table.csv") + (("poses.txt",) if args.register or stale else ())
         _check_evaluate_output(out, args.force)
+        pair = _pair_results(out)  # a replaced `slr-ray evaluate` run's splits and figure: they go with it
+        names += tuple(p.name for p in pair)
         check_held_out_kinds(seq, holdout, args.scored_sensor, args.methods, args.moving[1])  # before registering
         for name in names:
             plan.write(out / name, sidecars=False)
@@ -320,6 +322,11 @@ def sequence(args):
             _evaluate(args, seq, holdout, out)
             if stale is not None:  # an earlier --register run's: it would stay beside results it is not of
                 stale.unlink(missing_ok=True)
+            for p in pair:
+                p.unlink(missing_ok=True)
+            if pair:
+                print(f"slr-ray: note: {out}: removed {', '.join(p.name for p in pair)} of the pair evaluation "
+                      "(slr-ray evaluate) whose results this run replaced", file=sys.stderr)
     else:
         if args.force:
             raise InputValueError("sequence convert has no --force: it resumes its own run by itself and never "
@@ -356,6 +363,19 @@ def _check_evaluate_output(out: Path, force: bool) -> None:
                           "sequence evaluate writes into a new or empty directory; write elsewhere, or give "
                           "--force to write among these files (replacing evaluation.json, table.md, table.csv, "
                           "and an earlier --register run's poses.txt)")
+
+
+def _pair_results(out: Path) -> list:
+    """``splits.csv`` and ``evaluation.png`` where ``out/evaluation.json`` is a pair evaluation's
+    (``slr-ray evaluate``): a ``--force`` rerun replaces that run's results, and these would stay beside
+    this run's as if they were of it (a sequence evaluation writes neither)."""
+    try:
+        inputs = json.loads((out / "evaluation.json").read_text()).get("inputs")
+    except (OSError, ValueError, AttributeError):
+        return []
+    if not (isinstance(inputs, dict) and "a" in inputs):
+        return []
+    return [p for p in (out / "splits.csv", out / "evaluation.png") if p.is_file()]
 
 
 def _registered_poses(out: Path, given) -> Path | None:

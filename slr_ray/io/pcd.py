@@ -64,16 +64,19 @@ def read(path) -> tuple:
     if kind == "ascii":
         with warnings.catch_warnings():
             warnings.simplefilter("ignore", UserWarning)  # numpy's "input contained no data"
-            flat = np.loadtxt(io.BytesIO(body), ndmin=2)
+            flat = np.loadtxt(io.BytesIO(body), ndmin=2, dtype=str)  # text: a uint64 past 2**53 stays exact
         if flat.size == 0:
-            flat = np.empty((0, sum(counts)))
+            flat = np.empty((0, sum(counts)), str)
         if len(flat) != n:
             raise FormatError(f"{path}: {len(flat)} rows for POINTS {n}")
         data = np.empty(n, dtype)
         col = 0
-        for name, c in zip(fields, counts):
-            data[name] = flat[:, col] if c == 1 else flat[:, col:col + c]
-            col += c
+        try:
+            for name, c in zip(fields, counts):
+                data[name] = _parsed(flat[:, col] if c == 1 else flat[:, col:col + c], dtype[name].base)
+                col += c
+        except ValueError as exc:
+            raise FormatError(f"{path}: ascii data field {name!r}: {exc}") from None
     elif kind == "binary":
         if len(body) < n * dtype.itemsize:
             raise FormatError(f"{path}: truncated ({len(body)} bytes of data for POINTS {n} of "
@@ -94,6 +97,25 @@ def read(path) -> tuple:
     vp = header.get("VIEWPOINT")
     origin = np.array([float(v) for v in vp[:3]]) if vp and len(vp) >= 3 else None
     return pts, attrs, origin
+
+
+def _parsed(text: np.ndarray, dt: np.dtype) -> np.ndarray:
+    """An ascii PCD column's words as ``dt``: integers parsed as integers (exact to 64 bits); an
+    integer field a writer wrote as ``5.0`` through float."""
+    if dt.kind in "iu":
+        try:
+            return text.astype(dt)
+        except ValueError:
+            return text.astype(np.float64).astype(dt)
+    return text.astype(np.float64).astype(dt)
+
+
+def _ascii_words(a: np.ndarray) -> np.ndarray:
+    """A column's values as text that reads back to the same value: integers exact, float32 to 9
+    significant digits, float64 to 17 (``%.10g`` lost a float64 timestamp's fractions of a second)."""
+    if a.dtype.kind in "iu":
+        return a.astype(str)
+    return np.char.mod("%.9g" if a.dtype.itemsize <= 4 else "%.17g", a)
 
 
 @numba.njit(cache=True)
@@ -162,11 +184,11 @@ def write(path, cloud, binary: bool = True) -> None:
     names, arrays = ["x", "y", "z"], [cloud.points[:, 0], cloud.points[:, 1], cloud.points[:, 2]]
     for k, v in cloud.attributes.items():
         v = np.asarray(v)
-        if v.ndim != 1 or v.dtype.kind not in "iufb":
+        if v.ndim not in (1, 2) or v.dtype.kind not in "iufb" or v.ndim == 2 and v.shape[1] < 1:
             raise FormatError(f"PCD cannot store attribute {k!r} of dtype {v.dtype} and shape {v.shape}")
-        names.append(k)
+        names.append(k)  # (n, c): one field of COUNT c, as PCL's descriptors
         arrays.append(v.astype(np.uint8) if v.dtype == bool else v)
-    dtype = np.dtype([(nm, a.dtype) for nm, a in zip(names, arrays)])
+    dtype = np.dtype([(nm, a.dtype, a.shape[1:]) for nm, a in zip(names, arrays)])
     data = np.empty(len(cloud), dtype)
     for nm, a in zip(names, arrays):
         data[nm] = a
@@ -175,7 +197,7 @@ def write(path, cloud, binary: bool = True) -> None:
     header = "\n".join([
         "# .PCD v0.7 - Point Cloud Data file format (slr_ray)", "VERSION 0.7",
         "FIELDS " + " ".join(names), "SIZE " + " ".join(str(a.dtype.itemsize) for a in arrays),
-        "TYPE " + " ".join(kind[a.dtype.kind] for a in arrays), "COUNT " + " ".join("1" for _ in arrays),
+        "TYPE " + " ".join(kind[a.dtype.kind] for a in arrays), "COUNT " + " ".join(str(a.shape[1]) if a.ndim == 2 else "1" for a in arrays),
         f"WIDTH {len(cloud)}", "HEIGHT 1", "VIEWPOINT " + " ".join(repr(float(x)) for x in o) + " 1 0 0 0",
         f"POINTS {len(cloud)}", "DATA " + ("binary" if binary else "ascii")]) + "\n"
     with open(path, "wb") as f:
@@ -183,7 +205,12 @@ def write(path, cloud, binary: bool = True) -> None:
         if binary:
             f.write(data.astype(data.dtype.newbyteorder("<")).tobytes())
         else:
-            np.savetxt(f, np.column_stack([a.astype(np.float64) for a in arrays]), fmt="%.10g")
+            columns = [_ascii_words(col) for a in arrays for col in (a.T if a.ndim == 2 else [a])]
+            if len(cloud):
+                rows = columns[0]
+                for words in columns[1:]:
+                    rows = np.char.add(np.char.add(rows, " "), words)
+                f.write(("\n".join(rows.tolist()) + "\n").encode("ascii"))
 
 
 def _read_pcd(path):

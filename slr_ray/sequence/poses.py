@@ -6,12 +6,13 @@ origins, a CSV of 4 x 4 blocks. Every pose is a sensor-to-world rigid transform,
 
 from __future__ import annotations
 
+import warnings
 from pathlib import Path
 
 import numpy as np
 
 from ..arrays import as_rigid_pose
-from ..errors import FormatError, InputValueError
+from ..errors import FormatError, InputValueError, SlrWarning
 
 __all__ = ["POSE_TOLERANCE", "read_trajectory", "trajectory_form", "read_pose_files", "read_calib_tr",
            "kitti_velodyne_poses", "write_kitti_poses", "read_origins", "read_pose_blocks", "check_pose",
@@ -43,6 +44,8 @@ def _lines(path: Path) -> list[tuple[int, str]]:
         text = Path(path).read_text()
     except UnicodeDecodeError:
         raise FormatError(f"{path}: not a text file") from None
+    except IsADirectoryError:
+        raise InputValueError(f"{path}: a directory, not a poses file") from None
     return [(i + 1, s) for i, s in enumerate(text.splitlines()) if s.strip() and not s.lstrip().startswith("#")]
 
 
@@ -103,7 +106,30 @@ def read_trajectory(path, n_frames: int | None = None, stamps=None) -> np.ndarra
             T[:3, :3] = quaternion_rotation(*v[4:], where)
             T[:3, 3] = v[1:4]
             out[k] = check_pose(T, where)
+    if first is not None and first[1] == 8:
+        _warn_w_first(p, rows, out)
     return out
+
+
+#: a TUM trajectory read as given whose sensor z axes stray further than this from the world's z in
+#: some pose, while read qw first they all stay within :data:`UPRIGHT_DEG`, is warned of (degrees)
+ASTRAY_DEG, UPRIGHT_DEG = 45.0, 30.0
+
+
+def _warn_w_first(p: Path, rows, poses) -> None:
+    """One warning where a TUM file reads as a drive only with its quaternions taken w x y z."""
+    tilt = np.degrees(np.arccos(np.clip(poses[:, 2, 2], -1, 1)))
+    if tilt.max() <= ASTRAY_DEG:
+        return
+    q = np.array([_numbers(p, line_no, s, 8)[4:] for line_no, s in rows])  # qx qy qz qw as written
+    q = q / np.linalg.norm(q, axis=1, keepdims=True)
+    _, x, y, _ = q.T  # read w x y z: x, y are the 2nd and 3rd numbers
+    tilt_w = np.degrees(np.arccos(np.clip(1 - 2 * (x * x + y * y), -1, 1)))
+    if tilt_w.max() <= UPRIGHT_DEG:
+        i = int(np.argmax(tilt))
+        warnings.warn(f"{p}: line {rows[i][0]} turns its sensor's z axis {tilt[i]:.0f} deg from the world's (up to "
+                      f"{tilt.max():.0f} deg); read w x y z every pose stays within {UPRIGHT_DEG:g} deg: TUM lines are "
+                      "time x y z qx qy qz qw (qw last): a file written qw first?", SlrWarning, stacklevel=3)
 
 
 #: the most a frame's time (its file's name) and its pose's in a TUM trajectory may differ (s)
