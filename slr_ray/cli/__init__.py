@@ -152,7 +152,7 @@ def _compare_parser(command) -> None:
     A.add_pattern(p, origin="many")
     p.add_argument("--tolerance", type=A.positive_float, default=paper.SIMILARITY_THRESHOLD, metavar="M",
                    help=f"see-through tolerance (m, default {paper.SIMILARITY_THRESHOLD})")
-    A.add_backend(p, default="embree")
+    A.add_backend(p, default="embree", choose=False)  # both run: no --backend, the embree options
     A.add_input_format(p)
     p.add_argument("--png", help="also write a figure")
     p.add_argument("--quiet", action="store_true", help="no progress")
