@@ -211,6 +211,17 @@ def test_backend_options_on_the_command_line(tmp_path, capsys):
     assert json.loads(capsys.readouterr().out)["points_out"] > 0
 
 
+def test_compare_has_no_backend_flag_it_would_ignore():
+    """compare runs both backends: a --backend there was accepted and ignored; its embree options stay."""
+    from slr_ray.cli import build_parser
+
+    parser = build_parser()
+    with pytest.raises(SystemExit):
+        parser.parse_args(["compare", "c.ply", "--origin", "0", "0", "0", "--backend", "binning"])
+    args = parser.parse_args(["compare", "c.ply", "--origin", "0", "0", "0", "--radius", "0.05"])
+    assert args.opt_radius == 0.05
+
+
 def test_usage_errors_are_one_line_with_status_2(capsys):
     for argv in (["scan"], ["nonsense"], ["positions", "x.ply", "--n", "0", "-o", "p.json"],
                  ["compare", "x.ply", "--origin", "0", "0", "nan"]):

@@ -152,7 +152,7 @@ def _compare_parser(command) -> None:
     A.add_pattern(p, origin="many")
     p.add_argument("--tolerance", type=A.positive_float, default=paper.SIMILARITY_THRESHOLD, metavar="M",
                    help=f"see-through tolerance (m, default {paper.SIMILARITY_THRESHOLD})")
-    A.add_backend(p, default="embree")
+    A.add_backend(p, default="embree", choose=False)  # both run: no --backend, the embree options
     A.add_input_format(p)
     p.add_argument("--png", help="also write a figure")
     p.add_argument("--quiet", action="store_true", help="no progress")
@@ -262,7 +262,8 @@ def _demo_parser(command) -> None:
     p.add_argument("--positions", type=A.positive_int, default=4, help="SLR positions (default 4)")
     p.add_argument("--seed", type=int, default=0, help="seed of the scene and positions (default 0)")
     backends = [b.value for b in Backend]
-    p.add_argument("--backends", nargs="+", default=backends, choices=backends, help="backends run at each position")
+    p.add_argument("--backends", nargs="+", default=backends, choices=backends,
+                   help=f"backends run at each position (default all: {' '.join(backends)})")
     p.add_argument("--quick", action="store_true", help="a coarser, faster run (for tests)")
     p.add_argument("--quiet", action="store_true", help="no progress (the report is still printed)")
     p.add_argument("--force", action="store_true", help="overwrite the files of an earlier demo")

@@ -229,12 +229,16 @@ def _first_sentence(text: str) -> str:
     return text.rstrip(".;")
 
 
-def add_backend(p, default: str = Backend.BINNING.value) -> None:
+def add_backend(p, default: str = Backend.BINNING.value, choose: bool = True) -> None:
     """``--backend`` and every backend's option flags, generated from the option
     classes' fields (a field shared by several backends is one flag), grouped by
-    the backends they apply to; the help is one line each, the details a link."""
-    p.add_argument("--backend", default=default, choices=list(_OPTION_CLASSES),
-                   help=f"subsampling backend (default {default}; docs/backends.md)")
+    the backends they apply to; the help is one line each, the details a link.
+    ``choose=False``: the option flags only (a command that runs every backend)."""
+    if choose:
+        p.add_argument("--backend", default=default, choices=list(_OPTION_CLASSES),
+                       help=f"subsampling backend (default {default}; docs/backends.md)")
+    else:
+        p.set_defaults(backend=default)
     seen: dict = {}
     for backend, cls in _OPTION_CLASSES.items():
         for name, (typ, text) in cls.describe().items():
