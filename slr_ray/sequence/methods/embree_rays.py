@@ -14,6 +14,7 @@ import numpy as np
 from ...errors import InputValueError
 from ..embree_rays import (EMBREE_GAP, MAX_RATIO, WEAK_RATIO, MeshFrames, cast_embree_rays, fill_missing,
                            fit_embree_model, union_meshes, with_azimuth_phases)
+from ..porous import Porosity
 from ..rays import frame_motion, pattern_ray_model
 from ..union import to_frame
 from .base import HeldOut, MethodOptions, SequenceMethod, TargetFrame
@@ -38,6 +39,14 @@ class EmbreeRaysOptions(MethodOptions):
     fill : int
         Pulses no mesh meets that hold at least this many union points take the union's first-peak
         average (0: none; 1: every such pulse: more coverage, less depth and drop accuracy).
+    porous : float
+        See-through margin (m): a first surface that more of the window's frames' pulses went through
+        (returned this far beyond it) than stopped on (within it) is passed, the ray cast on behind it
+        (:mod:`~slr_ray.sequence.porous`; 0: first surface always).
+    porous_window : int
+        With porous: 0, each frame's one pulse through the hit votes; w >= 1, its pulses w rows and 2w
+        columns around vote too and a ray passes where the region's share that went through exceeds the
+        ray's own threshold (a fixed low-discrepancy sequence): about that share of its rays pass.
     """
 
     PREFIX: ClassVar[str] = "embree_rays"
@@ -45,6 +54,8 @@ class EmbreeRaysOptions(MethodOptions):
     max_ratio: float = MAX_RATIO
     weak_ratio: float = WEAK_RATIO
     fill: int = 0
+    porous: float = 0.0
+    porous_window: int = 0
 
     def check(self) -> None:
         for name in ("gap", "max_ratio"):
@@ -57,6 +68,10 @@ class EmbreeRaysOptions(MethodOptions):
             raise InputValueError(f"--embree-rays-weak-ratio ({self.weak_ratio}) must be under --embree-rays-max-ratio "
                                   f"({self.max_ratio}): triangles beyond max-ratio are not meshed, so none would be "
                                   "weak (0 turns the weak rule off)")
+        if not (isinstance(self.porous, (int, float)) and self.porous >= 0):
+            raise InputValueError(f"--embree-rays-porous must be metres >= 0, got {self.porous}")
+        if not (isinstance(self.porous_window, (int, np.integer)) and self.porous_window >= 0):
+            raise InputValueError(f"--embree-rays-porous-window must be a count >= 0, got {self.porous_window}")
         if not (isinstance(self.fill, (int, np.integer)) and self.fill >= 0):
             raise InputValueError(f"--embree-rays-fill must be a count >= 0, got {self.fill}")
 
@@ -91,7 +106,8 @@ class EmbreeRays(SequenceMethod):
             surfaces = union_meshes(held.cache, held.others, held.base, None, held.drop_moving, held.see_through,
                                     (held.target,), options.meshes)
         ret = cast_embree_rays(held.u, held.pattern, model, frame_motion(held.seq.poses, held.target), options.gap,
-                               surfaces=surfaces, pose=held.pose)
+                               surfaces=surfaces, pose=held.pose,
+                               porosity=_porosity(held.cache, held.others, held.base, options))
         ret = fill_missing(ret, held.u, held.pattern, options.fill)
         return ret, ret.points, model.to_dict()
 
@@ -101,9 +117,17 @@ class EmbreeRays(SequenceMethod):
                                 frame.see_through, (), options.meshes)
         u = to_frame(union.points, frame.pose)
         ret = cast_embree_rays(u, frame.pattern, pattern_ray_model(frame.pattern), gap=options.gap, surfaces=surfaces,
-                               pose=frame.pose)
+                               pose=frame.pose, porosity=_porosity(frame.cache, frame.frames, frame.source, options))
         ret = fill_missing(ret, u, frame.pattern, options.fill)
         return ret, {n: v[ret.index] for n, v in union.attributes.items()}
+
+
+def _porosity(cache, frames, base, options: EmbreeRaysOptions):
+    """The frames' own range images (``base`` fitted to each) as see-through votes, or None."""
+    if not options.porous:
+        return None
+    return Porosity([(cache.get(int(i))[0].pose, cache.view(int(i), base)) for i in frames], options.porous,
+                    options.porous_window)
 
 
 METHOD = EmbreeRays()
