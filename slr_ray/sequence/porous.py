@@ -32,7 +32,7 @@ import numpy as np
 __all__ = ["Porosity", "pass_porous", "dither", "MARGIN", "LAYERS"]
 
 #: a frame went through a hit where its pulse toward it returned this far (m) beyond it; stopped within it
-MARGIN = 1.0
+MARGIN = 0.5
 #: porous layers a ray goes through at most
 LAYERS = 3
 #: a ray goes on this far (m) beyond a porous hit (past its own triangle)
