@@ -484,14 +484,16 @@ def test_a_fence_the_other_frames_saw_through_is_passed_to_the_wall_behind():
     assert behind.sum() > 50 and np.allclose(first.points[behind, 0], 10, atol=1e-3)
     y, z = first.points[:, 1], first.points[:, 2]
     inside = behind & (np.abs(y) < 2.8) & (np.abs(z - 0.5) < 1.3)  # off its edges (a pixel's quantisation)
-    passed = cast(Porosity(own + _fence_views(pat, False), 1.0))
+    assert np.array_equal(cast(Porosity(own + _fence_views(pat, False), 1.0)).points, first.points)  # nearer
+    # than porous.BEYOND (20 m): kept
+    passed = cast(Porosity(own + _fence_views(pat, False), 1.0, beyond=0.0))
     assert np.array_equal(passed.keys, first.keys)
     assert np.allclose(passed.points[behind, 0], 20, atol=1e-3)  # through the fence to the wall
     assert np.array_equal(passed.points[~behind], first.points[~behind])
-    solid = cast(Porosity(own + _fence_views(pat, True), 1.0))  # the frames stopped on it: a fence
+    solid = cast(Porosity(own + _fence_views(pat, True), 1.0, beyond=0.0))  # the frames stopped on it: a fence
     assert np.array_equal(solid.points[inside | ~behind], first.points[inside | ~behind])
     # a region's votes: 2 of 3 frames through: about 2/3 of the fence's rays pass, the same ones each run
-    share = [cast(Porosity(own + _fence_views(pat, False), 1.0, window=1)) for _ in range(2)]
+    share = [cast(Porosity(own + _fence_views(pat, False), 1.0, window=1, beyond=0.0)) for _ in range(2)]
     assert np.array_equal(share[0].points, share[1].points)
     through = share[0].points[inside, 0] > 15
     assert 0.5 < through.mean() < 0.8

@@ -14,7 +14,8 @@ import numpy as np
 from ...errors import InputValueError
 from ..embree_rays import (EMBREE_GAP, MAX_RATIO, WEAK_RATIO, MeshFrames, cast_embree_rays, fill_missing,
                            fit_embree_model, union_meshes, with_azimuth_phases)
-from ..porous import Porosity
+from ..porous import BEYOND, Porosity
+from ..porous import MARGIN as POROUS_MARGIN
 from ..rays import frame_motion, pattern_ray_model
 from ..union import to_frame
 from .base import HeldOut, MethodOptions, SequenceMethod, TargetFrame
@@ -42,11 +43,13 @@ class EmbreeRaysOptions(MethodOptions):
     porous : float
         See-through margin (m): a first surface that more of the window's frames' pulses went through
         (returned this far beyond it) than stopped on (within it) is passed, the ray cast on behind it
-        (:mod:`~slr_ray.sequence.porous`; 0: first surface always).
+        (:mod:`~slr_ray.sequence.porous`; 0: first surface always, the previous default).
     porous_window : int
         With porous: 0, each frame's one pulse through the hit votes; w >= 1, its pulses w rows and 2w
         columns around vote too and a ray passes where the region's share that went through exceeds the
         ray's own threshold (a fixed low-discrepancy sequence): about that share of its rays pass.
+    porous_beyond : float
+        With porous: hits nearer than this (m) are kept (near, the passes were a silhouette's pixels).
     """
 
     PREFIX: ClassVar[str] = "embree_rays"
@@ -54,8 +57,9 @@ class EmbreeRaysOptions(MethodOptions):
     max_ratio: float = MAX_RATIO
     weak_ratio: float = WEAK_RATIO
     fill: int = 0
-    porous: float = 0.0
+    porous: float = POROUS_MARGIN
     porous_window: int = 0
+    porous_beyond: float = BEYOND
 
     def check(self) -> None:
         for name in ("gap", "max_ratio"):
@@ -72,6 +76,8 @@ class EmbreeRaysOptions(MethodOptions):
             raise InputValueError(f"--embree-rays-porous must be metres >= 0, got {self.porous}")
         if not (isinstance(self.porous_window, (int, np.integer)) and self.porous_window >= 0):
             raise InputValueError(f"--embree-rays-porous-window must be a count >= 0, got {self.porous_window}")
+        if not (isinstance(self.porous_beyond, (int, float)) and self.porous_beyond >= 0):
+            raise InputValueError(f"--embree-rays-porous-beyond must be metres >= 0, got {self.porous_beyond}")
         if not (isinstance(self.fill, (int, np.integer)) and self.fill >= 0):
             raise InputValueError(f"--embree-rays-fill must be a count >= 0, got {self.fill}")
 
@@ -127,7 +133,7 @@ def _porosity(cache, frames, base, options: EmbreeRaysOptions):
     if not options.porous:
         return None
     return Porosity([(cache.get(int(i))[0].pose, cache.view(int(i), base)) for i in frames], options.porous,
-                    options.porous_window)
+                    options.porous_window, options.porous_beyond)
 
 
 METHOD = EmbreeRays()
