@@ -43,7 +43,7 @@ class EmbreeRaysOptions(MethodOptions):
     porous : float
         See-through margin (m): a first surface that more of the window's frames' pulses went through
         (returned this far beyond it) than stopped on (within it) is passed, the ray cast on behind it
-        (:mod:`~slr_ray.sequence.porous`; 0: first surface always, the previous default).
+        (slr_ray.sequence.porous; 0: first surface always, the previous default).
     porous_window : int
         With porous: 0, each frame's one pulse through the hit votes; w >= 1, its pulses w rows and 2w
         columns around vote too and a ray passes where the region's share that went through exceeds the
