@@ -49,7 +49,15 @@ class Porosity:
     ``beyond`` metres are not passed."""
 
     def __init__(self, views, margin: float = MARGIN, window: int = 0, beyond: float = BEYOND):
-        self.views, self.margin, self.window, self.beyond = list(views), float(margin), int(window), float(beyond)
+        self._views, self.margin, self.window, self.beyond = views, float(margin), int(window), float(beyond)
+
+    @property
+    def views(self) -> list:
+        """The views (``views`` given as a callable: made on the first vote, none where no hit lies beyond
+        ``beyond``)."""
+        if callable(self._views):
+            self._views = self._views()
+        return list(self._views)
 
     def votes(self, world) -> tuple[np.ndarray, np.ndarray]:
         """Per point of ``world``: how many pulses (of the frames, ``window`` around each frame's pulse

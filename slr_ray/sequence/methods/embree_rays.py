@@ -129,10 +129,11 @@ class EmbreeRays(SequenceMethod):
 
 
 def _porosity(cache, frames, base, options: EmbreeRaysOptions):
-    """The frames' own range images (``base`` fitted to each) as see-through votes, or None."""
+    """The frames' own range images (``base`` fitted to each; made at the first vote) as see-through votes,
+    or None."""
     if not options.porous:
         return None
-    return Porosity([(cache.get(int(i))[0].pose, cache.view(int(i), base)) for i in frames], options.porous,
+    return Porosity(lambda: [(cache.get(int(i))[0].pose, cache.view(int(i), base)) for i in frames], options.porous,
                     options.porous_window, options.porous_beyond)
 
 
