@@ -43,7 +43,10 @@ METHODS = ("zbuffer", "adjacent", "nearest", "fpa", "rays", "embree-rays")
 VARIANTS = {"no weak-triangle rule": {"embree_rays_weak_ratio": 0}, "weak 0.05": {"embree_rays_weak_ratio": 0.05},
             "ratio 0.5": {"embree_rays_max_ratio": 0.5}, "gap 0.1": {"embree_rays_gap": 0.1},
             "fill 1 (every pulse the meshes miss that holds a union point: fpa)": {"embree_rays_fill": 1},
-            "fill 3": {"embree_rays_fill": 3}}
+            "fill 3": {"embree_rays_fill": 3},
+            "porous 0 (the first surface: before #46's see-through)": {"embree_rays_porous": 0},
+            "porous window 1, margin 1, from 0 m": {"embree_rays_porous": 1.0, "embree_rays_porous_window": 1,
+                                                     "embree_rays_porous_beyond": 0}}
 KEYS = ("points", "F@5cm", "depth_medae_m", "depth_rmse_m", "drop_accuracy", "cd_sum_m2", "cd_sim_to_real_m2",
         "cd_real_to_sim_m2")
 

@@ -613,3 +613,64 @@ def test_returns_in_pulses_the_frames_fired_from_the_target_pose_left_empty_are_
     assert np.array_equal(np.sort(kept.keys), np.sort(keys[~gone]))  # was every pulse
     moved = keep_voted(ret, src, source, here + [0.7, 0, 0], np.zeros(3), pat)
     assert len(moved) == len(ret)
+
+
+def _fence_views(pat, fence_seen: bool):
+    """Two frames 1 m either side of the target (origin) whose pulses toward the fence (x = 10 m, |y| <= 3,
+    -1 <= z <= 2) returned from the wall behind it (x = 20 m), or, ``fence_seen``, from the fence."""
+    from slr_ray.sequence.sources import SourceView
+
+    d, v, h = pat.rays()
+    views = []
+    for y0 in (-1.0, 1.0):
+        pose = np.eye(4)
+        pose[1, 3] = y0
+        with np.errstate(divide="ignore", invalid="ignore"):
+            wall, fence = 20.0 / d[:, 0], 10.0 / d[:, 0]
+        on = (d[:, 0] > 0) & (np.abs(y0 + fence * d[:, 1]) <= 3) & (np.abs(fence * d[:, 2] - 0.5) <= 1.5)
+        t = np.where(d[:, 0] > 0, np.where(on & fence_seen, fence, wall), np.nan)
+        img = np.full(pat.shape, np.nan)
+        img[v, h] = t
+        views.append((pose, SourceView(pat, None, img)))
+    return views
+
+
+def test_a_fence_the_other_frames_saw_through_is_passed_to_the_wall_behind():
+    """--embree-rays-porous (#46): the first surface a ray meets (a frame's mesh of a fence in front of a
+    wall) is passed where more of the window's frames' pulses went through it than stopped on it; where they
+    stopped on it the fence stays; with a region's votes (window 1) about the share that went through pass,
+    the same rays every run."""
+    from slr_ray.sequence.methods.embree_rays import EmbreeRaysOptions
+    from slr_ray.sequence.porous import Porosity
+
+    pat = sensor("velodyne_vlp16")
+    fence = [[10, -3, -1], [10, 3, -1], [10, 3, 2], [10, -3, 2]]
+    wall = [[20, -40, -30], [20, 40, -30], [20, 40, 30], [20, -40, 30]]
+    v = np.array(fence + wall, np.float64)
+    faces = np.array([[0, 1, 2], [0, 2, 3], [4, 5, 6], [4, 6, 7]], np.int64)
+    surfaces = [(RayScene.triangles(v, faces), faces, 0, None, None)]
+    own = _fence_views(pat, True)[:1]  # the fence's own frame stopped on it
+
+    def cast(porosity=None):
+        return cast_embree_rays(v, pat, surfaces=surfaces, pose=np.eye(4), porosity=porosity)
+
+    first = cast()
+    behind = first.points[:, 0] < 15  # the fence's rays
+    assert behind.sum() > 50 and np.allclose(first.points[behind, 0], 10, atol=1e-3)
+    y, z = first.points[:, 1], first.points[:, 2]
+    inside = behind & (np.abs(y) < 2.8) & (np.abs(z - 0.5) < 1.3)  # off its edges (a pixel's quantisation)
+    assert np.array_equal(cast(Porosity(own + _fence_views(pat, False), 1.0)).points, first.points)  # nearer
+    # than porous.BEYOND (20 m): kept
+    passed = cast(Porosity(own + _fence_views(pat, False), 1.0, beyond=0.0))
+    assert np.array_equal(passed.keys, first.keys)
+    assert np.allclose(passed.points[behind, 0], 20, atol=1e-3)  # through the fence to the wall
+    assert np.array_equal(passed.points[~behind], first.points[~behind])
+    solid = cast(Porosity(own + _fence_views(pat, True), 1.0, beyond=0.0))  # the frames stopped on it: a fence
+    assert np.array_equal(solid.points[inside | ~behind], first.points[inside | ~behind])
+    # a region's votes: 2 of 3 frames through: about 2/3 of the fence's rays pass, the same ones each run
+    share = [cast(Porosity(own + _fence_views(pat, False), 1.0, window=1, beyond=0.0)) for _ in range(2)]
+    assert np.array_equal(share[0].points, share[1].points)
+    through = share[0].points[inside, 0] > 15
+    assert 0.5 < through.mean() < 0.8
+    with pytest.raises(ValueError, match="porous"):
+        EmbreeRaysOptions(porous=-1.0).check()

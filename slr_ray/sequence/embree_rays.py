@@ -58,6 +58,7 @@ from .estimators import FPA_GAP, PulseReturns, fpa_returns
 from .rays import (PHASE_COHERENCE, RayModel, fit_ray_model, frame_motion, pattern_ray_model,
                    sweep_offsets)
 from . import ring_mesh
+from .porous import pass_porous
 from .ring_mesh import (MAX_RATIO, MAX_STEP_COLUMNS, MAX_STEP_DEG, WEAK_RATIO, frame_mesh_spread,
                         frame_mesh, open_edge_skirts, ratio_widening, skirt_vertices)
 from .sources import known_beams
@@ -277,11 +278,13 @@ def _first_peak(t, gap):
 
 
 def cast_embree_rays(points, pattern, model: RayModel | None = None, motion=(0.0, 0.0, 0.0), gap: float = EMBREE_GAP,
-                     *, surfaces, pose) -> PulseReturns:
+                     *, surfaces, pose, porosity=None) -> PulseReturns:
     """One return per pulse of ``pattern``: ``model``'s rays (default the pattern's own) from the target at
     ``pose`` (world) cast into ``surfaces`` (``(scene, faces, offset)`` of :meth:`MeshFrames.add`, one a
     frame of the window); ``points`` the union (float64, the target's frame; the return's ``index`` is the
-    union point nearest it among its triangle's corners). ``cast_rays``' arguments (module docstring)."""
+    union point nearest it among its triangle's corners). ``cast_rays``' arguments (module docstring).
+    ``porosity`` (:class:`~slr_ray.sequence.porous.Porosity`): a first surface other frames went through
+    is passed (:func:`~slr_ray.sequence.porous.pass_porous`)."""
     if not gap > 0:
         raise InputValueError(f"the fpa gap must be > 0 m, got {gap}")
     model = model or pattern_ray_model(pattern)
@@ -316,6 +319,8 @@ def cast_embree_rays(points, pattern, model: RayModel | None = None, motion=(0.0
     strong = np.isfinite(ts).any(axis=1)[:, None]
     np.copyto(t, ts, where=strong)
     np.copyto(prims, ps, where=strong)
+    if porosity is not None and live:
+        pass_porous(porosity, live, (ow, dw), (t, prims), gap, _first_peak, _live_debias(live, model))
     tt, first = _first_peak(t, gap)
     hitm = np.flatnonzero(np.isfinite(tt))
     tt = tt[hitm]
@@ -328,6 +333,18 @@ def cast_embree_rays(points, pattern, model: RayModel | None = None, motion=(0.0
     keys, ranges = pattern.pulse_ids(hit, np.zeros(3))
     win = _pulse_winners(keys, ranges)
     return PulseReturns(keys[win].astype(np.int64), ranges[win], hit[win], index[win])
+
+
+def _live_debias(live, model):
+    """``debias(t, prims, k)`` of frame ``k`` of ``live`` (its raw mesh's hits, as the cast's), or None."""
+    if model.range_bias is None:
+        return None
+
+    def debias(t, prims, k):
+        _, faces, _, raw, _ = live[k]
+        if raw is not None:
+            _debias(t, prims, faces, raw, model.range_bias)
+    return debias
 
 
 def _nearest_corners(pts, hit, hitm, first, prims, live) -> np.ndarray:

@@ -14,6 +14,8 @@ import numpy as np
 from ...errors import InputValueError
 from ..embree_rays import (EMBREE_GAP, MAX_RATIO, WEAK_RATIO, MeshFrames, cast_embree_rays, fill_missing,
                            fit_embree_model, mesh_problem, union_meshes, with_azimuth_phases)
+from ..porous import BEYOND, Porosity
+from ..porous import MARGIN as POROUS_MARGIN
 from ..rays import frame_motion, pattern_ray_model
 from ..same_pose import keep_voted
 from ..union import to_frame
@@ -39,6 +41,16 @@ class EmbreeRaysOptions(MethodOptions):
     fill : int
         Pulses no mesh meets that hold at least this many union points take the union's first-peak
         average (0: none; 1: every such pulse: more coverage, less depth and drop accuracy).
+    porous : float
+        See-through margin (m): a first surface that more of the window's frames' pulses went through
+        (returned this far beyond it) than stopped on (within it) is passed, the ray cast on behind it
+        (slr_ray.sequence.porous; 0: first surface always, the previous default).
+    porous_window : int
+        With porous: 0, each frame's one pulse through the hit votes; w >= 1, its pulses w rows and 2w
+        columns around vote too and a ray passes where the region's share that went through exceeds the
+        ray's own threshold (a fixed low-discrepancy sequence): about that share of its rays pass.
+    porous_beyond : float
+        With porous: hits nearer than this (m) are kept (near, the passes were a silhouette's pixels).
     """
 
     PREFIX: ClassVar[str] = "embree_rays"
@@ -46,6 +58,9 @@ class EmbreeRaysOptions(MethodOptions):
     max_ratio: float = MAX_RATIO
     weak_ratio: float = WEAK_RATIO
     fill: int = 0
+    porous: float = POROUS_MARGIN
+    porous_window: int = 0
+    porous_beyond: float = BEYOND
 
     def check(self) -> None:
         for name in ("gap", "max_ratio"):
@@ -58,6 +73,12 @@ class EmbreeRaysOptions(MethodOptions):
             raise InputValueError(f"--embree-rays-weak-ratio ({self.weak_ratio}) must be under --embree-rays-max-ratio "
                                   f"({self.max_ratio}): triangles beyond max-ratio are not meshed, so none would be "
                                   "weak (0 turns the weak rule off)")
+        if not (isinstance(self.porous, (int, float)) and self.porous >= 0):
+            raise InputValueError(f"--embree-rays-porous must be metres >= 0, got {self.porous}")
+        if not (isinstance(self.porous_window, (int, np.integer)) and self.porous_window >= 0):
+            raise InputValueError(f"--embree-rays-porous-window must be a count >= 0, got {self.porous_window}")
+        if not (isinstance(self.porous_beyond, (int, float)) and self.porous_beyond >= 0):
+            raise InputValueError(f"--embree-rays-porous-beyond must be metres >= 0, got {self.porous_beyond}")
         if not (isinstance(self.fill, (int, np.integer)) and self.fill >= 0):
             raise InputValueError(f"--embree-rays-fill must be a count >= 0, got {self.fill}")
 
@@ -95,7 +116,8 @@ class EmbreeRays(SequenceMethod):
             surfaces = union_meshes(held.cache, held.others, held.base, None, held.drop_moving, held.see_through,
                                     (held.target,), options.meshes)
         ret = cast_embree_rays(held.u, held.pattern, model, frame_motion(held.seq.poses, held.target), options.gap,
-                               surfaces=surfaces, pose=held.pose)
+                               surfaces=surfaces, pose=held.pose,
+                               porosity=_porosity(held.cache, held.others, held.base, options))
         if held.target_base is None:  # the frames' own sensor fired again: those fired from its pose vote
             ret = keep_voted(ret, held.u, held.union.source, held.union.origins, held.pose[:3, 3], held.pattern)
         ret = fill_missing(ret, held.u, held.pattern, options.fill)
@@ -107,9 +129,18 @@ class EmbreeRays(SequenceMethod):
                                 frame.see_through, (), options.meshes)
         u = to_frame(union.points, frame.pose)
         ret = cast_embree_rays(u, frame.pattern, pattern_ray_model(frame.pattern), gap=options.gap, surfaces=surfaces,
-                               pose=frame.pose)
+                               pose=frame.pose, porosity=_porosity(frame.cache, frame.frames, frame.source, options))
         ret = fill_missing(ret, u, frame.pattern, options.fill)
         return ret, {n: v[ret.index] for n, v in union.attributes.items()}
+
+
+def _porosity(cache, frames, base, options: EmbreeRaysOptions):
+    """The frames' own range images (``base`` fitted to each; made at the first vote) as see-through votes,
+    or None."""
+    if not options.porous:
+        return None
+    return Porosity(lambda: [(cache.get(int(i))[0].pose, cache.view(int(i), base)) for i in frames], options.porous,
+                    options.porous_window, options.porous_beyond)
 
 
 METHOD = EmbreeRays()
