@@ -305,6 +305,38 @@ def test_one_pass_ties_match_the_brute_force_rule_and_the_two_query_rule(oriente
     assert np.any(scene.intersect(o, dirs).owners[stable] != owner[stable])
 
 
+@pytest.mark.parametrize("cells", [0.0, 1.0])
+@settings(max_examples=4, deadline=None)
+@given(seed=st.integers(0, 10_000), ties=st.sampled_from([1.0, 3.0]))
+def test_one_pass_ties_with_the_silhouette_rule_match_the_two_query_rule(cells, seed, ties):
+    # the silhouette rule cuts hits inside the one-pass filter (candidates and the nearest hit
+    # alike): the answers are those of the two-query rule, which tests every hit of the window
+    import math
+
+    rng = np.random.default_rng(seed)
+    n = 300
+    c = rng.uniform(-3, 3, (n, 3)) * [1, 1, 0.3]
+    r = rng.uniform(0.1, 1.0, n)
+    nrm = _unit(rng, n) * [0.5, 0.5, 1]
+    o = np.array([0.3, -0.2, 6.0])
+    dirs = _unit(rng, 1500)
+    dirs[:, 2] = -np.abs(dirs[:, 2]) - 1.0
+    dirs /= np.linalg.norm(dirs, axis=1, keepdims=True)
+    scene = RayScene.discs(c, r, nrm)
+    # a primary 0.2 m from the rays' origin (the rule holds from 0.8 m on), pulses of 4 deg
+    step = math.radians(4.0)
+    geo = np.array([*(o + [0.2, 0.0, 0.0]), 0.0, step, step, 45, 90, cells])
+    bits = (rng.random(n) < 0.5).astype(np.uint8) * rng.integers(0, 256, n).astype(np.uint8)
+    clip = (bits, geo, np.zeros(0))
+    one = scene.intersect(o, dirs, ties=ties, clip=clip)
+    two = scene.intersect(o, dirs, ties=ties, clip=clip, one_pass=False)
+    for field in ("primitives", "owners", "distances"):
+        np.testing.assert_array_equal(getattr(one, field), getattr(two, field))
+    # the rule cuts hits here, and the tie rule changes answers
+    assert np.count_nonzero(one.owners != scene.intersect(o, dirs, ties=ties).owners) > 20
+    assert np.count_nonzero(one.owners != scene.intersect(o, dirs, clip=clip).owners) > 20
+
+
 def test_one_pass_ties_with_more_candidates_than_one_pass_holds():
     # 150 discs stacked 1 mm apart: more candidates than the filter keeps (64), so the
     # window is queried again; the answer is still the disc whose centre is nearest the ray
