@@ -70,7 +70,7 @@ __all__ = ["frame_mesh", "MeshFrames", "rays_of_model", "cast_embree_rays", "mes
 #: every this many points of a frame fitted for its own lasers' lines (frame_ray_model)
 FIT_STRIDE = 8
 #: every this many points of the frames fitted together for the lasers' lines (pooled_lines)
-POOL_STRIDE = 2
+POOL_STRIDE = FIT_STRIDE
 #: every this many points of a frame cast for the range biases (mesh_range_bias)
 BIAS_STRIDE = 16
 #: rounds of the range biases' fit against meshes that hold the same lasers' points (mesh_range_bias)
