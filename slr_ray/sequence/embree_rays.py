@@ -712,7 +712,8 @@ def fit_embree_model(seq, others, base, cache, drop_moving: bool = True, see_thr
     """``rays``' sensor fitted on the frames ``others`` (never a held-out one) and their raw meshes
     (:func:`union_meshes`, the union's order), which :func:`cast_embree_rays` casts into. Each frame's
     lasers' lines and sweep skew fitted on its own points (:func:`frame_ray_model`), the median over
-    ``others``; each laser's range bias against the other frames' raw meshes (:func:`mesh_range_bias`,
+    ``others``, the lines then fitted on their points together at that skew (:func:`pooled_lines`); each
+    laser's range bias against the other frames' raw meshes (:func:`mesh_range_bias`,
     each frame's points cast along its own fit's rays). Each frame's fit, mesh and casts are held on
     ``cache`` (:meth:`~slr_ray.sequence.union.FrameCache.state`): a sequence's held-out frames and a conversion's targets fit and mesh
     each frame once. ``joint``: the lines fitted on all of ``others``' points together (``rays``'
