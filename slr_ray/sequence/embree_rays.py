@@ -65,12 +65,14 @@ from .sources import known_beams
 from .union import Keep, rotate
 
 __all__ = ["frame_mesh", "MeshFrames", "rays_of_model", "cast_embree_rays", "mesh_range_bias", "union_meshes",
-           "frame_beams", "fit_embree_model", "fill_missing", "frame_surface", "frame_points_beams", "frame_ray_model",
+           "frame_beams", "fit_embree_model", "pooled_lines", "fill_missing", "frame_surface", "frame_points_beams", "frame_ray_model",
            "mesh_problem",
            "combined_model", "with_azimuth_phases", "table_unfitted", "ratio_widening", "elevation_rows", "MAX_RATIO", "MAX_STEP_DEG", "MAX_STEP_COLUMNS", "EMBREE_GAP", "WEAK_RATIO"]
 
 #: every this many points of a frame fitted for its own lasers' lines (frame_ray_model)
 FIT_STRIDE = 8
+#: every this many points of the frames fitted together for the lasers' lines (pooled_lines)
+POOL_STRIDE = FIT_STRIDE
 #: every this many points of a frame cast for the range biases (mesh_range_bias)
 BIAS_STRIDE = 16
 #: rounds of the range biases' fit against meshes that hold the same lasers' points (mesh_range_bias)
@@ -696,6 +698,27 @@ def combined_model(models) -> RayModel:
                     round(float(np.median([m.residual_deg for m in models])), 5))
 
 
+def pooled_lines(model: RayModel, cache, seq, frames, base) -> RayModel:
+    """``model`` (:func:`combined_model`'s) with its lasers' lines fitted on the points of ``frames`` together
+    at its skew (``rays``' fit, one skew: the median of the frames' own; every :data:`FIT_STRIDE`-th point;
+    a laser too sparse to fit at its table's elevation, :func:`table_unfitted`). The median of each frame's
+    own height and elevation is not a line of their points: on the BALM unit (rings 1.4 deg apart, deskewed
+    frames) the two differ by 0.2-0.3 deg a laser, and the pooled lines cast its held-out frames' pulses
+    2 mm nearer their real depths (MedAE; docs/sequences.md)."""
+    parts = []
+    for i in frames:
+        pts, beams, _ = frame_points_beams(cache, int(i), base)
+        ok = beams >= 0
+        parts.append((pts[ok], beams[ok], frame_motion(seq.poses, int(i))))
+    try:
+        lines = fit_ray_model(parts, base.n_beams, skews=[model.skew], stride=POOL_STRIDE)
+    except InputValueError:  # too few points on its lasers
+        return model
+    lines = table_unfitted(lines, np.concatenate([p[::POOL_STRIDE] for p, _, _ in parts]),
+                           np.concatenate([b[::POOL_STRIDE] for _, b, _ in parts]), base)
+    return dataclasses.replace(model, elevation=lines.elevation, height=lines.height)  # the frames' own residual
+
+
 def _frame_bias_casts(cache, seq, j: int, model: RayModel, base, targets, surfaces, sel):
     """Frame ``j``'s every :data:`BIAS_STRIDE`-th point cast along its laser (``model``, its own fit) onto each
     frame of ``targets``' raw mesh (``surfaces``); each frame pair's hits held on ``cache`` with ``j``."""
@@ -725,7 +748,8 @@ def fit_embree_model(seq, others, base, cache, drop_moving: bool = True, see_thr
     """``rays``' sensor fitted on the frames ``others`` (never a held-out one) and their raw meshes
     (:func:`union_meshes`, the union's order), which :func:`cast_embree_rays` casts into. Each frame's
     lasers' lines and sweep skew fitted on its own points (:func:`frame_ray_model`), the median over
-    ``others``; each laser's range bias against the other frames' raw meshes (:func:`mesh_range_bias`,
+    ``others``, the lines then fitted on their points together at that skew (:func:`pooled_lines`); each
+    laser's range bias against the other frames' raw meshes (:func:`mesh_range_bias`,
     each frame's points cast along its own fit's rays). Each frame's fit, mesh and casts are held on
     ``cache`` (:meth:`~slr_ray.sequence.union.FrameCache.state`): a sequence's held-out frames and a conversion's targets fit and mesh
     each frame once. ``joint``: the lines fitted on all of ``others``' points together (``rays``'
@@ -760,6 +784,7 @@ def fit_embree_model(seq, others, base, cache, drop_moving: bool = True, see_thr
     model = combined_model([m for _, _, m in known])
     if len(known) < 2:
         return model, surfaces
+    model = pooled_lines(model, cache, seq, [i for i, _, _ in known], base)
     sel = Keep.of(drop_moving, see_through, exclude).key(-1)
     idx, surf = [i for i, _, _ in known], [s for _, s, _ in known]
     casts = [_frame_bias_casts(cache, seq, j, m, base, idx, surf, sel) for j, _, m in known]
