@@ -1,4 +1,5 @@
 import os
+from pathlib import Path
 
 import numpy as np
 import pytest
@@ -13,6 +14,26 @@ settings.register_profile("explore", derandomize=False, print_blob=True)
 settings.load_profile(os.environ.get("HYPOTHESIS_PROFILE", "ci"))
 
 from slr_ray.core import BinTables
+
+
+def shared_data(start=None) -> Path:
+    """The real-data directory (``shared/data``), by the rule of ``benchmarks/common.py``'s
+    ``data_dir``: ``$SLR_RAY_DATA`` where set, else the first ``shared/data`` found walking up from
+    ``start`` (default this checkout): the main checkout's parent holds it, a git worktree's
+    (``/work/wt/NAME``) lies a level further down. Where none is found (CI), the path the main
+    checkout's layout gives, which does not exist: the tests that need it skip."""
+    env = os.environ.get("SLR_RAY_DATA")
+    if env:
+        return Path(env)
+    here = Path(start or Path(__file__).resolve().parents[1]).resolve()
+    for d in (here, *here.parents):
+        if (d / "shared" / "data").is_dir():
+            return d / "shared" / "data"
+    return here.parent / "shared" / "data"
+
+
+#: the real data of every test that reads it (absent on CI: those tests skip)
+DATA = shared_data()
 
 
 def brute_grid_neighbours(keys, ranges, shape, gate):

@@ -3,7 +3,6 @@
 
 import json
 import warnings
-from pathlib import Path
 
 import numpy as np
 import pytest
@@ -16,7 +15,9 @@ from slr_ray.effects import Effects, RayDropModel, simulate_given
 from slr_ray.io import PointCloud, read_cloud, write_cloud
 from slr_ray.scan import Scan
 
-KITTI = Path(__file__).resolve().parents[2] / "shared" / "data" / "kitti_hdl64_000000.bin"
+from conftest import DATA
+
+KITTI = DATA / "kitti_hdl64_000000.bin"
 PATTERN = ["--resolution", "1", "--zenith-range", "80", "100"]
 
 

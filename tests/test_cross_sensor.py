@@ -2,7 +2,6 @@
 
 import json
 import math
-from pathlib import Path
 
 import numpy as np
 import pytest
@@ -11,11 +10,10 @@ from slr_ray.errors import InputValueError, SlrWarning
 from slr_ray.evaluate import REACH, evaluate_pair, reach_table, rig_extrinsic
 from slr_ray.sensors import sensor
 
-from conftest import CliRun
+from conftest import DATA as SHARED_DATA, CliRun
 from test_evaluate import room
 
-DATA = next((p / "shared" / "data" for p in Path(__file__).resolve().parents[1:4] if (p / "shared" / "data").is_dir()),
-            Path(__file__).resolve().parents[2] / "shared" / "data") / "hesai_p64_qt64"
+DATA = SHARED_DATA / "hesai_p64_qt64"
 SOURCE = sensor("velodyne_hdl64e_s2", columns=720, max_range=120.0)
 TARGET = sensor("velodyne_vlp16", columns=720, max_range=100.0)
 YAW = math.radians(30.0)

@@ -1,7 +1,6 @@
 """Ray drop (slr_ray.effects.raydrop): fit recovers its generating parameters; frame extraction is exact."""
 
 import json
-from pathlib import Path
 
 import numpy as np
 import pytest
@@ -9,8 +8,10 @@ import pytest
 from slr_ray import InputValueError, ScanPattern, prepare
 from slr_ray.effects import Effects, RayDropModel, fit_ray_drop, frame_pulses, rings_from_scan_order, simulate
 
+from conftest import DATA
+
 TRUE = (-4.0, 1.5, 0.5, -1.0, 3.0, -2.0)
-KITTI = Path(__file__).resolve().parents[2] / "shared" / "data" / "kitti_hdl64_000000.bin"
+KITTI = DATA / "kitti_hdl64_000000.bin"
 
 
 @pytest.mark.parametrize("seed", [0, 1])

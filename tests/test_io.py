@@ -79,9 +79,7 @@ def test_failed_write_leaves_nothing(tmp_path):
     assert list(tmp_path.iterdir()) == []
 
 
-from pathlib import Path  # noqa: E402
-
-DATA = Path(__file__).resolve().parents[2] / "shared" / "data"
+from conftest import DATA  # noqa: E402
 
 
 @pytest.mark.parametrize("ext", [".las", ".laz"])
@@ -290,7 +288,7 @@ def test_kitti_bin_says_which_attributes_it_cannot_hold(tmp_path):
 
 # --- LAS/LAZ fidelity --------------------------------------------------------------------------------------
 
-SHARED = __import__("pathlib").Path(__file__).resolve().parents[2] / "shared" / "data"
+SHARED = DATA
 
 
 def _las14(path, n=500):

@@ -12,8 +12,7 @@ from slr_ray.errors import SlrNote
 from slr_ray.io import PointCloud, check_format, read_cloud, write_cloud
 from slr_ray.io.pcd import _lzf_decode
 
-DATA = next((p / "shared" / "data" for p in Path(__file__).resolve().parents[1:4] if (p / "shared" / "data").is_dir()),
-            Path(__file__).resolve().parents[2] / "shared" / "data")  # ../shared/data of the checkout
+from conftest import DATA
 SHARED_PCDS = sorted(DATA.glob("*/*.pcd"))
 
 

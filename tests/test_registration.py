@@ -5,7 +5,6 @@ whose fitness, reverse fitness, inlier RMSE or tilt is not what overlapping fram
 
 import json
 import math
-from pathlib import Path
 
 import numpy as np
 import pytest
@@ -17,11 +16,10 @@ from slr_ray.registration import (REGISTRATION_BOUNDS, Registration, check_regis
                                   registration_checks)
 from slr_ray.sensors import BeamPattern
 
+from conftest import DATA
 from test_evaluate import room as _room  # the room scene the pair tests register
 
 SMALL = BeamPattern(np.linspace(2.0, -24.0, 16), 360, max_range=120.0, name="small")
-DATA = next((p / "shared" / "data" for p in Path(__file__).resolve().parents[1:4] if (p / "shared" / "data").is_dir()),
-            Path(__file__).resolve().parents[1] / ".." / "shared" / "data")
 
 
 def _pose(tilt_deg=0.0, turn_deg=0.0):

@@ -16,8 +16,7 @@ from slr_ray.io import PointCloud, write_cloud
 from slr_ray.sensorfit import fit_card
 from slr_ray.sensors import BeamPattern, beams_outside, card_dict, read_card, sensor, write_card
 
-DATA = next((p / "shared" / "data" for p in Path(__file__).resolve().parents[1:4] if (p / "shared" / "data").is_dir()),
-            Path(__file__).resolve().parents[2] / "shared" / "data")
+from conftest import DATA
 
 
 def _frame(table, heights=None, drop=0.1, seed=0, columns=None, ring_of_beam=None):

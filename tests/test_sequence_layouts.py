@@ -13,9 +13,7 @@ from slr_ray.sequence import accumulate, read_sequence
 from slr_ray.sequence.layouts import REGISTRY, FrameSource, Sequence, SequenceInputs, detect
 from slr_ray.sequence.poses import read_calib_tr, read_pose_blocks, read_trajectory, write_kitti_poses
 from slr_ray.sequence.synthetic import KITTI_TR
-from conftest import CliRun
-
-DATA = Path("/work/shared/data")
+from conftest import DATA, CliRun
 
 
 def _velodyne_poses(n):

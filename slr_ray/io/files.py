@@ -35,13 +35,16 @@ import os
 import warnings
 from pathlib import Path
 
-import laspy
 import numpy as np
 
+from .. import lazy
 from ..errors import FormatError, SlrWarning
 from .atomic import atomic_path
 from .cloud import PointCloud
 from .formats import REGISTRY
+
+#: laspy, loaded on first use (slr_ray.lazy: the command line starts without it, and without requests)
+laspy = lazy.module("laspy")
 
 __all__ = ["read_cloud", "write_cloud", "check_format", "field_names"]
 

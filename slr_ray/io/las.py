@@ -17,14 +17,17 @@ import struct
 import warnings
 from pathlib import Path
 
-import laspy
 import lazrs
 import numpy as np
-from laspy.vlrs.vlrlist import VLRList
 
+from .. import lazy
 from ..errors import FormatError
 from .cloud import LasRecords, PointCloud
 from .format import Format
+
+#: laspy, loaded on first use (slr_ray.lazy: the command line starts without it, and without requests)
+laspy = lazy.module("laspy")
+laspy_vlrs = lazy.module("laspy.vlrs.vlrlist")
 
 __all__ = ["read", "write", "check_las_size", "FORMATS"]
 
@@ -273,12 +276,12 @@ def write(path, cloud, src=None, compress: bool | None = None) -> None:
             warnings.warn(f"{path}: COPC records dropped (they index the whole input, not this subset); "
                           "the file is a plain LAS/LAZ", stacklevel=4)
         if getattr(header, "evlrs", None) is not None:  # laspy keeps EVLRs read with the header too
-            header.evlrs = VLRList(evlrs)
+            header.evlrs = laspy_vlrs.VLRList(evlrs)
         # the records given, never header.point_count (a header that lies, or 7e8 points, would be allocated);
         # read in place, and copied only when something is written into them (the caller's stay as they were)
         las = laspy.LasData(header, laspy.ScaleAwarePointRecord(src.array, header.point_format,
                                                                 header.scales, header.offsets))
-        las.evlrs = VLRList(evlrs)
+        las.evlrs = laspy_vlrs.VLRList(evlrs)
         moved = not all(np.array_equal(np.asarray(las[c]), cloud.points[:, i]) for i, c in enumerate("xyz"))
         have = set(las.point_format.dimension_names)
         edited = [k for k, v in cloud.attributes.items()

@@ -13,13 +13,16 @@ from __future__ import annotations
 
 import warnings
 
-import laspy
 import numpy as np
 
+from .. import lazy
 from ..errors import FormatError, SlrWarning
 from ..progress import bar as progress_bar
 from .cloud import LasRecords, PointCloud
 from .las import check_las_size
+
+#: laspy, loaded on first use (slr_ray.lazy: the command line starts without it, and without requests)
+laspy = lazy.module("laspy")
 
 __all__ = ["las_bounds", "checked_bounds", "las_chunks", "las_xyz", "las_bar", "records_cloud", "STREAMED_FORMATS", "DEFAULT_CHUNK"]
 

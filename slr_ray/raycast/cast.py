@@ -15,8 +15,9 @@ from __future__ import annotations
 import math
 
 import numpy as np
-from numba import carray, cfunc, njit, types
+from numba import carray, njit, types
 
+from .. import lazy
 from .cull import could_hit
 from .intrinsics import as_pointer as _as_pointer, call3 as _call3, call4 as _call4, prefetch as _prefetch
 from .library import FEATURE_FLAGS_ALL, INVALID_ID, RAY_QUERY_FLAG_INVOKE_ARGUMENT_FILTER
@@ -267,7 +268,7 @@ def _clipped(ctx, ctxf, owner, t, dx, dy, dz):
     return abs(dh) > max(1.0, math.floor(geo[4] * r / (rho * geo[5])))
 
 
-@cfunc(types.void(types.voidptr), cache=True, nopython=True)
+@lazy.cfunc(types.void(types.voidptr), cache=True, nopython=True)  # compiled on the first cast (slr_ray.lazy)
 def FILTER(fargs):
     """RTCFilterFunctionN, for each valid ray of the packet: skip discs holding the ray
     origin; in tie mode, record the candidate whose centre is nearest the ray (then
