@@ -275,6 +275,37 @@ def test_fill_gives_the_pulses_the_meshes_miss_the_unions_first_peak_only():
     assert fill_missing(half, pts, pat, 0) is half
 
 
+def test_fill_around_fills_only_the_missed_pulses_no_return_is_near():
+    """--embree-rays-fill-around (#46 item 1, the OS1-128's coverage): with a >= 1 a missed pulse is filled
+    only where no return lies within a rows and 2a columns (columns wrapping); the returns kept as they
+    are, the fills a subset of fill_missing's, and a = 0 fill_missing's own."""
+    from slr_ray.sequence.embree_rays import fill_missing
+    from slr_ray.sequence.estimators import PulseReturns, fpa_returns
+    from slr_ray.sequence.methods.embree_rays import fill_holes
+
+    pat = sensor("velodyne_vlp16")
+    rng = np.random.default_rng(3)
+    pts = rng.normal(size=(6000, 3)) * [20, 20, 1]
+    f = fpa_returns(pts, pat)
+    sel = rng.random(len(f)) < 0.3
+    some = PulseReturns(f.keys[sel], f.ranges[sel] + 1.0, f.points[sel], f.index[sel])
+    every = fill_missing(some, pts, pat, 1)
+    assert np.array_equal(fill_holes(some, pts, pat, 1, 0).keys, every.keys)
+    rows, cols = pat.shape
+    r0, c0 = np.divmod(some.keys, cols)
+    for a in (1, 2):
+        out = fill_holes(some, pts, pat, 1, a)
+        mine = np.isin(out.keys, some.keys)
+        assert np.array_equal(out.ranges[mine], some.ranges)
+        assert set(out.keys[~mine]) <= set(every.keys) - set(some.keys)
+        for k in every.keys[~np.isin(every.keys, some.keys)]:
+            r, c = divmod(int(k), cols)
+            dc = np.abs(c0 - c)
+            near = np.any((np.abs(r0 - r) <= a) & (np.minimum(dc, cols - dc) <= 2 * a))
+            assert (k in out.keys) == (not near)
+    assert 0 < len(fill_holes(some, pts, pat, 1, 1)) - len(some) < len(every) - len(some)
+
+
 def test_rings_whose_ids_are_not_in_elevation_order_are_meshed_by_elevation():
     """A unit whose ring ids do not follow elevation (a Pandar64's): each ring is joined to the rings next
     to it in elevation (elevation_rows), the mesh the one of ordered ids (#46; before, ids were taken for

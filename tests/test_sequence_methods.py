@@ -78,7 +78,8 @@ def test_the_registry_holds_every_method_once_with_its_capabilities():
     assert M.method_options() == {"fpa_gap": 0.1, "rays_neighbours": 64, "rays_max_shift": 0.3, "tsdf_voxel": 0.05,
                                   "tsdf_truncation": 0.25, "tsdf_xy_bound": 50.0, "tsdf_z_bound": 5.0,
                                   "embree_rays_gap": 0.2, "embree_rays_max_ratio": 0.3, "embree_rays_weak_ratio": 0.1,
-                                  "embree_rays_fill": 0, "embree_rays_porous": 0.5, "embree_rays_porous_window": 0,
+                                  "embree_rays_fill": 0, "embree_rays_fill_around": 0,
+                                  "embree_rays_porous": 0.5, "embree_rays_porous_window": 0,
                                   "embree_rays_porous_beyond": 20.0}
     with pytest.raises(InputValueError, match="known: \\['embree_rays_fill', .*'fpa_gap', "):
         M.method_options({"fpa_gapp": 0.2})

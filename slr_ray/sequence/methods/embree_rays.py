@@ -14,6 +14,7 @@ import numpy as np
 from ...errors import InputValueError
 from ..embree_rays import (EMBREE_GAP, MAX_RATIO, WEAK_RATIO, MeshFrames, cast_embree_rays, fill_missing,
                            fit_embree_model, mesh_problem, union_meshes, with_azimuth_phases)
+from ..estimators import PulseReturns
 from ..porous import BEYOND, Porosity
 from ..porous import MARGIN as POROUS_MARGIN
 from ..rays import frame_motion, pattern_ray_model
@@ -41,6 +42,9 @@ class EmbreeRaysOptions(MethodOptions):
     fill : int
         Pulses no mesh meets that hold at least this many union points take the union's first-peak
         average (0: none; 1: every such pulse: more coverage, less depth and drop accuracy).
+    fill_around : int
+        With fill: 0, every such pulse; a >= 1, only those with no mesh return within a rows and 2a
+        columns (the holes of the meshes, not their edges).
     porous : float
         See-through margin (m): a first surface that more of the window's frames' pulses went through
         (returned this far beyond it) than stopped on (within it) is passed, the ray cast on behind it
@@ -58,6 +62,7 @@ class EmbreeRaysOptions(MethodOptions):
     max_ratio: float = MAX_RATIO
     weak_ratio: float = WEAK_RATIO
     fill: int = 0
+    fill_around: int = 0
     porous: float = POROUS_MARGIN
     porous_window: int = 0
     porous_beyond: float = BEYOND
@@ -81,6 +86,8 @@ class EmbreeRaysOptions(MethodOptions):
             raise InputValueError(f"--embree-rays-porous-beyond must be metres >= 0, got {self.porous_beyond}")
         if not (isinstance(self.fill, (int, np.integer)) and self.fill >= 0):
             raise InputValueError(f"--embree-rays-fill must be a count >= 0, got {self.fill}")
+        if not (isinstance(self.fill_around, (int, np.integer)) and self.fill_around >= 0):
+            raise InputValueError(f"--embree-rays-fill-around must be a count >= 0, got {self.fill_around}")
 
     @property
     def weak(self):
@@ -120,7 +127,7 @@ class EmbreeRays(SequenceMethod):
                                porosity=_porosity(held.cache, held.others, held.base, options))
         if held.target_base is None:  # the frames' own sensor fired again: those fired from its pose vote
             ret = keep_voted(ret, held.u, held.union.source, held.union.origins, held.pose[:3, 3], held.pattern)
-        ret = fill_missing(ret, held.u, held.pattern, options.fill)
+        ret = fill_holes(ret, held.u, held.pattern, options.fill, options.fill_around)
         return ret, ret.points, model.to_dict()
 
     def convert_frame(self, frame: TargetFrame, options: EmbreeRaysOptions):
@@ -130,8 +137,28 @@ class EmbreeRays(SequenceMethod):
         u = to_frame(union.points, frame.pose)
         ret = cast_embree_rays(u, frame.pattern, pattern_ray_model(frame.pattern), gap=options.gap, surfaces=surfaces,
                                pose=frame.pose, porosity=_porosity(frame.cache, frame.frames, frame.source, options))
-        ret = fill_missing(ret, u, frame.pattern, options.fill)
+        ret = fill_holes(ret, u, frame.pattern, options.fill, options.fill_around)
         return ret, {n: v[ret.index] for n, v in union.attributes.items()}
+
+
+def fill_holes(ret: PulseReturns, points, pattern, least: int = 1, around: int = 0) -> PulseReturns:
+    """:func:`~slr_ray.sequence.embree_rays.fill_missing`, keeping (``around`` >= 1) only the fills of
+    pulses with no return of ``ret`` within ``around`` rows and ``2 around`` columns (columns wrap):
+    the meshes' holes (far sparse surfaces one frame saw), not their edges, where a lone union point
+    is more often a silhouette's than what the pulse met (docs/sequences.md, the OS1-128's coverage)."""
+    filled = fill_missing(ret, points, pattern, least)
+    if around < 1 or len(filled) == len(ret):
+        return filled
+    rows, cols = pattern.shape
+    hit = np.zeros((rows + 2 * around, cols), bool)
+    hit[around:around + rows].reshape(-1)[ret.keys] = True  # rows padded (no wrap), columns wrap
+    near = np.zeros((rows, cols), bool)
+    for dr in range(2 * around + 1):
+        band = hit[dr:dr + rows]
+        for dc in range(-2 * around, 2 * around + 1):
+            near |= np.roll(band, dc, axis=1)
+    keep = ~near.reshape(-1)[filled.keys] | np.isin(filled.keys, ret.keys)
+    return PulseReturns(filled.keys[keep], filled.ranges[keep], filled.points[keep], filled.index[keep])
 
 
 def _porosity(cache, frames, base, options: EmbreeRaysOptions):
